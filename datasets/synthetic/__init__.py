@@ -1,0 +1,1 @@
+"""Deterministic, headless RGB-D renderer of indoor scenes with people, chairs and monitors."""

@@ -1,0 +1,400 @@
+"""TUM RGB-D text formats: image lists, trajectories, camera intrinsics. Pure NumPy.
+
+The layout (https://cvg.cit.tum.de/data/datasets/rgbd-dataset/file_formats):
+
+- ``rgb.txt`` / ``depth.txt``: ``timestamp filename`` per line, ``#`` starts a comment line;
+- ``groundtruth.txt`` and estimated trajectories: ``timestamp tx ty tz qx qy qz qw``
+  (camera-to-world, optical frame, metres, Hamilton quaternion with the scalar last);
+- depth PNGs: uint16, ``DEPTH_SCALE`` = 5000 units per metre, 0 = no measurement.
+
+Both the synthetic world (writer) and the SLAM harness (reader, never torch) use this module.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from os import PathLike
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from .errors import DataFormatError
+
+DEPTH_SCALE = 5000.0
+"""Depth PNG units per metre."""
+
+UNIT_QUATERNION_TOL = 1e-3
+"""Largest accepted deviation of a trajectory quaternion's norm from 1 (files hold 4 decimals)."""
+
+StrPath = str | PathLike[str]
+
+
+# --------------------------------------------------------------------------- rotations
+
+
+def quat_to_matrix(q: np.ndarray) -> np.ndarray:
+    """Rotation matrices ``(..., 3, 3)`` from unit quaternions ``(..., 4)`` ordered ``qx qy qz qw``."""
+    q = np.asarray(q, dtype=np.float64)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    x, y, z, w = np.moveaxis(q, -1, 0)
+    r = np.empty(q.shape[:-1] + (3, 3))
+    r[..., 0, 0] = 1 - 2 * (y * y + z * z)
+    r[..., 0, 1] = 2 * (x * y - z * w)
+    r[..., 0, 2] = 2 * (x * z + y * w)
+    r[..., 1, 0] = 2 * (x * y + z * w)
+    r[..., 1, 1] = 1 - 2 * (x * x + z * z)
+    r[..., 1, 2] = 2 * (y * z - x * w)
+    r[..., 2, 0] = 2 * (x * z - y * w)
+    r[..., 2, 1] = 2 * (y * z + x * w)
+    r[..., 2, 2] = 1 - 2 * (x * x + y * y)
+    return r
+
+
+def matrix_to_quat(r: np.ndarray) -> np.ndarray:
+    """Unit quaternions ``(..., 4)`` (``qx qy qz qw``, ``qw >= 0``) from rotations ``(..., 3, 3)``.
+
+    Shepperd's method: picks the numerically largest of the four candidate pivots.
+    """
+    r = np.asarray(r, dtype=np.float64)
+    flat = r.reshape(-1, 3, 3)
+    out = np.empty((flat.shape[0], 4))
+    for i, m in enumerate(flat):
+        tr = m[0, 0] + m[1, 1] + m[2, 2]
+        diag = (m[0, 0], m[1, 1], m[2, 2])
+        if tr >= max(diag):
+            s = 2.0 * math.sqrt(max(1.0 + tr, 0.0))
+            q = ((m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s, s / 4)
+        elif diag[0] >= diag[1] and diag[0] >= diag[2]:
+            s = 2.0 * math.sqrt(max(1.0 + m[0, 0] - m[1, 1] - m[2, 2], 0.0))
+            q = (s / 4, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s, (m[2, 1] - m[1, 2]) / s)
+        elif diag[1] >= diag[2]:
+            s = 2.0 * math.sqrt(max(1.0 + m[1, 1] - m[0, 0] - m[2, 2], 0.0))
+            q = ((m[0, 1] + m[1, 0]) / s, s / 4, (m[1, 2] + m[2, 1]) / s, (m[0, 2] - m[2, 0]) / s)
+        else:
+            s = 2.0 * math.sqrt(max(1.0 + m[2, 2] - m[0, 0] - m[1, 1], 0.0))
+            q = ((m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, s / 4, (m[1, 0] - m[0, 1]) / s)
+        qv = np.asarray(q)
+        qv /= np.linalg.norm(qv)
+        out[i] = -qv if qv[3] < 0 else qv
+    return out.reshape(r.shape[:-2] + (4,))
+
+
+# --------------------------------------------------------------------------- parsing helpers
+
+
+def _data_lines(path: Path) -> list[tuple[int, list[str]]]:
+    """``(line number, fields)`` of every non-comment, non-blank line; fields split on spaces/commas."""
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        raise DataFormatError(path, "file not found") from None
+    except UnicodeDecodeError:
+        raise DataFormatError(path, "not a text file") from None
+    rows = []
+    for number, raw in enumerate(text.splitlines(), start=1):
+        line = raw.strip()
+        if not line or line.startswith("#"):
+            continue
+        rows.append((number, line.replace(",", " ").replace("\t", " ").split()))
+    return rows
+
+
+def _float(path: Path, line: int, text: str, what: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise DataFormatError(path, f"expected a number for {what}, got {text!r}", line) from None
+    if not math.isfinite(value):
+        raise DataFormatError(path, f"expected a finite number for {what}, got {text!r}", line)
+    return value
+
+
+def _check_increasing(path: Path, lines: Sequence[int], stamps: np.ndarray) -> None:
+    for k in range(1, len(stamps)):
+        if stamps[k] == stamps[k - 1]:
+            raise DataFormatError(
+                path, f"duplicate timestamp {stamps[k]:.6f} (also on line {lines[k - 1]})", lines[k]
+            )
+        if stamps[k] < stamps[k - 1]:
+            raise DataFormatError(
+                path,
+                f"timestamps must increase: {stamps[k]:.6f} after {stamps[k - 1]:.6f} "
+                f"(line {lines[k - 1]})",
+                lines[k],
+            )
+
+
+# --------------------------------------------------------------------------- image lists
+
+
+@dataclass(frozen=True)
+class FileList:
+    """An ``rgb.txt`` / ``depth.txt`` list: stamps (seconds) and paths relative to its folder."""
+
+    path: Path
+    stamps: np.ndarray
+    files: tuple[str, ...]
+
+    def __len__(self) -> int:
+        return len(self.files)
+
+    def resolve(self, index: int) -> Path:
+        """Absolute path of entry ``index`` (relative to the list file's folder)."""
+        return self.path.parent / self.files[index]
+
+
+def read_file_list(path: StrPath) -> FileList:
+    """Read ``rgb.txt`` / ``depth.txt``: ``timestamp filename`` lines, strictly increasing stamps."""
+    path = Path(path)
+    stamps: list[float] = []
+    files: list[str] = []
+    lines: list[int] = []
+    for number, fields in _data_lines(path):
+        if len(fields) != 2:
+            raise DataFormatError(
+                path,
+                f"expected 'timestamp filename' (2 columns), got {len(fields)} columns",
+                number,
+            )
+        stamps.append(_float(path, number, fields[0], "the timestamp"))
+        files.append(fields[1])
+        lines.append(number)
+    array = np.asarray(stamps, dtype=np.float64)
+    _check_increasing(path, lines, array)
+    return FileList(path=path, stamps=array, files=tuple(files))
+
+
+def write_file_list(
+    path: StrPath, stamps: Sequence[float], files: Sequence[str], kind: str = "color images"
+) -> None:
+    """Write an image list with TUM's three header comment lines."""
+    if len(stamps) != len(files):
+        raise ValueError(f"{len(stamps)} stamps but {len(files)} files")
+    lines = [f"# {kind}", "# file: 'uss-slam synthetic'", "# timestamp filename"]
+    lines += [f"{s:.6f} {f}" for s, f in zip(stamps, files, strict=True)]
+    Path(path).write_text("\n".join(lines) + "\n")
+
+
+def associate(
+    first: np.ndarray, second: np.ndarray, max_difference: float = 0.02, offset: float = 0.0
+) -> tuple[np.ndarray, np.ndarray]:
+    """Match two stamp lists as TUM's ``associate.py`` does (rgb to depth, for instance).
+
+    Candidate pairs with ``|a - (b + offset)| < max_difference`` are taken greedily by increasing
+    difference, each stamp used at most once. Returns index arrays ``(i, j)`` sorted by ``i``.
+    """
+    a = np.asarray(first, dtype=np.float64)
+    b = np.asarray(second, dtype=np.float64) + offset
+    if len(a) == 0 or len(b) == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    # Stamps are sorted; only the neighbours of each insertion point can be within reach, but the
+    # greedy order needs all candidates within max_difference, so collect them by window.
+    lo = np.searchsorted(b, a - max_difference, side="left")
+    hi = np.searchsorted(b, a + max_difference, side="right")
+    cand_i, cand_j = [], []
+    for i in range(len(a)):
+        for j in range(lo[i], hi[i]):
+            if abs(a[i] - b[j]) < max_difference:
+                cand_i.append(i)
+                cand_j.append(j)
+    ci = np.asarray(cand_i, dtype=np.int64)
+    cj = np.asarray(cand_j, dtype=np.int64)
+    diff = np.abs(a[ci] - b[cj]) if len(ci) else np.zeros(0)
+    order = np.lexsort((cj, ci, diff))
+    used_a = np.zeros(len(a), dtype=bool)
+    used_b = np.zeros(len(b), dtype=bool)
+    out_i, out_j = [], []
+    for k in order:
+        i, j = ci[k], cj[k]
+        if not used_a[i] and not used_b[j]:
+            used_a[i] = used_b[j] = True
+            out_i.append(i)
+            out_j.append(j)
+    sort = np.argsort(out_i, kind="stable")
+    return np.asarray(out_i, dtype=np.int64)[sort], np.asarray(out_j, dtype=np.int64)[sort]
+
+
+# --------------------------------------------------------------------------- trajectories
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """Timed camera-to-world poses.
+
+    ``stamps`` (N,) seconds; ``positions`` (N, 3) metres; ``quaternions`` (N, 4) ``qx qy qz qw``.
+    """
+
+    stamps: np.ndarray
+    positions: np.ndarray
+    quaternions: np.ndarray
+    path: Path | None = field(default=None, compare=False)
+
+    def __len__(self) -> int:
+        return len(self.stamps)
+
+    @classmethod
+    def from_matrices(cls, stamps: Sequence[float], poses: np.ndarray) -> Trajectory:
+        """From ``(N, 4, 4)`` camera-to-world matrices."""
+        poses = np.asarray(poses, dtype=np.float64)
+        return cls(
+            stamps=np.asarray(stamps, dtype=np.float64),
+            positions=poses[:, :3, 3].copy(),
+            quaternions=matrix_to_quat(poses[:, :3, :3]),
+        )
+
+    def matrices(self) -> np.ndarray:
+        """``(N, 4, 4)`` camera-to-world homogeneous matrices."""
+        out = np.tile(np.eye(4), (len(self), 1, 1))
+        out[:, :3, :3] = quat_to_matrix(self.quaternions)
+        out[:, :3, 3] = self.positions
+        return out
+
+
+def read_trajectory(path: StrPath) -> Trajectory:
+    """Read ``timestamp tx ty tz qx qy qz qw`` lines, checking every line.
+
+    Raises :class:`DataFormatError` naming the line for a wrong column count, a non-numeric
+    value, a quaternion whose norm is not 1 (within ``UNIT_QUATERNION_TOL``), or stamps that are
+    not strictly increasing.
+    """
+    path = Path(path)
+    rows: list[list[float]] = []
+    lines: list[int] = []
+    names = ("timestamp", "tx", "ty", "tz", "qx", "qy", "qz", "qw")
+    for number, fields in _data_lines(path):
+        if len(fields) != 8:
+            raise DataFormatError(
+                path,
+                f"expected 8 columns 'timestamp tx ty tz qx qy qz qw', got {len(fields)}",
+                number,
+            )
+        row = [_float(path, number, text, name) for text, name in zip(fields, names, strict=True)]
+        norm = math.sqrt(sum(v * v for v in row[4:]))
+        if abs(norm - 1.0) > UNIT_QUATERNION_TOL:
+            raise DataFormatError(
+                path, f"quaternion (qx qy qz qw) must have unit norm, got norm {norm:.6f}", number
+            )
+        rows.append(row)
+        lines.append(number)
+    data = np.asarray(rows, dtype=np.float64).reshape(-1, 8)
+    _check_increasing(path, lines, data[:, 0])
+    quats = (
+        data[:, 4:8] / np.linalg.norm(data[:, 4:8], axis=1, keepdims=True)
+        if len(data)
+        else data[:, 4:8]
+    )
+    return Trajectory(stamps=data[:, 0], positions=data[:, 1:4], quaternions=quats, path=path)
+
+
+def write_trajectory(path: StrPath, trajectory: Trajectory, comment: str | None = None) -> None:
+    """Write TUM trajectory lines (stamps to 6 decimals, poses to 7)."""
+    lines = ["# timestamp tx ty tz qx qy qz qw"]
+    if comment:
+        lines.insert(0, f"# {comment}")
+    for s, p, q in zip(
+        trajectory.stamps, trajectory.positions, trajectory.quaternions, strict=True
+    ):
+        lines.append(f"{s:.6f} " + " ".join(f"{v:.7f}" for v in (*p, *q)))
+    Path(path).write_text("\n".join(lines) + "\n")
+
+
+# --------------------------------------------------------------------------- cameras
+
+
+@dataclass(frozen=True)
+class CameraIntrinsics:
+    """Pinhole camera with optional OpenCV distortion ``(k1, k2, p1, p2, k3)``; pixels."""
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    width: int
+    height: int
+    distortion: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0)
+    depth_scale: float = DEPTH_SCALE
+
+    @property
+    def matrix(self) -> np.ndarray:
+        """The 3×3 calibration matrix K."""
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    @property
+    def has_distortion(self) -> bool:
+        return any(d != 0.0 for d in self.distortion)
+
+    def scaled(self, width: int, height: int) -> CameraIntrinsics:
+        """The same camera for an image resized to ``width × height``."""
+        sx, sy = width / self.width, height / self.height
+        return CameraIntrinsics(
+            fx=self.fx * sx,
+            fy=self.fy * sy,
+            cx=(self.cx + 0.5) * sx - 0.5,
+            cy=(self.cy + 0.5) * sy - 0.5,
+            width=width,
+            height=height,
+            distortion=self.distortion,
+            depth_scale=self.depth_scale,
+        )
+
+    def to_yaml(self, path: StrPath) -> None:
+        data = {
+            "fx": float(self.fx),
+            "fy": float(self.fy),
+            "cx": float(self.cx),
+            "cy": float(self.cy),
+            "width": int(self.width),
+            "height": int(self.height),
+            "distortion": [float(d) for d in self.distortion],
+            "depth_scale": float(self.depth_scale),
+        }
+        Path(path).write_text(yaml.safe_dump(data, sort_keys=False))
+
+    @classmethod
+    def from_yaml(cls, path: StrPath) -> CameraIntrinsics:
+        path = Path(path)
+        try:
+            data = yaml.safe_load(path.read_text())
+        except FileNotFoundError:
+            raise DataFormatError(path, "file not found") from None
+        except yaml.YAMLError as err:
+            raise DataFormatError(path, f"not valid YAML ({err})") from None
+        required = ("fx", "fy", "cx", "cy", "width", "height")
+        if not isinstance(data, dict) or any(k not in data for k in required):
+            raise DataFormatError(path, f"expected a mapping with keys {', '.join(required)}")
+        try:
+            distortion = tuple(float(d) for d in data.get("distortion", [0.0] * 5))
+            cam = cls(
+                fx=float(data["fx"]),
+                fy=float(data["fy"]),
+                cx=float(data["cx"]),
+                cy=float(data["cy"]),
+                width=int(data["width"]),
+                height=int(data["height"]),
+                distortion=distortion,
+                depth_scale=float(data.get("depth_scale", DEPTH_SCALE)),
+            )
+        except (TypeError, ValueError) as err:
+            raise DataFormatError(path, f"intrinsics must be numbers ({err})") from None
+        if len(distortion) not in (4, 5, 8):
+            raise DataFormatError(
+                path, f"distortion needs 4, 5 or 8 coefficients, got {len(distortion)}"
+            )
+        if cam.fx <= 0 or cam.fy <= 0 or cam.width <= 0 or cam.height <= 0:
+            raise DataFormatError(path, "fx, fy, width and height must be positive")
+        return cam
+
+
+TUM_CAMERAS: dict[str, CameraIntrinsics] = {
+    # Published calibrations of the TUM RGB-D Kinects (640×480), with their distortion.
+    "fr1": CameraIntrinsics(
+        517.3, 516.5, 318.6, 255.3, 640, 480, (0.2624, -0.9531, -0.0054, 0.0026, 1.1633)
+    ),
+    "fr2": CameraIntrinsics(
+        520.9, 521.0, 325.1, 249.7, 640, 480, (0.2312, -0.7849, -0.0033, -0.0001, 0.9172)
+    ),
+    "fr3": CameraIntrinsics(535.4, 539.2, 320.1, 247.6, 640, 480),
+}

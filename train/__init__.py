@@ -1,0 +1,1 @@
+"""The adaptation method (LightningModule), losses, schedules, Hydra entry points, ONNX export."""
