@@ -16,7 +16,7 @@ $(STAMP): pyproject.toml
 	@touch $(STAMP)
 
 demo: $(STAMP)
-	$(VENV)/bin/uss-demo --out $(DEMO_OUT)
+	$(VENV)/bin/uss-synth demo --out $(DEMO_OUT)/data
 
 test: $(STAMP)
 	$(PY) -m pytest
