@@ -93,6 +93,8 @@ def _data_lines(path: Path) -> list[tuple[int, list[str]]]:
         raise DataFormatError(path, "file not found") from None
     except UnicodeDecodeError:
         raise DataFormatError(path, "not a text file") from None
+    except OSError as err:  # a directory, no permission, ...
+        raise DataFormatError(path, f"cannot read the file ({err.strerror})") from None
     rows = []
     for number, raw in enumerate(text.splitlines(), start=1):
         line = raw.strip()

@@ -1,0 +1,255 @@
+"""``uss-traj``: ATE / RPE of a TUM-format trajectory against ground truth (evo-compatible numbers).
+
+Exit codes: 0 success, 1 bad input file (one line on stderr naming the file and line), 2 bad
+arguments (argparse).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from uss_slam.datasets.errors import UssSlamError
+from uss_slam.datasets.tum_io import read_trajectory
+
+from .metrics import (
+    ALIGNMENTS,
+    DEFAULT_MAX_DIFF,
+    DELTA_UNITS,
+    AteResult,
+    ErrorStats,
+    RpeResult,
+    ate,
+    rpe,
+)
+
+PROG = "uss-traj"
+_STAT_KEYS = ("rmse", "mean", "median", "std", "min", "max")
+_ALIGN_TITLES = {
+    "se3": "SE(3) Umeyama alignment",
+    "sim3": "Sim(3) Umeyama alignment",
+    "none": "not aligned",
+}
+
+
+def _finite_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+    return value
+
+
+def _non_negative_float(text: str) -> float:
+    value = _finite_float(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}")
+    return value
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog=PROG,
+        description=(
+            "Trajectory error of an estimate against ground truth, both TUM files "
+            "('timestamp tx ty tz qx qy qz qw'). Poses are associated by nearest timestamp "
+            "as evo does; numbers agree with evo_ape / evo_rpe for the same settings."
+        ),
+        epilog="Exit codes: 0 ok, 1 bad input file, 2 bad arguments.",
+    )
+    sub = parser.add_subparsers(dest="command", required=True, metavar="{ate,rpe}")
+
+    def common(p: argparse.ArgumentParser) -> None:
+        p.add_argument("gt", type=Path, metavar="GT", help="ground-truth trajectory (TUM format)")
+        p.add_argument("est", type=Path, metavar="EST", help="estimated trajectory (TUM format)")
+        p.add_argument(
+            "--max-diff",
+            type=_non_negative_float,
+            default=DEFAULT_MAX_DIFF,
+            metavar="S",
+            help="largest stamp difference of an associated pair, seconds, inclusive "
+            "(default: %(default)s)",
+        )
+        p.add_argument(
+            "--offset",
+            type=_finite_float,
+            default=0.0,
+            metavar="S",
+            help="seconds added to EST's stamps before association (default: %(default)s)",
+        )
+        p.add_argument(
+            "--json", action="store_true", help="print one JSON object instead of a table"
+        )
+
+    p_ate = sub.add_parser(
+        "ate",
+        help="absolute trajectory error (translation, metres)",
+        description="Absolute trajectory error: distance between aligned estimated and "
+        "ground-truth positions (evo_ape, translation part).",
+    )
+    common(p_ate)
+    p_ate.add_argument(
+        "--align",
+        choices=ALIGNMENTS,
+        default="se3",
+        help="Umeyama alignment of EST onto GT: se3 (rigid, evo --align), sim3 (with scale, "
+        "evo --align --correct_scale) or none (default: %(default)s)",
+    )
+    p_ate.add_argument(
+        "--plot",
+        type=Path,
+        metavar="FILE.png",
+        help="also save a figure: top view of both trajectories and the error over time",
+    )
+
+    p_rpe = sub.add_parser(
+        "rpe",
+        help="relative pose error (translation metres, rotation degrees)",
+        description="Relative pose error over pose pairs DELTA apart among the associated "
+        "poses (evo_rpe, consecutive pairs). frames: pairs (0,d),(d,2d),... as evo "
+        "--delta_unit f; seconds: every pose paired with the one nearest DELTA seconds later, "
+        "as TUM's evaluate_rpe.py --fixed_delta (pairs across gaps are skipped and counted).",
+    )
+    common(p_rpe)
+    p_rpe.add_argument(
+        "--delta",
+        type=_finite_float,
+        default=1.0,
+        metavar="D",
+        help="pair distance in --unit (default: %(default)s)",
+    )
+    p_rpe.add_argument(
+        "--unit", choices=DELTA_UNITS, default="frames", help="unit of --delta (default: frames)"
+    )
+    p_rpe.set_defaults(subparser=p_rpe)  # so that checks after parsing print this usage
+    return parser
+
+
+def _stats_lines(stats: ErrorStats, unit: str) -> list[str]:
+    return [f"{key:>8}  {getattr(stats, key):.6f} {unit}" for key in _STAT_KEYS]
+
+
+def format_ate(result: AteResult, gt: Path, est: Path, max_diff: float, offset: float) -> str:
+    """A small evo-like table of ATE statistics."""
+    lines = [
+        f"ATE w.r.t. translation (m), {_ALIGN_TITLES[result.align]}",
+        f"ground truth: {gt}",
+        f"estimate:     {est}",
+        f"associated:   {result.stats.pairs} pose pairs (max_diff {max_diff:g} s, "
+        f"offset {offset:g} s)",
+    ]
+    if result.align == "sim3":
+        lines.append(f"scale:        {result.scale:.6f}")
+    lines.append("")
+    lines += _stats_lines(result.stats, "m")
+    return "\n".join(lines)
+
+
+def format_rpe(result: RpeResult, gt: Path, est: Path, max_diff: float, offset: float) -> str:
+    """A small evo-like table of RPE statistics: translation (m) and rotation (deg) columns."""
+    skipped = f", {result.skipped} skipped across gaps" if result.unit == "seconds" else ""
+    lines = [
+        f"RPE for delta = {result.delta:g} {result.unit}",
+        f"ground truth: {gt}",
+        f"estimate:     {est}",
+        f"pairs:        {result.pairs}{skipped} (association max_diff {max_diff:g} s, "
+        f"offset {offset:g} s)",
+        "",
+        f"{'':>8}  {'trans (m)':>12}  {'rot (deg)':>12}",
+    ]
+    for key in _STAT_KEYS:
+        lines.append(
+            f"{key:>8}  {getattr(result.trans, key):12.6f}  {getattr(result.rot_deg, key):12.6f}"
+        )
+    return "\n".join(lines)
+
+
+def plot_ate(result: AteResult, path: Path) -> None:
+    """Save a top view (the two axes along which the ground truth spreads most) and the error
+    over time to ``path``. Imports matplotlib (Agg) only when asked."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    spread = np.ptp(result.gt_positions, axis=0)
+    a, b = sorted(np.argsort(spread)[-2:])
+    names = "xyz"
+    fig, (top, err) = plt.subplots(1, 2, figsize=(11, 4.5))
+    top.plot(result.gt_positions[:, a], result.gt_positions[:, b], "k-", lw=1, label="ground truth")
+    top.plot(
+        result.est_positions[:, a],
+        result.est_positions[:, b],
+        "C0-",
+        lw=1,
+        label=f"estimate ({result.align})",
+    )
+    top.set_xlabel(f"{names[a]} (m)")
+    top.set_ylabel(f"{names[b]} (m)")
+    top.set_aspect("equal", adjustable="datalim")
+    top.legend(loc="best")
+    top.set_title("trajectory, top view")
+    t = result.stamps - result.stamps[0]
+    err.plot(t, result.errors, "C3-", lw=1)
+    err.axhline(result.stats.rmse, color="k", ls="--", lw=1, label=f"rmse {result.stats.rmse:.4f}")
+    err.set_xlabel("time (s)")
+    err.set_ylabel("ATE (m)")
+    err.legend(loc="best")
+    err.set_title("ATE over time")
+    fig.tight_layout()
+    try:
+        fig.savefig(path, dpi=100)
+    finally:
+        plt.close(fig)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.command == "rpe":
+        if args.delta <= 0:
+            args.subparser.error(f"--delta must be > 0, got {args.delta:g}")
+        if args.unit == "frames" and not float(args.delta).is_integer():
+            args.subparser.error(f"--delta must be a whole number of frames, got {args.delta:g}")
+    try:
+        gt = read_trajectory(args.gt)
+        est = read_trajectory(args.est)
+        if args.command == "ate":
+            result = ate(gt, est, max_diff=args.max_diff, offset=args.offset, align=args.align)
+            out = (
+                json.dumps(result.as_dict())
+                if args.json
+                else format_ate(result, args.gt, args.est, args.max_diff, args.offset)
+            )
+            if args.plot is not None:
+                try:
+                    plot_ate(result, args.plot)
+                except OSError as err:
+                    print(f"{PROG}: error: {args.plot}: cannot write plot ({err})", file=sys.stderr)
+                    return 1
+        else:
+            delta = int(args.delta) if args.unit == "frames" else args.delta
+            result = rpe(
+                gt, est, delta=delta, unit=args.unit, max_diff=args.max_diff, offset=args.offset
+            )
+            out = (
+                json.dumps(result.as_dict())
+                if args.json
+                else format_rpe(result, args.gt, args.est, args.max_diff, args.offset)
+            )
+    except UssSlamError as err:
+        print(f"{PROG}: error: {err}", file=sys.stderr)
+        return 1
+    print(out)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
