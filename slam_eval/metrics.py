@@ -19,8 +19,9 @@ to 1e-9 m for the same settings:
   ``--all_pairs``: pairs ``(0, d), (d, 2d), …``. ``unit="seconds"`` (evo has no time unit) follows
   TUM's ``evaluate_rpe.py --fixed_delta --delta_unit s``: every associated pose ``i`` is paired
   with the associated pose whose estimate stamp is nearest to ``t_i + delta``; the pair counts if
-  its actual interval is within ``max(SECONDS_DELTA_REL_TOL * delta, max_diff)`` of ``delta``,
-  otherwise (a gap in the association) it is skipped and counted in ``RpeResult.skipped``.
+  its actual interval is within ``SECONDS_DELTA_REL_TOL * delta`` (10%) of ``delta``, otherwise
+  (a gap in the association, or ``delta`` finer than the sampling) it is skipped, and counted in
+  ``RpeResult.skipped`` when ``t_i + delta`` lies within the trajectory's time span.
   Errors are not divided by the interval (TUM and evo do not either): with ``delta=1`` seconds
   the translation error is the drift in metres per second.
 
@@ -427,13 +428,14 @@ def rpe(
     if unit == "frames":
         i, j = _pairs_by_frames(len(gi), int(delta))
     else:
-        tol = max(SECONDS_DELTA_REL_TOL * delta, max_diff)
+        tol = SECONDS_DELTA_REL_TOL * delta
         i, j, skipped = _pairs_by_seconds(est_stamps, float(delta), tol)
     if len(i) == 0:
         raise AssociationError(
             f"{_name(est, 'estimated')}: no pose pairs {delta:g} {unit} apart among the "
             f"{len(gi)} poses associated with {_name(gt, 'ground-truth')} "
-            f"(max_diff {max_diff:g} s, offset {offset:g} s); use a smaller delta"
+            f"(max_diff {max_diff:g} s, offset {offset:g} s); use a delta shorter than the "
+            f"trajectory and, in seconds, no finer than its sampling"
         )
     rq = quat_to_matrix(gt.quaternions[gi])
     rp = quat_to_matrix(est.quaternions[ei])
