@@ -1,1 +1,19 @@
 """Plain ``nn.Module`` components: the DeepLab-v2 segmenter, PatchGAN discriminators, weights."""
+
+from uss_slam.models.backbone import BACKBONES, ResNetBackbone, build_backbone
+from uss_slam.models.deeplab import ASPPClassifier, DeepLabV2, SegmenterOutput, output_size
+from uss_slam.models.discriminator import PatchDiscriminator
+from uss_slam.models.weights import LoadReport, load_segmenter_weights
+
+__all__ = [
+    "ASPPClassifier",
+    "BACKBONES",
+    "DeepLabV2",
+    "LoadReport",
+    "PatchDiscriminator",
+    "ResNetBackbone",
+    "SegmenterOutput",
+    "build_backbone",
+    "load_segmenter_weights",
+    "output_size",
+]

@@ -1,0 +1,147 @@
+"""ResNet backbones at output stride 8 (DeepLab-v2): layer3 dilated by 2, layer4 by 4.
+
+Three backbones share one structure (stem ``conv1 bn1 relu maxpool``, stages ``layer1..layer4``
+of torchvision ``Bottleneck`` blocks) and torchvision's parameter names, so a torchvision
+ResNet state dict loads into them unchanged:
+
+- ``resnet101`` / ``resnet50``: torchvision's models (optionally with its ImageNet weights);
+- ``resnet_small``: a narrow one-block-per-stage ResNet for CI and the CPU demo.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import torchvision
+from torch import Tensor, nn
+from torchvision.models.resnet import Bottleneck
+
+from uss_slam.datasets.errors import UssSlamError
+
+log = logging.getLogger(__name__)
+
+BACKBONES: tuple[str, ...] = ("resnet101", "resnet50", "resnet_small")
+
+_TORCHVISION_WEIGHTS = {"resnet101": "ResNet101_Weights", "resnet50": "ResNet50_Weights"}
+
+
+@dataclass(frozen=True)
+class _SmallSpec:
+    stem_width: int = 32
+    planes: tuple[int, int, int, int] = (16, 32, 64, 128)  # Bottleneck outputs 4x these
+    blocks: tuple[int, int, int, int] = (1, 1, 1, 1)
+
+
+class ResNetBackbone(nn.Module):
+    """A ResNet trunk without pooling/classifier, output stride 8.
+
+    ``forward(x)`` takes ``(N, 3, H, W)`` and returns ``(layer3, layer4)`` features, both of
+    spatial size ``ceil(H / 8) × ceil(W / 8)``, with ``out_channels`` channels.
+    """
+
+    def __init__(self, trunk: torchvision.models.ResNet | _SmallTrunk) -> None:
+        super().__init__()
+        self.conv1 = trunk.conv1
+        self.bn1 = trunk.bn1
+        self.relu = trunk.relu
+        self.maxpool = trunk.maxpool
+        self.layer1 = trunk.layer1
+        self.layer2 = trunk.layer2
+        self.layer3 = trunk.layer3
+        self.layer4 = trunk.layer4
+        _dilate(self.layer3, 2)
+        _dilate(self.layer4, 4)
+        self.out_channels: tuple[int, int] = (
+            self.layer3[-1].conv3.out_channels,
+            self.layer4[-1].conv3.out_channels,
+        )
+
+    def forward(self, x: Tensor) -> tuple[Tensor, Tensor]:
+        x = self.maxpool(self.relu(self.bn1(self.conv1(x))))
+        c3 = self.layer3(self.layer2(self.layer1(x)))
+        return c3, self.layer4(c3)
+
+
+def _dilate(stage: nn.Sequential, dilation: int) -> None:
+    """Turn a stride-2 stage into a stride-1 stage whose every 3×3 conv has ``dilation``.
+
+    DeepLab-v2 dilates *all* blocks of the stage (torchvision's ``replace_stride_with_dilation``
+    keeps the first block of each stage at the previous rate, which is a different network).
+    """
+    for block in stage:
+        block.conv2.stride = (1, 1)
+        block.conv2.dilation = (dilation, dilation)
+        block.conv2.padding = (dilation, dilation)
+        if block.downsample is not None:
+            block.downsample[0].stride = (1, 1)
+
+
+class _SmallTrunk(nn.Module):
+    """Same layout and parameter names as torchvision's ResNet, narrower and shallower."""
+
+    def __init__(self, spec: _SmallSpec) -> None:
+        super().__init__()
+        self.conv1 = nn.Conv2d(3, spec.stem_width, kernel_size=7, stride=2, padding=3, bias=False)
+        self.bn1 = nn.BatchNorm2d(spec.stem_width)
+        self.relu = nn.ReLU(inplace=True)
+        self.maxpool = nn.MaxPool2d(kernel_size=3, stride=2, padding=1)
+        inplanes = spec.stem_width
+        stages = []
+        for index, (planes, blocks) in enumerate(zip(spec.planes, spec.blocks, strict=True)):
+            stride = 1 if index == 0 else 2
+            downsample = nn.Sequential(
+                nn.Conv2d(inplanes, planes * 4, kernel_size=1, stride=stride, bias=False),
+                nn.BatchNorm2d(planes * 4),
+            )
+            layers = [Bottleneck(inplanes, planes, stride, downsample)]
+            inplanes = planes * 4
+            layers += [Bottleneck(inplanes, planes) for _ in range(1, blocks)]
+            stages.append(nn.Sequential(*layers))
+        self.layer1, self.layer2, self.layer3, self.layer4 = stages
+        for module in self.modules():
+            if isinstance(module, nn.Conv2d):
+                nn.init.kaiming_normal_(module.weight, mode="fan_out", nonlinearity="relu")
+
+
+def build_backbone(name: str, imagenet_weights: str | None = None) -> ResNetBackbone:
+    """Build a backbone by name (see :data:`BACKBONES`).
+
+    ``imagenet_weights`` names a torchvision weight enum member of that architecture, e.g.
+    ``"IMAGENET1K_V1"`` or ``"DEFAULT"``: torchvision downloads it into ``$TORCH_HOME`` unless
+    it is cached there. ``None`` (default) = random initialisation, no network access.
+    """
+    if name not in BACKBONES:
+        raise UssSlamError(f"unknown backbone {name!r}; expected one of {', '.join(BACKBONES)}")
+    if name == "resnet_small":
+        if imagenet_weights is not None:
+            raise UssSlamError("resnet_small has no ImageNet weights; set backbone_weights=null")
+        return ResNetBackbone(_SmallTrunk(_SmallSpec()))
+    weights = None
+    if imagenet_weights is not None:
+        enum_name = f"{_TORCHVISION_WEIGHTS[name]}.{imagenet_weights}"
+        try:
+            weights = torchvision.models.get_weight(enum_name)
+        except (ValueError, KeyError, AttributeError) as error:
+            raise UssSlamError(f"unknown torchvision weights {enum_name!r}: {error}") from error
+    constructor = getattr(torchvision.models, name)
+    try:
+        trunk = constructor(weights=weights)
+    except (OSError, RuntimeError) as error:  # URLError is an OSError
+        raise UssSlamError(
+            f"could not load torchvision weights {weights} ({error}); on a machine without "
+            "internet put the file into $TORCH_HOME/hub/checkpoints or pass a local file "
+            "with model.net.weights_path"
+        ) from error
+    if weights is not None:
+        log.info("backbone %s initialised from torchvision %s", name, weights)
+    return ResNetBackbone(trunk)
+
+
+def freeze_batchnorm(module: nn.Module) -> None:
+    """Put every BatchNorm of ``module`` in eval mode and stop gradients to its affine terms."""
+    for child in module.modules():
+        if isinstance(child, nn.modules.batchnorm._BatchNorm):
+            child.eval()
+            for param in child.parameters():
+                param.requires_grad_(False)

@@ -1,0 +1,123 @@
+"""DeepLab-v2 with two heads: ``aux`` on layer3 (the paper's low-level output) and ``main`` on
+layer4 (high-level), each an ASPP classifier summing four dilated 3×3 convolutions."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any, NamedTuple
+
+from torch import Tensor, nn
+
+from uss_slam.models.backbone import build_backbone, freeze_batchnorm
+
+
+class SegmenterOutput(NamedTuple):
+    """Logits of the two heads, each ``(N, num_classes, ceil(H/8), ceil(W/8))``."""
+
+    aux: Tensor
+    main: Tensor
+
+
+class ASPPClassifier(nn.Module):
+    """Atrous spatial pyramid pooling classifier of DeepLab-v2: the **sum** of one 3×3 conv per
+    rate (all four of them), each mapping features straight to class logits."""
+
+    def __init__(
+        self, in_channels: int, num_classes: int, rates: Sequence[int] = (6, 12, 18, 24)
+    ) -> None:
+        super().__init__()
+        if not rates:
+            raise ValueError("ASPP needs at least one rate")
+        self.branches = nn.ModuleList(
+            nn.Conv2d(in_channels, num_classes, kernel_size=3, padding=r, dilation=r, bias=True)
+            for r in rates
+        )
+        self.reset_parameters()
+
+    def reset_parameters(self) -> None:
+        # DeepLab-v2's initialisation of the classifier: N(0, 0.01), zero bias.
+        for conv in self.branches:
+            nn.init.normal_(conv.weight, 0.0, 0.01)
+            nn.init.zeros_(conv.bias)
+
+    def forward(self, x: Tensor) -> Tensor:
+        out = self.branches[0](x)
+        for conv in self.branches[1:]:
+            out = out + conv(x)
+        return out
+
+
+class DeepLabV2(nn.Module):
+    """DeepLab-v2 segmenter (output stride 8, no CRF, single scale) with ``aux``/``main`` heads.
+
+    Args:
+        num_classes: number of output classes (the project's 4 by default).
+        backbone: ``resnet101`` (paper), ``resnet50`` or ``resnet_small`` (CI / CPU demo).
+        aspp_rates: dilation rates of the ASPP branches of both heads.
+        freeze_bn: keep every BatchNorm in eval mode with frozen affine terms (batch size 1 in
+            the paper makes batch statistics useless); ``False`` trains them normally.
+        backbone_weights: torchvision weight enum member (``"IMAGENET1K_V1"``, ``"DEFAULT"``)
+            for the backbone; downloads unless cached. ``None``: random initialisation.
+        weights_path: local file to initialise from (a DeepLabV2 state dict, a training
+            checkpoint, or a torchvision ResNet state dict); see :func:`load_segmenter_weights`.
+
+    ``forward(images)`` takes ``(N, 3, H, W)`` normalised RGB and returns a
+    :class:`SegmenterOutput` of logits at ``ceil(H/8) × ceil(W/8)``, in train and eval mode alike.
+    """
+
+    def __init__(
+        self,
+        num_classes: int = 4,
+        backbone: str = "resnet101",
+        *,
+        aspp_rates: Sequence[int] = (6, 12, 18, 24),
+        freeze_bn: bool = True,
+        backbone_weights: str | None = None,
+        weights_path: str | Path | None = None,
+    ) -> None:
+        super().__init__()
+        self.num_classes = num_classes
+        self.backbone_name = backbone
+        self.freeze_bn = freeze_bn
+        self.backbone = build_backbone(backbone, backbone_weights)
+        low, high = self.backbone.out_channels
+        self.aux = ASPPClassifier(low, num_classes, aspp_rates)
+        self.main = ASPPClassifier(high, num_classes, aspp_rates)
+        if freeze_bn:
+            freeze_batchnorm(self.backbone)
+        if weights_path is not None:
+            from uss_slam.models.weights import load_segmenter_weights
+
+            load_segmenter_weights(self, weights_path)
+
+    def forward(self, images: Tensor) -> SegmenterOutput:
+        low, high = self.backbone(images)
+        return SegmenterOutput(aux=self.aux(low), main=self.main(high))
+
+    def train(self, mode: bool = True) -> DeepLabV2:
+        super().train(mode)
+        if self.freeze_bn:
+            freeze_batchnorm(self.backbone)
+        return self
+
+    def heads(self) -> nn.ModuleDict:
+        """The two classifiers (what is re-initialised when the class count changes)."""
+        return nn.ModuleDict({"aux": self.aux, "main": self.main})
+
+    def param_groups(self, lr: float, head_lr_mult: float = 10.0) -> list[dict[str, Any]]:
+        """Optimiser parameter groups: trainable backbone parameters at ``lr``, both heads at
+        ``head_lr_mult × lr``. Every trainable parameter appears exactly once."""
+        backbone = [p for p in self.backbone.parameters() if p.requires_grad]
+        heads = [p for p in self.heads().parameters() if p.requires_grad]
+        return [
+            {"name": "backbone", "params": backbone, "lr": lr},
+            {"name": "heads", "params": heads, "lr": lr * head_lr_mult},
+        ]
+
+
+def output_size(height: int, width: int) -> tuple[int, int]:
+    """Spatial size of the logits for an ``height × width`` input (three ceil-halvings)."""
+    for _ in range(3):
+        height, width = (height + 1) // 2, (width + 1) // 2
+    return height, width
