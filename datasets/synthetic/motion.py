@@ -1,0 +1,113 @@
+"""Camera motions and the sequence presets named after the TUM RGB-D sequences.
+
+Every motion is a smooth function of time (seconds), so ground truth can be sampled at any rate
+(100 Hz, off the image stamps) and agrees exactly with the rendered frames.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .primitives import rot_x, rot_y, rot_z
+from .seeding import stream
+
+
+@dataclass(frozen=True)
+class Preset:
+    """A sequence recipe: how the camera moves and what the people do."""
+
+    name: str
+    motion: str  # "xyz", "static", "rpy", "halfsphere"
+    people: str  # "walking", "sitting", "frozen"
+    description: str
+
+
+PRESETS: dict[str, Preset] = {
+    p.name: p
+    for p in (
+        Preset("walking_xyz", "xyz", "walking",
+               "camera translated along its x, y, z axes; two people walk through the view"),
+        Preset("walking_static", "static", "walking",
+               "camera almost still; two people walk through the view"),
+        Preset("walking_rpy", "rpy", "walking",
+               "camera rotated about its axes in place (roll, pitch, yaw); two people walk"),
+        Preset("walking_halfsphere", "halfsphere", "walking",
+               "camera moved on a half sphere of ~1 m diameter; two people walk"),
+        Preset("sitting_static", "static", "sitting",
+               "camera almost still; two seated people gesture and turn their heads"),
+        Preset("static_xyz", "xyz", "frozen",
+               "control: camera translated along its axes; two seated people who never move"),
+    )
+}  # fmt: skip
+"""The presets by name (``uss-synth sequence --preset NAME``)."""
+
+
+def look_at(eye: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """Camera-to-world rotation (optical frame: x right, y down, z ahead) looking at ``target``."""
+    f = np.asarray(target, np.float64) - np.asarray(eye, np.float64)
+    f /= np.linalg.norm(f)
+    right = np.cross(f, np.array([0.0, 0.0, 1.0]))
+    right /= np.linalg.norm(right)
+    down = np.cross(f, right)
+    return np.stack([right, down, f], axis=1)
+
+
+class CameraMotion:
+    """Camera-to-world pose as a function of time for one of the motion kinds of :data:`PRESETS`.
+
+    ``eye`` / ``target``: the rest position and the point it looks at (world metres).
+    """
+
+    def __init__(self, kind: str, eye: np.ndarray, target: np.ndarray, seed: int) -> None:
+        if kind not in ("xyz", "static", "rpy", "halfsphere"):
+            raise ValueError(f"unknown camera motion {kind!r}")
+        self.kind = kind
+        self.eye = np.asarray(eye, np.float64)
+        self.target = np.asarray(target, np.float64)
+        self.base = look_at(self.eye, self.target)
+        rng = stream(seed, f"camera/{kind}")
+        self.phase = rng.uniform(0, 2 * np.pi, 6)
+        self.period = rng.uniform(0.9, 1.1, 6)
+
+    def _wave(self, t: float, i: int, period: float) -> float:
+        return math.sin(2 * math.pi * t / (period * self.period[i]) + self.phase[i])
+
+    def pose(self, t: float) -> np.ndarray:
+        """The 4×4 camera-to-world matrix at ``t`` seconds."""
+        w = self._wave
+        out = np.eye(4)
+        rot = self.base
+        pos = self.eye.copy()
+        if self.kind in ("xyz", "static"):
+            amp = (0.24, 0.12, 0.2) if self.kind == "xyz" else (0.006, 0.004, 0.005)
+            wob = math.radians(0.6 if self.kind == "xyz" else 0.25)
+            offset = np.array([amp[0] * w(t, 0, 5.7), amp[1] * w(t, 1, 7.3), amp[2] * w(t, 2, 9.1)])
+            pos = pos + self.base @ offset
+            rot = rot @ rot_x(wob * w(t, 3, 3.1)) @ rot_y(wob * w(t, 4, 4.3))
+        elif self.kind == "rpy":
+            roll = math.radians(10) * w(t, 0, 6.3)
+            pitch = math.radians(8) * w(t, 1, 7.7)
+            yaw = math.radians(15) * w(t, 2, 8.9)
+            # camera axes: z ahead (roll), x right (pitch), y down (yaw)
+            rot = rot @ rot_y(yaw) @ rot_x(pitch) @ rot_z(roll)
+            pos = pos + self.base @ (0.01 * np.array([w(t, 3, 4.1), w(t, 4, 5.3), w(t, 5, 6.7)]))
+        else:  # halfsphere: radius 0.5 m around a centre half a metre ahead of the eye
+            forward = self.base[:, 2]
+            right = self.base[:, 0]
+            up = np.array([0.0, 0.0, 1.0])
+            centre = self.eye + 0.5 * forward
+            az = math.radians(65) * w(t, 0, 11.0)
+            el = math.radians(22) + math.radians(28) * w(t, 1, 7.3)
+            direction = (
+                -forward * math.cos(el) * math.cos(az)
+                + right * math.cos(el) * math.sin(az)
+                + up * math.sin(el)
+            )
+            pos = centre + 0.5 * direction
+            rot = look_at(pos, self.target)
+        out[:3, :3] = rot
+        out[:3, 3] = pos
+        return out

@@ -1,0 +1,198 @@
+"""TUM RGB-D sequences of the synthetic office: :class:`SequenceRenderer` and :func:`render_sequence`.
+
+Time line (as the real recordings): colour frames at 30 Hz with a little jitter, depth stamps a
+few milliseconds after their colour frame (depth is rendered registered to colour, at the colour
+instant), and ground truth at 100 Hz on its own clock (never on an image stamp), covering the
+images with a margin on both sides.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from os import PathLike
+from pathlib import Path
+
+import numpy as np
+import yaml
+from tqdm import tqdm
+
+from ..tum_io import TUM_CAMERAS, CameraIntrinsics, Trajectory, write_file_list, write_trajectory
+from .motion import PRESETS, CameraMotion, Preset
+from .output import SynthArgumentError, check_size, staged_output, write_png
+from .renderer import Renderer
+from .scene import office_scene
+from .seeding import stream
+from .styles import (
+    EXPOSURE_TIME,
+    STYLES,
+    depth_to_png,
+    exposure_gain,
+    target_depth,
+    target_rgb,
+    to_uint8,
+)
+from .textures import texture_bank
+
+FPS = 30.0
+GT_RATE = 100.0
+START_STAMP = 1341846313.592026
+"""First colour stamp (seconds): a plausible Unix time like the TUM recordings'."""
+GT_PHASE = 0.0037
+"""Offset of the ground-truth clock from the image clock, so no pose falls on an image stamp."""
+GT_MARGIN = 0.3
+
+
+@dataclass
+class Frame:
+    """One rendered frame. ``rgb`` (H, W, 3) uint8 RGB; ``depth`` (H, W) uint16 PNG units;
+    ``labels`` (H, W) uint8 class ids; ``clean_depth`` (H, W) float32 exact metres (inf where
+    nothing, before range limits and noise); ``pose`` 4×4 camera-to-world at ``stamp``."""
+
+    index: int
+    stamp: float
+    depth_stamp: float
+    rgb: np.ndarray
+    depth: np.ndarray
+    labels: np.ndarray
+    clean_depth: np.ndarray
+    pose: np.ndarray
+
+
+def check_arguments(preset: str, frames: int, size: tuple[int, int], style: str) -> Preset:
+    if preset not in PRESETS:
+        raise SynthArgumentError(f"unknown preset {preset!r}; choose one of {', '.join(PRESETS)}")
+    if isinstance(frames, bool) or not isinstance(frames, (int, np.integer)) or frames < 2:
+        raise SynthArgumentError(f"frames must be an integer >= 2, got {frames!r}")
+    check_size(size)
+    if style not in STYLES:
+        raise SynthArgumentError(f"unknown style {style!r}; choose one of {', '.join(STYLES)}")
+    return PRESETS[preset]
+
+
+class SequenceRenderer:
+    """Renders the frames of one sequence in any order (everything is a function of time)."""
+
+    def __init__(
+        self,
+        preset: str,
+        frames: int,
+        size: tuple[int, int] = (640, 480),
+        seed: int = 0,
+        style: str = "target",
+    ) -> None:
+        self.preset = check_arguments(preset, frames, size, style)
+        self.frames = int(frames)
+        self.size = check_size(size)
+        self.seed = int(seed)
+        self.style = style
+        self.camera: CameraIntrinsics = TUM_CAMERAS["fr3"].scaled(*self.size)
+        self.renderer = Renderer(self.camera)
+        duration = self.frames / FPS + 1.0
+        self.scene = office_scene(self.seed, self.preset.people, duration)
+        self.motion = CameraMotion(self.preset.motion, self.scene.eye, self.scene.target, self.seed)
+        self.bank = texture_bank(style, self.seed)
+        self.lighting = self.scene.lighting(style)
+
+        rng = stream(self.seed, "stamps")
+        jitter = rng.uniform(-0.0015, 0.0015, self.frames)
+        stamps = START_STAMP + np.arange(self.frames) / FPS + jitter
+        # stamps as written (6 decimals) are the instants rendered, so files agree exactly
+        self.stamps = np.round(stamps, 6)
+        # ground truth stamps have 4 decimals: keep the 5th-6th image decimals non-zero so that
+        # no image stamp can ever coincide with a ground-truth stamp
+        on_grid = np.rint(self.stamps * 1e6).astype(np.int64) % 100 == 0
+        self.stamps[on_grid] += 1e-6
+        self.depth_stamps = np.round(self.stamps + rng.uniform(0.003, 0.012, self.frames), 6)
+        self.exposure_phase = float(stream(self.seed, "exposure").uniform(0, 2 * np.pi))
+
+    def time(self, stamp: float) -> float:
+        """Seconds since the first frame (the clock of the scene and camera motion)."""
+        return float(stamp - START_STAMP)
+
+    def pose(self, stamp: float) -> np.ndarray:
+        return self.motion.pose(self.time(stamp))
+
+    def frame(self, index: int) -> Frame:
+        stamp = float(self.stamps[index])
+        t = self.time(stamp)
+        pose = self.motion.pose(t)
+        res = self.renderer.render(pose, self.scene.room, self.scene.prims_at(t), self.bank,
+                                   self.lighting)  # fmt: skip
+        if self.style == "source":
+            rgb = to_uint8(res.rgb)
+            depth = depth_to_png(res.depth)
+        else:
+            rng = stream(self.seed, "noise", index)
+            before = self.motion.pose(t - EXPOSURE_TIME)
+            flow = self.renderer.flow(res.depth, pose, before)
+            rgb = target_rgb(res.rgb, flow, exposure_gain(t, self.exposure_phase), rng)
+            depth = target_depth(res.depth, rng)
+        return Frame(index, stamp, float(self.depth_stamps[index]), rgb, depth, res.labels,
+                     res.depth, pose)  # fmt: skip
+
+    def groundtruth(self) -> Trajectory:
+        """Camera-to-world poses at 100 Hz from before the first to after the last frame."""
+        first = self.stamps[0] - GT_MARGIN + GT_PHASE
+        count = int(np.floor((self.stamps[-1] + GT_MARGIN - first) * GT_RATE)) + 1
+        gt_stamps = np.round(first + np.arange(count) / GT_RATE, 4)
+        poses = np.stack([self.pose(s) for s in gt_stamps])
+        return Trajectory.from_matrices(gt_stamps, poses)
+
+
+def render_sequence(
+    out_dir: str | PathLike[str],
+    *,
+    preset: str,
+    frames: int,
+    size: tuple[int, int] = (640, 480),
+    seed: int = 0,
+    style: str = "target",
+    overwrite: bool = False,
+    progress: bool = False,
+) -> Path:
+    """Render a TUM RGB-D sequence folder and return its path.
+
+    Writes ``rgb/`` (uint8 PNG), ``depth/`` (uint16 PNG, 5000 = 1 m, 0 = none), ``labels/``
+    (uint8 class-id PNG, same names as ``rgb/``), ``rgb.txt``, ``depth.txt``, ``groundtruth.txt``
+    (100 Hz, camera-to-world, optical frame), ``intrinsics.yaml`` (fr3 scaled to ``size``) and
+    ``synthetic.yaml`` (the arguments). The folder appears only when complete; an existing
+    non-empty ``out_dir`` is an error unless ``overwrite``.
+    """
+    seq = SequenceRenderer(preset, frames, size, seed, style)
+    with staged_output(out_dir, overwrite) as tmp:
+        for sub in ("rgb", "depth", "labels"):
+            (tmp / sub).mkdir()
+        rgb_files, depth_files = [], []
+        bar = tqdm(
+            range(seq.frames), desc=f"{preset} ({style})", unit="frame", disable=not progress
+        )
+        for i in bar:
+            fr = seq.frame(i)
+            name = f"{fr.stamp:.6f}.png"
+            dname = f"{fr.depth_stamp:.6f}.png"
+            write_png(tmp / "rgb" / name, fr.rgb)
+            write_png(tmp / "labels" / name, fr.labels)
+            write_png(tmp / "depth" / dname, fr.depth)
+            rgb_files.append(f"rgb/{name}")
+            depth_files.append(f"depth/{dname}")
+        write_file_list(tmp / "rgb.txt", seq.stamps, rgb_files, "color images")
+        write_file_list(tmp / "depth.txt", seq.depth_stamps, depth_files, "depth maps")
+        write_trajectory(
+            tmp / "groundtruth.txt",
+            seq.groundtruth(),
+            comment=f"ground truth trajectory (uss-synth {preset}, seed {seed})",
+        )
+        seq.camera.to_yaml(tmp / "intrinsics.yaml")
+        meta = {
+            "generator": "uss-synth",
+            "preset": preset,
+            "description": seq.preset.description,
+            "frames": seq.frames,
+            "size": list(seq.size),
+            "seed": seq.seed,
+            "style": style,
+            "fps": FPS,
+            "groundtruth_rate": GT_RATE,
+        }
+        (tmp / "synthetic.yaml").write_text(yaml.safe_dump(meta, sort_keys=False))
+    return Path(out_dir)

@@ -1,0 +1,155 @@
+"""A PASCAL VOC 2012-layout segmentation set rendered in the ``source`` style.
+
+Each image is a new random room layout (desks, monitors, chairs, shelves, 1-3 people standing,
+walking or seated) seen from a random viewpoint aimed at a person, chair or monitor. Labels are
+palette PNGs with VOC indices (person 15, chair 9, tvmonitor 20, background 0) and a void band
+(255) along object outlines, about 5 pixels wide at 500 pixels like the real annotations.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from os import PathLike
+from pathlib import Path
+
+import cv2
+import numpy as np
+from PIL import Image
+from tqdm import tqdm
+
+from ..classes import IGNORE_INDEX, PROJECT_TO_VOC, voc_palette
+from ..tum_io import TUM_CAMERAS
+from .motion import look_at
+from .output import SynthArgumentError, check_size, staged_output, write_jpeg
+from .primitives import PrimArrays
+from .renderer import Renderer
+from .scene import Scene, random_scene
+from .seeding import stream
+from .styles import to_uint8
+from .textures import texture_bank
+
+VOC_VARIANTS = 3
+"""Texture banks the set draws from (image ``i`` uses bank ``i % VOC_VARIANTS``)."""
+MIN_OBJECT_SHARE = 0.01
+"""Each image shows at least this share of person / chair / monitor pixels."""
+VAL_EVERY = 5
+"""Every fifth image goes to ``val.txt``, the others to ``train.txt``."""
+
+
+@dataclass
+class VocSample:
+    """One rendered image: ``rgb`` (H, W, 3) uint8; ``labels`` (H, W) uint8 project class ids."""
+
+    name: str
+    rgb: np.ndarray
+    labels: np.ndarray
+
+
+def void_width(size: tuple[int, int]) -> int:
+    """Width in pixels of the void band (5 px at 500 px, scaled with the image size, >= 1)."""
+    return max(1, int(round(5 * max(size) / 500)))
+
+
+def voc_indices(labels: np.ndarray, band: int) -> np.ndarray:
+    """Project class ids (H, W) -> VOC indices with a ``band``-pixel void (255) along outlines."""
+    lut = np.zeros(256, np.uint8)
+    for ours, voc in PROJECT_TO_VOC.items():
+        lut[ours] = voc
+    out = lut[labels]
+    kernel = np.ones((3, 3), np.uint8)
+    edge = cv2.dilate(labels, kernel) != cv2.erode(labels, kernel)  # 2 px across the outline
+    if band > 2:
+        edge = cv2.dilate(edge.astype(np.uint8), np.ones((band - 1, band - 1), np.uint8)) > 0
+    elif band == 1:
+        edge = labels != cv2.erode(labels, np.ones((2, 2), np.uint8))
+    out[edge] = IGNORE_INDEX
+    return out
+
+
+def _inside_something(point: np.ndarray, prims: PrimArrays, margin: float = 0.15) -> bool:
+    corners = prims.corners()
+    lo = corners.min(axis=1) - margin
+    hi = corners.max(axis=1) + margin
+    return bool(((point >= lo) & (point <= hi)).all(axis=1).any())
+
+
+def render_voc_sample(seed: int, index: int, size: tuple[int, int]) -> VocSample:
+    """Render image ``index`` of the set with ``seed`` (deterministic, independent of the others)."""
+    rng = stream(seed, "voc/view", index)
+    w, h = size
+    bank = texture_bank("source", index % VOC_VARIANTS + 1000 * seed)
+    for attempt in range(200):
+        scene: Scene = random_scene(seed, index * 1000 + attempt // 20)
+        prims = scene.prims_at(0.0)
+        if not len(prims):
+            continue
+        objects = np.flatnonzero(prims.label > 0)
+        if len(objects) == 0:
+            continue
+        focus = prims.center[objects[int(rng.integers(0, len(objects)))]].astype(np.float64)
+        lo, hi = np.array(scene.room.lo), np.array(scene.room.hi)
+        dist = rng.uniform(1.0, 3.8)
+        ang = rng.uniform(-math.pi, math.pi)
+        eye = np.array([focus[0] + dist * math.cos(ang), focus[1] + dist * math.sin(ang),
+                        rng.uniform(0.8, 1.9)])  # fmt: skip
+        if (eye < lo + 0.25).any() or (eye > hi - 0.25).any() or _inside_something(eye, prims):
+            continue
+        target = focus + rng.normal(0, 0.25, 3)
+        pose = np.eye(4)
+        roll = rng.normal(0, 0.05)
+        c, s = math.cos(roll), math.sin(roll)
+        pose[:3, :3] = look_at(eye, target) @ np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
+        pose[:3, 3] = eye
+        zoom = rng.uniform(0.8, 1.3)
+        base = TUM_CAMERAS["fr3"].scaled(w, h)
+        cam = type(base)(base.fx * zoom, base.fy * zoom, base.cx, base.cy, w, h)
+        res = Renderer(cam).render(pose, scene.room, prims, bank, scene.lighting("source"))
+        if (res.labels > 0).mean() < MIN_OBJECT_SHARE:
+            continue
+        return VocSample(f"{seed:04d}_{index:06d}", to_uint8(res.rgb), res.labels)
+    raise RuntimeError(f"no usable view for VOC image {index} (seed {seed})")  # pragma: no cover
+
+
+def render_voc(
+    out_dir: str | PathLike[str],
+    *,
+    images: int,
+    size: tuple[int, int] = (320, 240),
+    seed: int = 0,
+    overwrite: bool = False,
+    progress: bool = False,
+) -> Path:
+    """Write ``out_dir/VOCdevkit/VOC2012/{JPEGImages, SegmentationClass, ImageSets/Segmentation}``.
+
+    ``images`` JPEGs (quality 90) with palette PNG labels; ``train.txt`` / ``val.txt`` (every
+    fifth image) and ``trainval.txt``. Returns the ``.../VOC2012`` path. The folder appears only
+    when complete; an existing non-empty ``out_dir`` is an error unless ``overwrite``.
+    """
+    if isinstance(images, bool) or not isinstance(images, (int, np.integer)) or images < 1:
+        raise SynthArgumentError(f"images must be an integer >= 1, got {images!r}")
+    size = check_size(size)
+    palette = voc_palette().reshape(-1).tolist()
+    band = void_width(size)
+    with staged_output(out_dir, overwrite) as tmp:
+        root = tmp / "VOCdevkit" / "VOC2012"
+        jpeg, seg, sets = (
+            root / "JPEGImages",
+            root / "SegmentationClass",
+            root / "ImageSets" / "Segmentation",
+        )
+        for folder in (jpeg, seg, sets):
+            folder.mkdir(parents=True)
+        names = []
+        for i in tqdm(range(images), desc="VOC images", unit="img", disable=not progress):
+            sample = render_voc_sample(seed, i, size)
+            write_jpeg(jpeg / f"{sample.name}.jpg", sample.rgb)
+            png = Image.fromarray(voc_indices(sample.labels, band), mode="P")
+            png.putpalette(palette)
+            png.save(seg / f"{sample.name}.png", optimize=False, compress_level=6)
+            names.append(sample.name)
+        val = [n for i, n in enumerate(names) if i % VAL_EVERY == VAL_EVERY - 1]
+        train = [n for i, n in enumerate(names) if i % VAL_EVERY != VAL_EVERY - 1]
+        for split, items in (("train", train), ("val", val), ("trainval", names)):
+            (sets / f"{split}.txt").write_text("".join(f"{n}\n" for n in items))
+    return Path(out_dir) / "VOCdevkit" / "VOC2012"

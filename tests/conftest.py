@@ -1,0 +1,60 @@
+"""Session-wide fixtures shared by every test area.
+
+``synthetic_sequence`` and ``synthetic_voc`` are factories: each distinct argument set is rendered
+once per test session (into pytest's temporary folder) and the same path is returned on every
+later call. Treat the returned folders as read-only; copy them to ``tmp_path`` before changing
+anything. Keep sizes and frame counts small (rendering takes tens of milliseconds per frame).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+
+from uss_slam.datasets.synthetic import render_sequence, render_voc
+
+SequenceFactory = Callable[..., Path]
+VocFactory = Callable[..., Path]
+
+
+@pytest.fixture(scope="session")
+def synthetic_sequence(tmp_path_factory: pytest.TempPathFactory) -> SequenceFactory:
+    """``synthetic_sequence(preset="walking_xyz", frames=30, size=(320, 240), style="target",
+    seed=0) -> Path`` of a TUM RGB-D sequence folder (see ``uss-synth sequence --help``)."""
+    cache: dict[tuple, Path] = {}
+
+    def make(
+        preset: str = "walking_xyz",
+        frames: int = 30,
+        size: tuple[int, int] = (320, 240),
+        style: str = "target",
+        seed: int = 0,
+    ) -> Path:
+        key = (preset, int(frames), tuple(int(v) for v in size), style, int(seed))
+        if key not in cache:
+            name = f"{preset}_{frames}_{size[0]}x{size[1]}_{style}_{seed}"
+            out = tmp_path_factory.mktemp("synthetic_sequence") / name
+            cache[key] = render_sequence(
+                out, preset=preset, frames=frames, size=size, style=style, seed=seed
+            )
+        return cache[key]
+
+    return make
+
+
+@pytest.fixture(scope="session")
+def synthetic_voc(tmp_path_factory: pytest.TempPathFactory) -> VocFactory:
+    """``synthetic_voc(images=24, size=(160, 120), seed=0) -> Path`` of a ``VOC2012`` folder
+    (``JPEGImages/``, ``SegmentationClass/``, ``ImageSets/Segmentation/{train,val}.txt``)."""
+    cache: dict[tuple, Path] = {}
+
+    def make(images: int = 24, size: tuple[int, int] = (160, 120), seed: int = 0) -> Path:
+        key = (int(images), tuple(int(v) for v in size), int(seed))
+        if key not in cache:
+            out = tmp_path_factory.mktemp("synthetic_voc")
+            cache[key] = render_voc(out / "data", images=images, size=size, seed=seed)
+        return cache[key]
+
+    return make
