@@ -119,7 +119,7 @@ def body_prims(pose: BodyPose, outfit: Outfit) -> list[Prim]:
         return hip_c + torso_rot @ np.asarray(p, np.float64)
 
     prims.append(
-        ellipsoid(w(t((0, 0, 0.05 * s))), np.array([0.13, 0.18, 0.13]) * s, PERSON, trousers,
+        ellipsoid(w(t((0, 0, 0.06 * s))), np.array([0.11, 0.17, 0.12]) * s, PERSON, trousers,
                   world_rot @ torso_rot, outfit.trousers_tint)
     )  # fmt: skip
     prims.append(
@@ -192,16 +192,19 @@ class Seat:
 
 @dataclass(frozen=True)
 class Segment:
-    kind: str  # "walk", "pause", "sit", "seated", "still"
+    kind: str  # "walk", "goto", "pause", "sit", "seated", "still"
     t0: float
     t1: float
     s0: float = 0.0  # path arc length at t0
     direction: float = 1.0
     heading0: float = 0.0
     heading1: float = 0.0
+    heading2: float = 0.0  # "sit": the heading to turn to after getting up
     seat: Seat | None = None
-    x0: float = 0.0  # root at t0 (stand spot before sitting)
+    x0: float = 0.0  # root at t0 ("goto": start; "sit": the spot in front of the seat)
     y0: float = 0.0
+    x1: float = 0.0  # "goto": end
+    y1: float = 0.0
 
 
 def _wrap(a: float) -> float:
@@ -255,22 +258,37 @@ class Behaviour:
         sat = seat is None or sit_at is None
         while t < duration + 2.0:
             if not sat and t >= sit_at - 8.0:  # type: ignore[operator]
-                # walk to the path point next to the seat, then turn, sit, rest, stand up
-                s_seat = path.closest((seat.x, seat.y))  # type: ignore[union-attr]
-                dist = ((s_seat - s) * direc) % path.length
-                walk_t = dist / speed
+                # walk to the path point nearest the seat, step in front of it, turn, sit, rest,
+                # get up, step back onto the path
+                assert seat is not None
+                stand = (
+                    seat.x + 0.45 * math.cos(seat.facing),
+                    seat.y + 0.45 * math.sin(seat.facing),
+                )
+                s_near = path.closest(stand)
+                walk_t = ((s_near - s) * direc) % path.length / speed
                 segs.append(Segment("walk", t, t + walk_t, s0=s, direction=direc))
                 t += walk_t
-                s = s_seat
-                p, tangent = path.at(s)
-                heading = tangent if direc > 0 else tangent + math.pi
+                s = s_near
+                p, _ = path.at(s)
+                step = math.hypot(stand[0] - p[0], stand[1] - p[1])
+                away = math.atan2(stand[1] - p[1], stand[0] - p[0])
+                segs.append(Segment("goto", t, t + step / speed, x0=float(p[0]), y0=float(p[1]),
+                                    x1=stand[0], y1=stand[1], heading0=away))  # fmt: skip
+                t += step / speed
                 rest = float(rng.uniform(3.0, 5.0))
-                end = t + 2 * SIT_TIME + rest + 2 * abs(_wrap(seat.facing - heading)) / TURN_RATE  # type: ignore[union-attr]
+                turns = (
+                    abs(_wrap(seat.facing - away)) + abs(_wrap(away + math.pi - seat.facing))
+                ) / TURN_RATE
+                end = t + 2 * SIT_TIME + rest + turns
                 segs.append(
-                    Segment("sit", t, end, s0=s, heading0=heading, heading1=seat.facing,
-                            seat=seat, x0=float(p[0]), y0=float(p[1]), direction=direc)
+                    Segment("sit", t, end, heading0=away, heading1=seat.facing,
+                            heading2=away + math.pi, seat=seat, x0=stand[0], y0=stand[1])
                 )  # fmt: skip
                 t = end
+                segs.append(Segment("goto", t, t + step / speed, x0=stand[0], y0=stand[1],
+                                    x1=float(p[0]), y1=float(p[1]), heading0=away + math.pi))  # fmt: skip
+                t += step / speed
                 sat = True
                 continue
             walk_t = float(rng.uniform(4.0, 9.0))
@@ -323,21 +341,29 @@ class Behaviour:
             st = seg.seat
             assert st is not None
             return BodyPose(st.x, st.y, st.facing, 0.0, 0.0, 1.0, *fid)
-        # "sit": turn to face away from the seat, sit down, rest, get up, turn back
+        if seg.kind == "goto":
+            f = dt / max(seg.t1 - seg.t0, 1e-6)
+            x = seg.x0 + (seg.x1 - seg.x0) * f
+            y = seg.y0 + (seg.y1 - seg.y0) * f
+            dist = math.hypot(x - seg.x0, y - seg.y0)
+            return BodyPose(x, y, seg.heading0, 2 * math.pi * dist / self.stride, 1.0, 0.0, 0.05)
+        # "sit": turn to face away from the seat, sit down, rest, get up, turn to leave
         st = seg.seat
         assert st is not None
-        turn = _wrap(seg.heading1 - seg.heading0)
-        turn_t = abs(turn) / TURN_RATE
+        turn_in = _wrap(seg.heading1 - seg.heading0)
+        turn_out = _wrap(seg.heading2 - seg.heading1)
+        in_t, out_t = abs(turn_in) / TURN_RATE, abs(turn_out) / TURN_RATE
         total = seg.t1 - seg.t0
-        if dt < turn_t:
-            h = seg.heading0 + turn * dt / max(turn_t, 1e-6)
+        if dt < in_t:
+            h = seg.heading0 + turn_in * dt / max(in_t, 1e-6)
             return BodyPose(seg.x0, seg.y0, h, dt * 6, 0.25, 0.0, 0.05)
-        if dt > total - turn_t:
-            back = (dt - (total - turn_t)) / max(turn_t, 1e-6)
-            h = seg.heading1 - turn * back
+        if dt > total - out_t:
+            f = (dt - (total - out_t)) / max(out_t, 1e-6)
+            h = seg.heading1 + turn_out * f
             return BodyPose(seg.x0, seg.y0, h, dt * 6, 0.25, 0.0, 0.05)
+        turn_t = in_t
+        inner_total = total - in_t - out_t
         inner = dt - turn_t
-        inner_total = total - 2 * turn_t
         if inner < SIT_TIME:
             f = _smooth(inner / SIT_TIME)
         elif inner > inner_total - SIT_TIME:

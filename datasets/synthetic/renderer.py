@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from ..tum_io import CameraIntrinsics
@@ -21,6 +22,8 @@ from .textures import TextureBank
 
 ROOM_FACES = 6
 """Ids 0..5 of the id buffer are the room faces x-, x+, y-, y+, floor, ceiling."""
+_CHUNK = 16384
+"""Pixels per chunk of the vectorised per-pixel passes (keeps temporaries in cache)."""
 
 # Per room face (x-, x+, y-, y+, floor, ceiling): the inward normal and texture axes. On walls u
 # runs to the viewer's right and v downwards from the ceiling, so texture images stand upright.
@@ -76,10 +79,15 @@ class RenderResult:
 
 
 class Renderer:
-    """Renders views of a camera with the given pinhole intrinsics (distortion ignored)."""
+    """Renders views of a camera with the given pinhole intrinsics (distortion ignored).
 
-    def __init__(self, camera: CameraIntrinsics) -> None:
+    ``cull=False`` tests every primitive against every pixel, in the given order (the naive
+    caster; same images, used as the speed reference in ``benchmarks/synth_speed.py``).
+    """
+
+    def __init__(self, camera: CameraIntrinsics, cull: bool = True) -> None:
         self.camera = camera
+        self.cull = cull
         w, h = camera.width, camera.height
         self.xs = ((np.arange(w) - camera.cx) / camera.fx).astype(np.float64)
         self.ys = ((np.arange(h) - camera.cy) / camera.fy).astype(np.float64)
@@ -88,7 +96,7 @@ class Renderer:
         )  # |(x, y, 1)| per pixel
         self.inv_ray_norm = np.float32(1) / self.ray_norm
         self.focal = np.float32(0.5 * (camera.fx + camera.fy))
-        step = max(4, 16384 // w)
+        step = max(4, 32768 // w)
         self._strips = [(y, min(y + step, h)) for y in range(0, h, step)]
         # surface buffers reused from frame to frame: u, v, nx, ny, nz (float32), material
         self._buffers = [np.empty((h, w), np.float32) for _ in range(5)] + [
@@ -139,7 +147,12 @@ class Renderer:
         if len(prims):
             rects, near = self._screen_rects(prims, pose)
             visible = np.flatnonzero(rects[:, 0] >= 0)
-            for k in visible[np.argsort(near[visible], kind="stable")]:
+            order = visible[np.argsort(near[visible], kind="stable")]
+            if not self.cull:
+                rects[:] = (0, 0, w, h)
+                near[:] = 0.0
+                order = np.arange(len(prims))
+            for k in order:
                 x0, y0, x1, y1 = (int(c) for c in rects[k])
                 zb = zbuf[y0:y1, x0:x1]
                 if near[k] >= zb.max():
@@ -163,6 +176,7 @@ class Renderer:
         # --- colour: filtered texture times shading and per-object tint
         tint = np.concatenate([np.ones((ROOM_FACES, 3), np.float32), prims.tint])
         tint *= np.asarray(lighting.color, np.float32) / np.float32(255)
+        tint = [np.ascontiguousarray(tint[:, c]) for c in range(3)]
         rgb = np.empty((h, w, 3), np.float32)
         for y0, y1 in self._strips:
             rows = slice(y0, y1)
@@ -174,42 +188,57 @@ class Renderer:
             packed = bank.sample(mat[rows], u[rows], v[rows], footprint)
             pts = [o32[i] + z * dd[i] for i in range(3)]
             shade = self._shade(pts, (nx[rows], ny[rows], nz[rows]), lighting)
-            albedo = packed.view(np.uint8).reshape(y1 - y0, w, 4)[..., :3]
-            rgb[rows] = albedo * (tint[ids[rows]] * shade[..., None])
+            albedo = packed.view(np.uint8).reshape(y1 - y0, w, 4).astype(np.float32)
+            strip_ids = ids[rows]
+            for c in range(3):
+                np.multiply(albedo[..., c], tint[c][strip_ids] * shade, out=rgb[rows, :, c])
         return RenderResult(rgb=rgb, depth=zbuf, labels=labels, ids=ids)
 
     def _object_surfaces(self, prims: PrimArrays, ids, zbuf, d, o32) -> None:
         """Normals, texture coordinates and materials of all pixels showing a primitive.
 
-        One vectorised pass over those pixels with per-pixel primitive parameters (cheaper than
-        a pass per primitive, whose cost would be dominated by per-call overhead).
+        Vectorised over those pixels (in cache-sized chunks) with per-pixel primitive parameters
+        gathered from small tables: cheaper than a pass per primitive, whose cost would be
+        dominated by per-call overhead.
         """
-        obj = np.flatnonzero(ids.reshape(-1) >= ROOM_FACES)
-        if len(obj) == 0:
+        obj_all = np.flatnonzero(ids.reshape(-1) >= ROOM_FACES)
+        if len(obj_all) == 0:
             return
-        k = ids.reshape(-1)[obj] - ROOM_FACES
-        t = zbuf.reshape(-1)[obj]
-        rel = [o32[i] + t * d[i].reshape(-1)[obj] - prims.center[k, i] for i in range(3)]
-        rk = prims.rot[k]  # (n, 3, 3)
-        p_l = [rk[:, 0, j] * rel[0] + rk[:, 1, j] * rel[1] + rk[:, 2, j] * rel[2] for j in range(3)]
-        half = prims.half[k]
-        kinds = prims.kind[k]
-        n_l = [np.empty(len(obj), np.float32) for _ in range(3)]
-        uo = np.empty(len(obj), np.float32)
-        vo = np.empty(len(obj), np.float32)
-        for kind in np.unique(kinds):
-            sel = np.flatnonzero(kinds == kind)
-            n_k, uo[sel], vo[sel] = surface(
-                int(kind), tuple(c[sel] for c in p_l), tuple(half[sel, j] for j in range(3))
-            )
-            for j in range(3):
-                n_l[j][sel] = n_k[j]
+        # one row per parameter: rotation entries r_ij (local -> world), centre, half extents
+        table = np.concatenate(
+            [prims.rot.reshape(-1, 9).T, prims.center.T, prims.half.T], axis=0
+        ).astype(np.float32)
+        table = np.ascontiguousarray(table)
         u, v, nx, ny, nz, mat = (b.reshape(-1) for b in self._buffers)
-        u[obj] = uo
-        v[obj] = vo
-        for i, buf in enumerate((nx, ny, nz)):
-            buf[obj] = rk[:, i, 0] * n_l[0] + rk[:, i, 1] * n_l[1] + rk[:, i, 2] * n_l[2]
-        mat[obj] = prims.material[k]
+        flat_ids, flat_z = ids.reshape(-1), zbuf.reshape(-1)
+        flat_d = [c.reshape(-1) for c in d]
+        for start in range(0, len(obj_all), _CHUNK):
+            obj = obj_all[start : start + _CHUNK]
+            k = flat_ids[obj] - ROOM_FACES
+            t = flat_z[obj]
+            r = [table[i][k] for i in range(9)]  # r[3 * i + j] = R[i, j]
+            rel = [o32[i] + t * flat_d[i][obj] - table[9 + i][k] for i in range(3)]
+            p_l = [r[j] * rel[0] + r[3 + j] * rel[1] + r[6 + j] * rel[2] for j in range(3)]
+            half = [table[12 + j][k] for j in range(3)]
+            kinds = prims.kind[k]
+            present = np.flatnonzero(np.bincount(kinds, minlength=3))
+            if len(present) == 1:
+                n_l, u[obj], v[obj] = surface(int(present[0]), tuple(p_l), tuple(half))
+            else:
+                n_l = [np.empty(len(obj), np.float32) for _ in range(3)]
+                uo = np.empty(len(obj), np.float32)
+                vo = np.empty(len(obj), np.float32)
+                for kind in present:
+                    sel = np.flatnonzero(kinds == kind)
+                    n_k, uo[sel], vo[sel] = surface(
+                        int(kind), tuple(c[sel] for c in p_l), tuple(c[sel] for c in half)
+                    )
+                    for j in range(3):
+                        n_l[j][sel] = n_k[j]
+                u[obj], v[obj] = uo, vo
+            for i, buf in enumerate((nx, ny, nz)):
+                buf[obj] = r[3 * i] * n_l[0] + r[3 * i + 1] * n_l[1] + r[3 * i + 2] * n_l[2]
+            mat[obj] = prims.material[k]
 
     @staticmethod
     def _room(room: Room, origin: np.ndarray, d: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
@@ -230,17 +259,21 @@ class Renderer:
         face = on_x * positive[0] + on_y * (2 + positive[1]) + on_z * (4 + positive[2])
         return np.minimum(np.minimum(tx, ty), tz), face.astype(np.uint8)
 
-    def flow(self, depth: np.ndarray, pose: np.ndarray, other: np.ndarray) -> np.ndarray:
+    def flow(
+        self, depth: np.ndarray, pose: np.ndarray, other: np.ndarray, step: int = 4
+    ) -> np.ndarray:
         """Image motion ``(H, W, 2)`` pixels of the static scene from ``pose`` to ``other``.
 
         ``depth`` (H, W) metres seen from camera-to-world ``pose``; the result is where each
         pixel's scene point appears in a camera at ``other``, minus the pixel's position.
+        Computed on every ``step``-th pixel and interpolated (it is smooth but at depth edges).
         """
         cam = self.camera
         rel = np.linalg.inv(other) @ pose
-        z = np.where(np.isfinite(depth), depth, np.float32(1e3))
-        xs = self.xs.astype(np.float32)[None, :]
-        ys = self.ys.astype(np.float32)[:, None]
+        z = depth[::step, ::step]
+        z = np.where(np.isfinite(z), z, np.float32(1e3))
+        xs = self.xs[::step].astype(np.float32)[None, :]
+        ys = self.ys[::step].astype(np.float32)[:, None]
         q = [
             (np.float32(rel[i, 0]) * xs + np.float32(rel[i, 1]) * ys + np.float32(rel[i, 2])) * z
             + np.float32(rel[i, 3])
@@ -249,7 +282,8 @@ class Renderer:
         inv_z = np.float32(1) / np.maximum(q[2], np.float32(NEAR))
         fu = np.float32(cam.fx) * (q[0] * inv_z - xs)
         fv = np.float32(cam.fy) * (q[1] * inv_z - ys)
-        return np.stack([fu, fv], axis=-1)
+        small = np.stack([fu, fv], axis=-1)
+        return cv2.resize(small, (cam.width, cam.height), interpolation=cv2.INTER_LINEAR)
 
     # ------------------------------------------------------------------ helpers
 

@@ -152,8 +152,9 @@ def office_scene(seed: int, people: str, duration: float) -> Scene:
     """The office of the TUM-like sequences (same furniture for every preset of a seed).
 
     Two desks face the camera with monitors and chairs behind them (where seated people sit),
-    shelves against the walls, a free chair in front of the desks. ``people``: ``"walking"`` two
-    people walk loops around the desks crossing the view (one sits down for a while),
+    shelves against the walls, a free chair beside the desks. ``people``: ``"walking"`` one person
+    walks loops around the desks (and sits down on the free chair for a while), another paces
+    back and forth about a metre in front of the camera;
     ``"sitting"`` two seated people who move a little, ``"frozen"`` the same two never moving.
     """
     rng = stream(seed, "office")
@@ -173,8 +174,8 @@ def office_scene(seed: int, people: str, duration: float) -> Scene:
     ]
     for st in seats:
         static += chair(st.x, st.y, st.facing, office=True)
-    front_seat = Seat(desk_x - 0.85, -0.3 + jit(0.1), math.pi)
-    static += chair(front_seat.x, front_seat.y, front_seat.facing, office=False)
+    side_seat = Seat(desk_x + 0.15, 1.75, math.pi + jit(0.3))
+    static += chair(side_seat.x, side_seat.y, side_seat.facing, office=False)
     static += chair(-0.2 + jit(0.1), -2.4, math.pi / 2 + jit(0.3), office=bool(rng.random() < 0.5))
     hx, hy = room.hi[0], room.hi[1]
     static += cabinet(hx - 0.2, -hy + 1.3, math.pi, 1.4, 0.4, 1.9)  # shelf on the far wall
@@ -187,17 +188,19 @@ def office_scene(seed: int, people: str, duration: float) -> Scene:
     prng = stream(seed, "office/people")
     persons: list[tuple[Outfit, Behaviour]] = []
     if people == "walking":
-        path = LoopPath((desk_x, 0.0), 1.3 + jit(0.05), 1.9 + jit(0.05))
-        for k in range(2):
-            start = path.length * (0.1 + 0.5 * k + float(prng.uniform(-0.05, 0.05)))
+        # one person walks a loop around the desks (and sits down on the side chair for a
+        # while), the other paces back and forth close in front of the camera
+        loop = LoopPath((desk_x + 0.15, 0.0), 1.15 + jit(0.03), 2.15 + jit(0.03))
+        pace = LoopPath((-0.6 + jit(0.05), jit(0.1)), 0.12, 1.0 + jit(0.05))
+        for k, path in enumerate((loop, pace)):
             behaviour = Behaviour.walking(
                 path,
                 stream(seed, "office/walk", k),
                 duration,
-                s_start=start,
+                s_start=path.length * float(prng.uniform(0.0, 1.0)),
                 direction=1.0 if k == 0 else -1.0,
-                speed=float(prng.uniform(0.8, 1.05)),
-                seat=front_seat if k == 0 else None,
+                speed=float(prng.uniform(0.85, 1.05) if k == 0 else prng.uniform(0.6, 0.8)),
+                seat=side_seat if k == 0 else None,
                 sit_at=float(prng.uniform(0.3, 0.6)) * duration if k == 0 else None,
             )
             persons.append((_outfit(prng, k), behaviour))

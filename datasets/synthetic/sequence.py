@@ -25,6 +25,7 @@ from .seeding import stream
 from .styles import (
     EXPOSURE_TIME,
     STYLES,
+    NoisePool,
     depth_to_png,
     exposure_gain,
     target_depth,
@@ -104,6 +105,8 @@ class SequenceRenderer:
         self.stamps[on_grid] += 1e-6
         self.depth_stamps = np.round(self.stamps + rng.uniform(0.003, 0.012, self.frames), 6)
         self.exposure_phase = float(stream(self.seed, "exposure").uniform(0, 2 * np.pi))
+        w, h = self.size
+        self.noise = NoisePool(self.seed, 2 * w * h * 3 + 4096) if style == "target" else None
 
     def time(self, stamp: float) -> float:
         """Seconds since the first frame (the clock of the scene and camera motion)."""
@@ -125,8 +128,9 @@ class SequenceRenderer:
             rng = stream(self.seed, "noise", index)
             before = self.motion.pose(t - EXPOSURE_TIME)
             flow = self.renderer.flow(res.depth, pose, before)
-            rgb = target_rgb(res.rgb, flow, exposure_gain(t, self.exposure_phase), rng)
-            depth = target_depth(res.depth, rng)
+            gain = exposure_gain(t, self.exposure_phase)
+            rgb = target_rgb(res.rgb, flow, gain, rng, self.noise)
+            depth = target_depth(res.depth, rng, self.noise)
         return Frame(index, stamp, float(self.depth_stamps[index]), rgb, depth, res.labels,
                      res.depth, pose)  # fmt: skip
 

@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 
 from ..tum_io import DEPTH_SCALE
+from .seeding import stream
 
 STYLES = ("source", "target")
 MAX_DEPTH = 4.5
@@ -23,7 +24,7 @@ MAX_DEPTH = 4.5
 MIN_DEPTH_TARGET = 0.4
 EXPOSURE_TIME = 0.02
 """Seconds the target-style shutter stays open (length of the motion blur)."""
-BLUR_TAPS = 5
+BLUR_TAPS = 4
 
 
 def to_uint8(rgb: np.ndarray) -> np.ndarray:
@@ -39,20 +40,58 @@ def depth_to_png(depth: np.ndarray) -> np.ndarray:
     return out
 
 
+class NoisePool:
+    """Pre-drawn noise, sliced at a random offset per frame (drawing fresh noise for every
+    pixel of every frame costs more than the rendering itself).
+
+    ``normal``: int8 standard normal noise times 16; ``uniform``: uint8 uniform in [0, 256).
+    """
+
+    def __init__(self, seed: int, size: int) -> None:
+        rng = stream(seed, "noise-pool")
+        self.normal = np.clip(np.rint(rng.standard_normal(size) * 16), -127, 127).astype(np.int8)
+        self.uniform = rng.integers(0, 256, size, dtype=np.uint8)
+
+    def _take(self, pool: np.ndarray, rng: np.random.Generator, shape: tuple[int, ...]):
+        n = int(np.prod(shape))
+        start = int(rng.integers(0, len(pool) - n + 1))
+        return pool[start : start + n].reshape(shape)
+
+    def normal16(self, rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
+        """Standard normal noise times 16 (int8)."""
+        return self._take(self.normal, rng, shape)
+
+    def uniform8(self, rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
+        """Uniform integers in [0, 256) (uint8)."""
+        return self._take(self.uniform, rng, shape)
+
+
 def motion_blur(rgb: np.ndarray, flow: np.ndarray, taps: int = BLUR_TAPS) -> np.ndarray:
     """Average of ``taps`` samples along each pixel's motion ``flow`` (H, W, 2) during the exposure.
 
     ``flow`` is where the pixel's scene point was, relative to now, when the shutter opened.
+    Works on uint8 images (averaged in 16 bits).
     """
     h, w = rgb.shape[:2]
-    gx, gy = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
-    acc = np.zeros_like(rgb)
+    gx, gy = _grid(h, w)
+    acc = np.zeros(rgb.shape, np.uint16)
     for s in np.linspace(0.0, 1.0, taps, dtype=np.float32):
         acc += cv2.remap(
             rgb, gx + s * flow[..., 0], gy + s * flow[..., 1], cv2.INTER_LINEAR,
             borderMode=cv2.BORDER_REFLECT,
         )  # fmt: skip
-    return acc / np.float32(taps)
+    return ((acc + taps // 2) // taps).astype(np.uint8)
+
+
+_GRIDS: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+
+
+def _grid(h: int, w: int) -> tuple[np.ndarray, np.ndarray]:
+    if (h, w) not in _GRIDS:
+        _GRIDS[(h, w)] = tuple(  # type: ignore[assignment]
+            np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+        )
+    return _GRIDS[(h, w)]
 
 
 def exposure_gain(t: float, phase: float) -> float:
@@ -75,34 +114,51 @@ def _vignette(h: int, w: int) -> np.ndarray:
     return _VIGNETTE[(h, w)]
 
 
+# Gamma 0.9 plus signal-dependent noise strength (photon noise grows with sqrt(intensity)):
+# both as 256-entry tables applied to the 8-bit image.
+_LEVELS = np.arange(256, dtype=np.float64) / 255
+_GAMMA_LUT = np.rint(255 * _LEVELS**0.9).astype(np.uint8)
+_NOISE_LUT = np.rint(255 * (0.012 + 0.025 * np.sqrt(_LEVELS**0.9)) * 16).astype(np.int16)
+"""Noise standard deviation in 1/16 grey levels per grey level (matches ``NoisePool.normal``)."""
+
+
 def target_rgb(
-    rgb: np.ndarray, flow: np.ndarray | None, gain: float, rng: np.random.Generator
+    rgb: np.ndarray,
+    flow: np.ndarray | None,
+    gain: float,
+    rng: np.random.Generator,
+    pool: NoisePool,
 ) -> np.ndarray:
-    """Kinect-like colour image (uint8 RGB) from a clean render ``rgb`` (H, W, 3) in [0, 1]."""
+    """Kinect-like colour image (uint8 RGB) from a clean render ``rgb`` (H, W, 3) in [0, 1].
+
+    Colour cast, vignetting and exposure gain; motion blur along ``flow``; the soft optics of
+    a Kinect (Gaussian, 0.55 px at 640 px); gamma; signal-dependent sensor noise.
+    """
     h, w = rgb.shape[:2]
-    img = motion_blur(rgb, flow) if flow is not None else rgb
-    sigma = 0.55 * max(w, h) / 640  # the Kinect's soft optics
-    img = cv2.GaussianBlur(img, (0, 0), sigma)
-    cast = np.array([1.07, 0.98, 0.8], np.float32)
-    img = img * (gain * cast) * _vignette(h, w) + np.array([0.03, 0.02, 0.05], np.float32)
-    img = np.power(np.clip(img, 0, 1), np.float32(0.9))
-    noise = rng.standard_normal(img.shape, dtype=np.float32)
-    img = img + noise * (0.012 + 0.025 * np.sqrt(img))
-    return to_uint8(img)
+    cast = np.array([1.07, 0.98, 0.8], np.float32) * np.float32(gain)
+    img = rgb * (_vignette(h, w) * cast) + np.array([0.03, 0.02, 0.05], np.float32)
+    img8 = to_uint8(img)
+    if flow is not None:
+        img8 = motion_blur(img8, flow)
+    img8 = cv2.GaussianBlur(img8, (0, 0), 0.55 * max(w, h) / 640)
+    img8 = cv2.LUT(img8, _GAMMA_LUT)
+    noise = pool.normal16(rng, img8.shape).astype(np.int16) * _NOISE_LUT[img8]
+    out = img8.astype(np.int16) + ((noise + 128) >> 8)  # 1/16 * 1/16 = the 1/256 scale
+    return np.clip(out, 0, 255).astype(np.uint8)
 
 
-def target_depth(depth: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+def target_depth(depth: np.ndarray, rng: np.random.Generator, pool: NoisePool) -> np.ndarray:
     """Kinect-like depth (uint16 PNG units) from exact depth in metres (H, W)."""
     z = depth.astype(np.float32)
     # axial noise grows with the square of the distance (Nguyen et al. 2012)
-    sigma = 0.0012 + 0.0019 * (z - 0.4) ** 2
-    noisy = z + sigma * rng.standard_normal(z.shape, dtype=np.float32)
+    sigma = np.float32(0.0012 / 16) + np.float32(0.0019 / 16) * (z - np.float32(0.4)) ** 2
+    noisy = z + sigma * pool.normal16(rng, z.shape)
     # holes where the depth jumps (shadowing between projector and camera) and a few dropouts
-    zf = np.where(np.isfinite(z), z, 10.0).astype(np.float32)
+    zf = np.where(np.isfinite(z), z, np.float32(10.0))
     kernel = np.ones((3, 3), np.uint8)
-    jump = (cv2.dilate(zf, kernel) - cv2.erode(zf, kernel)) > 0.08 * zf
-    jump = cv2.dilate(jump.astype(np.uint8), kernel).astype(bool)
-    holes = jump & (rng.random(z.shape, dtype=np.float32) < 0.75)
-    holes |= rng.random(z.shape, dtype=np.float32) < 0.003
+    jump = (cv2.dilate(zf, kernel) - cv2.erode(zf, kernel)) > np.float32(0.08) * zf
+    jump = cv2.dilate(jump.view(np.uint8), kernel).view(bool)
+    chance = pool.uniform8(rng, z.shape)
+    holes = (jump & (chance < 192)) | (chance == 255) & (pool.uniform8(rng, z.shape) < 200)
     noisy[holes | (z < MIN_DEPTH_TARGET)] = 0
     return depth_to_png(noisy)

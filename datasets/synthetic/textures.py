@@ -577,7 +577,7 @@ class TextureBank:
         self.offsets_flat = offsets.reshape(-1).astype(np.int32)
         self.shifts_flat = shifts.reshape(-1).astype(np.int32)
         self.inv_pow2 = np.exp2(-np.arange(self.num_levels, dtype=np.float32))
-        self.max_level = np.array([len(p) - 1 for p in pyramids], np.float32)
+        self.max_level_int = np.array([len(p) - 1 for p in pyramids], np.int32)
         self.inv_texel = np.array([1.0 / t for t in texels], np.float32)
 
     def sample(
@@ -594,12 +594,15 @@ class TextureBank:
         """
         m = self.offsets.shape[1]
         inv = self.inv_texel[mat]
-        lod = np.log2(np.maximum(footprint * inv, np.float32(1e-6)))
-        level = np.minimum(np.maximum(np.rint(lod), 0), self.max_level[mat]).astype(np.int32)
+        # mip level = round(log2(texels per pixel)), read off the float32 exponent bits of
+        # texels-per-pixel times sqrt(2) (cheaper than log2 and rint)
+        ratio = footprint * inv * np.float32(math.sqrt(2.0))
+        level = (ratio.view(np.int32) >> 23) - np.int32(127)
+        level = np.minimum(np.maximum(level, 0), self.max_level_int[mat])
         key = level * np.int32(m) + mat
         shift = self.shifts_flat[key]
         base = self.offsets_flat[key]
-        scale = inv * self.inv_pow2[level]
+        scale = np.ldexp(inv, -level)
         x = u * scale - np.float32(0.5)
         y = v * scale - np.float32(0.5)
         x0 = np.floor(x)
