@@ -51,6 +51,13 @@ def _positive(minimum: int):
     return parse
 
 
+def _frames_or_skip(text: str) -> int:
+    value = _positive(0)(text)
+    if value == 1:
+        raise argparse.ArgumentTypeError("must be 0 (skip) or >= 2, got 1")
+    return value
+
+
 def _preset(text: str) -> str:
     if text not in PRESETS:
         raise argparse.ArgumentTypeError(
@@ -169,13 +176,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     demo.add_argument(
         "--train-frames",
-        type=_positive(0),
+        type=_frames_or_skip,
         default=100,
         help="frames per target training sequence, 0 to skip (default: 100)",
     )
     demo.add_argument(
         "--val-frames",
-        type=_positive(0),
+        type=_frames_or_skip,
         default=100,
         help="frames of the labelled target validation sequence, 0 to skip (default: 100)",
     )
@@ -188,7 +195,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     demo.add_argument(
         "--slam-frames",
-        type=_positive(0),
+        type=_frames_or_skip,
         default=300,
         help="frames per SLAM evaluation sequence, 0 to skip (default: 300)",
     )
@@ -196,16 +203,8 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _check_frames(frames: int, what: str) -> None:
-    if frames == 1:
-        raise SynthArgumentError(f"{what} must be 0 (skip) or >= 2, got 1")
-
-
 def run_demo(args: argparse.Namespace) -> Path:
     """Render the demo data set into ``args.out`` (all-or-nothing) and return its path."""
-    for frames, what in ((args.train_frames, "--train-frames"), (args.val_frames, "--val-frames"),
-                         (args.slam_frames, "--slam-frames")):  # fmt: skip
-        _check_frames(frames, what)
     progress = not args.quiet
     with staged_output(args.out, args.overwrite) as tmp:
         if args.voc_images:

@@ -291,15 +291,15 @@ class Behaviour:
                 t += step / speed
                 sat = True
                 continue
-            walk_t = float(rng.uniform(4.0, 9.0))
+            walk_t = float(rng.uniform(2.5, 7.0))
             segs.append(Segment("walk", t, t + walk_t, s0=s, direction=direc))
             t += walk_t
             s += direc * speed * walk_t
-            if rng.random() < 0.45:  # stop, look around, maybe turn back
+            if rng.random() < 0.6:  # stop, look around, maybe turn back
                 _, tangent = path.at(s)
                 heading = tangent if direc > 0 else tangent + math.pi
                 back = rng.random() < 0.5
-                pause = float(rng.uniform(1.0, 2.5)) + (math.pi / TURN_RATE if back else 0.0)
+                pause = float(rng.uniform(1.5, 3.5)) + (math.pi / TURN_RATE if back else 0.0)
                 segs.append(
                     Segment("pause", t, t + pause, s0=s, heading0=heading,
                             heading1=heading + (math.pi if back else 0.0))

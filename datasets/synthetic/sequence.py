@@ -91,7 +91,7 @@ class SequenceRenderer:
         duration = self.frames / FPS + 1.0
         self.scene = office_scene(self.seed, self.preset.people, duration)
         self.motion = CameraMotion(self.preset.motion, self.scene.eye, self.scene.target, self.seed)
-        self.bank = texture_bank(style, self.seed)
+        self.bank = texture_bank(style)  # one set of materials per style, like one real office
         self.lighting = self.scene.lighting(style)
 
         rng = stream(self.seed, "stamps")
@@ -126,7 +126,8 @@ class SequenceRenderer:
             depth = depth_to_png(res.depth)
         else:
             rng = stream(self.seed, "noise", index)
-            before = self.motion.pose(t - EXPOSURE_TIME)
+            # the exposure is centred on the stamp: blur from half an exposure before to after
+            before = self.motion.pose(t - EXPOSURE_TIME / 2)
             flow = self.renderer.flow(res.depth, pose, before)
             gain = exposure_gain(t, self.exposure_phase)
             rgb = target_rgb(res.rgb, flow, gain, rng, self.noise)

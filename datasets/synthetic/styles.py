@@ -67,15 +67,16 @@ class NoisePool:
 
 
 def motion_blur(rgb: np.ndarray, flow: np.ndarray, taps: int = BLUR_TAPS) -> np.ndarray:
-    """Average of ``taps`` samples along each pixel's motion ``flow`` (H, W, 2) during the exposure.
+    """Average of ``taps`` samples along each pixel's motion during an exposure centred on now.
 
-    ``flow`` is where the pixel's scene point was, relative to now, when the shutter opened.
-    Works on uint8 images (averaged in 16 bits).
+    ``flow`` (H, W, 2) is where the pixel's scene point was, relative to now, when the shutter
+    opened; at constant velocity it is at minus that when the shutter closes. Works on uint8
+    images (averaged in 16 bits).
     """
     h, w = rgb.shape[:2]
     gx, gy = _grid(h, w)
     acc = np.zeros(rgb.shape, np.uint16)
-    for s in np.linspace(0.0, 1.0, taps, dtype=np.float32):
+    for s in np.linspace(-1.0, 1.0, taps, dtype=np.float32):
         acc += cv2.remap(
             rgb, gx + s * flow[..., 0], gy + s * flow[..., 1], cv2.INTER_LINEAR,
             borderMode=cv2.BORDER_REFLECT,

@@ -83,16 +83,25 @@ def _periodic_noise(rng: np.random.Generator, size: int, period: float, channels
     """Tileable band-limited noise, ``(size, size[, channels])`` float32 with std 1.
 
     White noise filtered in the Fourier domain (so it wraps seamlessly) with a Gaussian low-pass
-    whose cut-off corresponds to features about ``period`` texels across.
+    whose cut-off corresponds to features about ``period`` texels across. Smooth noise is made
+    at a coarser grid (at least 4 samples per period) and interpolated up.
     """
-    f = np.fft.fftfreq(size).astype(np.float32)
-    radius2 = f[:, None] ** 2 + f[None, :] ** 2
-    sigma = 1.0 / max(period, 1.0)
-    gain = np.exp(-radius2 / (2 * sigma * sigma)).astype(np.float32)
+    factor = 1
+    while period / (2 * factor) >= 4 and size // (2 * factor) >= 32:
+        factor *= 2
+    n = size // factor
+    f = np.fft.fftfreq(n).astype(np.float32)
+    fr = np.fft.rfftfreq(n).astype(np.float32)
+    sigma = factor / max(period, 1.0)
+    gain = np.exp(-(f[:, None] ** 2 + fr[None, :] ** 2) / (2 * sigma * sigma)).astype(np.float32)
     out = []
     for _ in range(channels):
-        white = rng.standard_normal((size, size)).astype(np.float32)
-        field = np.fft.ifft2(np.fft.fft2(white) * gain).real.astype(np.float32)
+        white = rng.standard_normal((n, n)).astype(np.float32)
+        field = np.fft.irfft2(np.fft.rfft2(white) * gain, s=(n, n)).astype(np.float32)
+        if factor > 1:
+            tiled = np.tile(field, (3, 3))  # interpolate with wrap-around neighbours
+            up = cv2.resize(tiled, (3 * size, 3 * size), interpolation=cv2.INTER_CUBIC)
+            field = np.ascontiguousarray(up[size : 2 * size, size : 2 * size])
         field /= field.std() + 1e-6
         out.append(field)
     return out[0] if channels == 1 else np.stack(out, axis=-1)
@@ -292,32 +301,53 @@ def _src_screen(rng, size: int) -> np.ndarray:
     return img
 
 
+def _contrasting(rng: np.random.Generator, colour_fn) -> tuple[RGB, RGB]:
+    """Two colours from ``colour_fn`` whose grey levels differ by at least 90 (ORB sees grey)."""
+    grey = lambda c: 0.299 * c[0] + 0.587 * c[1] + 0.114 * c[2]  # noqa: E731
+    a = colour_fn()
+    for _ in range(50):
+        b = colour_fn()
+        if abs(grey(a) - grey(b)) >= 90:
+            return a, b
+    return a, (20, 20, 20) if grey(a) > 128 else (235, 235, 235)
+
+
+def _print(img: np.ndarray, rng, colours: tuple[RGB, RGB], count: int, rmin: float, rmax: float):
+    """Clothing print: shapes in the two contrasting colours plus lettering."""
+    _scatter(img, rng, count, rmin, rmax, lambda: colours[int(rng.integers(0, 2))])
+    size = img.shape[0]
+    for _ in range(size // 48):
+        x, y = rng.uniform(0, size - 60, 2)
+        _text(img, x, y, rng.uniform(0.5, 0.9), colours[int(rng.integers(0, 2))], rng, 4)
+
+
 def _src_shirt(rng, size: int) -> np.ndarray:
-    a, b = _vivid(rng), _vivid(rng)
+    a, b = _contrasting(rng, lambda: _vivid(rng))
     img = np.full((size, size, 3), a, np.uint8)
     kind = rng.integers(0, 3)
-    step = int(rng.integers(20, 40))
-    if kind == 0:  # stripes with dots
+    step = int(rng.integers(16, 32))
+    if kind == 0:  # stripes
         for y in range(0, size, step):
             _rect(img, 0, y, size, step // 2, b)
-        _scatter(img, rng, 250, 3, 8, lambda: _vivid(rng))
     elif kind == 1:  # checks
         for y in range(0, size, step):
             for x in range(0, size, step):
                 if (x // step + y // step) % 2:
                     _rect(img, x, y, step - 1, step - 1, b)
-        _scatter(img, rng, 120, 3, 7, lambda: _vivid(rng))
-    else:  # print of shapes
-        _scatter(img, rng, 500, 4, 14, lambda: _vivid(rng) if rng.random() < 0.5 else b)
+    _print(img, rng, (a, b) if kind == 2 else _contrasting(rng, lambda: _vivid(rng)), 700, 3, 8)
     return img
 
 
 def _src_trousers(rng, size: int) -> np.ndarray:
     base = _shade(_vivid(rng), 0.45)
+    light = _shade(base, 2.6)
     img = np.full((size, size, 3), base, np.uint8)
     for x in range(0, size, int(rng.integers(24, 48))):  # seams, pockets, patches
-        cv2.line(img, (x, 0), (x, size), _shade(base, 1.8), 2)
-    _scatter(img, rng, 90, 3, 9, lambda: _shade(base, float(rng.choice([0.5, 1.9]))))
+        cv2.line(img, (x, 0), (x, size), light, 2)
+    for _ in range(12):
+        x, y = rng.uniform(0, size, 2)
+        _rect(img, x, y, rng.uniform(15, 40), rng.uniform(15, 40), light, 2)
+    _scatter(img, rng, 250, 2, 6, lambda: light if rng.random() < 0.5 else _shade(base, 0.4))
     return img
 
 
@@ -454,27 +484,31 @@ def _tgt_screen(rng, size: int) -> np.ndarray:
 
 
 def _tgt_shirt(rng, size: int) -> np.ndarray:
-    a, b = _muted(rng, 50, 200), _muted(rng, 30, 200)
+    a, b = _contrasting(rng, lambda: _muted(rng, 30, 220))
     if rng.random() < 0.5:  # plaid
         img = np.full((size, size, 3), a, np.uint8)
-        step = int(rng.integers(30, 60))
+        step = int(rng.integers(24, 48))
         for p in range(0, size, step):
             _rect(img, p, 0, step // 3, size, b)
             _rect(img, 0, p, size, step // 3, _shade(b, 0.7))
             cv2.line(img, (p + step // 2, 0), (p + step // 2, size), (235, 235, 230), 2)
-        return _modulate(img, _periodic_noise(rng, size, 1.5), 0.15)
-    n = _periodic_noise(rng, size, rng.uniform(6, 14))  # camouflage-like blotches
-    img = np.where((n > 0.3)[..., None], np.array(a, np.uint8), np.array(b, np.uint8))
-    img = np.where((n < -0.6)[..., None], np.array(_muted(rng, 20, 220), np.uint8), img)
-    return _modulate(img.astype(np.uint8), _periodic_noise(rng, size, 1.5), 0.12)
+    else:  # camouflage-like blotches
+        n = _periodic_noise(rng, size, rng.uniform(5, 10))
+        img = np.where((n > 0.3)[..., None], np.array(a, np.uint8), np.array(b, np.uint8))
+        img = np.ascontiguousarray(img.astype(np.uint8))
+    _print(img, rng, _contrasting(rng, lambda: _muted(rng, 20, 235)), 150, 3, 7)
+    return _modulate(img, _periodic_noise(rng, size, 1.5), 0.12)
 
 
 def _tgt_trousers(rng, size: int) -> np.ndarray:
     base = (50, 70, 120) if rng.random() < 0.6 else _muted(rng, 30, 110)
     img = _tgt_noisy(rng, size, base, 0.3, 1.2)
     for x in range(0, size, int(rng.integers(30, 60))):
-        cv2.line(img, (x, 0), (x, size), (200, 180, 120), 1)
-    _scatter(img, rng, 60, 3, 10, lambda: _shade(base, float(rng.choice([0.5, 1.7]))))
+        cv2.line(img, (x, 0), (x, size), (200, 180, 120), 2)
+    for _ in range(12):
+        x, y = rng.uniform(0, size, 2)
+        _rect(img, x, y, rng.uniform(15, 40), rng.uniform(15, 40), (200, 180, 120), 2)
+    _scatter(img, rng, 200, 2, 6, lambda: _shade(base, float(rng.choice([0.4, 2.2]))))
     return img
 
 
@@ -638,7 +672,7 @@ class TextureBank:
         return ((acc_lo >> np.uint32(8)) & low) | (acc_hi & np.uint32(0xFF00FF00))
 
 
-@functools.lru_cache(maxsize=4)
+@functools.lru_cache(maxsize=6)
 def texture_bank(family: str, variant: int = 0) -> TextureBank:
     """The bank of ``family`` (``"source"`` or ``"target"``), variant ``variant`` (cached)."""
     if family not in FAMILIES:

@@ -78,7 +78,7 @@ def render_voc_sample(seed: int, index: int, size: tuple[int, int]) -> VocSample
     """Render image ``index`` of the set with ``seed`` (deterministic, independent of the others)."""
     rng = stream(seed, "voc/view", index)
     w, h = size
-    bank = texture_bank("source", index % VOC_VARIANTS + 1000 * seed)
+    bank = texture_bank("source", index % VOC_VARIANTS)
     for attempt in range(200):
         scene: Scene = random_scene(seed, index * 1000 + attempt // 20)
         prims = scene.prims_at(0.0)
