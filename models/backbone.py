@@ -28,8 +28,8 @@ _TORCHVISION_WEIGHTS = {"resnet101": "ResNet101_Weights", "resnet50": "ResNet50_
 
 @dataclass(frozen=True)
 class _SmallSpec:
-    stem_width: int = 32
-    planes: tuple[int, int, int, int] = (16, 32, 64, 128)  # Bottleneck outputs 4x these
+    stem_width: int = 16
+    planes: tuple[int, int, int, int] = (8, 16, 32, 64)  # Bottleneck outputs 4x these
     blocks: tuple[int, int, int, int] = (1, 1, 1, 1)
 
 

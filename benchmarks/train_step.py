@@ -1,0 +1,257 @@
+"""Seconds per training iteration: the Lightning module vs a plain-PyTorch loop, same run.
+
+One iteration = the paper's Algorithm 1: source and target forward, segmentation and
+adversarial losses, segmenter step, both discriminator updates. Both loops train the same
+weights from the same initial state on the same fixed batch; the script checks that they
+end with the same weights (so they compute the same thing) and reports the median seconds per
+iteration of each and the ratio Lightning / plain.
+
+    .venv/bin/python benchmarks/train_step.py                      # ResNet-101 321x321 + demo
+    .venv/bin/python benchmarks/train_step.py --models small --iters 20
+
+:func:`plain_iteration` is also the independent reference the tests compare the module with.
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import functools
+import statistics
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from uss_slam.models import DeepLabV2, PatchDiscriminator
+from uss_slam.train.losses import LossWeights
+from uss_slam.train.module import AdversarialSegmentation
+from uss_slam.train.schedules import PolyLR
+
+
+@dataclass
+class PlainState:
+    """Everything a plain training loop owns."""
+
+    segmenter: DeepLabV2
+    d_aux: nn.Module
+    d_main: nn.Module
+    opt_seg: torch.optim.Optimizer
+    opt_d: torch.optim.Optimizer
+    sched_seg: PolyLR
+    sched_d: PolyLR
+
+
+def _up(logits: Tensor, size: torch.Size) -> Tensor:
+    return F.interpolate(logits, size=size, mode="bilinear", align_corners=True)
+
+
+def _bce(logits: Tensor, label: float) -> Tensor:
+    return F.binary_cross_entropy_with_logits(logits, torch.full_like(logits, label))
+
+
+def plain_iteration(
+    state: PlainState, batch: dict, weights: LossWeights, adaptation: bool = True
+) -> None:
+    """Algorithm 1 written out in plain PyTorch (independent of the Lightning module)."""
+    seg, d_aux, d_main = state.segmenter, state.d_aux, state.d_main
+    src_img, src_lbl = batch["source"]["image"], batch["source"]["label"]
+    trg_img = batch["target"]["image"]
+
+    # (1) segmentation loss, discriminators frozen.
+    for p in _params(d_aux, d_main):
+        p.requires_grad_(False)
+    state.opt_seg.zero_grad()
+    out_src = seg(src_img)
+    up_aux, up_main = _up(out_src.aux, src_lbl.shape[-2:]), _up(out_src.main, src_lbl.shape[-2:])
+    loss_seg = weights.lambda_seg_aux * F.cross_entropy(
+        up_aux, src_lbl, ignore_index=255
+    ) + weights.lambda_seg_main * F.cross_entropy(up_main, src_lbl, ignore_index=255)
+    loss_seg.backward()
+    if adaptation:
+        # (2) adversarial loss: target outputs should look like source (label 0).
+        out_trg = seg(trg_img)
+        p_aux = F.softmax(_up(out_trg.aux, trg_img.shape[-2:]), dim=1)
+        p_main = F.softmax(_up(out_trg.main, trg_img.shape[-2:]), dim=1)
+        loss_adv = weights.lambda_adv_aux * _bce(d_aux(p_aux), 0.0)
+        loss_adv = loss_adv + weights.lambda_adv_main * _bce(d_main(p_main), 0.0)
+        loss_adv.backward()
+    state.opt_seg.step()
+    for p in _params(d_aux, d_main):
+        p.requires_grad_(True)
+
+    if adaptation:
+        # (3) + (4) discriminators: detached source = 0, target = 1.
+        state.opt_d.zero_grad()
+        src_aux, src_main = F.softmax(up_aux.detach(), 1), F.softmax(up_main.detach(), 1)
+        (_bce(d_aux(src_aux), 0.0) + _bce(d_main(src_main), 0.0)).backward()
+        (_bce(d_aux(p_aux.detach()), 1.0) + _bce(d_main(p_main.detach()), 1.0)).backward()
+        state.opt_d.step()
+        state.sched_d.step()
+    state.sched_seg.step()
+
+
+def _params(*modules: nn.Module) -> Iterator[nn.Parameter]:
+    for module in modules:
+        yield from module.parameters()
+
+
+def plain_state_from(module: AdversarialSegmentation) -> PlainState:
+    """Deep copies of the module's networks with freshly built optimisers and schedules."""
+    seg = copy.deepcopy(module.segmenter)
+    d_aux, d_main = copy.deepcopy(module.d_aux), copy.deepcopy(module.d_main)
+    lr = module.optimizer_factory.keywords["lr"]
+    opt_seg = module.optimizer_factory(params=seg.param_groups(lr, module.head_lr_mult))
+    opt_d = module.d_optimizer_factory(params=list(d_aux.parameters()) + list(d_main.parameters()))
+    return PlainState(
+        seg,
+        d_aux,
+        d_main,
+        opt_seg,
+        opt_d,
+        PolyLR(opt_seg, module.max_iters, module.poly_power),
+        PolyLR(opt_d, module.max_iters, module.poly_power),
+    )
+
+
+def build_module(
+    backbone: str, max_iters: int = 1000, n_layers: int = 5, ndf: int = 64
+) -> AdversarialSegmentation:
+    return AdversarialSegmentation(
+        net=DeepLabV2(num_classes=4, backbone=backbone),
+        discriminator=functools.partial(PatchDiscriminator, 4, n_layers, ndf),
+        optimizer=functools.partial(
+            torch.optim.SGD, lr=2.5e-4, momentum=0.9, nesterov=True, weight_decay=1e-4
+        ),
+        d_optimizer=functools.partial(torch.optim.Adam, lr=1e-4, betas=(0.9, 0.99)),
+        max_iters=max_iters,
+    )
+
+
+def random_batch(size: int, batch: int = 1, seed: int = 0) -> dict:
+    g = torch.Generator().manual_seed(seed)
+    label = torch.randint(0, 4, (batch, size, size), generator=g)
+    label[:, :4] = 255
+    return {
+        "source": {"image": torch.randn(batch, 3, size, size, generator=g), "label": label},
+        "target": {"image": torch.randn(batch, 3, size, size, generator=g)},
+    }
+
+
+class _Repeat(torch.utils.data.Dataset):
+    def __init__(self, batch: dict, n: int) -> None:
+        self.batch, self.n = batch, n
+
+    def __len__(self) -> int:
+        return self.n
+
+    def __getitem__(self, index: int) -> dict:
+        return self.batch
+
+
+class _Timer:
+    """Lightning callback: wall time between consecutive batch starts (the whole iteration)."""
+
+    def __init__(self) -> None:
+        self.starts: list[float] = []
+
+    def times(self) -> list[float]:
+        return [b - a for a, b in zip(self.starts, self.starts[1:], strict=False)]
+
+
+def time_lightning(module: AdversarialSegmentation, batch: dict, iters: int) -> list[float]:
+    from lightning.pytorch import Callback, Trainer
+
+    timer = _Timer()
+
+    class Hook(Callback):
+        def on_train_batch_start(self, *args: object) -> None:
+            timer.starts.append(time.perf_counter())
+
+        def on_train_end(self, *args: object) -> None:
+            timer.starts.append(time.perf_counter())
+
+    loader = torch.utils.data.DataLoader(_Repeat(batch, iters), batch_size=None)
+    trainer = Trainer(
+        accelerator="cpu",
+        max_epochs=1,
+        logger=False,
+        enable_checkpointing=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        callbacks=[Hook()],
+    )
+    trainer.fit(module, train_dataloaders=loader)
+    return timer.times()
+
+
+def time_plain(state: PlainState, batch: dict, iters: int, weights: LossWeights) -> list[float]:
+    times = []
+    for _ in range(iters):
+        start = time.perf_counter()
+        plain_iteration(state, batch, weights)
+        times.append(time.perf_counter() - start)
+    return times
+
+
+def max_difference(a: nn.Module, b: nn.Module) -> float:
+    sa, sb = a.state_dict(), b.state_dict()
+    return max(float((sa[k].float() - sb[k].float()).abs().max()) for k in sa)
+
+
+def run(backbone: str, size: int, batch_size: int, iters: int, repeats: int) -> None:
+    torch.manual_seed(0)
+    module = build_module(backbone)
+    batch = random_batch(size, batch_size)
+    weights = module.loss_weights
+    results: dict[str, list[float]] = {"lightning": [], "plain": []}
+    for _ in range(repeats):  # alternate so both see the same machine load
+        state = plain_state_from(module)
+        results["plain"] += time_plain(state, batch, iters, weights)[1:]  # first = warm-up
+        reference = copy.deepcopy(module)
+        results["lightning"] += time_lightning(reference, batch, iters)[1:]
+    # Same computation: from the same start, both loops end with the same weights.
+    check_module = copy.deepcopy(module)
+    check_state = plain_state_from(check_module)
+    time_lightning(check_module, batch, 2)
+    for _ in range(2):
+        plain_iteration(check_state, batch, weights)
+    diff = max(
+        max_difference(check_module.segmenter, check_state.segmenter),
+        max_difference(check_module.d_main, check_state.d_main),
+    )
+    light = statistics.median(results["lightning"])
+    plain = statistics.median(results["plain"])
+    print(
+        f"{backbone:12s} {size}x{size} batch {batch_size}: lightning {light:.4f} s/it, "
+        f"plain {plain:.4f} s/it, ratio {light / plain:.3f} "
+        f"(n={len(results['plain'])} each; max weight difference after 2 its {diff:.1e})"
+    )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument(
+        "--models",
+        nargs="+",
+        default=["resnet101", "small"],
+        choices=["resnet101", "resnet50", "small"],
+    )
+    parser.add_argument("--iters", type=int, default=6, help="iterations per repeat")
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--threads", type=int, default=2)
+    args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+    print(f"torch {torch.__version__}, {args.threads} threads")
+    for name in args.models:
+        if name == "small":
+            run("resnet_small", 161, 4, args.iters * 4, args.repeats)
+        else:
+            run(name, 321, 1, args.iters, args.repeats)
+
+
+if __name__ == "__main__":
+    main()

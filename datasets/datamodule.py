@@ -1,0 +1,114 @@
+"""``UDADataModule``: labelled source + unlabelled target for training, labelled target frames
+for validation.
+
+Training batches are ``{"source": {"image", "label", "name"}, "target": {"image", "name"}}``
+(Lightning ``CombinedLoader``): ``image (N, 3, H, W)`` float32 normalised, ``label (N, H, W)``
+int64. An epoch is ``iterations_per_epoch`` batches of endless, seeded per-domain sample streams
+(:mod:`uss_slam.datasets.sampling`), so the data of every iteration is fixed by the seed alone:
+resuming from an epoch-end checkpoint replays exactly what an uninterrupted run would see.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from lightning.pytorch import LightningDataModule
+from lightning.pytorch.utilities import CombinedLoader
+from torch.utils.data import DataLoader, Dataset
+
+from uss_slam.datasets.errors import UssSlamError
+from uss_slam.datasets.sampling import SeededDataset, StreamSampler
+
+SOURCE_DOMAIN = 0
+TARGET_DOMAIN = 1
+
+
+class UDADataModule(LightningDataModule):
+    """Source / target training streams and a validation set.
+
+    Args:
+        source: labelled source dataset (e.g. :class:`~uss_slam.datasets.voc.VOCSegmentation`).
+        target: target dataset (e.g. unlabelled :class:`~uss_slam.datasets.tum.TUMFrames`).
+        val: labelled target frames for validation (``None``: no validation).
+        batch_size: samples per domain per iteration and rank (the paper: 1).
+        iterations_per_epoch: training batches per Lightning epoch (validation and checkpoints
+            happen at epoch ends by default).
+        val_batch_size: validation batch size.
+        num_workers: data-loading worker processes per loader.
+        seed: seed of the sample streams and their augmentation.
+        pin_memory: pin host memory (GPU training).
+    """
+
+    def __init__(
+        self,
+        source: Dataset,
+        target: Dataset,
+        val: Dataset | None = None,
+        batch_size: int = 1,
+        iterations_per_epoch: int = 1000,
+        val_batch_size: int = 1,
+        num_workers: int = 0,
+        seed: int = 0,
+        pin_memory: bool = False,
+    ) -> None:
+        super().__init__()
+        self.source = source
+        self.target = target
+        self.val = val
+        self.batch_size = batch_size
+        self.iterations_per_epoch = iterations_per_epoch
+        self.val_batch_size = val_batch_size
+        self.num_workers = num_workers
+        self.seed = seed
+        self.pin_memory = pin_memory
+
+    def _rank_and_world(self) -> tuple[int, int]:
+        trainer = self.trainer
+        if trainer is None:
+            return 0, 1
+        if trainer.world_size > 1 and trainer._accelerator_connector.use_distributed_sampler:
+            raise UssSlamError(
+                "UDADataModule shards its sample streams itself: set "
+                "trainer.use_distributed_sampler=false for multi-process training"
+            )
+        return trainer.global_rank, trainer.world_size
+
+    def _stream(self, dataset: Dataset, domain: int) -> DataLoader:
+        rank, world = self._rank_and_world()
+        sampler = StreamSampler(
+            len(dataset),  # type: ignore[arg-type]
+            batch_size=self.batch_size,
+            batches_per_epoch=self.iterations_per_epoch,
+            seed=self.seed,
+            domain=domain,
+            rank=rank,
+            world_size=world,
+        )
+        return DataLoader(
+            SeededDataset(dataset),
+            batch_size=self.batch_size,
+            sampler=sampler,
+            drop_last=True,
+            num_workers=self.num_workers,
+            persistent_workers=self.num_workers > 0,
+            pin_memory=self.pin_memory,
+        )
+
+    def train_dataloader(self) -> CombinedLoader:
+        loaders = {
+            "source": self._stream(self.source, SOURCE_DOMAIN),
+            "target": self._stream(self.target, TARGET_DOMAIN),
+        }
+        return CombinedLoader(loaders, mode="min_size")
+
+    def val_dataloader(self) -> DataLoader | list[Any]:
+        if self.val is None:
+            return []
+        return DataLoader(
+            self.val,
+            batch_size=self.val_batch_size,
+            shuffle=False,
+            num_workers=self.num_workers,
+            persistent_workers=self.num_workers > 0,
+            pin_memory=self.pin_memory,
+        )

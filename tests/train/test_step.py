@@ -1,0 +1,163 @@
+"""One training iteration of AdversarialSegmentation = Algorithm 1, checked structurally and
+against the independent plain-PyTorch reference of benchmarks/train_step.py."""
+
+from __future__ import annotations
+
+import copy
+import importlib.util
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+import torch
+from lightning.pytorch import Callback, LightningModule, Trainer
+
+from uss_slam.train.module import AdversarialSegmentation
+
+_PATH = Path(__file__).resolve().parents[2] / "benchmarks" / "train_step.py"
+_spec = importlib.util.spec_from_file_location("train_step_benchmark", _PATH)
+bench = importlib.util.module_from_spec(_spec)
+sys.modules[_spec.name] = bench
+_spec.loader.exec_module(bench)
+
+
+def _module(adaptation: bool = True) -> AdversarialSegmentation:
+    torch.manual_seed(0)
+    module = bench.build_module("resnet_small", max_iters=10, n_layers=5, ndf=8)
+    module.adaptation = adaptation
+    return module
+
+
+def _fit(module: LightningModule, batch: dict, iters: int, callbacks: list[Callback]) -> None:
+    loader = torch.utils.data.DataLoader(bench._Repeat(batch, iters), batch_size=None)
+    trainer = Trainer(
+        accelerator="cpu",
+        max_epochs=1,
+        logger=False,
+        enable_checkpointing=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        callbacks=callbacks,
+    )
+    trainer.fit(module, train_dataloaders=loader)
+
+
+def _params(module: torch.nn.Module) -> dict[str, torch.Tensor]:
+    return {k: v.detach().clone() for k, v in module.state_dict().items()}
+
+
+class Probe(Callback):
+    """Records gradients and weights at each optimiser step of the first iteration."""
+
+    def __init__(self) -> None:
+        self.steps: list[dict[str, Any]] = []
+        self.after: dict[str, dict[str, torch.Tensor]] = {}
+        self.segmenter_forwards = 0
+
+    def on_fit_start(self, trainer: Trainer, pl_module: LightningModule) -> None:
+        def count(*_: object) -> None:
+            self.segmenter_forwards += 1
+
+        pl_module.segmenter.register_forward_hook(count)
+
+    def on_before_optimizer_step(
+        self, trainer: Trainer, pl_module: LightningModule, optimizer: torch.optim.Optimizer
+    ) -> None:
+        self.steps.append(
+            {
+                "optimizer": trainer.optimizers.index(optimizer),
+                "d_grads": [
+                    p.grad is not None
+                    for d in (pl_module.d_aux, pl_module.d_main)
+                    for p in d.parameters()
+                ],
+                "seg_grads": [
+                    p.grad is not None for p in pl_module.segmenter.parameters() if p.requires_grad
+                ],
+                "segmenter": _params(pl_module.segmenter),
+                "discriminators": _params(pl_module.d_main),
+            }
+        )
+
+    def on_train_batch_end(self, trainer: Trainer, pl_module: LightningModule, *_: Any) -> None:
+        if not self.after:
+            self.after = {
+                "segmenter": _params(pl_module.segmenter),
+                "discriminators": _params(pl_module.d_main),
+            }
+
+
+def _equal(a: dict[str, torch.Tensor], b: dict[str, torch.Tensor]) -> bool:
+    return all(torch.equal(a[k], b[k]) for k in a)
+
+
+def test_segmenter_step_leaves_discriminators_without_gradients() -> None:
+    module = _module()
+    before = {"segmenter": _params(module.segmenter), "discriminators": _params(module.d_main)}
+    bn_before = module.segmenter.backbone.bn1.running_mean.clone()
+    probe = Probe()
+    _fit(module, bench.random_batch(41, 2), 1, [probe])
+
+    seg_step, d_step = probe.steps
+    assert (seg_step["optimizer"], d_step["optimizer"]) == (0, 1)
+    assert not any(seg_step["d_grads"])  # D frozen while L_seg and L_adv flow back
+    assert all(seg_step["seg_grads"]) and len(seg_step["seg_grads"]) > 0
+    assert all(d_step["d_grads"])
+    # The segmenter step changed the segmenter only; the D step changed the discriminators only.
+    assert not _equal(d_step["segmenter"], before["segmenter"])
+    assert _equal(d_step["discriminators"], before["discriminators"])
+    assert _equal(probe.after["segmenter"], d_step["segmenter"])
+    assert not _equal(probe.after["discriminators"], d_step["discriminators"])
+    assert probe.segmenter_forwards == 2  # source and target
+    # Frozen BatchNorm: statistics never move.
+    assert torch.equal(module.segmenter.backbone.bn1.running_mean, bn_before)
+    assert module.iteration == 1
+
+
+@pytest.mark.parametrize("adaptation", [True, False])
+def test_module_matches_plain_pytorch_reference(adaptation: bool) -> None:
+    module = _module(adaptation)
+    state = bench.plain_state_from(module)
+    batch = bench.random_batch(41, 2)
+    _fit(module, batch, 3, [])
+    for _ in range(3):
+        bench.plain_iteration(state, batch, module.loss_weights, adaptation=adaptation)
+    for mine, ref in (
+        (module.segmenter, state.segmenter),
+        (module.d_aux, state.d_aux),
+        (module.d_main, state.d_main),
+    ):
+        for key, value in mine.state_dict().items():
+            torch.testing.assert_close(value, ref.state_dict()[key], rtol=0, atol=1e-6)
+    lrs = [g["lr"] for g in module.trainer.optimizers[0].param_groups]
+    assert lrs == [g["lr"] for g in state.opt_seg.param_groups]
+    assert lrs[1] == pytest.approx(10 * lrs[0])
+
+
+def test_source_only_never_touches_the_discriminators() -> None:
+    module = _module(adaptation=False)
+    d_before = copy.deepcopy([module.d_aux.state_dict(), module.d_main.state_dict()])
+    probe = Probe()
+    _fit(module, bench.random_batch(41, 2), 2, [probe])
+    assert [s["optimizer"] for s in probe.steps] == [0, 0]  # only the segmenter steps
+    assert probe.segmenter_forwards == 2  # source only, two iterations
+    for d, before in zip((module.d_aux, module.d_main), d_before, strict=True):
+        assert _equal(d.state_dict(), before)
+        assert all(p.grad is None for p in d.parameters())
+    opt_d = module.trainer.optimizers[1]
+    assert len(opt_d.state) == 0
+    assert module.iteration == 2
+
+
+def test_non_finite_loss_stops_before_the_step() -> None:
+    module = _module()
+    with torch.no_grad():
+        module.segmenter.main.branches[0].bias.fill_(float("nan"))
+    before = _params(module.segmenter)
+    from uss_slam.train.module import NonFiniteLossError
+
+    with pytest.raises(NonFiniteLossError, match="non-finite loss_seg_src_main .* iteration 0"):
+        _fit(module, bench.random_batch(41, 1), 1, [])
+    after = _params(module.segmenter)
+    assert all(torch.equal(before[k], after[k]) for k in before if "main.branches.0" not in k)

@@ -1,0 +1,60 @@
+"""Losses of the paper's Algorithm 1 (eqs. 3–8) and their weights.
+
+Every loss is a mean over pixels (and batch): the paper's sums over ``h, w`` only rescale the
+weights, and the published weights (0.1 / 1.0 / 0.002 / 0.01) are those of mean-reduced losses
+(AdaptSegNet / ADVENT).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from uss_slam.datasets.classes import IGNORE_INDEX
+
+SOURCE_LABEL = 0.0
+"""Domain label of source outputs for the discriminators (paper: 0 = source)."""
+TARGET_LABEL = 1.0
+
+
+@dataclass(frozen=True)
+class LossWeights:
+    """λ of the four weighted terms (paper §3.3 defaults)."""
+
+    lambda_seg_aux: float = 0.1
+    lambda_seg_main: float = 1.0
+    lambda_adv_aux: float = 0.002
+    lambda_adv_main: float = 0.01
+
+
+def upsample(logits: Tensor, size: tuple[int, int]) -> Tensor:
+    """Bilinear upsampling of ``(N, C, h, w)`` head logits to ``size = (H, W)``.
+
+    ``align_corners=True`` as DeepLab-v2 and its adaptation descendants: an input of ``8k + 1``
+    pixels maps its ``k + 1`` logit rows exactly onto pixel rows ``0, 8, ..., 8k``.
+    """
+    return F.interpolate(logits, size=size, mode="bilinear", align_corners=True)
+
+
+def segmentation_loss(log_probs: Tensor, labels: Tensor) -> Tensor:
+    """Cross-entropy (eq. 3, one head) from ``(N, C, H, W)`` log-probabilities and ``(N, H, W)``
+    int64 labels; ``IGNORE_INDEX`` pixels are excluded. Returns 0 when every pixel is ignored."""
+    valid = labels != IGNORE_INDEX
+    if not bool(valid.any()):
+        return log_probs.sum() * 0.0
+    return F.nll_loss(log_probs, labels, ignore_index=IGNORE_INDEX)
+
+
+def domain_loss(d_logits: Tensor, domain: float) -> Tensor:
+    """Binary cross-entropy of discriminator logits against a constant domain label
+    (eqs. 4–8: ``-log D`` for label 1, ``-log(1 - D)`` for label 0)."""
+    return F.binary_cross_entropy_with_logits(d_logits, torch.full_like(d_logits, domain))
+
+
+def domain_accuracy(d_logits: Tensor, domain: float) -> Tensor:
+    """Share of discriminator patches that classify their domain correctly (logit > 0 = target)."""
+    predicted_target = d_logits > 0
+    return (predicted_target if domain == TARGET_LABEL else ~predicted_target).float().mean()
