@@ -1,0 +1,349 @@
+"""ORB front end as ORB-SLAM2's TUM settings: spread keypoints, descriptors, depth back-projection.
+
+Per pyramid level (scale 1.2, 8 levels) FAST corners are detected with threshold 20; grid cells
+(30 px at that level) where none is found are searched again with threshold 7. Each level keeps
+its share of the 1000 features (ORB-SLAM2's geometric split) chosen by grid bucketing: the best
+corner of every cell first, then the second best, ... so keypoints spread over the whole image
+instead of piling up on the most textured object. Orientation is the intensity centroid over a
+radius-15 disc (as ORB); descriptors are OpenCV's rBRIEF on the blurred pyramid.
+
+Keypoints with a depth measurement inside ``[min_depth, max_depth]`` are back-projected to 3D
+camera coordinates; the others are still matched as 2D observations. ``max_depth`` plays the
+role of ORB-SLAM2's "close point" threshold (``ThDepth`` 40 × the Kinect's 7.5 cm virtual
+baseline = 3 m): Kinect depth noise grows with the square of the distance. The default is 4 m
+because in the synthetic room (6 × 5 m) half of the visible depth lies beyond 3 m, and cutting it
+leaves too few map points at the far end of the room; set ``max_depth: 3.0`` for ORB-SLAM2's value.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+
+import cv2
+import numpy as np
+
+from uss_slam.datasets.tum_io import CameraIntrinsics
+
+HALF_PATCH = 15
+"""Radius of ORB's orientation disc (patch size 31), pixels at the keypoint's level."""
+EDGE = 19
+"""Keypoints keep this far from each level's border (ORB-SLAM2's EDGE_THRESHOLD)."""
+MAX_CELL_CALLS = 12
+"""Above this many empty cells on a level, the low-threshold FAST runs once over the level."""
+
+
+@dataclass(frozen=True)
+class OrbConfig:
+    """ORB extraction settings (defaults: ORB-SLAM2's TUM RGB-D configuration)."""
+
+    n_features: int = 1000
+    scale_factor: float = 1.2
+    n_levels: int = 8
+    ini_fast: int = 20
+    min_fast: int = 7
+    cell_size: int = 30
+    """Side of the cells searched again with ``min_fast`` when ``ini_fast`` finds nothing, px."""
+    min_depth: float = 0.1
+    max_depth: float = 4.0
+    """Depth beyond this is not back-projected, metres (see the module docstring)."""
+
+    def __post_init__(self) -> None:
+        if self.n_features < 1 or self.n_levels < 1 or self.scale_factor <= 1.0:
+            raise ValueError("orb: n_features and n_levels must be >= 1 and scale_factor > 1")
+        if not 0 < self.min_fast <= self.ini_fast or self.cell_size < 8:
+            raise ValueError("orb: need 0 < min_fast <= ini_fast and cell_size >= 8")
+        if not 0 <= self.min_depth < self.max_depth:
+            raise ValueError("orb: need 0 <= min_depth < max_depth")
+
+
+@dataclass
+class Features:
+    """The ``N`` keypoints of one frame; every array has ``N`` rows.
+
+    ``xy`` (N, 2) float32 pixel position in the (distorted) image; ``uv`` (N, 2) float64 the same
+    point undistorted (equal to ``xy`` for a camera without distortion); ``octave`` (N,) int32
+    pyramid level; ``angle`` (N,) float32 degrees; ``response`` (N,) float32 FAST score;
+    ``descriptors`` (N, 32) uint8; ``depth`` (N,) float32 metres (0 = no usable depth);
+    ``points`` (N, 3) float64 camera-frame coordinates, metres (NaN where ``depth`` is 0).
+    """
+
+    xy: np.ndarray
+    uv: np.ndarray
+    octave: np.ndarray
+    angle: np.ndarray
+    response: np.ndarray
+    descriptors: np.ndarray
+    depth: np.ndarray
+    points: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.xy)
+
+    @property
+    def has_depth(self) -> np.ndarray:
+        """``(N,)`` bool: the keypoint has a back-projected 3D point."""
+        return self.depth > 0
+
+    def subset(self, index: np.ndarray) -> Features:
+        """The keypoints selected by a boolean mask or index array."""
+        return Features(**{f.name: getattr(self, f.name)[index] for f in fields(self)})
+
+    @classmethod
+    def empty(cls) -> Features:
+        return cls(
+            xy=np.zeros((0, 2), np.float32),
+            uv=np.zeros((0, 2)),
+            octave=np.zeros(0, np.int32),
+            angle=np.zeros(0, np.float32),
+            response=np.zeros(0, np.float32),
+            descriptors=np.zeros((0, 32), np.uint8),
+            depth=np.zeros(0, np.float32),
+            points=np.zeros((0, 3)),
+        )
+
+
+class OrbExtractor:
+    """Extracts :class:`Features` from a grey image and its depth map."""
+
+    def __init__(self, config: OrbConfig, camera: CameraIntrinsics) -> None:
+        self.config = config
+        self.camera = camera
+        n, s = config.n_levels, config.scale_factor
+        self.scales = s ** np.arange(n)
+        """``(L,)`` scale of each level relative to level 0."""
+        self.sigma2 = self.scales**2
+        """``(L,)`` keypoint position variance per level, px² (ORB-SLAM2's convention)."""
+        # ORB-SLAM2's split: level l gets a share proportional to (1/s)^l.
+        share = config.n_features * (1 - 1 / s) / (1 - (1 / s) ** n)
+        budgets, left = [], config.n_features
+        for level in range(n - 1):
+            take = int(round(share * (1 / s) ** level))
+            budgets.append(take)
+            left -= take
+        budgets.append(max(left, 0))
+        self.budgets = budgets
+        self._fast_hi = cv2.FastFeatureDetector_create(config.ini_fast, True)
+        self._fast_lo = cv2.FastFeatureDetector_create(config.min_fast, True)
+        self._orb = cv2.ORB_create(
+            nfeatures=config.n_features,
+            scaleFactor=config.scale_factor,
+            nlevels=config.n_levels,
+            edgeThreshold=EDGE,
+            patchSize=2 * HALF_PATCH + 1,
+            fastThreshold=config.ini_fast,
+        )
+        # Disc of radius HALF_PATCH (ORB's umax rule), as (dy, dx) offsets.
+        dy, dx = np.mgrid[-HALF_PATCH : HALF_PATCH + 1, -HALF_PATCH : HALF_PATCH + 1]
+        inside = dx**2 + dy**2 <= HALF_PATCH**2 + HALF_PATCH  # ~ umax's rounding
+        self._disc_dy = dy[inside].astype(np.int64)
+        self._disc_dx = dx[inside].astype(np.int64)
+        self._k = camera.matrix
+        self._dist = np.asarray(camera.distortion, dtype=np.float64)
+
+    # ------------------------------------------------------------------ detection
+
+    def pyramid(self, gray: np.ndarray) -> list[np.ndarray]:
+        """Level images (level 0 = ``gray``), each ``1/scale_factor`` the size of the previous."""
+        levels = [gray]
+        h, w = gray.shape
+        for level in range(1, self.config.n_levels):
+            size = (
+                int(round(w / self.scales[level])),
+                int(round(h / self.scales[level])),
+            )
+            levels.append(cv2.resize(levels[-1], size, interpolation=cv2.INTER_LINEAR))
+        return levels
+
+    def _detect_level(self, image: np.ndarray, budget: int) -> tuple[np.ndarray, np.ndarray]:
+        """``(M, 2)`` float32 corner positions and ``(M,)`` scores chosen on one level."""
+        h, w = image.shape
+        lo_x, lo_y, hi_x, hi_y = EDGE, EDGE, w - EDGE, h - EDGE
+        if budget <= 0 or hi_x - lo_x < 8 or hi_y - lo_y < 8:
+            return np.zeros((0, 2), np.float32), np.zeros(0, np.float32)
+        # FAST needs a 3 px ring around each tested pixel: detect on the region grown by 3 px.
+        roi = image[lo_y - 3 : hi_y + 3, lo_x - 3 : hi_x + 3]
+        xy, score = _fast(self._fast_hi, roi, lo_x - 3, lo_y - 3)
+        keep = _inside(xy, lo_x, lo_y, hi_x, hi_y)
+        xy, score = xy[keep], score[keep]
+        cell = self.config.cell_size
+        nx = max(1, int(math.ceil((hi_x - lo_x) / cell)))
+        ny = max(1, int(math.ceil((hi_y - lo_y) / cell)))
+        occupied = np.zeros(nx * ny, dtype=bool)
+        if len(xy):
+            cx = np.minimum(((xy[:, 0] - lo_x) / cell).astype(np.int64), nx - 1)
+            cy = np.minimum(((xy[:, 1] - lo_y) / cell).astype(np.int64), ny - 1)
+            occupied[cy * nx + cx] = True
+        empty = np.flatnonzero(~occupied)
+        extra_xy, extra_score = [], []
+        if len(empty) > MAX_CELL_CALLS:
+            # Many empty cells: one masked low-threshold pass over the level is cheaper than
+            # per-cell calls (OpenCV drops corners outside the mask before returning them).
+            cells = (~occupied).reshape(ny, nx).astype(np.uint8) * 255
+            mask = np.zeros(roi.shape, np.uint8)
+            grown = np.repeat(np.repeat(cells, cell, axis=0), cell, axis=1)
+            mask[3:-3, 3:-3] = grown[: hi_y - lo_y, : hi_x - lo_x]
+            p, s = _fast(self._fast_lo, roi, lo_x - 3, lo_y - 3, mask)
+            extra_xy.append(p)
+            extra_score.append(s)
+        else:
+            for c in empty:
+                gy, gx = divmod(int(c), nx)
+                x0, y0 = lo_x + gx * cell, lo_y + gy * cell
+                x1, y1 = min(x0 + cell, hi_x), min(y0 + cell, hi_y)
+                sub = image[y0 - 3 : y1 + 3, x0 - 3 : x1 + 3]
+                p, s = _fast(self._fast_lo, sub, x0 - 3, y0 - 3)
+                keep = _inside(p, x0, y0, x1, y1)
+                extra_xy.append(p[keep])
+                extra_score.append(s[keep])
+        if extra_xy:
+            xy = np.concatenate([xy, *extra_xy])
+            score = np.concatenate([score, *extra_score])
+        if len(xy) <= budget:
+            return xy, score
+        # Grid bucketing: cells sized so that there are about `budget` of them; take rank-0
+        # corners of all cells (best first), then rank-1 corners, ... until the budget is met.
+        side = math.sqrt((hi_x - lo_x) * (hi_y - lo_y) / budget)
+        bx = max(1, int(math.ceil((hi_x - lo_x) / side)))
+        col = np.minimum(((xy[:, 0] - lo_x) / side).astype(np.int64), bx - 1)
+        bucket = ((xy[:, 1] - lo_y) / side).astype(np.int64) * bx + col
+        order = np.lexsort((-score, bucket))
+        sorted_bucket = bucket[order]
+        first = np.r_[0, np.flatnonzero(np.diff(sorted_bucket)) + 1]
+        rank = np.arange(len(order)) - np.repeat(first, np.diff(np.r_[first, len(order)]))
+        pick = order[np.lexsort((-score[order], rank))[:budget]]
+        return xy[pick], score[pick]
+
+    def _orientation(self, image: np.ndarray, xy: np.ndarray) -> np.ndarray:
+        """``(M,)`` ORB intensity-centroid angle in degrees [0, 360) at level coordinates ``xy``."""
+        if len(xy) == 0:
+            return np.zeros(0, np.float32)
+        w = image.shape[1]
+        centre = np.rint(xy).astype(np.int64)
+        flat = image.reshape(-1)
+        offsets = self._disc_dy * w + self._disc_dx
+        patches = flat[(centre[:, 1] * w + centre[:, 0])[:, None] + offsets[None, :]].astype(
+            np.float32
+        )
+        m01 = patches @ self._disc_dy.astype(np.float32)
+        m10 = patches @ self._disc_dx.astype(np.float32)
+        return (np.degrees(np.arctan2(m01, m10)) % 360.0).astype(np.float32)
+
+    # ------------------------------------------------------------------ public
+
+    def detect(self, gray: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Spread, oriented keypoints of a grey image.
+
+        Returns ``xy`` (N, 2) float32 level-0 pixel positions, ``octave`` (N,) int32, ``angle``
+        (N,) float32 degrees and ``response`` (N,) float32 FAST scores, grouped by level.
+        """
+        xys, octaves, angles, responses = [], [], [], []
+        for level, image in enumerate(self.pyramid(gray)):
+            xy, score = self._detect_level(image, self.budgets[level])
+            angles.append(self._orientation(image, xy))
+            xys.append(xy * np.float32(self.scales[level]))
+            octaves.append(np.full(len(xy), level, np.int32))
+            responses.append(score)
+        return (
+            np.concatenate(xys).reshape(-1, 2),
+            np.concatenate(octaves),
+            np.concatenate(angles),
+            np.concatenate(responses),
+        )
+
+    def __call__(self, gray: np.ndarray, depth: np.ndarray | None) -> Features:
+        """Keypoints, descriptors and depth of one frame.
+
+        ``gray`` (H, W) uint8; ``depth`` (H, W) float32 metres (0 = none) or None.
+        """
+        if gray.ndim != 2 or gray.dtype != np.uint8:
+            raise ValueError(f"expected a (H, W) uint8 grey image, got {gray.dtype} {gray.shape}")
+        xy, octave, angle, response = self.detect(gray)
+        if len(xy) == 0:
+            return Features.empty()
+        sizes = (2 * HALF_PATCH + 1) * self.scales[octave]
+        keypoints = [
+            cv2.KeyPoint(x, y, s, a, r, o, k)
+            for k, (x, y, s, a, r, o) in enumerate(
+                zip(
+                    xy[:, 0].tolist(),
+                    xy[:, 1].tolist(),
+                    sizes.tolist(),
+                    angle.tolist(),
+                    response.tolist(),
+                    octave.tolist(),
+                    strict=True,
+                )
+            )
+        ]
+        described, descriptors = self._orb.compute(gray, keypoints)
+        if descriptors is None or not described:
+            return Features.empty()
+        # OpenCV may reorder (by level) or drop keypoints; class_id says which is which.
+        kept = np.array([k.class_id for k in described], dtype=np.int64)
+        if len(kept) != len(xy) or np.any(kept[1:] < kept[:-1]):
+            order = np.argsort(kept, kind="stable")
+            kept, descriptors = kept[order], descriptors[order]
+        xy, octave, angle, response = xy[kept], octave[kept], angle[kept], response[kept]
+        return self.describe(xy, octave, angle, response, descriptors, depth)
+
+    def describe(
+        self,
+        xy: np.ndarray,
+        octave: np.ndarray,
+        angle: np.ndarray,
+        response: np.ndarray,
+        descriptors: np.ndarray,
+        depth: np.ndarray | None,
+    ) -> Features:
+        """Assemble :class:`Features`: undistort positions, sample depth, back-project."""
+        uv = self.undistort(xy)
+        n = len(xy)
+        z = np.zeros(n, np.float32)
+        if depth is not None and n:
+            h, w = depth.shape
+            col = np.clip(np.rint(xy[:, 0]).astype(np.int64), 0, w - 1)
+            row = np.clip(np.rint(xy[:, 1]).astype(np.int64), 0, h - 1)
+            z = depth[row, col].astype(np.float32)
+            z[(z < self.config.min_depth) | (z > self.config.max_depth)] = 0.0
+        points = self.backproject(uv, z)
+        return Features(xy, uv, octave, angle, response, descriptors, z, points)
+
+    def undistort(self, xy: np.ndarray) -> np.ndarray:
+        """``(N, 2)`` undistorted pixel coordinates of image positions ``xy`` (float64)."""
+        xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        if not self.camera.has_distortion or len(xy) == 0:
+            return xy.copy()
+        return cv2.undistortPoints(xy.reshape(-1, 1, 2), self._k, self._dist, P=self._k).reshape(
+            -1, 2
+        )
+
+    def backproject(self, uv: np.ndarray, z: np.ndarray) -> np.ndarray:
+        """``(N, 3)`` camera-frame points of undistorted pixels ``uv`` at depths ``z`` (0 -> NaN)."""
+        cam = self.camera
+        z = np.asarray(z, dtype=np.float64)
+        pts = np.empty((len(z), 3))
+        pts[:, 0] = (uv[:, 0] - cam.cx) * z / cam.fx
+        pts[:, 1] = (uv[:, 1] - cam.cy) * z / cam.fy
+        pts[:, 2] = z
+        pts[z <= 0] = np.nan
+        return pts
+
+
+def _fast(
+    detector: cv2.FastFeatureDetector,
+    image: np.ndarray,
+    ox: int,
+    oy: int,
+    mask: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    found = detector.detect(image, mask)
+    if not found:
+        return np.zeros((0, 2), np.float32), np.zeros(0, np.float32)
+    xy = cv2.KeyPoint_convert(found).reshape(-1, 2) + np.float32([ox, oy])
+    score = np.array([k.response for k in found], dtype=np.float32)
+    return xy, score
+
+
+def _inside(xy: np.ndarray, x0: float, y0: float, x1: float, y1: float) -> np.ndarray:
+    return (xy[:, 0] >= x0) & (xy[:, 0] < x1) & (xy[:, 1] >= y0) & (xy[:, 1] < y1)

@@ -1,0 +1,128 @@
+"""Descriptor matching: Hamming distances and guided (projection-window) matching, vectorised.
+
+Guided matching is ORB-SLAM2's ``SearchByProjection``: every map point projected into the frame
+looks for keypoints within a radius around its projection, on pyramid levels near the level its
+distance predicts; the best descriptor distance wins if it is below ``max_distance`` and clearly
+better than the second best (ratio test); each keypoint goes to at most one map point.
+Candidates come from a uniform grid over the keypoints, so the cost grows with the number of
+nearby pairs, not with (map points × keypoints).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+def hamming(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise Hamming distance of ``(P, 32)`` uint8 descriptor arrays -> ``(P,)`` int."""
+    x = np.ascontiguousarray(a).view(np.uint64) ^ np.ascontiguousarray(b).view(np.uint64)
+    return np.bitwise_count(x).sum(axis=1, dtype=np.int32)
+
+
+def radius_pairs(
+    query: np.ndarray,
+    radius: np.ndarray,
+    points: np.ndarray,
+    size: tuple[int, int],
+    cell: float = 16.0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """All ``(query, point)`` index pairs closer than the query's radius.
+
+    ``query`` (Q, 2) and ``points`` (N, 2) are pixel positions, ``radius`` (Q,) pixels, ``size``
+    the image ``(width, height)`` used to lay out the grid (positions outside are clamped into
+    the border cells, so nothing is lost).
+    """
+    empty = np.zeros(0, np.int64)
+    if len(query) == 0 or len(points) == 0:
+        return empty, empty
+    width, height = size
+    nx, ny = max(1, int(np.ceil(width / cell))), max(1, int(np.ceil(height / cell)))
+    gx = np.clip((points[:, 0] // cell).astype(np.int64), 0, nx - 1)
+    gy = np.clip((points[:, 1] // cell).astype(np.int64), 0, ny - 1)
+    keys = gy * nx + gx
+    order = np.argsort(keys, kind="stable")
+    sorted_keys = keys[order]
+    cells = np.arange(nx * ny)
+    starts = np.searchsorted(sorted_keys, cells, side="left")
+    ends = np.searchsorted(sorted_keys, cells, side="right")
+
+    x0 = np.clip(((query[:, 0] - radius) // cell).astype(np.int64), 0, nx - 1)
+    x1 = np.clip(((query[:, 0] + radius) // cell).astype(np.int64), 0, nx - 1)
+    y0 = np.clip(((query[:, 1] - radius) // cell).astype(np.int64), 0, ny - 1)
+    y1 = np.clip(((query[:, 1] + radius) // cell).astype(np.int64), 0, ny - 1)
+    ncx = x1 - x0 + 1
+    ncell = ncx * (y1 - y0 + 1)
+    q_rep = np.repeat(np.arange(len(query)), ncell)
+    local = np.arange(len(q_rep)) - np.repeat(np.cumsum(ncell) - ncell, ncell)
+    c = (y0[q_rep] + local // ncx[q_rep]) * nx + x0[q_rep] + local % ncx[q_rep]
+    count = ends[c] - starts[c]
+    qi = np.repeat(q_rep, count)
+    within = np.arange(len(qi)) - np.repeat(np.cumsum(count) - count, count)
+    pi = order[np.repeat(starts[c], count) + within]
+    d2 = ((points[pi] - query[qi]) ** 2).sum(axis=1)
+    keep = d2 <= radius[qi] ** 2
+    return qi[keep], pi[keep]
+
+
+@dataclass(frozen=True)
+class Matches:
+    """Accepted matches: ``query`` (M,) map-side indices, ``keypoint`` (M,) frame keypoint
+    indices, ``distance`` (M,) Hamming distances."""
+
+    query: np.ndarray
+    keypoint: np.ndarray
+    distance: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.query)
+
+
+def guided_match(
+    proj: np.ndarray,
+    radius: np.ndarray,
+    level: np.ndarray,
+    descriptors: tuple[np.ndarray, ...],
+    kp_uv: np.ndarray,
+    kp_octave: np.ndarray,
+    kp_descriptors: np.ndarray,
+    available: np.ndarray,
+    size: tuple[int, int],
+    *,
+    max_distance: int = 100,
+    ratio: float = 0.8,
+    level_window: int = 1,
+) -> Matches:
+    """Match projected map points to keypoints.
+
+    ``proj`` (Q, 2) projected positions, ``radius`` (Q,) search radii (px), ``level`` (Q,)
+    predicted pyramid levels, ``descriptors`` one or more (Q, 32) descriptor sets per map point
+    (the smallest distance over the sets counts), ``kp_uv`` (N, 2), ``kp_octave`` (N,),
+    ``kp_descriptors`` (N, 32), ``available`` (N,) bool (keypoints that may be matched).
+    """
+    qi, ki = radius_pairs(proj, radius, kp_uv, size)
+    keep = available[ki] & (np.abs(kp_octave[ki] - level[qi]) <= level_window)
+    qi, ki = qi[keep], ki[keep]
+    empty = Matches(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int32))
+    if len(qi) == 0:
+        return empty
+    dist = hamming(descriptors[0][qi], kp_descriptors[ki])
+    for extra in descriptors[1:]:
+        dist = np.minimum(dist, hamming(extra[qi], kp_descriptors[ki]))
+    order = np.lexsort((dist, qi))
+    qi, ki, dist = qi[order], ki[order], dist[order]
+    first = np.r_[True, qi[1:] != qi[:-1]]
+    best = np.flatnonzero(first)
+    has_second = np.r_[best[1:] - best[:-1] > 1, len(qi) - best[-1] > 1]
+    second = np.where(has_second, dist[np.minimum(best + 1, len(qi) - 1)], np.iinfo(np.int32).max)
+    ok = (dist[best] <= max_distance) & (dist[best] < ratio * second)
+    best = best[ok]
+    if len(best) == 0:
+        return empty
+    qi, ki, dist = qi[best], ki[best], dist[best]
+    # One map point per keypoint: the closest descriptor keeps it.
+    order = np.lexsort((dist, ki))
+    first = np.r_[True, ki[order][1:] != ki[order][:-1]]
+    sel = np.sort(order[first])
+    return Matches(qi[sel], ki[sel], dist[sel])

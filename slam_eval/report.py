@@ -1,0 +1,352 @@
+"""Run outputs: ``trajectory.txt``, ``metrics.json``, ``report.md``, plots, ``map.ply``; and the
+comparison table of several filter sets on one sequence (baseline vs each, improvement %).
+
+``metrics.json`` keys: ``ate`` (``rmse mean median std min max pairs``, metres, SE(3)-aligned by
+default) and ``rpe`` (``trans`` metres / ``rot_deg`` degrees, each with the same statistics, over
+``rpe_delta`` frames by default 1) — both null when the sequence has no ground truth or too few
+tracked poses associate (``ate_error`` says why) — plus ``rpe_1s`` (drift per second), ``frames``,
+``frames_tracked``, ``tracked_fraction``, ``keypoints`` (extracted / kept / flagged and dropped
+per filter), ``timing_ms`` (mean per frame of each module and ``total``), ``fps`` and
+``pipeline_to_orb_ratio`` (total time / ORB-extraction time of the same run).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from uss_slam.datasets.errors import UssSlamError
+from uss_slam.datasets.tum_io import StrPath, Trajectory, write_trajectory
+
+from . import metrics
+from .pipeline import RunResult
+from .semantic_map import write_ply
+
+STAT_KEYS = ("rmse", "mean", "median", "std", "min", "max")
+
+
+@dataclass(frozen=True)
+class EvalConfig:
+    """How trajectories are scored (TUM / evo conventions)."""
+
+    max_diff: float = 0.02
+    align: str = "se3"
+    rpe_delta: float = 1.0
+    rpe_unit: str = "frames"
+
+
+@dataclass
+class Evaluation:
+    """ATE / RPE of a run, or why they could not be computed."""
+
+    ate: metrics.AteResult | None
+    rpe: metrics.RpeResult | None
+    rpe_1s: metrics.RpeResult | None
+    error: str | None = None
+
+
+def evaluate(
+    trajectory: Trajectory, groundtruth: Trajectory | None, config: EvalConfig
+) -> Evaluation:
+    """Score ``trajectory`` against ``groundtruth`` (None -> nothing to score)."""
+    if groundtruth is None:
+        return Evaluation(None, None, None, "the sequence has no groundtruth.txt")
+    if len(trajectory) < metrics.MIN_ASSOCIATED_POSES:
+        return Evaluation(
+            None, None, None, f"only {len(trajectory)} frames were tracked; ATE needs 3 poses"
+        )
+    try:
+        ate = metrics.ate(groundtruth, trajectory, max_diff=config.max_diff, align=config.align)
+        rpe = metrics.rpe(
+            groundtruth,
+            trajectory,
+            delta=config.rpe_delta,
+            unit=config.rpe_unit,
+            max_diff=config.max_diff,
+        )
+    except UssSlamError as err:
+        return Evaluation(None, None, None, str(err))
+    try:
+        rpe_1s = metrics.rpe(
+            groundtruth, trajectory, delta=1.0, unit="seconds", max_diff=config.max_diff
+        )
+    except UssSlamError:
+        rpe_1s = None  # shorter than a second, or gaps everywhere: reported as null
+    return Evaluation(ate, rpe, rpe_1s)
+
+
+def _rpe_dict(result: metrics.RpeResult | None, delta: float, unit: str) -> dict | None:
+    if result is None:
+        return None
+    return {
+        "trans": result.trans.as_dict(),
+        "rot_deg": result.rot_deg.as_dict(),
+        "delta": delta,
+        "unit": unit,
+    }
+
+
+def metrics_dict(result: RunResult, evaluation: Evaluation, config: EvalConfig) -> dict[str, Any]:
+    """The content of ``metrics.json``."""
+    orb = result.timing_ms.get("orb", 0.0)
+    return {
+        "sequence": result.sequence,
+        "camera": result.camera,
+        "segmenter": result.segmenter,
+        "filters": result.filters,
+        "frames": result.frames,
+        "frames_tracked": result.tracked,
+        "tracked_fraction": result.tracked_fraction,
+        "unmatched_rgb_frames": result.unmatched_rgb,
+        "ate": evaluation.ate.stats.as_dict() if evaluation.ate else None,
+        "rpe": _rpe_dict(evaluation.rpe, config.rpe_delta, config.rpe_unit),
+        "rpe_1s": _rpe_dict(evaluation.rpe_1s, 1.0, "seconds"),
+        "ate_error": evaluation.error,
+        "evaluation": {"max_diff": config.max_diff, "align": config.align},
+        "keyframes": result.keyframes,
+        "map_points": result.map_points,
+        "culled_map_points": result.culled_points,
+        "relocalisations": result.relocalisations,
+        "lost_events": result.lost_events,
+        "keypoints": result.keypoints,
+        "timing_ms": result.timing_ms,
+        "fps": result.fps,
+        "wall_time_s": result.wall_time_s,
+        "pipeline_to_orb_ratio": result.timing_ms["total"] / orb if orb > 0 else None,
+        "semantic_map_points": len(result.cloud),
+    }
+
+
+def _fmt(value: float | None, digits: int = 4) -> str:
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "—"
+    return f"{value:.{digits}f}"
+
+
+def _plots(out: Path, evaluation: Evaluation, title: str) -> list[str]:
+    """Top view of aligned trajectory vs ground truth and ATE over time; returns file names."""
+    if evaluation.ate is None:
+        return []
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    a = evaluation.ate
+    gt, est = a.gt_positions, a.est_positions
+    # "Top view": the two axes along which the ground truth spreads most.
+    axes = np.sort(np.argsort(-(gt.max(axis=0) - gt.min(axis=0)))[:2])
+    names = "xyz"
+    fig, ax = plt.subplots(figsize=(6, 5))
+    ax.plot(gt[:, axes[0]], gt[:, axes[1]], "k--", lw=1.2, label="ground truth")
+    ax.plot(est[:, axes[0]], est[:, axes[1]], "-", color="tab:blue", lw=1.2, label="estimate")
+    ax.set_xlabel(f"{names[axes[0]]} [m]")
+    ax.set_ylabel(f"{names[axes[1]]} [m]")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_title(f"{title}: trajectory ({a.stats.pairs} poses, aligned)")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(out / "trajectory.png", dpi=110)
+    plt.close(fig)
+
+    fig, ax = plt.subplots(figsize=(7, 3.2))
+    t = a.stamps - a.stamps[0]
+    ax.plot(t, a.errors * 100.0, lw=1.0, color="tab:red")
+    ax.axhline(a.stats.rmse * 100.0, color="k", ls=":", lw=1, label=f"RMSE {a.stats.rmse:.4f} m")
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("ATE [cm]")
+    ax.set_title(f"{title}: absolute trajectory error")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(out / "ate.png", dpi=110)
+    plt.close(fig)
+    return ["trajectory.png", "ate.png"]
+
+
+def write_run(
+    out_dir: StrPath,
+    result: RunResult,
+    evaluation: Evaluation,
+    config: EvalConfig,
+    settings: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    """Write every output of one run into ``out_dir``; returns the metrics dictionary."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    write_trajectory(
+        out / "trajectory.txt",
+        result.trajectory,
+        comment=f"uss-slam estimate, filters={result.filters}, camera-to-world",
+    )
+    data = metrics_dict(result, evaluation, config)
+    if settings is not None:
+        data["settings"] = settings
+    (out / "metrics.json").write_text(json.dumps(data, indent=2, default=_json_default) + "\n")
+    write_ply(out / "map.ply", result.cloud)
+    title = Path(result.sequence).name
+    plots = _plots(out, evaluation, title)
+    (out / "report.md").write_text(_report_md(result, evaluation, data, plots))
+    return data
+
+
+def _json_default(value: Any) -> Any:
+    if isinstance(value, np.generic):
+        return value.item()
+    raise TypeError(f"not JSON serialisable: {type(value).__name__}")
+
+
+def _report_md(
+    result: RunResult, evaluation: Evaluation, data: dict[str, Any], plots: list[str]
+) -> str:
+    filters = ", ".join(result.filters) or "none (baseline)"
+    lines = [
+        f"# uss-slam run: {Path(result.sequence).name}",
+        "",
+        f"- sequence: `{result.sequence}`",
+        f"- camera: {result.camera}",
+        f"- segmenter: {result.segmenter}; filters: {filters}",
+        f"- frames: {result.frames} processed, {result.tracked} tracked "
+        f"({100 * result.tracked_fraction:.1f}%), {result.unmatched_rgb} colour frames without "
+        "depth partner skipped",
+        f"- keyframes: {result.keyframes}; map points: {result.map_points} "
+        f"({result.culled_points} culled); relocalisations: {result.relocalisations} "
+        f"after {result.lost_events} tracking losses",
+        "",
+        "## Trajectory error",
+        "",
+    ]
+    if evaluation.ate is None:
+        lines += [f"Not evaluated: {evaluation.error}", ""]
+    else:
+        ate = evaluation.ate.stats
+        lines += [
+            "| | RMSE | Mean | Median | S.D. | Min | Max | pairs |",
+            "|---|---|---|---|---|---|---|---|",
+            "| ATE [m] | "
+            + " | ".join(_fmt(getattr(ate, k)) for k in STAT_KEYS)
+            + f" | {ate.pairs} |",
+        ]
+        for key, label in (("rpe", "RPE"), ("rpe_1s", "RPE")):
+            rpe = data.get(key)
+            if rpe is None:
+                continue
+            unit = f"{rpe['delta']:g} {rpe['unit']}"
+            lines.append(
+                f"| {label} trans [m] / {unit} | "
+                + " | ".join(_fmt(rpe["trans"][k]) for k in STAT_KEYS)
+                + f" | {rpe['trans']['pairs']} |"
+            )
+            lines.append(
+                f"| {label} rot [deg] / {unit} | "
+                + " | ".join(_fmt(rpe["rot_deg"][k], 3) for k in STAT_KEYS)
+                + f" | {rpe['rot_deg']['pairs']} |"
+            )
+        lines.append("")
+        lines.append(
+            f"Alignment: {data['evaluation']['align']}; association max difference "
+            f"{data['evaluation']['max_diff']} s."
+        )
+        lines.append("")
+    kp = result.keypoints
+    lines += [
+        "## Keypoints",
+        "",
+        f"{kp['extracted']} extracted ({kp['per_frame']:.0f} per frame), {kp['kept']} kept.",
+        "",
+    ]
+    if result.filters:
+        lines += ["| filter | flagged | dropped (new) | judged |", "|---|---|---|---|"]
+        for name in result.filters:
+            lines.append(
+                f"| {name} | {kp['flagged'][name]} | {kp['dropped'][name]} | "
+                f"{kp['checked'][name]} |"
+            )
+        lines.append("")
+    lines += ["## Time per frame", "", "| module | mean [ms] |", "|---|---|"]
+    for name, ms in result.timing_ms.items():
+        lines.append(f"| {name} | {ms:.2f} |")
+    ratio = data["pipeline_to_orb_ratio"]
+    lines += [
+        "",
+        f"{result.fps:.1f} frames/s end to end; pipeline / ORB extraction time = {_fmt(ratio, 2)}.",
+        "",
+        f"Semantic map: `map.ply`, {len(result.cloud)} points.",
+        "",
+    ]
+    for plot in plots:
+        lines += [f"![{plot}]({plot})", ""]
+    return "\n".join(lines)
+
+
+# ---------------------------------------------------------------------- comparison
+
+
+def improvement(baseline: float | None, value: float | None) -> float | None:
+    """``(baseline - value) / baseline`` in percent, as the papers' improvement tables."""
+    if baseline is None or value is None or baseline == 0:
+        return None
+    return 100.0 * (baseline - value) / baseline
+
+
+def write_comparison(out_dir: StrPath, runs: dict[str, dict[str, Any]]) -> str:
+    """``comparison.md`` / ``comparison.json`` over runs (name -> metrics dict, baseline first).
+
+    Rows: ATE RMSE / Mean / Median / S.D., RPE translation RMSE, tracked fraction, frames/s;
+    columns: each run, and for every run after the first its improvement over the first (%).
+    Returns the Markdown table.
+    """
+    names = list(runs)
+    base = names[0]
+    rows: list[tuple[str, Any]] = [
+        ("ATE RMSE [m]", lambda m: (m["ate"] or {}).get("rmse")),
+        ("ATE Mean [m]", lambda m: (m["ate"] or {}).get("mean")),
+        ("ATE Median [m]", lambda m: (m["ate"] or {}).get("median")),
+        ("ATE S.D. [m]", lambda m: (m["ate"] or {}).get("std")),
+        ("RPE trans RMSE [m]", lambda m: ((m["rpe"] or {}).get("trans") or {}).get("rmse")),
+        ("RPE rot RMSE [deg]", lambda m: ((m["rpe"] or {}).get("rot_deg") or {}).get("rmse")),
+    ]
+    header = ["metric", *names] + [f"{n} vs {base}" for n in names[1:]]
+    lines = [
+        f"# Filter comparison: {Path(runs[base]['sequence']).name}",
+        "",
+        "| " + " | ".join(header) + " |",
+        "|" + "---|" * len(header),
+    ]
+    table: dict[str, dict[str, Any]] = {}
+    for label, get in rows:
+        values = [get(runs[n]) for n in names]
+        gains = [improvement(values[0], v) for v in values[1:]]
+        table[label] = {
+            **dict(zip(names, values, strict=True)),
+            **{f"{n} improvement %": g for n, g in zip(names[1:], gains, strict=True)},
+        }
+        digits = 3 if "deg" in label else 4
+        cells = [_fmt(v, digits) for v in values] + [
+            "—" if g is None else f"{g:.1f}%" for g in gains
+        ]
+        lines.append(f"| {label} | " + " | ".join(cells) + " |")
+    for label, key, digits in (
+        ("tracked fraction", "tracked_fraction", 3),
+        ("frames/s", "fps", 1),
+    ):
+        values = [runs[n][key] for n in names]
+        table[label] = dict(zip(names, values, strict=True))
+        cells = [label, *(_fmt(v, digits) for v in values), *([""] * (len(names) - 1))]
+        lines.append("| " + " | ".join(cells) + " |")
+    lines.append("")
+    lines.append(
+        "Improvement = (baseline − run) / baseline, as in the papers' tables; "
+        "each run's own report is in its sub-folder."
+    )
+    text = "\n".join(lines) + "\n"
+    out = Path(out_dir)
+    (out / "comparison.md").write_text(text)
+    (out / "comparison.json").write_text(
+        json.dumps({"runs": names, "table": table}, indent=2, default=_json_default) + "\n"
+    )
+    return text

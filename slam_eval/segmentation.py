@@ -1,0 +1,87 @@
+"""Where per-pixel class labels come from during a SLAM run.
+
+A segmenter turns a frame into ``(H, W)`` uint8 project class ids (``classes.CLASS_NAMES``) or
+None. Image segmenters implement :meth:`ImageSegmenter.infer` on the RGB image alone (the ONNX
+runtime segmenter of the export issue will be one); the oracle :class:`LabelsSegmenter` returns the
+ground-truth ``labels/`` PNG that the sequence reader loaded with the frame.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from uss_slam.datasets.classes import CLASS_NAMES
+from uss_slam.datasets.errors import UssSlamError
+
+from .sequence import Frame
+
+
+@runtime_checkable
+class Segmenter(Protocol):
+    """Anything that labels a frame: ``segment(frame) -> (H, W) uint8 class ids | None``."""
+
+    name: str
+    needs_labels: bool
+    """True when the sequence reader must load the ``labels/`` folder for it."""
+
+    def segment(self, frame: Frame) -> np.ndarray | None: ...
+
+
+class ImageSegmenter(ABC):
+    """A segmenter that sees only the RGB image; subclasses implement :meth:`infer`."""
+
+    name = "image"
+    needs_labels = False
+
+    @abstractmethod
+    def infer(self, rgb: np.ndarray) -> np.ndarray:
+        """``(H, W, 3)`` uint8 RGB -> ``(H, W)`` uint8 project class ids, same size."""
+
+    def segment(self, frame: Frame) -> np.ndarray:
+        labels = self.infer(frame.rgb)
+        if labels.shape != frame.gray.shape:
+            raise UssSlamError(
+                f"segmenter {self.name!r} returned labels of shape {labels.shape} for a frame "
+                f"of shape {frame.gray.shape}"
+            )
+        return labels
+
+
+class NoSegmenter:
+    """No segmentation: filters that need labels cannot be used."""
+
+    name = "none"
+    needs_labels = False
+
+    def segment(self, frame: Frame) -> None:
+        return None
+
+
+class LabelsSegmenter:
+    """Oracle: the sequence's own ``labels/`` PNG (exact class ids of the synthetic world)."""
+
+    name = "labels"
+    needs_labels = True
+
+    def segment(self, frame: Frame) -> np.ndarray:
+        if frame.labels is None:
+            raise UssSlamError(
+                "segmenter=labels but the frame has no labels: open the sequence with "
+                "load_labels=True"
+            )
+        return frame.labels
+
+
+def class_ids(names: list[str] | tuple[str, ...]) -> np.ndarray:
+    """Project class ids of class names (errors list the known names)."""
+    ids = []
+    for name in names:
+        if name not in CLASS_NAMES:
+            raise UssSlamError(
+                f"unknown class {name!r}; the project's classes are {', '.join(CLASS_NAMES)}"
+            )
+        ids.append(CLASS_NAMES.index(name))
+    return np.asarray(ids, dtype=np.uint8)

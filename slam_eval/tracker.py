@@ -1,0 +1,529 @@
+"""RGB-D tracking in the style of ORB-SLAM2's tracking thread (no loop closing, no bundle adjustment).
+
+Per frame:
+
+1. **Prediction**: constant velocity, ``T_cw(t) = V · T_cw(t-1)`` with ``V`` the last inter-frame
+   motion.
+2. **Guided matching** of the local map (points of the keyframes that share the most points with
+   the previous frame, plus the latest keyframe) projected with the predicted pose, in a window of
+   ``search_radius`` × the predicted level's scale (doubled once when too few matches are found).
+3. **PnP-RANSAC** (``cv2.solvePnPRansac``, seeded with the prediction), then **refinement**
+   (``cv2.solvePnPRefineLM``) alternated with re-classifying inliers by the χ² test of
+   ORB-SLAM2 (5.991 × the level's variance).
+4. **Local-map tracking**: the local map is projected again with the estimated pose, matched in a
+   tight window, and the pose refined on all inliers. Tracking succeeds with ``min_inliers``.
+5. **Keyframes** are inserted when tracking weakens (inliers below ``keyframe_ratio`` × the
+   reference keyframe's well-observed points), when few close points are tracked while many
+   close points are unmatched (ORB-SLAM2's RGB-D rule), after ``max_keyframe_interval`` frames, or
+   when the view moved by ``keyframe_translation`` / ``keyframe_rotation_deg`` from the
+   reference keyframe. New keyframes create map points from their unmatched close keypoints;
+   recent points that are rarely found are culled.
+6. **Relocalisation** when lost: descriptor matching against the keyframes nearest to the last
+   known pose (and the latest ones), PnP-RANSAC, then local-map tracking.
+
+Keypoints flagged dynamic are never matched and never create map points.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import Enum
+
+import cv2
+import numpy as np
+
+from .frontend import Features, OrbExtractor
+from .geometry import from_rvec, invert, project, rotation_angle_deg, to_rvec, transform
+from .matching import Matches, guided_match, hamming
+from .pose import CHI2_MONO, CHI2_STEREO, chi2, observations, optimise_pose
+from .slam_map import KeyFrame, SlamMap
+
+
+@dataclass(frozen=True)
+class TrackerConfig:
+    """Tracking settings (defaults follow ORB-SLAM2's RGB-D tracking where it has one)."""
+
+    init_min_points: int = 100
+    """Close, static keypoints needed to create the first keyframe."""
+    search_radius: float = 7.0
+    """Window around a prediction for motion-model matching, px at level 0 (ORB-SLAM2: 7)."""
+    local_radius: float = 4.0
+    """Window for local-map matching after the pose is known, px at level 0 (ORB-SLAM2: 4)."""
+    max_hamming: int = 100
+    ratio: float = 0.8
+    min_matches: int = 20
+    """Fewer motion-model matches than this: search again with a doubled window."""
+    min_inliers: int = 30
+    """Fewest inliers after local-map tracking for the frame to count as tracked (ORB-SLAM2: 30)."""
+    ransac_iterations: int = 100
+    ransac_threshold: float = 3.0
+    """PnP-RANSAC reprojection threshold, px (refinement then uses the per-level χ² test)."""
+    refine_rounds: int = 4
+    rgbd_refinement: bool = True
+    """Refine with depth as a virtual stereo coordinate (ORB-SLAM2 RGB-D); False = reprojection
+    error only (``cv2.solvePnPRefineLM``)."""
+    virtual_baseline: float = 0.075
+    """Baseline of the virtual stereo pair, metres (ORB-SLAM2's TUM ``bf`` = 40 = 535.4 × 0.075)."""
+    local_keyframes: int = 10
+    keyframe_ratio: float = 0.75
+    """New keyframe when inliers < this × the reference keyframe's tracked points (ORB-SLAM2 RGB-D)."""
+    min_close_tracked: int = 100
+    min_close_untracked: int = 70
+    max_keyframe_interval: int = 30
+    keyframe_translation: float = 0.15
+    """New keyframe when the camera moved this far from the reference keyframe, metres."""
+    keyframe_rotation_deg: float = 15.0
+    """New keyframe when the camera turned this much from the reference keyframe, degrees."""
+    min_found_ratio: float = 0.25
+    min_observations: int = 2
+    reloc_keyframes: int = 6
+    reloc_ratio: float = 0.75
+    reloc_max_hamming: int = 64
+    reloc_min_inliers: int = 50
+
+
+class TrackingState(str, Enum):
+    NOT_INITIALIZED = "not_initialized"
+    OK = "ok"
+    LOST = "lost"
+
+
+@dataclass
+class TrackResult:
+    """Outcome of one frame.
+
+    ``pose_wc`` (4, 4) camera-to-world or None when not tracked; ``matched`` (N,) map point id per
+    keypoint (-1 = none) after outlier rejection; ``inliers`` the number of such matches.
+    """
+
+    state: TrackingState
+    pose_wc: np.ndarray | None
+    matched: np.ndarray
+    inliers: int
+    relocalised: bool = False
+    new_keyframe: KeyFrame | None = None
+
+
+class Tracker:
+    """Frame-to-local-map RGB-D tracker. Feed frames in order with :meth:`track`."""
+
+    def __init__(self, config: TrackerConfig, extractor: OrbExtractor) -> None:
+        self.config = config
+        self.extractor = extractor
+        self.camera = extractor.camera
+        self.k = extractor.camera.matrix
+        self.size = (extractor.camera.width, extractor.camera.height)
+        self.sigma2 = extractor.sigma2
+        self.bf = extractor.camera.fx * config.virtual_baseline
+        self.map = SlamMap(extractor.config.scale_factor, extractor.config.n_levels)
+        self.state = TrackingState.NOT_INITIALIZED
+        self.velocity: np.ndarray | None = None
+        self.last_pose_cw: np.ndarray | None = None
+        self.last_points = np.zeros(0, np.int64)
+        self.reference: KeyFrame | None = None
+        self.frames_since_keyframe = 0
+        self._previous_tracked = False
+        self.relocalisations = 0
+        self.lost_events = 0
+
+    # ------------------------------------------------------------------ public
+
+    def track(
+        self, frame_index: int, stamp: float, features: Features, dynamic: np.ndarray
+    ) -> TrackResult:
+        """Estimate the pose of a frame; ``dynamic`` (N,) bool marks keypoints to ignore."""
+        n = len(features)
+        matched = np.full(n, -1, np.int64)
+        static = ~dynamic
+        if self.state is TrackingState.NOT_INITIALIZED:
+            close = static & features.has_depth
+            if int(close.sum()) < self.config.init_min_points:
+                return TrackResult(self.state, None, matched, 0)
+            pose_wc = np.eye(4)
+            kf = self.map.add_keyframe(
+                frame_index, stamp, pose_wc, features, matched, dynamic, close
+            )
+            self._accept(invert(pose_wc), kf.point_ids[close], kf)
+            self.state = TrackingState.OK
+            return TrackResult(
+                self.state, pose_wc, kf.point_ids.copy(), int(close.sum()), False, kf
+            )
+
+        relocalised = False
+        pose_cw = None
+        if self.state is TrackingState.OK:
+            pose_cw, matched = self._track_motion(features, static)
+        if pose_cw is None:
+            if self.state is TrackingState.OK:
+                self.lost_events += 1
+            self.state = TrackingState.LOST
+            pose_cw, matched = self._relocalise(features, static)
+            relocalised = pose_cw is not None
+            if relocalised:
+                self.relocalisations += 1
+                self.velocity = None
+        if pose_cw is None:
+            self._previous_tracked = False
+            return TrackResult(self.state, None, np.full(n, -1, np.int64), 0)
+        self.state = TrackingState.OK
+        inliers = int((matched >= 0).sum())
+        return TrackResult(self.state, invert(pose_cw), matched, inliers, relocalised)
+
+    def drop(self, pose_wc: np.ndarray, features: Features, matched: np.ndarray, drop: np.ndarray):
+        """Re-estimate a tracked pose after the post-pose filters flagged ``drop`` keypoints.
+
+        Returns ``(pose_wc, matched)``; the pose is kept when too few matches remain.
+        """
+        keep = (matched >= 0) & ~drop
+        if not np.any(drop & (matched >= 0)) or keep.sum() < self.config.min_inliers:
+            matched = np.where(drop, -1, matched)
+            return pose_wc, matched
+        pose_cw, inl = self._refine(
+            self.map.points.position.view[matched[keep]],
+            features,
+            np.flatnonzero(keep),
+            invert(pose_wc),
+        )
+        out = np.full(len(matched), -1, np.int64)
+        idx = np.flatnonzero(keep)[inl]
+        out[idx] = matched[idx]
+        return invert(pose_cw), out
+
+    def finish_frame(
+        self,
+        frame_index: int,
+        stamp: float,
+        result: TrackResult,
+        features: Features,
+        dynamic: np.ndarray,
+    ) -> KeyFrame | None:
+        """Update motion model, map statistics and keyframes after the filters are done."""
+        if result.pose_wc is None or result.new_keyframe is not None:
+            return result.new_keyframe
+        pose_cw = invert(result.pose_wc)
+        matched = result.matched
+        pts = self.map.points
+        good = matched >= 0
+        pts.found.view[matched[good]] += 1
+        kf = None
+        if self._need_keyframe(result.pose_wc, features, matched, dynamic):
+            create = (~dynamic) & features.has_depth & ~good
+            kf = self.map.add_keyframe(
+                frame_index, stamp, result.pose_wc, features, matched, dynamic, create
+            )
+            self.map.cull(self.config.min_found_ratio, self.config.min_observations)
+            self.frames_since_keyframe = 0
+            result.new_keyframe = kf
+            matched = kf.point_ids
+        else:
+            self.frames_since_keyframe += 1
+        self._accept(pose_cw, matched[matched >= 0], kf)
+        return kf
+
+    # ------------------------------------------------------------------ tracking
+
+    def _accept(self, pose_cw: np.ndarray, point_ids: np.ndarray, kf: KeyFrame | None) -> None:
+        # The motion model needs two consecutive tracked frames.
+        if self._previous_tracked and self.last_pose_cw is not None:
+            self.velocity = pose_cw @ invert(self.last_pose_cw)
+        else:
+            self.velocity = None
+        self._previous_tracked = True
+        self.last_pose_cw = pose_cw
+        self.last_points = point_ids
+        counts = self.map.covisibility(point_ids)
+        if kf is not None:
+            self.reference = kf
+        elif len(counts) and counts.max() > 0:
+            self.reference = self.map.keyframes[int(np.argmax(counts))]
+
+    def _local_points(self) -> np.ndarray:
+        counts = self.map.covisibility(self.last_points)
+        best = np.argsort(-counts, kind="stable")[: self.config.local_keyframes]
+        best = best[counts[best] > 0]
+        ids = np.union1d(best, [len(self.map.keyframes) - 1]).astype(np.int64)
+        if self.reference is not None:
+            ids = np.union1d(ids, [self.reference.id])
+        return self.map.points_of(ids)
+
+    def _project(self, point_ids: np.ndarray, pose_cw: np.ndarray):
+        """Frustum test of map points: ``(ids, uv, level)`` of those the camera should see."""
+        pts = self.map.points
+        world = pts.position.view[point_ids]
+        cam = transform(pose_cw, world)
+        z = cam[:, 2]
+        uv = project(self.k, cam)
+        w, h = self.size
+        center = invert(pose_cw)[:3, 3]
+        ray = world - center
+        dist = np.linalg.norm(ray, axis=1)
+        cos_view = (ray * pts.normal.view[point_ids]).sum(axis=1) / np.maximum(dist, 1e-9)
+        ok = (
+            (z > 0.05)
+            & (uv[:, 0] >= 0)
+            & (uv[:, 0] < w)
+            & (uv[:, 1] >= 0)
+            & (uv[:, 1] < h)
+            & (dist >= 0.8 * pts.min_distance.view[point_ids])
+            & (dist <= 1.2 * pts.max_distance.view[point_ids])
+            & (cos_view >= 0.5)
+        )
+        ids = point_ids[ok]
+        return ids, uv[ok], self.map.predict_level(ids, dist[ok]), cos_view[ok]
+
+    def _search(
+        self,
+        point_ids: np.ndarray,
+        pose_cw: np.ndarray,
+        features: Features,
+        available: np.ndarray,
+        radius: float,
+        local: bool = False,
+    ) -> tuple[np.ndarray, Matches]:
+        ids, uv, level, cos_view = self._project(point_ids, pose_cw)
+        r = radius * self.extractor.scales[level]
+        if local:
+            self.map.points.visible.view[ids] += 1
+            # ORB-SLAM2 narrows the local-map window for near-frontal views (RadiusByViewingCos).
+            r = r * np.where(cos_view > 0.998, 0.625, 1.0)
+        pts = self.map.points
+        matches = guided_match(
+            uv,
+            r,
+            level,
+            (pts.descriptor.view[ids], pts.latest_descriptor.view[ids]),
+            features.uv,
+            features.octave,
+            features.descriptors,
+            available,
+            self.size,
+            max_distance=self.config.max_hamming,
+            ratio=self.config.ratio,
+        )
+        return ids, matches
+
+    def _track_motion(self, features: Features, static: np.ndarray):
+        cfg = self.config
+        velocity = self.velocity if self.velocity is not None else np.eye(4)
+        predicted = velocity @ self.last_pose_cw
+        local = self._local_points()
+        ids, m = self._search(local, predicted, features, static, cfg.search_radius)
+        if len(m) < cfg.min_matches:
+            ids, m = self._search(local, predicted, features, static, 2 * cfg.search_radius)
+        if len(m) < cfg.min_matches:
+            return None, None
+        pose_cw = self._pnp(
+            self.map.points.position.view[ids[m.query]], features, m.keypoint, predicted
+        )
+        if pose_cw is None:
+            return None, None
+        return self._track_local_map(local, pose_cw, features, static)
+
+    def _track_local_map(
+        self, local: np.ndarray, pose_cw: np.ndarray, features: Features, static: np.ndarray
+    ):
+        ids, m = self._search(
+            local, pose_cw, features, static, self.config.local_radius, local=True
+        )
+        if len(m) < self.config.min_inliers:
+            return None, None
+        pose_cw, inl = self._refine(
+            self.map.points.position.view[ids[m.query]], features, m.keypoint, pose_cw
+        )
+        if inl.sum() < self.config.min_inliers:
+            return None, None
+        matched = np.full(len(features), -1, np.int64)
+        matched[m.keypoint[inl]] = ids[m.query[inl]]
+        return pose_cw, matched
+
+    def _pnp(
+        self, world: np.ndarray, features: Features, kp: np.ndarray, guess_cw: np.ndarray | None
+    ) -> np.ndarray | None:
+        cfg = self.config
+        uv = features.uv[kp]
+        if len(world) < 6:
+            return None
+        if guess_cw is not None:
+            rvec, tvec = to_rvec(guess_cw)
+            use_guess = True
+        else:
+            rvec, tvec = np.zeros((3, 1)), np.zeros((3, 1))
+            use_guess = False
+        ok, rvec, tvec, inliers = cv2.solvePnPRansac(
+            world.reshape(-1, 1, 3).astype(np.float64),
+            uv.reshape(-1, 1, 2).astype(np.float64),
+            self.k,
+            None,
+            rvec,
+            tvec,
+            useExtrinsicGuess=use_guess,
+            iterationsCount=cfg.ransac_iterations,
+            reprojectionError=cfg.ransac_threshold,
+            confidence=0.999,
+            flags=cv2.SOLVEPNP_EPNP if use_guess else cv2.SOLVEPNP_AP3P,
+        )
+        if not ok or inliers is None or len(inliers) < 6:
+            return None
+        pose_cw, inl = self._refine(world, features, kp, from_rvec(rvec, tvec))
+        return pose_cw if inl.sum() >= 6 else None
+
+    def _refine(
+        self, world: np.ndarray, features: Features, kp: np.ndarray, pose_cw: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Refine a pose on matches ``world[i] <-> keypoint kp[i]``; returns ``(pose_cw, inliers)``.
+
+        ``refine_rounds`` rounds, each re-classifying inliers by the χ² test (ORB-SLAM2): with
+        ``rgbd_refinement`` the RGB-D Gauss–Newton of :mod:`.pose` (depth as a virtual stereo
+        coordinate), else OpenCV's ``solvePnPRefineLM`` on the reprojection error alone.
+        """
+        cfg = self.config
+        uv = features.uv[kp]
+        inv_sigma2 = 1.0 / self.sigma2[features.octave[kp]]
+        depth = features.depth[kp] if cfg.rgbd_refinement else np.zeros(len(kp), np.float32)
+        obs, stereo = observations(uv, depth, self.bf)
+        inl = self._inliers(world, obs, stereo, inv_sigma2, pose_cw)
+        for _ in range(cfg.refine_rounds):
+            if inl.sum() < 6:
+                break
+            if cfg.rgbd_refinement:
+                pose_cw = optimise_pose(
+                    self.k, self.bf, pose_cw, world[inl], obs[inl], stereo[inl], inv_sigma2[inl]
+                )
+            else:
+                rvec, tvec = to_rvec(pose_cw)
+                rvec, tvec = cv2.solvePnPRefineLM(
+                    world[inl].reshape(-1, 1, 3),
+                    uv[inl].reshape(-1, 1, 2),
+                    self.k,
+                    None,
+                    rvec,
+                    tvec,
+                )
+                pose_cw = from_rvec(rvec, tvec)
+            new = self._inliers(world, obs, stereo, inv_sigma2, pose_cw)
+            if np.array_equal(new, inl):
+                break
+            inl = new
+        return pose_cw, inl
+
+    def _inliers(
+        self,
+        world: np.ndarray,
+        obs: np.ndarray,
+        stereo: np.ndarray,
+        inv_sigma2: np.ndarray,
+        pose_cw: np.ndarray,
+    ) -> np.ndarray:
+        e2, front = chi2(self.k, self.bf, pose_cw, world, obs, stereo, inv_sigma2)
+        return front & (e2 < np.where(stereo, CHI2_STEREO, CHI2_MONO))
+
+    # ------------------------------------------------------------------ relocalisation
+
+    def _relocalise(self, features: Features, static: np.ndarray):
+        cfg = self.config
+        kfs = self.map.keyframes
+        if not kfs or static.sum() < cfg.min_inliers:
+            return None, None
+        candidates = list(range(max(0, len(kfs) - 2), len(kfs)))
+        if self.last_pose_cw is not None:
+            center = invert(self.last_pose_cw)[:3, 3]
+            dist = np.array([np.linalg.norm(kf.center - center) for kf in kfs])
+            for k in np.argsort(dist, kind="stable"):
+                if len(candidates) >= cfg.reloc_keyframes:
+                    break
+                if int(k) not in candidates:
+                    candidates.append(int(k))
+        query = np.flatnonzero(static)
+        for k in candidates:
+            kf = kfs[k]
+            ids = kf.point_ids
+            usable = np.flatnonzero((ids >= 0) & ~self.map.points.bad.view[np.maximum(ids, 0)])
+            if len(usable) < cfg.min_inliers:
+                continue
+            dist, nearest = cv2.batchDistance(
+                features.descriptors[query],
+                kf.features.descriptors[usable],
+                cv2.CV_32S,
+                normType=cv2.NORM_HAMMING,
+                K=2,
+            )
+            good = (dist[:, 0] < cfg.reloc_ratio * dist[:, 1]) & (
+                dist[:, 0] <= cfg.reloc_max_hamming
+            )
+            q_idx, t_idx = np.flatnonzero(good), nearest[good, 0]
+            if len(q_idx) < cfg.min_matches:
+                continue
+            kp = query[q_idx]
+            pid = ids[usable[t_idx]]
+            # Keep one keypoint per map point (the first, i.e. arbitrary but deterministic).
+            _, first = np.unique(pid, return_index=True)
+            kp, pid = kp[first], pid[first]
+            if len(kp) < cfg.min_matches:
+                continue
+            pose_cw = self._pnp_global(self.map.points.position.view[pid], features, kp)
+            if pose_cw is None:
+                continue
+            local = self.map.points_of(
+                np.union1d(
+                    [k],
+                    np.argsort(-self.map.covisibility(pid))[: cfg.local_keyframes],
+                ).astype(np.int64)
+            )
+            pose2, matched = self._track_local_map(local, pose_cw, features, static)
+            if pose2 is not None and (matched >= 0).sum() >= cfg.reloc_min_inliers:
+                return pose2, matched
+        return None, None
+
+    def _pnp_global(
+        self, world: np.ndarray, features: Features, kp: np.ndarray
+    ) -> np.ndarray | None:
+        uv = features.uv[kp]
+        ok, rvec, tvec, inliers = cv2.solvePnPRansac(
+            world.reshape(-1, 1, 3).astype(np.float64),
+            uv.reshape(-1, 1, 2).astype(np.float64),
+            self.k,
+            None,
+            iterationsCount=max(self.config.ransac_iterations, 300),
+            reprojectionError=self.config.ransac_threshold,
+            confidence=0.999,
+            flags=cv2.SOLVEPNP_AP3P,
+        )
+        if not ok or inliers is None or len(inliers) < 10:
+            return None
+        pose_cw, inl = self._refine(world, features, kp, from_rvec(rvec, tvec))
+        return pose_cw if inl.sum() >= 10 else None
+
+    # ------------------------------------------------------------------ keyframes
+
+    def _need_keyframe(
+        self, pose_wc: np.ndarray, features: Features, matched: np.ndarray, dynamic: np.ndarray
+    ) -> bool:
+        cfg = self.config
+        ref = self.reference
+        if ref is None:
+            return True
+        inliers = int((matched >= 0).sum())
+        if inliers <= 15:
+            return False  # too weak to seed a keyframe (ORB-SLAM2's c2 lower bound)
+        min_obs = 3 if len(self.map.keyframes) > 2 else 2
+        ref_ids = ref.point_ids[ref.point_ids >= 0]
+        pts = self.map.points
+        ref_ids = ref_ids[~pts.bad.view[ref_ids]]
+        ref_tracked = int((pts.observations.view[ref_ids] >= min_obs).sum())
+        close = features.has_depth & ~dynamic
+        tracked_close = int((close & (matched >= 0)).sum())
+        untracked_close = int((close & (matched < 0)).sum())
+        need_close = (
+            tracked_close < cfg.min_close_tracked and untracked_close > cfg.min_close_untracked
+        )
+        weak = inliers < cfg.keyframe_ratio * ref_tracked or need_close
+        rel = invert(ref.pose_wc) @ pose_wc
+        moved = (
+            np.linalg.norm(rel[:3, 3]) > cfg.keyframe_translation
+            or rotation_angle_deg(rel[:3, :3]) > cfg.keyframe_rotation_deg
+        )
+        stale = self.frames_since_keyframe + 1 >= cfg.max_keyframe_interval
+        return weak or moved or stale
+
+
+__all__ = ["TrackResult", "Tracker", "TrackerConfig", "TrackingState", "hamming"]

@@ -1,0 +1,154 @@
+"""The ``uss-slam`` Hydra entry point: composed config, outputs, comparison mode, errors."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from hydra import compose, initialize_config_dir
+
+from uss_slam.datasets.errors import UssSlamError
+from uss_slam.datasets.tum_io import read_trajectory
+from uss_slam.slam_eval.run import run
+from uss_slam.slam_eval.semantic_map import read_ply
+
+REPO = Path(__file__).resolve().parents[2]
+OUTPUTS = ("trajectory.txt", "metrics.json", "report.md", "trajectory.png", "ate.png", "map.ply")
+STATS = {"rmse", "mean", "median", "std", "min", "max", "pairs"}
+
+
+def _cfg(overrides: list[str]):
+    with initialize_config_dir(config_dir=str(REPO / "configs"), version_base="1.3"):
+        return compose("slam_eval", overrides=overrides)
+
+
+def test_defaults_compose() -> None:
+    cfg = _cfg(["sequence.path=/x"])
+    assert list(cfg.filters) == [] and cfg.compare is None
+    assert cfg.segmenter._target_.endswith("NoSegmenter")
+    assert cfg.slam.orb.n_features == 1000 and cfg.slam.orb.scale_factor == 1.2
+    assert cfg.slam.orb.n_levels == 8 and cfg.slam.orb.ini_fast == 20 and cfg.slam.orb.min_fast == 7
+    assert cfg.slam.filter_params.flow.threshold == 7.0
+    assert cfg.slam.filter_params.geometry.max_parallax_deg == 30.0
+    assert cfg.slam.filter_params.geometry.depth_threshold == 0.4
+    assert cfg.slam.filter_params.object.min_points == 20
+
+
+def test_run_writes_every_output(synthetic_sequence, tmp_path: Path) -> None:
+    seq = synthetic_sequence(preset="walking_xyz", frames=30)
+    out = tmp_path / "run"
+    cfg = _cfg(
+        [
+            f"sequence.path={seq}",
+            "segmenter=labels",
+            "filters=[semantic,geometry]",
+            f"out_dir={out}",
+            "progress=false",
+        ]
+    )
+    data = run(cfg)
+    for name in OUTPUTS:
+        assert (out / name).is_file(), name
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics == json.loads(json.dumps(data))
+    assert set(metrics["ate"]) == STATS
+    assert set(metrics["rpe"]["trans"]) == STATS and set(metrics["rpe"]["rot_deg"]) == STATS
+    assert metrics["frames"] == 30 and metrics["frames_tracked"] == 30
+    assert metrics["tracked_fraction"] == 1.0
+    assert metrics["ate"]["pairs"] == 30 and metrics["ate"]["rmse"] < 0.05
+    kp = metrics["keypoints"]
+    assert set(kp["dropped"]) == {"semantic", "geometry"}
+    assert kp["extracted"] - kp["kept"] == sum(kp["dropped"].values())
+    assert kp["dropped"]["semantic"] > 0
+    timing = metrics["timing_ms"]
+    assert {"load", "segmentation", "orb", "filter.semantic", "filter.geometry", "tracking",
+            "mapping", "total"} <= set(timing)  # fmt: skip
+    assert metrics["fps"] > 0 and metrics["pipeline_to_orb_ratio"] > 1.0
+    assert metrics["settings"]["filters"] == ["semantic", "geometry"]
+    trajectory = read_trajectory(out / "trajectory.txt")
+    assert len(trajectory) == 30
+    cloud = read_ply(out / "map.ply")
+    assert len(cloud) == metrics["semantic_map_points"] > 1000
+    assert 1 not in set(cloud.labels.tolist())  # people are filtered out of the map
+    report = (out / "report.md").read_text()
+    assert "| ATE [m] |" in report and "| semantic |" in report and "![trajectory.png]" in report
+
+
+def test_comparison_mode(synthetic_sequence, tmp_path: Path) -> None:
+    seq = synthetic_sequence(preset="walking_xyz", frames=30)
+    out = tmp_path / "cmp"
+    cfg = _cfg(
+        [
+            f"sequence.path={seq}",
+            "segmenter=labels",
+            "compare=[[semantic],[semantic,object]]",
+            "sequence.max_frames=12",
+            f"out_dir={out}",
+            "progress=false",
+        ]
+    )
+    data = run(cfg)
+    runs = data["comparison"]
+    assert list(runs) == ["baseline", "semantic", "semantic+object"]
+    for name in runs:
+        assert (out / name / "metrics.json").is_file()
+        assert runs[name]["frames"] == 12
+    table = json.loads((out / "comparison.json").read_text())
+    assert table["runs"] == ["baseline", "semantic", "semantic+object"]
+    rmse = table["table"]["ATE RMSE [m]"]
+    expected = 100 * (rmse["baseline"] - rmse["semantic"]) / rmse["baseline"]
+    assert rmse["semantic improvement %"] == pytest.approx(expected)
+    text = (out / "comparison.md").read_text()
+    assert "| metric | baseline | semantic | semantic+object | semantic vs baseline |" in text
+
+
+def test_bad_config_values_are_clear(synthetic_sequence, tmp_path: Path) -> None:
+    seq = synthetic_sequence(preset="walking_xyz", frames=30)
+    base = [f"sequence.path={seq}", f"out_dir={tmp_path}", "progress=false"]
+    with pytest.raises(UssSlamError, match=r"filters \['semantic'\] need a segmenter"):
+        run(_cfg([*base, "filters=[semantic]"]))
+    with pytest.raises(UssSlamError, match="slam.orb: .*scale_factor > 1"):
+        run(_cfg([*base, "slam.orb.scale_factor=0.9"]))
+    with pytest.raises(UssSlamError, match="compare must be a non-empty list"):
+        run(_cfg([*base, "compare=[]"]))
+
+
+def _cli(args: list[str], cwd: Path) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "uss_slam.slam_eval.run", *args],
+        cwd=cwd,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+
+
+def test_cli_runs_and_reports_errors_in_one_line(synthetic_sequence, tmp_path: Path) -> None:
+    seq = synthetic_sequence(preset="walking_xyz", frames=30)
+    out = tmp_path / "cli"
+    done = _cli(
+        [f"sequence.path={seq}", "sequence.max_frames=8", f"out_dir={out}", "progress=false"],
+        tmp_path,
+    )
+    assert done.returncode == 0, done.stderr
+    for name in OUTPUTS:
+        assert (out / name).is_file(), name
+    assert (out / ".hydra" / "config.yaml").is_file()
+    assert json.loads((out / "metrics.json").read_text())["frames"] == 8
+
+    missing = _cli([f"out_dir={tmp_path / 'x'}"], tmp_path)
+    assert missing.returncode == 1
+    assert missing.stderr.strip() == "uss-slam: error: Missing mandatory value: sequence.path"
+    bad = _cli([f"sequence.path={tmp_path / 'nope'}", f"out_dir={tmp_path / 'y'}"], tmp_path)
+    assert bad.returncode == 1
+    assert bad.stderr.strip().splitlines() == [
+        f"uss-slam: error: {tmp_path / 'nope'}: not a folder; expected a TUM RGB-D sequence "
+        "with rgb.txt and depth.txt"
+    ]
+    camera = _cli([f"sequence.path={seq}", "sequence.camera=kinect", f"out_dir={tmp_path / 'z'}"],
+                  tmp_path)  # fmt: skip
+    assert camera.returncode == 1 and "sequence.camera='kinect'" in camera.stderr
+    assert len(camera.stderr.strip().splitlines()) == 1

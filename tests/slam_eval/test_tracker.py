@@ -1,0 +1,106 @@
+"""Tracker on synthetic sequences: accuracy, keyframes and map, relocalisation, dynamic scenes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from uss_slam.slam_eval.filters import build_filters
+from uss_slam.slam_eval.frontend import Features, OrbConfig, OrbExtractor
+from uss_slam.slam_eval.metrics import ate
+from uss_slam.slam_eval.pipeline import SlamPipeline
+from uss_slam.slam_eval.segmentation import LabelsSegmenter, NoSegmenter
+from uss_slam.slam_eval.sequence import TumSequence
+from uss_slam.slam_eval.tracker import Tracker, TrackerConfig, TrackingState
+
+
+def _run(path, filters=(), labels=False, **kwargs):
+    seq = TumSequence(path, load_labels=labels)
+    segmenter = LabelsSegmenter() if labels else NoSegmenter()
+    result = SlamPipeline(
+        seq, segmenter, build_filters(list(filters)), progress=False, **kwargs
+    ).run()
+    return seq, result
+
+
+def test_static_scene_is_tracked_within_2cm(synthetic_sequence) -> None:
+    path = synthetic_sequence(preset="static_xyz", frames=30)
+    seq, result = _run(path)
+    assert result.frames == 30 and result.tracked == 30 and result.tracked_fraction == 1.0
+    assert result.relocalisations == 0 and result.lost_events == 0
+    assert result.keyframes >= 1 and result.map_points > 100
+    assert result.keypoints["extracted"] == sum(e.keypoints for e in result.log)
+    assert result.keypoints["kept"] == result.keypoints["extracted"]  # no filters
+    error = ate(seq.groundtruth, result.trajectory)
+    assert error.stats.pairs == 30
+    assert error.stats.rmse < 0.02
+    # Deterministic: the same input gives the same trajectory.
+    _, again = _run(path, prefetch=0)
+    np.testing.assert_array_equal(again.trajectory.positions, result.trajectory.positions)
+
+
+def test_relocalises_after_losing_track(synthetic_sequence) -> None:
+    seq = TumSequence(synthetic_sequence(preset="static_xyz", frames=30))
+    ex = OrbExtractor(OrbConfig(), seq.camera)
+    frames = [seq.load(i) for i in range(len(seq))]
+    feats = [ex(f.gray, f.depth) for f in frames]
+
+    def step(tracker: Tracker, i: int, features: Features):
+        dyn = np.zeros(len(features), bool)
+        r = tracker.track(i, frames[i].stamp, features, dyn)
+        tracker.finish_frame(i, frames[i].stamp, r, features, dyn)
+        return r
+
+    reference = Tracker(TrackerConfig(), ex)
+    poses = [step(reference, i, feats[i]).pose_wc for i in range(len(frames))]
+
+    tracker = Tracker(TrackerConfig(), ex)
+    for i in range(12):
+        assert step(tracker, i, feats[i]).state is TrackingState.OK
+    for i in range(12, 18):  # camera covered: nothing to match
+        r = step(tracker, i, Features.empty())
+        assert r.state is TrackingState.LOST and r.pose_wc is None
+    assert tracker.lost_events == 1
+    r = step(tracker, 22, feats[22])  # uncovered 10 frames later, far from the motion model
+    assert r.state is TrackingState.OK and r.relocalised
+    assert tracker.relocalisations == 1
+    assert np.linalg.norm(r.pose_wc[:3, 3] - poses[22][:3, 3]) < 0.01
+    assert step(tracker, 23, feats[23]).state is TrackingState.OK
+
+
+def test_not_enough_depth_to_initialise(synthetic_sequence) -> None:
+    seq = TumSequence(synthetic_sequence(preset="static_xyz", frames=30))
+    ex = OrbExtractor(OrbConfig(), seq.camera)
+    frame = seq.load(0)
+    features = ex(frame.gray, np.zeros_like(frame.depth))  # no depth at all
+    tracker = Tracker(TrackerConfig(), ex)
+    r = tracker.track(0, frame.stamp, features, np.zeros(len(features), bool))
+    assert r.state is TrackingState.NOT_INITIALIZED and r.pose_wc is None
+    assert not tracker.map.keyframes
+
+
+@pytest.mark.slow
+def test_semantic_filter_beats_the_baseline_on_a_walking_sequence(synthetic_sequence) -> None:
+    path = synthetic_sequence(preset="walking_xyz", frames=120)
+    seq, baseline = _run(path, labels=True)
+    _, semantic = _run(path, ["semantic"], labels=True)
+    assert baseline.tracked_fraction == 1.0 and semantic.tracked_fraction == 1.0
+    assert semantic.keypoints["dropped"]["semantic"] > 0.05 * semantic.keypoints["extracted"]
+    base = ate(seq.groundtruth, baseline.trajectory).stats.rmse
+    filtered = ate(seq.groundtruth, semantic.trajectory).stats.rmse
+    assert filtered < 0.02
+    assert filtered < 0.5 * base
+
+
+@pytest.mark.slow
+def test_semantic_filter_costs_nothing_on_a_static_scene(synthetic_sequence) -> None:
+    path = synthetic_sequence(preset="static_xyz", frames=120)
+    seq, baseline = _run(path, labels=True)
+    _, semantic = _run(path, ["semantic"], labels=True)
+    base = ate(seq.groundtruth, baseline.trajectory).stats.rmse
+    filtered = ate(seq.groundtruth, semantic.trajectory).stats.rmse
+    assert base < 0.02
+    # The people of static_xyz sit still: dropping their keypoints only removes information.
+    # At 320x240 over 4 s the run-to-run spread is larger than at the 640x480 / 300-frame size of
+    # the target (<= 10% worse, benchmarks/slam_targets.py), hence 25% here.
+    assert filtered <= 1.25 * base
