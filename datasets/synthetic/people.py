@@ -24,6 +24,8 @@ SIT_TIME = 1.3
 """Seconds to sit down or to get up."""
 TURN_RATE = 2.5
 """Radians per second of an in-place turn."""
+SIT_EVERY = 25.0
+"""Seconds between the end of one sit-down of a walking person and the next."""
 
 
 @dataclass(frozen=True)
@@ -252,12 +254,20 @@ class Behaviour:
         seat: Seat | None = None,
         sit_at: float | None = None,
     ) -> Behaviour:
-        """Walk the loop with occasional pauses / turn-arounds; sit on ``seat`` around ``sit_at``."""
+        """Walk the loop with occasional pauses / turn-arounds.
+
+        With a ``seat``: arrive at it at ``sit_at`` seconds (``s_start`` is then ignored: the
+        start is planned backwards), sit for a few seconds, and again every
+        :data:`SIT_EVERY` seconds.
+        """
         segs: list[Segment] = []
         t, s, direc = -2.0, s_start, direction  # start before 0 so frame 0 is mid-stride
-        sat = seat is None or sit_at is None
+        next_sit = sit_at if seat is not None else None
+        if seat is not None and sit_at is not None:
+            stand = (seat.x + 0.45 * math.cos(seat.facing), seat.y + 0.45 * math.sin(seat.facing))
+            s = path.closest(stand) - direc * speed * (sit_at - t)
         while t < duration + 2.0:
-            if not sat and t >= sit_at - 8.0:  # type: ignore[operator]
+            if next_sit is not None and (t >= next_sit or not segs):
                 # walk to the path point nearest the seat, step in front of it, turn, sit, rest,
                 # get up, step back onto the path
                 assert seat is not None
@@ -276,7 +286,7 @@ class Behaviour:
                 segs.append(Segment("goto", t, t + step / speed, x0=float(p[0]), y0=float(p[1]),
                                     x1=stand[0], y1=stand[1], heading0=away))  # fmt: skip
                 t += step / speed
-                rest = float(rng.uniform(3.0, 5.0))
+                rest = float(rng.uniform(1.5, 3.0))
                 turns = (
                     abs(_wrap(seat.facing - away)) + abs(_wrap(away + math.pi - seat.facing))
                 ) / TURN_RATE
@@ -289,7 +299,7 @@ class Behaviour:
                 segs.append(Segment("goto", t, t + step / speed, x0=stand[0], y0=stand[1],
                                     x1=float(p[0]), y1=float(p[1]), heading0=away + math.pi))  # fmt: skip
                 t += step / speed
-                sat = True
+                next_sit = t + SIT_EVERY
                 continue
             walk_t = float(rng.uniform(2.5, 7.0))
             segs.append(Segment("walk", t, t + walk_t, s0=s, direction=direc))

@@ -201,7 +201,7 @@ def office_scene(seed: int, people: str, duration: float) -> Scene:
                 direction=1.0 if k == 0 else -1.0,
                 speed=float(prng.uniform(0.85, 1.05) if k == 0 else prng.uniform(0.6, 0.8)),
                 seat=side_seat if k == 0 else None,
-                sit_at=float(prng.uniform(0.3, 0.6)) * duration if k == 0 else None,
+                sit_at=float(prng.uniform(1.5, 3.0)) if k == 0 else None,
             )
             persons.append((_outfit(prng, k), behaviour))
     elif people in ("sitting", "frozen"):
