@@ -3,13 +3,17 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
+import textwrap
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 import cv2
 import numpy as np
+from tqdm import tqdm
 
 from ..classes import CLASS_NAMES, voc_lut
 from ..errors import UssSlamError
@@ -66,11 +70,15 @@ def _preset(text: str) -> str:
     return text
 
 
+def _wrap(text: str) -> str:
+    return textwrap.fill(text, width=90)
+
+
 def build_parser() -> argparse.ArgumentParser:
     presets = "\n".join(f"  {p.name:<19} {p.description}" for p in PRESETS.values())
     parser = _Parser(
         prog="uss-synth",
-        description=(
+        description=_wrap(
             "Render deterministic synthetic RGB-D data: TUM RGB-D sequences with ground truth "
             "and per-pixel labels, and PASCAL VOC 2012-layout segmentation sets. Same "
             "arguments => byte-identical files. Output folders appear only when complete."
@@ -95,7 +103,7 @@ def build_parser() -> argparse.ArgumentParser:
     seq = sub.add_parser(
         "sequence",
         help="a TUM RGB-D sequence (rgb/, depth/, labels/, rgb.txt, depth.txt, groundtruth.txt)",
-        description=(
+        description=_wrap(
             "Render a TUM RGB-D sequence folder: rgb/ (PNG), depth/ (uint16 PNG, 5000 = 1 m, "
             "0 = no data, beyond 4.5 m dropped), labels/ (uint8 class ids: "
             + ", ".join(f"{i} {n}" for i, n in enumerate(CLASS_NAMES))
@@ -133,7 +141,7 @@ def build_parser() -> argparse.ArgumentParser:
     voc = sub.add_parser(
         "voc",
         help="a PASCAL VOC 2012-layout segmentation set (source style)",
-        description=(
+        description=_wrap(
             "Render OUT/VOCdevkit/VOC2012 with JPEGImages/ (JPEG quality 90), SegmentationClass/ "
             "(palette PNGs: person 15, chair 9, tvmonitor 20, 255 void band along outlines) and "
             "ImageSets/Segmentation/{train,val,trainval}.txt (every fifth image is val). Every "
@@ -155,7 +163,7 @@ def build_parser() -> argparse.ArgumentParser:
     demo = sub.add_parser(
         "demo",
         help="the demo data set (VOC source set, target training / validation / SLAM sequences)",
-        description=(
+        description=_wrap(
             "Render the demo data set used by `make demo`: OUT/voc (source VOC set), "
             "OUT/target_train/<preset> (target style, unlabelled use), OUT/target_val/walking_xyz "
             "(target style, another seed, labels for validation), OUT/slam/<preset> (target "
@@ -172,7 +180,11 @@ def build_parser() -> argparse.ArgumentParser:
         "--voc-images", type=_positive(0), default=400, help="VOC images, 0 to skip (default: 400)"
     )
     demo.add_argument(
-        "--voc-size", type=_size, default=(320, 240), metavar="WxH", help="(default: 320x240)"
+        "--voc-size",
+        type=_size,
+        default=(320, 240),
+        metavar="WxH",
+        help="size of the VOC images (default: 320x240)",
     )
     demo.add_argument(
         "--train-frames",
@@ -199,32 +211,61 @@ def build_parser() -> argparse.ArgumentParser:
         default=300,
         help="frames per SLAM evaluation sequence, 0 to skip (default: 300)",
     )
-    demo.add_argument("--slam-size", type=_size, default=(640, 480), metavar="WxH", help="(default: 640x480)")  # fmt: skip
+    demo.add_argument("--slam-size", type=_size, default=(640, 480), metavar="WxH", help="size of the SLAM sequences (default: 640x480)")  # fmt: skip
+    demo.add_argument("--workers", type=_positive(1), default=min(2, os.cpu_count() or 1),
+                      help="processes rendering the parts in parallel (default: min(2, CPUs))")  # fmt: skip
     return parser
 
 
 def run_demo(args: argparse.Namespace) -> Path:
-    """Render the demo data set into ``args.out`` (all-or-nothing) and return its path."""
+    """Render the demo data set into ``args.out`` (all-or-nothing) and return its path.
+
+    The parts (the VOC set and each sequence) are independent tasks, run on ``args.workers``
+    processes; the result does not depend on the number of workers.
+    """
     progress = not args.quiet
     with staged_output(args.out, args.overwrite) as tmp:
+        tasks: list[tuple[str, Callable[..., Path], dict]] = []
         if args.voc_images:
-            render_voc(tmp / "voc", images=args.voc_images, size=args.voc_size, seed=args.seed,
-                       progress=progress)  # fmt: skip
+            tasks.append(("voc", render_voc, dict(out_dir=tmp / "voc", images=args.voc_images,
+                                                  size=args.voc_size, seed=args.seed)))  # fmt: skip
         if args.train_frames:
             for k, preset in enumerate(DEMO_TRAIN_PRESETS):
-                render_sequence(tmp / "target_train" / preset, preset=preset, frames=args.train_frames,
-                                size=args.train_size, seed=args.seed + 1 + k, style="target",
-                                progress=progress)  # fmt: skip
+                tasks.append((f"target_train/{preset}", render_sequence, dict(
+                    out_dir=tmp / "target_train" / preset, preset=preset, frames=args.train_frames,
+                    size=args.train_size, seed=args.seed + 1 + k, style="target")))  # fmt: skip
         if args.val_frames:
-            render_sequence(tmp / "target_val" / "walking_xyz", preset="walking_xyz",
-                            frames=args.val_frames, size=args.train_size, seed=args.seed + 100,
-                            style="target", progress=progress)  # fmt: skip
+            tasks.append(("target_val/walking_xyz", render_sequence, dict(
+                out_dir=tmp / "target_val" / "walking_xyz", preset="walking_xyz",
+                frames=args.val_frames, size=args.train_size, seed=args.seed + 100,
+                style="target")))  # fmt: skip
         if args.slam_frames:
             for preset in DEMO_SLAM_PRESETS:
-                render_sequence(tmp / "slam" / preset, preset=preset, frames=args.slam_frames,
-                                size=args.slam_size, seed=args.seed, style="target",
-                                progress=progress)  # fmt: skip
+                tasks.append((f"slam/{preset}", render_sequence, dict(
+                    out_dir=tmp / "slam" / preset, preset=preset, frames=args.slam_frames,
+                    size=args.slam_size, seed=args.seed, style="target")))  # fmt: skip
+        if args.workers <= 1 or len(tasks) <= 1:
+            for _, fn, kwargs in tasks:
+                fn(**kwargs, progress=progress)
+        else:
+            # biggest first, so that the long SLAM sequences do not start last
+            tasks.sort(key=lambda task: -_cost(task[2]))
+            with ProcessPoolExecutor(max_workers=args.workers) as pool:
+                futures = [pool.submit(fn, **kwargs) for _, fn, kwargs in tasks]
+                names = {f: name for f, (name, _, _) in zip(futures, tasks, strict=True)}
+                bar = tqdm(total=len(futures), desc="demo parts", unit="part", disable=not progress)
+                for future in as_completed(futures):
+                    future.result()
+                    bar.set_postfix_str(names[future])
+                    bar.update()
+                bar.close()
     return args.out
+
+
+def _cost(kwargs: dict) -> float:
+    """Rough rendering cost of a demo task (pixels times frames or images)."""
+    w, h = kwargs["size"]
+    return w * h * kwargs.get("frames", kwargs.get("images", 1)) * (2 if "frames" in kwargs else 1)
 
 
 def _share(labels: list[Path]) -> np.ndarray:

@@ -91,6 +91,7 @@ class Renderer:
         w, h = camera.width, camera.height
         self.xs = ((np.arange(w) - camera.cx) / camera.fx).astype(np.float64)
         self.ys = ((np.arange(h) - camera.cy) / camera.fy).astype(np.float64)
+        self.xs32, self.ys32 = self.xs.astype(np.float32), self.ys.astype(np.float32)
         self.ray_norm = np.sqrt(
             np.add.outer(self.ys**2 + 1.0, self.xs**2).astype(np.float32)
         )  # |(x, y, 1)| per pixel
@@ -159,10 +160,9 @@ class Renderer:
                     continue  # entirely behind what is already drawn
                 r = prims.rot[k].astype(np.float64)
                 m = r.T @ rot  # camera ray (x, y, 1) -> direction in the primitive's frame
+                m = m.astype(np.float32)
                 d_l = tuple(
-                    np.add.outer(
-                        m[j, 1] * self.ys[y0:y1] + m[j, 2], m[j, 0] * self.xs[x0:x1]
-                    ).astype(np.float32)
+                    np.add.outer(m[j, 1] * self.ys32[y0:y1] + m[j, 2], m[j, 0] * self.xs32[x0:x1])
                     for j in range(3)
                 )
                 t = HIT[int(prims.kind[k])]((origin - prims.center[k]) @ r, d_l, prims.half[k])

@@ -94,6 +94,31 @@ def chair(cx, cy, facing, office: bool = True, tint=(1, 1, 1)) -> list[Prim]:
     return prims
 
 
+def desk_clutter(
+    rng: np.random.Generator, cx, cy, heading, width, depth, height=0.74
+) -> list[Prim]:
+    """Things on and under a desk (class background): a drawer pedestal at the front, a
+    keyboard, stacks of books and boxes, a mug. Local x is the desk's depth axis."""
+    w, r = _local(cx, cy, heading)
+    clutter, frame = material("clutter"), material("cabinet")
+    side = float(rng.choice([-1.0, 1.0]))
+    ped_y = side * (width / 2 - 0.3)
+    prims = [box(w((-depth / 2 + 0.25, ped_y, 0.3)), (0.45, 0.4, 0.6), BACKGROUND, frame, r)]
+    prims.append(box(w((-depth / 2 + 0.18, 0.0, height + 0.012)), (0.16, 0.45, 0.024),
+                     BACKGROUND, clutter, r))  # fmt: skip
+    for _ in range(int(rng.integers(2, 5))):
+        bw, bd, bh = rng.uniform(0.12, 0.32), rng.uniform(0.1, 0.25), rng.uniform(0.03, 0.12)
+        y = float(rng.uniform(-width / 2 + 0.15, width / 2 - 0.15))
+        x = float(rng.uniform(-depth / 2 + 0.12, depth / 2 - 0.15))
+        turn = r @ rot_z(float(rng.uniform(-0.5, 0.5)))
+        prims.append(box(w((x, y, height + bh / 2)), (bd, bw, bh), BACKGROUND, clutter, turn))
+    mx, my = float(rng.uniform(-0.2, 0.1)), float(rng.uniform(-width / 2 + 0.1, width / 2 - 0.1))
+    prims.append(
+        cylinder(w((mx, my, height)), w((mx, my, height + 0.1)), 0.04, BACKGROUND, clutter)
+    )
+    return prims
+
+
 def cabinet(cx, cy, heading, width, depth, height) -> list[Prim]:
     w, r = _local(cx, cy, heading)
     return [box(w((0, 0, height / 2)), (depth, width, height), BACKGROUND, material("cabinet"), r)]
@@ -165,6 +190,9 @@ def office_scene(seed: int, people: str, duration: float) -> Scene:
     static: list[Prim] = []
     static += desk(desk_x, -0.72, 0.0, width=1.44)
     static += desk(desk_x, 0.72, 0.0, width=1.44)
+    crng = stream(seed, "office/clutter")
+    for cy in (-0.72, 0.72):
+        static += desk_clutter(crng, desk_x, cy, 0.0, 1.44, 0.75)
     monitors_y = [-1.0 + jit(0.05), -0.35 + jit(0.05), 0.5 + jit(0.1)]
     for my in monitors_y:
         static += monitor(desk_x + 0.1, my, math.pi + jit(0.25), 0.74)
@@ -246,7 +274,9 @@ def random_scene(seed: int, index: int) -> Scene:
         heading = float(rng.uniform(-math.pi, math.pi))
         width = float(rng.uniform(1.0, 1.6))
         tint = tuple(float(c) for c in rng.uniform(0.75, 1.2, 3))
-        static += desk(*spot, heading, width=width, depth=float(rng.uniform(0.6, 0.8)), tint=tint)
+        depth = float(rng.uniform(0.6, 0.8))
+        static += desk(*spot, heading, width=width, depth=depth, tint=tint)
+        static += desk_clutter(rng, *spot, heading, width, depth)
         d = rot_z(heading)
         for _ in range(int(rng.integers(0, 3))):
             off = d @ np.array([0.1, rng.uniform(-width / 2 + 0.3, width / 2 - 0.3), 0.0])

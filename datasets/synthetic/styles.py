@@ -24,7 +24,7 @@ MAX_DEPTH = 4.5
 MIN_DEPTH_TARGET = 0.4
 EXPOSURE_TIME = 0.02
 """Seconds the target-style shutter stays open (length of the motion blur)."""
-BLUR_TAPS = 4
+BLUR_TAPS = 3
 
 
 def to_uint8(rgb: np.ndarray) -> np.ndarray:
@@ -70,18 +70,25 @@ def motion_blur(rgb: np.ndarray, flow: np.ndarray, taps: int = BLUR_TAPS) -> np.
     """Average of ``taps`` samples along each pixel's motion during an exposure centred on now.
 
     ``flow`` (H, W, 2) is where the pixel's scene point was, relative to now, when the shutter
-    opened; at constant velocity it is at minus that when the shutter closes. Works on uint8
-    images (averaged in 16 bits).
+    opened; at constant velocity it is at minus that when the shutter closes. The samples are
+    evenly spaced over the exposure with triangular weights (the middle one is the image
+    itself). Works on uint8 images (averaged in 16 bits).
     """
     h, w = rgb.shape[:2]
     gx, gy = _grid(h, w)
+    steps = np.linspace(-1.0, 1.0, taps, dtype=np.float32)
+    weights = (1.0 + taps // 2 - np.abs(np.arange(taps) - taps // 2)).astype(np.uint16)
     acc = np.zeros(rgb.shape, np.uint16)
-    for s in np.linspace(-1.0, 1.0, taps, dtype=np.float32):
-        acc += cv2.remap(
-            rgb, gx + s * flow[..., 0], gy + s * flow[..., 1], cv2.INTER_LINEAR,
-            borderMode=cv2.BORDER_REFLECT,
-        )  # fmt: skip
-    return ((acc + taps // 2) // taps).astype(np.uint8)
+    fx, fy = np.ascontiguousarray(flow[..., 0]), np.ascontiguousarray(flow[..., 1])
+    for s, weight in zip(steps, weights, strict=True):
+        if s == 0:
+            sample = rgb
+        else:
+            sample = cv2.remap(rgb, gx + s * fx, gy + s * fy, cv2.INTER_LINEAR,
+                               borderMode=cv2.BORDER_REFLECT)  # fmt: skip
+        acc += sample * weight
+    total = int(weights.sum())
+    return ((acc + total // 2) // total).astype(np.uint8)
 
 
 _GRIDS: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
@@ -105,13 +112,17 @@ def exposure_gain(t: float, phase: float) -> float:
 
 
 _VIGNETTE: dict[tuple[int, int], np.ndarray] = {}
+_CAST = np.array([1.07, 0.98, 0.8], np.float32)
+"""Warm colour cast of the target camera (red up, blue down)."""
+_BLACK_LEVEL = np.array([0.03, 0.02, 0.05], np.float32) * 255 + 0.5  # + 0.5: round to nearest
 
 
 def _vignette(h: int, w: int) -> np.ndarray:
+    """Vignetting (darker corners) times the colour cast, ``(H, W, 3)`` float32."""
     if (h, w) not in _VIGNETTE:
         y, x = np.mgrid[0:h, 0:w].astype(np.float32)
         r2 = ((x - w / 2) / (w / 2)) ** 2 + ((y - h / 2) / (h / 2)) ** 2
-        _VIGNETTE[(h, w)] = (1.0 - 0.22 * r2).astype(np.float32)[..., None]
+        _VIGNETTE[(h, w)] = (1.0 - 0.22 * r2).astype(np.float32)[..., None] * _CAST
     return _VIGNETTE[(h, w)]
 
 
@@ -136,9 +147,9 @@ def target_rgb(
     a Kinect (Gaussian, 0.55 px at 640 px); gamma; signal-dependent sensor noise.
     """
     h, w = rgb.shape[:2]
-    cast = np.array([1.07, 0.98, 0.8], np.float32) * np.float32(gain)
-    img = rgb * (_vignette(h, w) * cast) + np.array([0.03, 0.02, 0.05], np.float32)
-    img8 = to_uint8(img)
+    # colour cast, vignetting, exposure and the black level in one multiply-add (in 0..255)
+    img = rgb * (_vignette(h, w) * np.float32(gain * 255)) + _BLACK_LEVEL
+    img8 = np.clip(img, 0, 255).astype(np.uint8)
     if flow is not None:
         img8 = motion_blur(img8, flow)
     img8 = cv2.GaussianBlur(img8, (0, 0), 0.55 * max(w, h) / 640)

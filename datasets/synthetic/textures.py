@@ -54,6 +54,7 @@ def _roles() -> tuple[Role, ...]:
         Role("chair_frame", OBJECT_SIZE, 0.003),
         Role("monitor_screen", OBJECT_SIZE * 2, 0.0012),
         Role("monitor_body", OBJECT_SIZE, 0.003),
+        Role("clutter", OBJECT_SIZE * 2, 0.0015),
     ]
     for k in range(PEOPLE_SLOTS):
         roles += [
@@ -321,6 +322,20 @@ def _print(img: np.ndarray, rng, colours: tuple[RGB, RGB], count: int, rmin: flo
         _text(img, x, y, rng.uniform(0.5, 0.9), colours[int(rng.integers(0, 2))], rng, 4)
 
 
+def _src_clutter(rng, size: int) -> np.ndarray:
+    """Boxes, book covers and packaging: colour blocks with labels, logos and bar codes."""
+    img = np.full((size, size, 3), _vivid(rng), np.uint8)
+    for _ in range(40):
+        w, h = rng.uniform(30, 140, 2)
+        x, y = rng.uniform(0, size, 2)
+        _rect(img, x, y, w, h, _vivid(rng))
+        _text(img, x + 4, y + h * 0.6, rng.uniform(0.4, 0.8), (15, 15, 15), rng, 5)
+        for k in range(int(rng.integers(0, 12))):  # bar code
+            _rect(img, x + 4 + 3 * k, y + 4, 1, 12, (10, 10, 10))
+    _scatter(img, rng, 300, 3, 8, lambda: _vivid(rng))
+    return img
+
+
 def _src_shirt(rng, size: int) -> np.ndarray:
     a, b = _contrasting(rng, lambda: _vivid(rng))
     img = np.full((size, size, 3), a, np.uint8)
@@ -483,6 +498,19 @@ def _tgt_screen(rng, size: int) -> np.ndarray:
     return img
 
 
+def _tgt_clutter(rng, size: int) -> np.ndarray:
+    """Cardboard, binders and printed paper: muted blocks with text and bar codes."""
+    img = _tgt_noisy(rng, size, _muted(rng, 120, 190), 0.08, 2)
+    for _ in range(40):
+        w, h = rng.uniform(30, 140, 2)
+        x, y = rng.uniform(0, size, 2)
+        _rect(img, x, y, w, h, _muted(rng, 40, 230))
+        _text(img, x + 4, y + h * 0.6, rng.uniform(0.4, 0.8), _muted(rng, 10, 60), rng, 5)
+        for k in range(int(rng.integers(0, 12))):
+            _rect(img, x + 4 + 3 * k, y + 4, 1, 12, (20, 20, 20))
+    return _modulate(img, _periodic_noise(rng, size, 2), 0.06)
+
+
 def _tgt_shirt(rng, size: int) -> np.ndarray:
     a, b = _contrasting(rng, lambda: _muted(rng, 30, 220))
     if rng.random() < 0.5:  # plaid
@@ -543,6 +571,7 @@ def _generate(role: Role, family: str, rng: np.random.Generator) -> np.ndarray:
         "chair_frame": lambda r, n: _src_solid_pattern(r, n, (45, 45, 50), 1.8),
         "monitor_screen": _src_screen,
         "monitor_body": lambda r, n: _src_solid_pattern(r, n, (25, 25, 28), 2.5, 60),
+        "clutter": _src_clutter,
         "shirt": _src_shirt,
         "trousers": _src_trousers,
         "skin": _src_skin,
@@ -559,6 +588,7 @@ def _generate(role: Role, family: str, rng: np.random.Generator) -> np.ndarray:
         "chair_frame": lambda r, n: _tgt_noisy(r, n, (60, 60, 62), 0.15),
         "monitor_screen": _tgt_screen,
         "monitor_body": lambda r, n: _tgt_noisy(r, n, (45, 45, 48), 0.1),
+        "clutter": _tgt_clutter,
         "shirt": _tgt_shirt,
         "trousers": _tgt_trousers,
         "skin": _tgt_skin,

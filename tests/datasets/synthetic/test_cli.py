@@ -135,7 +135,7 @@ def test_demo_small(tmp_path: Path, capsys) -> None:
     out = tmp_path / "demo"
     args = ["demo", "--out", str(out), "--quiet", "--voc-images", "5", "--voc-size", "64x48",
             "--train-frames", "3", "--val-frames", "2", "--train-size", "48x32",
-            "--slam-frames", "2", "--slam-size", "64x48"]  # fmt: skip
+            "--slam-frames", "2", "--slam-size", "64x48", "--workers", "1"]  # fmt: skip
     assert main(args) == 0
     text = capsys.readouterr().out
     assert str(out.resolve()) in text
@@ -146,3 +146,9 @@ def test_demo_small(tmp_path: Path, capsys) -> None:
     assert "target_val/walking_xyz: 2 frames, 48x32" in text
     assert "slam/walking_xyz: 2 frames, 64x48" in text and "slam/static_xyz: 2 frames" in text
     assert "person" in text and "%" in text
+    # two worker processes produce the same files
+    again = tmp_path / "again"
+    assert main([*args[:2], str(again), *args[3:-1], "2"]) == 0
+    files = sorted(p.relative_to(out) for p in out.rglob("*") if p.is_file())
+    assert files == sorted(p.relative_to(again) for p in again.rglob("*") if p.is_file())
+    assert all((out / f).read_bytes() == (again / f).read_bytes() for f in files)

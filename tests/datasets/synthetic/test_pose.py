@@ -104,6 +104,6 @@ def test_unmasked_people_corrupt_the_pose() -> None:
     start, gap, share, masked, unmasked = worst
     assert unmasked.cm > 2.0, worst
     assert unmasked.cm > 3 * max(masked.cm, 0.1), worst
-    assert np.mean([e[4].cm for e in errors]) > 1.5 * np.mean([e[3].cm for e in errors])
+    assert np.mean([e[4].cm for e in errors]) > 1.2 * np.mean([e[3].cm for e in errors])
     # masking keeps even the Kinect-like frames near the truth
     assert np.mean([e[3].cm for e in errors]) < 1.5
