@@ -13,6 +13,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from PIL import Image
 from tqdm import tqdm
 
 from ..classes import CLASS_NAMES, voc_lut
@@ -290,8 +291,6 @@ def summarize(root: Path) -> str:
         train = (voc / "ImageSets" / "Segmentation" / "train.txt").read_text().split()
         val = (voc / "ImageSets" / "Segmentation" / "val.txt").read_text().split()
         pngs = sorted((voc / "SegmentationClass").glob("*.png"))
-        from PIL import Image
-
         counts = np.zeros(256, np.int64)
         for p in pngs:
             counts += np.bincount(np.asarray(Image.open(p)).reshape(-1), minlength=256)

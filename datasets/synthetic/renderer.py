@@ -216,11 +216,12 @@ class Renderer:
             obj = obj_all[start : start + _CHUNK]
             k = flat_ids[obj] - ROOM_FACES
             t = flat_z[obj]
-            r = [table[i][k] for i in range(9)]  # r[3 * i + j] = R[i, j]
-            rel = [o32[i] + t * flat_d[i][obj] - table[9 + i][k] for i in range(3)]
+            params = np.take(table, k, axis=1)
+            r = params[:9]  # r[3 * i + j] = R[i, j]
+            rel = [o32[i] + t * flat_d[i][obj] - params[9 + i] for i in range(3)]
             p_l = [r[j] * rel[0] + r[3 + j] * rel[1] + r[6 + j] * rel[2] for j in range(3)]
-            half = [table[12 + j][k] for j in range(3)]
-            kinds = prims.kind[k]
+            half = params[12:15]
+            kinds = np.take(prims.kind, k)
             present = np.flatnonzero(np.bincount(kinds, minlength=3))
             if len(present) == 1:
                 n_l, u[obj], v[obj] = surface(int(present[0]), tuple(p_l), tuple(half))
@@ -238,7 +239,7 @@ class Renderer:
                 u[obj], v[obj] = uo, vo
             for i, buf in enumerate((nx, ny, nz)):
                 buf[obj] = r[3 * i] * n_l[0] + r[3 * i + 1] * n_l[1] + r[3 * i + 2] * n_l[2]
-            mat[obj] = prims.material[k]
+            mat[obj] = np.take(prims.material, k)
 
     @staticmethod
     def _room(room: Room, origin: np.ndarray, d: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:

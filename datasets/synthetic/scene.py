@@ -314,7 +314,7 @@ def random_scene(seed: int, index: int) -> Scene:
 
     persons: list[tuple[Outfit, Behaviour]] = []
     free_seats = list(seats)
-    for k in range(int(rng.integers(1, 4))):
+    for _ in range(int(rng.integers(1, 4))):
         outfit = _outfit(rng, int(rng.integers(0, 64)))
         if free_seats and rng.random() < 0.35:
             st = free_seats.pop(int(rng.integers(0, len(free_seats))))
@@ -336,7 +336,6 @@ def random_scene(seed: int, index: int) -> Scene:
                 arms=tuple(float(a) for a in rng.uniform(0, 0.9, 2) * (rng.random(2) < 0.3)),
             )
         persons.append((outfit, Behaviour.still(pose)))
-        del k
 
     lights = tuple(
         (float(rng.uniform(-sx / 3, sx / 3)), float(rng.uniform(-sy / 3, sy / 3)), float(sz - 0.2))
