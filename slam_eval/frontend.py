@@ -29,8 +29,6 @@ HALF_PATCH = 15
 """Radius of ORB's orientation disc (patch size 31), pixels at the keypoint's level."""
 EDGE = 19
 """Keypoints keep this far from each level's border (ORB-SLAM2's EDGE_THRESHOLD)."""
-MAX_CELL_CALLS = 12
-"""Above this many empty cells on a level, the low-threshold FAST runs once over the level."""
 
 
 @dataclass(frozen=True)
@@ -174,28 +172,24 @@ class OrbExtractor:
             cx = np.minimum(((xy[:, 0] - lo_x) / cell).astype(np.int64), nx - 1)
             cy = np.minimum(((xy[:, 1] - lo_y) / cell).astype(np.int64), ny - 1)
             occupied[cy * nx + cx] = True
-        empty = np.flatnonzero(~occupied)
+        # Search again with the low threshold, one call per horizontal run of empty cells: the
+        # scan stays inside the empty (low-texture) area, where FAST rejects pixels fastest.
         extra_xy, extra_score = [], []
-        if len(empty) > MAX_CELL_CALLS:
-            # Many empty cells: one masked low-threshold pass over the level is cheaper than
-            # per-cell calls (OpenCV drops corners outside the mask before returning them).
-            cells = (~occupied).reshape(ny, nx).astype(np.uint8) * 255
-            mask = np.zeros(roi.shape, np.uint8)
-            grown = np.repeat(np.repeat(cells, cell, axis=0), cell, axis=1)
-            mask[3:-3, 3:-3] = grown[: hi_y - lo_y, : hi_x - lo_x]
-            p, s = _fast(self._fast_lo, roi, lo_x - 3, lo_y - 3, mask)
-            extra_xy.append(p)
-            extra_score.append(s)
-        else:
-            for c in empty:
-                gy, gx = divmod(int(c), nx)
-                x0, y0 = lo_x + gx * cell, lo_y + gy * cell
-                x1, y1 = min(x0 + cell, hi_x), min(y0 + cell, hi_y)
-                sub = image[y0 - 3 : y1 + 3, x0 - 3 : x1 + 3]
-                p, s = _fast(self._fast_lo, sub, x0 - 3, y0 - 3)
-                keep = _inside(p, x0, y0, x1, y1)
-                extra_xy.append(p[keep])
-                extra_score.append(s[keep])
+        grid = np.zeros((ny, nx + 2), np.int8)
+        grid[:, 1:-1] = ~occupied.reshape(ny, nx)
+        edges = np.diff(grid, axis=1)
+        run_rows, run_starts = np.nonzero(edges == 1)
+        _, run_ends = np.nonzero(edges == -1)
+        for gy, gx0, gx1 in zip(
+            run_rows.tolist(), run_starts.tolist(), run_ends.tolist(), strict=True
+        ):
+            x0, y0 = lo_x + gx0 * cell, lo_y + gy * cell
+            x1, y1 = min(lo_x + gx1 * cell, hi_x), min(y0 + cell, hi_y)
+            sub = image[y0 - 3 : y1 + 3, x0 - 3 : x1 + 3]
+            p, sc = _fast(self._fast_lo, sub, x0 - 3, y0 - 3)
+            keep = _inside(p, x0, y0, x1, y1)
+            extra_xy.append(p[keep])
+            extra_score.append(sc[keep])
         if extra_xy:
             xy = np.concatenate([xy, *extra_xy])
             score = np.concatenate([score, *extra_score])
@@ -331,13 +325,9 @@ class OrbExtractor:
 
 
 def _fast(
-    detector: cv2.FastFeatureDetector,
-    image: np.ndarray,
-    ox: int,
-    oy: int,
-    mask: np.ndarray | None = None,
+    detector: cv2.FastFeatureDetector, image: np.ndarray, ox: int, oy: int
 ) -> tuple[np.ndarray, np.ndarray]:
-    found = detector.detect(image, mask)
+    found = detector.detect(image)
     if not found:
         return np.zeros((0, 2), np.float32), np.zeros(0, np.float32)
     xy = cv2.KeyPoint_convert(found).reshape(-1, 2) + np.float32([ox, oy])

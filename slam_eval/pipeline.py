@@ -1,9 +1,16 @@
 """One SLAM run over a sequence: segmenter -> ORB front end -> dynamic filters -> tracker -> map.
 
-Every stage is timed per frame (``timing_ms`` holds the mean milliseconds per processed frame of
-each module; ``load`` is the time spent *waiting* for the prefetching reader). Keypoint
-accounting: ``flagged[name]`` counts the keypoints a filter judged dynamic, ``dropped[name]`` those
-it removed that no earlier filter had removed (so the ``dropped`` values add up to
+With ``parallel`` (the default) segmentation and ORB extraction of upcoming frames run in the
+prefetch thread, next to PNG decoding, while the main thread filters and tracks the current frame
+(PSPNet-SLAM likewise runs segmentation in its own thread); results are identical to the serial
+order. Timing: ``timing_ms`` holds the mean wall milliseconds per processed frame of each module
+(``read`` = PNG reading and decoding in the prefetch thread, ``load`` = time the main thread
+*waited* for the next prepared frame; ``total`` = wall time of
+the run per frame, so ``1000 / total`` is the end-to-end frame rate) and ``cpu_ms`` the mean CPU
+milliseconds of each module's own thread (robust to a busy machine).
+
+Keypoint accounting: ``flagged[name]`` counts the keypoints a filter judged dynamic, ``dropped[name]``
+those it removed that no earlier filter had removed (so the ``dropped`` values add up to
 ``extracted - kept``).
 """
 
@@ -22,7 +29,7 @@ from uss_slam.datasets.errors import UssSlamError
 from uss_slam.datasets.tum_io import Trajectory
 
 from .filters import DynamicFilter, FilterContext
-from .frontend import OrbConfig, OrbExtractor
+from .frontend import Features, OrbConfig, OrbExtractor
 from .segmentation import Segmenter
 from .semantic_map import MapConfig, PointCloud, SemanticMapBuilder
 from .sequence import Frame, TumSequence
@@ -30,21 +37,37 @@ from .tracker import Tracker, TrackerConfig
 
 
 class Timer:
-    """Accumulates wall time per named module."""
+    """Accumulates wall time and CPU time (of the measuring thread) per named module."""
 
     def __init__(self) -> None:
-        self.total: dict[str, float] = defaultdict(float)
+        self.wall: dict[str, float] = defaultdict(float)
+        self.cpu: dict[str, float] = defaultdict(float)
 
     @contextmanager
     def __call__(self, name: str) -> Iterator[None]:
-        start = time.perf_counter()
+        wall, cpu = time.perf_counter(), time.thread_time()
         try:
             yield
         finally:
-            self.total[name] += time.perf_counter() - start
+            self.add(name, time.perf_counter() - wall, time.thread_time() - cpu)
 
-    def mean_ms(self, frames: int) -> dict[str, float]:
-        return {k: 1000.0 * v / max(frames, 1) for k, v in self.total.items()}
+    def add(self, name: str, wall: float, cpu: float) -> None:
+        self.wall[name] += wall
+        self.cpu[name] += cpu
+
+    def mean_ms(self, frames: int, cpu: bool = False) -> dict[str, float]:
+        totals = self.cpu if cpu else self.wall
+        return {k: 1000.0 * v / max(frames, 1) for k, v in totals.items()}
+
+
+@dataclass
+class _Prepared:
+    """A frame with its segmentation and features, and how long each took (s)."""
+
+    frame: Frame
+    labels: np.ndarray | None
+    features: Features
+    timer: Timer
 
 
 @dataclass
@@ -81,6 +104,7 @@ class RunResult:
     unmatched_rgb: int
     keypoints: dict[str, object]
     timing_ms: dict[str, float]
+    cpu_ms: dict[str, float]
     wall_time_s: float
     cloud: PointCloud
     log: list[FrameLog] = field(repr=False, default_factory=list)
@@ -113,6 +137,8 @@ class SlamPipeline:
         tracker: TrackerConfig | None = None,
         semantic_map: MapConfig | None = None,
         prefetch: int = 4,
+        workers: int = 2,
+        parallel: bool = True,
         progress: bool = True,
         description: str | None = None,
     ) -> None:
@@ -132,8 +158,21 @@ class SlamPipeline:
         self.tracker_config = tracker or TrackerConfig()
         self.map_config = semantic_map or MapConfig()
         self.prefetch = prefetch
+        self.workers = workers
+        self.parallel = parallel and prefetch > 0
         self.progress = progress
         self.description = description or sequence.path.name
+
+    def _prepare(self, frame: Frame) -> _Prepared:
+        """Segmentation and ORB extraction of one frame (run in the prefetch thread when
+        ``parallel``, so they overlap the tracking of the previous frame)."""
+        timer = Timer()
+        timer.add("read", *frame.read_time)
+        with timer("segmentation"):
+            labels = self.segmenter.segment(frame)
+        with timer("orb"):
+            features = self.extractor(frame.gray, frame.depth)
+        return _Prepared(frame, labels, features, timer)
 
     @staticmethod
     def _apply(
@@ -175,17 +214,19 @@ class SlamPipeline:
             dynamic_ncols=True,
         )
         start = time.perf_counter()
-        frames = self.sequence.frames(self.prefetch)
+        if self.parallel:
+            frames = self.sequence.prepared(self._prepare, self.prefetch, self.workers)
+        else:
+            frames = (self._prepare(f) for f in self.sequence.frames(self.prefetch, self.workers))
         try:
             while True:
                 with timer("load"):
-                    frame = next(frames, None)
-                if frame is None:
+                    item = next(frames, None)
+                if item is None:
                     break
-                with timer("segmentation"):
-                    labels = self.segmenter.segment(frame)
-                with timer("orb"):
-                    features = extractor(frame.gray, frame.depth)
+                for name in item.timer.wall:
+                    timer.add(name, item.timer.wall[name], item.timer.cpu[name])
+                frame, labels, features = item.frame, item.labels, item.features
                 n = len(features)
                 ctx = FilterContext(frame, features, labels, extractor, tracker, previous)
                 ctx.motion_flags = np.zeros(n, bool)
@@ -244,6 +285,8 @@ class SlamPipeline:
         count = len(log)
         timing = timer.mean_ms(count)
         timing["total"] = 1000.0 * wall / max(count, 1)
+        cpu = timer.mean_ms(count, cpu=True)
+        cpu.pop("load", None)
         with timer("map_build"):
             cloud = builder.build()
         trajectory = (
@@ -272,6 +315,7 @@ class SlamPipeline:
                 **counts,
             },
             timing_ms=timing,
+            cpu_ms=cpu,
             wall_time_s=wall,
             cloud=cloud,
             log=log,

@@ -10,11 +10,13 @@ depth partner is not silently dropped: it is counted in :attr:`TumSequence.unmat
 from __future__ import annotations
 
 import itertools
+import time
 from collections import deque
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TypeVar
 
 import cv2
 import numpy as np
@@ -29,6 +31,8 @@ from uss_slam.datasets.tum_io import (
     read_file_list,
     read_trajectory,
 )
+
+T = TypeVar("T")
 
 INTRINSICS_FILE = "intrinsics.yaml"
 LABELS_DIR = "labels"
@@ -60,6 +64,8 @@ class Frame:
     gray: np.ndarray
     depth: np.ndarray
     labels: np.ndarray | None = None
+    read_time: tuple[float, float] = (0.0, 0.0)
+    """Wall and CPU seconds spent reading and decoding this frame."""
 
 
 def resolve_camera(
@@ -218,6 +224,7 @@ class TumSequence:
 
     def load(self, index: int) -> Frame:
         """Read frame ``index`` from disk, checking formats and sizes (errors name the file)."""
+        wall, cpu = time.perf_counter(), time.thread_time()
         record = self.records[index]
         bgr = cv2.imread(str(record.rgb_path), cv2.IMREAD_COLOR)
         if bgr is None:
@@ -260,37 +267,55 @@ class TumSequence:
                 f"image is {bgr.shape[1]}x{bgr.shape[0]} but the sequence's first frame is "
                 f"{self.image_size[0]}x{self.image_size[1]}",
             )
-        return Frame(
-            index=record.index,
-            stamp=record.stamp,
-            rgb=cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB),
-            gray=cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY),
-            depth=depth,
-            labels=labels,
-        )
+        rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+        gray = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
+        spent = (time.perf_counter() - wall, time.thread_time() - cpu)
+        return Frame(record.index, record.stamp, rgb, gray, depth, labels, spent)
 
-    def frames(self, prefetch: int = 4) -> Iterator[Frame]:
+    def frames(self, prefetch: int = 4, workers: int = 1) -> Iterator[Frame]:
         """Yield every selected frame in order, loading up to ``prefetch`` frames ahead.
 
         Loading runs in one background thread (PNG decoding releases the GIL), so it overlaps the
         caller's work; a loading error is raised here, at the frame that failed.
         """
+        return self.prepared(_identity, prefetch, workers)
+
+    def prepared(
+        self, prepare: Callable[[Frame], T], prefetch: int = 4, workers: int = 1
+    ) -> Iterator[T]:
+        """Yield ``prepare(frame)`` for every selected frame in order.
+
+        With ``prefetch > 0`` loading *and* ``prepare`` run in ``workers`` background threads, up
+        to ``prefetch`` frames ahead (the SLAM pipeline extracts ORB features there while the
+        caller tracks the previous frame); ``prefetch = 0`` does everything in the caller's thread.
+        Results come in frame order whatever the number of workers.
+        """
         if prefetch <= 0:
             for k in range(len(self)):
-                yield self.load(k)
+                yield prepare(self.load(k))
             return
-        with ThreadPoolExecutor(max_workers=1, thread_name_prefix="tum-prefetch") as pool:
+
+        def job(k: int) -> T:
+            return prepare(self.load(k))
+
+        with ThreadPoolExecutor(
+            max_workers=max(1, workers), thread_name_prefix="tum-prefetch"
+        ) as pool:
             upcoming = iter(range(len(self)))
-            pending: deque[Future[Frame]] = deque(
-                pool.submit(self.load, k) for k in itertools.islice(upcoming, prefetch)
+            pending: deque[Future[T]] = deque(
+                pool.submit(job, k) for k in itertools.islice(upcoming, prefetch)
             )
             try:
                 while pending:
-                    frame = pending.popleft().result()
+                    item = pending.popleft().result()
                     nxt = next(upcoming, None)
                     if nxt is not None:
-                        pending.append(pool.submit(self.load, nxt))
-                    yield frame
+                        pending.append(pool.submit(job, nxt))
+                    yield item
             finally:
                 for future in pending:
                     future.cancel()
+
+
+def _identity(frame: Frame) -> Frame:
+    return frame

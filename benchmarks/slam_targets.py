@@ -1,0 +1,107 @@
+"""Accuracy targets of the SLAM harness on synthetic sequences (issue 4, BENCHMARKS.md).
+
+For each preset (640x480, >= 300 frames) the unfiltered baseline and the ``labels`` segmenter +
+``semantic`` filter run on the same sequence; the script prints ATE RMSE of both, their ratio and
+whether the targets hold (on the median over seeds: which frames a person spoils for the
+unfiltered tracker changes a lot between scenes):
+
+- walking_xyz / walking_rpy / walking_halfsphere: semantic ATE RMSE <= 20% of the baseline's;
+- static_xyz: semantic no worse than the baseline by more than 10%, baseline under 2 cm.
+
+    python benchmarks/slam_targets.py --data outputs/bench/slam --frames 300 --seeds 0 1 2
+
+Sequences are rendered into ``--data`` on first use (uss-synth, target style) and reused.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+import time
+from pathlib import Path
+
+from uss_slam.datasets.synthetic import render_sequence
+from uss_slam.slam_eval.filters import build_filters
+from uss_slam.slam_eval.metrics import ate
+from uss_slam.slam_eval.pipeline import SlamPipeline
+from uss_slam.slam_eval.segmentation import LabelsSegmenter
+from uss_slam.slam_eval.sequence import TumSequence
+
+WALKING = ("walking_xyz", "walking_rpy", "walking_halfsphere")
+
+
+def sequence_path(data: Path, preset: str, frames: int, size: tuple[int, int], seed: int) -> Path:
+    path = data / f"{preset}_{frames}_{size[0]}x{size[1]}_seed{seed}"
+    if not (path / "rgb.txt").is_file():
+        print(f"rendering {path} ...", file=sys.stderr)
+        render_sequence(path, preset=preset, frames=frames, size=size, seed=seed, progress=True)
+    return path
+
+
+def run(path: Path, filters: list[str]) -> dict:
+    seq = TumSequence(path, load_labels=True)
+    result = SlamPipeline(seq, LabelsSegmenter(), build_filters(filters), progress=False).run()
+    stats = ate(seq.groundtruth, result.trajectory).stats
+    return {
+        "ate_rmse": stats.rmse,
+        "ate_mean": stats.mean,
+        "tracked_fraction": result.tracked_fraction,
+        "fps": result.fps,
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--data", type=Path, default=Path("outputs/bench/slam"))
+    parser.add_argument("--frames", type=int, default=300)
+    parser.add_argument("--size", default="640x480", help="WxH (default 640x480)")
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0])
+    parser.add_argument("--presets", nargs="+", default=[*WALKING, "static_xyz"])
+    parser.add_argument("--json", type=Path, help="also write the results here")
+    args = parser.parse_args()
+    size = tuple(int(v) for v in args.size.lower().split("x"))
+    rows: dict[str, list[dict]] = {}
+    start = time.perf_counter()
+    for preset in args.presets:
+        for seed in args.seeds:
+            path = sequence_path(args.data, preset, args.frames, size, seed)
+            base = run(path, [])
+            sem = run(path, ["semantic"])
+            ratio = sem["ate_rmse"] / base["ate_rmse"]
+            rows.setdefault(preset, []).append(
+                {"seed": seed, "baseline": base, "semantic": sem, "ratio": ratio}
+            )
+            print(
+                f"{preset:20s} seed {seed}: baseline ATE {base['ate_rmse']:.4f} m  semantic "
+                f"{sem['ate_rmse']:.4f} m  ratio {ratio:.3f}  tracked "
+                f"{base['tracked_fraction']:.2f}/{sem['tracked_fraction']:.2f}",
+                flush=True,
+            )
+    print()
+    print("| sequence | seeds | baseline ATE RMSE [m] | semantic ATE RMSE [m] | ratio | target |")
+    print("|---|---|---|---|---|---|")
+    for preset, runs in rows.items():
+        base = statistics.median(r["baseline"]["ate_rmse"] for r in runs)
+        sem = statistics.median(r["semantic"]["ate_rmse"] for r in runs)
+        ratios = [r["ratio"] for r in runs]
+        ratio = statistics.median(ratios)
+        if preset == "static_xyz":
+            ok = ratio <= 1.10 and base < 0.02
+            target = "<= 1.10 and baseline < 0.02 m"
+        else:
+            ok = ratio <= 0.20
+            target = "<= 0.20"
+        spread = ", ".join(f"{r:.2f}" for r in ratios)
+        print(
+            f"| {preset} | {len(runs)} | {base:.4f} | {sem:.4f} | {ratio:.3f} ({spread}) | "
+            f"{target}: {'met' if ok else 'NOT met'} |"
+        )
+    print(f"\nmedians over seeds; total {time.perf_counter() - start:.0f} s")
+    if args.json:
+        args.json.write_text(json.dumps(rows, indent=2) + "\n")
+
+
+if __name__ == "__main__":
+    main()
