@@ -103,40 +103,53 @@ class SegmentationImageLogger(Callback):
             experiment.add_image("val/target", panel, step, dataformats="HWC")
 
 
-def state_digest(module: torch.nn.Module) -> str:
-    """SHA-256 of every parameter and buffer (names, shapes and exact bytes)."""
+def state_digest(tensors: dict[str, torch.Tensor]) -> str:
+    """SHA-256 of named tensors (names, shapes and exact bytes)."""
     digest = hashlib.sha256()
-    for name, tensor in sorted(module.state_dict().items()):
+    for name, tensor in sorted(tensors.items()):
         data = tensor.detach().cpu().contiguous()
         digest.update(name.encode())
         digest.update(str(tuple(data.shape)).encode())
-        digest.update(data.view(torch.uint8).numpy().tobytes() if data.numel() else b"")
+        digest.update(data.reshape(-1).view(torch.uint8).numpy().tobytes())
     return digest.hexdigest()
 
 
 class ReplicaConsistencyCheck(Callback):
-    """After multi-process training, checks that every rank holds bit-identical weights
-    (segmenter and discriminators) and writes the per-rank digests to ``<dirpath>/replicas.json``.
-    A mismatch (a broken DDP setup) raises. Does nothing in single-process runs."""
+    """After multi-process training, checks that every rank holds bit-identical parameters
+    (segmenter and discriminators) and buffers, and writes the per-rank digests to
+    ``<dirpath>/replicas.json``. Diverged parameters (a broken DDP setup) raise; diverged
+    buffers only warn: BatchNorm statistics are per rank unless synchronised
+    (``trainer.sync_batchnorm=true``, GPUs only) or frozen. Does nothing in single-process runs.
+    """
 
     def __init__(self, dirpath: str | Path | None = None) -> None:
         self.dirpath = Path(dirpath) if dirpath is not None else None
 
+    @staticmethod
+    def _gather(trainer: Trainer, pl_module: LightningModule, digest: str) -> list[str]:
+        raw = torch.tensor(list(bytes.fromhex(digest)), dtype=torch.int64, device=pl_module.device)
+        gathered = trainer.strategy.all_gather(raw).cpu().reshape(trainer.world_size, -1)
+        return [bytes(row.tolist()).hex() for row in gathered]
+
     def on_train_end(self, trainer: Trainer, pl_module: LightningModule) -> None:
         if trainer.world_size <= 1:
             return
-        local = state_digest(pl_module)
-        raw = torch.tensor(list(bytes.fromhex(local)), dtype=torch.int64)
-        gathered = trainer.strategy.all_gather(raw.to(pl_module.device)).cpu()
-        digests = [bytes(row.tolist()).hex() for row in gathered.reshape(trainer.world_size, -1)]
+        params = self._gather(trainer, pl_module, state_digest(dict(pl_module.named_parameters())))
+        buffers = self._gather(trainer, pl_module, state_digest(dict(pl_module.named_buffers())))
         if trainer.is_global_zero:
-            log.info("weights digest per rank: %s", digests)
+            log.info("digest per rank: parameters %s, buffers %s", params, buffers)
             if self.dirpath is not None:
                 self.dirpath.mkdir(parents=True, exist_ok=True)
-                (self.dirpath / "replicas.json").write_text(
-                    json.dumps(
-                        {"iteration": getattr(pl_module, "iteration", None), "digests": digests}
-                    )
-                )
-        if len(set(digests)) != 1:
-            raise UssSlamError(f"DDP replicas diverged: weight digests per rank {digests}")
+                record = {
+                    "iteration": getattr(pl_module, "iteration", None),
+                    "parameters": params,
+                    "buffers": buffers,
+                }
+                (self.dirpath / "replicas.json").write_text(json.dumps(record, indent=1) + "\n")
+        if len(set(params)) != 1:
+            raise UssSlamError(f"DDP replicas diverged: parameter digests per rank {params}")
+        if len(set(buffers)) != 1 and trainer.is_global_zero:
+            log.warning(
+                "buffers (BatchNorm statistics) differ across ranks: freeze BatchNorm or set "
+                "trainer.sync_batchnorm=true (GPUs); checkpoints hold rank 0's"
+            )

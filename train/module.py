@@ -26,6 +26,7 @@ import torch
 import torch.nn.functional as F
 from lightning.pytorch import LightningModule
 from torch import Tensor, nn
+from torch.nn.modules.batchnorm import _BatchNorm
 from torch.optim import Optimizer
 from torchmetrics.classification import MulticlassJaccardIndex
 
@@ -69,6 +70,11 @@ class AdversarialSegmentation(LightningModule):
         head_lr_mult: learning-rate multiplier of the segmenter heads.
         adaptation: ``False`` = source-only training; the discriminators are never used.
         class_names: names for ``val/IoU/<class>``; their count is the number of classes.
+        batch_domains: run source and target through one segmenter forward and one
+            discriminator pass per head when no layer uses batch statistics (frozen BN) and the
+            crops have one size. Identical losses and gradients; peak activation memory holds
+            both domains at once (set ``False`` on a tight GPU).
+        channels_last: NHWC memory layout for the networks and inputs (same results).
     """
 
     def __init__(
@@ -83,6 +89,8 @@ class AdversarialSegmentation(LightningModule):
         head_lr_mult: float = 10.0,
         adaptation: bool = True,
         class_names: Sequence[str] = CLASS_NAMES,
+        batch_domains: bool = True,
+        channels_last: bool = False,
     ) -> None:
         super().__init__()
         if max_iters <= 0:
@@ -99,6 +107,8 @@ class AdversarialSegmentation(LightningModule):
         self.head_lr_mult = head_lr_mult
         self.adaptation = adaptation
         self.class_names = tuple(class_names)
+        self.batch_domains = batch_domains
+        self.channels_last = channels_last
         self.iteration = 0
         """Completed training iterations (saved in checkpoints)."""
         self.val_iou = MulticlassJaccardIndex(
@@ -147,61 +157,107 @@ class AdversarialSegmentation(LightningModule):
     def forward(self, images: Tensor) -> SegmenterOutput:
         return self.segmenter(images)
 
+    def setup(self, stage: str) -> None:
+        if self.channels_last:
+            for net in (self.segmenter, self.d_aux, self.d_main):
+                net.to(memory_format=torch.channels_last)
+
+    def _prepare(self, images: Tensor) -> Tensor:
+        return (
+            images.contiguous(memory_format=torch.channels_last) if self.channels_last else images
+        )
+
+    def _batch_statistics(self) -> bool:
+        """True when a segmenter layer normalises with batch statistics (unfrozen BatchNorm in
+        train mode): then source and target must not share a forward pass."""
+        return any(m.training for m in self.segmenter.modules() if isinstance(m, _BatchNorm))
+
     def training_step(self, batch: dict[str, dict[str, Any]], batch_idx: int) -> Tensor:
         opt_seg, opt_d = self.optimizers()
         sched_seg, sched_d = self.lr_schedulers()
-        source, target = batch["source"], batch["target"]
         w = self.loss_weights
         logged: dict[str, Tensor] = {}
+        labels = batch["source"]["label"]
+        images_src = self._prepare(batch["source"]["image"])
+        images_trg = self._prepare(batch["target"]["image"])
+        n_src = images_src.shape[0]
+        # Source and target through one forward (and later one discriminator pass per head)
+        # when every layer treats samples independently: same numbers, better CPU/GPU use.
+        batched = (
+            self.adaptation
+            and self.batch_domains
+            and images_src.shape[1:] == images_trg.shape[1:]
+            and not self._batch_statistics()
+        )
 
         # (1) segmentation loss on the source image, both heads.
         self.toggle_optimizer(opt_seg)
         opt_seg.zero_grad()
-        labels = source["label"]
-        pred_src = self.segmenter(source["image"])
-        up_src_aux = upsample(pred_src.aux, labels.shape[-2:])
-        up_src_main = upsample(pred_src.main, labels.shape[-2:])
-        loss_seg_aux = segmentation_loss(F.log_softmax(up_src_aux, dim=1), labels)
-        loss_seg_main = segmentation_loss(F.log_softmax(up_src_main, dim=1), labels)
+        if batched:
+            both = self.segmenter(torch.cat([images_src, images_trg]))
+            pred_src = SegmenterOutput(both.aux[:n_src], both.main[:n_src])
+            pred_trg = SegmenterOutput(both.aux[n_src:], both.main[n_src:])
+        else:
+            pred_src = self.segmenter(images_src)
+        logp_src_aux = F.log_softmax(upsample(pred_src.aux, labels.shape[-2:]), dim=1)
+        logp_src_main = F.log_softmax(upsample(pred_src.main, labels.shape[-2:]), dim=1)
+        loss_seg_aux = segmentation_loss(logp_src_aux, labels)
+        loss_seg_main = segmentation_loss(logp_src_main, labels)
         loss_seg = w.lambda_seg_aux * loss_seg_aux + w.lambda_seg_main * loss_seg_main
-        self._check_finite(loss_seg_src_aux=loss_seg_aux, loss_seg_src_main=loss_seg_main)
-        self.manual_backward(loss_seg)
+        self._check_finite(
+            loss_seg_src_aux=loss_seg_aux, loss_seg_src_main=loss_seg_main, loss_seg=loss_seg
+        )
+        if not batched:
+            self.manual_backward(loss_seg)  # frees the source graph before the target pass
         logged["train/loss_seg_src_aux"] = loss_seg_aux.detach()
         logged["train/loss_seg_src_main"] = loss_seg_main.detach()
 
         if self.adaptation:
             # (2) adversarial loss on the target image through the frozen discriminators.
-            images = target["image"]
-            pred_trg = self.segmenter(images)
-            prob_trg_aux = F.softmax(upsample(pred_trg.aux, images.shape[-2:]), dim=1)
-            prob_trg_main = F.softmax(upsample(pred_trg.main, images.shape[-2:]), dim=1)
+            if not batched:
+                pred_trg = self.segmenter(images_trg)
+            size = images_trg.shape[-2:]
+            prob_trg_aux = F.softmax(upsample(pred_trg.aux, size), dim=1)
+            prob_trg_main = F.softmax(upsample(pred_trg.main, size), dim=1)
             loss_adv_aux = domain_loss(self.d_aux(prob_trg_aux), SOURCE_LABEL)
             loss_adv_main = domain_loss(self.d_main(prob_trg_main), SOURCE_LABEL)
             loss_adv = w.lambda_adv_aux * loss_adv_aux + w.lambda_adv_main * loss_adv_main
-            self._check_finite(loss_adv_trg_aux=loss_adv_aux, loss_adv_trg_main=loss_adv_main)
-            self.manual_backward(loss_adv)
+            self._check_finite(
+                loss_adv_trg_aux=loss_adv_aux, loss_adv_trg_main=loss_adv_main, loss_adv=loss_adv
+            )
+            self.manual_backward(loss_seg + loss_adv if batched else loss_adv)
             logged["train/loss_adv_trg_aux"] = loss_adv_aux.detach()
             logged["train/loss_adv_trg_main"] = loss_adv_main.detach()
         opt_seg.step()
         self.untoggle_optimizer(opt_seg)
 
         if self.adaptation:
-            # (3) + (4) discriminators on detached source (0) and target (1) softmax maps.
+            # (3) + (4) discriminators on detached source (0) and target (1) softmax maps
+            # (the source softmax is exp of the log-softmax the loss already computed).
             self.toggle_optimizer(opt_d)
             opt_d.zero_grad()
-            prob_src_aux = F.softmax(up_src_aux.detach(), dim=1)
-            prob_src_main = F.softmax(up_src_main.detach(), dim=1)
-            d_src_aux, d_src_main = self.d_aux(prob_src_aux), self.d_main(prob_src_main)
+            src_aux, src_main = logp_src_aux.detach().exp(), logp_src_main.detach().exp()
+            trg_aux, trg_main = prob_trg_aux.detach(), prob_trg_main.detach()
+            if batched:
+                out_aux = self.d_aux(torch.cat([src_aux, trg_aux]))
+                out_main = self.d_main(torch.cat([src_main, trg_main]))
+                d_src_aux, d_trg_aux = out_aux[:n_src], out_aux[n_src:]
+                d_src_main, d_trg_main = out_main[:n_src], out_main[n_src:]
+            else:
+                d_src_aux, d_src_main = self.d_aux(src_aux), self.d_main(src_main)
             loss_d_src_aux = domain_loss(d_src_aux, SOURCE_LABEL)
             loss_d_src_main = domain_loss(d_src_main, SOURCE_LABEL)
             self._check_finite(loss_d_src_aux=loss_d_src_aux, loss_d_src_main=loss_d_src_main)
-            self.manual_backward(loss_d_src_aux + loss_d_src_main)
-            d_trg_aux = self.d_aux(prob_trg_aux.detach())
-            d_trg_main = self.d_main(prob_trg_main.detach())
+            if not batched:
+                self.manual_backward(loss_d_src_aux + loss_d_src_main)
+                d_trg_aux, d_trg_main = self.d_aux(trg_aux), self.d_main(trg_main)
             loss_d_trg_aux = domain_loss(d_trg_aux, TARGET_LABEL)
             loss_d_trg_main = domain_loss(d_trg_main, TARGET_LABEL)
             self._check_finite(loss_d_trg_aux=loss_d_trg_aux, loss_d_trg_main=loss_d_trg_main)
-            self.manual_backward(loss_d_trg_aux + loss_d_trg_main)
+            loss_d_trg = loss_d_trg_aux + loss_d_trg_main
+            self.manual_backward(
+                loss_d_trg + loss_d_src_aux + loss_d_src_main if batched else loss_d_trg
+            )
             opt_d.step()
             self.untoggle_optimizer(opt_d)
             sched_d.step()
@@ -218,8 +274,7 @@ class AdversarialSegmentation(LightningModule):
                 )
         sched_seg.step()
         self.iteration += 1
-        batch_size = labels.shape[0]
-        self.log_dict(logged, on_step=True, on_epoch=False, batch_size=batch_size)
+        self.log_dict(logged, on_step=True, on_epoch=False, batch_size=n_src)
         self.log("iteration", float(self.iteration), on_step=True, prog_bar=True, logger=False)
         return loss_seg.detach()
 
@@ -237,7 +292,7 @@ class AdversarialSegmentation(LightningModule):
 
     def validation_step(self, batch: dict[str, Any], batch_idx: int) -> None:
         labels = batch["label"]
-        logits = upsample(self.segmenter(batch["image"]).main, labels.shape[-2:])
+        logits = upsample(self.segmenter(self._prepare(batch["image"])).main, labels.shape[-2:])
         self.val_iou.update(logits.argmax(dim=1), labels)
 
     def on_validation_epoch_end(self) -> None:

@@ -22,10 +22,14 @@ sys.modules[_spec.name] = bench
 _spec.loader.exec_module(bench)
 
 
-def _module(adaptation: bool = True) -> AdversarialSegmentation:
+def _module(
+    adaptation: bool = True, batch_domains: bool = True, channels_last: bool = False
+) -> AdversarialSegmentation:
     torch.manual_seed(0)
     module = bench.build_module("resnet_small", max_iters=10, n_layers=5, ndf=8)
     module.adaptation = adaptation
+    module.batch_domains = batch_domains
+    module.channels_last = channels_last
     return module
 
 
@@ -92,8 +96,9 @@ def _equal(a: dict[str, torch.Tensor], b: dict[str, torch.Tensor]) -> bool:
     return all(torch.equal(a[k], b[k]) for k in a)
 
 
-def test_segmenter_step_leaves_discriminators_without_gradients() -> None:
-    module = _module()
+@pytest.mark.parametrize("batch_domains", [True, False])
+def test_segmenter_step_leaves_discriminators_without_gradients(batch_domains: bool) -> None:
+    module = _module(batch_domains=batch_domains)
     before = {"segmenter": _params(module.segmenter), "discriminators": _params(module.d_main)}
     bn_before = module.segmenter.backbone.bn1.running_mean.clone()
     probe = Probe()
@@ -109,27 +114,37 @@ def test_segmenter_step_leaves_discriminators_without_gradients() -> None:
     assert _equal(d_step["discriminators"], before["discriminators"])
     assert _equal(probe.after["segmenter"], d_step["segmenter"])
     assert not _equal(probe.after["discriminators"], d_step["discriminators"])
-    assert probe.segmenter_forwards == 2  # source and target
+    # Source and target: one batched forward (frozen BN) or one forward each.
+    assert probe.segmenter_forwards == (1 if batch_domains else 2)
     # Frozen BatchNorm: statistics never move.
     assert torch.equal(module.segmenter.backbone.bn1.running_mean, bn_before)
     assert module.iteration == 1
 
 
-@pytest.mark.parametrize("adaptation", [True, False])
-def test_module_matches_plain_pytorch_reference(adaptation: bool) -> None:
-    module = _module(adaptation)
+@pytest.mark.parametrize(
+    ("adaptation", "batch_domains", "channels_last"),
+    [(True, True, False), (True, False, False), (True, True, True), (False, True, False)],
+)
+def test_module_matches_plain_pytorch_reference(
+    adaptation: bool, batch_domains: bool, channels_last: bool
+) -> None:
+    module = _module(adaptation, batch_domains, channels_last)
     state = bench.plain_state_from(module)
     batch = bench.random_batch(41, 2)
     _fit(module, batch, 3, [])
     for _ in range(3):
         bench.plain_iteration(state, batch, module.loss_weights, adaptation=adaptation)
-    for mine, ref in (
-        (module.segmenter, state.segmenter),
-        (module.d_aux, state.d_aux),
-        (module.d_main, state.d_main),
+    # The module's kernels round differently in the last bit (batched / NHWC convolutions,
+    # softmax as exp(log_softmax)); Adam divides by the root of tiny second moments and so
+    # magnifies last-bit gradient differences: 1e-6 for the SGD-trained segmenter, 2e-5 for
+    # the Adam-trained discriminators (their weights are ~1e-2).
+    for mine, ref, atol in (
+        (module.segmenter, state.segmenter, 1e-6),
+        (module.d_aux, state.d_aux, 2e-5),
+        (module.d_main, state.d_main, 2e-5),
     ):
         for key, value in mine.state_dict().items():
-            torch.testing.assert_close(value, ref.state_dict()[key], rtol=0, atol=1e-6)
+            torch.testing.assert_close(value, ref.state_dict()[key], rtol=0, atol=atol)
     lrs = [g["lr"] for g in module.trainer.optimizers[0].param_groups]
     assert lrs == [g["lr"] for g in state.opt_seg.param_groups]
     assert lrs[1] == pytest.approx(10 * lrs[0])

@@ -1,0 +1,62 @@
+"""`uss-train` as users run it (subprocesses): a Hydra multirun sweep and DDP on CPU."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+import yaml
+from conftest import data_overrides
+
+
+def _uss_train(*args: str, cwd: Path) -> subprocess.CompletedProcess:
+    exe = Path(sys.executable).parent / "uss-train"
+    result = subprocess.run([str(exe), *args], cwd=cwd, capture_output=True, text=True, timeout=900)
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    return result
+
+
+@pytest.mark.slow
+def test_multirun_sweeps_discriminator_depth(uda_data: dict[str, Path], tmp_path: Path) -> None:
+    sweep = tmp_path / "sweep"
+    _uss_train(
+        "-m",
+        "experiment=ci",
+        "model.discriminator.n_layers=4,5",
+        *data_overrides(uda_data),
+        "logger=none",
+        "model.max_iters=2",
+        f"hydra.sweep.dir={sweep}",
+        cwd=tmp_path,
+    )
+    for job, n_layers in (("0", 4), ("1", 5)):
+        overrides = yaml.safe_load((sweep / job / ".hydra" / "overrides.yaml").read_text())
+        assert f"model.discriminator.n_layers={n_layers}" in overrides
+        state = torch.load(sweep / job / "checkpoints" / "last.ckpt", weights_only=True)
+        convs = [k for k in state["state_dict"] if k.startswith("d_main.") and k.endswith("weight")]
+        assert len(convs) == n_layers
+        assert state["iteration"] == 2
+    assert (sweep / "multirun.yaml").is_file()
+
+
+@pytest.mark.slow
+def test_ddp_on_cpu_keeps_replicas_identical(uda_data: dict[str, Path], tmp_path: Path) -> None:
+    run = tmp_path / "run"
+    _uss_train(
+        "experiment=ci",
+        "trainer=ddp_cpu",
+        *data_overrides(uda_data),
+        "logger=none",
+        f"hydra.run.dir={run}",
+        cwd=tmp_path,
+    )
+    record = json.loads((run / "replicas.json").read_text())
+    assert record["iteration"] == 4
+    assert len(record["parameters"]) == 2 and len(set(record["parameters"])) == 1
+    assert len(set(record["buffers"])) == 1
+    state = torch.load(run / "checkpoints" / "last.ckpt", weights_only=True)
+    assert state["iteration"] == 4
