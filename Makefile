@@ -16,7 +16,7 @@ $(STAMP): pyproject.toml
 	@touch $(STAMP)
 
 demo: $(STAMP)
-	$(VENV)/bin/uss-synth demo --out $(DEMO_OUT)/data
+	$(VENV)/bin/uss-synth demo --out $(DEMO_OUT)/data --reuse
 
 test: $(STAMP)
 	$(PY) -m pytest

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import yaml
 from PIL import Image
 from tqdm import tqdm
 
@@ -213,9 +214,32 @@ def build_parser() -> argparse.ArgumentParser:
         help="frames per SLAM evaluation sequence, 0 to skip (default: 300)",
     )
     demo.add_argument("--slam-size", type=_size, default=(640, 480), metavar="WxH", help="size of the SLAM sequences (default: 640x480)")  # fmt: skip
-    demo.add_argument("--workers", type=_positive(1), default=min(2, os.cpu_count() or 1),
-                      help="processes rendering the parts in parallel (default: min(2, CPUs))")  # fmt: skip
+    demo.add_argument(
+        "--workers",
+        type=_positive(1),
+        default=min(2, os.cpu_count() or 1),
+        help="processes rendering the parts in parallel (default: min(2, CPUs))",
+    )
+    demo.add_argument("--reuse", action="store_true",
+                      help="if OUT already holds a complete demo made with the same arguments "
+                           "(its demo.yaml), keep it and only print the summary")  # fmt: skip
     return parser
+
+
+def _demo_record(args: argparse.Namespace) -> dict:
+    """The arguments that determine the demo's content (not --workers, --quiet, ...)."""
+    keys = ("seed", "voc_images", "voc_size", "train_frames", "val_frames", "train_size",
+            "slam_frames", "slam_size")  # fmt: skip
+    record = {k: list(v) if isinstance(v, tuple) else v for k, v in vars(args).items() if k in keys}
+    return {"generator": "uss-synth demo", **record}
+
+
+def _reusable(args: argparse.Namespace) -> bool:
+    record = Path(args.out) / "demo.yaml"
+    try:
+        return yaml.safe_load(record.read_text()) == _demo_record(args)
+    except (OSError, yaml.YAMLError):
+        return False
 
 
 def run_demo(args: argparse.Namespace) -> Path:
@@ -226,6 +250,7 @@ def run_demo(args: argparse.Namespace) -> Path:
     """
     progress = not args.quiet
     with staged_output(args.out, args.overwrite) as tmp:
+        (tmp / "demo.yaml").write_text(yaml.safe_dump(_demo_record(args), sort_keys=False))
         tasks: list[tuple[str, Callable[..., Path], dict]] = []
         if args.voc_images:
             tasks.append(("voc", render_voc, dict(out_dir=tmp / "voc", images=args.voc_images,
@@ -323,6 +348,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     cv2.setNumThreads(1)
     start = time.perf_counter()
     try:
+        if args.command == "demo" and args.reuse and _reusable(args):
+            print(f"reusing the complete demo data set in {args.out} (same arguments)")
+            print(summarize(args.out))
+            return 0
         check_output(args.out, args.overwrite)
         if args.command == "sequence":
             out = render_sequence(args.out, preset=args.preset, frames=args.frames, size=args.size,

@@ -146,6 +146,14 @@ def test_demo_small(tmp_path: Path, capsys) -> None:
     assert "target_val/walking_xyz: 2 frames, 48x32" in text
     assert "slam/walking_xyz: 2 frames, 64x48" in text and "slam/static_xyz: 2 frames" in text
     assert "person" in text and "%" in text
+    # --reuse keeps a complete demo made with the same arguments, and only then
+    stamp = (out / "slam" / "walking_xyz" / "rgb.txt").stat().st_mtime_ns
+    assert main([*args, "--reuse"]) == 0
+    assert "reusing" in capsys.readouterr().out
+    assert (out / "slam" / "walking_xyz" / "rgb.txt").stat().st_mtime_ns == stamp
+    changed = [a if a != "5" else "6" for a in args]  # --voc-images 6
+    assert main([*changed, "--reuse"]) == 2  # different arguments: not reusable, not empty
+    assert "not empty" in capsys.readouterr().err
     # two worker processes produce the same files
     again = tmp_path / "again"
     assert main([*args[:2], str(again), *args[3:-1], "2"]) == 0
