@@ -10,11 +10,11 @@ from pathlib import Path
 
 import pytest
 import torch
-from conftest import compose_train, data_overrides
 from hydra.utils import instantiate
 from lightning.pytorch import Trainer
 from lightning.pytorch.callbacks import ModelCheckpoint
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+from train_helpers import compose_train, data_overrides
 
 from uss_slam.datasets.datamodule import UDADataModule
 from uss_slam.models import DeepLabV2, PatchDiscriminator
@@ -142,7 +142,12 @@ def _final_state(path: Path) -> dict:
 
 
 def test_resume_equals_uninterrupted(uda_data: dict[str, Path], tmp_path: Path) -> None:
-    common = ["experiment=ci", *data_overrides(uda_data), "logger=none"]
+    common = [
+        "experiment=ci",
+        *data_overrides(uda_data),
+        "logger=none",
+        "+trainer.limit_val_batches=1",
+    ]
     train(compose_train(common, tmp_path / "full"))
     full = _final_state(tmp_path / "full" / "checkpoints" / "last.ckpt")
 
