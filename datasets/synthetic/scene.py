@@ -193,7 +193,8 @@ def office_scene(seed: int, people: str, duration: float) -> Scene:
     crng = stream(seed, "office/clutter")
     for cy in (-0.72, 0.72):
         static += desk_clutter(crng, desk_x, cy, 0.0, 1.44, 0.75)
-    monitors_y = [-1.0 + jit(0.05), -0.35 + jit(0.05), 0.5 + jit(0.1)]
+    # monitors between and beside the seats, so that seated people stay in view
+    monitors_y = [-1.12 + jit(0.05), 0.02 + jit(0.05), 1.12 + jit(0.05)]
     for my in monitors_y:
         static += monitor(desk_x + 0.1, my, math.pi + jit(0.25), 0.74)
     seats = [

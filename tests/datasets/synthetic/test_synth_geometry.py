@@ -77,12 +77,14 @@ def test_static_points_reproject_onto_the_same_surface(synthetic_sequence) -> No
                             depth_j[y0 + 1, x0 + 1]])  # fmt: skip
         smooth = (corners.min(0) > 0) & (np.ptp(corners, axis=0) < 0.005 * corners.min(0))
         visible = labels_j[np.rint(pv).astype(int), np.rint(pu).astype(int)] != PERSON
-        unoccluded = zq < 1 / np.maximum(inv_j, 1e-9) + 0.05
-        test = smooth & visible & unoccluded
+        test = smooth & visible
         assert test.sum() > 0.25 * cam.width * cam.height
         err = zq[test] - 1 / inv_j[test]
+        # a static point never lies in front of the surface camera j sees there; it may lie
+        # behind it (hidden by a nearer static object), rarely; all others agree within 1 cm
+        assert np.all(err > -0.01), np.sort(err)[:5]
+        assert np.mean(err > 0.01) < 0.02
         assert np.median(np.abs(err)) < 0.001
-        assert np.all(np.abs(err) < 0.01)
 
 
 def test_style_changes_appearance_only(synthetic_sequence) -> None:
