@@ -43,6 +43,7 @@ from .segmentation import class_ids
 from .sequence import Frame
 
 if TYPE_CHECKING:
+    from .slam_map import KeyFrame
     from .tracker import Tracker
 
 
@@ -218,6 +219,7 @@ class GeometryFilter(DynamicFilter):
         grow_step: float = 0.05,
         grow_band: float = 0.6,
         grow_scale: int = 4,
+        grow_radius: float = 32.0,
         min_seeds: int = 2,
         edge_window: int = 7,
     ) -> None:
@@ -235,6 +237,7 @@ class GeometryFilter(DynamicFilter):
         self.grow_step = float(grow_step)
         self.grow_band = float(grow_band)
         self.grow_scale = int(grow_scale)
+        self.grow_radius = float(grow_radius)
         self.min_seeds = int(min_seeds)
         self.edge_radius = max(0, int(edge_window) // 2)
 
@@ -295,8 +298,45 @@ class GeometryFilter(DynamicFilter):
             seed = (
                 (cos > self.cos_parallax) & (measured > 0) & (z - measured > self.depth_threshold)
             )
+            seed[seed] = ~self._at_depth_edge(depth, xy[seed])
+            seed[seed] = ~self._seen_by(kf, ctx, xy[seed], measured[seed])
             out.append(xy[seed])
         return np.concatenate(out) if out else np.zeros((0, 2))
+
+    def _seen_by(
+        self, kf: KeyFrame, ctx: FilterContext, xy: np.ndarray, measured: np.ndarray
+    ) -> np.ndarray:
+        """``(S,)`` bool: the keyframe saw the surface now measured at ``xy`` at the same place.
+
+        The reverse check: the seed's 3D point (measured depth, current pose) projected into the
+        keyframe lands on the keyframe's own depth within ``depth_threshold``. True for a static
+        object that now hides what the keyframe saw behind it (the camera moved), false for an
+        object that was not there. Keyframes without a stored depth image pass everything.
+        """
+        if kf.depth is None or len(xy) == 0:
+            return np.zeros(len(xy), bool)
+        ex = ctx.extractor
+        world = transform(ctx.pose_wc, ex.backproject(ex.undistort(xy), measured))
+        cam = transform(kf.pose_cw, world)
+        uv = project(ex.camera.matrix, cam)
+        scale = kf.depth_stride
+        h, w = kf.depth.shape
+        col = np.rint(uv[:, 0] / scale).astype(np.int64)
+        row = np.rint(uv[:, 1] / scale).astype(np.int64)
+        inside = (cam[:, 2] > 0.05) & (col >= 0) & (col < w) & (row >= 0) & (row < h)
+        seen = np.zeros(len(xy), bool)
+        # Any sample of the 3x3 neighbourhood will do: the keyframe depth is subsampled, and a
+        # thin static object (a desk leg) may fall between samples.
+        z = cam[inside, 2]
+        hit = np.zeros(int(inside.sum()), bool)
+        for dy in (-1, 0, 1):
+            for dx in (-1, 0, 1):
+                kf_depth = kf.depth[
+                    np.clip(row[inside] + dy, 0, h - 1), np.clip(col[inside] + dx, 0, w - 1)
+                ]
+                hit |= (kf_depth > 0) & (np.abs(z - kf_depth) <= self.depth_threshold)
+        seen[inside] = hit
+        return seen
 
     def _at_depth_edge(self, depth: np.ndarray, xy: np.ndarray) -> np.ndarray:
         """``(S,)`` bool: the depth around ``xy`` jumps by more than ``depth_threshold``.
@@ -324,9 +364,11 @@ class GeometryFilter(DynamicFilter):
         """``(H, W)`` bool dynamic region grown from ``seeds`` over the depth image.
 
         Growth runs on a ``grow_scale``-times smaller depth image, from pixel to neighbour while
-        the depth changes by less than ``grow_step`` and stays within ``grow_band`` of the seed's
-        depth (so a person does not leak into the floor they stand on); regions reached by fewer
-        than ``min_seeds`` seeds are dropped as noise.
+        the depth changes by less than ``grow_step``, stays within ``grow_band`` of the seed's
+        depth and within ``grow_radius`` px of some seed (robust semantic mapping, Algorithm 1:
+        depth *and* image distance to a dynamic point, so a person does not leak into the floor
+        or the desk they stand at); regions reached by fewer than ``min_seeds`` seeds are dropped
+        as noise.
         """
         h, w = depth.shape
         s = self.grow_scale
@@ -344,13 +386,16 @@ class GeometryFilter(DynamicFilter):
             return np.zeros((h, w), bool)
         flat = cells[:, 1] * sw + cells[:, 0]
         seed_count = np.bincount(flat, minlength=sh * sw).reshape(sh, sw)
+        reach = max(1, int(round(self.grow_radius / s)))
+        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * reach + 1, 2 * reach + 1))
+        near = cv2.dilate((seed_count > 0).astype(np.uint8), kernel) > 0
         mask = np.zeros((sh + 2, sw + 2), np.uint8)
         flags = 4 | cv2.FLOODFILL_MASK_ONLY | (255 << 8)
         for cx, cy in np.unique(cells, axis=0):
             d0 = small[cy, cx]
             if region[cy, cx] or d0 <= 0:
                 continue
-            blocked = (small <= 0) | (np.abs(small - d0) > self.grow_band) | (region > 0)
+            blocked = (small <= 0) | (np.abs(small - d0) > self.grow_band) | (region > 0) | ~near
             mask[1:-1, 1:-1] = blocked
             cv2.floodFill(small, mask, (int(cx), int(cy)), 0, self.grow_step, self.grow_step, flags)
             new = mask[1:-1, 1:-1] == 255

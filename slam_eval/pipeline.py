@@ -252,6 +252,7 @@ class SlamPipeline:
                 with timer("mapping"):
                     kf = tracker.finish_frame(frame.index, frame.stamp, result, features, dynamic)
                     if kf is not None:
+                        kf.depth = frame.depth[:: kf.depth_stride, :: kf.depth_stride].copy()
                         region = np.logical_or.reduce(regions) if regions else None
                         builder.add(kf.pose_wc, frame.rgb, frame.depth, labels, region)
                 extracted += n

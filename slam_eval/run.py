@@ -101,6 +101,7 @@ def run(cfg: DictConfig) -> dict[str, Any]:
             tracker=tracker,
             semantic_map=semantic_map,
             prefetch=int(slam.prefetch),
+            workers=int(slam.workers),
             parallel=bool(slam.parallel),
             progress=bool(cfg.progress),
             description=f"{sequence.path.name} [{_run_name(names)}]",

@@ -32,6 +32,9 @@ class KeyFrame:
     features: Features
     point_ids: np.ndarray
     dynamic: np.ndarray
+    depth: np.ndarray | None = None
+    """Depth image subsampled by ``depth_stride`` (metres), for the multi-view geometry check."""
+    depth_stride: int = 4
 
     @property
     def center(self) -> np.ndarray:

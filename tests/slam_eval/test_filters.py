@@ -120,8 +120,9 @@ def _geometry_case(ex: OrbExtractor):
     kf_depth[150:220, 20:100] = 2.0  # box
     kf_xy = _grid(10, 310, 10, 230, 6)
     kf = _features(ex, kf_xy, kf_depth)
-    tracker.map.add_keyframe(0, 0.0, np.eye(4), kf, np.full(len(kf), -1), np.zeros(len(kf), bool),
-                             kf.has_depth)  # fmt: skip
+    keyframe = tracker.map.add_keyframe(0, 0.0, np.eye(4), kf, np.full(len(kf), -1),
+                                        np.zeros(len(kf), bool), kf.has_depth)  # fmt: skip
+    keyframe.depth = kf_depth[:: keyframe.depth_stride, :: keyframe.depth_stride]
     pose_wc = np.eye(4)
     pose_wc[0, 3] = 0.05  # the camera moved 5 cm to the right
     # The wall (a plane facing the camera) keeps its depth; the nearer box shifts by
@@ -169,6 +170,39 @@ def test_geometry_respects_parallax_age_and_seed_count() -> None:
     # Without a pose the filter cannot run.
     ctx.pose_wc = None
     assert not GeometryFilter()(ctx).dynamic.any()
+
+
+def test_geometry_reverse_check_spares_static_occluders() -> None:
+    """The camera moves 20 cm: a pillar 1 m away now hides wall points 3 m away that the
+    keyframe saw beside it, deep inside the pillar's silhouette. The keyframe saw the pillar
+    too, so projecting the seed back into the keyframe explains it: no dynamic region."""
+    ex = OrbExtractor(OrbConfig(), CAM)
+    tracker = Tracker(TrackerConfig(), ex)
+    kf_depth = np.full((240, 320), 3.0, np.float32)
+    kf_depth[:, 100:140] = 1.0  # pillar
+    kf_feats = _features(ex, _grid(10, 310, 10, 230, 6), kf_depth)
+    kf = tracker.map.add_keyframe(0, 0.0, np.eye(4), kf_feats, np.full(len(kf_feats), -1),
+                                  np.zeros(len(kf_feats), bool), kf_feats.has_depth)  # fmt: skip
+    pose_wc = np.eye(4)
+    pose_wc[0, 3] = 0.2
+    depth = np.full((240, 320), 3.0, np.float32)
+    depth[:, 47:87] = 1.0  # the pillar moved 53.5 px left in the image, the wall 17.8 px
+    xy = _grid(12, 308, 12, 228, 8)
+    ctx = FilterContext(
+        _frame(20, np.zeros((240, 320), np.uint8), depth),
+        _features(ex, xy, depth),
+        None,
+        ex,
+        tracker,
+        pose_wc=pose_wc,
+        matched=np.full(len(xy), -1),
+    )
+    geometry = GeometryFilter()
+    assert len(geometry.seeds(ctx)) > 20  # without the keyframe's depth: many seeds
+    assert GeometryFilter()(ctx).dynamic.sum() > 20
+    kf.depth = kf_depth[:: kf.depth_stride, :: kf.depth_stride]
+    assert len(geometry.seeds(ctx)) == 0
+    assert not geometry(ctx).dynamic.any()
 
 
 # ------------------------------------------------------------------------------ object rule
