@@ -244,7 +244,7 @@ class SlamPipeline:
                         self._apply(f, ctx, state, timer, counts)
                     if (state.dynamic & ~before).any() and result.new_keyframe is None:
                         with timer("tracking"):
-                            result.pose_wc, result.matched = tracker.drop(
+                            result.pose_wc, result.matched = tracker.refine_without(
                                 result.pose_wc, features, result.matched, state.dynamic
                             )
                         result.inliers = int((result.matched >= 0).sum())

@@ -169,10 +169,13 @@ class Tracker:
         inliers = int((matched >= 0).sum())
         return TrackResult(self.state, invert(pose_cw), matched, inliers, relocalised)
 
-    def drop(self, pose_wc: np.ndarray, features: Features, matched: np.ndarray, drop: np.ndarray):
-        """Re-estimate a tracked pose after the post-pose filters flagged ``drop`` keypoints.
+    def refine_without(
+        self, pose_wc: np.ndarray, features: Features, matched: np.ndarray, drop: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Re-estimate a tracked pose without the keypoints the post-pose filters flagged.
 
-        Returns ``(pose_wc, matched)``; the pose is kept when too few matches remain.
+        ``drop`` (N,) bool. Returns ``(pose_wc, matched)`` with the dropped keypoints unmatched;
+        the pose is kept when fewer than ``min_inliers`` matches would remain.
         """
         keep = (matched >= 0) & ~drop
         if not np.any(drop & (matched >= 0)) or keep.sum() < self.config.min_inliers:

@@ -35,13 +35,16 @@ def test_round_trip_values_and_order(write_sequence) -> None:
 def test_prefetch_yields_the_same_frames_as_direct_loading(write_sequence) -> None:
     seq = TumSequence(write_sequence(n=7))
     direct = [seq.load(i) for i in range(len(seq))]
-    for prefetch in (0, 1, 3, 20):
-        frames = list(seq.frames(prefetch=prefetch))
+    for prefetch, workers in ((0, 1), (1, 1), (3, 1), (20, 1), (3, 2), (5, 3)):
+        frames = list(seq.frames(prefetch=prefetch, workers=workers))
         assert [f.index for f in frames] == list(range(7))
         for a, b in zip(direct, frames, strict=True):
             np.testing.assert_array_equal(a.rgb, b.rgb)
             np.testing.assert_array_equal(a.depth, b.depth)
             assert b.labels is None  # labels not requested
+    # prepare() runs in the workers; results keep frame order.
+    sizes = list(seq.prepared(lambda f: (f.index, f.gray.shape), prefetch=4, workers=2))
+    assert sizes == [(i, (24, 32)) for i in range(7)]
 
 
 def test_association_with_offsets_counts_unmatched(write_sequence) -> None:
