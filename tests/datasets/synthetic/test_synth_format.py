@@ -171,3 +171,14 @@ def test_void_width_scales_like_voc() -> None:
     assert void_width((1000, 750)) == 10
     assert void_width((64, 48)) == 1
     assert math.isclose(void_width((250, 100)), 2.5, abs_tol=0.5)
+
+
+def test_ground_truth_reads_with_evo(sequence: Path) -> None:
+    """evo (the TUM tools' successor, a dev dependency) reads the ground truth as we wrote it."""
+    file_interface = pytest.importorskip("evo.tools.file_interface")
+    traj = file_interface.read_tum_trajectory_file(str(sequence / "groundtruth.txt"))
+    ours = read_trajectory(sequence / "groundtruth.txt")
+    np.testing.assert_allclose(traj.timestamps, ours.stamps)
+    np.testing.assert_allclose(traj.positions_xyz, ours.positions)
+    # evo keeps quaternions as w x y z, TUM files (and ours) as x y z w
+    np.testing.assert_allclose(traj.orientations_quat_wxyz[:, [1, 2, 3, 0]], ours.quaternions)
