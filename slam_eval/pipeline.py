@@ -1,13 +1,37 @@
 """One SLAM run over a sequence: segmenter -> ORB front end -> dynamic filters -> tracker -> map.
 
 With ``parallel`` (the default) segmentation and ORB extraction of upcoming frames run in the
-prefetch thread, next to PNG decoding, while the main thread filters and tracks the current frame
+prefetch threads, next to PNG decoding, while the main thread filters and tracks the current frame
 (PSPNet-SLAM likewise runs segmentation in its own thread); results are identical to the serial
-order. Timing: ``timing_ms`` holds the mean wall milliseconds per processed frame of each module
+order.
+
+Segmentation schedule (``segment``, config key ``segment=every_frame|keyframes``):
+
+- ``"every_frame"``: every frame is segmented, in the prefetch threads concurrently with ORB
+  extraction (of the same frame in one worker, of other frames in the others). An
+  :class:`~.segmentation.ImageSegmenter` may therefore be called from ``workers`` threads at once:
+  its ``infer`` must be thread-safe (onnxruntime's ``InferenceSession.run`` is), or use
+  ``slam.workers=1``.
+- ``"keyframes"``: only keyframes are segmented, as robust semantic mapping (paper 3) does; in the
+  main thread, once tracking has decided that the frame becomes a keyframe and before its
+  keypoints create map points (and before it is added to the semantic map). The filters that
+  need labels (``semantic``, ``object``) run on those frames only; the others run on every frame.
+  Rule for the frames in between: they are tracked with all their keypoints. This is sound
+  because tracking only matches keypoints to *map points*, and map points come only from
+  keyframes, where people are filtered: a person's keypoints find nothing of theirs in the map,
+  and an accidental match to a static point is rejected by RANSAC and the χ² test. The first
+  frames, until the first keyframe exists, are segmented too (each is a first-keyframe
+  candidate). The segmenter's cost is paid on keyframes only but on the main thread's critical
+  path; BENCHMARKS.md ("SLAM harness") measures both schedules' ATE and time.
+
+Timing: ``timing_ms`` holds the mean wall milliseconds per processed frame of each module
 (``read`` = PNG reading and decoding in the prefetch thread, ``load`` = time the main thread
 *waited* for the next prepared frame; ``total`` = wall time of
 the run per frame, so ``1000 / total`` is the end-to-end frame rate) and ``cpu_ms`` the mean CPU
-milliseconds of each module's own thread (robust to a busy machine).
+milliseconds of each module's own thread (robust to a busy machine; a segmenter that computes in
+a thread pool of its own, as onnxruntime does, shows only its calling thread's share there).
+``segmentation`` in both is per *processed* frame; :attr:`RunResult.segmented_frames` and
+:attr:`RunResult.segmentation_ms` give the count and the mean wall / CPU ms per *segmented* frame.
 
 Keypoint accounting: ``flagged[name]`` counts the keypoints a filter judged dynamic, ``dropped[name]``
 those it removed that no earlier filter had removed (so the ``dropped`` values add up to
@@ -34,6 +58,9 @@ from .segmentation import Segmenter
 from .semantic_map import MapConfig, PointCloud, SemanticMapBuilder
 from .sequence import Frame, TumSequence
 from .tracker import Tracker, TrackerConfig
+
+SEGMENT_SCHEDULES = ("every_frame", "keyframes")
+"""Values of ``segment`` (see the module docstring)."""
 
 
 class Timer:
@@ -108,6 +135,15 @@ class RunResult:
     wall_time_s: float
     cloud: PointCloud
     log: list[FrameLog] = field(repr=False, default_factory=list)
+    segment: str = "every_frame"
+    """The segmentation schedule (:data:`SEGMENT_SCHEDULES`)."""
+    segmented_frames: int = 0
+    """Frames for which the segmenter returned labels."""
+    segmentation_ms: dict[str, float] = field(default_factory=dict)
+    """``{"wall": ms, "cpu": ms}`` mean per segmented frame (empty when nothing was segmented)."""
+    segmentation_thread: str = "prefetch"
+    """Where the segmenter ran: ``"prefetch"`` (worker threads, concurrently with ORB
+    extraction) or ``"main"`` (keyframes schedule, or ``parallel`` off)."""
 
     @property
     def tracked_fraction(self) -> float:
@@ -139,9 +175,15 @@ class SlamPipeline:
         prefetch: int = 4,
         workers: int = 2,
         parallel: bool = True,
+        segment: str = "every_frame",
         progress: bool = True,
         description: str | None = None,
     ) -> None:
+        if segment not in SEGMENT_SCHEDULES:
+            raise UssSlamError(
+                f"segment={segment!r}: choose every_frame (segment every frame, concurrently "
+                "with ORB extraction) or keyframes (segment keyframes only)"
+            )
         needing = [f.name for f in filters if f.needs_labels]
         probe = getattr(segmenter, "name", "none")
         if needing and probe == "none":
@@ -160,16 +202,19 @@ class SlamPipeline:
         self.prefetch = prefetch
         self.workers = workers
         self.parallel = parallel and prefetch > 0
+        self.segment = segment
         self.progress = progress
         self.description = description or sequence.path.name
 
     def _prepare(self, frame: Frame) -> _Prepared:
-        """Segmentation and ORB extraction of one frame (run in the prefetch thread when
-        ``parallel``, so they overlap the tracking of the previous frame)."""
+        """Segmentation (``every_frame`` schedule) and ORB extraction of one frame (run in the
+        prefetch threads when ``parallel``, so they overlap the tracking of the previous frame)."""
         timer = Timer()
         timer.add("read", *frame.read_time)
-        with timer("segmentation"):
-            labels = self.segmenter.segment(frame)
+        labels = None
+        if self.segment == "every_frame":
+            with timer("segmentation"):
+                labels = self.segmenter.segment(frame)
         with timer("orb"):
             features = self.extractor(frame.gray, frame.depth)
         return _Prepared(frame, labels, features, timer)
@@ -194,6 +239,11 @@ class SlamPipeline:
         if out.region is not None:
             state.regions.append(out.region)
 
+    def _segment_now(self, frame: Frame, timer: Timer) -> np.ndarray | None:
+        """Segment ``frame`` in the main thread (``keyframes`` schedule)."""
+        with timer("segmentation"):
+            return self.segmenter.segment(frame)
+
     def run(self) -> RunResult:
         timer = Timer()
         extractor = self.extractor
@@ -201,7 +251,8 @@ class SlamPipeline:
         builder = SemanticMapBuilder(self.map_config, extractor)
         names = [f.name for f in self.filters]
         counts = {key: dict.fromkeys(names, 0) for key in ("flagged", "dropped", "checked")}
-        extracted = kept = 0
+        extracted = kept = segmented = 0
+        keyframes_only = self.segment == "keyframes"
         stamps: list[float] = []
         poses: list[np.ndarray] = []
         log: list[FrameLog] = []
@@ -227,20 +278,33 @@ class SlamPipeline:
                 for name in item.timer.wall:
                     timer.add(name, item.timer.wall[name], item.timer.cpu[name])
                 frame, labels, features = item.frame, item.labels, item.features
+                if keyframes_only and not tracker.initialized:
+                    labels = self._segment_now(frame, timer)  # a first-keyframe candidate
                 n = len(features)
                 ctx = FilterContext(frame, features, labels, extractor, tracker, previous)
                 ctx.motion_flags = np.zeros(n, bool)
                 state = _FilterState(np.zeros(n, bool), [])
-                for f in self.filters:
+                # Filters needing labels wait for them (keyframes schedule: until a keyframe).
+                ready = [f for f in self.filters if labels is not None or not f.needs_labels]
+                for f in ready:
                     if f.stage == "pre":
                         self._apply(f, ctx, state, timer, counts)
                 with timer("tracking"):
                     result = tracker.track(frame.index, frame.stamp, features, state.dynamic)
-                post = [f for f in self.filters if f.stage == "post"]
-                if result.pose_wc is not None and post:
+                post = [f for f in ready if f.stage == "post"]
+                late: list[DynamicFilter] = []
+                keyframe: bool | None = None
+                if keyframes_only and labels is None and result.pose_wc is not None:
+                    with timer("mapping"):
+                        keyframe = tracker.wants_keyframe(result, features, state.dynamic)
+                    if keyframe:
+                        labels = ctx.labels = self._segment_now(frame, timer)
+                        if labels is not None:
+                            late = [f for f in self.filters if f.needs_labels]
+                if result.pose_wc is not None and (post or late):
                     ctx.pose_wc, ctx.matched = result.pose_wc, result.matched
                     before = state.dynamic.copy()
-                    for f in post:
+                    for f in post + late:
                         self._apply(f, ctx, state, timer, counts)
                     if (state.dynamic & ~before).any() and result.new_keyframe is None:
                         with timer("tracking"):
@@ -248,9 +312,12 @@ class SlamPipeline:
                                 result.pose_wc, features, result.matched, state.dynamic
                             )
                         result.inliers = int((result.matched >= 0).sum())
+                segmented += labels is not None
                 dynamic, regions = state.dynamic, state.regions
                 with timer("mapping"):
-                    kf = tracker.finish_frame(frame.index, frame.stamp, result, features, dynamic)
+                    kf = tracker.finish_frame(
+                        frame.index, frame.stamp, result, features, dynamic, keyframe
+                    )
                     if kf is not None:
                         kf.depth = frame.depth[:: kf.depth_stride, :: kf.depth_stride].copy()
                         region = np.logical_or.reduce(regions) if regions else None
@@ -288,6 +355,14 @@ class SlamPipeline:
         timing["total"] = 1000.0 * wall / max(count, 1)
         cpu = timer.mean_ms(count, cpu=True)
         cpu.pop("load", None)
+        per_segmented = (
+            {
+                "wall": 1000.0 * timer.wall["segmentation"] / segmented,
+                "cpu": 1000.0 * timer.cpu["segmentation"] / segmented,
+            }
+            if segmented
+            else {}
+        )
         with timer("map_build"):
             cloud = builder.build()
         trajectory = (
@@ -320,4 +395,8 @@ class SlamPipeline:
             wall_time_s=wall,
             cloud=cloud,
             log=log,
+            segment=self.segment,
+            segmented_frames=segmented,
+            segmentation_ms=per_segmented,
+            segmentation_thread="prefetch" if self.parallel and not keyframes_only else "main",
         )

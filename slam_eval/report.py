@@ -8,7 +8,10 @@ tracked poses associate (``ate_error`` says why) — plus ``rpe_1s`` (drift per 
 ``frames_tracked``, ``tracked_fraction``, ``keypoints`` (extracted / kept / flagged and dropped
 per filter), ``timing_ms`` (mean wall ms per frame of each module and ``total``), ``cpu_ms``
 (mean CPU ms per frame of each module), ``fps`` and ``pipeline_to_orb_ratio`` (total wall time /
-ORB-extraction wall time of the same run; below 1 is possible, as extraction runs in parallel).
+ORB-extraction wall time of the same run; below 1 is possible, as extraction runs in parallel),
+and ``segmentation``: ``schedule`` (``every_frame`` | ``keyframes``), ``thread`` (``prefetch``:
+concurrently with ORB extraction; ``main``), ``frames_segmented``, ``wall_ms`` / ``cpu_ms`` per
+segmented frame, next to ``orb_wall_ms`` / ``orb_cpu_ms`` per frame for comparison.
 """
 
 from __future__ import annotations
@@ -120,6 +123,15 @@ def metrics_dict(result: RunResult, evaluation: Evaluation, config: EvalConfig) 
         "fps": result.fps,
         "wall_time_s": result.wall_time_s,
         "pipeline_to_orb_ratio": result.timing_ms["total"] / orb if orb > 0 else None,
+        "segmentation": {
+            "schedule": result.segment,
+            "thread": result.segmentation_thread,
+            "frames_segmented": result.segmented_frames,
+            "wall_ms": result.segmentation_ms.get("wall"),
+            "cpu_ms": result.segmentation_ms.get("cpu"),
+            "orb_wall_ms": orb,
+            "orb_cpu_ms": result.cpu_ms.get("orb", 0.0),
+        },
         "semantic_map_points": len(result.cloud),
     }
 
@@ -279,9 +291,21 @@ def _report_md(
         cpu = result.cpu_ms.get(name)
         lines.append(f"| {name} | {ms:.2f} | {'—' if cpu is None else f'{cpu:.2f}'} |")
     ratio = data["pipeline_to_orb_ratio"]
+    seg = data["segmentation"]
+    where = (
+        "in the prefetch threads, concurrently with ORB extraction"
+        if seg["thread"] == "prefetch"
+        else "in the main thread"
+    )
+    schedule = "every frame" if seg["schedule"] == "every_frame" else "keyframes only"
     lines += [
         "",
         f"{result.fps:.1f} frames/s end to end; pipeline / ORB extraction time = {_fmt(ratio, 2)}.",
+        "",
+        f"Segmentation ({result.segmenter}, {schedule}, {where}): {seg['frames_segmented']} of "
+        f"{result.frames} frames segmented, {_fmt(seg['wall_ms'], 2)} ms wall / "
+        f"{_fmt(seg['cpu_ms'], 2)} ms CPU per segmented frame; ORB extraction "
+        f"{seg['orb_wall_ms']:.2f} ms wall / {seg['orb_cpu_ms']:.2f} ms CPU per frame.",
         "",
         f"Semantic map: `map.ply`, {len(result.cloud)} points.",
         "",

@@ -103,6 +103,7 @@ def run(cfg: DictConfig) -> dict[str, Any]:
             prefetch=int(slam.prefetch),
             workers=int(slam.workers),
             parallel=bool(slam.parallel),
+            segment=str(cfg.segment),
             progress=bool(cfg.progress),
             description=f"{sequence.path.name} [{_run_name(names)}]",
         )

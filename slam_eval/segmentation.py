@@ -2,8 +2,16 @@
 
 A segmenter turns a frame into ``(H, W)`` uint8 project class ids (``classes.CLASS_NAMES``) or
 None. Image segmenters implement :meth:`ImageSegmenter.infer` on the RGB image alone (the ONNX
-runtime segmenter of the export issue will be one); the oracle :class:`LabelsSegmenter` returns the
+runtime segmenter of the export issue is one); the oracle :class:`LabelsSegmenter` returns the
 ground-truth ``labels/`` PNG that the sequence reader loaded with the frame.
+
+Plugging in a segmenter: subclass :class:`ImageSegmenter`, give it a ``name`` and implement
+``infer``; add ``configs/segmenter/<option>.yaml`` whose ``_target_`` is the class and whose other
+keys are its constructor's keyword arguments (``uss-slam segmenter=<option> segmenter.<arg>=...``);
+raise :class:`~uss_slam.datasets.errors.UssSlamError` for bad arguments or files (``uss-slam``
+prints it as one line and exits 1). When it runs is the pipeline's business (``segment=every_frame``:
+every frame, in ``slam.workers`` prefetch threads at once, so ``infer`` must be thread-safe;
+``segment=keyframes``: keyframes only, in the main thread; see :mod:`.pipeline`).
 """
 
 from __future__ import annotations
@@ -41,11 +49,13 @@ class ImageSegmenter(ABC):
         """``(H, W, 3)`` uint8 RGB -> ``(H, W)`` uint8 project class ids, same size."""
 
     def segment(self, frame: Frame) -> np.ndarray:
-        labels = self.infer(frame.rgb)
-        if labels.shape != frame.gray.shape:
+        """``infer`` on the frame's RGB image, checked: ``(H, W)`` uint8 of the frame's size."""
+        labels = np.asarray(self.infer(frame.rgb))
+        if labels.shape != frame.gray.shape or labels.dtype != np.uint8:
             raise UssSlamError(
-                f"segmenter {self.name!r} returned labels of shape {labels.shape} for a frame "
-                f"of shape {frame.gray.shape}"
+                f"segmenter {self.name!r} returned labels of shape {labels.shape} and dtype "
+                f"{labels.dtype} for a frame of shape {frame.gray.shape}; expected "
+                f"{frame.gray.shape} uint8 class ids"
             )
         return labels
 

@@ -199,8 +199,14 @@ class Tracker:
         result: TrackResult,
         features: Features,
         dynamic: np.ndarray,
+        keyframe: bool | None = None,
     ) -> KeyFrame | None:
-        """Update motion model, map statistics and keyframes after the filters are done."""
+        """Update motion model, map statistics and keyframes after the filters are done.
+
+        ``keyframe``: None = decide with :meth:`wants_keyframe`; True / False = a decision the
+        caller already took (the pipeline asks first when it segments keyframes only, so that
+        the new keyframe's map points are created after its semantic filtering).
+        """
         if result.pose_wc is None or result.new_keyframe is not None:
             return result.new_keyframe
         pose_cw = invert(result.pose_wc)
@@ -209,7 +215,9 @@ class Tracker:
         good = matched >= 0
         pts.found.view[matched[good]] += 1
         kf = None
-        if self._need_keyframe(result.pose_wc, features, matched, dynamic):
+        if keyframe is None:
+            keyframe = self.wants_keyframe(result, features, dynamic)
+        if keyframe:
             create = (~dynamic) & features.has_depth & ~good
             kf = self.map.add_keyframe(
                 frame_index, stamp, result.pose_wc, features, matched, dynamic, create
@@ -222,6 +230,18 @@ class Tracker:
             self.frames_since_keyframe += 1
         self._accept(pose_cw, matched[matched >= 0], kf)
         return kf
+
+    @property
+    def initialized(self) -> bool:
+        """The first keyframe exists (before that, every frame is a first-keyframe candidate)."""
+        return self.state is not TrackingState.NOT_INITIALIZED
+
+    def wants_keyframe(self, result: TrackResult, features: Features, dynamic: np.ndarray) -> bool:
+        """Would :meth:`finish_frame` insert this tracked frame as a keyframe (module docstring,
+        step 5)? False for untracked frames and for the first keyframe, already inserted."""
+        if result.pose_wc is None or result.new_keyframe is not None:
+            return False
+        return self._need_keyframe(result.pose_wc, features, result.matched, dynamic)
 
     # ------------------------------------------------------------------ tracking
 
