@@ -6,10 +6,15 @@ Training batches are ``{"source": {"image", "label", "name"}, "target": {"image"
 int64. An epoch is ``iterations_per_epoch`` batches of endless, seeded per-domain sample streams
 (:mod:`uss_slam.datasets.sampling`), so the data of every iteration is fixed by the seed alone:
 resuming from an epoch-end checkpoint replays exactly what an uninterrupted run would see.
+
+A source that records its selection (:class:`~uss_slam.datasets.selection.SelectedSources`)
+writes ``source_manifest.json`` into the run directory (the trainer's ``default_root_dir``) at
+``setup``, on the global-zero process only.
 """
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 from lightning.pytorch import LightningDataModule
@@ -27,7 +32,9 @@ class UDADataModule(LightningDataModule):
     """Source / target training streams and a validation set.
 
     Args:
-        source: labelled source dataset (e.g. :class:`~uss_slam.datasets.voc.VOCSegmentation`).
+        source: labelled source dataset (e.g. :class:`~uss_slam.datasets.voc.VOCSegmentation`,
+            or the selected concatenation of VOC / SBD / COCO,
+            :class:`~uss_slam.datasets.selection.SelectedSources`).
         target: target dataset (e.g. unlabelled :class:`~uss_slam.datasets.tum.TUMFrames`).
         val: labelled target frames for validation (``None``: no validation).
         batch_size: samples per domain per iteration and rank (the paper: 1).
@@ -37,6 +44,7 @@ class UDADataModule(LightningDataModule):
         num_workers: data-loading worker processes per loader.
         seed: seed of the sample streams and their augmentation.
         pin_memory: pin host memory (GPU training).
+        manifest_dir: where the source manifest goes (default: the trainer's run directory).
     """
 
     def __init__(
@@ -50,6 +58,7 @@ class UDADataModule(LightningDataModule):
         num_workers: int = 0,
         seed: int = 0,
         pin_memory: bool = False,
+        manifest_dir: str | Path | None = None,
     ) -> None:
         super().__init__()
         self.source = source
@@ -61,6 +70,21 @@ class UDADataModule(LightningDataModule):
         self.num_workers = num_workers
         self.seed = seed
         self.pin_memory = pin_memory
+        self.manifest_dir = manifest_dir
+        self.manifest_path: Path | None = None
+
+    def setup(self, stage: str) -> None:
+        write = getattr(self.source, "write_manifest", None)
+        if write is None or self.manifest_path is not None:
+            return
+        trainer = self.trainer
+        if trainer is not None and not trainer.is_global_zero:
+            return
+        directory = self.manifest_dir
+        if directory is None and trainer is not None:
+            directory = trainer.default_root_dir
+        if directory is not None:
+            self.manifest_path = write(directory)
 
     def _rank_and_world(self) -> tuple[int, int]:
         trainer = self.trainer

@@ -2,16 +2,22 @@
 
 A dataset is a list of :class:`ImageItem` (image path, optional label path, name) plus a
 look-up table that maps the file's label values to project classes (``classes.voc_lut()`` for
-VOC, identity for the project's own label PNGs). Subclasses only build the item list (VOC, TUM
-now; SBD and COCO later).
+VOC and SBD, identity for the project's own label PNGs). Subclasses build the item list and,
+when their labels are not PNGs of class indices, override :meth:`SegmentationDataset.read_label`
+(SBD: ``.mat`` structs, COCO: rasterised annotations).
+
+Bad input follows one policy, ``on_error``: ``"raise"`` stops with a
+:class:`~uss_slam.datasets.errors.DataFormatError` naming the file (and line), ``"skip"`` leaves
+the item out and records the error in ``dataset.skipped`` (reported in the selection summary).
 """
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, TypedDict
+from typing import Any, Literal, TypedDict
 
 import cv2
 import numpy as np
@@ -23,6 +29,11 @@ from torchvision import tv_tensors
 from uss_slam.datasets.classes import IGNORE_INDEX, NUM_CLASSES
 from uss_slam.datasets.errors import DataFormatError
 from uss_slam.datasets.transforms import eval_transform
+
+log = logging.getLogger(__name__)
+
+OnError = Literal["raise", "skip"]
+ON_ERROR_CHOICES: tuple[str, ...] = ("raise", "skip")
 
 
 class SegmentationSample(TypedDict, total=False):
@@ -40,7 +51,44 @@ class ImageItem:
     name: str
 
 
+@dataclass(frozen=True)
+class LabelStats:
+    """What selection needs to know of one label: pixels per project class and its size.
+
+    ``counts`` has ``NUM_CLASSES`` entries (ignore pixels are not counted); sizes in pixels.
+    """
+
+    counts: np.ndarray
+    height: int
+    width: int
+
+
 Transform = Callable[[dict[str, Any]], dict[str, Any]]
+
+
+def check_on_error(on_error: str) -> OnError:
+    """Validate an ``on_error`` setting (``raise`` or ``skip``)."""
+    if on_error not in ON_ERROR_CHOICES:
+        raise ValueError(f"on_error must be one of {ON_ERROR_CHOICES}, got {on_error!r}")
+    return on_error  # type: ignore[return-value]
+
+
+def handle_bad_input(error: DataFormatError, on_error: OnError, skipped: list) -> None:
+    """Raise ``error`` (``on_error="raise"``) or record it in ``skipped``."""
+    if on_error == "raise":
+        raise error
+    skipped.append(error)
+
+
+def report_skipped(what: str, skipped: Sequence[DataFormatError], shown: int = 5) -> None:
+    """Log a warning that lists (the first few of) the inputs skipped by ``on_error: skip``."""
+    if not skipped:
+        return
+    lines = "\n  ".join(str(error) for error in skipped[:shown])
+    more = f"\n  ... and {len(skipped) - shown} more" if len(skipped) > shown else ""
+    log.warning(
+        "%s: skipped %d bad input(s) (on_error=skip):\n  %s%s", what, len(skipped), lines, more
+    )
 
 
 def identity_lut() -> np.ndarray:
@@ -51,20 +99,63 @@ def identity_lut() -> np.ndarray:
     return lut
 
 
+# The bytes a complete file ends with. Decoders fill a truncated image with grey or fail late;
+# checking the end marker finds truncation from a few bytes, without decoding.
+_JPEG_START, _JPEG_END = b"\xff\xd8", b"\xff\xd9"
+_PNG_START, _PNG_END = b"\x89PNG\r\n\x1a\n", b"IEND"
+
+
+def _truncation(path: Path, head: bytes, tail: bytes) -> str | None:
+    """Why a JPEG / PNG whose first and last bytes are ``head`` / ``tail`` is incomplete."""
+    if head.startswith(_JPEG_START) and _JPEG_END not in tail:
+        return "truncated JPEG: no end-of-image marker (FFD9) at the end of the file"
+    if head.startswith(_PNG_START) and _PNG_END not in tail:
+        return "truncated PNG: no IEND chunk at the end of the file"
+    return None
+
+
+def inspect_image(path: Path) -> tuple[int, int]:
+    """``(width, height)`` of an image file from its header, after checking it is complete.
+
+    Cheap (reads the header and the last bytes, decodes no pixels); raises
+    :class:`DataFormatError` for a missing, unreadable or truncated file.
+    """
+    try:
+        with open(path, "rb") as file:
+            head = file.read(16)
+            file.seek(0, 2)
+            file.seek(max(0, file.tell() - 64))
+            tail = file.read()
+        reason = _truncation(path, head, tail)
+        if reason:
+            raise DataFormatError(path, reason)
+        with PILImage.open(path) as image:
+            return image.size
+    except FileNotFoundError:
+        raise DataFormatError(path, "image file not found") from None
+    except (OSError, ValueError) as error:  # PIL.UnidentifiedImageError is an OSError
+        raise DataFormatError(path, f"cannot read image ({error})") from error
+
+
 def read_image(path: Path) -> tv_tensors.Image:
     """An image file (JPEG / PNG, any channel count) -> ``(3, H, W)`` uint8 RGB."""
-    rgb = cv2.imread(str(path), cv2.IMREAD_COLOR_RGB)
+    try:
+        data = np.fromfile(path, dtype=np.uint8)
+    except FileNotFoundError:
+        raise DataFormatError(path, "image file not found") from None
+    except OSError as error:
+        raise DataFormatError(path, f"cannot read image ({error.strerror})") from error
+    reason = _truncation(path, data[:16].tobytes(), data[-64:].tobytes())
+    if reason:
+        raise DataFormatError(path, reason)
+    rgb = cv2.imdecode(data, cv2.IMREAD_COLOR_RGB) if data.size else None
     if rgb is None:
-        raise DataFormatError(path, "cannot decode image (missing, truncated or not an image)")
+        raise DataFormatError(path, "cannot decode image (corrupt, truncated or not an image)")
     return tv_tensors.Image(torch.from_numpy(rgb).permute(2, 0, 1))
 
 
-def read_label(path: Path, lut: np.ndarray) -> tv_tensors.Mask:
-    """A single-channel label PNG (palette 'P' or grey 'L') -> ``(H, W)`` uint8 project ids.
-
-    ``lut`` (256 entries) maps file values to project classes; ``-1`` entries mark values that
-    must not occur.
-    """
+def read_label_values(path: Path) -> np.ndarray:
+    """The raw ``(H, W)`` uint8 values of a single-channel label PNG (palette 'P' or grey 'L')."""
     try:
         with PILImage.open(path) as image:
             if image.mode not in ("P", "L"):
@@ -73,34 +164,72 @@ def read_label(path: Path, lut: np.ndarray) -> tv_tensors.Mask:
                     f"expected a palette ('P') or greyscale ('L') label PNG of class indices, "
                     f"got mode {image.mode!r}",
                 )
-            values = np.asarray(image, dtype=np.uint8)
+            return np.asarray(image, dtype=np.uint8)
+    except FileNotFoundError:
+        raise DataFormatError(path, "label file not found") from None
     except (OSError, ValueError) as error:
         raise DataFormatError(path, f"cannot decode label image ({error})") from error
+
+
+def map_label(path: Path, values: np.ndarray, lut: np.ndarray) -> np.ndarray:
+    """File values -> project ids through ``lut`` (``-1`` entries: values that must not occur)."""
     mapped = lut[values]
-    if mapped.min() < 0:
+    if mapped.size and mapped.min() < 0:
         bad = sorted(set(np.unique(values[mapped < 0]).tolist()))[:5]
         raise DataFormatError(path, f"label values {bad} are not valid class indices")
-    return tv_tensors.Mask(torch.from_numpy(mapped.astype(np.uint8)))
+    return mapped.astype(np.uint8)
+
+
+def read_label(path: Path, lut: np.ndarray) -> tv_tensors.Mask:
+    """A single-channel label PNG (palette 'P' or grey 'L') -> ``(H, W)`` uint8 project ids.
+
+    ``lut`` (256 entries) maps file values to project classes; ``-1`` entries mark values that
+    must not occur.
+    """
+    return tv_tensors.Mask(torch.from_numpy(map_label(path, read_label_values(path), lut)))
+
+
+def label_stats(label: np.ndarray) -> LabelStats:
+    """Pixels per project class of a ``(H, W)`` label of project ids (255 not counted)."""
+    counts = np.bincount(label.ravel(), minlength=256)[:NUM_CLASSES].astype(np.int64)
+    return LabelStats(counts=counts, height=int(label.shape[0]), width=int(label.shape[1]))
+
+
+def finish_sample(sample: dict[str, Any]) -> SegmentationSample:
+    """Transformed sample dict -> plain tensors (``label`` as int64)."""
+    out: SegmentationSample = {"image": sample["image"].as_subclass(torch.Tensor)}
+    if "label" in sample:
+        out["label"] = sample["label"].as_subclass(torch.Tensor).to(torch.int64)
+    out["name"] = sample["name"]
+    return out
 
 
 class SegmentationDataset(Dataset):
     """Images with optional labels; ``__getitem__`` returns a :class:`SegmentationSample`.
 
+    ``cache_label_stats``: selection may cache :meth:`label_stats` by label file (false when
+    several items share one label file, as COCO's annotation JSON).
+
     Args:
         items: the files, one :class:`ImageItem` each (label ``None`` = unlabelled).
         lut: 256-entry table from label-file values to project classes (``-1`` = invalid).
         transform: joint v2 transform of the sample dict; default: normalisation only.
+        skipped: bad inputs the subclass left out while listing (``on_error="skip"``).
     """
+
+    cache_label_stats = True
 
     def __init__(
         self,
         items: Sequence[ImageItem],
         lut: np.ndarray | None = None,
         transform: Transform | None = None,
+        skipped: Sequence[DataFormatError] = (),
     ) -> None:
         self.items = list(items)
         self.lut = identity_lut() if lut is None else lut
         self.transform = transform if transform is not None else eval_transform()
+        self.skipped: list[DataFormatError] = list(skipped)
 
     def __len__(self) -> int:
         return len(self.items)
@@ -109,12 +238,33 @@ class SegmentationDataset(Dataset):
     def labelled(self) -> bool:
         return bool(self.items) and all(item.label is not None for item in self.items)
 
+    def read_label(self, index: int) -> np.ndarray:
+        """``(H, W)`` uint8 project class ids of item ``index`` (its label must exist)."""
+        item = self.items[index]
+        assert item.label is not None
+        return map_label(item.label, read_label_values(item.label), self.lut)
+
+    def label_stats(self, index: int) -> LabelStats:
+        """Pixels per class and size of item ``index``'s label (selection reads every label)."""
+        return label_stats(self.read_label(index))
+
+    def check_image(self, index: int, height: int, width: int) -> None:
+        """Check item ``index``'s image file is complete and ``width × height`` (header only)."""
+        item = self.items[index]
+        image_width, image_height = inspect_image(item.image)
+        if (image_width, image_height) != (width, height):
+            raise DataFormatError(
+                item.label if item.label is not None else item.image,
+                f"label is {width}×{height} but its image {item.image.name} is "
+                f"{image_width}×{image_height}",
+            )
+
     def load(self, index: int) -> dict[str, Any]:
         """The untransformed sample: uint8 image and mask tv_tensors, and the name."""
         item = self.items[index]
         sample: dict[str, Any] = {"image": read_image(item.image), "name": item.name}
         if item.label is not None:
-            label = read_label(item.label, self.lut)
+            label = tv_tensors.Mask(torch.from_numpy(self.read_label(index)))
             if label.shape[-2:] != sample["image"].shape[-2:]:
                 raise DataFormatError(
                     item.label,
@@ -126,9 +276,4 @@ class SegmentationDataset(Dataset):
         return sample
 
     def __getitem__(self, index: int) -> SegmentationSample:
-        sample = self.transform(self.load(index))
-        out: SegmentationSample = {"image": sample["image"].as_subclass(torch.Tensor)}
-        if "label" in sample:
-            out["label"] = sample["label"].as_subclass(torch.Tensor).to(torch.int64)
-        out["name"] = sample["name"]
-        return out
+        return finish_sample(self.transform(self.load(index)))

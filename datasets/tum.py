@@ -1,39 +1,109 @@
 """Frames of TUM RGB-D sequences as a segmentation dataset (the target domain).
 
-Reads ``rgb.txt`` with :func:`uss_slam.datasets.tum_io.read_file_list`. Optional labels come
-from ``labels/<same file name as the rgb image>`` (uint8 project class ids, as the synthetic
-sequences write them): needed for validation, unused for unlabelled target training.
+Reads ``rgb.txt`` with :func:`uss_slam.datasets.tum_io.read_file_list` (depth is not needed).
+Optional labels come from ``labels/<same file name as the rgb image>`` (uint8 project class
+ids, as the synthetic sequences write them): needed for validation, unused for unlabelled
+target training.
+
+Held-out frames: ``holdout`` keeps the last fraction of every sequence (in time) out of the
+``train`` part; ``part="holdout"`` returns exactly those frames (for evaluation, e.g. after
+labelling them). ``exclude`` leaves out frames listed in files: a COCO JSON (its images'
+``file_name``) or a text list of rgb file names, matched by file name — the frames you
+labelled yourself for validation, so that they never train the adaptation.
 """
 
 from __future__ import annotations
 
+import json
+import math
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Literal
 
 from uss_slam.datasets.errors import DataFormatError
-from uss_slam.datasets.segmentation import ImageItem, SegmentationDataset, Transform
+from uss_slam.datasets.segmentation import (
+    ImageItem,
+    OnError,
+    SegmentationDataset,
+    Transform,
+    check_on_error,
+    handle_bad_input,
+    report_skipped,
+)
 from uss_slam.datasets.tum_io import read_file_list
 
+Part = Literal["train", "holdout"]
 
-def _sequence_items(root: Path, labels: bool, stride: int) -> list[ImageItem]:
+
+def read_frame_names(path: Path) -> set[str]:
+    """File names (no folders) of the frames a COCO JSON or a text list names.
+
+    Text lists: one entry per line, either ``file`` or ``timestamp file`` (as ``rgb.txt``);
+    ``#`` starts a comment.
+    """
+    if not path.is_file():
+        raise DataFormatError(path, "frame list not found")
+    if path.suffix.lower() == ".json":
+        try:
+            data = json.loads(path.read_text())
+            return {Path(str(image["file_name"])).name for image in data["images"]}
+        except json.JSONDecodeError as error:
+            raise DataFormatError(path, f"not valid JSON: {error.msg}", error.lineno) from None
+        except (KeyError, TypeError):
+            raise DataFormatError(path, "expected a COCO JSON with images[].file_name") from None
+    names: set[str] = set()
+    for number, line in enumerate(path.read_text().splitlines(), start=1):
+        fields = line.split()
+        if not fields or fields[0].startswith("#"):
+            continue
+        if len(fields) > 2:
+            raise DataFormatError(
+                path, f"expected 'file' or 'timestamp file', got {len(fields)} fields", number
+            )
+        names.add(Path(fields[-1]).name)
+    return names
+
+
+def _sequence_items(
+    root: Path,
+    labels: bool,
+    stride: int,
+    holdout: float,
+    part: Part,
+    gap: int,
+    excluded: set[str],
+    on_error: OnError,
+    skipped: list[DataFormatError],
+) -> list[ImageItem]:
+    if not root.is_dir():
+        raise DataFormatError(root, "TUM sequence folder not found")
     list_file = root / "rgb.txt"
     if not list_file.is_file():
         raise DataFormatError(list_file, "not a TUM RGB-D sequence: rgb.txt not found")
-    frames = read_file_list(list_file)
+    frames = read_file_list(list_file, skipped=skipped if on_error == "skip" else None)
     if len(frames) == 0:
         raise DataFormatError(list_file, "the sequence lists no images")
     if labels and not (root / "labels").is_dir():
         raise DataFormatError(root / "labels", "labels requested but the folder does not exist")
+    held = math.ceil(holdout * len(frames)) if holdout > 0 else 0
+    first_held = len(frames) - held
+    span = range(0, max(0, first_held - gap)) if part == "train" else range(first_held, len(frames))
     items = []
-    for index in range(0, len(frames), stride):
+    for index in span[::stride]:
+        if Path(frames.files[index]).name in excluded:
+            continue
         image = frames.resolve(index)
         if not image.is_file():
-            raise DataFormatError(list_file, f"listed image {frames.files[index]} not found")
+            error = DataFormatError(list_file, f"listed image {frames.files[index]} not found")
+            handle_bad_input(error, on_error, skipped)
+            continue
         label = root / "labels" / Path(frames.files[index]).name if labels else None
         if label is not None and not label.is_file():
-            raise DataFormatError(
+            error = DataFormatError(
                 label, f"label of {frames.files[index]} not found (labels/ must mirror rgb/)"
             )
+            handle_bad_input(error, on_error, skipped)
+            continue
         items.append(ImageItem(image, label, f"{root.name}/{frames.stamps[index]:.6f}"))
     return items
 
@@ -42,10 +112,20 @@ class TUMFrames(SegmentationDataset):
     """Every ``stride``-th frame of one or more TUM sequences.
 
     Args:
-        roots: sequence folder(s) holding ``rgb.txt``.
+        roots: sequence folder(s) holding ``rgb.txt`` and ``rgb/``.
         labels: also load ``labels/`` (error if missing); ``False`` gives unlabelled samples.
         transform: joint v2 transform (see :mod:`uss_slam.datasets.transforms`).
         stride: keep one frame in ``stride`` (consecutive frames are nearly identical).
+        holdout: fraction of each sequence (its last frames, in time) held out of ``train``.
+        part: ``train`` (the frames before the held-out block; all frames when ``holdout`` is 0)
+            or ``holdout`` (the held-out block).
+        holdout_gap: frames between the two parts that neither uses (neighbouring frames are
+            near-duplicates).
+        exclude: files listing frames to leave out (COCO JSON or text list, matched by file
+            name).
+        on_error: ``raise``: an unparsable ``rgb.txt`` line or a listed image (label) that does
+            not exist is an error naming the file (and line); ``skip``: left out, counted in
+            ``skipped`` and logged.
 
     Samples: ``image (3, H, W)`` float32, ``label (H, W)`` int64 when ``labels``, and
     ``name = "<sequence folder>/<timestamp>"``.
@@ -57,12 +137,43 @@ class TUMFrames(SegmentationDataset):
         labels: bool = False,
         transform: Transform | None = None,
         stride: int = 1,
+        holdout: float = 0.0,
+        part: Part = "train",
+        holdout_gap: int = 0,
+        exclude: Sequence[str | Path] = (),
+        on_error: OnError = "raise",
     ) -> None:
         if stride < 1:
             raise ValueError(f"stride must be >= 1, got {stride}")
+        if not 0.0 <= holdout < 1.0:
+            raise ValueError(f"holdout must be a fraction in [0, 1), got {holdout}")
+        if part not in ("train", "holdout"):
+            raise ValueError(f"part must be 'train' or 'holdout', got {part!r}")
+        if part == "holdout" and holdout == 0:
+            raise ValueError("part='holdout' needs holdout > 0")
+        if holdout_gap < 0:
+            raise ValueError(f"holdout_gap must be >= 0, got {holdout_gap}")
+        self.on_error = check_on_error(on_error)
         paths = [Path(roots)] if isinstance(roots, (str, Path)) else [Path(r) for r in roots]
         if not paths:
             raise ValueError("TUMFrames needs at least one sequence folder")
         self.roots = paths
-        items = [item for root in paths for item in _sequence_items(root, labels, stride)]
-        super().__init__(items, lut=None, transform=transform)
+        excluded: set[str] = set()
+        for path in exclude or ():
+            excluded |= read_frame_names(Path(path))
+        skipped: list[DataFormatError] = []
+        items = [
+            item
+            for root in paths
+            for item in _sequence_items(
+                root, labels, stride, holdout, part, holdout_gap, excluded, self.on_error, skipped
+            )
+        ]
+        report_skipped(f"TUM frames ({', '.join(str(p) for p in paths)})", skipped)
+        if not items:
+            raise DataFormatError(
+                paths[0],
+                f"no frames left in {len(paths)} sequence(s) (part={part}, "
+                f"holdout={holdout}, {len(excluded)} excluded names, {len(skipped)} skipped)",
+            )
+        super().__init__(items, lut=None, transform=transform, skipped=skipped)

@@ -148,20 +148,33 @@ class FileList:
         return self.path.parent / self.files[index]
 
 
-def read_file_list(path: StrPath) -> FileList:
-    """Read ``rgb.txt`` / ``depth.txt``: ``timestamp filename`` lines, strictly increasing stamps."""
+def read_file_list(path: StrPath, *, skipped: list[DataFormatError] | None = None) -> FileList:
+    """Read ``rgb.txt`` / ``depth.txt``: ``timestamp filename`` lines, strictly increasing stamps.
+
+    A bad line raises :class:`DataFormatError` (file and line); when a ``skipped`` list is given,
+    such lines (and lines whose stamp does not increase) are left out and their errors appended.
+    """
     path = Path(path)
     stamps: list[float] = []
     files: list[str] = []
     lines: list[int] = []
     for number, fields in _data_lines(path):
-        if len(fields) != 2:
-            raise DataFormatError(
-                path,
-                f"expected 'timestamp filename' (2 columns), got {len(fields)} columns",
-                number,
-            )
-        stamps.append(_float(path, number, fields[0], "the timestamp"))
+        try:
+            if len(fields) != 2:
+                raise DataFormatError(
+                    path,
+                    f"expected 'timestamp filename' (2 columns), got {len(fields)} columns",
+                    number,
+                )
+            stamp = _float(path, number, fields[0], "the timestamp")
+            if skipped is not None and stamps and stamp <= stamps[-1]:
+                _check_increasing(path, [lines[-1], number], np.array([stamps[-1], stamp]))
+        except DataFormatError as error:
+            if skipped is None:
+                raise
+            skipped.append(error)
+            continue
+        stamps.append(stamp)
         files.append(fields[1])
         lines.append(number)
     array = np.asarray(stamps, dtype=np.float64)

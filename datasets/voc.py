@@ -14,7 +14,15 @@ import numpy as np
 
 from uss_slam.datasets.classes import IGNORE_INDEX, VOC_CLASS_NAMES, voc_lut
 from uss_slam.datasets.errors import DataFormatError
-from uss_slam.datasets.segmentation import ImageItem, SegmentationDataset, Transform
+from uss_slam.datasets.segmentation import (
+    ImageItem,
+    OnError,
+    SegmentationDataset,
+    Transform,
+    check_on_error,
+    handle_bad_input,
+    report_skipped,
+)
 
 
 def voc_checked_lut() -> np.ndarray:
@@ -33,9 +41,77 @@ def find_voc_root(root: str | Path) -> Path:
     for candidate in (root, root / "VOC2012", root / "VOCdevkit" / "VOC2012"):
         if (candidate / "ImageSets" / "Segmentation").is_dir():
             return candidate
+    if not root.exists():
+        raise DataFormatError(root, "VOC root not found")
     raise DataFormatError(
         root, "not a VOC tree: expected ImageSets/Segmentation/ under it or VOCdevkit/VOC2012/"
     )
+
+
+def read_id_list(list_file: Path) -> list[tuple[int, str]]:
+    """``(line number, id)`` of a VOC / SBD id list: one image id per line, blank lines ignored.
+
+    A line with more than one field (e.g. a ``ImageSets/Main`` classification list given by
+    mistake) is an error naming the file and line; so is an id listed twice.
+    """
+    if not list_file.is_file():
+        raise DataFormatError(list_file, "id list not found")
+    try:
+        text = list_file.read_text()
+    except (OSError, UnicodeDecodeError) as error:
+        raise DataFormatError(list_file, f"cannot read the id list ({error})") from error
+    ids: list[tuple[int, str]] = []
+    seen: dict[str, int] = {}
+    for number, line in enumerate(text.splitlines(), start=1):
+        fields = line.split()
+        if not fields:
+            continue
+        if len(fields) != 1:
+            raise DataFormatError(
+                list_file, f"expected one image id per line, got {len(fields)} fields", number
+            )
+        if fields[0] in seen:
+            raise DataFormatError(
+                list_file, f"id {fields[0]!r} listed twice (also on line {seen[fields[0]]})", number
+            )
+        seen[fields[0]] = number
+        ids.append((number, fields[0]))
+    return ids
+
+
+def list_pairs(
+    list_file: Path,
+    image_dir: Path,
+    image_suffix: str,
+    label_dir: Path,
+    label_suffix: str,
+    on_error: OnError,
+) -> tuple[list[ImageItem], list[DataFormatError]]:
+    """Items of an id list whose image and label both exist.
+
+    An image without its label (or a label without its image) is an error naming the list
+    file and line, or (``on_error="skip"``) a skipped item.
+    """
+    items: list[ImageItem] = []
+    skipped: list[DataFormatError] = []
+    for number, name in read_id_list(list_file):
+        image = image_dir / f"{name}{image_suffix}"
+        label = label_dir / f"{name}{label_suffix}"
+        missing = [path for path in (image, label) if not path.is_file()]
+        if missing:
+            if len(missing) == 2:
+                why = "neither image nor label exists"
+            elif missing[0] == label:
+                why = f"the image {image.name} has no label"
+            else:
+                why = f"the label {label.name} has no image"
+            error = DataFormatError(
+                list_file, f"{missing[0]} (listed as {name!r}) not found: {why}", number
+            )
+            handle_bad_input(error, on_error, skipped)
+            continue
+        items.append(ImageItem(image=image, label=label, name=name))
+    return items, skipped
 
 
 class VOCSegmentation(SegmentationDataset):
@@ -45,32 +121,36 @@ class VOCSegmentation(SegmentationDataset):
         root: the ``VOC2012`` folder (or a parent holding ``VOCdevkit/VOC2012``).
         split: name of the id list in ``ImageSets/Segmentation`` (``train``, ``val``, ...).
         transform: joint v2 transform (see :mod:`uss_slam.datasets.transforms`).
+        on_error: ``raise`` (default): a listed image without label (or the reverse) is an
+            error naming the list file and line; ``skip``: such items are left out and recorded
+            in ``skipped``.
 
-    Every listed image and label must exist; a missing one is reported with the list file and
-    line. Samples: ``image (3, H, W)`` float32, ``label (H, W)`` int64, ``name`` = image id.
+    Samples: ``image (3, H, W)`` float32, ``label (H, W)`` int64, ``name`` = image id.
     """
 
     def __init__(
-        self, root: str | Path, split: str = "train", transform: Transform | None = None
+        self,
+        root: str | Path,
+        split: str = "train",
+        transform: Transform | None = None,
+        on_error: OnError = "raise",
     ) -> None:
+        self.on_error = check_on_error(on_error)
         self.root = find_voc_root(root)
         self.split = split
         list_file = self.root / "ImageSets" / "Segmentation" / f"{split}.txt"
         if not list_file.is_file():
             raise DataFormatError(list_file, f"split list for split {split!r} not found")
-        items = []
-        for number, line in enumerate(list_file.read_text().splitlines(), start=1):
-            name = line.strip()
-            if not name:
-                continue
-            image = self.root / "JPEGImages" / f"{name}.jpg"
-            label = self.root / "SegmentationClass" / f"{name}.png"
-            for path in (image, label):
-                if not path.is_file():
-                    raise DataFormatError(
-                        list_file, f"{path} (listed as {name!r}) not found", number
-                    )
-            items.append(ImageItem(image=image, label=label, name=name))
-        if not items:
+        self.list_file = list_file
+        items, skipped = list_pairs(
+            list_file,
+            self.root / "JPEGImages",
+            ".jpg",
+            self.root / "SegmentationClass",
+            ".png",
+            self.on_error,
+        )
+        if not items and not skipped:
             raise DataFormatError(list_file, "the split list is empty")
-        super().__init__(items, lut=voc_checked_lut(), transform=transform)
+        report_skipped(f"VOC {split} ({list_file})", skipped)
+        super().__init__(items, lut=voc_checked_lut(), transform=transform, skipped=skipped)

@@ -18,7 +18,7 @@ from train_helpers import compose_train, data_overrides
 
 from uss_slam.datasets.datamodule import UDADataModule
 from uss_slam.models import DeepLabV2, PatchDiscriminator
-from uss_slam.train.module import AdversarialSegmentation
+from uss_slam.train.module import AdversarialSegmentation, NonFiniteLossError
 from uss_slam.train.train import _instantiate_all, resolve_ckpt_path, train
 
 EXPERIMENTS = sorted(
@@ -39,7 +39,10 @@ def test_every_experiment_composes_and_instantiates(
         # Real-data paths are `???` in the file: fill them; never download weights in tests.
         overrides = [
             f"experiment={experiment}",
-            f"data.source.root={uda_data['voc']}",
+            "data/source=[voc]",  # the synthetic VOC tree stands in for VOC + SBD + COCO
+            f"data.source.voc.root={uda_data['voc']}",
+            "data.source.voc.split=train",
+            "data.source.selection.require=any",
             f"data.target.roots=[{uda_data['target']}]",
             "model.net.backbone_weights=null",
             "trainer.accelerator=cpu",
@@ -77,7 +80,8 @@ def test_paper_experiment_leaves_real_data_paths_to_fill(tmp_path: Path) -> None
     cfg = compose_train(["experiment=uss_slam_paper"], tmp_path)
     from omegaconf import OmegaConf
 
-    assert OmegaConf.is_missing(cfg.data.source, "root")
+    for name in ("voc", "sbd", "coco"):
+        assert OmegaConf.is_missing(cfg.data.source[name], "root")
     assert OmegaConf.is_missing(cfg.data.target, "roots")
     assert cfg.model.net.backbone_weights == "IMAGENET1K_V1"
 
@@ -170,6 +174,34 @@ def test_resume_equals_uninterrupted(uda_data: dict[str, Path], tmp_path: Path) 
                 if torch.is_tensor(tensor):
                     torch.testing.assert_close(mine["state"][pid][name], tensor, rtol=0, atol=1e-6)
     assert resumed["lr_schedulers"] == full["lr_schedulers"]
+
+
+def test_non_finite_loss_stops_and_keeps_the_last_good_checkpoint(
+    uda_data: dict[str, Path], tmp_path: Path
+) -> None:
+    cfg = compose_train(
+        [
+            "experiment=ci",
+            *data_overrides(uda_data),
+            "logger=none",
+            "+trainer.limit_val_batches=1",
+            # Diverges at the first iteration of the second epoch (after last.ckpt at 2).
+            "+callbacks.poison._target_=train_helpers.PoisonAt",
+            "+callbacks.poison.iteration=2",
+        ],
+        tmp_path,
+    )
+    with pytest.raises(NonFiniteLossError, match="non-finite loss_seg_src_main .* iteration 2"):
+        train(cfg)
+    checkpoints = sorted(p.name for p in (tmp_path / "checkpoints").iterdir())
+    assert "last.ckpt" in checkpoints and all(
+        "iter0000002" in n for n in checkpoints if "best" in n
+    )
+    last = torch.load(tmp_path / "checkpoints" / "last.ckpt", weights_only=True)
+    assert last["iteration"] == 2
+    assert all(
+        torch.isfinite(v).all() for v in last["state_dict"].values() if v.is_floating_point()
+    )
 
 
 def test_ckpt_path_last_finds_the_newest_earlier_run(tmp_path: Path) -> None:

@@ -1,13 +1,17 @@
-"""Helpers of the training tests: data-path overrides and composing the real config."""
+"""Helpers of the training tests: data-path overrides, composing the real config, a callback
+that makes a run diverge."""
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
+import torch
 from hydra import compose, initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
 from hydra.core.hydra_config import HydraConfig
+from lightning.pytorch import Callback, LightningModule, Trainer
 from omegaconf import DictConfig, open_dict
 
 CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
@@ -33,3 +37,18 @@ def compose_train(overrides: Sequence[str], output_dir: Path) -> DictConfig:
         cfg.paths.log_dir = str(output_dir.parent / "logs")
     HydraConfig().set_config(cfg)
     return cfg
+
+
+class PoisonAt(Callback):
+    """Sets the segmenter's main-head bias to NaN before training iteration ``iteration``
+    (a stand-in for a diverging run)."""
+
+    def __init__(self, iteration: int) -> None:
+        self.iteration = iteration
+
+    def on_train_batch_start(
+        self, trainer: Trainer, pl_module: LightningModule, batch: Any, batch_idx: int
+    ) -> None:
+        if pl_module.iteration == self.iteration:
+            with torch.no_grad():
+                pl_module.segmenter.main.branches[0].bias.fill_(float("nan"))
