@@ -42,7 +42,11 @@ def find_voc_root(root: str | Path) -> Path:
         if (candidate / "ImageSets" / "Segmentation").is_dir():
             return candidate
     if not root.exists():
-        raise DataFormatError(root, "VOC root not found")
+        raise DataFormatError(
+            root,
+            "not a VOC tree: the folder does not exist (give VOC2012 or the folder holding "
+            "VOCdevkit/)",
+        )
     raise DataFormatError(
         root, "not a VOC tree: expected ImageSets/Segmentation/ under it or VOCdevkit/VOC2012/"
     )

@@ -72,8 +72,11 @@ def test_missing_files_are_reported_with_list_file_and_line(tmp_path: Path) -> N
         VOCSegmentation(voc)
     with pytest.raises(DataFormatError, match=r"val\.txt: split list for split 'val' not found"):
         VOCSegmentation(voc, split="val")
-    with pytest.raises(DataFormatError, match="not a VOC tree"):
+    with pytest.raises(DataFormatError, match="nowhere: not a VOC tree: the folder does not exist"):
         VOCSegmentation(tmp_path / "nowhere")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(DataFormatError, match="empty: not a VOC tree: expected ImageSets"):
+        VOCSegmentation(tmp_path / "empty")
 
 
 def test_rgb_labels_and_non_voc_indices_are_rejected(tmp_path: Path) -> None:
