@@ -15,8 +15,10 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install -e '.[dev]'
 	@touch $(STAMP)
 
+# uss-demo: synthetic data, two trainings, two ONNX exports, five SLAM runs, table + report.md;
+# complete stages are reused (DEMO_ARGS=--force redoes them).
 demo: $(STAMP)
-	$(VENV)/bin/uss-synth demo --out $(DEMO_OUT)/data --reuse
+	$(VENV)/bin/uss-demo --out $(DEMO_OUT) $(DEMO_ARGS)
 
 test: $(STAMP)
 	$(PY) -m pytest
