@@ -124,6 +124,11 @@ def _is_number(value: Any) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool)
 
 
+def _hashable(value: Any) -> Any:
+    """``value`` if it can be a set member (JSON ids may be lists or objects by mistake)."""
+    return value if isinstance(value, (int, float, str, type(None))) else repr(value)
+
+
 def _check_segmentation(segmentation: Any, height: int, width: int) -> str | None:
     """Why ``segmentation`` is no valid polygon list / RLE for a ``height × width`` image."""
     if isinstance(segmentation, list):
@@ -258,6 +263,7 @@ class COCOSegmentation(SegmentationDataset):
             for k, v in (categories if categories is not None else DEFAULT_CATEGORIES).items()
         }
         self.table = category_table(self.categories)
+        self.split = split if annotations is None else None  # recorded in the manifest
         self.progress = progress
         self.sha256 = file_sha256(self.annotation_file)
         self.cache = self._cache_folder(cache_dir)
@@ -346,6 +352,8 @@ class COCOSegmentation(SegmentationDataset):
 
         skipped: list[DataFormatError] = []
         images: dict[int, CocoImage] = {}
+        rejected: set[Any] = set()  # ids of bad image entries (reported once, not per annotation)
+        bad_images: set[Any] = set()  # images left out (an entry or annotation of theirs is bad)
         for k, entry in enumerate(data["images"]):
             if not isinstance(entry, dict):
                 self._bad(f"images[{k}]: expected an object", skipped)
@@ -353,6 +361,7 @@ class COCOSegmentation(SegmentationDataset):
             lacking = [key for key in ("id", "file_name", "width", "height") if key not in entry]
             if lacking:
                 self._bad(f"images[{k}]: missing required key(s) {lacking}", skipped)
+                rejected.add(_hashable(entry.get("id")))
                 continue
             image_id, width, height = entry["id"], entry["width"], entry["height"]
             sizes_ok = _is_int(width) and _is_int(height) and width > 0 and height > 0
@@ -361,13 +370,14 @@ class COCOSegmentation(SegmentationDataset):
                     f"images[{k}]: id, width, height must be integers (> 0), file_name a string",
                     skipped,
                 )
+                rejected.add(_hashable(image_id))
                 continue
             if image_id in images:
                 self._bad(f"images[{k}]: duplicate image id {image_id}", skipped)
+                bad_images.add(image_id)  # which entry do its annotations belong to?
                 continue
             images[image_id] = CocoImage(image_id, entry["file_name"], width, height)
 
-        bad_images: set[int] = set()
         for k, annotation in enumerate(data["annotations"]):
             where = f"annotations[{k}]"
             if isinstance(annotation, dict) and "id" in annotation:
@@ -380,13 +390,15 @@ class COCOSegmentation(SegmentationDataset):
             ]
             if lacking:
                 self._bad(f"{where}: missing required key(s) {lacking}", skipped)
-                bad_images.add(annotation.get("image_id"))  # type: ignore[arg-type]
+                bad_images.add(_hashable(annotation.get("image_id")))
                 continue
-            image = images.get(annotation["image_id"])
+            image = images.get(_hashable(annotation["image_id"]))
+            if image is None and _hashable(annotation["image_id"]) in rejected:
+                continue  # its image entry is bad and already reported
             if image is None:
                 self._bad(f"{where}: image_id {annotation['image_id']!r} is not in images", skipped)
                 continue
-            if annotation["category_id"] not in class_of:
+            if _hashable(annotation["category_id"]) not in class_of:
                 self._bad(
                     f"{where}: category_id {annotation['category_id']!r} is not in categories "
                     f"(image {image.id}, {image.file_name})",
