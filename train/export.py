@@ -172,8 +172,12 @@ def _net_config(
             if not path.is_file():
                 raise DataFormatError(path, "net config file not found")
             node = OmegaConf.load(path)
+        elif isinstance(net_cfg, DictConfig):
+            node = net_cfg
         else:
             node = OmegaConf.create(dict(net_cfg))
+        if not isinstance(node, DictConfig) or "_target_" not in node:
+            raise UssSlamError(f"net config {net_cfg} has no _target_ (see configs/model/net/)")
         return node, run_name
     if run_cfg is None:
         raise DataFormatError(
