@@ -131,6 +131,8 @@ def inspect_image(path: Path) -> tuple[int, int]:
             raise DataFormatError(path, reason)
         with PILImage.open(path) as image:
             return image.size
+    except DataFormatError:
+        raise
     except FileNotFoundError:
         raise DataFormatError(path, "image file not found") from None
     except (OSError, ValueError) as error:  # PIL.UnidentifiedImageError is an OSError
@@ -155,8 +157,18 @@ def read_image(path: Path) -> tv_tensors.Image:
 
 
 def read_label_values(path: Path) -> np.ndarray:
-    """The raw ``(H, W)`` uint8 values of a single-channel label PNG (palette 'P' or grey 'L')."""
+    """The raw ``(H, W)`` uint8 values of a single-channel label PNG (palette 'P' or grey 'L').
+
+    A truncated file is an error even when its pixel data happens to be complete.
+    """
     try:
+        with open(path, "rb") as file:
+            head = file.read(16)
+            file.seek(0, 2)
+            file.seek(max(0, file.tell() - 64))
+            reason = _truncation(path, head, file.read())
+        if reason:
+            raise DataFormatError(path, reason)
         with PILImage.open(path) as image:
             if image.mode not in ("P", "L"):
                 raise DataFormatError(
@@ -165,6 +177,8 @@ def read_label_values(path: Path) -> np.ndarray:
                     f"got mode {image.mode!r}",
                 )
             return np.asarray(image, dtype=np.uint8)
+    except DataFormatError:
+        raise
     except FileNotFoundError:
         raise DataFormatError(path, "label file not found") from None
     except (OSError, ValueError) as error:

@@ -100,10 +100,11 @@ def test_corrupt_and_truncated_files_name_the_file(voc: Path) -> None:
     with pytest.raises(DataFormatError, match=r"2008_000001\.jpg: cannot decode image"):
         dataset[0]
     png = voc / "SegmentationClass" / "2008_000002.png"
-    png.write_bytes(png.read_bytes()[:-30])
-    with pytest.raises(DataFormatError, match=r"2008_000002\.png: cannot decode label image"):
+    intact = png.read_bytes()
+    png.write_bytes(intact[:-20])  # pixel data complete, IEND lost: still a truncated file
+    with pytest.raises(DataFormatError, match=r"2008_000002\.png: truncated PNG: no IEND chunk"):
         dataset[1]
-    png.write_bytes(b"\x89PNG\r\n\x1a\n garbage")
+    png.write_bytes(intact[:40] + bytes(len(intact) - 60) + intact[-20:])  # damaged inside
     with pytest.raises(DataFormatError, match=r"2008_000002\.png: cannot decode label image"):
         dataset[1]
 
