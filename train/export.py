@@ -28,7 +28,7 @@ import sys
 import time
 import warnings
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
@@ -409,7 +409,8 @@ def export_segmenter(
             raise ExportVerificationError(
                 f"{out}: exported model failed verification (checker {report['checker']}, "
                 f"max |logit diff| {report.get('max_abs_logit_diff')} <= {MAX_LOGIT_DIFF}?, "
-                f"label agreement {report.get('label_agreement')} >= {MIN_LABEL_AGREEMENT}?); "
+                f"label agreement {report.get('label_agreement')} >= {MIN_LABEL_AGREEMENT}?, "
+                f"largest |logit| {report.get('max_abs_logit')}); "
                 f"details in {failed}; earlier files left as they were"
             )
         os.replace(tmp, out)
@@ -469,6 +470,165 @@ def export_checkpoint(
     return result
 
 
+# ---------------------------------------------------------------------------- INT8
+
+KEY_QUANTIZATION = "uss_slam.quantization"
+"""Extra ``metadata_props`` key of INT8 models (readers keep it in ``SegmenterMetadata.extra``)."""
+
+
+def read_calibration_frames(
+    root: str | Path, frames: int = 16
+) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """``2 × frames`` RGB frames spread evenly over a TUM folder's ``rgb.txt``, alternately
+    assigned to calibration and evaluation (so agreement is measured on frames the calibration
+    never saw). Returns ``(calibration, evaluation)`` lists of ``(H, W, 3)`` uint8 RGB."""
+    import cv2
+
+    from uss_slam.datasets.tum_io import read_file_list
+
+    root = Path(root)
+    rgb_list = root / "rgb.txt"
+    if not rgb_list.is_file():
+        raise DataFormatError(rgb_list, "calibration.root must be a TUM RGB-D folder with rgb.txt")
+    listing = read_file_list(rgb_list)
+    if len(listing) < 2:
+        raise DataFormatError(rgb_list, f"needs at least 2 frames, lists {len(listing)}")
+    count = min(2 * frames, len(listing))
+    picked = np.unique(np.linspace(0, len(listing) - 1, count).round().astype(int))
+    images: list[np.ndarray] = []
+    for index in picked:
+        path = listing.resolve(int(index))
+        bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
+        if bgr is None:
+            raise DataFormatError(path, "not a readable image (listed in rgb.txt)")
+        images.append(np.ascontiguousarray(bgr[:, :, ::-1]))
+    return images[0::2], images[1::2]
+
+
+def _median_ms(session: ort.InferenceSession, image: np.ndarray, repeats: int) -> float:
+    feed = {INPUT_NAME: image[None]}
+    session.run([OUTPUT_LABELS], feed)  # warm-up
+    times = []
+    for _ in range(repeats):
+        started = time.perf_counter()
+        session.run([OUTPUT_LABELS], feed)
+        times.append(time.perf_counter() - started)
+    return float(np.median(times) * 1000)
+
+
+def quantize_int8(
+    fp32_path: Path,
+    out: Path,
+    calibration: Sequence[np.ndarray],
+    evaluation: Sequence[np.ndarray],
+    *,
+    threads: int | None = None,
+    repeats: int = 5,
+) -> dict[str, Any]:
+    """Static INT8 quantisation (onnxruntime, QDQ, per-channel weights, MinMax calibration on
+    ``calibration`` frames) of the convolutions of ``fp32_path`` -> ``out`` (atomic).
+
+    Normalisation, resize and argmax stay float. Returns label agreement with the FP32 model on
+    ``evaluation`` frames and the median per-frame latency of both (same process, same threads).
+    """
+    from onnxruntime.quantization import (
+        CalibrationDataReader,
+        QuantFormat,
+        QuantType,
+        quantize_static,
+    )
+    from onnxruntime.quantization.shape_inference import quant_pre_process
+
+    if not calibration or not evaluation:
+        raise UssSlamError("INT8 quantisation needs calibration and evaluation frames")
+
+    class Frames(CalibrationDataReader):
+        def __init__(self) -> None:
+            self.frames = iter(calibration)
+
+        def get_next(self) -> dict[str, np.ndarray] | None:
+            frame = next(self.frames, None)
+            return None if frame is None else {INPUT_NAME: frame[None]}
+
+    stem = f".{out.name}.{os.getpid()}"
+    pre, tmp = out.with_name(stem + ".pre.tmp"), out.with_name(stem + ".tmp")
+    root_logger = logging.getLogger()
+    level = root_logger.level
+    root_logger.setLevel(logging.WARNING)  # the quantiser logs every tensor at INFO on the root
+    try:
+        quant_pre_process(str(fp32_path), str(pre), skip_symbolic_shape=True)
+        quantize_static(
+            str(pre),
+            str(tmp),
+            Frames(),
+            quant_format=QuantFormat.QDQ,
+            op_types_to_quantize=["Conv"],
+            per_channel=True,
+            activation_type=QuantType.QUInt8,
+            weight_type=QuantType.QInt8,
+        )
+        root_logger.setLevel(level)
+        model = onnx.load(str(tmp))
+        props = {p.key: p.value for p in onnx.load(str(fp32_path)).metadata_props}
+        props[KEY_QUANTIZATION] = "int8-static-qdq"
+        del model.metadata_props[:]
+        onnx.helper.set_model_props(model, props)
+        onnx.save(model, str(tmp))
+        fp32 = make_session(fp32_path, threads)
+        int8 = make_session(tmp, threads)
+        agree = []
+        for frame in evaluation:
+            (a,) = fp32.run([OUTPUT_LABELS], {INPUT_NAME: frame[None]})
+            (b,) = int8.run([OUTPUT_LABELS], {INPUT_NAME: frame[None]})
+            agree.append(float((a == b).mean()))
+        fp32_ms = _median_ms(fp32, evaluation[0], repeats)
+        int8_ms = _median_ms(int8, evaluation[0], repeats)
+        os.replace(tmp, out)
+    finally:
+        root_logger.setLevel(level)
+        pre.unlink(missing_ok=True)
+        tmp.unlink(missing_ok=True)
+    return {
+        "model": out.name,
+        "calibration_frames": len(calibration),
+        "evaluation_frames": len(evaluation),
+        "frame_size": list(evaluation[0].shape[:2]),
+        "label_agreement_vs_fp32": float(np.mean(agree)),
+        "label_agreement_vs_fp32_min": float(np.min(agree)),
+        "threads": threads,
+        "fp32_ms": round(fp32_ms, 2),
+        "int8_ms": round(int8_ms, 2),
+        "speedup": round(fp32_ms / int8_ms, 3),
+        "repeats": repeats,
+    }
+
+
+def add_int8(
+    result: ExportResult,
+    calibration_root: str | Path,
+    *,
+    frames: int = 16,
+    threads: int | None = None,
+) -> ExportResult:
+    """Build ``<name>.int8.onnx`` next to a verified export; its figures go into
+    ``<name>.verify.json`` under ``int8``."""
+    calibration, evaluation = read_calibration_frames(calibration_root, frames)
+    out = sidecar(result.path, ".int8.onnx")
+    figures = quantize_int8(result.path, out, calibration, evaluation, threads=threads)
+    figures["calibration_root"] = str(calibration_root)
+    verify = {**result.verify, "int8": figures}
+    _write_json(result.verify_path, verify)
+    log.info(
+        "wrote %s: %.2fx faster than FP32 (%.1f vs %.1f ms), label agreement %.4f",
+        out,
+        figures["speedup"],
+        figures["int8_ms"],
+        figures["fp32_ms"],
+        figures["label_agreement_vs_fp32"],
+    )
+    return replace(result, verify=verify, int8_path=out)
+
+
 # ---------------------------------------------------------------------------- CLI
 
 
@@ -495,7 +655,7 @@ def run(cfg: DictConfig) -> ExportResult:
         if cfg.head != "main":
             loaded_name = f"{loaded_name}_{cfg.head}"
     out = Path(str(cfg.out)) if cfg.get("out") else Path(str(cfg.out_dir)) / f"{loaded_name}.onnx"
-    return export_checkpoint(
+    result = export_checkpoint(
         ckpt_path,
         out,
         head=str(cfg.head),
@@ -506,6 +666,19 @@ def run(cfg: DictConfig) -> ExportResult:
         trace_size=tuple(cfg.trace_size),
         verify_size=tuple(cfg.verify_size),
     )
+    if cfg.get("int8"):
+        calibration = cfg.get("calibration") or {}
+        if not calibration.get("root"):
+            raise UssSlamError(
+                "int8=true needs calibration.root=<TUM RGB-D folder of target frames>"
+            )
+        result = add_int8(
+            result,
+            str(calibration.root),
+            frames=int(calibration.get("frames", 16)),
+            threads=cfg.get("num_threads"),
+        )
+    return result
 
 
 @hydra.main(version_base="1.3", config_path="../configs", config_name="export")
@@ -524,6 +697,12 @@ def main(cfg: DictConfig) -> None:
         f"{v['max_abs_logit_diff']:.2e}, label agreement {v['label_agreement']:.5f}); "
         f"report {result.verify_path}"
     )
+    if result.int8_path is not None:
+        q = v["int8"]
+        print(
+            f"uss-export: wrote {result.int8_path} ({q['speedup']:.2f}x faster than FP32 at "
+            f"{q['frame_size']}, label agreement with FP32 {q['label_agreement_vs_fp32']:.4f})"
+        )
 
 
 if __name__ == "__main__":

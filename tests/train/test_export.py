@@ -343,3 +343,38 @@ def test_uss_export_on_a_ci_run(uda_data: dict[str, Path], tmp_path: Path) -> No
     )
     assert missing.returncode == 1
     assert missing.stderr.strip().endswith("none.ckpt: checkpoint not found")
+
+
+def test_int8_model_from_target_frames(
+    exported: tuple[DeepLabV2, export.ExportResult],
+    synthetic_sequence,
+    tmp_path: Path,
+) -> None:
+    net, _ = exported
+    fp32 = export_segmenter(net, tmp_path / "q.onnx", _metadata())
+    sequence = synthetic_sequence(frames=8, size=(160, 120), seed=2)
+    result = export.add_int8(fp32, sequence, frames=3, threads=1)
+    assert result.int8_path == tmp_path / "q.int8.onnx"
+    figures = json.loads(result.verify_path.read_text())["int8"]
+    assert figures == result.verify["int8"]
+    assert figures["calibration_frames"] == 3 and figures["evaluation_frames"] == 3
+    assert figures["frame_size"] == [120, 160]
+    assert 0.5 <= figures["label_agreement_vs_fp32"] <= 1.0
+    assert figures["speedup"] == pytest.approx(figures["fp32_ms"] / figures["int8_ms"], rel=0.02)
+    model = onnx.load(str(result.int8_path))
+    ops = {node.op_type for node in model.graph.node}
+    assert {"QuantizeLinear", "DequantizeLinear", "Resize", "ArgMax"} <= ops
+    props = {p.key: p.value for p in model.metadata_props}
+    meta = SegmenterMetadata.from_props(props, result.int8_path)
+    assert meta.extra == {export.KEY_QUANTIZATION: "int8-static-qdq"}
+    images = verification_images((120, 160), batch=2, seed=7)
+    logits, labels = ort.InferenceSession(str(result.int8_path)).run(None, {"image": images})
+    assert logits.shape == (2, 4, 120, 160) and labels.dtype == np.uint8
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["q.int8.onnx", "q.onnx", "q.verify.json"]
+
+
+def test_int8_refuses_a_folder_without_rgb_list(
+    exported: tuple[DeepLabV2, export.ExportResult], tmp_path: Path
+) -> None:
+    with pytest.raises(DataFormatError, match=r"rgb\.txt: calibration.root must be"):
+        export.add_int8(exported[1], tmp_path)
