@@ -94,7 +94,10 @@ def _sequence_items(
             continue
         image = frames.resolve(index)
         if not image.is_file():
-            error = DataFormatError(list_file, f"listed image {frames.files[index]} not found")
+            line = frames.lines[index] if frames.lines else None
+            error = DataFormatError(
+                list_file, f"listed image {frames.files[index]} not found", line
+            )
             handle_bad_input(error, on_error, skipped)
             continue
         label = root / "labels" / Path(frames.files[index]).name if labels else None

@@ -139,6 +139,7 @@ class FileList:
     path: Path
     stamps: np.ndarray
     files: tuple[str, ...]
+    lines: tuple[int, ...] = ()  # 1-based line of each entry in the file (for error messages)
 
     def __len__(self) -> int:
         return len(self.files)
@@ -179,7 +180,7 @@ def read_file_list(path: StrPath, *, skipped: list[DataFormatError] | None = Non
         lines.append(number)
     array = np.asarray(stamps, dtype=np.float64)
     _check_increasing(path, lines, array)
-    return FileList(path=path, stamps=array, files=tuple(files))
+    return FileList(path=path, stamps=array, files=tuple(files), lines=tuple(lines))
 
 
 def write_file_list(

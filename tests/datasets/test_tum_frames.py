@@ -59,7 +59,7 @@ def test_missing_pieces_are_clear_errors(tmp_path: Path) -> None:
         TUMFrames(root, labels=True)
     assert len(TUMFrames(root)) == 5  # unlabelled use does not need labels/
     sorted((root / "rgb").iterdir())[0].unlink()
-    with pytest.raises(DataFormatError, match=r"rgb\.txt: listed image rgb/.*\.png not found"):
+    with pytest.raises(DataFormatError, match=r"rgb\.txt:\d+: listed image rgb/.*\.png not found"):
         TUMFrames(root)
 
 
