@@ -1,0 +1,159 @@
+"""``uss-train experiment=uss_slam_paper`` on VOC / SBD / COCO / TUM fixture roots.
+
+The paper's ResNet-101 takes minutes per step on a CPU and its ImageNet weights would be
+downloaded, so these runs swap in the small CI segmenter (``model/net=deeplab_small``) without
+weights: everything else (data config, selection, manifest, loss weights, discriminators) is the
+paper experiment's.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from hydra import compose, initialize_config_dir
+from hydra.core.global_hydra import GlobalHydra
+from hydra.core.hydra_config import HydraConfig
+from hydra.utils import instantiate
+from omegaconf import DictConfig, OmegaConf, open_dict
+from realdata_helpers import paint_voc, standard_scenes, write_coco, write_sbd, write_tum, write_voc
+
+from uss_slam.datasets.coco import COCOSegmentation
+from uss_slam.datasets.sbd import SBDSegmentation
+from uss_slam.datasets.selection import MANIFEST_NAME, SelectedSources
+from uss_slam.datasets.tum import TUMFrames
+from uss_slam.datasets.voc import VOCSegmentation
+
+CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
+SHAPE = (40, 48)
+pytestmark = pytest.mark.filterwarnings("ignore:__array__ implementation:DeprecationWarning")
+
+# The paper's selection keeps images showing person AND chair AND monitor: in each fixture set
+# that is scene 2008_000001 only (VOC id 2008_000001, SBD id 2009_000001, COCO image 1).
+EXPECTED_IDS = {"voc": ["2008_000001"], "sbd": ["2009_000001"], "coco": ["1"]}
+
+
+@pytest.fixture(scope="module")
+def roots(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    base = tmp_path_factory.mktemp("real")
+    scenes = standard_scenes(SHAPE)
+    labels = {name: paint_voc(SHAPE, scene) for name, scene in scenes.items()}
+    names = list(labels)
+    voc = write_voc(base / "voc", labels, {"trainval": names, "val": names[3:]})
+    sbd_labels = {name.replace("2008", "2009"): label for name, label in labels.items()}
+    write_sbd(base / "sbd", {**labels, **sbd_labels}, {"train": [*names, *sbd_labels]})
+    coco = write_coco(
+        base / "coco", {k + 1: (f"{n}.jpg", s) for k, (n, s) in enumerate(scenes.items())}, SHAPE
+    )
+    tum = write_tum(base / "tum" / "rgbd_dataset_freiburg3_walking_xyz", 6)
+    return {"voc": voc.parent.parent, "sbd": base / "sbd", "coco": coco, "tum": tum}
+
+
+def _overrides(roots: dict[str, Path], log_dir: Path) -> list[str]:
+    return [
+        "experiment=uss_slam_paper",
+        f"data.source.voc.root={roots['voc']}",
+        f"data.source.sbd.root={roots['sbd']}",
+        f"data.source.coco.root={roots['coco']}",
+        f"data.target.roots=[{roots['tum']}]",
+        "model/net=deeplab_small",  # ResNet-101 is minutes per CPU step (see the docstring)
+        "model.net.backbone_weights=null",  # never download in tests
+        "trainer=cpu",
+        "logger=none",
+        "data.num_workers=0",
+        "data.source.transform.crop_size=33",
+        "data.target.transform.crop_size=33",
+        f"paths.log_dir={log_dir}",
+    ]
+
+
+def _compose(overrides: list[str], output_dir: Path) -> DictConfig:
+    GlobalHydra.instance().clear()
+    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
+        cfg = compose("train", overrides=overrides, return_hydra_config=True)
+    with open_dict(cfg):
+        cfg.hydra.runtime.output_dir = str(output_dir)
+        cfg.hydra.job.num = 0
+    HydraConfig().set_config(cfg)
+    return cfg
+
+
+def test_paper_experiment_composes_the_three_source_sets(
+    roots: dict[str, Path], tmp_path: Path
+) -> None:
+    cfg = _compose(_overrides(roots, tmp_path / "logs"), tmp_path / "run")
+    source = cfg.data.source
+    assert source.voc.split == "trainval" and source.sbd.split == "train"
+    assert source.selection.classes == ["person", "chair", "monitor"]
+    assert source.selection.require == "all" and source.selection.exclude_voc_val
+    assert OmegaConf.to_container(source.coco.categories)["monitor"][:2] == ["tv", "tv/monitor"]
+    assert cfg.model.net.backbone == "resnet_small" and cfg.model.discriminator.n_layers == 5
+    data = instantiate(cfg.data)
+    sources = data.source
+    assert isinstance(sources, SelectedSources)
+    assert [type(s) for s in sources.sets.values()] == [
+        VOCSegmentation,
+        SBDSegmentation,
+        COCOSegmentation,
+    ]
+    chosen = {
+        name: [sources.sets[name].items[i].name for i in ids]
+        for name, ids in sources.chosen.items()
+    }
+    assert chosen == EXPECTED_IDS
+    assert sources.summary["sbd"].overlap == 5  # the 2008_* ids: in VOC trainval (2 in val)
+    assert isinstance(data.target, TUMFrames) and len(data.target) == 6 and data.val is None
+    assert (tmp_path / "logs" / "cache" / "coco").is_dir()  # the COCO masks are cached
+    batch = sources[0]
+    assert batch["image"].shape == (3, 33, 33) and batch["name"] == "voc/2008_000001"
+
+
+def test_paper_experiment_runs_fast_dev_run(roots: dict[str, Path], tmp_path: Path) -> None:
+    from uss_slam.train.train import train
+
+    torch.set_num_threads(2)
+    cfg = _compose(
+        [*_overrides(roots, tmp_path / "logs"), "+trainer.fast_dev_run=true"], tmp_path / "run"
+    )
+    metrics = train(cfg)
+    assert metrics["iteration"] == 1.0
+    assert all(np.isfinite(v) for v in metrics.values())
+    manifest = json.loads((tmp_path / "run" / MANIFEST_NAME).read_text())
+    assert {name: s["ids"] for name, s in manifest["sets"].items()} == EXPECTED_IDS
+
+
+@pytest.mark.slow
+def test_uss_train_command_on_fixture_roots(roots: dict[str, Path], tmp_path: Path) -> None:
+    """The console script itself (a fresh process: imports, Hydra app, exit code)."""
+    exe = Path(sys.executable).parent / "uss-train"
+    result = subprocess.run(
+        [str(exe), *_overrides(roots, tmp_path / "logs"), "+trainer.fast_dev_run=true"],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert result.returncode == 0, result.stderr[-3000:]
+    (manifest,) = (tmp_path / "logs" / "train" / "runs" / "uss_slam_paper").glob(
+        f"*/{MANIFEST_NAME}"
+    )
+    assert {
+        n: s["ids"] for n, s in json.loads(manifest.read_text())["sets"].items()
+    } == EXPECTED_IDS
+
+
+def test_a_missing_root_is_one_line_naming_it(roots: dict[str, Path], tmp_path: Path) -> None:
+    cfg = _compose(
+        [*_overrides(roots, tmp_path / "logs"), f"data.source.sbd.root={tmp_path / 'nowhere'}"],
+        tmp_path / "run",
+    )
+    with pytest.raises(Exception, match=r"nowhere: SBD root not found") as info:
+        instantiate(cfg.data)
+    from uss_slam.train.train import _user_error
+
+    assert _user_error(info.value) is not None  # uss-train turns it into one line, exit 1
