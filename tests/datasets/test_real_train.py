@@ -13,6 +13,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 import torch
@@ -21,12 +22,22 @@ from hydra.core.global_hydra import GlobalHydra
 from hydra.core.hydra_config import HydraConfig
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf, open_dict
-from realdata_helpers import paint_voc, standard_scenes, write_coco, write_sbd, write_tum, write_voc
+from realdata_helpers import (
+    coco_json,
+    paint_voc,
+    rect,
+    standard_scenes,
+    write_coco,
+    write_sbd,
+    write_tum,
+    write_voc,
+)
 
 from uss_slam.datasets.coco import COCOSegmentation
 from uss_slam.datasets.sbd import SBDSegmentation
 from uss_slam.datasets.selection import MANIFEST_NAME, SelectedSources
 from uss_slam.datasets.tum import TUMFrames
+from uss_slam.datasets.tum_io import read_file_list
 from uss_slam.datasets.voc import VOCSegmentation
 
 CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
@@ -157,3 +168,52 @@ def test_a_missing_root_is_one_line_naming_it(roots: dict[str, Path], tmp_path: 
     from uss_slam.train.train import _user_error
 
     assert _user_error(info.value) is not None  # uss-train turns it into one line, exit 1
+
+
+def test_on_error_reaches_every_set_and_the_target(roots: dict[str, Path], tmp_path: Path) -> None:
+    cfg = _compose(
+        [*_overrides(roots, tmp_path / "logs"), "data.source.on_error=skip"], tmp_path / "run"
+    )
+    data = cfg.data
+    assert {data.source[name].on_error for name in ("voc", "sbd", "coco")} == {"skip"}
+    assert data.target.on_error == "skip"
+
+
+def test_validation_on_held_out_labelled_target_frames(
+    roots: dict[str, Path], tmp_path: Path
+) -> None:
+    sequence = write_tum(tmp_path / "walking_static", 40)
+    (sequence / "labels").mkdir()
+    for image in (sequence / "rgb").iterdir():
+        cv2.imwrite(str(sequence / "labels" / image.name), np.ones((24, 32), np.uint8))
+    overrides = [*_overrides(roots, tmp_path / "logs"), f"data.target.roots=[{sequence}]"]
+    data = instantiate(_compose([*overrides, "data/val=tum_holdout"], tmp_path / "run").data)
+    # holdout 0.1 of 40 frames = the last 4, validated at stride 5; training stops 30 frames
+    # before them.
+    stamp = read_file_list(sequence / "rgb.txt").stamps[36]
+    assert [item.name for item in data.val.items] == [f"walking_static/{stamp:.6f}"]
+    assert len(data.target) == 40 - 4 - 30 and data.val.labelled
+    assert data.val[0]["label"].shape == (24, 32)
+
+
+def test_validation_on_a_coco_export_of_target_frames(
+    roots: dict[str, Path], tmp_path: Path
+) -> None:
+    sequence = roots["tum"]
+    frames = sorted(p.name for p in (sequence / "rgb").iterdir())
+    shape = (24, 32)
+    scenes = {
+        k: (f"rgb/{name}", [rect(shape, 2, 2, 12, 20, 15)]) for k, name in enumerate(frames[:2])
+    }
+    export = tmp_path / "walking_xyz_labels.json"
+    export.write_text(json.dumps(coco_json(scenes, shape)))
+    overrides = [
+        *_overrides(roots, tmp_path / "logs"),
+        "data/val=coco",
+        f"data.val.annotations={export}",
+        f"data.val.images={sequence}",
+    ]
+    data = instantiate(_compose(overrides, tmp_path / "run").data)
+    assert isinstance(data.val, COCOSegmentation) and len(data.val) == 2
+    assert (data.val.read_label(0) == 1).sum() == 10 * 18
+    assert len(data.target) == 6 - 2  # the labelled frames never train the adaptation
