@@ -279,3 +279,22 @@ def test_missing_or_mismatched_image_files(coco: Path, tmp_path: Path) -> None:
         DataFormatError, match=r"image 4 is 48×40 in the annotations but its file 2008_000004\.jpg"
     ):
         skipping.check_image(2, *SHAPE)
+
+
+def test_undecodable_rle_fails_at_rasterisation_naming_the_image(
+    coco: Path, tmp_path: Path
+) -> None:
+    from uss_slam.datasets.selection import SelectedSources, Selection
+
+    def garble(data: dict) -> None:
+        (rle,) = [a for a in data["annotations"] if a["id"] == 2]  # image 1's RLE chair
+        rle["segmentation"]["counts"] = "\x7f\x7fzz!!"
+
+    _edit(coco, garble)
+    for cache in (None, tmp_path / "cache"):
+        dataset = COCOSegmentation(coco, cache_dir=cache)
+        with pytest.raises(DataFormatError, match=r"json: image 1: cannot rasterise"):
+            SelectedSources(coco=dataset, selection=Selection(classes=[]))
+        selected = SelectedSources(coco=dataset, selection=Selection(classes=[]), on_error="skip")
+        assert [dataset.items[i].name for i in selected.chosen["coco"]] == ["2", "3", "4", "5"]
+        assert selected.summary["coco"].bad_input == 1

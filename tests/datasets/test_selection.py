@@ -116,8 +116,13 @@ def test_caps_are_seeded_subsets_and_counted(roots: dict[str, Path]) -> None:
         _select(roots, "voc", max_images={"coco": 2})
 
 
-def test_samples_concatenate_the_sets(roots: dict[str, Path]) -> None:
-    selected = _select(roots, "voc,coco", voc_split="train")
+def test_samples_concatenate_the_sets(
+    roots: dict[str, Path], caplog: pytest.LogCaptureFixture
+) -> None:
+    with caplog.at_level("INFO", logger="uss_slam.datasets.selection"):
+        selected = _select(roots, "voc,coco", voc_split="train")
+    assert "source selection (require any of person, chair, monitor (min_pixels 1))" in caplog.text
+    assert selected.summary_table() in caplog.text
     assert [selected[i]["name"] for i in range(len(selected))] == [
         "voc/2008_000001", "voc/2008_000002", "voc/2008_000003",
         "coco/1", "coco/2", "coco/3", "coco/4",
