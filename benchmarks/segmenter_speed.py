@@ -80,7 +80,9 @@ def bench(
         checkpoint_sha256="random",
         version="benchmark",
     )
-    result = export_segmenter(net, workdir / f"{name}.onnx", metadata)
+    # Random ResNet-101 logits reach the hundreds: float32 reordering (BN folded into the
+    # convolutions) then exceeds the absolute 1e-4 meant for trained models; printed below.
+    result = export_segmenter(net, workdir / f"{name}.onnx", metadata, max_logit_diff=1e-2)
     print(
         f"{name}: exported and verified (max |logit diff| {result.verify['max_abs_logit_diff']:.1e},"
         f" largest |logit| {result.verify['max_abs_logit']:.1f})",

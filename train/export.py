@@ -295,8 +295,13 @@ def verify_model(
     wrapper: SegmenterExport,
     size: tuple[int, int],
     batch: int = VERIFY_BATCH,
+    max_logit_diff: float | None = None,
+    min_label_agreement: float | None = None,
 ) -> dict[str, Any]:
-    """onnxruntime vs PyTorch eager on :func:`verification_images` of ``size``."""
+    """onnxruntime vs PyTorch eager on :func:`verification_images` of ``size``; tolerances
+    default to :data:`MAX_LOGIT_DIFF` / :data:`MIN_LABEL_AGREEMENT`."""
+    max_diff = MAX_LOGIT_DIFF if max_logit_diff is None else float(max_logit_diff)
+    min_agree = MIN_LABEL_AGREEMENT if min_label_agreement is None else float(min_label_agreement)
     images = verification_images(size, batch)
     with torch.no_grad():
         logits_pt, labels_pt = wrapper(torch.from_numpy(images))
@@ -321,9 +326,9 @@ def verify_model(
         "max_abs_logit": float(np.abs(logits_pt.numpy()).max()),
         "label_agreement": agreement,
         "classes_present": sorted(int(c) for c in np.unique(labels_pt.numpy())),
-        "max_logit_diff_allowed": MAX_LOGIT_DIFF,
-        "min_label_agreement": MIN_LABEL_AGREEMENT,
-        "ok": bool(shapes_ok and diff <= MAX_LOGIT_DIFF and agreement >= MIN_LABEL_AGREEMENT),
+        "max_logit_diff_allowed": max_diff,
+        "min_label_agreement": min_agree,
+        "ok": bool(shapes_ok and diff <= max_diff and agreement >= min_agree),
     }
 
 
@@ -335,6 +340,8 @@ def export_segmenter(
     opset: int = DEFAULT_OPSET,
     trace_size: tuple[int, int] = DEFAULT_TRACE_SIZE,
     verify_size: tuple[int, int] = DEFAULT_VERIFY_SIZE,
+    max_logit_diff: float | None = None,
+    min_label_agreement: float | None = None,
 ) -> ExportResult:
     """Export ``segmenter`` (``forward`` -> ``.aux`` / ``.main`` logits) to ``out``, verified.
 
@@ -402,14 +409,23 @@ def export_segmenter(
             report["checker"] = f"failed: {error}"
             report["ok"] = False
         if "ok" not in report:
-            report.update(verify_model(tmp, wrapper, verify_size))
+            report.update(
+                verify_model(
+                    tmp,
+                    wrapper,
+                    verify_size,
+                    max_logit_diff=max_logit_diff,
+                    min_label_agreement=min_label_agreement,
+                )
+            )
         if not report["ok"]:
             failed = sidecar(out, ".verify.failed.json")
             _write_json(failed, report)
             raise ExportVerificationError(
                 f"{out}: exported model failed verification (checker {report['checker']}, "
-                f"max |logit diff| {report.get('max_abs_logit_diff')} <= {MAX_LOGIT_DIFF}?, "
-                f"label agreement {report.get('label_agreement')} >= {MIN_LABEL_AGREEMENT}?, "
+                f"max |logit diff| {report.get('max_abs_logit_diff')} <= "
+                f"{report.get('max_logit_diff_allowed')}?, label agreement "
+                f"{report.get('label_agreement')} >= {report.get('min_label_agreement')}?, "
                 f"largest |logit| {report.get('max_abs_logit')}); "
                 f"details in {failed}; earlier files left as they were"
             )
@@ -440,9 +456,13 @@ def export_checkpoint(
     dynamic_classes: Sequence[str] = DYNAMIC_CLASSES,
     trace_size: tuple[int, int] = DEFAULT_TRACE_SIZE,
     verify_size: tuple[int, int] = DEFAULT_VERIFY_SIZE,
+    max_logit_diff: float | None = None,
+    min_label_agreement: float | None = None,
 ) -> ExportResult:
     """Export the segmenter of a ``uss-train`` checkpoint to ``out`` (see :func:`load_checkpoint`
     and :func:`export_segmenter`); ``experiment`` defaults to the training run's ``run_name``."""
+    if head not in HEADS:
+        raise UssSlamError(f"head must be one of {HEADS}, got {head!r}")
     loaded = load_checkpoint(ckpt_path, net_cfg)
     unknown = [c for c in dynamic_classes if c not in loaded.class_names]
     if unknown:
@@ -457,8 +477,6 @@ def export_checkpoint(
         checkpoint_sha256=loaded.sha256,
         version=project_version(),
     )
-    if head not in HEADS:
-        raise UssSlamError(f"head must be one of {HEADS}, got {head!r}")
     result = export_segmenter(
         loaded.segmenter,
         out,
@@ -466,6 +484,8 @@ def export_checkpoint(
         opset=opset,
         trace_size=trace_size,
         verify_size=verify_size,
+        max_logit_diff=max_logit_diff,
+        min_label_agreement=min_label_agreement,
     )
     return result
 
@@ -665,6 +685,8 @@ def run(cfg: DictConfig) -> ExportResult:
         dynamic_classes=list(cfg.dynamic_classes),
         trace_size=tuple(cfg.trace_size),
         verify_size=tuple(cfg.verify_size),
+        max_logit_diff=cfg.get("max_logit_diff"),
+        min_label_agreement=cfg.get("min_label_agreement"),
     )
     if cfg.get("int8"):
         calibration = cfg.get("calibration") or {}

@@ -378,3 +378,12 @@ def test_int8_refuses_a_folder_without_rgb_list(
 ) -> None:
     with pytest.raises(DataFormatError, match=r"rgb\.txt: calibration.root must be"):
         export.add_int8(exported[1], tmp_path)
+
+
+def test_tolerances_are_parameters(tmp_path: Path) -> None:
+    with pytest.raises(ExportVerificationError, match=r"<= -1\.0\?"):
+        export_segmenter(_tiny_net(), tmp_path / "m.onnx", _metadata(), max_logit_diff=-1.0)
+    failed = json.loads((tmp_path / "m.verify.failed.json").read_text())
+    assert failed["max_logit_diff_allowed"] == -1.0 and failed["min_label_agreement"] == 0.999
+    assert failed["label_agreement"] >= 0.999  # only the tolerance made it fail
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m.verify.failed.json"]
