@@ -100,16 +100,23 @@ def identity_lut() -> np.ndarray:
 
 
 # The bytes a complete file ends with. Decoders fill a truncated image with grey or fail late;
-# checking the end marker finds truncation from a few bytes, without decoding.
+# checking the end marker finds truncation from a few bytes, without decoding. Files with data
+# after the end marker (some cameras and editors append it) are told apart by a slower check.
 _JPEG_START, _JPEG_END = b"\xff\xd8", b"\xff\xd9"
 _PNG_START, _PNG_END = b"\x89PNG\r\n\x1a\n", b"IEND"
+_PNG_IEND_CHUNK = b"IEND\xaeB`\x82"  # chunk type + its CRC: unambiguous anywhere in the file
 
 
 def _truncation(path: Path, head: bytes, tail: bytes) -> str | None:
     """Why a JPEG / PNG whose first and last bytes are ``head`` / ``tail`` is incomplete."""
     if head.startswith(_JPEG_START) and _JPEG_END not in tail:
-        return "truncated JPEG: no end-of-image marker (FFD9) at the end of the file"
-    if head.startswith(_PNG_START) and _PNG_END not in tail:
+        try:  # trailing bytes after a complete image, or a truncated one? Decode to know.
+            with PILImage.open(path) as image:
+                image.load()
+        except (OSError, SyntaxError, ValueError):  # what PIL raises for damaged files
+            return "truncated JPEG: no end-of-image marker (FFD9) at the end of the file"
+    png = head.startswith(_PNG_START) and _PNG_END not in tail
+    if png and _PNG_IEND_CHUNK not in Path(path).read_bytes():
         return "truncated PNG: no IEND chunk at the end of the file"
     return None
 

@@ -109,6 +109,21 @@ def test_corrupt_and_truncated_files_name_the_file(voc: Path) -> None:
         dataset[1]
 
 
+def test_data_after_the_end_of_a_complete_file_is_accepted(voc: Path) -> None:
+    """Some cameras and editors append bytes after JPEG's FFD9 / PNG's IEND."""
+    dataset = VOCSegmentation(voc, split="train")
+    expected = dataset[0]
+    for path in (
+        voc / "JPEGImages" / "2008_000001.jpg",
+        voc / "SegmentationClass" / "2008_000001.png",
+    ):
+        path.write_bytes(path.read_bytes() + bytes(100) + b"trailer")
+    sample = dataset[0]
+    assert torch.equal(sample["image"], expected["image"])
+    assert torch.equal(sample["label"], expected["label"])
+    assert dataset.check_image(0, *SHAPE) is None
+
+
 def test_label_values_outside_the_palette_and_wrong_sizes(voc: Path) -> None:
     labels = _labels()
     bad = labels["2008_000003"].copy()
