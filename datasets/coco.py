@@ -27,10 +27,8 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
-import os
 import re
 import shutil
-import tempfile
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -49,6 +47,7 @@ from uss_slam.datasets.segmentation import (
     OnError,
     SegmentationDataset,
     Transform,
+    atomic_write,
     check_on_error,
     handle_bad_input,
     inspect_image,
@@ -180,18 +179,6 @@ def rasterize(image: CocoImage) -> np.ndarray:
     for _, _, mask, class_id in sorted(instances, key=lambda t: (t[0], t[1])):
         label[mask] = class_id
     return label
-
-
-def _atomic_write(path: Path, data: bytes) -> None:
-    """Write via a temporary file and rename, so readers (other ranks) never see half a file."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
-    try:
-        with os.fdopen(fd, "wb") as file:
-            file.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def _error_record(error: DataFormatError) -> dict[str, Any]:
@@ -491,7 +478,7 @@ class COCOSegmentation(SegmentationDataset):
             return
         (self.cache / "masks").mkdir(parents=True, exist_ok=True)
         index = {**index, "counts": {str(k): v for k, v in self._counts.items()}}
-        _atomic_write(self.cache / "index.json", json.dumps(index).encode())
+        atomic_write(self.cache / "index.json", json.dumps(index).encode())
 
     def _mask_file(self, image_id: int) -> Path:
         assert self.cache is not None
@@ -533,7 +520,7 @@ class COCOSegmentation(SegmentationDataset):
                 continue
             ok, png = cv2.imencode(".png", label)
             assert ok
-            _atomic_write(self._mask_file(image_id), png.tobytes())
+            atomic_write(self._mask_file(image_id), png.tobytes())
             self._counts[image_id] = np.bincount(label.ravel(), minlength=256)[
                 :NUM_CLASSES
             ].tolist()
@@ -569,7 +556,7 @@ class COCOSegmentation(SegmentationDataset):
                 self.annotation_file, f"image {image_id}: cannot rasterise ({error})"
             ) from error
         if self.cache is not None:  # read outside selection (e.g. as a validation set): keep it
-            _atomic_write(self._mask_file(image_id), cv2.imencode(".png", label)[1].tobytes())
+            atomic_write(self._mask_file(image_id), cv2.imencode(".png", label)[1].tobytes())
         return label
 
     def label_stats(self, index: int) -> LabelStats:

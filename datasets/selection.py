@@ -25,8 +25,6 @@ import hashlib
 import io
 import json
 import logging
-import os
-import tempfile
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -44,6 +42,7 @@ from uss_slam.datasets.segmentation import (
     SegmentationDataset,
     SegmentationSample,
     Transform,
+    atomic_write,
     check_on_error,
     finish_sample,
     handle_bad_input,
@@ -192,18 +191,6 @@ STAGES: dict[str, str] = {
 }
 
 
-def _atomic_write(path: Path, data: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
-    try:
-        with os.fdopen(fd, "wb") as file:
-            file.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 class StatsCache:
     """Per-label class pixel counts of one set, keyed by label path, size and mtime."""
 
@@ -266,7 +253,7 @@ class StatsCache:
             counts=np.array([r[2] for r in rows], dtype=np.int64).reshape(-1, NUM_CLASSES),
             hw=np.array([(r[3], r[4]) for r in rows], dtype=np.int64).reshape(-1, 2),
         )
-        _atomic_write(self.path, buffer.getvalue())
+        atomic_write(self.path, buffer.getvalue())
         self.dirty = False
 
 
@@ -594,6 +581,6 @@ class SelectedSources(Dataset):
     def write_manifest(self, directory: str | Path) -> Path:
         """Write ``source_manifest.json`` into ``directory`` (the run directory); returns it."""
         path = Path(directory) / MANIFEST_NAME
-        _atomic_write(path, (json.dumps(self.manifest(), indent=1) + "\n").encode())
+        atomic_write(path, (json.dumps(self.manifest(), indent=1) + "\n").encode())
         log.info("source manifest: %s (%d images)", path, len(self))
         return path

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -169,6 +170,10 @@ def test_changed_annotations_or_mapping_invalidate_the_cache(coco: Path, tmp_pat
     assert changed.read_label(2).max() == 0 and changed.present_classes(2) == frozenset()
     masks = sorted(p.name for p in (changed.cache / "masks").iterdir())  # type: ignore[operator]
     assert masks == ["1.png", "2.png", "4.png"]  # the stale mask of image 3 is gone
+    shutil.rmtree(changed.cache / "masks")  # type: ignore[operator]
+    fresh = COCOSegmentation(coco, cache_dir=cache)  # the index is current, its masks are gone
+    np.testing.assert_array_equal(fresh.read_label(0), changed.read_label(0))
+    assert (fresh.cache / "masks" / "1.png").is_file()  # type: ignore[operator]
     remapped = COCOSegmentation(coco, cache_dir=cache, categories={"person": ["person"]})
     assert remapped.read_label(0).max() == IGNORE_INDEX and set(
         np.unique(remapped.read_label(0))
