@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import torch
 from realdata_helpers import (
+    COCO_CATEGORIES,
     coco_json,
     ellipse,
     paint_voc,
@@ -21,8 +22,13 @@ from realdata_helpers import (
     write_voc,
 )
 
-from uss_slam.datasets.classes import IGNORE_INDEX, voc_lut
-from uss_slam.datasets.coco import COCOSegmentation, normalize_name
+from uss_slam.datasets.classes import COCO_TO_PROJECT, IGNORE_INDEX, voc_lut
+from uss_slam.datasets.coco import (
+    DEFAULT_CATEGORIES,
+    COCOSegmentation,
+    category_table,
+    normalize_name,
+)
 from uss_slam.datasets.errors import DataFormatError
 from uss_slam.datasets.voc import VOCSegmentation
 
@@ -303,3 +309,10 @@ def test_undecodable_rle_fails_at_rasterisation_naming_the_image(
         selected = SelectedSources(coco=dataset, selection=Selection(classes=[]), on_error="skip")
         assert [dataset.items[i].name for i in selected.chosen["coco"]] == ["2", "3", "4", "5"]
         assert selected.summary["coco"].bad_input == 1
+
+
+def test_default_names_give_design_ids_on_the_official_categories() -> None:
+    """DESIGN.md §4: COCO category ids 1 -> person, 62 -> chair, 72 (tv) -> monitor."""
+    table = category_table(DEFAULT_CATEGORIES)
+    mapped = {c["id"]: table.get(normalize_name(c["name"]), 0) for c in COCO_CATEGORIES}
+    assert {k: v for k, v in mapped.items() if v} == COCO_TO_PROJECT
