@@ -217,3 +217,22 @@ def test_validation_on_a_coco_export_of_target_frames(
     assert isinstance(data.val, COCOSegmentation) and len(data.val) == 2
     assert (data.val.read_label(0) == 1).sum() == 10 * 18
     assert len(data.target) == 6 - 2  # the labelled frames never train the adaptation
+
+
+def test_data_real_composes_any_subset_of_source_sets(
+    roots: dict[str, Path], tmp_path: Path
+) -> None:
+    overrides = [
+        "data=real",
+        "data/source=[coco,sbd]",
+        f"data.source.coco.root={roots['coco']}",
+        f"data.source.sbd.root={roots['sbd']}",
+        "data.source.selection.exclude_voc_val=false",  # no VOC set: nothing to overlap with
+        f"data.target.roots=[{roots['tum']}]",
+        f"paths.log_dir={tmp_path / 'logs'}",
+    ]
+    data = instantiate(_compose(overrides, tmp_path / "run").data)
+    assert list(data.source.sets) == ["coco", "sbd"]  # the order of data/source
+    assert data.source.selection.require == "any"
+    # any of person / chair / monitor: 4 of 5 COCO images, 8 of 10 SBD ids
+    assert [len(ids) for ids in data.source.chosen.values()] == [4, 8]
