@@ -570,6 +570,7 @@ def build_parser() -> argparse.ArgumentParser:
                        help="reuse stages already complete with the same inputs (default)")  # fmt: skip
     group.add_argument("--force", dest="force", action="store_true",
                        help="redo every stage")  # fmt: skip
+    parser.set_defaults(force=False)  # (store_false would make --reuse's default True)
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
     return parser
 
@@ -582,6 +583,13 @@ def run_demo(
     plan = PLANS[experiment]
     out = Path(out)
     data = out / "data"
+    from uss_slam.datasets.synthetic.cli import DEMO_SLAM_PRESETS
+
+    if not Path(sequence).is_dir() and sequence not in DEMO_SLAM_PRESETS:
+        raise UssSlamError(
+            f"--sequence {sequence}: not a folder, nor one of the demo's SLAM sequences "
+            f"({', '.join(DEMO_SLAM_PRESETS)}, under {data / 'slam'})"
+        )
     progress = Progress(total=1 + 2 * len(TRAININGS) + 1 + len(VARIANTS) + 1)
     progress.run("data", f"data: uss-synth demo --out {data}",
                  lambda: stage_data(data, plan, force, quiet))  # fmt: skip

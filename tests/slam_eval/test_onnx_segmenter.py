@@ -301,3 +301,52 @@ def test_uss_slam_reports_a_bad_model_in_one_line(tmp_path: Path) -> None:
     assert result.returncode == 1
     lines = result.stderr.strip().splitlines()
     assert lines[-1].startswith(f"uss-slam: error: {plain}: not a uss-slam segmenter")
+
+
+@pytest.mark.slow  # torch import + export + verification: ~15 s on a quiet 2-core machine
+def test_output_equals_the_checkpoints_pytorch_argmax(synthetic_sequence, tmp_path: Path) -> None:
+    """Checkpoint (as uss-train writes it) -> export_checkpoint -> OnnxSegmenter, against the
+    checkpoint's own PyTorch segmenter on a synthetic target frame (this test imports torch; the
+    runtime does not)."""
+    import torch
+    import torch.nn.functional as F
+    import yaml
+
+    from uss_slam.models import DeepLabV2
+    from uss_slam.slam_eval.sequence import TumSequence
+    from uss_slam.train.export import export_checkpoint
+
+    torch.manual_seed(3)
+    net = DeepLabV2(4, "resnet_small", freeze_bn=False).eval()
+    run_dir = tmp_path / "run"
+    (run_dir / ".hydra").mkdir(parents=True)
+    (run_dir / "checkpoints").mkdir()
+    net_cfg = yaml.safe_load(
+        (REPO / "configs" / "model" / "net" / "deeplab_small.yaml").read_text()
+    )
+    config = {"run_name": "parity", "model": {"net": net_cfg}}
+    (run_dir / ".hydra" / "config.yaml").write_text(yaml.safe_dump(config))
+    ckpt = run_dir / "checkpoints" / "last.ckpt"
+    state = {f"segmenter.{k}": v for k, v in net.state_dict().items()}
+    torch.save({"state_dict": state, "hyper_parameters": {"class_names": list(CLASS_NAMES)}}, ckpt)
+
+    result = export_checkpoint(ckpt, tmp_path / "exports" / "parity.onnx")
+    seg = OnnxSegmenter(result.path, threads=2)
+    assert seg.metadata.experiment == "parity"
+
+    seq = TumSequence(str(synthetic_sequence(frames=8, size=(320, 240))))
+    rgb = seq.load(5).rgb  # a size the export was neither traced nor verified at
+    labels = seg.infer(rgb)
+
+    x = torch.from_numpy(rgb).permute(2, 0, 1)[None].float() / 255
+    mean = torch.tensor([0.485, 0.456, 0.406]).view(1, 3, 1, 1)
+    std = torch.tensor([0.229, 0.224, 0.225]).view(1, 3, 1, 1)
+    with torch.no_grad():
+        out = net((x - mean) / std).main
+        logits = F.interpolate(out, size=rgb.shape[:2], mode="bilinear", align_corners=True)[0]
+    expected = logits.argmax(0).numpy().astype(np.uint8)
+    top2 = torch.topk(logits, 2, dim=0).values.numpy()
+    clear = (top2[0] - top2[1]) > 1e-4  # pixels whose argmax is not a numerical tie
+    assert labels.shape == (240, 320) and clear.mean() > 0.999
+    np.testing.assert_array_equal(labels[clear], expected[clear])
+    assert len(np.unique(expected)) >= 2  # the frame exercises more than one class

@@ -1,0 +1,126 @@
+"""``uss-demo --experiment ci``: the whole demo pipeline end to end on tiny data (slow), then a
+second call that reuses every stage."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from uss_slam.datasets.classes import CLASS_NAMES
+from uss_slam.datasets.onnx_contract import SegmenterMetadata
+from uss_slam.slam_eval.segmenter import OnnxSegmenter
+from uss_slam.train import demo
+
+ROW_KEYS = {
+    "variant", "label", "segmenter", "filters", "ate_rmse", "ate_mean", "ate_median", "ate_std",
+    "tracked_fraction", "fps", "segmentation_ms", "mIoU", "person_IoU",
+}  # fmt: skip
+SEGMENTERS = {
+    "none": "none",
+    "labels": "labels",
+    "source_only": "onnx:source_only.onnx",
+    "adapted": "onnx:adapted.onnx",
+    "adapted_geometry": "onnx:adapted.onnx",
+}
+
+
+@pytest.mark.slow
+def test_demo_ci_end_to_end_then_reused(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    out = tmp_path / "demo"
+    assert demo.main(["--out", str(out), "--experiment", "ci", "--quiet"]) == 0
+    printed = capsys.readouterr().out
+
+    # One table, printed and in the report, one row per variant in order.
+    table = [line for line in printed.splitlines() if line.startswith("| ")]
+    assert table[0] == demo.TABLE_HEADER
+    assert [row.split(" | ")[0][2:] for row in table[1:]] == [v.label for v in demo.VARIANTS]
+    report = (out / "report.md").read_text()
+    assert "\n".join(table[:1]) in report and all(row in report for row in table[1:])
+    for plot in ("ate_rmse.png", "trajectories.png"):
+        assert (out / plot).stat().st_size > 1000 and f"]({plot})" in report
+
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["experiment"] == "ci"
+    assert summary["sequence"] == str(out / "data" / "slam" / "walking_xyz")
+    assert set(summary["stage_seconds"]) == {"data", "train", "export", "miou", "slam"}
+    rows = summary["rows"]
+    assert [r["variant"] for r in rows] == [v.name for v in demo.VARIANTS]
+    for row, variant in zip(rows, demo.VARIANTS, strict=True):
+        assert set(row) == ROW_KEYS
+        assert row["filters"] == list(variant.filters)
+        assert row["segmenter"] == SEGMENTERS[variant.name]
+        metrics = json.loads((out / "slam" / variant.name / "metrics.json").read_text())
+        assert row["ate_rmse"] == metrics["ate"]["rmse"] and row["fps"] == metrics["fps"] > 0
+        assert metrics["frames"] == 30 and metrics["filters"] == list(variant.filters)
+        for name in ("trajectory.txt", "report.md", "trajectory.png", "ate.png", "map.ply"):
+            assert (out / "slam" / variant.name / name).is_file(), (variant.name, name)
+        assert f"](slam/{variant.name}/trajectory.png)" in report
+    by_name = {r["variant"]: r for r in rows}
+    assert by_name["labels"]["mIoU"] == 1.0 and by_name["none"]["mIoU"] is None
+    assert by_name["none"]["segmentation_ms"] is None
+
+    # mIoU of the exported models on the SLAM sequence: consistent per-class numbers.
+    miou = json.loads((out / "miou.json").read_text())["scores"]
+    assert set(miou) == {"adapted", "source_only"}
+    for name, scores in miou.items():
+        assert scores["frames"] == 6  # 30 frames, every 5th
+        present = [v for v in scores["IoU"].values() if v is not None]
+        assert set(scores["IoU"]) == set(CLASS_NAMES)
+        assert scores["mIoU"] == pytest.approx(float(np.mean(present)))
+        assert by_name[name]["mIoU"] == scores["mIoU"]
+
+    # Exports: verified, self-describing, tied to the training run's best checkpoint.
+    for name in ("adapted", "source_only"):
+        model = out / "exports" / f"{name}.onnx"
+        verify = json.loads((out / "exports" / f"{name}.verify.json").read_text())
+        assert verify["ok"] is True and verify["max_abs_logit_diff"] <= 1e-4
+        seg = OnnxSegmenter(model)
+        meta: SegmenterMetadata = seg.metadata
+        assert meta.experiment == f"ci_{name}" and meta.class_names == CLASS_NAMES
+        ckpt = demo.best_checkpoint(out / "train" / name)
+        assert ckpt.name.startswith("best_") and meta.checkpoint_sha256 == demo.sha256(ckpt)
+        assert (out / "train" / name / ".hydra" / "config.yaml").is_file()
+    adaptation = {
+        name: json.loads((out / "train" / name / demo.STAMP).read_text())["overrides"]
+        for name in ("adapted", "source_only")
+    }
+    assert "model.adaptation=true" in adaptation["adapted"]
+    assert "model.adaptation=false" in adaptation["source_only"]
+    comparison = (out / "slam" / "comparison.md").read_text()
+    assert all(f" {v.name} " in comparison.splitlines()[2] for v in demo.VARIANTS)
+
+    # Second call: every stage is reused, the numbers are the same files.
+    mtimes = {p: p.stat().st_mtime_ns for p in out.rglob("metrics.json")}
+    assert demo.main(["--out", str(out), "--experiment", "ci", "--quiet"]) == 0
+    again = capsys.readouterr().out
+    done = [line for line in again.splitlines() if line.startswith("[") and " in " in line]
+    assert len(done) == 12
+    assert all(": reused in " in line for line in done[:-1]), done
+    assert {p: p.stat().st_mtime_ns for p in out.rglob("metrics.json")} == mtimes
+    assert json.loads((out / "summary.json").read_text())["rows"] == rows
+
+
+def test_options_default_to_reuse() -> None:
+    parser = demo.build_parser()
+    assert parser.parse_args([]).force is False
+    assert parser.parse_args(["--reuse"]).force is False
+    assert parser.parse_args(["--force"]).force is True
+    args = parser.parse_args([])
+    assert (args.out, args.experiment, args.sequence) == (
+        Path("outputs/demo"),
+        "demo",
+        "walking_xyz",
+    )
+
+
+def test_unknown_sequence_is_a_one_line_error(tmp_path: Path, capsys) -> None:
+    """A bad --sequence fails before any work, naming the choices."""
+    code = demo.main(["--out", str(tmp_path), "--experiment", "ci", "--quiet",
+                      "--sequence", "nowhere"])  # fmt: skip
+    assert code == 1
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert err.startswith("uss-demo: error: --sequence nowhere: not a folder")
+    assert "walking_xyz, static_xyz" in err and not (tmp_path / "data").exists()
