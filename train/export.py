@@ -28,7 +28,7 @@ import sys
 import time
 import warnings
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
@@ -88,7 +88,6 @@ class ExportResult:
     metadata: SegmenterMetadata
     int8_path: Path | None = None
     """``<name>.int8.onnx`` when INT8 was requested (its figures are in ``verify["int8"]``)."""
-    extra: dict[str, Any] = field(default_factory=dict)
 
 
 class SegmenterExport(nn.Module):

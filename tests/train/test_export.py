@@ -16,6 +16,8 @@ import pytest
 import torch
 import torch.nn.functional as F
 import yaml
+from hydra.utils import instantiate
+from omegaconf import OmegaConf
 from train_helpers import CONFIG_DIR, data_overrides
 
 from uss_slam.datasets.classes import CLASS_NAMES
@@ -42,8 +44,10 @@ NET_YAML = CONFIG_DIR / "model" / "net" / "deeplab_small.yaml"
 
 
 def _tiny_net(seed: int = 0) -> DeepLabV2:
+    """The CI / demo segmenter as configured (``configs/model/net/deeplab_small.yaml``)."""
     torch.manual_seed(seed)
-    net = DeepLabV2(4, "resnet_small", freeze_bn=False)
+    net = instantiate(OmegaConf.load(NET_YAML))
+    assert isinstance(net, DeepLabV2) and net.backbone_name == "resnet_small"
     # Non-trivial BN statistics, so the exported graph must carry them.
     with torch.no_grad():
         for module in net.modules():
