@@ -28,6 +28,7 @@ from uss_slam.datasets.segmentation import (
     Transform,
     check_on_error,
     handle_bad_input,
+    inspect_image,
     report_skipped,
 )
 from uss_slam.datasets.tum_io import read_file_list
@@ -100,6 +101,11 @@ def _sequence_items(
             )
             handle_bad_input(error, on_error, skipped)
             continue
+        try:  # header and end marker only: a truncated frame fails here, not mid-training
+            inspect_image(image)
+        except DataFormatError as error:
+            handle_bad_input(error, on_error, skipped)
+            continue
         label = root / "labels" / Path(frames.files[index]).name if labels else None
         if label is not None and not label.is_file():
             error = DataFormatError(
@@ -126,9 +132,9 @@ class TUMFrames(SegmentationDataset):
             near-duplicates).
         exclude: files listing frames to leave out (COCO JSON or text list, matched by file
             name).
-        on_error: ``raise``: an unparsable ``rgb.txt`` line or a listed image (label) that does
-            not exist is an error naming the file (and line); ``skip``: left out, counted in
-            ``skipped`` and logged.
+        on_error: ``raise``: an unparsable ``rgb.txt`` line, a listed image (label) that does
+            not exist, or a truncated / unreadable image is an error naming the file (and line);
+            ``skip``: left out, counted in ``skipped`` and logged.
 
     Samples: ``image (3, H, W)`` float32, ``label (H, W)`` int64 when ``labels``, and
     ``name = "<sequence folder>/<timestamp>"``.

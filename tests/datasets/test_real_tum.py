@@ -127,3 +127,17 @@ def test_tum_io_stays_torch_free() -> None:
     """slam_eval imports tum_io and must never import torch (not even indirectly)."""
     code = "import sys, uss_slam.datasets.tum_io; sys.exit('torch' in sys.modules)"
     assert subprocess.run([sys.executable, "-c", code], check=False).returncode == 0
+
+
+def test_truncated_or_unreadable_frames_are_found_before_training(sequences: list[Path]) -> None:
+    xyz = sequences[0]
+    frames = read_file_list(xyz / "rgb.txt")
+    png = frames.resolve(4)
+    png.write_bytes(png.read_bytes()[:-40])
+    frames.resolve(7).write_bytes(b"not an image")
+    with pytest.raises(DataFormatError, match=rf"{png.name}: truncated PNG"):
+        TUMFrames(xyz)
+    skipping = TUMFrames(xyz, on_error="skip")
+    assert len(skipping) == 18
+    assert [Path(e.path).name for e in skipping.skipped] == [png.name, frames.resolve(7).name]
+    assert "cannot read image" in str(skipping.skipped[1])
