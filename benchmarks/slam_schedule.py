@@ -11,7 +11,9 @@ seconds; it sleeps, like a segmenter waiting for a GPU, then answers with the se
 ground-truth labels). Calls are serialised by a lock, as on one device; ``--concurrent`` lets
 the prefetch workers' calls overlap (one device per worker). ``--onnx PATH`` also times an
 exported model (:class:`~uss_slam.slam_eval.segmenter.OnnxSegmenter`, on the CPU here) under
-both schedules, with the filter on its own labels.
+both schedules, with the filter on its own labels. On a busy machine the wall-clock frames/s
+say little; the column "CPU-bound, idle" gives the rate the run's measured CPU times (per
+thread) and the segmenter's waiting allow on two otherwise idle cores (:func:`idle_rate`).
 
 ATE part (``--ate-presets``, ``--seeds``): baseline (no filter) and the oracle ``labels``
 segmenter under both schedules on each sequence; the labels do not depend on the delay, so the
@@ -66,12 +68,46 @@ def run(path: Path, segmenter, filters: list[str], segment: str) -> tuple[RunRes
     return result, ate(seq.groundtruth, result.trajectory).stats.rmse
 
 
-def row(label: str, schedule: str, result: RunResult, rmse: float) -> dict:
+WORKER_MODULES = ("read", "segmentation", "orb")
+
+
+def idle_rate(result: RunResult, wait_ms: float, serial: bool, workers: int = 2) -> float:
+    """Frames/s that the run's measured CPU times allow on two otherwise idle cores.
+
+    ``wait_ms``: what one segmenter call costs without using a core (the fake segmenter sleeps;
+    0 for segmenters that compute on the CPU, whose time is in the CPU ms already). Per frame
+    the run needs at least: half the total CPU ms (two cores); the main thread's CPU ms, plus
+    with the keyframes schedule its share of waiting (``wait_ms`` x segmented / frames); with
+    every-frame segmentation, a prefetch worker's CPU ms plus ``wait_ms`` over ``workers``
+    workers, and ``wait_ms`` itself when the calls are serialised (one device). The rate is
+    1000 / the largest of these.
+    """
+    cpu = result.cpu_ms
+    every = result.segment == "every_frame"
+    names = [k for k in WORKER_MODULES if k != "segmentation" or every]
+    worker = sum(cpu.get(k, 0.0) for k in names)
+    main = sum(v for k, v in cpu.items() if k not in names)
+    bounds = [(worker + main) / 2]
+    if every:
+        bounds.append((worker + wait_ms) / workers)
+        if serial:
+            bounds.append(wait_ms)
+    else:
+        main += wait_ms * result.segmented_frames / max(result.frames, 1)
+    return 1000.0 / max(main, *bounds)
+
+
+def row(
+    label: str, schedule: str, result: RunResult, rmse: float, wait: float, serial: bool
+) -> dict:
     seg = result.segmentation_ms.get("wall", 0.0)
+    idle = idle_rate(result, wait, serial)
     out = {
         "segmenter": label,
         "schedule": schedule,
         "fps": result.fps,
+        "fps_cpu_bound_idle": idle,
+        "cpu_ms": result.cpu_ms,
         "segmentation_ms_per_segmented_frame": seg,
         "frames_segmented": result.segmented_frames,
         "frames": result.frames,
@@ -80,7 +116,7 @@ def row(label: str, schedule: str, result: RunResult, rmse: float) -> dict:
         "tracked_fraction": result.tracked_fraction,
     }
     print(
-        f"| {label} | {schedule} | {result.fps:.1f} | {seg:.1f} | "
+        f"| {label} | {schedule} | {result.fps:.1f} | {idle:.1f} | {seg:.1f} | "
         f"{result.segmented_frames}/{result.frames} | {1000 * rmse:.1f} | "
         f"{result.tracked_fraction:.2f} |",
         flush=True,
@@ -110,22 +146,23 @@ def main() -> None:
     print(f"timing: {path.name}, filters [semantic], {os.cpu_count()} CPUs, "
           f"load average {os.getloadavg()[0]:.2f}; fake calls "
           f"{'overlap' if args.concurrent else 'serialised (one device)'}")  # fmt: skip
-    print("\n| segmenter | schedule | frames/s | seg. ms / segmented frame | frames segmented "
-          "| ATE RMSE [mm] | tracked |\n|---|---|---|---|---|---|---|")  # fmt: skip
-    segmenters: list[tuple[str, object]] = [("labels (0 ms)", LabelsSegmenter())]
+    print("\n| segmenter | schedule | frames/s | frames/s CPU-bound, idle | seg. ms / segmented "
+          "frame | frames segmented | ATE RMSE [mm] | tracked |\n|---|---|---|---|---|---|---|---|")  # fmt: skip
+    serial = not args.concurrent
+    segmenters: list[tuple[str, object, float]] = [("labels (0 ms)", LabelsSegmenter(), 0.0)]
     for delay in args.delays:
         label = f"fixed {1000 * delay:.0f} ms"
-        segmenters.append((label, FixedCostSegmenter(delay, serial=not args.concurrent)))
+        segmenters.append((label, FixedCostSegmenter(delay, serial), 1000 * delay))
     if args.onnx:
         from uss_slam.slam_eval.segmenter import OnnxSegmenter
 
         onnx = OnnxSegmenter(args.onnx, threads=args.onnx_threads)
-        segmenters.append((f"onnx {args.onnx.name}", onnx))
+        segmenters.append((f"onnx {args.onnx.name}", onnx, 0.0))
     reference: dict[str, RunResult] = {}
-    for label, segmenter in segmenters:
+    for label, segmenter, wait in segmenters:
         for schedule in SEGMENT_SCHEDULES:
             result, rmse = run(path, segmenter, ["semantic"], schedule)
-            results["timing"].append(row(label, schedule, result, rmse))
+            results["timing"].append(row(label, schedule, result, rmse, wait, serial))
             if isinstance(segmenter, LabelsSegmenter):  # oracle labels: same run at any cost
                 ref = reference.setdefault(schedule, result)
                 same = np.array_equal(ref.trajectory.positions, result.trajectory.positions)
