@@ -76,6 +76,25 @@ def test_every_experiment_composes_and_instantiates(
         assert cfg.data.source.transform.crop_size == 321
 
 
+@pytest.mark.parametrize("experiment", ["ci", "demo"])
+@pytest.mark.parametrize("n_layers", [4, 5, 6, 7])
+def test_documented_depth_sweep_fits_the_experiment_crops(
+    experiment: str, n_layers: int, tmp_path: Path
+) -> None:
+    # `uss-train -m experiment=ci|demo model.discriminator.n_layers=4,5,6,7` must run every job:
+    # the crop must survive n stride-2 convolutions (a 65-pixel crop breaks n = 7).
+    cfg = compose_train(
+        [f"experiment={experiment}", f"model.discriminator.n_layers={n_layers}"], tmp_path
+    )
+    crops = {cfg.data.source.transform.crop_size, cfg.data.target.transform.crop_size}
+    assert len(crops) == 1
+    crop = crops.pop()
+    d = instantiate(cfg.model.discriminator)()
+    with torch.no_grad():
+        out = d(torch.rand(1, cfg.model.net.num_classes, crop, crop))
+    assert out.shape == (1, 1, crop // 2**n_layers, crop // 2**n_layers)
+
+
 def test_paper_experiment_leaves_real_data_paths_to_fill(tmp_path: Path) -> None:
     cfg = compose_train(["experiment=uss_slam_paper"], tmp_path)
     from omegaconf import OmegaConf
@@ -129,7 +148,8 @@ def test_ci_run_logs_validates_and_checkpoints(uda_data: dict[str, Path], tmp_pa
     images = set(events.Tags()["images"])
     assert {"train/source", "train/target", "val/target"} <= images
     panel = events.Images("train/source")[0]
-    assert (panel.width, panel.height) == (3 * 65, 65)  # input | prediction | label
+    crop = cfg.data.source.transform.crop_size
+    assert (panel.width, panel.height) == (3 * crop, crop)  # input | prediction | label
     # Checkpoints: best by val/mIoU and last; plain tensors (weights_only) with the iteration.
     names = sorted(p.name for p in (tmp_path / "checkpoints").iterdir())
     assert "last.ckpt" in names and any(n.startswith("best_iter") for n in names)
