@@ -19,7 +19,7 @@ inputs (a ``.uss-demo.json`` stamp in its folder; ``--force`` redoes everything)
    ``trajectories.png`` (every aligned estimate vs ground truth) and each run's own plots;
    ``OUT/summary.json`` holds the table's numbers.
 
-Example: ``uss-demo --out outputs/demo`` (about N minutes on 2 cores, see README).
+Example: ``uss-demo --out outputs/demo`` (what ``make demo`` runs; its measured time is in the README).
 """
 
 from __future__ import annotations
