@@ -8,10 +8,12 @@ anything. Keep sizes and frame counts small (rendering takes tens of millisecond
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
+from hydra.core.global_hydra import GlobalHydra
+from hydra.core.hydra_config import HydraConfig
 
 from uss_slam.datasets.synthetic import render_sequence, render_voc
 
@@ -58,3 +60,13 @@ def synthetic_voc(tmp_path_factory: pytest.TempPathFactory) -> VocFactory:
         return cache[key]
 
     return make
+
+
+@pytest.fixture(autouse=True)
+def _forget_hydra_state() -> Iterator[None]:
+    """Tests that compose a Hydra app set the process-wide ``HydraConfig`` (``uss-train``'s and
+    ``uss-slam``'s output folders come from it) and the global Hydra instance: clear both after
+    every test so a later test's app writes where its own config says."""
+    yield
+    HydraConfig.instance().cfg = None
+    GlobalHydra.instance().clear()
