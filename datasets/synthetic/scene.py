@@ -173,13 +173,26 @@ def _outfit(rng: np.random.Generator, slot: int) -> Outfit:
     )
 
 
-def office_scene(seed: int, people: str, duration: float) -> Scene:
+EYE_X = -1.6
+"""World x of the camera's rest position in the office (it looks along +x)."""
+WALK_LANES: dict[str, tuple[tuple[float, float, float, float, float], ...]] = {
+    # (distance ahead of the camera's rest position along x, lane centre y, half length of the
+    #  lane across the view, walking speed m/s, initial direction) for the two walking people
+    "xyz": ((0.7, 0.0, 0.8, 0.15, 1.0), (1.15, 0.15, 1.0, 0.2, -1.0)),
+    # the half-sphere camera moves ~0.5 m forward and sideways: lanes a little further ahead
+    # and shorter, between the camera and the point it looks at, so the people stay in view
+    "halfsphere": ((1.2, 0.0, 0.5, 0.15, 1.0), (1.5, 0.15, 0.5, 0.15, -1.0)),
+}
+"""Where the two people of the walking presets walk, per camera motion (``xyz`` the default)."""
+
+
+def office_scene(seed: int, people: str, duration: float, motion: str = "xyz") -> Scene:
     """The office of the TUM-like sequences (same furniture for every preset of a seed).
 
     Two desks face the camera with monitors and chairs behind them (where seated people sit),
-    shelves against the walls, a free chair beside the desks. ``people``: ``"walking"`` one person
-    walks loops around the desks (and sits down on the free chair for a while), another paces
-    back and forth about a metre in front of the camera;
+    shelves against the walls, a free chair beside the desks. ``people``: ``"walking"`` two people
+    walk slowly back and forth across the view 0.6-1.6 m in front of the camera (lanes from
+    :data:`WALK_LANES` by the camera ``motion``), pausing and turning now and then;
     ``"sitting"`` two seated people who move a little, ``"frozen"`` the same two never moving.
     """
     rng = stream(seed, "office")
@@ -217,20 +230,22 @@ def office_scene(seed: int, people: str, duration: float) -> Scene:
     prng = stream(seed, "office/people")
     persons: list[tuple[Outfit, Behaviour]] = []
     if people == "walking":
-        # one person walks a loop around the desks (and sits down on the side chair for a
-        # while), the other paces back and forth close in front of the camera
-        loop = LoopPath((desk_x + 0.15, 0.0), 1.15 + jit(0.03), 2.15 + jit(0.03))
-        pace = LoopPath((-0.6 + jit(0.05), jit(0.1)), 0.12, 1.0 + jit(0.05))
-        for k, path in enumerate((loop, pace)):
+        # As in TUM's walking sequences, two people walk slowly back and forth across the view
+        # close to the camera (about 0.7 and 1.15 m ahead of its rest position), filling much of
+        # the image with textured clothing: slow enough (a few pixels per frame) that an
+        # unfiltered tracker takes their keypoints into its pose. Lanes per camera motion.
+        for _ in range(5):  # the draws of earlier layouts, so the camera's rest position is kept
+            jit(0.05)
+        lanes = WALK_LANES.get(motion, WALK_LANES["xyz"])
+        for k, (dx, cy, half, speed, direction) in enumerate(lanes):
+            path = LoopPath((EYE_X + dx, cy), 0.1, half)
             behaviour = Behaviour.walking(
                 path,
                 stream(seed, "office/walk", k),
                 duration,
                 s_start=path.length * float(prng.uniform(0.0, 1.0)),
-                direction=1.0 if k == 0 else -1.0,
-                speed=float(prng.uniform(0.85, 1.05) if k == 0 else prng.uniform(0.6, 0.8)),
-                seat=side_seat if k == 0 else None,
-                sit_at=float(prng.uniform(1.5, 3.0)) if k == 0 else None,
+                direction=direction,
+                speed=speed,
             )
             persons.append((_outfit(prng, k), behaviour))
     elif people in ("sitting", "frozen"):
@@ -245,7 +260,7 @@ def office_scene(seed: int, people: str, duration: float) -> Scene:
         raise ValueError(f"unknown people mode {people!r}")
 
     lights = ((0.0, -1.5, sz - 0.2), (0.8, 1.5, sz - 0.2), (-1.5, 0.0, sz - 0.2))
-    eye = np.array([-1.6, 0.0 + jit(0.1), 1.35 + jit(0.05)])
+    eye = np.array([EYE_X, 0.0 + jit(0.1), 1.35 + jit(0.05)])
     target = np.array([desk_x + 0.2, 0.0, 0.9])
     return Scene(room, static, persons, lights, eye, target)
 

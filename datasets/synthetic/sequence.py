@@ -89,7 +89,7 @@ class SequenceRenderer:
         self.camera: CameraIntrinsics = TUM_CAMERAS["fr3"].scaled(*self.size)
         self.renderer = Renderer(self.camera)
         duration = self.frames / FPS + 1.0
-        self.scene = office_scene(self.seed, self.preset.people, duration)
+        self.scene = office_scene(self.seed, self.preset.people, duration, self.preset.motion)
         self.motion = CameraMotion(self.preset.motion, self.scene.eye, self.scene.target, self.seed)
         self.bank = texture_bank(style)  # one set of materials per style, like one real office
         self.lighting = self.scene.lighting(style)

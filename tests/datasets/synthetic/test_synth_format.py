@@ -76,8 +76,9 @@ def test_layout_and_image_types(sequence: Path) -> None:
         assert name == f"depth/{stamp:.6f}.png"
         d = cv2.imread(str(sequence / name), cv2.IMREAD_UNCHANGED)
         assert d.shape == (120, 160) and d.dtype == np.uint16
-        # 5000 units per metre; nothing beyond the 4.5 m range cut
-        assert d.max() <= 4.5 * 5000 and (d > 0).mean() > 0.8
+        # 5000 units per metre; nothing beyond the 4.5 m range cut; holes (depth edges of the
+        # people walking close in front, no data below 0.4 m) cover at most a quarter
+        assert d.max() <= 4.5 * 5000 and (d > 0).mean() > 0.75
     assert sorted(p.name for p in (sequence / "rgb").iterdir()) == sorted(
         p.name for p in (sequence / "labels").iterdir()
     )
