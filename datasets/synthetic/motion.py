@@ -29,7 +29,7 @@ PRESETS: dict[str, Preset] = {
     p.name: p
     for p in (
         Preset("walking_xyz", "xyz", "walking",
-               "camera translated along its x, y, z axes; two people walk through the view (one sits down for a while)"),
+               "camera translated along its x, y, z axes; two people walk slowly across the view close to the camera"),
         Preset("walking_static", "static", "walking",
                "camera almost still; two people walk through the view"),
         Preset("walking_rpy", "rpy", "walking",
