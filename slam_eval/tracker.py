@@ -18,8 +18,9 @@ Per frame:
    when the view moved by ``keyframe_translation`` / ``keyframe_rotation_deg`` from the
    reference keyframe. New keyframes create map points from their unmatched close keypoints;
    recent points that are rarely found are culled.
-6. **Relocalisation** when lost: descriptor matching against the keyframes nearest to the last
-   known pose (and the latest ones), PnP-RANSAC, then local-map tracking.
+6. **Relocalisation** when lost: descriptor matching against every keyframe, the best-matching
+   ones (ORB-SLAM2 ranks its keyframe database by bag-of-words score) tried with PnP-RANSAC, then
+   local-map tracking.
 
 Keypoints flagged dynamic are never matched and never create map points.
 """
@@ -77,6 +78,7 @@ class TrackerConfig:
     min_found_ratio: float = 0.25
     min_observations: int = 2
     reloc_keyframes: int = 6
+    """Relocalisation tries the keyframes with the most descriptor matches, this many at most."""
     reloc_ratio: float = 0.75
     reloc_max_hamming: int = 64
     reloc_min_inliers: int = 50
@@ -443,24 +445,22 @@ class Tracker:
     # ------------------------------------------------------------------ relocalisation
 
     def _relocalise(self, features: Features, static: np.ndarray):
+        """ORB-SLAM2's relocalisation without its bag of words: every keyframe of the map is a
+        candidate, scored by how many of the frame's static descriptors match its map points
+        (ratio test); the ``reloc_keyframes`` best are tried in that order (PnP-RANSAC, then
+        local-map tracking, ``reloc_min_inliers`` needed). ORB-SLAM2 likewise queries its whole
+        keyframe database: after a long occlusion the keyframes near the last known pose may be
+        the ones taken while the view was blocked, holding few of the points now in view."""
         cfg = self.config
         kfs = self.map.keyframes
         if not kfs or static.sum() < cfg.min_inliers:
             return None, None
-        candidates = list(range(max(0, len(kfs) - 2), len(kfs)))
-        if self.last_pose_cw is not None:
-            center = invert(self.last_pose_cw)[:3, 3]
-            dist = np.array([np.linalg.norm(kf.center - center) for kf in kfs])
-            for k in np.argsort(dist, kind="stable"):
-                if len(candidates) >= cfg.reloc_keyframes:
-                    break
-                if int(k) not in candidates:
-                    candidates.append(int(k))
         query = np.flatnonzero(static)
-        for k in candidates:
-            kf = kfs[k]
+        bad = self.map.points.bad.view
+        scored: list[tuple[int, int, np.ndarray, np.ndarray]] = []
+        for k, kf in enumerate(kfs):
             ids = kf.point_ids
-            usable = np.flatnonzero((ids >= 0) & ~self.map.points.bad.view[np.maximum(ids, 0)])
+            usable = np.flatnonzero((ids >= 0) & ~bad[np.maximum(ids, 0)])
             if len(usable) < cfg.min_inliers:
                 continue
             dist, nearest = cv2.batchDistance(
@@ -473,16 +473,15 @@ class Tracker:
             good = (dist[:, 0] < cfg.reloc_ratio * dist[:, 1]) & (
                 dist[:, 0] <= cfg.reloc_max_hamming
             )
-            q_idx, t_idx = np.flatnonzero(good), nearest[good, 0]
-            if len(q_idx) < cfg.min_matches:
-                continue
-            kp = query[q_idx]
-            pid = ids[usable[t_idx]]
+            kp = query[np.flatnonzero(good)]
+            pid = ids[usable[nearest[good, 0]]]
             # Keep one keypoint per map point (the first, i.e. arbitrary but deterministic).
             _, first = np.unique(pid, return_index=True)
-            kp, pid = kp[first], pid[first]
-            if len(kp) < cfg.min_matches:
-                continue
+            if len(first) >= cfg.min_matches:
+                scored.append((len(first), k, kp[first], pid[first]))
+        # Most matches first; ties: the latest keyframe first.
+        scored.sort(key=lambda c: (-c[0], -c[1]))
+        for _, k, kp, pid in scored[: cfg.reloc_keyframes]:
             pose_cw = self._pnp_global(self.map.points.position.view[pid], features, kp)
             if pose_cw is None:
                 continue
