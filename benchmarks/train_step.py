@@ -13,6 +13,9 @@ iteration of each and the ratio Lightning / plain.
 ``--clock cpu`` times with the process's CPU time (all threads) instead of the wall clock: on a
 shared machine the wall clock measures the other jobs; with one thread CPU time does not.
 
+The Lightning variants run under a Trainer that logs like ``uss-train``: TensorBoard (into a
+temporary folder) every 10 steps; ``--progress-bar`` adds the TQDM bar of an interactive run.
+
 :func:`plain_iteration` is also the independent reference the tests compare the module with.
 """
 
@@ -21,7 +24,9 @@ from __future__ import annotations
 import argparse
 import copy
 import functools
+import logging
 import statistics
+import tempfile
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -176,6 +181,7 @@ class _Repeat(torch.utils.data.Dataset):
 
 CLOCKS = {"wall": time.perf_counter, "cpu": time.process_time}
 clock = time.perf_counter
+progress_bar = False
 
 
 class _Timer:
@@ -189,7 +195,10 @@ class _Timer:
 
 
 def time_lightning(module: AdversarialSegmentation, batch: dict, iters: int) -> list[float]:
+    """Seconds per iteration under a Trainer that logs as ``uss-train`` does (TensorBoard
+    into a temporary folder, ``log_every_n_steps: 10`` of ``configs/trainer/default.yaml``)."""
     from lightning.pytorch import Callback, Trainer
+    from lightning.pytorch.loggers import TensorBoardLogger
 
     timer = _Timer()
 
@@ -201,16 +210,18 @@ def time_lightning(module: AdversarialSegmentation, batch: dict, iters: int) -> 
             timer.starts.append(clock())
 
     loader = torch.utils.data.DataLoader(_Repeat(batch, iters), batch_size=None)
-    trainer = Trainer(
-        accelerator="cpu",
-        max_epochs=1,
-        logger=False,
-        enable_checkpointing=False,
-        enable_progress_bar=False,
-        enable_model_summary=False,
-        callbacks=[Hook()],
-    )
-    trainer.fit(module, train_dataloaders=loader)
+    with tempfile.TemporaryDirectory(prefix="train_step_") as logdir:
+        trainer = Trainer(
+            accelerator="cpu",
+            max_epochs=1,
+            logger=TensorBoardLogger(logdir, name="", version=""),
+            log_every_n_steps=10,
+            enable_checkpointing=False,
+            enable_progress_bar=progress_bar,
+            enable_model_summary=False,
+            callbacks=[Hook()],
+        )
+        trainer.fit(module, train_dataloaders=loader)
     return timer.times()
 
 
@@ -291,9 +302,17 @@ def main() -> None:
     parser.add_argument(
         "--clock", choices=sorted(CLOCKS), default="wall", help="wall clock or process CPU time"
     )
+    parser.add_argument(
+        "--progress-bar",
+        action="store_true",
+        help="time the Lightning variants with the TQDM progress bar (interactive uss-train)",
+    )
     args = parser.parse_args()
-    global clock
+    global clock, progress_bar
     clock = CLOCKS[args.clock]
+    progress_bar = args.progress_bar
+    # Lightning's per-Trainer banners ("GPU available", tips) would bury the table.
+    logging.getLogger("lightning.pytorch").setLevel(logging.WARNING)
     torch.set_num_threads(args.threads)
     print(f"torch {torch.__version__}, {args.threads} threads, {args.clock} clock")
     for name in args.models:
