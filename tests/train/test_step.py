@@ -176,3 +176,99 @@ def test_non_finite_loss_stops_before_the_step() -> None:
         _fit(module, bench.random_batch(41, 1), 1, [])
     after = _params(module.segmenter)
     assert all(torch.equal(before[k], after[k]) for k in before if "main.branches.0" not in k)
+    # The discriminators were frozen when the error was raised; they are trainable again.
+    assert all(p.requires_grad for d in (module.d_aux, module.d_main) for p in d.parameters())
+
+
+class StepValues(Callback):
+    """The module's detached per-step values, read before the module logs them."""
+
+    def __init__(self) -> None:
+        self.scalars: list[dict[str, float]] = []
+        self.d_requires_grad: list[bool] = []
+
+    def on_train_batch_end(self, trainer: Trainer, pl_module: LightningModule, *_: Any) -> None:
+        step, _n = pl_module._step_values
+        self.scalars.append({k: float(v) for k, v in pl_module._train_scalars(step).items()})
+        self.d_requires_grad.append(
+            all(
+                p.requires_grad for d in (pl_module.d_aux, pl_module.d_main) for p in d.parameters()
+            )
+        )
+
+
+TRAIN_KEYS = {
+    "train/loss_seg_src_aux",
+    "train/loss_seg_src_main",
+    "train/loss_adv_trg_aux",
+    "train/loss_adv_trg_main",
+    "train/loss_d_aux",
+    "train/loss_d_main",
+    "train/d_acc_aux",
+    "train/d_acc_main",
+}
+
+
+@pytest.mark.parametrize("adaptation", [True, False])
+def test_scalars_reach_tensorboard_on_logging_steps_only(adaptation: bool, tmp_path: Path) -> None:
+    from lightning.pytorch.loggers import TensorBoardLogger
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    module = _module(adaptation=adaptation)
+    module.max_iters = 7
+    probe = StepValues()
+    logged_names: list[str] = []
+    log = module.log
+
+    def counting_log(name: str, *args: Any, **kwargs: Any) -> None:
+        logged_names.append(name)
+        log(name, *args, **kwargs)
+
+    module.log = counting_log  # log_dict goes through it too
+    loader = torch.utils.data.DataLoader(
+        bench._Repeat(bench.random_batch(41, 2), 7), batch_size=None
+    )
+    trainer = Trainer(
+        accelerator="cpu",
+        max_epochs=1,
+        logger=TensorBoardLogger(tmp_path, name="", version=""),
+        log_every_n_steps=3,
+        enable_checkpointing=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        callbacks=[probe],
+    )
+    trainer.fit(module, train_dataloaders=loader)
+    events = EventAccumulator(str(tmp_path), size_guidance={"scalars": 0})
+    events.Reload()
+    expected = TRAIN_KEYS if adaptation else {k for k in TRAIN_KEYS if "seg" in k}
+    assert {k for k in events.Tags()["scalars"] if k.startswith("train/")} == expected
+    assert len(probe.scalars) == 7
+    assert all(probe.d_requires_grad)  # frozen only inside the segmenter step
+    for key in expected:
+        points = events.Scalars(key)
+        # Every 3rd step (x axis = iterations from 0) and the step that stops training, each
+        # with that step's own value, not one left over from an earlier step.
+        assert [p.step for p in points] == [2, 5, 6]
+        for point in points:
+            assert point.value == pytest.approx(probe.scalars[point.step][key], rel=1e-6)
+    assert trainer.callback_metrics["iteration"] == 7
+    # The train/* scalars cost Lightning bookkeeping only on the 3 steps that write them.
+    assert sorted(n for n in logged_names if n.startswith("train/")) == sorted(3 * list(expected))
+    assert logged_names.count("iteration") == 7  # progress bar and checkpoint names: every step
+    accuracies = [s[k] for s in probe.scalars for k in s if "d_acc" in k]
+    assert all(0.0 <= a <= 1.0 for a in accuracies)
+
+
+def test_discriminators_frozen_restores_on_error() -> None:
+    module = _module()
+    module.d_main.layers[0].weight.requires_grad_(False)  # a user-frozen parameter stays frozen
+    with pytest.raises(RuntimeError, match="inside"), module._discriminators_frozen():
+        assert not any(
+            p.requires_grad for d in (module.d_aux, module.d_main) for p in d.parameters()
+        )
+        assert all(p.requires_grad for p in module.segmenter.heads().parameters())
+        raise RuntimeError("inside")
+    assert not module.d_main.layers[0].weight.requires_grad
+    rest = [p for d in (module.d_aux, module.d_main) for p in d.parameters()]
+    assert sum(not p.requires_grad for p in rest) == 1
