@@ -24,12 +24,14 @@ from __future__ import annotations
 import argparse
 import copy
 import functools
+import importlib.util
 import logging
 import statistics
 import tempfile
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
+from pathlib import Path
 
 import torch
 import torch.nn.functional as F
@@ -127,10 +129,10 @@ def plain_state_from(module: AdversarialSegmentation) -> PlainState:
 
 
 def build_module(
-    backbone: str, max_iters: int = 1000, n_layers: int = 5, ndf: int = 64
+    backbone: str, max_iters: int = 1000, n_layers: int = 5, ndf: int = 64, freeze_bn: bool = True
 ) -> AdversarialSegmentation:
     return AdversarialSegmentation(
-        net=DeepLabV2(num_classes=4, backbone=backbone),
+        net=DeepLabV2(num_classes=4, backbone=backbone, freeze_bn=freeze_bn),
         discriminator=functools.partial(PatchDiscriminator, 4, n_layers, ndf),
         optimizer=functools.partial(
             torch.optim.SGD, lr=2.5e-4, momentum=0.9, nesterov=True, weight_decay=1e-4
@@ -239,29 +241,52 @@ def max_difference(a: nn.Module, b: nn.Module) -> float:
     return max(float((sa[k].float() - sb[k].float()).abs().max()) for k in sa)
 
 
+COMPARED = "lightning (--compare-module)"
 VARIANTS = {
     # name: (batch_domains, channels_last)
     "lightning": (False, False),  # Algorithm 1 step by step, as the plain loop
+    "lightning+nhwc": (False, True),
     "lightning+batched": (True, False),
     "lightning+batched+nhwc": (True, True),
 }
 
 
-def run(backbone: str, size: int, batch_size: int, iters: int, repeats: int, ndf: int) -> None:
+def run(
+    backbone: str,
+    size: int,
+    batch_size: int,
+    iters: int,
+    repeats: int,
+    ndf: int,
+    freeze_bn: bool = True,
+    compare: type[AdversarialSegmentation] | None = None,
+) -> None:
     torch.manual_seed(0)
-    module = build_module(backbone, ndf=ndf)
+    module = build_module(backbone, ndf=ndf, freeze_bn=freeze_bn)
     batch = random_batch(size, batch_size)
     calibrate_batchnorm(
         module.segmenter, torch.cat([batch["source"]["image"], batch["target"]["image"]])
     )
     weights = module.loss_weights
     results: dict[str, list[float]] = {"plain": [], **{name: [] for name in VARIANTS}}
-    for _ in range(repeats):  # interleave so every variant sees the same machine load
-        state = plain_state_from(module)
-        results["plain"] += time_plain(state, batch, iters, weights)[1:]  # first = warm-up
-        for name, (batch_domains, channels_last) in VARIANTS.items():
+    if compare is not None:
+        results[COMPARED] = []
+    names = list(results)
+    for repeat in range(repeats):
+        # Interleaved, and in a rotated order each repeat: every variant sees the same machine
+        # load and none always runs first or last. The first iteration of a run is a warm-up.
+        for name in names[repeat % len(names) :] + names[: repeat % len(names)]:
+            if name == "plain":
+                state = plain_state_from(module)
+                results["plain"] += time_plain(state, batch, iters, weights)[1:]
+                continue
             variant = copy.deepcopy(module)
-            variant.batch_domains, variant.channels_last = batch_domains, channels_last
+            if name == COMPARED:  # same weights and settings as `lightning`, other class
+                variant.__class__ = compare
+                settings = VARIANTS["lightning"]
+            else:
+                settings = VARIANTS[name]
+            variant.batch_domains, variant.channels_last = settings
             results[name] += time_lightning(variant, batch, iters)[1:]
     # Same computation: from the same start, module and plain loop end with the same weights.
     check_module = copy.deepcopy(module)
@@ -275,15 +300,16 @@ def run(backbone: str, size: int, batch_size: int, iters: int, repeats: int, ndf
         raise SystemExit(f"{backbone}: the plain loop produced non-finite weights")
     plain = statistics.median(results["plain"])
     base = statistics.median(results["lightning"])
+    bn = "frozen BN" if freeze_bn else "BN trained (batched variants run unbatched)"
     print(
-        f"{backbone} {size}x{size} batch {batch_size} (D ndf {ndf}), median s/iteration over "
+        f"{backbone} {size}x{size} batch {batch_size} (D ndf {ndf}, {bn}), median s/iteration over "
         f"{len(results['plain'])} iterations each; segmenter max |difference| module vs plain "
         f"after 2 iterations: {diff:.1e}"
     )
     for name, times in results.items():
         median = statistics.median(times)
         print(
-            f"  {name:24s} {median:8.4f} s/it   vs plain {median / plain:6.3f}   "
+            f"  {name:30s} {median:8.4f} s/it   vs plain {median / plain:6.3f}   "
             f"vs lightning {median / base:6.3f}"
         )
 
@@ -303,6 +329,17 @@ def main() -> None:
         "--clock", choices=sorted(CLOCKS), default="wall", help="wall clock or process CPU time"
     )
     parser.add_argument(
+        "--train-bn",
+        action="store_true",
+        help="BatchNorm in train mode (the demo experiment) instead of frozen (the paper)",
+    )
+    parser.add_argument(
+        "--compare-module",
+        type=Path,
+        help="a train/module.py of another version (e.g. `git show REV:train/module.py > "
+        "/tmp/old.py`): its AdversarialSegmentation is timed as one more variant, same run",
+    )
+    parser.add_argument(
         "--progress-bar",
         action="store_true",
         help="time the Lightning variants with the TQDM progress bar (interactive uss-train)",
@@ -315,11 +352,19 @@ def main() -> None:
     logging.getLogger("lightning.pytorch").setLevel(logging.WARNING)
     torch.set_num_threads(args.threads)
     print(f"torch {torch.__version__}, {args.threads} threads, {args.clock} clock")
+    compare = None
+    if args.compare_module is not None:
+        spec = importlib.util.spec_from_file_location("compared_module", args.compare_module)
+        compared = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(compared)
+        compare = compared.AdversarialSegmentation
     for name in args.models:
         if name == "small":  # the demo experiment's shapes
-            run("resnet_small", 129, 4, args.iters * 4, args.repeats, ndf=16)
+            run(
+                "resnet_small", 129, 4, args.iters * 4, args.repeats, 16, not args.train_bn, compare
+            )
         else:  # the paper's shapes
-            run(name, 321, 1, args.iters, args.repeats, ndf=64)
+            run(name, 321, 1, args.iters, args.repeats, 64, not args.train_bn, compare)
 
 
 if __name__ == "__main__":
