@@ -11,7 +11,9 @@ Per frame:
    (``cv2.solvePnPRefineLM``) alternated with re-classifying inliers by the χ² test of
    ORB-SLAM2 (5.991 × the level's variance).
 4. **Local-map tracking**: the local map is projected again with the estimated pose, matched in a
-   tight window, and the pose refined on all inliers. Tracking succeeds with ``min_inliers``.
+   tight window, and the pose refined on all inliers. Tracking succeeds with ``min_inliers``
+   (``reloc_min_inliers`` during the ``reloc_recent_frames`` frames after a relocalisation, as
+   ORB-SLAM2).
 5. **Keyframes** are inserted when tracking weakens (inliers below ``keyframe_ratio`` × the
    reference keyframe's well-observed points), when few close points are tracked while many
    close points are unmatched (ORB-SLAM2's RGB-D rule), after ``max_keyframe_interval`` frames, or
@@ -82,6 +84,10 @@ class TrackerConfig:
     reloc_ratio: float = 0.75
     reloc_max_hamming: int = 64
     reloc_min_inliers: int = 50
+    reloc_recent_frames: int = 30
+    """For this many frames after a relocalisation, tracking needs ``reloc_min_inliers`` inliers
+    instead of ``min_inliers`` (ORB-SLAM2's ``TrackLocalMap``: 50 within ``mMaxFrames`` = the
+    frame rate after ``mnLastRelocFrameId``); 0 = off."""
 
 
 class TrackingState(str, Enum):
@@ -126,6 +132,8 @@ class Tracker:
         self.frames_since_keyframe = 0
         self._previous_tracked = False
         self.relocalisations = 0
+        self.last_relocalisation: int | None = None
+        """Frame index of the latest relocalisation."""
         self.lost_events = 0
 
     # ------------------------------------------------------------------ public
@@ -155,6 +163,13 @@ class Tracker:
         pose_cw = None
         if self.state is TrackingState.OK:
             pose_cw, matched = self._track_motion(features, static)
+            # ORB-SLAM2 is more restrictive right after a relocalisation.
+            if (
+                pose_cw is not None
+                and self._recently_relocalised(frame_index)
+                and int((matched >= 0).sum()) < self.config.reloc_min_inliers
+            ):
+                pose_cw = None
         if pose_cw is None:
             if self.state is TrackingState.OK:
                 self.lost_events += 1
@@ -163,6 +178,7 @@ class Tracker:
             relocalised = pose_cw is not None
             if relocalised:
                 self.relocalisations += 1
+                self.last_relocalisation = frame_index
                 self.velocity = None
         if pose_cw is None:
             self._previous_tracked = False
@@ -232,6 +248,10 @@ class Tracker:
             self.frames_since_keyframe += 1
         self._accept(pose_cw, matched[matched >= 0], kf)
         return kf
+
+    def _recently_relocalised(self, frame_index: int) -> bool:
+        last = self.last_relocalisation
+        return last is not None and frame_index < last + self.config.reloc_recent_frames
 
     @property
     def initialized(self) -> bool:

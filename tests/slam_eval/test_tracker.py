@@ -110,6 +110,46 @@ def test_relocalises_against_the_best_matching_keyframe_not_the_latest(synthetic
     assert np.linalg.norm(r.pose_wc[:3, 3] - poses[20][:3, 3]) < 0.02
 
 
+def test_more_inliers_needed_right_after_a_relocalisation(synthetic_sequence) -> None:
+    # ORB-SLAM2's TrackLocalMap: within reloc_recent_frames of a relocalisation a frame needs
+    # reloc_min_inliers, not min_inliers. The same weak frame (left quarter of the view only) is
+    # tracked when the rule is off or the relocalisation is old, and rejected right after it.
+    seq = TumSequence(synthetic_sequence(preset="static_xyz", frames=30))
+    ex = OrbExtractor(OrbConfig(), seq.camera)
+    frames = [seq.load(i) for i in range(len(seq))]
+    feats = [ex(f.gray, f.depth) for f in frames]
+    hidden = feats[23].xy[:, 0] >= 0.25 * seq.camera.width
+
+    def run(config: TrackerConfig, weak_index: int):
+        tracker = Tracker(config, ex)
+        for i in range(30):
+            if i in range(12, 18):
+                features, dyn = Features.empty(), np.zeros(0, bool)  # covered: lost
+            elif i in range(18, 22) or i > 23:
+                continue
+            else:
+                features = feats[i]
+                dyn = hidden if i == 23 else np.zeros(len(features), bool)
+            index = weak_index if i == 23 else i
+            r = tracker.track(index, frames[i].stamp, features, dyn)
+            tracker.finish_frame(index, frames[i].stamp, r, features, dyn)
+            if i == 22:
+                assert r.relocalised and tracker.last_relocalisation == 22
+        return tracker, r
+
+    off, r_off = run(TrackerConfig(reloc_recent_frames=0), 23)
+    n = r_off.inliers
+    assert r_off.state is TrackingState.OK and not r_off.relocalised
+    assert TrackerConfig().min_inliers <= n and off.lost_events == 1
+    strict = TrackerConfig(reloc_min_inliers=n + 1, reloc_recent_frames=30)
+    on, r_on = run(strict, 23)
+    assert r_on.pose_wc is None or r_on.relocalised  # not accepted from the motion model
+    assert on.lost_events == 2
+    later, r_later = run(strict, 22 + 30)  # the same frame once the window has passed
+    assert r_later.state is TrackingState.OK and not r_later.relocalised
+    assert r_later.inliers == n and later.lost_events == 1
+
+
 def test_not_enough_depth_to_initialise(synthetic_sequence) -> None:
     seq = TumSequence(synthetic_sequence(preset="static_xyz", frames=30))
     ex = OrbExtractor(OrbConfig(), seq.camera)
