@@ -9,6 +9,7 @@ iteration of each and the ratio Lightning / plain.
     .venv/bin/python benchmarks/train_step.py                      # ResNet-101 321x321 + demo
     .venv/bin/python benchmarks/train_step.py --models small --iters 20
     .venv/bin/python benchmarks/train_step.py --clock cpu --threads 1   # busy machine
+    .venv/bin/python benchmarks/train_step.py --models tiny   # Lightning's fixed cost, in ms
 
 ``--clock cpu`` times with the process's CPU time (all threads) instead of the wall clock: on a
 shared machine the wall clock measures the other jobs; with one thread CPU time does not.
@@ -309,8 +310,8 @@ def run(
     for name, times in results.items():
         median = statistics.median(times)
         print(
-            f"  {name:30s} {median:8.4f} s/it   vs plain {median / plain:6.3f}   "
-            f"vs lightning {median / base:6.3f}"
+            f"  {name:30s} {median:8.4f} s/it   vs plain {median / plain:6.3f} "
+            f"({1000 * (median - plain):+6.1f} ms)   vs lightning {median / base:6.3f}"
         )
 
 
@@ -320,7 +321,9 @@ def main() -> None:
         "--models",
         nargs="+",
         default=["resnet101", "small"],
-        choices=["resnet101", "resnet50", "small"],
+        choices=["resnet101", "resnet50", "small", "tiny"],
+        help="small: the demo's shapes; tiny: the small model at 33x33, batch 1, where compute "
+        "is negligible and the difference to plain is Lightning's fixed cost per iteration",
     )
     parser.add_argument("--iters", type=int, default=6, help="iterations per repeat")
     parser.add_argument("--repeats", type=int, default=3)
@@ -359,10 +362,11 @@ def main() -> None:
         spec.loader.exec_module(compared)
         compare = compared.AdversarialSegmentation
     for name in args.models:
+        settings = (args.repeats, 16, not args.train_bn, compare)
         if name == "small":  # the demo experiment's shapes
-            run(
-                "resnet_small", 129, 4, args.iters * 4, args.repeats, 16, not args.train_bn, compare
-            )
+            run("resnet_small", 129, 4, args.iters * 4, *settings)
+        elif name == "tiny":
+            run("resnet_small", 33, 1, args.iters * 20, *settings)
         else:  # the paper's shapes
             run(name, 321, 1, args.iters, args.repeats, 64, not args.train_bn, compare)
 
