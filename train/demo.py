@@ -184,14 +184,16 @@ def _data_key(data: Path) -> str:
     return record.read_text()
 
 
-def train_overrides(plan: Plan, data: Path, name: str) -> list[str]:
-    """The ``uss-train`` overrides of training run ``name`` (``adapted`` / ``source_only``)."""
+def train_overrides(plan: Plan, data: Path, name: str, threads: int | None = None) -> list[str]:
+    """The ``uss-train`` overrides of training run ``name`` (``adapted`` / ``source_only``);
+    ``threads`` overrides the experiment's ``num_threads``."""
     return [
         f"experiment={plan.experiment}",
         f"model.adaptation={str(TRAININGS[name]).lower()}",
         f"paths.data_dir={data}",
         f"run_name={plan.experiment}_{name}",
         *plan.train_overrides,
+        *([] if threads is None else [f"num_threads={threads}"]),
     ]
 
 
@@ -572,16 +574,21 @@ def build_parser() -> argparse.ArgumentParser:
                        help="redo every stage")  # fmt: skip
     parser.set_defaults(force=False)  # (store_false would make --reuse's default True)
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
+    parser.add_argument("--train-threads", type=int, default=None, metavar="N",
+                        help="torch threads of the two trainings (default: the experiment's "
+                             "num_threads, 2 for demo; 1 is faster on a busy shared machine)")  # fmt: skip
     return parser
 
 
 def run_demo(
     out: Path, experiment: str = "demo", sequence: str = "walking_xyz", *,
-    force: bool = False, quiet: bool = False,
+    force: bool = False, quiet: bool = False, train_threads: int | None = None,
 ) -> dict[str, Any]:  # fmt: skip
     """Run every stage (see the module doc); returns the content of ``OUT/summary.json``."""
     plan = PLANS[experiment]
     out = Path(out)
+    if train_threads is not None and train_threads < 1:
+        raise UssSlamError(f"--train-threads must be >= 1, got {train_threads}")
     data = out / "data"
     from uss_slam.datasets.synthetic.cli import DEMO_SLAM_PRESETS
 
@@ -602,7 +609,7 @@ def run_demo(
     data_key = _data_key(data)
     train_dirs = {name: out / "train" / name for name in TRAININGS}
     for name, run_dir in train_dirs.items():
-        overrides = train_overrides(plan, data, name)
+        overrides = train_overrides(plan, data, name, train_threads)
         progress.run("train", f"train {name}: uss-train {' '.join(overrides)}",
                      lambda o=overrides, d=run_dir: stage_train(d, o, data_key, force))  # fmt: skip
     models = {name: out / "exports" / f"{name}.onnx" for name in TRAININGS}
@@ -630,7 +637,8 @@ def run_demo(
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
-        run_demo(args.out, args.experiment, args.sequence, force=args.force, quiet=args.quiet)
+        run_demo(args.out, args.experiment, args.sequence, force=args.force, quiet=args.quiet,
+                 train_threads=args.train_threads)  # fmt: skip
     except UssSlamError as error:
         print(f"uss-demo: error: {error}", file=sys.stderr)
         return 1
