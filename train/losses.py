@@ -41,11 +41,12 @@ def upsample(logits: Tensor, size: tuple[int, int]) -> Tensor:
 
 def segmentation_loss(log_probs: Tensor, labels: Tensor) -> Tensor:
     """Cross-entropy (eq. 3, one head) from ``(N, C, H, W)`` log-probabilities and ``(N, H, W)``
-    int64 labels; ``IGNORE_INDEX`` pixels are excluded. Returns 0 when every pixel is ignored."""
-    valid = labels != IGNORE_INDEX
-    if not bool(valid.any()):
-        return log_probs.sum() * 0.0
-    return F.nll_loss(log_probs, labels, ignore_index=IGNORE_INDEX)
+    int64 labels; ``IGNORE_INDEX`` pixels are excluded. Returns 0 when every pixel is ignored.
+
+    The mean over the valid pixels as sum / max(count, 1): the same numbers as ``nll_loss``'s
+    mean (bit for bit on CPU, tested), without a host sync to detect the empty case."""
+    total = F.nll_loss(log_probs, labels, ignore_index=IGNORE_INDEX, reduction="sum")
+    return total / (labels != IGNORE_INDEX).sum().clamp(min=1)
 
 
 def domain_loss(d_logits: Tensor, domain: float) -> Tensor:
