@@ -41,6 +41,7 @@ from tqdm.auto import tqdm
 
 from uss_slam.datasets.classes import CLASS_NAMES, IGNORE_INDEX, NUM_CLASSES
 from uss_slam.datasets.errors import DataFormatError
+from uss_slam.datasets.files import file_sha256
 from uss_slam.datasets.segmentation import (
     ImageItem,
     LabelStats,
@@ -93,14 +94,6 @@ def category_table(categories: Mapping[str, Sequence[str]]) -> dict[str, int]:
                 )
             table[key] = CLASS_NAMES.index(class_name)
     return table
-
-
-def file_sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as file:
-        for chunk in iter(lambda: file.read(1 << 20), b""):
-            digest.update(chunk)
-    return digest.hexdigest()
 
 
 @dataclass

@@ -25,7 +25,6 @@ Example: ``uss-demo --out outputs/demo`` (what ``make demo`` runs; its measured 
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
 import re
 import shutil
@@ -40,6 +39,7 @@ import numpy as np
 
 from uss_slam.datasets.classes import CLASS_NAMES
 from uss_slam.datasets.errors import UssSlamError
+from uss_slam.datasets.files import file_sha256
 
 CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"
 STAMP = ".uss-demo.json"
@@ -129,14 +129,6 @@ class Progress:
             f"[{self.count}/{self.total}] {what}: {status} in {spent:.1f} s (total {total:.1f} s)",
             flush=True,
         )
-
-
-def sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with path.open("rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
 
 
 def _stamped(folder: Path, key: dict[str, Any], force: bool) -> bool:
@@ -257,7 +249,7 @@ def stage_train(run_dir: Path, overrides: list[str], data_key: str, force: bool)
 
 def stage_export(run_dir: Path, onnx_path: Path, force: bool) -> str:
     ckpt = best_checkpoint(run_dir)
-    key = {"stage": "export", "checkpoint": str(ckpt), "sha256": sha256(ckpt)}
+    key = {"stage": "export", "checkpoint": str(ckpt), "sha256": file_sha256(ckpt)}
     stamp_dir = onnx_path.parent / f".{onnx_path.stem}"
     if _stamped(stamp_dir, key, force) and onnx_path.is_file():
         return "reused"
@@ -302,7 +294,7 @@ def stage_miou(out: Path, sequence: Path, models: dict[str, Path], stride: int, 
         "stage": "miou",
         "sequence": str(sequence),
         "stride": stride,
-        "models": {name: sha256(p) for name, p in models.items()},
+        "models": {name: file_sha256(p) for name, p in models.items()},
     }
     if not force and path.is_file():
         try:
@@ -618,7 +610,7 @@ def run_demo(
                      lambda d=train_dirs[name], m=model: stage_export(d, m, force))  # fmt: skip
     progress.run("miou", f"mIoU on {seq_path.name}",
                  lambda: stage_miou(out, seq_path, models, plan.miou_stride, force))  # fmt: skip
-    inputs = {name: sha256(model) for name, model in models.items()}
+    inputs = {name: file_sha256(model) for name, model in models.items()}
     inputs["sequence"] = data_key if seq_path.parent == data / "slam" else str(seq_path)
     for v in VARIANTS:
         overrides = slam_overrides(v, seq_path, models)

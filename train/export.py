@@ -20,7 +20,6 @@ place, writes ``<name>.verify.failed.json`` and raises :class:`ExportVerificatio
 
 from __future__ import annotations
 
-import hashlib
 import json
 import logging
 import os
@@ -47,6 +46,7 @@ from torch import Tensor, nn
 
 from uss_slam.datasets.classes import CLASS_NAMES, DYNAMIC_CLASSES
 from uss_slam.datasets.errors import DataFormatError, UssSlamError
+from uss_slam.datasets.files import file_sha256
 from uss_slam.datasets.onnx_contract import (
     HEADS,
     INPUT_NAME,
@@ -124,14 +124,6 @@ class SegmenterExport(nn.Module):
 
 
 # ---------------------------------------------------------------------------- checkpoints
-
-
-def sha256_file(path: Path) -> str:
-    digest = hashlib.sha256()
-    with path.open("rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
 
 
 def project_version() -> str:
@@ -248,7 +240,7 @@ def load_checkpoint(
         segmenter=segmenter,
         class_names=class_names,
         experiment=str(run_name) if run_name else ckpt_path.stem,
-        sha256=sha256_file(ckpt_path),
+        sha256=file_sha256(ckpt_path),
         iteration=blob.get("iteration"),
         net_config=OmegaConf.to_container(node),  # type: ignore[arg-type]
     )

@@ -4,6 +4,7 @@ files intact, checkpoints with their run config, and the Hydra app end to end.""
 
 from __future__ import annotations
 
+import hashlib
 import json
 import subprocess
 import sys
@@ -276,7 +277,7 @@ def test_export_checkpoint_records_checkpoint_and_run(tmp_path: Path) -> None:
     props = ort.InferenceSession(str(result.path)).get_modelmeta().custom_metadata_map
     meta = SegmenterMetadata.from_props(props)
     assert meta.experiment == "demo" and meta.head == "aux"
-    assert meta.checkpoint_sha256 == export.sha256_file(ckpt)
+    assert meta.checkpoint_sha256 == hashlib.sha256(ckpt.read_bytes()).hexdigest()
     images = verification_images((45, 61), batch=1, seed=8)
     logits, _ = ort.InferenceSession(str(result.path)).run(None, {"image": images})
     assert np.abs(logits - _eager(net, images, "aux")[0]).max() <= 1e-4
@@ -330,7 +331,7 @@ def test_uss_export_on_a_ci_run(uda_data: dict[str, Path], tmp_path: Path) -> No
     assert report["ok"] is True and report["experiment"] == "ci"
     props = ort.InferenceSession(str(model)).get_modelmeta().custom_metadata_map
     meta = SegmenterMetadata.from_props(props, model)
-    assert meta.checkpoint_sha256 == export.sha256_file(ckpt)
+    assert meta.checkpoint_sha256 == hashlib.sha256(ckpt.read_bytes()).hexdigest()
     # The ONNX model reproduces the checkpoint's segmenter as the trainer built it.
     loaded = load_checkpoint(ckpt)
     images = verification_images((65, 65), batch=1, seed=3)
