@@ -22,12 +22,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from uss_slam.datasets.classes import CLASS_NAMES
+from uss_slam.core.classes import CLASS_NAMES
 from uss_slam.datasets.transforms import eval_transform
 from uss_slam.datasets.tum import TUMFrames
 from uss_slam.datasets.voc import VOCSegmentation
-from uss_slam.train.demo import confusion, iou_scores
-from uss_slam.train.export import load_checkpoint
+from uss_slam.export.onnx_export import load_checkpoint
+from uss_slam.pipelines.demo import confusion, iou_scores
 from uss_slam.train.losses import upsample
 from uss_slam.train.precise_bn import evenly_spaced, recompute_batchnorm
 

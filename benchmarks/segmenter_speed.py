@@ -31,11 +31,10 @@ from pathlib import Path
 import onnxruntime as ort
 import torch
 
-from uss_slam.datasets.classes import CLASS_NAMES
-from uss_slam.datasets.onnx_contract import INPUT_NAME, SegmenterMetadata
+from uss_slam.core.classes import CLASS_NAMES
+from uss_slam.core.onnx_contract import INPUT_NAME, SegmenterMetadata
 from uss_slam.datasets.transforms import IMAGENET_MEAN, IMAGENET_STD
-from uss_slam.models import DeepLabV2
-from uss_slam.train.export import (
+from uss_slam.export.onnx_export import (
     SegmenterExport,
     export_segmenter,
     make_session,
@@ -43,6 +42,7 @@ from uss_slam.train.export import (
     read_calibration_frames,
     verification_images,
 )
+from uss_slam.models import DeepLabV2
 
 BACKBONES = {"demo": "resnet_small", "resnet101": "resnet101"}
 

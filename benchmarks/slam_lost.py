@@ -17,11 +17,11 @@ from pathlib import Path
 
 import numpy as np
 
-from uss_slam.datasets.classes import CLASS_NAMES
+from uss_slam.core.classes import CLASS_NAMES
 from uss_slam.slam_eval.filters import build_filters
 from uss_slam.slam_eval.metrics import ate
 from uss_slam.slam_eval.pipeline import RunResult, SlamPipeline
-from uss_slam.slam_eval.segmentation import LabelsSegmenter
+from uss_slam.slam_eval.segmenters import LabelsSegmenter
 from uss_slam.slam_eval.sequence import TumSequence
 
 PERSON = CLASS_NAMES.index("person")

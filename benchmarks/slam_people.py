@@ -16,10 +16,10 @@ from pathlib import Path
 
 import numpy as np
 
-from uss_slam.datasets.classes import CLASS_NAMES
+from uss_slam.core.classes import CLASS_NAMES
 from uss_slam.slam_eval.metrics import ate, rpe
 from uss_slam.slam_eval.pipeline import SlamPipeline
-from uss_slam.slam_eval.segmentation import LabelsSegmenter
+from uss_slam.slam_eval.segmenters import LabelsSegmenter
 from uss_slam.slam_eval.sequence import TumSequence
 from uss_slam.slam_eval.tracker import Tracker
 

@@ -24,7 +24,7 @@ from slam_targets import sequence_path
 from uss_slam.slam_eval.filters import build_filters
 from uss_slam.slam_eval.frontend import OrbConfig, OrbExtractor
 from uss_slam.slam_eval.pipeline import SlamPipeline
-from uss_slam.slam_eval.segmentation import LabelsSegmenter
+from uss_slam.slam_eval.segmenters import LabelsSegmenter
 from uss_slam.slam_eval.sequence import TumSequence
 
 

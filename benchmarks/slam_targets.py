@@ -23,12 +23,12 @@ import sys
 import time
 from pathlib import Path
 
-from uss_slam.datasets.synthetic import render_sequence
 from uss_slam.slam_eval.filters import build_filters
 from uss_slam.slam_eval.metrics import ate
 from uss_slam.slam_eval.pipeline import SlamPipeline
-from uss_slam.slam_eval.segmentation import LabelsSegmenter
+from uss_slam.slam_eval.segmenters import LabelsSegmenter
 from uss_slam.slam_eval.sequence import TumSequence
+from uss_slam.synthetic import render_sequence
 
 WALKING = ("walking_xyz", "walking_rpy", "walking_halfsphere")
 

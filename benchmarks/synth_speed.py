@@ -28,9 +28,9 @@ from pathlib import Path  # noqa: E402
 
 import cv2  # noqa: E402
 
-from uss_slam.datasets.synthetic.output import write_png  # noqa: E402
-from uss_slam.datasets.synthetic.renderer import Renderer  # noqa: E402
-from uss_slam.datasets.synthetic.sequence import SequenceRenderer  # noqa: E402
+from uss_slam.synthetic.output import write_png  # noqa: E402
+from uss_slam.synthetic.renderer import Renderer  # noqa: E402
+from uss_slam.synthetic.sequence import SequenceRenderer  # noqa: E402
 
 
 def _rate(fn, frames: list[int], repeats: int) -> tuple[float, float]:

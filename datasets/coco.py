@@ -39,10 +39,10 @@ import numpy as np
 from pycocotools import mask as mask_utils
 from tqdm.auto import tqdm
 
-from uss_slam.datasets.classes import CLASS_NAMES, IGNORE_INDEX, NUM_CLASSES
-from uss_slam.datasets.errors import DataFormatError
-from uss_slam.datasets.files import file_sha256
-from uss_slam.datasets.segmentation import (
+from uss_slam.core.classes import CLASS_NAMES, IGNORE_INDEX, NUM_CLASSES
+from uss_slam.core.errors import DataFormatError
+from uss_slam.core.files import file_sha256
+from uss_slam.datasets.base import (
     ImageItem,
     LabelStats,
     OnError,

@@ -21,7 +21,7 @@ from lightning.pytorch import LightningDataModule
 from lightning.pytorch.utilities import CombinedLoader
 from torch.utils.data import DataLoader, Dataset
 
-from uss_slam.datasets.errors import UssSlamError
+from uss_slam.core.errors import UssSlamError
 from uss_slam.datasets.sampling import SeededDataset, StreamSampler
 
 SOURCE_DOMAIN = 0

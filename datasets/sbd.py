@@ -21,8 +21,8 @@ from pathlib import Path
 import numpy as np
 import scipy.io
 
-from uss_slam.datasets.errors import DataFormatError
-from uss_slam.datasets.segmentation import (
+from uss_slam.core.errors import DataFormatError
+from uss_slam.datasets.base import (
     OnError,
     SegmentationDataset,
     Transform,

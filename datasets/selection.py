@@ -34,9 +34,9 @@ import numpy as np
 from torch.utils.data import Dataset
 from tqdm.auto import tqdm
 
-from uss_slam.datasets.classes import CLASS_NAMES, NUM_CLASSES
-from uss_slam.datasets.errors import DataFormatError, UssSlamError
-from uss_slam.datasets.segmentation import (
+from uss_slam.core.classes import CLASS_NAMES, NUM_CLASSES
+from uss_slam.core.errors import DataFormatError, UssSlamError
+from uss_slam.datasets.base import (
     LabelStats,
     OnError,
     SegmentationDataset,
@@ -271,7 +271,7 @@ class SelectedSources(Dataset):
             are not used); default: normalisation only.
         selection: the filter (:class:`Selection`); default: ``Selection()``.
         on_error: what to do with an item whose files turn out bad while selecting: ``raise``
-            a :class:`~uss_slam.datasets.errors.DataFormatError`, or ``skip`` it (counted).
+            a :class:`~uss_slam.core.errors.DataFormatError`, or ``skip`` it (counted).
         cache_dir: where label statistics are cached (``None``: not cached).
         progress: progress bars while reading labels (``None``: only on a terminal).
         **sets: the source sets by name (``voc=VOCSegmentation(...)``, ``sbd=...``, ``coco=...``),

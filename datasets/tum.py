@@ -1,6 +1,6 @@
 """Frames of TUM RGB-D sequences as a segmentation dataset (the target domain).
 
-Reads ``rgb.txt`` with :func:`uss_slam.datasets.tum_io.read_file_list` (depth is not needed).
+Reads ``rgb.txt`` with :func:`uss_slam.core.tum_io.read_file_list` (depth is not needed).
 Optional labels come from ``labels/<same file name as the rgb image>`` (uint8 project class
 ids, as the synthetic sequences write them): needed for validation, unused for unlabelled
 target training.
@@ -20,8 +20,9 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Literal
 
-from uss_slam.datasets.errors import DataFormatError
-from uss_slam.datasets.segmentation import (
+from uss_slam.core.errors import DataFormatError
+from uss_slam.core.tum_io import read_file_list
+from uss_slam.datasets.base import (
     ImageItem,
     OnError,
     SegmentationDataset,
@@ -31,7 +32,6 @@ from uss_slam.datasets.segmentation import (
     inspect_image,
     report_skipped,
 )
-from uss_slam.datasets.tum_io import read_file_list
 
 Part = Literal["train", "holdout"]
 

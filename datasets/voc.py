@@ -12,9 +12,9 @@ from pathlib import Path
 
 import numpy as np
 
-from uss_slam.datasets.classes import IGNORE_INDEX, VOC_CLASS_NAMES, voc_lut
-from uss_slam.datasets.errors import DataFormatError
-from uss_slam.datasets.segmentation import (
+from uss_slam.core.classes import IGNORE_INDEX, VOC_CLASS_NAMES, voc_lut
+from uss_slam.core.errors import DataFormatError
+from uss_slam.datasets.base import (
     ImageItem,
     OnError,
     SegmentationDataset,

@@ -17,7 +17,7 @@ import torchvision
 from torch import Tensor, nn
 from torchvision.models.resnet import Bottleneck
 
-from uss_slam.datasets.errors import UssSlamError
+from uss_slam.core.errors import UssSlamError
 
 log = logging.getLogger(__name__)
 

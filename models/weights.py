@@ -19,7 +19,7 @@ from pathlib import Path
 import torch
 from torch import Tensor, nn
 
-from uss_slam.datasets.errors import DataFormatError
+from uss_slam.core.errors import DataFormatError
 
 log = logging.getLogger(__name__)
 

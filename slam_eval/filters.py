@@ -34,12 +34,12 @@ from typing import TYPE_CHECKING, Literal
 import cv2
 import numpy as np
 
-from uss_slam.datasets.classes import CLASS_NAMES, IGNORE_INDEX
-from uss_slam.datasets.errors import UssSlamError
+from uss_slam.core.classes import CLASS_NAMES, IGNORE_INDEX
+from uss_slam.core.errors import UssSlamError
 
 from .frontend import Features, OrbExtractor
 from .geometry import from_rvec, invert, project, transform
-from .segmentation import class_ids
+from .segmenters import class_ids
 from .sequence import Frame
 
 if TYPE_CHECKING:

@@ -23,7 +23,7 @@ from dataclasses import dataclass, fields
 import cv2
 import numpy as np
 
-from uss_slam.datasets.tum_io import CameraIntrinsics
+from uss_slam.core.tum_io import CameraIntrinsics
 
 HALF_PATCH = 15
 """Radius of ORB's orientation disc (patch size 31), pixels at the keypoint's level."""

@@ -35,8 +35,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from uss_slam.datasets.errors import DataFormatError, UssSlamError
-from uss_slam.datasets.tum_io import Trajectory, quat_to_matrix
+from uss_slam.core.errors import DataFormatError, UssSlamError
+from uss_slam.core.tum_io import Trajectory, quat_to_matrix
 
 DEFAULT_MAX_DIFF = 0.02
 """Largest stamp difference (seconds) of an associated pose pair, as TUM's tools."""

@@ -49,12 +49,12 @@ from dataclasses import dataclass, field
 import numpy as np
 from tqdm import tqdm
 
-from uss_slam.datasets.errors import UssSlamError
-from uss_slam.datasets.tum_io import Trajectory
+from uss_slam.core.errors import UssSlamError
+from uss_slam.core.tum_io import Trajectory
 
 from .filters import DynamicFilter, FilterContext
 from .frontend import Features, OrbConfig, OrbExtractor
-from .segmentation import Segmenter
+from .segmenters import Segmenter
 from .semantic_map import MapConfig, PointCloud, SemanticMapBuilder
 from .sequence import Frame, TumSequence
 from .tracker import Tracker, TrackerConfig

@@ -24,8 +24,8 @@ from typing import Any
 
 import numpy as np
 
-from uss_slam.datasets.errors import UssSlamError
-from uss_slam.datasets.tum_io import StrPath, Trajectory, write_trajectory
+from uss_slam.core.errors import UssSlamError
+from uss_slam.core.tum_io import StrPath, Trajectory, write_trajectory
 
 from . import metrics
 from .pipeline import RunResult

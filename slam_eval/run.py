@@ -17,13 +17,13 @@ from hydra.errors import InstantiationException
 from omegaconf import DictConfig, ListConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
-from uss_slam.datasets.errors import UssSlamError
+from uss_slam.core.errors import UssSlamError
 
 from .filters import build_filters
 from .frontend import OrbConfig
 from .pipeline import SlamPipeline
 from .report import EvalConfig, evaluate, write_comparison, write_run
-from .segmentation import Segmenter
+from .segmenters import Segmenter
 from .semantic_map import MapConfig
 from .sequence import TumSequence
 from .tracker import TrackerConfig

@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from uss_slam.datasets.classes import CLASS_COLORS, IGNORE_INDEX
-from uss_slam.datasets.tum_io import StrPath
+from uss_slam.core.classes import CLASS_COLORS, IGNORE_INDEX
+from uss_slam.core.tum_io import StrPath
 
 from .frontend import OrbExtractor
 from .geometry import transform

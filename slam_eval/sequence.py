@@ -21,8 +21,8 @@ from typing import TypeVar
 import cv2
 import numpy as np
 
-from uss_slam.datasets.errors import DataFormatError, UssSlamError
-from uss_slam.datasets.tum_io import (
+from uss_slam.core.errors import DataFormatError, UssSlamError
+from uss_slam.core.tum_io import (
     TUM_CAMERAS,
     CameraIntrinsics,
     StrPath,

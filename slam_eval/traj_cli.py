@@ -13,8 +13,8 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from uss_slam.datasets.errors import UssSlamError
-from uss_slam.datasets.tum_io import read_trajectory
+from uss_slam.core.errors import UssSlamError
+from uss_slam.core.tum_io import read_trajectory
 
 from .metrics import (
     ALIGNMENTS,

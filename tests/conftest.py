@@ -15,7 +15,7 @@ import pytest
 from hydra.core.global_hydra import GlobalHydra
 from hydra.core.hydra_config import HydraConfig
 
-from uss_slam.datasets.synthetic import render_sequence, render_voc
+from uss_slam.synthetic import render_sequence, render_voc
 
 SequenceFactory = Callable[..., Path]
 VocFactory = Callable[..., Path]

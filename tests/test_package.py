@@ -11,11 +11,14 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 PACKAGES = {
+    "uss_slam.core": "core",
     "uss_slam.models": "models",
     "uss_slam.datasets": "datasets",
-    "uss_slam.datasets.synthetic": "datasets/synthetic",
+    "uss_slam.synthetic": "synthetic",
     "uss_slam.train": "train",
+    "uss_slam.export": "export",
     "uss_slam.slam_eval": "slam_eval",
+    "uss_slam.pipelines": "pipelines",
 }
 
 

@@ -1,1 +1,1 @@
-"""The adaptation method (LightningModule), losses, schedules, Hydra entry points, ONNX export."""
+"""The adaptation method (LightningModule), losses, schedules, callbacks and the ``uss-train`` entry."""

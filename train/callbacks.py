@@ -14,8 +14,8 @@ import torch
 from lightning.pytorch import Callback, LightningModule, Trainer
 from lightning.pytorch.loggers import TensorBoardLogger
 
-from uss_slam.datasets.classes import colorize
-from uss_slam.datasets.errors import UssSlamError
+from uss_slam.core.classes import colorize
+from uss_slam.core.errors import UssSlamError
 from uss_slam.datasets.transforms import IMAGENET_MEAN, IMAGENET_STD, denormalize
 from uss_slam.train.losses import upsample
 

@@ -13,7 +13,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from uss_slam.datasets.classes import IGNORE_INDEX
+from uss_slam.core.classes import IGNORE_INDEX
 
 SOURCE_LABEL = 0.0
 """Domain label of source outputs for the discriminators (paper: 0 = source)."""

@@ -31,8 +31,8 @@ from torch.nn.modules.batchnorm import _BatchNorm
 from torch.optim import Optimizer
 from torchmetrics.classification import MulticlassJaccardIndex
 
-from uss_slam.datasets.classes import CLASS_NAMES, IGNORE_INDEX
-from uss_slam.datasets.errors import UssSlamError
+from uss_slam.core.classes import CLASS_NAMES, IGNORE_INDEX
+from uss_slam.core.errors import UssSlamError
 from uss_slam.models.deeplab import DeepLabV2, SegmenterOutput
 from uss_slam.train.losses import (
     SOURCE_LABEL,

@@ -29,7 +29,7 @@ from torch import nn
 from torch.nn.modules.batchnorm import _BatchNorm
 from torch.utils.data import Dataset
 
-from uss_slam.datasets.errors import UssSlamError
+from uss_slam.core.errors import UssSlamError
 
 log = logging.getLogger(__name__)
 

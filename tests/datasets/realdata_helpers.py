@@ -27,8 +27,8 @@ import scipy.sparse
 from PIL import Image
 from pycocotools import mask as mask_utils
 
-from uss_slam.datasets.classes import VOC_CLASS_NAMES, voc_palette
-from uss_slam.datasets.tum_io import write_file_list
+from uss_slam.core.classes import VOC_CLASS_NAMES, voc_palette
+from uss_slam.core.tum_io import write_file_list
 
 # COCO 2017 category ids and names of the classes the tests use (the official file's values).
 COCO_CATEGORIES = [

@@ -22,14 +22,14 @@ from realdata_helpers import (
     write_voc,
 )
 
-from uss_slam.datasets.classes import COCO_TO_PROJECT, IGNORE_INDEX, voc_lut
+from uss_slam.core.classes import COCO_TO_PROJECT, IGNORE_INDEX, voc_lut
+from uss_slam.core.errors import DataFormatError
 from uss_slam.datasets.coco import (
     DEFAULT_CATEGORIES,
     COCOSegmentation,
     category_table,
     normalize_name,
 )
-from uss_slam.datasets.errors import DataFormatError
 from uss_slam.datasets.voc import VOCSegmentation
 
 torch.set_num_threads(1)

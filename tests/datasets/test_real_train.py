@@ -33,11 +33,11 @@ from realdata_helpers import (
     write_voc,
 )
 
+from uss_slam.core.tum_io import read_file_list
 from uss_slam.datasets.coco import COCOSegmentation
 from uss_slam.datasets.sbd import SBDSegmentation
 from uss_slam.datasets.selection import MANIFEST_NAME, SelectedSources
 from uss_slam.datasets.tum import TUMFrames
-from uss_slam.datasets.tum_io import read_file_list
 from uss_slam.datasets.voc import VOCSegmentation
 
 CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"

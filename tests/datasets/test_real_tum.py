@@ -11,9 +11,9 @@ import pytest
 import torch
 from realdata_helpers import write_tum
 
-from uss_slam.datasets.errors import DataFormatError
+from uss_slam.core.errors import DataFormatError
+from uss_slam.core.tum_io import read_file_list
 from uss_slam.datasets.tum import TUMFrames
-from uss_slam.datasets.tum_io import read_file_list
 
 torch.set_num_threads(1)
 
@@ -125,7 +125,7 @@ def test_missing_images_and_sequences(sequences: list[Path], tmp_path: Path) -> 
 
 def test_tum_io_stays_torch_free() -> None:
     """slam_eval imports tum_io and must never import torch (not even indirectly)."""
-    code = "import sys, uss_slam.datasets.tum_io; sys.exit('torch' in sys.modules)"
+    code = "import sys, uss_slam.core.tum_io; sys.exit('torch' in sys.modules)"
     assert subprocess.run([sys.executable, "-c", code], check=False).returncode == 0
 
 

@@ -10,8 +10,8 @@ import pytest
 import torch
 from realdata_helpers import paint_voc, standard_scenes, write_voc
 
-from uss_slam.datasets.classes import voc_lut
-from uss_slam.datasets.errors import DataFormatError
+from uss_slam.core.classes import voc_lut
+from uss_slam.core.errors import DataFormatError
 from uss_slam.datasets.voc import VOCSegmentation
 
 torch.set_num_threads(1)

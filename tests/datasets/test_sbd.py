@@ -10,8 +10,8 @@ import scipy.io
 import torch
 from realdata_helpers import paint_voc, standard_scenes, write_gtcls, write_sbd, write_voc
 
-from uss_slam.datasets.classes import voc_lut
-from uss_slam.datasets.errors import DataFormatError
+from uss_slam.core.classes import voc_lut
+from uss_slam.core.errors import DataFormatError
 from uss_slam.datasets.sbd import SBDSegmentation, read_gtcls_segmentation
 from uss_slam.datasets.voc import VOCSegmentation
 

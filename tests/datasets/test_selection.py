@@ -11,12 +11,12 @@ import pytest
 import torch
 from realdata_helpers import paint_voc, standard_scenes, write_coco, write_sbd, write_voc
 
-from uss_slam.datasets.classes import voc_lut
+from uss_slam.core.classes import voc_lut
+from uss_slam.core.errors import DataFormatError
+from uss_slam.datasets.base import SegmentationDataset
 from uss_slam.datasets.coco import COCOSegmentation
 from uss_slam.datasets.datamodule import UDADataModule
-from uss_slam.datasets.errors import DataFormatError
 from uss_slam.datasets.sbd import SBDSegmentation
-from uss_slam.datasets.segmentation import SegmentationDataset
 from uss_slam.datasets.selection import MANIFEST_NAME, SelectedSources, Selection, SelectionError
 from uss_slam.datasets.voc import VOCSegmentation
 
@@ -79,7 +79,7 @@ def _ids(selected: SelectedSources, name: str) -> list[str]:
 def test_class_filter_any_all_and_min_pixels(
     roots: dict[str, Path], classes: list[str], require: str, min_pixels: int | dict
 ) -> None:
-    from uss_slam.datasets.classes import CLASS_NAMES
+    from uss_slam.core.classes import CLASS_NAMES
 
     def shows(label: np.ndarray, name: str) -> bool:
         need = min_pixels if isinstance(min_pixels, int) else min_pixels.get(name, 1)

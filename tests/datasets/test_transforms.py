@@ -6,7 +6,7 @@ import pytest
 import torch
 from torchvision import tv_tensors
 
-from uss_slam.datasets.classes import IGNORE_INDEX
+from uss_slam.core.classes import IGNORE_INDEX
 from uss_slam.datasets.transforms import (
     IMAGENET_MEAN,
     IMAGENET_STD,

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 import torch
 
-from uss_slam.datasets.errors import DataFormatError
+from uss_slam.core.errors import DataFormatError
+from uss_slam.core.tum_io import write_file_list
 from uss_slam.datasets.tum import TUMFrames
-from uss_slam.datasets.tum_io import write_file_list
 
 torch.set_num_threads(1)
 

@@ -9,8 +9,8 @@ import pytest
 import torch
 from PIL import Image
 
-from uss_slam.datasets.classes import IGNORE_INDEX, voc_palette
-from uss_slam.datasets.errors import DataFormatError
+from uss_slam.core.classes import IGNORE_INDEX, voc_palette
+from uss_slam.core.errors import DataFormatError
 from uss_slam.datasets.transforms import IMAGENET_MEAN, IMAGENET_STD
 from uss_slam.datasets.voc import VOCSegmentation
 

@@ -6,7 +6,7 @@ import pytest
 import torch
 from torch import nn
 
-from uss_slam.datasets.errors import UssSlamError
+from uss_slam.core.errors import UssSlamError
 from uss_slam.models import ASPPClassifier, DeepLabV2, SegmenterOutput, output_size
 
 torch.set_num_threads(1)

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from uss_slam.datasets.errors import DataFormatError
+from uss_slam.core.errors import DataFormatError
 from uss_slam.models import DeepLabV2, load_segmenter_weights
 
 torch.set_num_threads(1)

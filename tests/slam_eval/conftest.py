@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
-from uss_slam.datasets.tum_io import (
+from uss_slam.core.tum_io import (
     TUM_CAMERAS,
     Trajectory,
     write_file_list,

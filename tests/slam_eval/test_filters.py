@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from uss_slam.datasets.errors import UssSlamError
-from uss_slam.datasets.tum_io import TUM_CAMERAS
+from uss_slam.core.errors import UssSlamError
+from uss_slam.core.tum_io import TUM_CAMERAS
 from uss_slam.slam_eval.filters import (
     FilterContext,
     FlowFilter,

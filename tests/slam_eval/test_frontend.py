@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from uss_slam.datasets.tum_io import TUM_CAMERAS
+from uss_slam.core.tum_io import TUM_CAMERAS
 from uss_slam.slam_eval.frontend import EDGE, OrbConfig, OrbExtractor
 
 CAM = TUM_CAMERAS["fr3"]

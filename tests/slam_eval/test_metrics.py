@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from uss_slam.datasets.errors import DataFormatError, UssSlamError
-from uss_slam.datasets.tum_io import Trajectory, quat_to_matrix
+from uss_slam.core.errors import DataFormatError, UssSlamError
+from uss_slam.core.tum_io import Trajectory, quat_to_matrix
 from uss_slam.slam_eval.metrics import (
     SECONDS_DELTA_REL_TOL,
     AlignmentError,

@@ -18,11 +18,11 @@ import pytest
 from hydra import compose, initialize_config_dir
 from onnx import TensorProto, helper
 
-from uss_slam.datasets.classes import CLASS_NAMES
-from uss_slam.datasets.errors import DataFormatError, UssSlamError
-from uss_slam.datasets.onnx_contract import KEY_CLASS_NAMES, SegmenterMetadata
+from uss_slam.core.classes import CLASS_NAMES
+from uss_slam.core.errors import DataFormatError, UssSlamError
+from uss_slam.core.onnx_contract import KEY_CLASS_NAMES, SegmenterMetadata
+from uss_slam.slam_eval.onnx_segmenter import OnnxSegmenter, resolve_providers
 from uss_slam.slam_eval.run import run
-from uss_slam.slam_eval.segmenter import OnnxSegmenter, resolve_providers
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -247,7 +247,7 @@ def _cfg(overrides: list[str]):
 
 def test_config_composes() -> None:
     cfg = _cfg(["sequence.path=/x", "segmenter=onnx", "segmenter.path=exports/x.onnx"])
-    assert cfg.segmenter._target_ == "uss_slam.slam_eval.segmenter.OnnxSegmenter"
+    assert cfg.segmenter._target_ == "uss_slam.slam_eval.onnx_segmenter.OnnxSegmenter"
     assert cfg.segmenter.path == "exports/x.onnx"
     assert cfg.segmenter.threads == 1 and cfg.segmenter.providers == "cpu"
 
@@ -312,9 +312,9 @@ def test_output_equals_the_checkpoints_pytorch_argmax(synthetic_sequence, tmp_pa
     import torch.nn.functional as F
     import yaml
 
+    from uss_slam.export.onnx_export import export_checkpoint
     from uss_slam.models import DeepLabV2
     from uss_slam.slam_eval.sequence import TumSequence
-    from uss_slam.train.export import export_checkpoint
 
     torch.manual_seed(3)
     net = DeepLabV2(4, "resnet_small", freeze_bn=False).eval()

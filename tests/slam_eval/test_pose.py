@@ -5,7 +5,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from uss_slam.datasets.tum_io import TUM_CAMERAS
+from uss_slam.core.tum_io import TUM_CAMERAS
 from uss_slam.slam_eval.geometry import invert, project, transform
 from uss_slam.slam_eval.pose import CHI2_MONO, CHI2_STEREO, chi2, observations, optimise_pose
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from uss_slam.datasets.tum_io import Trajectory
+from uss_slam.core.tum_io import Trajectory
 from uss_slam.slam_eval.report import EvalConfig, evaluate, improvement
 
 

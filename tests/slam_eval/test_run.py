@@ -10,8 +10,8 @@ from pathlib import Path
 import pytest
 from hydra import compose, initialize_config_dir
 
-from uss_slam.datasets.errors import UssSlamError
-from uss_slam.datasets.tum_io import read_trajectory
+from uss_slam.core.errors import UssSlamError
+from uss_slam.core.tum_io import read_trajectory
 from uss_slam.slam_eval.run import run
 from uss_slam.slam_eval.semantic_map import read_ply
 

@@ -13,12 +13,12 @@ import numpy as np
 import pytest
 from hydra import compose, initialize_config_dir
 
-from uss_slam.datasets.classes import CLASS_NAMES
-from uss_slam.datasets.errors import UssSlamError
+from uss_slam.core.classes import CLASS_NAMES
+from uss_slam.core.errors import UssSlamError
 from uss_slam.slam_eval.filters import build_filters
 from uss_slam.slam_eval.pipeline import RunResult, SlamPipeline
 from uss_slam.slam_eval.run import run
-from uss_slam.slam_eval.segmentation import ImageSegmenter, LabelsSegmenter
+from uss_slam.slam_eval.segmenters import ImageSegmenter, LabelsSegmenter
 from uss_slam.slam_eval.sequence import TumSequence
 
 REPO = Path(__file__).resolve().parents[2]

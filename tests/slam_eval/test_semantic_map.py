@@ -7,8 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
-from uss_slam.datasets.classes import CLASS_COLORS, IGNORE_INDEX
-from uss_slam.datasets.tum_io import TUM_CAMERAS
+from uss_slam.core.classes import CLASS_COLORS, IGNORE_INDEX
+from uss_slam.core.tum_io import TUM_CAMERAS
 from uss_slam.slam_eval.frontend import OrbConfig, OrbExtractor
 from uss_slam.slam_eval.semantic_map import MapConfig, SemanticMapBuilder, read_ply, write_ply
 

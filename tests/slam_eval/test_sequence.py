@@ -9,8 +9,8 @@ import cv2
 import numpy as np
 import pytest
 
-from uss_slam.datasets.errors import DataFormatError, UssSlamError
-from uss_slam.datasets.tum_io import TUM_CAMERAS, read_file_list, write_file_list
+from uss_slam.core.errors import DataFormatError, UssSlamError
+from uss_slam.core.tum_io import TUM_CAMERAS, read_file_list, write_file_list
 from uss_slam.slam_eval.sequence import TumSequence, resolve_camera
 
 

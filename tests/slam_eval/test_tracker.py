@@ -9,7 +9,7 @@ from uss_slam.slam_eval.filters import build_filters
 from uss_slam.slam_eval.frontend import Features, OrbConfig, OrbExtractor
 from uss_slam.slam_eval.metrics import ate
 from uss_slam.slam_eval.pipeline import SlamPipeline
-from uss_slam.slam_eval.segmentation import LabelsSegmenter, NoSegmenter
+from uss_slam.slam_eval.segmenters import LabelsSegmenter, NoSegmenter
 from uss_slam.slam_eval.sequence import TumSequence
 from uss_slam.slam_eval.tracker import Tracker, TrackerConfig, TrackingState
 

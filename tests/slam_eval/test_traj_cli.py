@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from uss_slam.datasets.tum_io import Trajectory, write_trajectory
+from uss_slam.core.tum_io import Trajectory, write_trajectory
 from uss_slam.slam_eval.traj_cli import main
 
 if sys.version_info >= (3, 11):

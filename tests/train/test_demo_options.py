@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from uss_slam.datasets.errors import UssSlamError
-from uss_slam.train import demo
+from uss_slam.core.errors import UssSlamError
+from uss_slam.pipelines import demo
 
 
 def test_train_threads_override_only_when_given() -> None:

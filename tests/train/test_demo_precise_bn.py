@@ -12,7 +12,7 @@ from hydra.utils import instantiate
 from torch import nn
 from train_helpers import compose_train, data_overrides
 
-from uss_slam.datasets.errors import UssSlamError
+from uss_slam.core.errors import UssSlamError
 from uss_slam.train.precise_bn import PreciseBatchNorm, evenly_spaced, recompute_batchnorm
 
 

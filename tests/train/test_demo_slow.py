@@ -10,10 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from uss_slam.datasets.classes import CLASS_NAMES
-from uss_slam.datasets.onnx_contract import SegmenterMetadata
-from uss_slam.slam_eval.segmenter import OnnxSegmenter
-from uss_slam.train import demo
+from uss_slam.core.classes import CLASS_NAMES
+from uss_slam.core.onnx_contract import SegmenterMetadata
+from uss_slam.pipelines import demo
+from uss_slam.slam_eval.onnx_segmenter import OnnxSegmenter
 
 ROW_KEYS = {
     "variant", "label", "segmenter", "filters", "ate_rmse", "ate_mean", "ate_median", "ate_std",

@@ -21,18 +21,17 @@ from hydra.utils import instantiate
 from omegaconf import OmegaConf
 from train_helpers import CONFIG_DIR, data_overrides
 
-from uss_slam.datasets.classes import CLASS_NAMES
-from uss_slam.datasets.errors import DataFormatError, UssSlamError
-from uss_slam.datasets.onnx_contract import (
+from uss_slam.core.classes import CLASS_NAMES
+from uss_slam.core.errors import DataFormatError, UssSlamError
+from uss_slam.core.onnx_contract import (
     KEY_DYNAMIC_CLASSES,
     KEY_FORMAT,
     KEY_HEAD,
     ONNX_METADATA_KEYS,
     SegmenterMetadata,
 )
-from uss_slam.models import DeepLabV2
-from uss_slam.train import export
-from uss_slam.train.export import (
+from uss_slam.export import onnx_export as export
+from uss_slam.export.onnx_export import (
     ExportVerificationError,
     SegmenterExport,
     export_checkpoint,
@@ -40,6 +39,7 @@ from uss_slam.train.export import (
     load_checkpoint,
     verification_images,
 )
+from uss_slam.models import DeepLabV2
 
 NET_YAML = CONFIG_DIR / "model" / "net" / "deeplab_small.yaml"
 
@@ -93,7 +93,7 @@ def exported(tmp_path_factory: pytest.TempPathFactory) -> tuple[DeepLabV2, expor
 
 
 def test_contract_module_is_torch_free() -> None:
-    code = "import sys, uss_slam.datasets.onnx_contract; assert 'torch' not in sys.modules"
+    code = "import sys, uss_slam.core.onnx_contract; assert 'torch' not in sys.modules"
     subprocess.run([sys.executable, "-c", code], check=True)
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-from uss_slam.datasets.classes import IGNORE_INDEX
+from uss_slam.core.classes import IGNORE_INDEX
 from uss_slam.train.losses import segmentation_loss
 
 

@@ -4,7 +4,7 @@ onnxruntime (never torch).
 ``uss-slam segmenter=onnx segmenter.path=exports/x.onnx [segmenter.threads=1]
 [segmenter.providers=cpu|cuda|auto]`` (``configs/segmenter/onnx.yaml``).
 
-The model must follow the contract of :mod:`uss_slam.datasets.onnx_contract` (``exports/README.md``):
+The model must follow the contract of :mod:`uss_slam.core.onnx_contract` (``exports/README.md``):
 input ``image`` uint8 RGB NHWC with dynamic batch / height / width, output ``labels`` uint8
 ``(N, H, W)``, and our ``metadata_props``. Anything else is refused when the segmenter is built,
 with the file and what is missing. The model's class names are mapped to the project's class ids
@@ -27,15 +27,15 @@ from pathlib import Path
 import numpy as np
 import onnxruntime as ort
 
-from uss_slam.datasets.classes import CLASS_NAMES
-from uss_slam.datasets.errors import DataFormatError, UssSlamError
-from uss_slam.datasets.onnx_contract import (
+from uss_slam.core.classes import CLASS_NAMES
+from uss_slam.core.errors import DataFormatError, UssSlamError
+from uss_slam.core.onnx_contract import (
     INPUT_NAME,
     OUTPUT_LABELS,
     SegmenterMetadata,
 )
 
-from .segmentation import ImageSegmenter
+from .segmenters import ImageSegmenter
 
 PROVIDER_ALIASES = {"cpu": "CPUExecutionProvider", "cuda": "CUDAExecutionProvider"}
 """Short names accepted for ``providers``, besides onnxruntime's own provider names."""
@@ -79,7 +79,7 @@ class OnnxSegmenter(ImageSegmenter):
     default, all cores). ``providers``: ``"cpu"`` (default), ``"cuda"``, ``"auto"`` or a list of
     provider names (see :func:`resolve_providers`).
 
-    Attributes: ``metadata`` (:class:`~uss_slam.datasets.onnx_contract.SegmenterMetadata`),
+    Attributes: ``metadata`` (:class:`~uss_slam.core.onnx_contract.SegmenterMetadata`),
     ``providers`` (the session's providers), ``dynamic_classes`` (the model's, by name).
     """
 

@@ -7,7 +7,7 @@ when their labels are not PNGs of class indices, override :meth:`SegmentationDat
 (SBD: ``.mat`` structs, COCO: rasterised annotations).
 
 Bad input follows one policy, ``on_error``: ``"raise"`` stops with a
-:class:`~uss_slam.datasets.errors.DataFormatError` naming the file (and line), ``"skip"`` leaves
+:class:`~uss_slam.core.errors.DataFormatError` naming the file (and line), ``"skip"`` leaves
 the item out and records the error in ``dataset.skipped`` (reported in the selection summary).
 """
 
@@ -28,8 +28,8 @@ from PIL import Image as PILImage
 from torch.utils.data import Dataset
 from torchvision import tv_tensors
 
-from uss_slam.datasets.classes import IGNORE_INDEX, NUM_CLASSES
-from uss_slam.datasets.errors import DataFormatError
+from uss_slam.core.classes import IGNORE_INDEX, NUM_CLASSES
+from uss_slam.core.errors import DataFormatError
 from uss_slam.datasets.transforms import eval_transform
 
 log = logging.getLogger(__name__)

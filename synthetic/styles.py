@@ -15,7 +15,8 @@ import math
 import cv2
 import numpy as np
 
-from ..tum_io import DEPTH_SCALE
+from uss_slam.core.tum_io import DEPTH_SCALE
+
 from .seeding import stream
 
 STYLES = ("source", "target")
@@ -33,7 +34,7 @@ def to_uint8(rgb: np.ndarray) -> np.ndarray:
 
 
 def depth_to_png(depth: np.ndarray) -> np.ndarray:
-    """Metres -> uint16 at :data:`~uss_slam.datasets.tum_io.DEPTH_SCALE`; invalid / far -> 0."""
+    """Metres -> uint16 at :data:`~uss_slam.core.tum_io.DEPTH_SCALE`; invalid / far -> 0."""
     valid = np.isfinite(depth) & (depth > 0) & (depth <= MAX_DEPTH)
     out = np.zeros(depth.shape, np.uint16)
     out[valid] = np.rint(depth[valid] * DEPTH_SCALE).astype(np.uint16)

@@ -13,7 +13,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..classes import CLASS_NAMES
+from uss_slam.core.classes import CLASS_NAMES
+
 from .primitives import Prim, box, cylinder, ellipsoid, rot_y, rot_z
 from .textures import material
 

@@ -7,8 +7,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from uss_slam.datasets.classes import CLASS_NAMES
-from uss_slam.datasets.tum_io import (
+from uss_slam.core.classes import CLASS_NAMES
+from uss_slam.core.tum_io import (
     DEPTH_SCALE,
     CameraIntrinsics,
     matrix_to_quat,
@@ -116,7 +116,7 @@ def test_style_changes_appearance_only(synthetic_sequence) -> None:
 def test_ground_truth_matches_the_rendered_poses(synthetic_sequence) -> None:
     """The 100 Hz ground truth interpolated at an image stamp is the pose that image was
     rendered from (to well below a millimetre and a hundredth of a degree)."""
-    from uss_slam.datasets.synthetic import SequenceRenderer
+    from uss_slam.synthetic import SequenceRenderer
 
     root = synthetic_sequence(preset="walking_halfsphere", frames=12, size=(64, 48))
     seq = SequenceRenderer("walking_halfsphere", 12, (64, 48), seed=0, style="target")

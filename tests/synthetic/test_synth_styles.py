@@ -8,7 +8,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from uss_slam.datasets.tum_io import read_file_list
+from uss_slam.core.tum_io import read_file_list
 
 
 def _histograms(root: Path, step: int = 3) -> list[np.ndarray]:

@@ -37,9 +37,9 @@ from typing import Any
 
 import numpy as np
 
-from uss_slam.datasets.classes import CLASS_NAMES
-from uss_slam.datasets.errors import UssSlamError
-from uss_slam.datasets.files import file_sha256
+from uss_slam.core.classes import CLASS_NAMES
+from uss_slam.core.errors import UssSlamError
+from uss_slam.core.files import file_sha256
 
 CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"
 STAMP = ".uss-demo.json"
@@ -153,7 +153,7 @@ def _fresh(folder: Path) -> None:
 
 
 def stage_data(out: Path, plan: Plan, force: bool, quiet: bool) -> str:
-    from uss_slam.datasets.synthetic import cli
+    from uss_slam.synthetic import cli
 
     argv = ["demo", "--out", str(out), *plan.synth_args]
     if force:
@@ -286,7 +286,7 @@ def iou_scores(matrix: np.ndarray) -> dict[str, Any]:
 
 
 def stage_miou(out: Path, sequence: Path, models: dict[str, Path], stride: int, force: bool) -> str:
-    from uss_slam.slam_eval.segmenter import OnnxSegmenter
+    from uss_slam.slam_eval.onnx_segmenter import OnnxSegmenter
     from uss_slam.slam_eval.sequence import TumSequence
 
     path = out / "miou.json"
@@ -422,7 +422,7 @@ def _plots(out: Path, slam_dir: Path, sequence: Path, rows: list[dict[str, Any]]
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from uss_slam.datasets.tum_io import read_trajectory
+    from uss_slam.core.tum_io import read_trajectory
     from uss_slam.slam_eval import metrics
 
     fig, ax = plt.subplots(figsize=(7, 3.4))
@@ -582,7 +582,7 @@ def run_demo(
     if train_threads is not None and train_threads < 1:
         raise UssSlamError(f"--train-threads must be >= 1, got {train_threads}")
     data = out / "data"
-    from uss_slam.datasets.synthetic.cli import DEMO_SLAM_PRESETS
+    from uss_slam.synthetic.cli import DEMO_SLAM_PRESETS
 
     if not Path(sequence).is_dir() and sequence not in DEMO_SLAM_PRESETS:
         raise UssSlamError(

@@ -8,12 +8,12 @@ from pathlib import Path
 
 import pytest
 
-from uss_slam.datasets.synthetic import OutputExistsError, SynthArgumentError, render_sequence
-from uss_slam.datasets.synthetic.cli import main
+from uss_slam.synthetic import OutputExistsError, SynthArgumentError, render_sequence
+from uss_slam.synthetic.cli import main
 
 
 def _run(args: list[str], cwd: Path) -> subprocess.CompletedProcess:
-    code = "import sys; from uss_slam.datasets.synthetic.cli import main; sys.exit(main())"
+    code = "import sys; from uss_slam.synthetic.cli import main; sys.exit(main())"
     return subprocess.run(
         [sys.executable, "-c", code, *args], cwd=cwd, capture_output=True, text=True, timeout=120
     )
@@ -98,7 +98,7 @@ def test_api_errors(tmp_path: Path) -> None:
 
 
 def test_failure_while_rendering_leaves_nothing(tmp_path: Path, monkeypatch) -> None:
-    from uss_slam.datasets.synthetic import sequence
+    from uss_slam.synthetic import sequence
 
     calls = []
 

@@ -18,8 +18,9 @@ import numpy as np
 from PIL import Image
 from tqdm import tqdm
 
-from ..classes import IGNORE_INDEX, PROJECT_TO_VOC, voc_palette
-from ..tum_io import TUM_CAMERAS
+from uss_slam.core.classes import IGNORE_INDEX, PROJECT_TO_VOC, voc_palette
+from uss_slam.core.tum_io import TUM_CAMERAS
+
 from .motion import look_at
 from .output import SynthArgumentError, check_size, staged_output, write_jpeg
 from .primitives import PrimArrays

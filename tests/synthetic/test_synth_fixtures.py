@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from uss_slam.datasets.tum_io import CameraIntrinsics, read_file_list, read_trajectory
+from uss_slam.core.tum_io import CameraIntrinsics, read_file_list, read_trajectory
 
 
 def test_sequence_fixture_layout(synthetic_sequence) -> None:

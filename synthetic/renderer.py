@@ -16,7 +16,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from ..tum_io import CameraIntrinsics
+from uss_slam.core.tum_io import CameraIntrinsics
+
 from .primitives import HIT, NEAR, PrimArrays, surface
 from .textures import TextureBank
 

@@ -7,7 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from uss_slam.datasets.files import file_sha256
+from uss_slam.core.files import file_sha256
 
 
 def test_file_sha256_matches_hashlib_across_block_boundaries(tmp_path: Path) -> None:
@@ -21,6 +21,6 @@ def test_file_sha256_matches_hashlib_across_block_boundaries(tmp_path: Path) -> 
 
 def test_files_module_does_not_import_torch() -> None:
     # uss-demo and slam_eval-side users import it; it must stay light.
-    code = "import sys, uss_slam.datasets.files; print('torch' in sys.modules)"
+    code = "import sys, uss_slam.core.files; print('torch' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"

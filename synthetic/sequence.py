@@ -16,7 +16,14 @@ import numpy as np
 import yaml
 from tqdm import tqdm
 
-from ..tum_io import TUM_CAMERAS, CameraIntrinsics, Trajectory, write_file_list, write_trajectory
+from uss_slam.core.tum_io import (
+    TUM_CAMERAS,
+    CameraIntrinsics,
+    Trajectory,
+    write_file_list,
+    write_trajectory,
+)
+
 from .motion import PRESETS, CameraMotion, Preset
 from .output import SynthArgumentError, check_size, staged_output, write_png
 from .renderer import Renderer

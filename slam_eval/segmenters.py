@@ -8,7 +8,7 @@ ground-truth ``labels/`` PNG that the sequence reader loaded with the frame.
 Plugging in a segmenter: subclass :class:`ImageSegmenter`, give it a ``name`` and implement
 ``infer``; add ``configs/segmenter/<option>.yaml`` whose ``_target_`` is the class and whose other
 keys are its constructor's keyword arguments (``uss-slam segmenter=<option> segmenter.<arg>=...``);
-raise :class:`~uss_slam.datasets.errors.UssSlamError` for bad arguments or files (``uss-slam``
+raise :class:`~uss_slam.core.errors.UssSlamError` for bad arguments or files (``uss-slam``
 prints it as one line and exits 1). When it runs is the pipeline's business (``segment=every_frame``:
 every frame, in ``slam.workers`` prefetch threads at once, so ``infer`` must be thread-safe;
 ``segment=keyframes``: keyframes only, in the main thread; see :mod:`.pipeline`).
@@ -21,8 +21,8 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from uss_slam.datasets.classes import CLASS_NAMES
-from uss_slam.datasets.errors import UssSlamError
+from uss_slam.core.classes import CLASS_NAMES
+from uss_slam.core.errors import UssSlamError
 
 from .sequence import Frame
 

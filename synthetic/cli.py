@@ -17,9 +17,10 @@ import yaml
 from PIL import Image
 from tqdm import tqdm
 
-from ..classes import CLASS_NAMES, voc_lut
-from ..errors import UssSlamError
-from ..tum_io import read_file_list
+from uss_slam.core.classes import CLASS_NAMES, voc_lut
+from uss_slam.core.errors import UssSlamError
+from uss_slam.core.tum_io import read_file_list
+
 from .motion import PRESETS
 from .output import SynthArgumentError, check_output, parse_size, staged_output
 from .sequence import render_sequence

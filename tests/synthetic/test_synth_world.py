@@ -10,11 +10,11 @@ import cv2
 import numpy as np
 import pytest
 
-from uss_slam.datasets.classes import CLASS_NAMES
-from uss_slam.datasets.synthetic import PRESETS, SequenceRenderer
-from uss_slam.datasets.synthetic.people import Behaviour, LoopPath, Seat
-from uss_slam.datasets.synthetic.styles import MAX_DEPTH
-from uss_slam.datasets.tum_io import DEPTH_SCALE, matrix_to_quat
+from uss_slam.core.classes import CLASS_NAMES
+from uss_slam.core.tum_io import DEPTH_SCALE, matrix_to_quat
+from uss_slam.synthetic import PRESETS, SequenceRenderer
+from uss_slam.synthetic.people import Behaviour, LoopPath, Seat
+from uss_slam.synthetic.styles import MAX_DEPTH
 
 PERSON = CLASS_NAMES.index("person")
 

@@ -11,15 +11,15 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from uss_slam.datasets.classes import NUM_CLASSES, voc_palette
-from uss_slam.datasets.synthetic.voc import void_width
-from uss_slam.datasets.tum_io import (
+from uss_slam.core.classes import NUM_CLASSES, voc_palette
+from uss_slam.core.tum_io import (
     TUM_CAMERAS,
     CameraIntrinsics,
     associate,
     read_file_list,
     read_trajectory,
 )
+from uss_slam.synthetic.voc import void_width
 
 STAMP = re.compile(r"^\d{10}\.\d{6}$")
 

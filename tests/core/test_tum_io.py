@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from uss_slam.datasets.errors import DataFormatError
-from uss_slam.datasets.tum_io import (
+from uss_slam.core.errors import DataFormatError
+from uss_slam.core.tum_io import (
     TUM_CAMERAS,
     CameraIntrinsics,
     Trajectory,

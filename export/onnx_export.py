@@ -7,7 +7,7 @@ Examples::
     uss-export ckpt_path=PATH int8=true calibration.root=outputs/demo/data/slam/walking_xyz
 
 Only the segmenter is exported (``segmenter.*`` weights; the discriminators stay behind), wrapped
-so that the graph follows the contract of :mod:`uss_slam.datasets.onnx_contract`: uint8 NHWC RGB
+so that the graph follows the contract of :mod:`uss_slam.core.onnx_contract`: uint8 NHWC RGB
 in; ``logits`` (N, C, H, W) at the input size and uint8 ``labels`` (N, H, W) out; normalisation
 and layout change inside the graph; metadata in ``metadata_props``.
 
@@ -44,10 +44,10 @@ from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 from torch import Tensor, nn
 
-from uss_slam.datasets.classes import CLASS_NAMES, DYNAMIC_CLASSES
-from uss_slam.datasets.errors import DataFormatError, UssSlamError
-from uss_slam.datasets.files import file_sha256
-from uss_slam.datasets.onnx_contract import (
+from uss_slam.core.classes import CLASS_NAMES, DYNAMIC_CLASSES
+from uss_slam.core.errors import DataFormatError, UssSlamError
+from uss_slam.core.files import file_sha256
+from uss_slam.core.onnx_contract import (
     HEADS,
     INPUT_NAME,
     OUTPUT_LABELS,
@@ -495,7 +495,7 @@ def read_calibration_frames(
     never saw). Returns ``(calibration, evaluation)`` lists of ``(H, W, 3)`` uint8 RGB."""
     import cv2
 
-    from uss_slam.datasets.tum_io import read_file_list
+    from uss_slam.core.tum_io import read_file_list
 
     root = Path(root)
     rgb_list = root / "rgb.txt"

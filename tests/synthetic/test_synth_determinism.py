@@ -5,7 +5,7 @@ from __future__ import annotations
 import hashlib
 from pathlib import Path
 
-from uss_slam.datasets.synthetic import render_sequence, render_voc
+from uss_slam.synthetic import render_sequence, render_voc
 
 
 def _digest(root: Path) -> dict[str, str]:

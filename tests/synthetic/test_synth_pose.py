@@ -9,11 +9,11 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from uss_slam.datasets.classes import CLASS_NAMES
-from uss_slam.datasets.synthetic import SequenceRenderer
-from uss_slam.datasets.synthetic.sequence import Frame
-from uss_slam.datasets.synthetic.styles import depth_to_png
-from uss_slam.datasets.tum_io import DEPTH_SCALE
+from uss_slam.core.classes import CLASS_NAMES
+from uss_slam.core.tum_io import DEPTH_SCALE
+from uss_slam.synthetic import SequenceRenderer
+from uss_slam.synthetic.sequence import Frame
+from uss_slam.synthetic.styles import depth_to_png
 
 PERSON = CLASS_NAMES.index("person")
 STARTS = range(0, 288, 24)

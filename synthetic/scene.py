@@ -11,7 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..classes import CLASS_NAMES
+from uss_slam.core.classes import CLASS_NAMES
+
 from .people import SEAT_HEIGHT, Behaviour, BodyPose, LoopPath, Outfit, Seat, body_prims
 from .primitives import Prim, PrimArrays, box, cylinder, rot_z
 from .renderer import Lighting, PointLight, Room

@@ -12,7 +12,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ..errors import UssSlamError
+from uss_slam.core.errors import UssSlamError
 
 PNG_PARAMS = [cv2.IMWRITE_PNG_COMPRESSION, 3]
 JPEG_PARAMS = [cv2.IMWRITE_JPEG_QUALITY, 90]

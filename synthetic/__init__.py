@@ -2,7 +2,7 @@
 
 Public API::
 
-    from uss_slam.datasets.synthetic import render_sequence, render_voc, PRESETS
+    from uss_slam.synthetic import render_sequence, render_voc, PRESETS
 
 - :func:`render_sequence` writes a TUM RGB-D sequence folder (plus ``labels/`` and
   ``intrinsics.yaml``) for one of :data:`PRESETS`, in the ``source`` or ``target`` style.
