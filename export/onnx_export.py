@@ -23,7 +23,6 @@ from __future__ import annotations
 import json
 import logging
 import os
-import sys
 import time
 import warnings
 from collections.abc import Mapping, Sequence
@@ -38,13 +37,13 @@ import onnx
 import onnxruntime as ort
 import torch
 import torch.nn.functional as F
-from hydra.errors import InstantiationException
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 from torch import Tensor, nn
 
 from uss_slam.core.classes import CLASS_NAMES, DYNAMIC_CLASSES
+from uss_slam.core.cli import exit_on_user_error
 from uss_slam.core.errors import DataFormatError, UssSlamError
 from uss_slam.core.files import file_sha256
 from uss_slam.core.onnx_contract import (
@@ -643,14 +642,6 @@ def add_int8(
 # ---------------------------------------------------------------------------- CLI
 
 
-def _user_error(error: BaseException | None) -> UssSlamError | None:
-    while error is not None:
-        if isinstance(error, UssSlamError):
-            return error
-        error = error.__cause__ or error.__context__
-    return None
-
-
 def run(cfg: DictConfig) -> ExportResult:
     """``uss-export`` without Hydra's wrapper (tests call it with a composed config)."""
     if cfg.get("num_threads"):
@@ -696,14 +687,8 @@ def run(cfg: DictConfig) -> ExportResult:
 
 @hydra.main(version_base="1.3", config_path="../configs", config_name="export")
 def main(cfg: DictConfig) -> None:
-    try:
+    with exit_on_user_error("uss-export", (OmegaConfBaseException,)):
         result = run(cfg)
-    except (UssSlamError, InstantiationException, OmegaConfBaseException) as error:
-        cause = _user_error(error)
-        if cause is None:
-            raise
-        print(f"uss-export: error: {cause}".splitlines()[0], file=sys.stderr)
-        sys.exit(1)
     v = result.verify
     print(
         f"uss-export: wrote {result.path} (verified at {v['verify_size']}: max |logit diff| "

@@ -7,16 +7,15 @@ write the report (one run, or the baseline plus each filter set of ``compare``).
 from __future__ import annotations
 
 import logging
-import sys
 from pathlib import Path
 from typing import Any
 
 import hydra
 from hydra.core.hydra_config import HydraConfig
-from hydra.errors import InstantiationException
 from omegaconf import DictConfig, ListConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
+from uss_slam.core.cli import exit_on_user_error
 from uss_slam.core.errors import UssSlamError
 
 from .filters import build_filters
@@ -128,26 +127,11 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     return data
 
 
-def _user_error(error: BaseException | None) -> BaseException | None:
-    """The project (or config) error behind ``error`` (Hydra wraps instantiation errors)."""
-    while error is not None:
-        if isinstance(error, (UssSlamError, OmegaConfBaseException)):
-            return error
-        error = error.__cause__ or error.__context__
-    return None
-
-
 @hydra.main(version_base="1.3", config_path="../configs", config_name="slam_eval")
 def main(cfg: DictConfig) -> float | None:
     """Hydra entry point; returns the ATE RMSE (metres) for sweepers, None if not evaluated."""
-    try:
+    with exit_on_user_error("uss-slam", (OmegaConfBaseException,)):
         data = run(cfg)
-    except (UssSlamError, InstantiationException, OmegaConfBaseException) as error:
-        cause = _user_error(error)
-        if cause is None:
-            raise
-        print(f"uss-slam: error: {cause}".splitlines()[0], file=sys.stderr)
-        sys.exit(1)
     ate = data.get("ate")
     return None if ate is None else float(ate["rmse"])
 

@@ -12,21 +12,20 @@ Returns the value of ``optimized_metric`` (``val/mIoU``) so Hydra sweepers can o
 from __future__ import annotations
 
 import logging
-import sys
 from pathlib import Path
 from typing import Any
 
 import hydra
 import lightning as L
 import torch
-from hydra.core.hydra_config import HydraConfig
-from hydra.errors import InstantiationException
 from hydra.utils import instantiate
 from lightning.pytorch import Callback, LightningDataModule, LightningModule, Trainer
 from lightning.pytorch.callbacks import LearningRateMonitor
 from lightning.pytorch.loggers import Logger
 from omegaconf import DictConfig, OmegaConf
+from omegaconf.errors import OmegaConfBaseException
 
+from uss_slam.core.cli import exit_on_user_error
 from uss_slam.core.errors import UssSlamError
 
 log = logging.getLogger(__name__)
@@ -96,28 +95,11 @@ def train(cfg: DictConfig) -> dict[str, float]:
     return metrics
 
 
-def _user_error(error: BaseException) -> UssSlamError | None:
-    """The project error behind ``error`` (Hydra wraps errors raised while instantiating)."""
-    while error is not None:
-        if isinstance(error, UssSlamError):
-            return error
-        error = error.__cause__ or error.__context__  # type: ignore[assignment]
-    return None
-
-
 @hydra.main(version_base="1.3", config_path="../configs", config_name="train")
 def main(cfg: DictConfig) -> float | None:
     """Hydra entry point; returns ``cfg.optimized_metric`` for sweepers."""
-    try:
+    with exit_on_user_error("uss-train", (OmegaConfBaseException,)):
         metrics = train(cfg)
-    except (UssSlamError, InstantiationException) as error:
-        cause = _user_error(error)
-        if cause is None:
-            raise
-        job = HydraConfig.get().job.name if HydraConfig.initialized() else "uss-train"
-        print(f"uss-train: error: {cause}", file=sys.stderr)
-        log.debug("job %s failed", job, exc_info=True)
-        sys.exit(1)
     metric = cfg.get("optimized_metric")
     return metrics.get(metric) if metric else None
 

@@ -165,9 +165,9 @@ def test_a_missing_root_is_one_line_naming_it(roots: dict[str, Path], tmp_path: 
     )
     with pytest.raises(Exception, match=r"nowhere: SBD root not found") as info:
         instantiate(cfg.data)
-    from uss_slam.train.train import _user_error
+    from uss_slam.core.cli import user_error
 
-    assert _user_error(info.value) is not None  # uss-train turns it into one line, exit 1
+    assert user_error(info.value) is not None  # uss-train turns it into one line, exit 1
 
 
 def test_on_error_reaches_every_set_and_the_target(roots: dict[str, Path], tmp_path: Path) -> None:
