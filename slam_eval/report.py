@@ -27,7 +27,7 @@ import numpy as np
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.tum_io import StrPath, Trajectory, write_trajectory
 
-from . import metrics
+from . import metrics, plots
 from .pipeline import RunResult
 from .semantic_map import write_ply
 
@@ -146,39 +146,16 @@ def _plots(out: Path, evaluation: Evaluation, title: str) -> list[str]:
     """Top view of aligned trajectory vs ground truth and ATE over time; returns file names."""
     if evaluation.ate is None:
         return []
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     a = evaluation.ate
-    gt, est = a.gt_positions, a.est_positions
-    # "Top view": the two axes along which the ground truth spreads most.
-    axes = np.sort(np.argsort(-(gt.max(axis=0) - gt.min(axis=0)))[:2])
-    names = "xyz"
-    fig, ax = plt.subplots(figsize=(6, 5))
-    ax.plot(gt[:, axes[0]], gt[:, axes[1]], "k--", lw=1.2, label="ground truth")
-    ax.plot(est[:, axes[0]], est[:, axes[1]], "-", color="tab:blue", lw=1.2, label="estimate")
-    ax.set_xlabel(f"{names[axes[0]]} [m]")
-    ax.set_ylabel(f"{names[axes[1]]} [m]")
-    ax.set_aspect("equal", adjustable="datalim")
-    ax.set_title(f"{title}: trajectory ({a.stats.pairs} poses, aligned)")
-    ax.legend()
-    fig.tight_layout()
-    fig.savefig(out / "trajectory.png", dpi=110)
-    plt.close(fig)
-
-    fig, ax = plt.subplots(figsize=(7, 3.2))
-    t = a.stamps - a.stamps[0]
-    ax.plot(t, a.errors * 100.0, lw=1.0, color="tab:red")
-    ax.axhline(a.stats.rmse * 100.0, color="k", ls=":", lw=1, label=f"RMSE {a.stats.rmse:.4f} m")
-    ax.set_xlabel("time [s]")
-    ax.set_ylabel("ATE [cm]")
-    ax.set_title(f"{title}: absolute trajectory error")
-    ax.legend()
-    fig.tight_layout()
-    fig.savefig(out / "ate.png", dpi=110)
-    plt.close(fig)
+    plots.plot_trajectories(
+        out / "trajectory.png",
+        a.gt_positions,
+        [("estimate", a.est_positions)],
+        f"{title}: trajectory ({a.stats.pairs} poses, aligned)",
+    )
+    plots.plot_error_over_time(
+        out / "ate.png", a.stamps, a.errors, f"{title}: absolute trajectory error"
+    )
     return ["trajectory.png", "ate.png"]
 
 

@@ -26,6 +26,7 @@ from .metrics import (
     ate,
     rpe,
 )
+from .plots import check_plot_path, plot_ate
 
 PROG = "uss-traj"
 _STAT_KEYS = ("rmse", "mean", "median", "std", "min", "max")
@@ -104,8 +105,9 @@ def build_parser() -> argparse.ArgumentParser:
     p_ate.add_argument(
         "--plot",
         type=Path,
-        metavar="FILE.png",
-        help="also save a figure: top view of both trajectories and the error over time",
+        metavar="FILE",
+        help="also save a figure: top view of both trajectories and the error over time "
+        "(format from the extension: .png, .pdf, .svg, ...)",
     )
 
     p_rpe = sub.add_parser(
@@ -170,46 +172,6 @@ def format_rpe(result: RpeResult, gt: Path, est: Path, max_diff: float, offset: 
     return "\n".join(lines)
 
 
-def plot_ate(result: AteResult, path: Path) -> None:
-    """Save a top view (the two axes along which the ground truth spreads most) and the error
-    over time to ``path``. Imports matplotlib (Agg) only when asked."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    import numpy as np
-
-    spread = np.ptp(result.gt_positions, axis=0)
-    a, b = sorted(np.argsort(spread)[-2:])
-    names = "xyz"
-    fig, (top, err) = plt.subplots(1, 2, figsize=(11, 4.5))
-    top.plot(result.gt_positions[:, a], result.gt_positions[:, b], "k-", lw=1, label="ground truth")
-    top.plot(
-        result.est_positions[:, a],
-        result.est_positions[:, b],
-        "C0-",
-        lw=1,
-        label=f"estimate ({result.align})",
-    )
-    top.set_xlabel(f"{names[a]} (m)")
-    top.set_ylabel(f"{names[b]} (m)")
-    top.set_aspect("equal", adjustable="datalim")
-    top.legend(loc="best")
-    top.set_title("trajectory, top view")
-    t = result.stamps - result.stamps[0]
-    err.plot(t, result.errors, "C3-", lw=1)
-    err.axhline(result.stats.rmse, color="k", ls="--", lw=1, label=f"rmse {result.stats.rmse:.4f}")
-    err.set_xlabel("time (s)")
-    err.set_ylabel("ATE (m)")
-    err.legend(loc="best")
-    err.set_title("ATE over time")
-    fig.tight_layout()
-    try:
-        fig.savefig(path, dpi=100)
-    finally:
-        plt.close(fig)
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -219,6 +181,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.unit == "frames" and not float(args.delta).is_integer():
             args.subparser.error(f"--delta must be a whole number of frames, got {args.delta:g}")
     try:
+        if args.command == "ate" and args.plot is not None:
+            check_plot_path(args.plot)  # before any work
         gt = read_trajectory(args.gt)
         est = read_trajectory(args.est)
         if args.command == "ate":
@@ -229,11 +193,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 else format_ate(result, args.gt, args.est, args.max_diff, args.offset)
             )
             if args.plot is not None:
-                try:
-                    plot_ate(result, args.plot)
-                except OSError as err:
-                    print(f"{PROG}: error: {args.plot}: cannot write plot ({err})", file=sys.stderr)
-                    return 1
+                plot_ate(args.plot, result)
         else:
             delta = int(args.delta) if args.unit == "frames" else args.delta
             result = rpe(

@@ -269,3 +269,16 @@ def test_bad_arguments_exit_2(capsys: pytest.CaptureFixture[str], argv: list[str
     assert info.value.code == 2
     err = capsys.readouterr().err
     assert "usage: uss-traj" in err and "error:" in err
+
+
+def test_plot_with_unknown_extension_fails_before_any_work(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    gt, est = write_pair(tmp_path)
+    target = tmp_path / "ate.jpgg"
+    code, out, err = run(capsys, "ate", gt, est, "--plot", target)
+    assert code == 1 and out == ""
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"uss-traj: error: {target}: extension '.jpgg'")
+    assert ".png" in lines[0] and ".svg" in lines[0]
+    assert not target.exists()
