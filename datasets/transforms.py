@@ -18,9 +18,7 @@ from torchvision.transforms.v2 import functional as F
 from torchvision.transforms.v2._utils import query_size
 
 from uss_slam.core.classes import IGNORE_INDEX
-
-IMAGENET_MEAN: tuple[float, float, float] = (0.485, 0.456, 0.406)
-IMAGENET_STD: tuple[float, float, float] = (0.229, 0.224, 0.225)
+from uss_slam.core.normalization import IMAGENET_MEAN, IMAGENET_STD
 
 
 class RandomScale(v2.Transform):
