@@ -15,7 +15,7 @@ import torch
 from torchvision import tv_tensors
 from torchvision.transforms import v2
 from torchvision.transforms.v2 import functional as F
-from torchvision.transforms.v2._utils import query_size
+from torchvision.transforms.v2 import query_size
 
 from uss_slam.core.classes import IGNORE_INDEX
 from uss_slam.core.normalization import IMAGENET_MEAN, IMAGENET_STD
