@@ -1,4 +1,5 @@
-"""TUM RGB-D text formats: image lists, trajectories, camera intrinsics. Pure NumPy.
+"""TUM RGB-D formats: image lists, trajectories, camera intrinsics and the sequence folder layout.
+NumPy, SciPy (rotations) and YAML only.
 
 The layout (https://cvg.cit.tum.de/data/datasets/rgbd-dataset/file_formats):
 
@@ -20,8 +21,9 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+from scipy.spatial.transform import Rotation
 
-from .errors import DataFormatError
+from .errors import DataFormatError, UssSlamError
 
 DEPTH_SCALE = 5000.0
 """Depth PNG units per metre."""
@@ -36,50 +38,24 @@ StrPath = str | PathLike[str]
 
 
 def quat_to_matrix(q: np.ndarray) -> np.ndarray:
-    """Rotation matrices ``(..., 3, 3)`` from unit quaternions ``(..., 4)`` ordered ``qx qy qz qw``."""
+    """Rotation matrices ``(..., 3, 3)`` from quaternions ``(..., 4)`` ordered ``qx qy qz qw``
+    (Hamilton, scalar last: scipy's order); normalised first."""
     q = np.asarray(q, dtype=np.float64)
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    x, y, z, w = np.moveaxis(q, -1, 0)
-    r = np.empty(q.shape[:-1] + (3, 3))
-    r[..., 0, 0] = 1 - 2 * (y * y + z * z)
-    r[..., 0, 1] = 2 * (x * y - z * w)
-    r[..., 0, 2] = 2 * (x * z + y * w)
-    r[..., 1, 0] = 2 * (x * y + z * w)
-    r[..., 1, 1] = 1 - 2 * (x * x + z * z)
-    r[..., 1, 2] = 2 * (y * z - x * w)
-    r[..., 2, 0] = 2 * (x * z - y * w)
-    r[..., 2, 1] = 2 * (y * z + x * w)
-    r[..., 2, 2] = 1 - 2 * (x * x + y * y)
-    return r
+    flat = q.reshape(-1, 4)
+    if len(flat) == 0:
+        return np.zeros(q.shape[:-1] + (3, 3))
+    return Rotation.from_quat(flat).as_matrix().reshape(q.shape[:-1] + (3, 3))
 
 
 def matrix_to_quat(r: np.ndarray) -> np.ndarray:
-    """Unit quaternions ``(..., 4)`` (``qx qy qz qw``, ``qw >= 0``) from rotations ``(..., 3, 3)``.
-
-    Shepperd's method: picks the numerically largest of the four candidate pivots.
-    """
+    """Unit quaternions ``(..., 4)`` (``qx qy qz qw``, ``qw >= 0``) from rotations ``(..., 3, 3)``."""
     r = np.asarray(r, dtype=np.float64)
     flat = r.reshape(-1, 3, 3)
-    out = np.empty((flat.shape[0], 4))
-    for i, m in enumerate(flat):
-        tr = m[0, 0] + m[1, 1] + m[2, 2]
-        diag = (m[0, 0], m[1, 1], m[2, 2])
-        if tr >= max(diag):
-            s = 2.0 * math.sqrt(max(1.0 + tr, 0.0))
-            q = ((m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s, s / 4)
-        elif diag[0] >= diag[1] and diag[0] >= diag[2]:
-            s = 2.0 * math.sqrt(max(1.0 + m[0, 0] - m[1, 1] - m[2, 2], 0.0))
-            q = (s / 4, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s, (m[2, 1] - m[1, 2]) / s)
-        elif diag[1] >= diag[2]:
-            s = 2.0 * math.sqrt(max(1.0 + m[1, 1] - m[0, 0] - m[2, 2], 0.0))
-            q = ((m[0, 1] + m[1, 0]) / s, s / 4, (m[1, 2] + m[2, 1]) / s, (m[0, 2] - m[2, 0]) / s)
-        else:
-            s = 2.0 * math.sqrt(max(1.0 + m[2, 2] - m[0, 0] - m[1, 1], 0.0))
-            q = ((m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, s / 4, (m[1, 0] - m[0, 1]) / s)
-        qv = np.asarray(q)
-        qv /= np.linalg.norm(qv)
-        out[i] = -qv if qv[3] < 0 else qv
-    return out.reshape(r.shape[:-2] + (4,))
+    if len(flat) == 0:
+        return np.zeros(r.shape[:-2] + (4,))
+    q = Rotation.from_matrix(flat).as_quat()
+    q[q[:, 3] < 0] *= -1.0  # the sign TUM files use; a 180-degree turn (qw = 0) keeps scipy's
+    return q.reshape(r.shape[:-2] + (4,))
 
 
 # --------------------------------------------------------------------------- parsing helpers
@@ -371,38 +347,72 @@ class CameraIntrinsics:
 
     @classmethod
     def from_yaml(cls, path: StrPath) -> CameraIntrinsics:
+        """Read an ``intrinsics.yaml``, checking every value: ``fx``, ``fy`` and ``depth_scale``
+        finite and > 0, ``width`` / ``height`` whole numbers > 0, the principal point inside the
+        image, 4, 5 or 8 finite distortion coefficients; errors name the file and the key."""
         path = Path(path)
         try:
             data = yaml.safe_load(path.read_text())
         except FileNotFoundError:
             raise DataFormatError(path, "file not found") from None
+        except (OSError, UnicodeDecodeError) as err:
+            raise DataFormatError(path, f"cannot read the file ({err})") from None
         except yaml.YAMLError as err:
-            raise DataFormatError(path, f"not valid YAML ({err})") from None
+            mark = getattr(err, "problem_mark", None)
+            problem = getattr(err, "problem", None) or "syntax error"
+            line = None if mark is None else mark.line + 1
+            raise DataFormatError(path, f"not valid YAML ({problem})", line) from None
         required = ("fx", "fy", "cx", "cy", "width", "height")
         if not isinstance(data, dict) or any(k not in data for k in required):
             raise DataFormatError(path, f"expected a mapping with keys {', '.join(required)}")
-        try:
-            distortion = tuple(float(d) for d in data.get("distortion", [0.0] * 5))
-            cam = cls(
-                fx=float(data["fx"]),
-                fy=float(data["fy"]),
-                cx=float(data["cx"]),
-                cy=float(data["cy"]),
-                width=int(data["width"]),
-                height=int(data["height"]),
-                distortion=distortion,
-                depth_scale=float(data.get("depth_scale", DEPTH_SCALE)),
-            )
-        except (TypeError, ValueError) as err:
-            raise DataFormatError(path, f"intrinsics must be numbers ({err})") from None
-        if len(distortion) not in (4, 5, 8):
+        unknown = sorted(str(k) for k in data if k not in INTRINSICS_KEYS)
+        if unknown:
             raise DataFormatError(
-                path, f"distortion needs 4, 5 or 8 coefficients, got {len(distortion)}"
+                path, f"unknown key {unknown[0]!r}; expected {', '.join(INTRINSICS_KEYS)}"
             )
-        if cam.fx <= 0 or cam.fy <= 0 or cam.width <= 0 or cam.height <= 0:
-            raise DataFormatError(path, "fx, fy, width and height must be positive")
-        return cam
 
+        def number(key: str, value: object) -> float:
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise DataFormatError(path, f"{key} must be a number, got {value!r}")
+            if not math.isfinite(value):
+                raise DataFormatError(path, f"{key} must be a finite number, got {value}")
+            return float(value)
+
+        def positive(key: str) -> float:
+            value = number(key, data[key])
+            if value <= 0:
+                raise DataFormatError(path, f"{key} must be > 0, got {value:g}")
+            return value
+
+        def size(key: str) -> int:
+            value = positive(key)
+            if not value.is_integer():
+                raise DataFormatError(path, f"{key} must be a whole number of pixels, got {value}")
+            return int(value)
+
+        fx, fy = positive("fx"), positive("fy")
+        width, height = size("width"), size("height")
+        cx, cy = number("cx", data["cx"]), number("cy", data["cy"])
+        for key, value, limit in (("cx", cx, width), ("cy", cy, height)):
+            if not 0 <= value < limit:
+                side = "width" if key == "cx" else "height"
+                raise DataFormatError(
+                    path, f"{key} must lie inside the image (0 <= {key} < {side} {limit}), "
+                    f"got {value:g}"
+                )  # fmt: skip
+        coefficients = data.get("distortion", [0.0] * 5)
+        if not isinstance(coefficients, list) or len(coefficients) not in (4, 5, 8):
+            count = len(coefficients) if isinstance(coefficients, list) else "no list"
+            raise DataFormatError(
+                path, f"distortion needs a list of 4, 5 or 8 coefficients, got {count}"
+            )
+        distortion = tuple(number(f"distortion[{k}]", d) for k, d in enumerate(coefficients))
+        depth_scale = positive("depth_scale") if "depth_scale" in data else DEPTH_SCALE
+        return cls(fx, fy, cx, cy, width, height, distortion, depth_scale)
+
+
+INTRINSICS_KEYS = ("fx", "fy", "cx", "cy", "width", "height", "distortion", "depth_scale")
+"""The keys of an ``intrinsics.yaml`` (:meth:`CameraIntrinsics.from_yaml`)."""
 
 TUM_CAMERAS: dict[str, CameraIntrinsics] = {
     # Published calibrations of the TUM RGB-D Kinects (640×480), with their distortion.
@@ -414,3 +424,178 @@ TUM_CAMERAS: dict[str, CameraIntrinsics] = {
     ),
     "fr3": CameraIntrinsics(535.4, 539.2, 320.1, 247.6, 640, 480),
 }
+
+
+# --------------------------------------------------------------------------- sequence folders
+
+RGB_LIST = "rgb.txt"
+DEPTH_LIST = "depth.txt"
+GROUNDTRUTH_FILE = "groundtruth.txt"
+INTRINSICS_FILE = "intrinsics.yaml"
+LABELS_DIR = "labels"
+"""Our synthetic sequences add ``labels/<rgb file name>``: uint8 class-id PNGs."""
+
+
+def resolve_camera(
+    spec: str | None, sequence_dir: Path, image_size: tuple[int, int], key: str = "camera"
+) -> tuple[CameraIntrinsics, str]:
+    """The camera for ``spec`` and a short description of where it came from.
+
+    ``None``/``"auto"``: the sequence's ``intrinsics.yaml`` if present, else TUM fr3.
+    ``"fr1" | "fr2" | "fr3"``: TUM's published calibration (with distortion for fr1/fr2), rescaled
+    when the images are not 640×480. Anything else is a path to an ``intrinsics.yaml``-format file,
+    which must match the image size exactly. ``image_size`` is ``(width, height)``; ``key`` is the
+    config key errors name.
+    """
+    width, height = image_size
+    if spec is None or str(spec).strip().lower() in ("", "auto", "none", "null"):
+        own = Path(sequence_dir) / INTRINSICS_FILE
+        if own.is_file():
+            return _same_size(CameraIntrinsics.from_yaml(own), own, image_size), str(own)
+        spec = "fr3"
+    name = str(spec).strip()
+    if name.lower() in TUM_CAMERAS:
+        cam = TUM_CAMERAS[name.lower()]
+        if (cam.width, cam.height) != (width, height):
+            cam = cam.scaled(width, height)
+        return cam, name.lower()
+    path = Path(name).expanduser()
+    if not path.exists():
+        raise UssSlamError(
+            f"{key}={name!r}: not one of {', '.join(sorted(TUM_CAMERAS))} "
+            f"and no such file (expected a camera name or a path to an {INTRINSICS_FILE})"
+        )
+    if path.is_dir():
+        raise DataFormatError(path, f"is a folder; expected an {INTRINSICS_FILE}-format file")
+    return _same_size(CameraIntrinsics.from_yaml(path), path, image_size), str(path)
+
+
+def _same_size(cam: CameraIntrinsics, path: Path, image_size: tuple[int, int]) -> CameraIntrinsics:
+    if (cam.width, cam.height) != image_size:
+        raise DataFormatError(
+            path,
+            f"camera is {cam.width}x{cam.height} but the sequence's images are "
+            f"{image_size[0]}x{image_size[1]}",
+        )
+    return cam
+
+
+@dataclass(frozen=True)
+class FrameFiles:
+    """One colour frame of a sequence folder with its partners (absolute paths, seconds).
+
+    ``rgb_index`` / ``depth_index`` are the entries of ``rgb.txt`` / ``depth.txt``; ``depth``
+    fields are None when the folder was read without depth, ``labels`` when without labels.
+    """
+
+    stamp: float
+    rgb: Path
+    rgb_index: int
+    depth_stamp: float | None = None
+    depth: Path | None = None
+    depth_index: int | None = None
+    labels: Path | None = None
+
+
+@dataclass(frozen=True)
+class TumFolder:
+    """The file layout of a TUM RGB-D sequence folder (see :func:`read_tum_folder`)."""
+
+    root: Path
+    rgb: FileList
+    depth: FileList | None
+    frames: tuple[FrameFiles, ...]
+    unmatched_rgb: int
+    """Colour frames without a depth frame within ``max_diff`` (left out of ``frames``)."""
+
+    @property
+    def groundtruth(self) -> Path | None:
+        """``groundtruth.txt`` when the folder has one."""
+        path = self.root / GROUNDTRUTH_FILE
+        return path if path.is_file() else None
+
+    def missing(self, frame: FrameFiles) -> DataFormatError | None:
+        """The error for the first file of ``frame`` that does not exist (None: all there);
+        it names the list file and line that lists the missing image."""
+        for files, index, path in (
+            (self.rgb, frame.rgb_index, frame.rgb),
+            (self.depth, frame.depth_index, frame.depth),
+        ):
+            if files is None or index is None or path is None or path.is_file():
+                continue
+            line = files.lines[index] if files.lines else None
+            return DataFormatError(files.path, f"listed image {files.files[index]} not found", line)
+        if frame.labels is not None and not frame.labels.is_file():
+            return DataFormatError(
+                frame.labels,
+                f"label of {self.rgb.files[frame.rgb_index]} not found "
+                f"({LABELS_DIR}/ must mirror rgb/)",
+            )
+        return None
+
+
+def read_tum_folder(
+    root: StrPath,
+    *,
+    depth: bool = True,
+    labels: bool = False,
+    max_diff: float = 0.02,
+    skipped: list[DataFormatError] | None = None,
+) -> TumFolder:
+    """Read a sequence folder's lists: ``rgb.txt``, with ``depth`` also ``depth.txt`` associated
+    to it as TUM's ``associate.py`` does (nearest stamp within ``max_diff`` seconds), with
+    ``labels`` the ``labels/`` file of every colour frame.
+
+    Missing folders and lists, lists without entries, no association at all: a
+    :class:`DataFormatError` naming the path. Bad list lines too, unless ``skipped`` is given
+    (they are then left out and their errors appended, see :func:`read_file_list`). Whether the
+    listed images exist is :meth:`TumFolder.missing`'s business, for the frames one uses.
+    """
+    root = Path(root).expanduser()
+    needed = f"{RGB_LIST} and {DEPTH_LIST}" if depth else RGB_LIST
+    if not root.is_dir():
+        raise DataFormatError(root, f"not a folder; expected a TUM RGB-D sequence with {needed}")
+    lists = [RGB_LIST, DEPTH_LIST] if depth else [RGB_LIST]
+    for name in lists:
+        if not (root / name).is_file():
+            raise DataFormatError(root / name, f"not a TUM RGB-D sequence: {name} not found")
+    rgb = read_file_list(root / RGB_LIST, skipped=skipped)
+    if len(rgb) == 0:
+        raise DataFormatError(rgb.path, "lists no images")
+    labels_dir = root / LABELS_DIR
+    if labels and not labels_dir.is_dir():
+        raise DataFormatError(
+            labels_dir,
+            "folder not found; labels were requested (uint8 class-id PNGs named as the rgb/ files)",
+        )
+
+    def label(index: int) -> Path | None:
+        return labels_dir / Path(rgb.files[index]).name if labels else None
+
+    if not depth:
+        frames = tuple(
+            FrameFiles(float(rgb.stamps[k]), rgb.resolve(k), k, labels=label(k))
+            for k in range(len(rgb))
+        )
+        return TumFolder(root, rgb, None, frames, 0)
+    depths = read_file_list(root / DEPTH_LIST, skipped=skipped)
+    i, j = associate(rgb.stamps, depths.stamps, max_difference=max_diff)
+    if len(i) == 0:
+        raise DataFormatError(
+            depths.path,
+            f"no depth stamp within {max_diff} s of any stamp in {rgb.path.name} "
+            "(rgb and depth do not associate)",
+        )
+    frames = tuple(
+        FrameFiles(
+            float(rgb.stamps[a]),
+            rgb.resolve(a),
+            a,
+            float(depths.stamps[b]),
+            depths.resolve(b),
+            b,
+            label(a),
+        )
+        for a, b in zip(i.tolist(), j.tolist(), strict=True)
+    )
+    return TumFolder(root, rgb, depths, frames, len(rgb) - len(i))

@@ -1,6 +1,7 @@
 """Frames of TUM RGB-D sequences as a segmentation dataset (the target domain).
 
-Reads ``rgb.txt`` with :func:`uss_slam.core.tum_io.read_file_list` (depth is not needed).
+Reads the folder with :func:`uss_slam.core.tum_io.read_tum_folder` (``rgb.txt``; depth is not
+needed), the same reader the SLAM harness uses.
 Optional labels come from ``labels/<same file name as the rgb image>`` (uint8 project class
 ids, as the synthetic sequences write them): needed for validation, unused for unlabelled
 target training.
@@ -21,7 +22,7 @@ from pathlib import Path
 from typing import Literal
 
 from uss_slam.core.errors import DataFormatError
-from uss_slam.core.tum_io import read_file_list
+from uss_slam.core.tum_io import read_tum_folder
 from uss_slam.datasets.base import (
     ImageItem,
     OnError,
@@ -76,44 +77,28 @@ def _sequence_items(
     on_error: OnError,
     skipped: list[DataFormatError],
 ) -> list[ImageItem]:
-    if not root.is_dir():
-        raise DataFormatError(root, "TUM sequence folder not found")
-    list_file = root / "rgb.txt"
-    if not list_file.is_file():
-        raise DataFormatError(list_file, "not a TUM RGB-D sequence: rgb.txt not found")
-    frames = read_file_list(list_file, skipped=skipped if on_error == "skip" else None)
-    if len(frames) == 0:
-        raise DataFormatError(list_file, "the sequence lists no images")
-    if labels and not (root / "labels").is_dir():
-        raise DataFormatError(root / "labels", "labels requested but the folder does not exist")
+    folder = read_tum_folder(
+        root, depth=False, labels=labels, skipped=skipped if on_error == "skip" else None
+    )
+    frames = folder.frames
     held = math.ceil(holdout * len(frames)) if holdout > 0 else 0
     first_held = len(frames) - held
     span = range(0, max(0, first_held - gap)) if part == "train" else range(first_held, len(frames))
     items = []
     for index in span[::stride]:
-        if Path(frames.files[index]).name in excluded:
+        frame = frames[index]
+        if frame.rgb.name in excluded:
             continue
-        image = frames.resolve(index)
-        if not image.is_file():
-            line = frames.lines[index] if frames.lines else None
-            error = DataFormatError(
-                list_file, f"listed image {frames.files[index]} not found", line
-            )
+        error = folder.missing(frame)
+        if error is None:
+            try:  # header and end marker only: a truncated frame fails here, not mid-training
+                inspect_image(frame.rgb)
+            except DataFormatError as bad:
+                error = bad
+        if error is not None:
             handle_bad_input(error, on_error, skipped)
             continue
-        try:  # header and end marker only: a truncated frame fails here, not mid-training
-            inspect_image(image)
-        except DataFormatError as error:
-            handle_bad_input(error, on_error, skipped)
-            continue
-        label = root / "labels" / Path(frames.files[index]).name if labels else None
-        if label is not None and not label.is_file():
-            error = DataFormatError(
-                label, f"label of {frames.files[index]} not found (labels/ must mirror rgb/)"
-            )
-            handle_bad_input(error, on_error, skipped)
-            continue
-        items.append(ImageItem(image, label, f"{root.name}/{frames.stamps[index]:.6f}"))
+        items.append(ImageItem(frame.rgb, frame.labels, f"{folder.root.name}/{frame.stamp:.6f}"))
     return items
 
 

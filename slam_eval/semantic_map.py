@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from uss_slam.core.classes import CLASS_COLORS, IGNORE_INDEX
+from uss_slam.core.errors import DataFormatError
 from uss_slam.core.tum_io import StrPath
 
 from .frontend import OrbExtractor
@@ -138,29 +139,36 @@ def _voxelise(cloud: PointCloud, voxel: float) -> PointCloud:
     return PointCloud(points, np.clip(np.rint(colors), 0, 255).astype(np.uint8), labels)
 
 
+PLY_RECORD = np.dtype(
+    [
+        ("x", "<f4"),
+        ("y", "<f4"),
+        ("z", "<f4"),
+        ("r", "u1"),
+        ("g", "u1"),
+        ("b", "u1"),
+        ("l", "u1"),
+    ]
+)
+"""One vertex of ``map.ply`` as stored (little-endian, 16 bytes)."""
+
+PLY_PROPERTIES = (
+    "property float x\nproperty float y\nproperty float z\n"
+    "property uchar red\nproperty uchar green\nproperty uchar blue\n"
+    "property uchar label\n"
+)
+"""The header lines that describe :data:`PLY_RECORD`."""
+
+
 def write_ply(path: StrPath, cloud: PointCloud) -> None:
     """Binary little-endian PLY with ``x y z`` float32, ``red green blue label`` uint8."""
     n = len(cloud)
     header = (
         "ply\nformat binary_little_endian 1.0\n"
         "comment uss-slam semantic map (world = first camera frame, metres)\n"
-        f"element vertex {n}\n"
-        "property float x\nproperty float y\nproperty float z\n"
-        "property uchar red\nproperty uchar green\nproperty uchar blue\n"
-        "property uchar label\nend_header\n"
+        f"element vertex {n}\n{PLY_PROPERTIES}end_header\n"
     )
-    record = np.dtype(
-        [
-            ("x", "<f4"),
-            ("y", "<f4"),
-            ("z", "<f4"),
-            ("r", "u1"),
-            ("g", "u1"),
-            ("b", "u1"),
-            ("l", "u1"),
-        ]
-    )
-    data = np.empty(n, record)
+    data = np.empty(n, PLY_RECORD)
     data["x"], data["y"], data["z"] = cloud.points.T
     data["r"], data["g"], data["b"] = cloud.colors.T
     data["l"] = cloud.labels
@@ -170,23 +178,31 @@ def write_ply(path: StrPath, cloud: PointCloud) -> None:
 
 
 def read_ply(path: StrPath) -> PointCloud:
-    """Read a PLY written by :func:`write_ply` (for tests and quick inspection)."""
-    raw = Path(path).read_bytes()
-    end = raw.index(b"end_header\n") + len(b"end_header\n")
-    header = raw[:end].decode("ascii").splitlines()
-    n = int(next(line.split()[2] for line in header if line.startswith("element vertex")))
-    record = np.dtype(
-        [
-            ("x", "<f4"),
-            ("y", "<f4"),
-            ("z", "<f4"),
-            ("r", "u1"),
-            ("g", "u1"),
-            ("b", "u1"),
-            ("l", "u1"),
-        ]
-    )
-    data = np.frombuffer(raw[end:], record, count=n)
+    """Read a PLY written by :func:`write_ply` (for tests and quick inspection); another layout
+    is a :class:`DataFormatError` naming the file."""
+    path = Path(path)
+    raw = path.read_bytes()
+    marker = b"end_header\n"
+    if not raw.startswith(b"ply\n") or marker not in raw:
+        raise DataFormatError(path, "not a PLY file (no 'ply' ... 'end_header' header)")
+    end = raw.index(marker) + len(marker)
+    header = raw[:end].decode("ascii", errors="replace")
+    counts = [line.split() for line in header.splitlines() if line.startswith("element vertex")]
+    if (
+        "format binary_little_endian 1.0\n" not in header
+        or PLY_PROPERTIES not in header
+        or len(counts) != 1
+        or not counts[0][2].isdigit()
+    ):
+        raise DataFormatError(path, "not a uss-slam semantic map (unexpected PLY header)")
+    n = int(counts[0][2])
+    if len(raw) - end != n * PLY_RECORD.itemsize:
+        raise DataFormatError(
+            path,
+            f"the header announces {n} vertices ({n * PLY_RECORD.itemsize} bytes) but "
+            f"{len(raw) - end} bytes follow it",
+        )
+    data = np.frombuffer(raw[end:], PLY_RECORD, count=n)
     return PointCloud(
         np.stack([data["x"], data["y"], data["z"]], axis=1),
         np.stack([data["r"], data["g"], data["b"]], axis=1),

@@ -1,10 +1,10 @@
-"""TUM RGB-D sequence reader: rgb/depth association, camera resolution, prefetched frame loading.
+"""TUM RGB-D sequences for the SLAM run: frame selection, image decoding and checks, prefetching.
 
-A sequence folder holds ``rgb.txt``, ``depth.txt``, optionally ``groundtruth.txt``, the images
-they list, optionally ``intrinsics.yaml`` (our synthetic sequences) and ``labels/`` (uint8 class-id
-PNGs named as the ``rgb/`` files). Colour frames are matched to depth frames as TUM's
-``associate.py`` does (nearest stamp, at most ``max_diff`` seconds); a colour frame without a
-depth partner is not silently dropped: it is counted in :attr:`TumSequence.unmatched_rgb`.
+The folder layout (``rgb.txt``, ``depth.txt``, optional ``groundtruth.txt``, ``intrinsics.yaml``
+and ``labels/``), the rgb/depth association and the camera come from
+:mod:`uss_slam.core.tum_io` (:func:`~uss_slam.core.tum_io.read_tum_folder`,
+:func:`~uss_slam.core.tum_io.resolve_camera`). A colour frame without a depth partner is not
+silently dropped: it is counted in :attr:`TumSequence.unmatched_rgb`.
 """
 
 from __future__ import annotations
@@ -23,19 +23,14 @@ import numpy as np
 
 from uss_slam.core.errors import DataFormatError, UssSlamError
 from uss_slam.core.tum_io import (
-    TUM_CAMERAS,
-    CameraIntrinsics,
     StrPath,
     Trajectory,
-    associate,
-    read_file_list,
     read_trajectory,
+    read_tum_folder,
+    resolve_camera,
 )
 
 T = TypeVar("T")
-
-INTRINSICS_FILE = "intrinsics.yaml"
-LABELS_DIR = "labels"
 
 
 @dataclass(frozen=True)
@@ -68,55 +63,12 @@ class Frame:
     """Wall and CPU seconds spent reading and decoding this frame."""
 
 
-def resolve_camera(
-    spec: str | None, sequence_dir: Path, image_size: tuple[int, int]
-) -> tuple[CameraIntrinsics, str]:
-    """The camera for ``sequence.camera=spec`` and a short description of where it came from.
-
-    ``None``/``"auto"``: the sequence's ``intrinsics.yaml`` if present, else TUM fr3.
-    ``"fr1" | "fr2" | "fr3"``: TUM's published calibration (with distortion for fr1/fr2), rescaled
-    when the images are not 640×480. Anything else is a path to an ``intrinsics.yaml``-format file,
-    which must match the image size exactly. ``image_size`` is ``(width, height)``.
-    """
-    width, height = image_size
-    if spec is None or str(spec).strip().lower() in ("", "auto", "none", "null"):
-        own = sequence_dir / INTRINSICS_FILE
-        if own.is_file():
-            return _checked(CameraIntrinsics.from_yaml(own), own, image_size), str(own)
-        spec = "fr3"
-    name = str(spec).strip()
-    if name.lower() in TUM_CAMERAS:
-        cam = TUM_CAMERAS[name.lower()]
-        if (cam.width, cam.height) != (width, height):
-            cam = cam.scaled(width, height)
-        return cam, name.lower()
-    path = Path(name).expanduser()
-    if not path.exists():
-        raise UssSlamError(
-            f"sequence.camera={name!r}: not one of {', '.join(sorted(TUM_CAMERAS))} "
-            f"and no such file (expected a camera name or a path to an {INTRINSICS_FILE})"
-        )
-    if path.is_dir():
-        raise DataFormatError(path, f"is a folder; expected an {INTRINSICS_FILE}-format file")
-    return _checked(CameraIntrinsics.from_yaml(path), path, image_size), str(path)
-
-
-def _checked(cam: CameraIntrinsics, path: Path, image_size: tuple[int, int]) -> CameraIntrinsics:
-    if (cam.width, cam.height) != image_size:
-        raise DataFormatError(
-            path,
-            f"camera is {cam.width}x{cam.height} but the sequence's images are "
-            f"{image_size[0]}x{image_size[1]}",
-        )
-    return cam
-
-
 class TumSequence:
     """A TUM RGB-D sequence on disk.
 
     Args:
         path: the sequence folder.
-        camera: ``None``/``"auto"``, ``"fr1" | "fr2" | "fr3"`` or a path (see :func:`resolve_camera`).
+        camera: ``None``/``"auto"``, ``"fr1" | "fr2" | "fr3"`` or a path (see :func:`~uss_slam.core.tum_io.resolve_camera`).
         max_diff: largest rgb/depth stamp difference accepted by the association, seconds.
         load_labels: also load ``labels/<rgb file name>`` with every frame (oracle segmentation).
         start, stride, max_frames: which associated frames to use (``max_frames`` None = all).
@@ -137,82 +89,43 @@ class TumSequence:
         max_frames: int | None = None,
     ) -> None:
         self.path = Path(path).expanduser()
-        if not self.path.is_dir():
-            raise DataFormatError(
-                self.path, "not a folder; expected a TUM RGB-D sequence with rgb.txt and depth.txt"
-            )
         if stride < 1 or start < 0 or (max_frames is not None and max_frames < 1):
             raise UssSlamError(
                 f"sequence: start must be >= 0, stride >= 1 and max_frames >= 1 or null "
                 f"(got start={start}, stride={stride}, max_frames={max_frames})"
             )
-        rgb = read_file_list(self.path / "rgb.txt")
-        depth = read_file_list(self.path / "depth.txt")
-        if len(rgb) == 0:
-            raise DataFormatError(rgb.path, "lists no images")
-        i, j = associate(rgb.stamps, depth.stamps, max_difference=max_diff)
-        if len(i) == 0:
-            raise DataFormatError(
-                depth.path,
-                f"no depth stamp within {max_diff} s of any stamp in {rgb.path.name} "
-                "(rgb and depth do not associate)",
-            )
+        folder = read_tum_folder(self.path, depth=True, labels=load_labels, max_diff=max_diff)
         self.max_diff = max_diff
-        self.unmatched_rgb = len(rgb) - len(i)
+        self.unmatched_rgb = folder.unmatched_rgb
         """Colour frames without a depth frame within ``max_diff`` (not processed, reported)."""
         self.load_labels = load_labels
-        labels_dir = self.path / LABELS_DIR
-        if load_labels and not labels_dir.is_dir():
-            raise DataFormatError(
-                labels_dir,
-                "folder not found; segmenter=labels needs the sequence's labels/ folder "
-                "(uint8 class-id PNGs named as the rgb/ files)",
-            )
-        records = []
-        for k, (a, b) in enumerate(zip(i.tolist(), j.tolist(), strict=True)):
-            rgb_path = rgb.resolve(a)
-            records.append(
-                FrameRecord(
-                    index=k,
-                    stamp=float(rgb.stamps[a]),
-                    rgb_path=rgb_path,
-                    depth_stamp=float(depth.stamps[b]),
-                    depth_path=depth.resolve(b),
-                    labels_path=labels_dir / rgb_path.name if load_labels else None,
-                )
-            )
-        selected = records[start::stride]
+        selected = folder.frames[start::stride]
         if max_frames is not None:
             selected = selected[:max_frames]
         if not selected:
             raise UssSlamError(
-                f"sequence {self.path}: start={start} is past the {len(records)} associated frames"
+                f"sequence {self.path}: start={start} is past the {len(folder.frames)} "
+                "associated frames"
             )
+        for files in selected:
+            error = folder.missing(files)
+            if error is not None:
+                raise error
         self.records: list[FrameRecord] = [
-            FrameRecord(k, r.stamp, r.rgb_path, r.depth_stamp, r.depth_path, r.labels_path)
-            for k, r in enumerate(selected)
+            FrameRecord(k, f.stamp, f.rgb, f.depth_stamp, f.depth, f.labels)
+            for k, f in enumerate(selected)
         ]
-        for record in self.records:
-            self._check_exists(record.rgb_path, rgb.path)
-            self._check_exists(record.depth_path, depth.path)
-            if record.labels_path is not None:
-                self._check_exists(record.labels_path, labels_dir)
         first = cv2.imread(str(self.records[0].rgb_path), cv2.IMREAD_GRAYSCALE)
         if first is None:
             raise DataFormatError(self.records[0].rgb_path, "not a readable image")
         self.image_size: tuple[int, int] = (first.shape[1], first.shape[0])
         """``(width, height)`` of every frame, pixels."""
-        self.camera, self.camera_source = resolve_camera(camera, self.path, self.image_size)
-        self.load(0)  # format checks of the first frame before any work starts
-        gt_path = self.path / "groundtruth.txt"
-        self.groundtruth: Trajectory | None = (
-            read_trajectory(gt_path) if gt_path.is_file() else None
+        self.camera, self.camera_source = resolve_camera(
+            camera, self.path, self.image_size, key="sequence.camera"
         )
-
-    @staticmethod
-    def _check_exists(image: Path, listed_in: Path) -> None:
-        if not image.is_file():
-            raise DataFormatError(image, f"file not found (listed in {listed_in})")
+        self.load(0)  # format checks of the first frame before any work starts
+        gt_path = folder.groundtruth
+        self.groundtruth: Trajectory | None = None if gt_path is None else read_trajectory(gt_path)
 
     def __len__(self) -> int:
         return len(self.records)

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from uss_slam.core.errors import DataFormatError
 from uss_slam.core.tum_io import (
@@ -17,6 +18,7 @@ from uss_slam.core.tum_io import (
     quat_to_matrix,
     read_file_list,
     read_trajectory,
+    read_tum_folder,
     write_file_list,
     write_trajectory,
 )
@@ -38,6 +40,32 @@ def test_rotation_round_trip_and_orthonormality() -> None:
     # 180-degree rotations (trace -1) take the non-scalar pivots.
     flips = np.array([np.diag([1.0, -1, -1]), np.diag([-1.0, 1, -1]), np.diag([-1.0, -1, 1])])
     assert np.allclose(quat_to_matrix(matrix_to_quat(flips)), flips, atol=1e-12)
+
+
+def test_rotations_match_the_closed_form_and_tum_sign() -> None:
+    """Against the textbook formula for ``qx qy qz qw`` (Hamilton) and ``qw >= 0``."""
+    rng = np.random.default_rng(3)
+    q = rng.normal(size=(500, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    x, y, z, w = q.T
+    expected = np.stack(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    ).transpose(2, 0, 1)
+    np.testing.assert_allclose(quat_to_matrix(q), expected, atol=1e-15)
+    back = matrix_to_quat(expected)
+    np.testing.assert_allclose(back, np.where(q[:, 3:] < 0, -q, q), atol=1e-14)
+    assert quat_to_matrix(q.reshape(50, 10, 4)).shape == (50, 10, 3, 3)
+    assert matrix_to_quat(expected.reshape(5, 100, 3, 3)).shape == (5, 100, 4)
+    assert quat_to_matrix(np.zeros((0, 4))).shape == (0, 3, 3)
+    assert matrix_to_quat(np.zeros((0, 3, 3))).shape == (0, 4)
+    # Non-unit input is normalised, as TUM files hold 4 decimals.
+    np.testing.assert_allclose(quat_to_matrix(2.0 * q[:3]), expected[:3], atol=1e-15)
+    np.testing.assert_allclose(Rotation.from_matrix(expected).as_quat(canonical=True), back,
+                               atol=1e-14)  # fmt: skip
 
 
 def test_quaternion_convention_is_hamilton_xyzw() -> None:
@@ -122,3 +150,90 @@ def test_intrinsics_yaml_round_trip_and_errors(tmp_path: Path) -> None:
     with pytest.raises(DataFormatError, match="bad.yaml: expected a mapping with keys"):
         CameraIntrinsics.from_yaml(tmp_path / "bad.yaml")
     assert TUM_CAMERAS["fr1"].has_distortion and not TUM_CAMERAS["fr3"].has_distortion
+
+
+GOOD_INTRINSICS = {"fx": 500.0, "fy": 500.0, "cx": 15.5, "cy": 11.5, "width": 32, "height": 24}
+
+
+@pytest.mark.parametrize(
+    ("key", "value", "fragment"),
+    [
+        ("fx", 0, "fx must be > 0, got 0"),
+        ("fy", -2.5, "fy must be > 0, got -2.5"),
+        ("fx", ".nan", "fx must be a finite number, got nan"),
+        ("fy", ".inf", "fy must be a finite number, got inf"),
+        ("fx", "'abc'", "fx must be a number, got 'abc'"),
+        ("depth_scale", 0, "depth_scale must be > 0, got 0"),
+        ("depth_scale", ".nan", "depth_scale must be a finite number"),
+        ("cx", 32, "cx must lie inside the image (0 <= cx < width 32), got 32"),
+        ("cx", -1, "cx must lie inside the image"),
+        ("cy", 30.5, "cy must lie inside the image (0 <= cy < height 24), got 30.5"),
+        ("width", 32.5, "width must be a whole number of pixels, got 32.5"),
+        ("height", 0, "height must be > 0"),
+        ("distortion", "[0, 0, 0]", "distortion needs a list of 4, 5 or 8 coefficients, got 3"),
+        ("distortion", "[0, .nan, 0, 0, 0]", "distortion[1] must be a finite number"),
+        ("focal", 1, "unknown key 'focal'; expected fx, fy, cx, cy, width, height, distortion"),
+    ],
+)
+def test_intrinsics_values_are_checked_one_line_naming_file_and_key(
+    tmp_path: Path, key: str, value: object, fragment: str
+) -> None:
+    path = tmp_path / "intrinsics.yaml"
+    entries = {**GOOD_INTRINSICS, key: value}
+    path.write_text("".join(f"{k}: {v}\n" for k, v in entries.items()))
+    with pytest.raises(DataFormatError) as info:
+        CameraIntrinsics.from_yaml(path)
+    message = str(info.value)
+    assert message == f"{path}: {fragment}" or message.startswith(f"{path}: {fragment}")
+    assert len(message.splitlines()) == 1
+
+
+def _folder(root: Path, n: int = 4, depth_offset: float = 0.004) -> Path:
+    stamps = 10.0 + np.arange(n) / 30.0
+    for sub in ("rgb", "depth", "labels"):
+        (root / sub).mkdir(parents=True, exist_ok=True)
+    names = [f"rgb/{s:.6f}.png" for s in stamps]
+    depths = [f"depth/{s + depth_offset:.6f}.png" for s in stamps]
+    for name in names + depths + [f"labels/{s:.6f}.png" for s in stamps]:
+        (root / name).write_bytes(b"")
+    write_file_list(root / "rgb.txt", stamps, names)
+    write_file_list(root / "depth.txt", stamps + depth_offset, depths, "depth maps")
+    return root
+
+
+def test_tum_folder_associates_and_finds_missing_files(tmp_path: Path) -> None:
+    root = _folder(tmp_path / "seq")
+    folder = read_tum_folder(root, labels=True)
+    assert len(folder.frames) == 4 and folder.unmatched_rgb == 0 and folder.groundtruth is None
+    first = folder.frames[0]
+    assert first.rgb == root / "rgb/10.000000.png" and first.depth == root / "depth/10.004000.png"
+    assert first.labels == root / "labels/10.000000.png"
+    assert first.depth_stamp - first.stamp == pytest.approx(0.004)
+    assert all(folder.missing(f) is None for f in folder.frames)
+    (root / "depth/10.037333.png").unlink()
+    assert str(folder.missing(folder.frames[1])) == (
+        f"{root / 'depth.txt'}:5: listed image depth/10.037333.png not found"
+    )
+    (root / "labels/10.066667.png").unlink()
+    assert "label of rgb/10.066667.png not found (labels/ must mirror rgb/)" in str(
+        folder.missing(folder.frames[2])
+    )
+    rgb_only = read_tum_folder(root, depth=False)
+    assert rgb_only.depth is None and rgb_only.frames[1].depth is None
+    assert rgb_only.frames[2].labels is None and rgb_only.missing(rgb_only.frames[1]) is None
+
+
+def test_tum_folder_errors_name_the_path(tmp_path: Path) -> None:
+    with pytest.raises(DataFormatError, match=r"nope: not a folder; expected a TUM RGB-D"):
+        read_tum_folder(tmp_path / "nope")
+    root = _folder(tmp_path / "seq", depth_offset=0.5)
+    with pytest.raises(DataFormatError, match=r"depth\.txt: no depth stamp within 0\.02 s"):
+        read_tum_folder(root)
+    assert len(read_tum_folder(root, max_diff=0.6).frames) == 4
+    (root / "depth.txt").unlink()
+    with pytest.raises(DataFormatError, match=r"depth\.txt: not a TUM RGB-D sequence"):
+        read_tum_folder(root)
+    assert len(read_tum_folder(root, depth=False).frames) == 4
+    (root / "rgb.txt").write_text("# nothing\n")
+    with pytest.raises(DataFormatError, match=r"rgb\.txt: lists no images"):
+        read_tum_folder(root, depth=False)

@@ -6,11 +6,20 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from uss_slam.core.classes import CLASS_COLORS, IGNORE_INDEX
+from uss_slam.core.errors import DataFormatError
 from uss_slam.core.tum_io import TUM_CAMERAS
 from uss_slam.slam_eval.frontend import OrbConfig, OrbExtractor
-from uss_slam.slam_eval.semantic_map import MapConfig, SemanticMapBuilder, read_ply, write_ply
+from uss_slam.slam_eval.semantic_map import (
+    PLY_RECORD,
+    MapConfig,
+    PointCloud,
+    SemanticMapBuilder,
+    read_ply,
+    write_ply,
+)
 
 CAM = TUM_CAMERAS["fr3"].scaled(64, 48)
 
@@ -91,3 +100,24 @@ def test_ply_round_trip(tmp_path: Path) -> None:
     empty = SemanticMapBuilder(MapConfig(), ex).build()
     write_ply(tmp_path / "empty.ply", empty)
     assert len(read_ply(tmp_path / "empty.ply")) == 0
+
+
+def test_ply_layout_is_checked_when_read(tmp_path: Path) -> None:
+    cloud = PointCloud(
+        np.arange(6, dtype=np.float32).reshape(2, 3),
+        np.array([[1, 2, 3], [4, 5, 6]], np.uint8),
+        np.array([0, 2], np.uint8),
+    )
+    path = tmp_path / "map.ply"
+    write_ply(path, cloud)
+    raw = path.read_bytes()
+    assert len(raw) - raw.index(b"end_header\n") - len(b"end_header\n") == 2 * PLY_RECORD.itemsize
+    path.write_bytes(raw[:-3])
+    with pytest.raises(DataFormatError, match=r"map\.ply: the header announces 2 vertices"):
+        read_ply(path)
+    path.write_bytes(raw.replace(b"property uchar label\n", b"property float label\n"))
+    with pytest.raises(DataFormatError, match="not a uss-slam semantic map"):
+        read_ply(path)
+    path.write_bytes(b"solid stl\n")
+    with pytest.raises(DataFormatError, match="not a PLY file"):
+        read_ply(path)

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from uss_slam.core.errors import DataFormatError, UssSlamError
-from uss_slam.core.tum_io import TUM_CAMERAS, read_file_list, write_file_list
-from uss_slam.slam_eval.sequence import TumSequence, resolve_camera
+from uss_slam.core.tum_io import TUM_CAMERAS, read_file_list, resolve_camera, write_file_list
+from uss_slam.slam_eval.sequence import TumSequence
 
 
 def test_round_trip_values_and_order(write_sequence) -> None:
@@ -110,7 +110,7 @@ def test_not_a_folder(tmp_path: Path) -> None:
 def test_missing_rgb_list(write_sequence) -> None:
     root = write_sequence()
     (root / "rgb.txt").unlink()
-    with pytest.raises(DataFormatError, match=r"rgb\.txt: file not found"):
+    with pytest.raises(DataFormatError, match=r"rgb\.txt: not a TUM RGB-D sequence"):
         TumSequence(root)
 
 
@@ -129,8 +129,8 @@ def test_missing_image_file_names_it(write_sequence) -> None:
     victim.unlink()
     with pytest.raises(DataFormatError) as info:
         TumSequence(root)
-    assert str(victim) in str(info.value) and "file not found" in str(info.value)
-    assert "depth.txt" in str(info.value)
+    # The list file and line that name the image (the third depth entry, after 3 comment lines).
+    assert str(info.value) == f"{root / 'depth.txt'}:6: listed image depth/{victim.name} not found"
 
 
 def test_unreadable_image(write_sequence) -> None:
@@ -168,7 +168,7 @@ def test_unknown_camera_name(write_sequence) -> None:
 def test_bad_intrinsics_file(write_sequence, tmp_path: Path) -> None:
     bad = tmp_path / "bad.yaml"
     bad.write_text("fx: 1\nfy: [oops\n")
-    with pytest.raises(DataFormatError, match=r"bad\.yaml: not valid YAML"):
+    with pytest.raises(DataFormatError, match=r"bad\.yaml:3: not valid YAML \(expected ','"):
         TumSequence(write_sequence(), camera=str(bad))
     incomplete = tmp_path / "incomplete.yaml"
     incomplete.write_text("fx: 500\nfy: 500\n")
@@ -179,7 +179,7 @@ def test_bad_intrinsics_file(write_sequence, tmp_path: Path) -> None:
 def test_bad_own_intrinsics_file(write_sequence) -> None:
     root = write_sequence()
     (root / "intrinsics.yaml").write_text("fx: -3\nfy: 1\ncx: 0\ncy: 0\nwidth: 32\nheight: 24\n")
-    with pytest.raises(DataFormatError, match=r"intrinsics\.yaml: fx, fy, width and height"):
+    with pytest.raises(DataFormatError, match=r"intrinsics\.yaml: fx must be > 0, got -3"):
         TumSequence(root)
 
 
@@ -187,7 +187,7 @@ def test_labels_requested_but_missing(write_sequence) -> None:
     root = write_sequence()
     shutil.rmtree(root / "labels")
     assert len(TumSequence(root)) == 6  # fine without labels
-    with pytest.raises(DataFormatError, match=r"labels: folder not found; segmenter=labels"):
+    with pytest.raises(DataFormatError, match=r"labels: folder not found; labels were requested"):
         TumSequence(root, load_labels=True)
 
 
@@ -195,7 +195,7 @@ def test_label_file_missing_or_wrong(write_sequence) -> None:
     root = write_sequence()
     labels = sorted((root / "labels").iterdir())
     labels[1].unlink()
-    with pytest.raises(DataFormatError, match=re_escape(str(labels[1])) + ": file not found"):
+    with pytest.raises(DataFormatError, match=re_escape(str(labels[1])) + ": label of rgb/"):
         TumSequence(root, load_labels=True)
     root2 = write_sequence(name="rgb_labels")
     first = sorted((root2 / "labels").iterdir())[0]
