@@ -29,10 +29,11 @@ from lightning.pytorch import LightningModule
 from torch import Tensor, nn
 from torch.nn.modules.batchnorm import _BatchNorm
 from torch.optim import Optimizer
-from torchmetrics.classification import MulticlassJaccardIndex
+from torchmetrics.classification import MulticlassConfusionMatrix
 
 from uss_slam.core.classes import CLASS_NAMES, IGNORE_INDEX
 from uss_slam.core.errors import UssSlamError
+from uss_slam.core.seg_metrics import iou_per_class
 from uss_slam.models.deeplab import DeepLabV2, SegmenterOutput
 from uss_slam.train.losses import (
     SOURCE_LABEL,
@@ -113,11 +114,10 @@ class AdversarialSegmentation(LightningModule):
         self.iteration = 0
         """Completed training iterations (saved in checkpoints)."""
         self._step_values: tuple[dict[str, Tensor], int] | None = None
-        self.val_iou = MulticlassJaccardIndex(
-            num_classes=len(self.class_names),
-            average="none",
-            ignore_index=IGNORE_INDEX,
-            zero_division=float("nan"),
+        # Pixel counts (truth x prediction) summed over the validation set and, under DDP,
+        # over the ranks (a torchmetrics state); the IoUs come from uss_slam.core.seg_metrics.
+        self.val_confusion = MulticlassConfusionMatrix(
+            num_classes=len(self.class_names), ignore_index=IGNORE_INDEX
         )
         # Plain values only, so checkpoints load with torch.load(weights_only=True).
         self.save_hyperparameters(
@@ -353,11 +353,14 @@ class AdversarialSegmentation(LightningModule):
     def validation_step(self, batch: dict[str, Any], batch_idx: int) -> None:
         labels = batch["label"]
         logits = upsample(self.segmenter(self._prepare(batch["image"])).main, labels.shape[-2:])
-        self.val_iou.update(logits.argmax(dim=1), labels)
+        self.val_confusion.update(logits.argmax(dim=1), labels)
 
     def on_validation_epoch_end(self) -> None:
-        iou = self.val_iou.compute()
-        self.val_iou.reset()
+        matrix = self.val_confusion.compute()
+        self.val_confusion.reset()
+        # NaN for a class absent from truth and prediction; nanmean leaves it out of val/mIoU.
+        iou = torch.from_numpy(iou_per_class(matrix.cpu().numpy()))
+        iou = iou.to(device=matrix.device, dtype=torch.float32)
         self.log_dict({f"val/IoU/{name}": iou[i] for i, name in enumerate(self.class_names)})
         self.log("val/mIoU", torch.nanmean(iou), prog_bar=True)
 
