@@ -47,12 +47,22 @@ class OrbConfig:
     """Depth beyond this is not back-projected, metres (see the module docstring)."""
 
     def __post_init__(self) -> None:
-        if self.n_features < 1 or self.n_levels < 1 or self.scale_factor <= 1.0:
-            raise ValueError("orb: n_features and n_levels must be >= 1 and scale_factor > 1")
-        if not 0 < self.min_fast <= self.ini_fast or self.cell_size < 8:
-            raise ValueError("orb: need 0 < min_fast <= ini_fast and cell_size >= 8")
+        # Messages start with the field name: uss-slam prefixes the config section.
+        for name in ("n_features", "n_levels", "ini_fast"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if not self.scale_factor > 1.0:
+            raise ValueError(f"scale_factor must be > 1, got {self.scale_factor}")
+        if not 0 < self.min_fast <= self.ini_fast:
+            raise ValueError(
+                f"min_fast must be > 0 and <= ini_fast ({self.ini_fast}), got {self.min_fast}"
+            )
+        if self.cell_size < 8:
+            raise ValueError(f"cell_size must be >= 8 px, got {self.cell_size}")
         if not 0 <= self.min_depth < self.max_depth:
-            raise ValueError("orb: need 0 <= min_depth < max_depth")
+            raise ValueError(
+                f"min_depth must be >= 0 and < max_depth ({self.max_depth}), got {self.min_depth}"
+            )
 
 
 @dataclass

@@ -96,8 +96,12 @@ class OnnxSegmenter(ImageSegmenter):
             raise UssSlamError(
                 f"segmenter.path {self.path}: no such file (an ONNX model written by uss-export)"
             )
-        if threads is not None and int(threads) < 1:
-            raise UssSlamError(f"segmenter.threads must be >= 1 or null, got {threads}")
+        if threads is not None and (
+            isinstance(threads, bool) or not isinstance(threads, int) or threads < 1
+        ):
+            raise UssSlamError(
+                f"segmenter.threads must be a whole number >= 1 or null, got {threads!r}"
+            )
         options = ort.SessionOptions()
         if threads is not None:
             options.intra_op_num_threads = int(threads)

@@ -14,8 +14,6 @@ target, then renamed, so a reader never sees half a file. The format follows the
 
 from __future__ import annotations
 
-import os
-import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -24,6 +22,8 @@ import numpy as np
 
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.tum_io import StrPath
+
+from .outputs import atomic_path
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -77,20 +77,11 @@ def _save(fig: Figure, path: StrPath) -> Path:
     """Save ``fig`` to ``path`` atomically (temporary sibling, then rename)."""
     path = check_plot_path(path)
     fig.tight_layout()
-    fmt = path.suffix.lower().lstrip(".")
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, format=path.suffix.lower().lstrip("."), dpi=DPI)
     except OSError as err:
         raise UssSlamError(f"{path}: cannot write the plot ({err.strerror})") from None
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fig.savefig(fh, format=fmt, dpi=DPI)
-        os.replace(tmp, path)
-    except OSError as err:
-        raise UssSlamError(f"{path}: cannot write the plot ({err.strerror})") from None
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
     return path
 
 

@@ -28,6 +28,7 @@ from uss_slam.core.errors import UssSlamError
 from uss_slam.core.tum_io import StrPath, Trajectory, write_trajectory
 
 from . import metrics, plots
+from .outputs import RunFolder
 from .pipeline import RunResult
 from .semantic_map import write_ply
 
@@ -38,10 +39,34 @@ STAT_KEYS = ("rmse", "mean", "median", "std", "min", "max")
 class EvalConfig:
     """How trajectories are scored (TUM / evo conventions)."""
 
-    max_diff: float = 0.02
+    max_diff: float = metrics.DEFAULT_MAX_DIFF
+    """Largest rgb stamp <-> ground-truth stamp difference of an associated pair, seconds."""
     align: str = "se3"
+    """Umeyama alignment of the estimate: ``se3`` | ``sim3`` | ``none``."""
     rpe_delta: float = 1.0
+    """RPE pair distance in ``rpe_unit`` (``metrics.json`` also has ``rpe_1s``, per second)."""
     rpe_unit: str = "frames"
+    """``frames`` | ``seconds``."""
+
+    def __post_init__(self) -> None:
+        # Messages start with the field name: uss-slam prefixes the config section.
+        if not (math.isfinite(self.max_diff) and self.max_diff >= 0):
+            raise ValueError(f"max_diff must be a number of seconds >= 0, got {self.max_diff}")
+        if self.align not in metrics.ALIGNMENTS:
+            raise ValueError(
+                f"align must be one of {', '.join(metrics.ALIGNMENTS)}, got {self.align!r}"
+            )
+        if self.rpe_unit not in metrics.DELTA_UNITS:
+            raise ValueError(
+                f"rpe_unit must be one of {', '.join(metrics.DELTA_UNITS)}, got {self.rpe_unit!r}"
+            )
+        if not (math.isfinite(self.rpe_delta) and self.rpe_delta > 0):
+            raise ValueError(f"rpe_delta must be > 0, got {self.rpe_delta}")
+        if self.rpe_unit == "frames" and not float(self.rpe_delta).is_integer():
+            raise ValueError(
+                f"rpe_delta must be a whole number of frames with rpe_unit=frames, "
+                f"got {self.rpe_delta}"
+            )
 
 
 @dataclass
@@ -165,23 +190,33 @@ def write_run(
     evaluation: Evaluation,
     config: EvalConfig,
     settings: dict[str, Any] | None = None,
+    folder: RunFolder | None = None,
 ) -> dict[str, Any]:
-    """Write every output of one run into ``out_dir``; returns the metrics dictionary."""
+    """Write every output of one run into ``out_dir``, each file atomically; returns the metrics
+    dictionary. ``folder``: the run folder (inside which ``out_dir`` lies) that records the files
+    for its manifest; None writes without one."""
     out = Path(out_dir)
+    folder = folder or RunFolder(out)
     out.mkdir(parents=True, exist_ok=True)
-    write_trajectory(
-        out / "trajectory.txt",
-        result.trajectory,
-        comment=f"uss-slam estimate, filters={result.filters}, camera-to-world",
-    )
+    with folder.writing(out / "trajectory.txt") as tmp:
+        write_trajectory(
+            tmp,
+            result.trajectory,
+            comment=f"uss-slam estimate, filters={result.filters}, camera-to-world",
+        )
     data = metrics_dict(result, evaluation, config)
     if settings is not None:
         data["settings"] = settings
-    (out / "metrics.json").write_text(json.dumps(data, indent=2, default=_json_default) + "\n")
-    write_ply(out / "map.ply", result.cloud)
+    folder.write_text(
+        out / "metrics.json", json.dumps(data, indent=2, default=_json_default) + "\n"
+    )
+    with folder.writing(out / "map.ply") as tmp:
+        write_ply(tmp, result.cloud)
     title = Path(result.sequence).name
-    plots = _plots(out, evaluation, title)
-    (out / "report.md").write_text(_report_md(result, evaluation, data, plots))
+    names = _plots(out, evaluation, title)
+    for name in names:
+        folder.record(out / name)
+    folder.write_text(out / "report.md", _report_md(result, evaluation, data, names))
     return data
 
 
@@ -302,7 +337,9 @@ def improvement(baseline: float | None, value: float | None) -> float | None:
     return 100.0 * (baseline - value) / baseline
 
 
-def write_comparison(out_dir: StrPath, runs: dict[str, dict[str, Any]]) -> str:
+def write_comparison(
+    out_dir: StrPath, runs: dict[str, dict[str, Any]], folder: RunFolder | None = None
+) -> str:
     """``comparison.md`` / ``comparison.json`` over runs (name -> metrics dict, baseline first).
 
     Rows: ATE RMSE / Mean / Median / S.D., RPE translation RMSE, tracked fraction, frames/s;
@@ -354,8 +391,10 @@ def write_comparison(out_dir: StrPath, runs: dict[str, dict[str, Any]]) -> str:
     )
     text = "\n".join(lines) + "\n"
     out = Path(out_dir)
-    (out / "comparison.md").write_text(text)
-    (out / "comparison.json").write_text(
-        json.dumps({"runs": names, "table": table}, indent=2, default=_json_default) + "\n"
+    folder = folder or RunFolder(out)
+    folder.write_text(out / "comparison.md", text)
+    folder.write_text(
+        out / "comparison.json",
+        json.dumps({"runs": names, "table": table}, indent=2, default=_json_default) + "\n",
     )
     return text

@@ -7,52 +7,33 @@ write the report (one run, or the baseline plus each filter set of ``compare``).
 from __future__ import annotations
 
 import logging
+import os
+import sys
 from pathlib import Path
 from typing import Any
 
 import hydra
 from hydra.core.hydra_config import HydraConfig
-from omegaconf import DictConfig, ListConfig, OmegaConf
+from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from uss_slam.core.cli import exit_on_user_error
-from uss_slam.core.errors import UssSlamError
 
+from .config import check, config_error_line, register_configs, run_name
 from .filters import build_filters
-from .frontend import OrbConfig
+from .outputs import RunFolder, check_writable
 from .pipeline import SlamPipeline
-from .report import EvalConfig, evaluate, write_comparison, write_run
+from .report import evaluate, write_comparison, write_run
 from .segmenters import Segmenter
-from .semantic_map import MapConfig
 from .sequence import TumSequence
-from .tracker import TrackerConfig
 
 log = logging.getLogger(__name__)
+PROG = "uss-slam"
 
+_started: list[bool] = []
+"""Non-empty once Hydra called the task (an OSError before that is Hydra creating out_dir)."""
 
-def _dataclass(cls: type, section: Any, where: str) -> Any:
-    values = OmegaConf.to_container(section, resolve=True) if section is not None else {}
-    try:
-        return cls(**(values or {}))
-    except (TypeError, ValueError) as err:
-        raise UssSlamError(f"{where}: {err}") from None
-
-
-def _filter_sets(compare: Any) -> list[list[str]]:
-    if not isinstance(compare, (list, ListConfig)) or not compare:
-        raise UssSlamError(
-            "compare must be a non-empty list of filter lists, e.g. "
-            "compare=[[semantic],[semantic,geometry]]"
-        )
-    sets = []
-    for item in compare:
-        names = [str(item)] if isinstance(item, str) else [str(n) for n in item]
-        sets.append(names)
-    return sets
-
-
-def _run_name(filters: list[str]) -> str:
-    return "+".join(filters) if filters else "baseline"
+register_configs()  # the typed slam / eval defaults, before Hydra composes configs/slam_eval.yaml
 
 
 def output_dir(cfg: DictConfig) -> Path:
@@ -62,9 +43,31 @@ def output_dir(cfg: DictConfig) -> Path:
     return Path(str(cfg.out_dir))
 
 
+def _write_hydra_files(folder: RunFolder, cfg: DictConfig) -> list[str]:
+    """``.hydra/config.yaml``, ``hydra.yaml`` and ``overrides.yaml`` as Hydra writes them (its
+    ``output_subdir`` is off so that they appear only with a finished run's outputs)."""
+    if not HydraConfig.initialized():
+        return []
+    hydra_cfg = HydraConfig.get()
+    folder.write_text(".hydra/config.yaml", OmegaConf.to_yaml(cfg))
+    folder.write_text(
+        ".hydra/hydra.yaml", OmegaConf.to_yaml(OmegaConf.create({"hydra": hydra_cfg}))
+    )
+    overrides = OmegaConf.to_container(hydra_cfg.overrides.task)
+    folder.write_text(".hydra/overrides.yaml", OmegaConf.to_yaml(OmegaConf.create(overrides)))
+    return [str(o) for o in overrides]
+
+
 def run(cfg: DictConfig) -> dict[str, Any]:
     """Run what ``cfg`` asks for; returns the metrics of the run (comparison: of the last run,
-    with ``"comparison"`` holding every run's metrics)."""
+    with ``"comparison"`` holding every run's metrics).
+
+    Everything is checked before the first frame is processed (config values, filters, segmenter,
+    sequence, that ``out_dir`` is writable); the outputs replace an earlier run's in ``out_dir``
+    only once the first SLAM run has finished (see :mod:`.outputs`).
+    """
+    plan = check(cfg)
+    out = check_writable(output_dir(cfg))
     segmenter: Segmenter = hydra.utils.instantiate(cfg.segmenter)
     seq_cfg = cfg.sequence
     sequence = TumSequence(
@@ -77,63 +80,88 @@ def run(cfg: DictConfig) -> dict[str, Any]:
         max_frames=None if seq_cfg.max_frames is None else int(seq_cfg.max_frames),
     )
     slam = cfg.slam
-    orb = _dataclass(OrbConfig, slam.orb, "slam.orb")
-    tracker = _dataclass(TrackerConfig, slam.tracker, "slam.tracker")
-    semantic_map = _dataclass(MapConfig, slam.map, "slam.map")
-    evaluation = _dataclass(EvalConfig, cfg.eval, "eval")
-    params = OmegaConf.to_container(slam.filter_params, resolve=True) or {}
     settings = OmegaConf.to_container(cfg, resolve=True)
-    out = output_dir(cfg)
-
-    if cfg.compare is None:
-        runs = [(None, [str(f) for f in cfg.filters])]
-    else:
-        runs = [("baseline", [])] + [(_run_name(s), s) for s in _filter_sets(cfg.compare)]
-    results: dict[str, dict[str, Any]] = {}
-    for name, names in runs:
-        filters = build_filters(names, params)
-        pipeline = SlamPipeline(
-            sequence,
-            segmenter,
-            filters,
-            orb=orb,
-            tracker=tracker,
-            semantic_map=semantic_map,
-            prefetch=int(slam.prefetch),
-            workers=int(slam.workers),
-            parallel=bool(slam.parallel),
-            segment=str(cfg.segment),
-            progress=bool(cfg.progress),
-            description=f"{sequence.path.name} [{_run_name(names)}]",
+    pipelines = [
+        (
+            name,
+            names,
+            SlamPipeline(
+                sequence,
+                segmenter,
+                build_filters(names, plan.filter_params),
+                orb=plan.orb,
+                tracker=plan.tracker,
+                semantic_map=plan.semantic_map,
+                prefetch=int(slam.prefetch),
+                workers=int(slam.workers),
+                parallel=bool(slam.parallel),
+                segment=str(cfg.segment),
+                progress=bool(cfg.progress),
+                description=f"{sequence.path.name} [{run_name(names)}]",
+            ),
         )
+        for name, names in plan.runs
+    ]
+    folder: RunFolder | None = None
+    results: dict[str, dict[str, Any]] = {}
+    for name, names, pipeline in pipelines:
         result = pipeline.run()
-        scores = evaluate(result.trajectory, sequence.groundtruth, evaluation)
+        scores = evaluate(result.trajectory, sequence.groundtruth, plan.evaluation)
+        if folder is None:  # the earlier run's outputs go only now
+            folder = RunFolder.start(out)
         run_dir = out if name is None else out / name
-        data = write_run(run_dir, result, scores, evaluation, settings)
-        results[_run_name(names)] = data
+        data = write_run(run_dir, result, scores, plan.evaluation, settings, folder)
+        results[run_name(names)] = data
         ate = data["ate"]
         log.info(
             "%s: ATE RMSE %s m, tracked %.1f%%, %.1f frames/s -> %s",
-            _run_name(names),
+            run_name(names),
             "n/a" if ate is None else f"{ate['rmse']:.4f}",
             100 * data["tracked_fraction"],
             data["fps"],
             run_dir,
         )
-    if cfg.compare is not None:
-        table = write_comparison(out, results)
+    assert folder is not None
+    table = write_comparison(out, results, folder) if cfg.compare is not None else None
+    overrides = _write_hydra_files(folder, cfg)
+    folder.commit(sequence=str(sequence.path), runs=list(results), overrides=overrides)
+    if table is not None:
         print(table)
         return {**data, "comparison": results}
     return data
 
 
 @hydra.main(version_base="1.3", config_path="../configs", config_name="slam_eval")
-def main(cfg: DictConfig) -> float | None:
-    """Hydra entry point; returns the ATE RMSE (metres) for sweepers, None if not evaluated."""
-    with exit_on_user_error("uss-slam", (OmegaConfBaseException,)):
+def app(cfg: DictConfig) -> float | None:
+    """The Hydra task; returns the ATE RMSE (metres) for sweepers, None if not evaluated."""
+    _started.append(True)
+    with exit_on_user_error(PROG, (OmegaConfBaseException,)):
         data = run(cfg)
     ate = data.get("ate")
     return None if ate is None else float(ate["rmse"])
+
+
+def main() -> None:
+    """``uss-slam``: the Hydra app, with the errors Hydra raises while composing the config (a
+    wrong type, an unknown key or option, a folder it cannot create) as one line and exit code 1
+    instead of Hydra's multi-line report. Internal errors keep their traceback."""
+    previous = os.environ.get("HYDRA_FULL_ERROR")
+    os.environ["HYDRA_FULL_ERROR"] = "1"  # Hydra raises instead of printing its own report
+    try:
+        app()
+    except Exception as error:
+        line = config_error_line(error)
+        if line is None and isinstance(error, OSError) and not _started:  # Hydra's mkdir
+            line = f"cannot create the output folder {error.filename} ({error.strerror})"
+        if line is None:
+            raise
+        print(f"{PROG}: error: {line}", file=sys.stderr)
+        sys.exit(1)
+    finally:
+        if previous is None:
+            os.environ.pop("HYDRA_FULL_ERROR", None)
+        else:
+            os.environ["HYDRA_FULL_ERROR"] = previous
 
 
 if __name__ == "__main__":

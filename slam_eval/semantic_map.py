@@ -35,8 +35,11 @@ class MapConfig:
     """Ignore depth beyond this (noisy), metres."""
 
     def __post_init__(self) -> None:
-        if self.stride < 1 or self.voxel <= 0 or self.max_depth <= 0:
-            raise ValueError("map: need stride >= 1, voxel > 0 and max_depth > 0")
+        if self.stride < 1:
+            raise ValueError(f"stride must be >= 1 px, got {self.stride}")
+        for name in ("voxel", "max_depth"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be > 0 m, got {getattr(self, name)}")
 
 
 @dataclass

@@ -29,7 +29,8 @@ Keypoints flagged dynamic are never matched and never create map points.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, fields
 from enum import Enum
 
 import cv2
@@ -88,6 +89,31 @@ class TrackerConfig:
     """For this many frames after a relocalisation, tracking needs ``reloc_min_inliers`` inliers
     instead of ``min_inliers`` (ORB-SLAM2's ``TrackLocalMap``: 50 within ``mMaxFrames`` = the
     frame rate after ``mnLastRelocFrameId``); 0 = off."""
+
+    def __post_init__(self) -> None:
+        # Messages start with the field name: uss-slam prefixes the config section.
+        for item in fields(self):
+            value = getattr(self, item.name)
+            if isinstance(value, bool):
+                continue
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"{item.name} must be a finite number >= 0, got {value}")
+        for name in (
+            "search_radius",
+            "local_radius",
+            "ransac_threshold",
+            "virtual_baseline",
+            "ransac_iterations",
+            "refine_rounds",
+            "local_keyframes",
+            "reloc_keyframes",
+            "max_keyframe_interval",
+        ):
+            if getattr(self, name) <= 0:
+                raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
+        for name in ("ratio", "keyframe_ratio", "reloc_ratio", "min_found_ratio"):
+            if not 0 < getattr(self, name) <= 1:
+                raise ValueError(f"{name} must be in (0, 1], got {getattr(self, name)}")
 
 
 class TrackingState(str, Enum):

@@ -215,7 +215,7 @@ def test_providers_and_threads(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) 
     assert resolve_providers("cuda") == ["CUDAExecutionProvider", "CPUExecutionProvider"]
     monkeypatch.undo()
     path = tiny_model(tmp_path / "m.onnx", _metadata())
-    with pytest.raises(UssSlamError, match="threads must be >= 1"):
+    with pytest.raises(UssSlamError, match="threads must be a whole number >= 1"):
         OnnxSegmenter(path, threads=0)
     seg = OnnxSegmenter(path, threads=1, providers="auto")
     assert seg.threads == 1 and "CPUExecutionProvider" in seg.providers
@@ -312,7 +312,7 @@ def test_output_equals_the_checkpoints_pytorch_argmax(synthetic_sequence, tmp_pa
     import torch.nn.functional as F
     import yaml
 
-    from uss_slam.export.onnx_export import export_checkpoint
+    from uss_slam.export import export_checkpoint
     from uss_slam.models import DeepLabV2
     from uss_slam.slam_eval.sequence import TumSequence
 

@@ -5,15 +5,22 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from dataclasses import asdict
 from pathlib import Path
 
 import pytest
 from hydra import compose, initialize_config_dir
+from omegaconf import OmegaConf
 
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.tum_io import read_trajectory
+from uss_slam.slam_eval.config import filter_defaults
+from uss_slam.slam_eval.frontend import OrbConfig
+from uss_slam.slam_eval.outputs import verify_run
+from uss_slam.slam_eval.report import EvalConfig
 from uss_slam.slam_eval.run import run
-from uss_slam.slam_eval.semantic_map import read_ply
+from uss_slam.slam_eval.semantic_map import MapConfig, read_ply
+from uss_slam.slam_eval.tracker import TrackerConfig
 
 REPO = Path(__file__).resolve().parents[2]
 OUTPUTS = ("trajectory.txt", "metrics.json", "report.md", "trajectory.png", "ate.png", "map.ply")
@@ -23,6 +30,19 @@ STATS = {"rmse", "mean", "median", "std", "min", "max", "pairs"}
 def _cfg(overrides: list[str]):
     with initialize_config_dir(config_dir=str(REPO / "configs"), version_base="1.3"):
         return compose("slam_eval", overrides=overrides)
+
+
+def test_defaults_come_from_the_dataclasses_and_filters() -> None:
+    cfg = _cfg(["sequence.path=/x"])
+    assert OmegaConf.to_container(cfg.slam.orb) == asdict(OrbConfig())
+    assert OmegaConf.to_container(cfg.slam.tracker) == asdict(TrackerConfig())
+    assert OmegaConf.to_container(cfg.slam.map) == asdict(MapConfig())
+    assert OmegaConf.to_container(cfg.eval) == asdict(EvalConfig())
+    assert OmegaConf.to_container(cfg.slam.filter_params) == filter_defaults()
+    assert filter_defaults()["geometry"]["depth_threshold"] == 0.4
+    assert filter_defaults()["semantic"]["dynamic_classes"] == ["person"]
+    changed = _cfg(["sequence.path=/x", "slam.orb.n_features=1500", "eval.align=sim3"])
+    assert changed.slam.orb.n_features == 1500 and changed.eval.align == "sim3"
 
 
 def test_defaults_compose() -> None:
@@ -112,7 +132,7 @@ def test_bad_config_values_are_clear(synthetic_sequence, tmp_path: Path) -> None
     base = [f"sequence.path={seq}", f"out_dir={tmp_path}", "progress=false"]
     with pytest.raises(UssSlamError, match=r"filters \['semantic'\] need a segmenter"):
         run(_cfg([*base, "filters=[semantic]"]))
-    with pytest.raises(UssSlamError, match="slam.orb: .*scale_factor > 1"):
+    with pytest.raises(UssSlamError, match=r"slam\.orb\.scale_factor must be > 1, got 0\.9"):
         run(_cfg([*base, "slam.orb.scale_factor=0.9"]))
     with pytest.raises(UssSlamError, match="compare must be a non-empty list"):
         run(_cfg([*base, "compare=[]"]))
@@ -140,6 +160,10 @@ def test_cli_runs_and_reports_errors_in_one_line(synthetic_sequence, tmp_path: P
         assert (out / name).is_file(), name
     assert (out / ".hydra" / "config.yaml").is_file()
     assert json.loads((out / "metrics.json").read_text())["frames"] == 8
+    manifest = json.loads((out / "run.json").read_text())
+    assert set(manifest["files"]) == {*OUTPUTS, ".hydra/config.yaml", ".hydra/hydra.yaml",
+                                      ".hydra/overrides.yaml"}  # fmt: skip
+    assert verify_run(out) == []
 
     missing = _cli([f"out_dir={tmp_path / 'x'}"], tmp_path)
     assert missing.returncode == 1

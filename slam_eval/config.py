@@ -1,0 +1,305 @@
+"""The ``uss-slam`` configuration: one home for every default, and the checks made before any
+SLAM work starts.
+
+Defaults live in the dataclasses (:class:`~.frontend.OrbConfig`, :class:`~.tracker.TrackerConfig`,
+:class:`~.semantic_map.MapConfig`, :class:`~.report.EvalConfig`) and in the filters' constructors.
+:func:`register_configs` turns them into Hydra structured configs in Hydra's ConfigStore
+(``uss_slam_schema/slam``, ``uss_slam_schema/eval``), which ``configs/slam/orb_rgbd.yaml`` and
+``configs/slam_eval.yaml`` list in their defaults: ``uss-slam --cfg job`` prints the values,
+``slam.orb.n_features=500`` overrides one, and a value of the wrong type fails while the config is
+composed, naming its key.
+
+:func:`check` validates what composition cannot (allowed values, filter names and parameters,
+segmenter options) and returns the typed settings of the run.
+"""
+
+from __future__ import annotations
+
+import inspect
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field, fields
+from typing import Any
+
+from hydra.core.config_store import ConfigStore
+from hydra.errors import HydraException
+from omegaconf import DictConfig, ListConfig, OmegaConf
+from omegaconf.errors import OmegaConfBaseException
+
+from uss_slam.core.errors import UssSlamError
+
+from .filters import FILTERS, DynamicFilter, build_filters
+from .frontend import OrbConfig
+from .pipeline import SEGMENT_SCHEDULES
+from .report import EvalConfig
+from .semantic_map import MapConfig
+from .tracker import TrackerConfig
+
+SCHEMA_GROUP = "uss_slam_schema"
+"""ConfigStore group of the structured configs (not a choice users make)."""
+
+
+def filter_defaults() -> dict[str, dict[str, Any]]:
+    """``{filter name: {parameter: default}}`` from the filters' constructors (their one home)."""
+    out: dict[str, dict[str, Any]] = {}
+    for name, cls in FILTERS.items():
+        params = inspect.signature(cls.__init__).parameters
+        out[name] = {
+            p.name: list(p.default) if isinstance(p.default, tuple) else p.default
+            for p in params.values()
+            if p.name != "self"
+        }
+    return out
+
+
+@dataclass
+class SlamConfig:
+    """The ``slam`` group: front end, tracker, semantic map, filter parameters, threading."""
+
+    orb: OrbConfig = field(default_factory=OrbConfig)
+    tracker: TrackerConfig = field(default_factory=TrackerConfig)
+    map: MapConfig = field(default_factory=MapConfig)
+    filter_params: Any = field(default_factory=filter_defaults)
+    """Parameters of each filter by name; which filters run is the top-level ``filters`` list."""
+    prefetch: int = 4
+    """Frames loaded ahead by background threads."""
+    workers: int = 2
+    """Background threads (PNG decoding releases the GIL)."""
+    parallel: bool = True
+    """Segment and extract ORB in those threads too (overlaps tracking)."""
+
+
+def _editable(cls: type) -> DictConfig:
+    """The structured config of ``cls``; frozen dataclasses give read-only nodes, which Hydra
+    could not override, so every node is made writable (types are still enforced)."""
+    node = OmegaConf.structured(cls)
+
+    def unlock(cfg: Any) -> None:
+        if isinstance(cfg, DictConfig):
+            OmegaConf.set_readonly(cfg, False)
+            for key in cfg:
+                unlock(cfg[key])
+
+    unlock(node)
+    return node
+
+
+def register_configs() -> None:
+    """Store the schema nodes in Hydra's ConfigStore (idempotent)."""
+    store = ConfigStore.instance()
+    store.store(group=SCHEMA_GROUP, name="slam", node=_editable(SlamConfig))
+    store.store(group=SCHEMA_GROUP, name="eval", node=_editable(EvalConfig))
+
+
+# ------------------------------------------------------------------------------------ checks
+
+
+@dataclass
+class RunPlan:
+    """The checked settings of one ``uss-slam`` invocation."""
+
+    orb: OrbConfig
+    tracker: TrackerConfig
+    semantic_map: MapConfig
+    evaluation: EvalConfig
+    filter_params: dict[str, dict[str, Any]]
+    runs: list[tuple[str | None, list[str]]]
+    """``(sub-folder or None, filter names)`` per SLAM run: one run, or the baseline and each
+    filter set of ``compare``."""
+
+
+def run_name(filters: Sequence[str]) -> str:
+    return "+".join(filters) if filters else "baseline"
+
+
+def _dataclass(cls: type, section: Any, where: str) -> Any:
+    values = OmegaConf.to_container(section, resolve=True) if section is not None else {}
+    known = {f.name for f in fields(cls)}
+    for key in values or {}:
+        if key not in known:
+            raise UssSlamError(f"{where}.{key}: unknown key; expected one of {', '.join(known)}")
+    try:
+        return cls(**(values or {}))
+    except (TypeError, ValueError) as err:
+        message = str(err)
+        first = message.split(" ", 1)[0]
+        if first in known:  # "<field> must ...": name the full key
+            return _raise(f"{where}.{message}")
+        return _raise(f"{where}: {message}")
+
+
+def _raise(message: str) -> Any:
+    raise UssSlamError(message)
+
+
+def _filter_names(value: Any, key: str) -> list[str]:
+    if isinstance(value, str):
+        names = [value]
+    elif isinstance(value, (list, tuple, ListConfig)):
+        names = [str(n) for n in value]
+    else:
+        raise UssSlamError(f"{key}: expected a list of filter names, got {value!r}")
+    for name in names:
+        if name not in FILTERS:
+            raise UssSlamError(f"{key}: unknown filter {name!r}; choose from {', '.join(FILTERS)}")
+    return names
+
+
+def _compare_sets(compare: Any) -> list[list[str]]:
+    if not isinstance(compare, (list, ListConfig)) or not compare:
+        raise UssSlamError(
+            "compare must be a non-empty list of filter lists, e.g. "
+            "compare=[[semantic],[semantic,geometry]]"
+        )
+    return [_filter_names(item, f"compare[{k}]") for k, item in enumerate(compare)]
+
+
+def _check_filter_params(params: Any) -> dict[str, dict[str, Any]]:
+    """Filter parameters: known filters and parameter names, the default's type."""
+    if params is None:
+        return {}
+    if not isinstance(params, dict):
+        raise UssSlamError(f"slam.filter_params: expected a mapping, got {params!r}")
+    defaults = filter_defaults()
+    for name, values in params.items():
+        key = f"slam.filter_params.{name}"
+        if name not in defaults:
+            raise UssSlamError(f"{key}: unknown filter; choose from {', '.join(defaults)}")
+        if values is None:
+            continue
+        if not isinstance(values, dict):
+            raise UssSlamError(f"{key}: expected a mapping of parameters, got {values!r}")
+        for param, value in values.items():
+            if param not in defaults[name]:
+                raise UssSlamError(
+                    f"{key}.{param}: unknown parameter; expected one of {', '.join(defaults[name])}"
+                )
+            default = defaults[name][param]
+            problem = _type_problem(default, value)
+            if problem:
+                raise UssSlamError(f"{key}.{param}: {problem}")
+    return params
+
+
+def _type_problem(default: Any, value: Any) -> str | None:
+    if isinstance(default, bool):
+        return None if isinstance(value, bool) else f"expected true or false, got {value!r}"
+    if isinstance(default, (int, float)):
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            return f"expected a number, got {value!r}"
+        if not math.isfinite(value):
+            return f"expected a finite number, got {value!r}"
+        if isinstance(default, int) and not float(value).is_integer():
+            return f"expected a whole number, got {value!r}"
+        return None
+    if isinstance(default, list) and not isinstance(value, list):
+        return f"expected a list, got {value!r}"
+    return None
+
+
+def _check_segmenter(section: Any) -> None:
+    """The segmenter's options against its class's constructor (before it is built)."""
+    target = section.get("_target_") if isinstance(section, DictConfig) else None
+    if not target:
+        raise UssSlamError(
+            "segmenter: expected a config with _target_ (segmenter=none|labels|onnx)"
+        )
+    module_name, _, class_name = str(target).rpartition(".")
+    try:
+        module = __import__(module_name, fromlist=[class_name])
+        cls = getattr(module, class_name)
+    except (ImportError, AttributeError, ValueError):
+        raise UssSlamError(f"segmenter._target_: cannot import {target!r}") from None
+    params = inspect.signature(cls).parameters
+    accepts_any = any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values())
+    options = [k for k in section if not str(k).startswith("_")]
+    for key in options:
+        if key not in params and not accepts_any:
+            allowed = ", ".join(params) or "none"
+            raise UssSlamError(
+                f"segmenter.{key}: not an option of {class_name} (options: {allowed})"
+            )
+    missing = [
+        name
+        for name, p in params.items()
+        if p.default is inspect.Parameter.empty
+        and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)
+        and name not in options
+    ]
+    if missing:
+        raise UssSlamError(f"segmenter.{missing[0]}: required by {class_name}")
+
+
+def check(cfg: DictConfig) -> RunPlan:
+    """Validate everything the run will use, before any frame is read or file written."""
+    for key in ("segment", "filters", "compare", "eval", "slam", "segmenter", "out_dir"):
+        if key not in cfg:
+            raise UssSlamError(f"{key}: missing from the config")
+    segment = str(cfg.segment)
+    if segment not in SEGMENT_SCHEDULES:
+        raise UssSlamError(
+            f"segment={segment!r}: choose every_frame (segment every frame, concurrently "
+            "with ORB extraction) or keyframes (segment keyframes only)"
+        )
+    slam = cfg.slam
+    orb = _dataclass(OrbConfig, slam.orb, "slam.orb")
+    tracker = _dataclass(TrackerConfig, slam.tracker, "slam.tracker")
+    semantic_map = _dataclass(MapConfig, slam.map, "slam.map")
+    evaluation = _dataclass(EvalConfig, cfg.eval, "eval")
+    for key in ("prefetch", "workers"):
+        if int(slam[key]) < (0 if key == "prefetch" else 1):
+            raise UssSlamError(f"slam.{key}: must be >= {0 if key == 'prefetch' else 1}")
+    params = _check_filter_params(OmegaConf.to_container(slam.filter_params, resolve=True))
+    if cfg.compare is None:
+        runs: list[tuple[str | None, list[str]]] = [(None, _filter_names(cfg.filters, "filters"))]
+    else:
+        sets = _compare_sets(cfg.compare)
+        runs = [("baseline", [])] + [(run_name(s), s) for s in sets]
+    for _, names in runs:
+        _build(names, params)
+    _check_segmenter(cfg.segmenter)
+    return RunPlan(orb, tracker, semantic_map, evaluation, params, runs)
+
+
+def _build(names: list[str], params: dict[str, dict[str, Any]]) -> list[DynamicFilter]:
+    return build_filters(names, params)
+
+
+# ------------------------------------------------------------------------- config errors
+
+
+def config_error_line(error: BaseException) -> str | None:
+    """One line for an error raised while Hydra composed the config (wrong type, unknown key or
+    option, bad override syntax), naming the key; None for anything else."""
+    chain: list[BaseException] = []
+    seen: set[int] = set()
+    current: BaseException | None = error
+    while current is not None and id(current) not in seen:
+        chain.append(current)
+        seen.add(id(current))
+        current = current.__cause__ or current.__context__
+    for item in chain:
+        if isinstance(item, OmegaConfBaseException):
+            key = getattr(item, "full_key", None)
+            msg = getattr(item, "msg", None) or str(item)
+            first = " ".join(str(msg).split("\n")[0].split())
+            if key and str(key) not in first:
+                return f"{key}: {first}"
+            return first
+    for item in chain:
+        if isinstance(item, HydraException):
+            lines = [line.strip() for line in str(item).strip().splitlines() if line.strip()]
+            if not lines:
+                return type(item).__name__
+            head, parts = lines[0], []
+            for line in lines[1:]:
+                if line.startswith("Config search path"):
+                    break  # Hydra's internals, not the user's concern
+                if parts and parts[-1].endswith(":"):
+                    parts[-1] += " " + line
+                elif parts and ":" in parts[-1] and not line.endswith(":"):
+                    parts[-1] += ", " + line
+                else:
+                    parts.append(line)
+            return head + (f" ({'; '.join(parts)})" if parts else "")
+    return None
