@@ -28,7 +28,7 @@ from omegaconf.errors import OmegaConfBaseException
 
 from uss_slam.core.errors import UssSlamError
 
-from .filters import FILTERS, DynamicFilter, build_filters
+from .filters import FILTERS, build_filters
 from .frontend import OrbConfig
 from .pipeline import SEGMENT_SCHEDULES
 from .report import EvalConfig
@@ -256,13 +256,10 @@ def check(cfg: DictConfig) -> RunPlan:
         sets = _compare_sets(cfg.compare)
         runs = [("baseline", [])] + [(run_name(s), s) for s in sets]
     for _, names in runs:
-        _build(names, params)
+        build_filters(names, params)
+    build_filters(list(FILTERS), params)  # the parameters of unused filters are checked too
     _check_segmenter(cfg.segmenter)
     return RunPlan(orb, tracker, semantic_map, evaluation, params, runs)
-
-
-def _build(names: list[str], params: dict[str, dict[str, Any]]) -> list[DynamicFilter]:
-    return build_filters(names, params)
 
 
 # ------------------------------------------------------------------------- config errors

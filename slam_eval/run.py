@@ -145,6 +145,7 @@ def main() -> None:
     """``uss-slam``: the Hydra app, with the errors Hydra raises while composing the config (a
     wrong type, an unknown key or option, a folder it cannot create) as one line and exit code 1
     instead of Hydra's multi-line report. Internal errors keep their traceback."""
+    _started.clear()
     previous = os.environ.get("HYDRA_FULL_ERROR")
     os.environ["HYDRA_FULL_ERROR"] = "1"  # Hydra raises instead of printing its own report
     try:

@@ -1,0 +1,383 @@
+"""``uss-slam`` reliability: everything checked before the SLAM run (exit code 1, one stderr line
+naming the key or file), the output folder never mixing two runs (atomic files, ``run.json``
+written last, a failed or killed rerun), and a run in which motion filters and the object rule
+really flag keypoints."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import yaml
+
+from uss_slam.core.files import file_sha256
+from uss_slam.core.tum_io import read_trajectory
+from uss_slam.slam_eval.outputs import (
+    MANIFEST,
+    TMP_PREFIX,
+    RunFolder,
+    atomic_path,
+    clear_outputs,
+    verify_run,
+)
+from uss_slam.slam_eval.run import main
+from uss_slam.slam_eval.semantic_map import read_ply
+
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+def _uss_slam(monkeypatch, capsys, args: list[str]) -> tuple[int, str, str]:
+    """``uss-slam ARGS`` in this process: (exit code, stdout, stderr)."""
+    monkeypatch.setattr(sys, "argv", ["uss-slam", *args])
+    try:
+        main()
+        code = 0
+    except SystemExit as stop:
+        code = int(stop.code or 0)
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def _snapshot(folder: Path) -> dict[str, str]:
+    return {
+        p.relative_to(folder).as_posix(): file_sha256(p)
+        for p in sorted(folder.rglob("*"))
+        if p.is_file() and p.name != "run.log"
+    }
+
+
+@pytest.fixture(scope="module")
+def earlier(tmp_path_factory: pytest.TempPathFactory, synthetic_sequence) -> tuple[Path, Path]:
+    """(sequence, folder of a complete earlier run: baseline over 8 frames)."""
+    seq = synthetic_sequence(preset="walking_xyz", frames=30)
+    out = tmp_path_factory.mktemp("earlier") / "run"
+    done = subprocess.run(
+        [sys.executable, "-m", "uss_slam.slam_eval.run", f"sequence.path={seq}",
+         "sequence.max_frames=8", f"out_dir={out}", "progress=false"],
+        capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert verify_run(out) == []
+    return seq, out
+
+
+BAD_CONFIGS = [
+    (["slam.orb.n_features=abc"], "slam.orb.n_features: Value 'abc' of type 'str' could not be"),
+    (["slam.tracker.ratio=1.5"], "slam.tracker.ratio must be in (0, 1], got 1.5"),
+    (["slam.map.voxel=0"], "slam.map.voxel must be > 0 m, got 0.0"),
+    (["eval.align=se4"], "eval.align must be one of se3, sim3, none, got 'se4'"),
+    (["eval.rpe_unit=minutes"], "eval.rpe_unit must be one of frames, seconds, got 'minutes'"),
+    (["eval.rpe_delta=1.5"], "eval.rpe_delta must be a whole number of frames with rpe_unit="),
+    (["eval.rpe_delta=0"], "eval.rpe_delta must be > 0, got 0.0"),
+    (["eval.max_diff=abc"], "eval.max_diff: Value 'abc' of type 'str' could not be converted"),
+    (["segment=sometimes"], "segment='sometimes': choose every_frame"),
+    (["filters=[semantic,teleport]"], "filters: unknown filter 'teleport'; choose from semantic"),
+    (["compare=[[semantic],[flow,warp]]"], "compare[1]: unknown filter 'warp'; choose from"),
+    (["compare=[]"], "compare must be a non-empty list of filter lists"),
+    (["filters=[flow,flow]"], "filter 'flow' is listed twice"),
+    (["slam.filter_params.flow.threshold=fast"],
+     "slam.filter_params.flow.threshold: expected a number, got 'fast'"),
+    (["+slam.filter_params.flow.radius=3"],
+     "slam.filter_params.flow.radius: unknown parameter; expected one of threshold, window"),
+    (["slam.filter_params.semantic.dynamic_classes=[person,ghost]"],
+     "unknown class 'ghost'; the project's classes are background, person, chair, monitor"),
+    (["segmenter=labels", "+segmenter.model=x.onnx"],
+     "segmenter.model: not an option of LabelsSegmenter (options: none)"),
+    (["segmenter=onnx"], "Missing mandatory value: segmenter.path"),
+    (["segmenter=onnx", "segmenter.path=missing.onnx"], "segmenter.path missing.onnx: no such"),
+    (["slam.orb.bogus=1"], "slam.orb.bogus: Key 'bogus' not in 'OrbConfig'"),
+    (["segmenter=deeplab"], "Could not find 'segmenter/deeplab' (Available options in "
+                            "'segmenter': labels, none, onnx)"),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("args", "message"), BAD_CONFIGS, ids=[" ".join(a) for a, _ in BAD_CONFIGS]
+)
+def test_bad_config_fails_before_the_run_and_keeps_the_earlier_run(
+    earlier, tmp_path: Path, monkeypatch, capsys, args: list[str], message: str
+) -> None:
+    seq, done = earlier
+    out = tmp_path / "run"
+    shutil.copytree(done, out)
+    before = _snapshot(out)
+    code, stdout, stderr = _uss_slam(
+        monkeypatch, capsys, [f"sequence.path={seq}", f"out_dir={out}", "progress=false", *args]
+    )
+    assert code == 1
+    lines = stderr.strip().splitlines()
+    assert len(lines) == 1, stderr
+    assert lines[0].startswith("uss-slam: error: ") and message in lines[0], lines[0]
+    assert "Traceback" not in stderr and stdout == ""
+    # Nothing of the failed run was written: the earlier run is complete and unchanged, its
+    # .hydra/ included.
+    assert _snapshot(out) == before and verify_run(out) == []
+    overrides = yaml.safe_load((out / ".hydra" / "overrides.yaml").read_text())
+    assert "sequence.max_frames=8" in overrides
+
+
+def test_onnx_segmenter_threads_checked_before_loading(
+    earlier, tmp_path: Path, monkeypatch, capsys
+) -> None:
+    seq, _ = earlier
+    model = tmp_path / "model.onnx"
+    model.write_bytes(b"not read: the options are checked first")
+    code, _, err = _uss_slam(monkeypatch, capsys, [
+        f"sequence.path={seq}", f"out_dir={tmp_path / 'out'}", "segmenter=onnx",
+        f"segmenter.path={model}", "segmenter.threads=abc"])  # fmt: skip
+    assert code == 1 and err.strip().splitlines() == [
+        "uss-slam: error: segmenter.threads must be a whole number >= 1 or null, got 'abc'"
+    ]
+    assert not (tmp_path / "out" / MANIFEST).exists()
+
+
+@pytest.mark.parametrize(
+    ("entry", "message"),
+    [
+        ("fx: 0", "fx must be > 0, got 0"),
+        ("fy: -535.4", "fy must be > 0, got -535.4"),
+        ("fx: .nan", "fx must be a finite number, got nan"),
+        ("depth_scale: 0", "depth_scale must be > 0, got 0"),
+        ("depth_scale: .nan", "depth_scale must be a finite number, got nan"),
+        ("cx: 320", "cx must lie inside the image (0 <= cx < width 320), got 320"),
+        ("cy: -1", "cy must lie inside the image (0 <= cy < height 240), got -1"),
+    ],
+)
+def test_bad_intrinsics_name_the_file_and_key(
+    earlier, tmp_path: Path, monkeypatch, capsys, entry: str, message: str
+) -> None:
+    source, _ = earlier
+    seq = tmp_path / "seq"
+    shutil.copytree(source, seq)
+    intrinsics = seq / "intrinsics.yaml"
+    key = entry.split(":")[0]
+    lines = [
+        entry if line.split(":")[0] == key else line for line in intrinsics.read_text().splitlines()
+    ]
+    intrinsics.write_text("\n".join(lines) + "\n")
+    out = tmp_path / "out"
+    code, _, err = _uss_slam(monkeypatch, capsys, [f"sequence.path={seq}", f"out_dir={out}"])
+    assert code == 1
+    assert err.strip().splitlines() == [f"uss-slam: error: {intrinsics}: {message}"]
+    assert not (out / MANIFEST).exists() and not (out / "trajectory.txt").exists()
+
+
+def test_out_dir_that_cannot_be_created(earlier, tmp_path: Path, monkeypatch, capsys) -> None:
+    seq, _ = earlier
+    blocker = tmp_path / "file"
+    blocker.write_text("a file, not a folder")
+    code, _, err = _uss_slam(
+        monkeypatch, capsys, [f"sequence.path={seq}", f"out_dir={blocker / 'run'}"]
+    )
+    assert code == 1
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and str(blocker / "run") in lines[0]
+    assert lines[0].startswith("uss-slam: error: cannot create the output folder")
+    assert blocker.read_text() == "a file, not a folder"
+
+
+def test_rerun_failing_on_the_sequence_keeps_the_earlier_run(
+    earlier, tmp_path: Path, monkeypatch, capsys
+) -> None:
+    """A sequence error found while opening it (a depth frame listed but missing)."""
+    source, done = earlier
+    seq, out = tmp_path / "seq", tmp_path / "run"
+    shutil.copytree(source, seq)
+    shutil.copytree(done, out)
+    before = _snapshot(out)
+    victim = sorted((seq / "depth").iterdir())[3]
+    victim.unlink()
+    code, _, err = _uss_slam(
+        monkeypatch, capsys, [f"sequence.path={seq}", f"out_dir={out}", "progress=false"]
+    )
+    assert code == 1
+    assert err.strip().splitlines() == [
+        f"uss-slam: error: {seq / 'depth.txt'}:7: listed image depth/{victim.name} not found"
+    ]
+    assert _snapshot(out) == before and verify_run(out) == []
+
+
+def test_rerun_failing_mid_run_keeps_the_earlier_run(
+    earlier, tmp_path: Path, monkeypatch, capsys
+) -> None:
+    """A frame that only fails when it is decoded, half-way through the SLAM run."""
+    source, done = earlier
+    seq, out = tmp_path / "seq", tmp_path / "run"
+    shutil.copytree(source, seq)
+    shutil.copytree(done, out)
+    before = _snapshot(out)
+    victim = sorted((seq / "rgb").iterdir())[5]
+    victim.write_bytes(b"truncated")
+    code, _, err = _uss_slam(
+        monkeypatch, capsys, [f"sequence.path={seq}", f"out_dir={out}", "progress=false"]
+    )
+    assert code == 1
+    assert err.strip().splitlines() == [f"uss-slam: error: {victim}: not a readable image"]
+    assert _snapshot(out) == before and verify_run(out) == []
+
+
+def test_successful_rerun_replaces_every_output(earlier, tmp_path: Path, monkeypatch, capsys):
+    """A comparison rerun over a single run: no file of the earlier run survives."""
+    seq, done = earlier
+    out = tmp_path / "run"
+    shutil.copytree(done, out)
+    (out / "notes.txt").write_text("the user's own file")
+    code, stdout, err = _uss_slam(monkeypatch, capsys, [
+        f"sequence.path={seq}", f"out_dir={out}", "progress=false", "sequence.max_frames=6",
+        "segmenter=labels", "compare=[[semantic]]"])  # fmt: skip
+    assert code == 0, err
+    assert "| metric | baseline | semantic |" in stdout
+    assert verify_run(out) == []
+    listed = set(json.loads((out / MANIFEST).read_text())["files"])
+    present = {k for k in _snapshot(out) if k != MANIFEST}
+    assert present == listed | {"notes.txt"}  # nothing unlisted beside the user's file
+    assert not (out / "trajectory.txt").exists()  # the earlier single run's outputs are gone
+    assert {"baseline/metrics.json", "semantic/map.ply", "comparison.md"} <= listed
+    assert "compare=[[semantic]]" in yaml.safe_load((out / ".hydra/overrides.yaml").read_text())
+
+
+# ------------------------------------------------------------------------ folder mechanics
+
+
+def test_atomic_path_leaves_nothing_on_failure(tmp_path: Path) -> None:
+    target = tmp_path / "metrics.json"
+    target.write_text("old")
+    with pytest.raises(RuntimeError), atomic_path(target) as tmp:
+        tmp.write_text("half")
+        raise RuntimeError("killed")
+    assert target.read_text() == "old" and [p.name for p in tmp_path.iterdir()] == [target.name]
+    with atomic_path(target) as tmp:
+        assert tmp.parent == tmp_path and tmp.name.startswith(TMP_PREFIX)
+        tmp.write_text("new")
+    assert target.read_text() == "new" and len(list(tmp_path.iterdir())) == 1
+
+
+def test_verify_run_detects_changes_and_leftovers(tmp_path: Path) -> None:
+    folder = RunFolder.start(tmp_path / "run")
+    folder.write_text("metrics.json", "{}\n")
+    folder.write_text("sub/trajectory.txt", "# t\n")
+    assert verify_run(folder.root) == [f"{folder.root / MANIFEST}: missing (the run did not "
+                                       "finish, or was killed)"]  # fmt: skip
+    folder.commit(runs=["x"])
+    assert verify_run(folder.root) == []
+    (folder.root / "metrics.json").write_text("{ }\n")
+    (folder.root / "report.md").write_text("stale")
+    (folder.root / f"{TMP_PREFIX}map.ply.x.tmp").write_bytes(b"")
+    problems = verify_run(folder.root)
+    assert any("metrics.json: changed since the run" in p for p in problems)
+    assert any("report.md: not listed in run.json" in p for p in problems)
+    assert any("temporary file of an interrupted write" in p for p in problems)
+    (folder.root / "sub/trajectory.txt").unlink()
+    assert any("sub/trajectory.txt: listed in run.json but missing" in p
+               for p in verify_run(folder.root))  # fmt: skip
+
+
+def test_clear_outputs_removes_only_run_outputs(tmp_path: Path) -> None:
+    root = tmp_path / "run"
+    folder = RunFolder.start(root)
+    for name in ("trajectory.txt", "metrics.json", "a+b/map.ply", "a+b/metrics.json",
+                 ".hydra/config.yaml"):  # fmt: skip
+        folder.write_text(name, "x")
+    folder.commit()
+    (root / "notes.md").write_text("mine")
+    (root / "data").mkdir()
+    (root / "data" / "metrics.json").write_text("mine too: not only run outputs in data/")
+    (root / "data" / "frames.csv").write_text("mine")
+    (root / f"{TMP_PREFIX}report.md.1.tmp").write_text("left by a kill")
+    clear_outputs(root)
+    left = sorted(p.relative_to(root).as_posix() for p in root.rglob("*"))
+    assert left == ["data", "data/frames.csv", "data/metrics.json", "notes.md"]
+
+
+# ------------------------------------------------------------------------------ kill -9
+
+
+def _check_files_whole(out: Path) -> None:
+    """Every output present under its own name is complete (atomic writes)."""
+    for path in out.rglob("*"):
+        if path.name == "metrics.json" or path.name == "comparison.json":
+            json.loads(path.read_text())
+        elif path.name == "trajectory.txt":
+            read_trajectory(path)
+        elif path.name == "map.ply":
+            read_ply(path)
+        elif path.suffix == ".png":
+            assert path.read_bytes().startswith(PNG_MAGIC)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("moment", ["clearing", "writing"])
+def test_sigkill_is_detected_and_a_rerun_recovers(earlier, tmp_path: Path, moment: str) -> None:
+    """SIGKILL while the earlier run's outputs are being removed (its manifest is gone), or
+    while the new run's are being written (its first sub-folder exists)."""
+    seq, done = earlier
+    out = tmp_path / "run"
+    shutil.copytree(done, out)
+    old = _snapshot(out)
+    args = [sys.executable, "-m", "uss_slam.slam_eval.run", f"sequence.path={seq}",
+            f"out_dir={out}", "progress=false", "sequence.max_frames=12", "segmenter=labels",
+            "compare=[[semantic],[semantic,geometry]]"]  # fmt: skip
+    proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    marker = (lambda: not (out / MANIFEST).exists()) if moment == "clearing" else (
+        lambda: (out / "baseline").exists())  # fmt: skip
+    killed = False
+    deadline = time.monotonic() + 240
+    while proc.poll() is None and time.monotonic() < deadline:
+        if marker():
+            os.kill(proc.pid, signal.SIGKILL)
+            killed = True
+            break
+        time.sleep(0.0005)
+    proc.wait(timeout=60)
+    assert killed and proc.returncode == -signal.SIGKILL, "the run ended before the kill"
+    # Detectable: no manifest. Consistent: the files present are all the earlier run's (killed
+    # while clearing) or none of them are (killed while writing), never a mix; .hydra/ only
+    # comes with a finished run; every file present is whole.
+    problems = verify_run(out)
+    assert problems and "run.json: missing" in problems[0]
+    now = _snapshot(out)
+    from_old = {name for name in now if old.get(name) == now[name]}
+    assert from_old in (set(), set(now)), sorted(now)
+    if moment == "writing":
+        assert from_old == set() and any(n.startswith("baseline/") for n in now)
+        assert not (out / ".hydra").exists()
+    _check_files_whole(out)
+    # A rerun recovers: complete, verified, no temporaries.
+    rerun = subprocess.run(args, capture_output=True, text=True, timeout=300)
+    assert rerun.returncode == 0, rerun.stderr
+    assert verify_run(out) == []
+    assert not list(out.rglob(f"{TMP_PREFIX}*"))
+    runs = json.loads((out / MANIFEST).read_text())["runs"]
+    assert runs == ["baseline", "semantic", "semantic+geometry"]
+
+
+# --------------------------------------------------------------------- filters at work
+
+
+def test_motion_filter_and_object_rule_flag_keypoints(synthetic_sequence, tmp_path: Path,
+                                                      monkeypatch, capsys) -> None:  # fmt: skip
+    """People walk through the synthetic scene: the geometry check flags keypoints on them and
+    the object rule then takes the whole person (counted in metrics.json and the report)."""
+    seq = synthetic_sequence(preset="walking_xyz", frames=30)
+    out = tmp_path / "run"
+    code, _, err = _uss_slam(monkeypatch, capsys, [
+        f"sequence.path={seq}", f"out_dir={out}", "progress=false", "segmenter=labels",
+        "filters=[geometry,object]"])  # fmt: skip
+    assert code == 0, err
+    metrics = json.loads((out / "metrics.json").read_text())
+    kp = metrics["keypoints"]
+    assert kp["flagged"]["geometry"] > 0 and kp["dropped"]["geometry"] > 0
+    assert kp["flagged"]["object"] > 0 and kp["dropped"]["object"] > 0
+    assert kp["extracted"] - kp["kept"] == kp["dropped"]["geometry"] + kp["dropped"]["object"]
+    assert metrics["frames_tracked"] == metrics["frames"] == 30
+    report = (out / "report.md").read_text()
+    assert f"| geometry | {kp['flagged']['geometry']} | {kp['dropped']['geometry']} |" in report
+    assert f"| object | {kp['flagged']['object']} | {kp['dropped']['object']} |" in report
+    assert verify_run(out) == []
