@@ -23,11 +23,11 @@ import numpy as np
 import torch
 
 from uss_slam.core.classes import CLASS_NAMES
+from uss_slam.core.seg_metrics import BinaryCounts, confusion_matrix, iou_report, mask_counts
 from uss_slam.datasets.transforms import eval_transform
 from uss_slam.datasets.tum import TUMFrames
 from uss_slam.datasets.voc import VOCSegmentation
-from uss_slam.export.onnx_export import load_checkpoint
-from uss_slam.pipelines.demo import confusion, iou_scores
+from uss_slam.export import load_checkpoint
 from uss_slam.train.losses import upsample
 from uss_slam.train.precise_bn import evenly_spaced, recompute_batchnorm
 
@@ -37,17 +37,25 @@ TARGET_TRAIN = ("walking_xyz", "walking_rpy", "walking_halfsphere", "sitting_sta
 def score(net: torch.nn.Module, dataset: TUMFrames | VOCSegmentation) -> dict:
     n = len(CLASS_NAMES)
     matrix = np.zeros((n, n), np.int64)
+    person = BinaryCounts()
     with torch.no_grad():
         for i in range(len(dataset)):
             sample = dataset[i]
             labels = sample["label"].numpy()
             logits = upsample(net(sample["image"][None]).main, labels.shape)
-            matrix += confusion(logits.argmax(1)[0].numpy(), labels, n)
-    result = iou_scores(matrix)
-    person = CLASS_NAMES.index("person")
-    result["person_recall"] = float(matrix[person, person] / max(matrix[person].sum(), 1))
-    result["person_precision"] = float(matrix[person, person] / max(matrix[:, person].sum(), 1))
+            pred = logits.argmax(1)[0].numpy()
+            matrix += confusion_matrix(labels, pred, n)
+            person = person + mask_counts(labels, pred, [CLASS_NAMES.index("person")])
+    result = iou_report(matrix, CLASS_NAMES)
+    rates = person.rates()  # person pixels pooled over the set
+    result["person_recall"] = rates["recall"]
+    result["person_precision"] = rates["precision"]
     return result
+
+
+def _fmt(value: float | None) -> str:
+    """Three decimals; "n/a" when undefined (class absent, no prediction)."""
+    return "n/a" if value is None or value != value else f"{value:.3f}"
 
 
 def main() -> None:
@@ -80,10 +88,10 @@ def main() -> None:
     }
     for name in args.sets.split(","):
         result = score(net, sets[name]())
-        per_class = " ".join(f"{k} {v:.3f}" for k, v in result["IoU"].items())
+        per_class = " ".join(f"{k} {_fmt(v)}" for k, v in result["IoU"].items())
         print(
-            f"{name:7s} mIoU {result['mIoU']:.3f} | {per_class} | person recall "
-            f"{result['person_recall']:.3f} precision {result['person_precision']:.3f}"
+            f"{name:7s} mIoU {_fmt(result['mIoU'])} | {per_class} | person recall "
+            f"{_fmt(result['person_recall'])} precision {_fmt(result['person_precision'])}"
         )
 
 

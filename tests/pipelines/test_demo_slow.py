@@ -12,7 +12,8 @@ import pytest
 
 from uss_slam.core.classes import CLASS_NAMES
 from uss_slam.core.onnx_contract import SegmenterMetadata
-from uss_slam.pipelines import demo
+from uss_slam.pipelines import demo, demo_report
+from uss_slam.pipelines.stages import STAMP
 from uss_slam.slam_eval.onnx_segmenter import OnnxSegmenter
 
 ROW_KEYS = {
@@ -36,7 +37,7 @@ def test_demo_ci_end_to_end_then_reused(tmp_path: Path, capsys: pytest.CaptureFi
 
     # One table, printed and in the report, one row per variant in order.
     table = [line for line in printed.splitlines() if line.startswith("| ")]
-    assert table[0] == demo.TABLE_HEADER
+    assert table[0] == demo_report.TABLE_HEADER
     assert [row.split(" | ")[0][2:] for row in table[1:]] == [v.label for v in demo.VARIANTS]
     report = (out / "report.md").read_text()
     assert "\n".join(table[:1]) in report and all(row in report for row in table[1:])
@@ -88,7 +89,7 @@ def test_demo_ci_end_to_end_then_reused(tmp_path: Path, capsys: pytest.CaptureFi
         )
         assert (out / "train" / name / ".hydra" / "config.yaml").is_file()
     adaptation = {
-        name: json.loads((out / "train" / name / demo.STAMP).read_text())["overrides"]
+        name: json.loads((out / "train" / name / STAMP).read_text())["overrides"]
         for name in ("adapted", "source_only")
     }
     assert "model.adaptation=true" in adaptation["adapted"]
@@ -122,9 +123,10 @@ def test_options_default_to_reuse() -> None:
 
 def test_unknown_sequence_is_a_one_line_error(tmp_path: Path, capsys) -> None:
     """A bad --sequence fails before any work, naming the choices."""
-    code = demo.main(["--out", str(tmp_path), "--experiment", "ci", "--quiet",
-                      "--sequence", "nowhere"])  # fmt: skip
-    assert code == 1
-    err = capsys.readouterr().err.strip().splitlines()[-1]
-    assert err.startswith("uss-demo: error: --sequence nowhere: not a folder")
-    assert "walking_xyz, static_xyz" in err and not (tmp_path / "data").exists()
+    with pytest.raises(SystemExit) as exit_info:
+        demo.main(["--out", str(tmp_path), "--experiment", "ci", "--quiet",
+                   "--sequence", "nowhere"])  # fmt: skip
+    assert exit_info.value.code == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("uss-demo: error: --sequence nowhere: not a folder")
+    assert "walking_xyz, static_xyz" in err[0] and not (tmp_path / "data").exists()

@@ -9,8 +9,8 @@ from types import SimpleNamespace
 import pytest
 import torch
 from hydra.utils import instantiate
+from pipeline_helpers import compose_train, data_overrides
 from torch import nn
-from train_helpers import compose_train, data_overrides
 
 from uss_slam.core.errors import UssSlamError
 from uss_slam.train.precise_bn import PreciseBatchNorm, evenly_spaced, recompute_batchnorm

@@ -1,0 +1,133 @@
+"""Cached pipeline stages: a stage is an output folder, the key of its inputs and a completion
+stamp written last, atomically.
+
+A stage counts as complete only when its stamp holds the same key and its expected outputs
+exist. Before a stage is (re)done its stamp is removed *first*, then its folder emptied; the stamp
+is written only after the work returned. So a stage killed at any point (even while its old
+folder is being deleted) has no stamp and is redone on the next run, never reused.
+
+    stage = Stage(out / "train" / "adapted", key={"overrides": [...]},
+                  outputs=(Path("checkpoints/*.ckpt"),))
+    progress = Progress(total=3)
+    progress.run("train", "train adapted", lambda: run_stage(stage, work, force=False))
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import shutil
+import tempfile
+import time
+from collections.abc import Callable, Iterator, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+STAMP = ".uss-demo.json"
+"""Name of the completion stamp in a stage folder (JSON of the stage's key)."""
+
+
+@contextlib.contextmanager
+def atomic_path(path: Path) -> Iterator[Path]:
+    """Yield a temporary sibling of ``path`` to write; it replaces ``path`` only if the body
+    finishes (a reader never sees half a file, an interrupted write leaves ``path`` as it was)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    os.close(fd)
+    try:
+        yield Path(tmp)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+
+
+def write_text_atomic(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` through :func:`atomic_path`."""
+    with atomic_path(path) as tmp:
+        tmp.write_text(text)
+
+
+def write_json_atomic(path: Path, data: Any) -> None:
+    """Indented JSON with a final newline, written atomically."""
+    write_text_atomic(path, json.dumps(data, indent=2) + "\n")
+
+
+@dataclass(frozen=True)
+class Stage:
+    """One cached step.
+
+    ``folder``: the stage's own folder (emptied before the stage is redone when ``fresh``; holds
+    the stamp). ``key``: everything its result depends on (JSON-able). ``outputs``: files that
+    must exist for it to count as complete; a name may be a glob pattern (``checkpoints/*.ckpt``:
+    at least one match); relative paths are inside ``folder``.
+    """
+
+    folder: Path
+    key: Mapping[str, Any]
+    outputs: tuple[Path, ...] = ()
+    fresh: bool = True
+    stamp_name: str = STAMP
+
+    @property
+    def stamp(self) -> Path:
+        return self.folder / self.stamp_name
+
+    def complete(self) -> bool:
+        """True when the stamp holds this key and every expected output exists."""
+        try:
+            recorded = json.loads(self.stamp.read_text())
+        except (OSError, json.JSONDecodeError):
+            return False
+        if recorded != json.loads(json.dumps(self.key)):  # compare as JSON (tuples = lists)
+            return False
+        expected = (self.folder / p for p in self.outputs)  # an absolute p stays itself
+        return all(any(p.parent.glob(p.name)) for p in expected)
+
+    def start(self) -> None:
+        """Invalidate (stamp first), then empty the folder when ``fresh``; the folder exists."""
+        self.stamp.unlink(missing_ok=True)
+        if self.fresh and self.folder.exists():
+            shutil.rmtree(self.folder)
+        self.folder.mkdir(parents=True, exist_ok=True)
+
+    def finish(self) -> None:
+        """Mark complete: the stamp, written atomically."""
+        write_json_atomic(self.stamp, dict(self.key))
+
+
+def run_stage(stage: Stage, work: Callable[[], str], force: bool = False) -> str:
+    """``"reused"`` if ``stage`` is complete (and not ``force``), else start it, run ``work``
+    and mark it complete; returns ``work``'s status text."""
+    if not force and stage.complete():
+        return "reused"
+    stage.start()
+    status = work()
+    stage.finish()
+    return status
+
+
+class Progress:
+    """Prints ``[k/N] what ...`` before and ``[k/N] what: status in X s (total Y s)`` after each
+    step; ``times`` sums the seconds per step name."""
+
+    def __init__(self, total: int) -> None:
+        self.total = total
+        self.count = 0
+        self.start = time.perf_counter()
+        self.times: dict[str, float] = {}
+
+    def run(self, name: str, what: str, fn: Callable[[], str]) -> None:
+        self.count += 1
+        print(f"[{self.count}/{self.total}] {what} ...", flush=True)
+        t0 = time.perf_counter()
+        status = fn()
+        spent = time.perf_counter() - t0
+        self.times[name] = self.times.get(name, 0.0) + spent
+        total = time.perf_counter() - self.start
+        print(
+            f"[{self.count}/{self.total}] {what}: {status} in {spent:.1f} s (total {total:.1f} s)",
+            flush=True,
+        )

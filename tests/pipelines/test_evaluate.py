@@ -1,0 +1,199 @@
+"""``uss-eval``: per-class IoU, mIoU and the dynamic-mask metrics of an ONNX model or a
+checkpoint on labelled frames, against answers computed here from the files; one-line errors."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import torch
+import torch.nn.functional as F
+from pipeline_helpers import colour_labels, colour_model, tiny_run
+
+from uss_slam.core.classes import CLASS_NAMES
+from uss_slam.core.normalization import IMAGENET_MEAN, IMAGENET_STD
+from uss_slam.core.tum_io import read_file_list
+from uss_slam.pipelines import demo, evaluate
+
+
+def _frames(seq: Path, stride: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(rgb, labels) of every ``stride``-th frame, read with OpenCV."""
+    files = read_file_list(seq / "rgb.txt")
+    out = []
+    for k in range(0, len(files), stride):
+        rgb = cv2.cvtColor(cv2.imread(str(files.resolve(k))), cv2.COLOR_BGR2RGB)
+        labels = cv2.imread(str(seq / "labels" / files.resolve(k).name), cv2.IMREAD_UNCHANGED)
+        out.append((rgb, labels))
+    return out
+
+
+def _expected(pairs: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, list[tuple]]:
+    """Confusion matrix and per-frame person (tp, fp, fn) counted here, plainly."""
+    n = len(CLASS_NAMES)
+    matrix = np.zeros((n, n), np.int64)
+    person = []
+    for labels, pred in pairs:
+        for t, p in zip(labels.ravel(), pred.ravel(), strict=True):
+            if t != 255:
+                matrix[t, p] += 1
+        valid = labels != 255
+        t, p = (labels == 1) & valid, (pred == 1) & valid
+        person.append((int((t & p).sum()), int((~t & p).sum()), int((t & ~p).sum())))
+    return matrix, person
+
+
+def test_onnx_model_on_a_sequence(tmp_path: Path, synthetic_sequence, capsys) -> None:
+    seq = synthetic_sequence(frames=6, size=(64, 48))
+    model = colour_model(tmp_path / "colour.onnx")
+    out = tmp_path / "eval"
+    code = evaluate.main([str(model), "--sequence", str(seq), "--stride", "2", "--overlays", "2",
+                          "--out", str(out)])  # fmt: skip
+    assert code == 0
+    printed = capsys.readouterr().out
+    result = json.loads((out / "eval.json").read_text())
+    frames = _frames(seq, 2)
+    matrix, person = _expected([(labels, colour_labels(rgb)) for rgb, labels in frames])
+    assert result["frames"] == 3 and result["classes"] == list(CLASS_NAMES)
+    np.testing.assert_array_equal(result["confusion_matrix"], matrix)
+    tp, union = np.diag(matrix), matrix.sum(0) + matrix.sum(1) - np.diag(matrix)
+    iou = {name: (tp[k] / union[k] if union[k] else None) for k, name in enumerate(CLASS_NAMES)}
+    assert result["IoU"] == pytest.approx(iou)
+    assert result["mIoU"] == pytest.approx(np.mean([v for v in iou.values() if v is not None]))
+    # the dynamic (person) mask: pooled pixels and the paper's per-frame classification
+    mask = result["mask"]
+    total = sum(labels.size - int((labels == 255).sum()) for _, labels in frames)
+    tps, fps, fns = (sum(c[i] for c in person) for i in range(3))
+    assert mask["pixels_pooled"]["counts"] == {"TP": tps, "FP": fps, "TN": total - tps - fps - fns,
+                                               "FN": fns}  # fmt: skip
+    outcome = {"TP": 0, "FP": 0, "TN": 0, "FN": 0}
+    for t, f, n in person:
+        if t + n:
+            outcome["TP" if t / (t + f + n) >= 0.5 else "FN"] += 1
+        else:
+            outcome["FP" if f else "TN"] += 1
+    assert mask["frames"]["counts"] == outcome and result["dynamic_classes"] == ["person"]
+    assert result["model"]["kind"] == "onnx" and result["model"]["experiment"] == "colour"
+    assert result["data"] == {"source": "sequence", "roots": [str(seq)], "stride": 2}
+    # report: printed = eval.md; overlays of the first and last frame, truth | prediction
+    md = (out / "eval.md").read_text()
+    assert md in printed and "| person |" in md and "| PWC |" in md
+    assert f"**mIoU {result['mIoU']:.4f}**" in md
+    assert result["overlays"] == [f"overlays/000_{seq.name}_{_stamp(seq, 0)}.png",
+                                  f"overlays/001_{seq.name}_{_stamp(seq, 4)}.png"]  # fmt: skip
+    for name in result["overlays"]:
+        image = cv2.imread(str(out / name))
+        assert image.shape == (48, 128, 3)
+
+
+def _stamp(seq: Path, k: int) -> str:
+    return read_file_list(seq / "rgb.txt").resolve(k).stem
+
+
+def test_same_numbers_as_the_demo_miou_stage(tmp_path: Path, synthetic_sequence) -> None:
+    seq = synthetic_sequence(frames=6, size=(64, 48))
+    model = colour_model(tmp_path / "colour.onnx")
+    result = evaluate.evaluate(model, tmp_path / "eval", sequences=[seq], stride=5)
+    scores = demo.miou_scores(seq, {"colour": model}, stride=5)["colour"]
+    assert scores["frames"] == result["frames"] == 2
+    assert scores["mIoU"] == result["mIoU"] and scores["IoU"] == result["IoU"]
+
+
+def test_checkpoint_on_a_sequence_and_on_the_data_config_val_set(
+    tmp_path: Path, synthetic_sequence
+) -> None:
+    seq = synthetic_sequence(frames=6, size=(64, 48))
+    ckpt = tiny_run(tmp_path / "run")
+    by_folder = evaluate.evaluate(ckpt, tmp_path / "a", sequences=[seq])
+    by_config = evaluate.evaluate(
+        ckpt, tmp_path / "b", overrides=[f"data.val.roots=[{seq}]", "data.val.stride=1"]
+    )
+    assert by_config["data"]["source"] == "data.val"
+    assert by_folder["confusion_matrix"] == by_config["confusion_matrix"]
+    assert by_folder["model"]["kind"] == "checkpoint" and by_folder["model"]["experiment"] == "tiny"
+    # the checkpoint's segmenter run here, plainly: normalise, main head, upsample, argmax
+    from uss_slam.export import load_checkpoint
+
+    net = load_checkpoint(ckpt).segmenter.eval()
+    mean = torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1)
+    std = torch.tensor(IMAGENET_STD).view(1, 3, 1, 1)
+    pairs = []
+    with torch.no_grad():
+        for rgb, labels in _frames(seq, 1):
+            x = (torch.from_numpy(rgb).permute(2, 0, 1)[None].float() / 255 - mean) / std
+            logits = F.interpolate(net(x).main, size=labels.shape, mode="bilinear",
+                                   align_corners=True)  # fmt: skip
+            pairs.append((labels, logits.argmax(1)[0].numpy().astype(np.uint8)))
+    matrix, _ = _expected(pairs)
+    # equal up to pixels whose two best logits tie within float rounding
+    diff = np.abs(np.asarray(by_folder["confusion_matrix"]) - matrix).sum()
+    assert diff <= 2 * 0.001 * matrix.sum(), diff
+
+
+@pytest.mark.slow
+def test_checkpoint_and_its_export_agree(tmp_path: Path, synthetic_sequence) -> None:
+    from uss_slam.export import export_checkpoint
+
+    seq = synthetic_sequence(frames=6, size=(64, 48))
+    ckpt = tiny_run(tmp_path / "run")
+    onnx = export_checkpoint(ckpt, tmp_path / "tiny.onnx").path
+    a = evaluate.evaluate(ckpt, tmp_path / "a", sequences=[seq])
+    b = evaluate.evaluate(onnx, tmp_path / "b", sequences=[seq])
+    assert b["model"]["checkpoint_sha256"] == a["model"]["sha256"]
+    diff = np.abs(np.asarray(a["confusion_matrix"]) - np.asarray(b["confusion_matrix"])).sum()
+    assert diff <= 2 * 0.001 * np.sum(a["confusion_matrix"])
+
+
+def _error(argv: list[str], capsys) -> str:
+    with pytest.raises(SystemExit) as exit_info:
+        evaluate.main(argv)
+    assert exit_info.value.code == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    return err[0]
+
+
+def test_bad_inputs_are_one_line(tmp_path: Path, synthetic_sequence, capsys) -> None:
+    seq = synthetic_sequence(frames=6, size=(64, 48))
+    model = colour_model(tmp_path / "colour.onnx")
+    out = ["--out", str(tmp_path / "out")]
+    missing = tmp_path / "none.onnx"
+    assert _error([str(missing), "--sequence", str(seq), *out], capsys) == (
+        f"uss-eval: error: {missing}: no such file"
+    )
+    weights = tmp_path / "model.pt"
+    weights.write_bytes(b"")
+    assert "expected a uss-train checkpoint (.ckpt) or an exported model (.onnx)" in _error(
+        [str(weights), "--sequence", str(seq), *out], capsys
+    )
+    no_labels = tmp_path / "no_labels"
+    shutil.copytree(seq, no_labels)
+    shutil.rmtree(no_labels / "labels")
+    assert "labels" in _error([str(model), "--sequence", str(no_labels), *out], capsys)
+    assert "expected a data-config override KEY=VALUE" in _error([str(model), "datareal", *out],
+                                                                 capsys)  # fmt: skip
+    assert "not both" in _error([str(model), "data=synthetic", "--sequence", str(seq), *out],
+                                capsys)  # fmt: skip
+    assert "--overlays must be >= 0, got -1" in _error(
+        [str(model), "--sequence", str(seq), "--overlays", "-1", *out], capsys
+    )
+    assert "--dynamic sky: expected class names" in _error(
+        [str(model), "--sequence", str(seq), "--dynamic", "sky", *out], capsys
+    )
+    assert "--frame-iou must be in (0, 1]" in _error(
+        [str(model), "--sequence", str(seq), "--frame-iou", "0", *out], capsys
+    )
+    # a data config that does not compose, and one whose val set is missing: one line each
+    assert _error([str(model), "data=nonexistent", *out], capsys).startswith("uss-eval: error: ")
+    gone = tmp_path / "gone"
+    assert str(gone) in _error([str(model), f"data.val.roots=[{gone}]", *out], capsys)
+    assert not (tmp_path / "out").exists()  # nothing written for a bad input
+
+
+def test_evenly_spaced() -> None:
+    assert evaluate.evenly_spaced(3, 10) == [0, 4, 9]  # 0, 4.5 -> 4 (round half to even), 9
+    assert evaluate.evenly_spaced(5, 3) == [0, 1, 2]
+    assert evaluate.evenly_spaced(0, 3) == [] and evaluate.evenly_spaced(1, 4) == [0]

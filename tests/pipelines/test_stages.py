@@ -1,0 +1,160 @@
+"""Cached stages: complete only with the same key, the expected outputs and a stamp written
+last; a stage interrupted at any point (an exception, a failed clean-up, kill -9) is redone."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from uss_slam.pipelines.stages import (
+    STAMP,
+    Progress,
+    Stage,
+    atomic_path,
+    run_stage,
+    write_json_atomic,
+)
+
+
+def _work(folder: Path, calls: list[str], text: str = "done") -> str:
+    (folder / "checkpoints").mkdir(exist_ok=True)
+    (folder / "checkpoints" / "a.ckpt").write_text(text)
+    calls.append(text)
+    return text
+
+
+def test_reused_only_with_the_same_key_and_outputs(tmp_path: Path) -> None:
+    folder = tmp_path / "run"
+    calls: list[str] = []
+    stage = Stage(
+        folder, {"overrides": ["a=1"], "n": (1, 2)}, outputs=(Path("checkpoints/*.ckpt"),)
+    )
+    assert not stage.complete()
+    assert run_stage(stage, lambda: _work(folder, calls)) == "done"
+    assert json.loads((folder / STAMP).read_text()) == {"overrides": ["a=1"], "n": [1, 2]}
+    assert stage.complete() and run_stage(stage, lambda: _work(folder, calls)) == "reused"
+    assert run_stage(stage, lambda: _work(folder, calls, "again"), force=True) == "again"
+    other = Stage(folder, {"overrides": ["a=2"], "n": (1, 2)}, outputs=stage.outputs)
+    assert not other.complete()
+    (folder / "checkpoints" / "a.ckpt").unlink()  # an expected output went missing
+    assert not stage.complete()
+    assert calls == ["done", "again"]
+
+
+def test_fresh_stage_starts_from_an_empty_folder(tmp_path: Path) -> None:
+    folder = tmp_path / "run"
+    folder.mkdir()
+    (folder / "old.txt").write_text("from another key")
+    run_stage(Stage(folder, {"k": 1}), lambda: "ok")
+    assert sorted(p.name for p in folder.iterdir()) == [STAMP]
+    # fresh=False keeps what is there (a folder holding more than this stage)
+    (folder / "keep.txt").write_text("x")
+    run_stage(Stage(folder, {"k": 2}, fresh=False), lambda: "ok")
+    assert (folder / "keep.txt").is_file()
+
+
+def test_outputs_outside_the_folder(tmp_path: Path) -> None:
+    model = tmp_path / "exports" / "m.onnx"
+    stage = Stage(tmp_path / "exports" / ".m", {"sha": "1"}, outputs=(model,))
+    run_stage(stage, lambda: model.write_text("onnx") and "exported")
+    assert stage.complete()
+    model.unlink()
+    assert not stage.complete()
+
+
+def test_interrupted_work_leaves_no_stamp(tmp_path: Path) -> None:
+    folder = tmp_path / "run"
+    calls: list[str] = []
+    stage = Stage(folder, {"k": 1}, outputs=(Path("checkpoints/*.ckpt"),))
+    run_stage(stage, lambda: _work(folder, calls))
+
+    def broken() -> str:
+        _work(folder, calls, "half")
+        raise RuntimeError("killed")
+
+    with pytest.raises(RuntimeError):
+        run_stage(stage, broken, force=True)
+    assert not (folder / STAMP).exists() and not stage.complete()
+    assert run_stage(stage, lambda: _work(folder, calls, "redone")) == "redone"
+
+
+def test_stamp_goes_before_the_folder_is_emptied(tmp_path: Path, monkeypatch) -> None:
+    """A clean-up that dies half-way (kill during rmtree) must not leave a valid stamp."""
+    folder = tmp_path / "run"
+    calls: list[str] = []
+    stage = Stage(folder, {"k": 1}, outputs=(Path("checkpoints/*.ckpt"),))
+    run_stage(stage, lambda: _work(folder, calls))
+
+    def dies(path, *args, **kwargs):
+        raise KeyboardInterrupt  # stands for a kill while deleting
+
+    monkeypatch.setattr(shutil, "rmtree", dies)
+    with pytest.raises(KeyboardInterrupt):
+        run_stage(stage, lambda: _work(folder, calls, "never"), force=True)
+    monkeypatch.undo()
+    assert (folder / "checkpoints" / "a.ckpt").is_file()  # the old content is still there
+    assert not stage.complete()  # ... but not taken for a complete stage
+
+
+STAGE_SCRIPT = """
+import sys, time
+from pathlib import Path
+from uss_slam.pipelines.stages import Stage, run_stage
+folder = Path(sys.argv[1])
+def work():
+    (folder / "part.txt").write_text("started")
+    time.sleep(float(sys.argv[2]))
+    (folder / "out.txt").write_text("done")
+    return "done"
+print(run_stage(Stage(folder, {"k": 1}, outputs=(Path("out.txt"),)), work), flush=True)
+"""
+
+
+@pytest.mark.slow
+def test_kill_9_during_a_stage_then_rerun(tmp_path: Path) -> None:
+    folder = tmp_path / "stage"
+    command = [sys.executable, "-c", STAGE_SCRIPT, str(folder)]
+    proc = subprocess.Popen([*command, "60"], stdout=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while not (folder / "part.txt").is_file():
+            assert proc.poll() is None and time.monotonic() < deadline
+            time.sleep(0.01)
+        os.kill(proc.pid, signal.SIGKILL)
+    finally:
+        proc.kill()
+        proc.wait()
+    assert sorted(p.name for p in folder.iterdir()) == ["part.txt"]  # no stamp
+    rerun = subprocess.run([*command, "0"], capture_output=True, text=True, timeout=120)
+    assert rerun.returncode == 0 and rerun.stdout.strip() == "done", rerun.stderr
+    assert sorted(p.name for p in folder.iterdir()) == [STAMP, "out.txt", "part.txt"]
+    again = subprocess.run([*command, "0"], capture_output=True, text=True, timeout=120)
+    assert again.stdout.strip() == "reused"
+
+
+def test_atomic_writes(tmp_path: Path) -> None:
+    path = tmp_path / "sub" / "summary.json"
+    write_json_atomic(path, {"a": 1})
+    assert path.read_text() == '{\n  "a": 1\n}\n'
+    with pytest.raises(RuntimeError), atomic_path(path) as tmp:
+        tmp.write_text("half")
+        raise RuntimeError("interrupted")
+    assert path.read_text() == '{\n  "a": 1\n}\n'  # untouched
+    assert sorted(p.name for p in path.parent.iterdir()) == ["summary.json"]  # no temporary left
+
+
+def test_progress_lines(capsys) -> None:
+    progress = Progress(total=2)
+    progress.run("a", "stage a", lambda: "ok")
+    progress.run("a", "stage a again", lambda: "reused")
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0] == "[1/2] stage a ..." and lines[1].startswith("[1/2] stage a: ok in ")
+    assert lines[3].startswith("[2/2] stage a again: reused in ") and set(progress.times) == {"a"}
