@@ -1,9 +1,20 @@
-"""Writing outputs safely: argument checks, all-or-nothing output folders, fixed encoder settings."""
+"""Writing outputs safely: argument checks, all-or-nothing output folders, fixed encoder settings.
+
+An output folder is rendered into a hidden sibling ``.<name>.partial-<random>`` that carries a
+:data:`PARTIAL_MARKER` (the rendering process's id and host) and is renamed to ``<name>`` only
+when complete; every complete output carries an :data:`OUTPUT_MARKER`. A process killed while
+rendering leaves its partial folder behind: the next render of the same output removes it, and
+only it (a sibling of that name pattern whose marker names a process of this host that is gone).
+Overwriting is refused for a folder that is not a ``uss-synth`` output.
+"""
 
 from __future__ import annotations
 
 import contextlib
+import json
+import os
 import shutil
+import socket
 import tempfile
 from collections.abc import Iterator
 from os import PathLike
@@ -11,11 +22,17 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import yaml
 
 from uss_slam.core.errors import UssSlamError
 
 PNG_PARAMS = [cv2.IMWRITE_PNG_COMPRESSION, 3]
 JPEG_PARAMS = [cv2.IMWRITE_JPEG_QUALITY, 90]
+PARTIAL_MARKER = ".uss-synth-partial"
+"""File in a folder being rendered: JSON ``{"pid", "host", "out"}`` of the rendering process."""
+OUTPUT_MARKER = ".uss-synth"
+"""File in every complete output folder (constant content: outputs stay byte-identical)."""
+OUTPUT_MARKER_TEXT = "A uss-synth output: uss-synth --overwrite may replace this folder.\n"
 
 
 class SynthArgumentError(UssSlamError, ValueError):
@@ -57,36 +74,123 @@ def write_jpeg(path: Path, rgb: np.ndarray) -> None:
         raise UssSlamError(f"{path}: could not write JPEG")
 
 
+def is_synth_output(folder: Path) -> bool:
+    """True when ``folder`` was written by ``uss-synth``: it has the :data:`OUTPUT_MARKER`, or
+    (outputs of earlier versions) a ``synthetic.yaml`` / ``demo.yaml`` naming uss-synth as its
+    generator."""
+    if (folder / OUTPUT_MARKER).is_file():
+        return True
+    for name in ("synthetic.yaml", "demo.yaml"):
+        try:
+            meta = yaml.safe_load((folder / name).read_text())
+        except (OSError, yaml.YAMLError):
+            continue
+        if isinstance(meta, dict) and str(meta.get("generator", "")).startswith("uss-synth"):
+            return True
+    return False
+
+
 def check_output(out_dir: str | PathLike[str], overwrite: bool) -> Path:
-    """Refuse an existing non-empty ``out_dir`` unless ``overwrite``; also refuse a file there."""
+    """Refuse an existing non-empty ``out_dir`` unless ``overwrite``, and even then unless it is
+    a ``uss-synth`` output (:func:`is_synth_output`); also refuse a file there."""
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise OutputExistsError(f"{out}: exists and is not a folder")
-    if out.is_dir() and any(out.iterdir()) and not overwrite:
-        raise OutputExistsError(f"{out}: folder exists and is not empty (use overwrite)")
+    if out.is_dir() and any(out.iterdir()):
+        if not overwrite:
+            raise OutputExistsError(f"{out}: folder exists and is not empty (use overwrite)")
+        if not is_synth_output(out):
+            raise OutputExistsError(
+                f"{out}: not a uss-synth output (no {OUTPUT_MARKER} or synthetic.yaml in it); "
+                "refusing to overwrite it"
+            )
     return out
+
+
+_ACTIVE: set[Path] = set()
+"""Partial folders this process is writing now (its own pid is never a sign of a dead owner)."""
+
+
+def _write_marker(folder: Path, name: str, text: str) -> None:
+    """Write a marker file atomically: it is either absent or complete."""
+    tmp = folder / f"{name}.tmp"
+    tmp.write_text(text)
+    os.replace(tmp, folder / name)
+
+
+def _owner_gone(folder: Path) -> bool:
+    """True when ``folder``'s partial marker names a process of this host that no longer runs."""
+    try:
+        info = json.loads((folder / PARTIAL_MARKER).read_text())
+        pid, host = int(info["pid"]), str(info["host"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return False  # no marker, or not ours to judge
+    if host != socket.gethostname() or folder.absolute() in _ACTIVE:
+        return False
+    if pid == os.getpid():
+        return True  # this process is not writing it: an earlier process had the same pid
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return True
+    except PermissionError:  # alive, another user's
+        return False
+    return False
+
+
+def stale_partials(out_dir: str | PathLike[str]) -> list[Path]:
+    """Partial folders of ``out_dir`` left by killed ``uss-synth`` processes (see the module doc)."""
+    out = Path(out_dir).absolute()
+    if not out.parent.is_dir():
+        return []
+    prefix = f".{out.name}.partial-"
+    return sorted(
+        p
+        for p in out.parent.iterdir()
+        if p.name.startswith(prefix) and p.is_dir() and _owner_gone(p)
+    )
+
+
+def clean_stale_partials(out_dir: str | PathLike[str]) -> list[Path]:
+    """Remove :func:`stale_partials` of ``out_dir``; returns what was removed."""
+    removed = stale_partials(out_dir)
+    for folder in removed:
+        shutil.rmtree(folder, ignore_errors=True)
+    return removed
 
 
 @contextlib.contextmanager
 def staged_output(out_dir: str | PathLike[str], overwrite: bool) -> Iterator[Path]:
     """Yield a temporary sibling folder to write into; move it to ``out_dir`` only on success.
 
-    On any error the temporary folder is removed and ``out_dir`` is untouched. With
-    ``overwrite`` an existing ``out_dir`` is replaced only after the new content is complete.
+    On any error the temporary folder is removed and ``out_dir`` is untouched (a killed process
+    leaves it, marked: the next call for the same ``out_dir`` removes it). With ``overwrite`` an
+    existing ``out_dir`` (a uss-synth output) is replaced only after the new content is complete.
     """
     out = check_output(out_dir, overwrite).absolute()
     out.parent.mkdir(parents=True, exist_ok=True)
+    clean_stale_partials(out)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out.parent))
     tmp.chmod(0o755)  # mkdtemp makes it private; the result is an ordinary folder
+    _ACTIVE.add(tmp)
     try:
+        owner = {"pid": os.getpid(), "host": socket.gethostname(), "out": str(out)}
+        _write_marker(tmp, PARTIAL_MARKER, json.dumps(owner) + "\n")
         yield tmp
+        _write_marker(tmp, OUTPUT_MARKER, OUTPUT_MARKER_TEXT)
+        (tmp / PARTIAL_MARKER).unlink()
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+    finally:
+        _ACTIVE.discard(tmp)
     old = None
     if out.exists():
-        old = out.parent / f".{out.name}.old-{tmp.name.rsplit('-', 1)[-1]}"
+        # a name of the partial pattern: if killed while it is deleted, the next call removes it
+        old = tmp.with_name(f"{tmp.name}-old")
         out.rename(old)
     tmp.rename(out)
     if old is not None:
+        owner = {"pid": os.getpid(), "host": socket.gethostname(), "out": str(out)}
+        _write_marker(old, PARTIAL_MARKER, json.dumps(owner) + "\n")
         shutil.rmtree(old, ignore_errors=True)

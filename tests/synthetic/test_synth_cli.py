@@ -10,6 +10,7 @@ import pytest
 
 from uss_slam.synthetic import OutputExistsError, SynthArgumentError, render_sequence
 from uss_slam.synthetic.cli import main
+from uss_slam.synthetic.output import OUTPUT_MARKER, OUTPUT_MARKER_TEXT
 
 
 def _run(args: list[str], cwd: Path) -> subprocess.CompletedProcess:
@@ -36,7 +37,7 @@ def _run(args: list[str], cwd: Path) -> subprocess.CompletedProcess:
         ),
         (["sequence", "--preset", "walking_xyz"], "--out"),
         (["voc", "--images", "0", "--out", "x"], "must be >= 1"),
-        (["demo", "--slam-frames", "1", "--out", "x"], "must be 0 (skip) or >= 2"),
+        (["demo", "--out", "x"], "invalid choice: 'demo'"),  # the demo data: uss-demo
         (["render", "--out", "x"], "invalid choice"),
     ],
 )
@@ -60,27 +61,51 @@ def test_bad_argument_exits_2_in_a_process(tmp_path: Path) -> None:
 
 def test_existing_output_needs_overwrite(tmp_path: Path, capsys) -> None:
     out = tmp_path / "seq"
-    out.mkdir()
-    (out / "keep.txt").write_text("mine")
-    args = [
-        "sequence",
-        "--preset",
-        "static_xyz",
-        "--frames",
-        "2",
-        "--size",
-        "32x24",
-        "--out",
-        str(out),
-    ]
-    assert main([*args, "--quiet"]) == 2
+    args = ["sequence", "--preset", "static_xyz", "--frames", "2", "--size", "32x24",
+            "--out", str(out), "--quiet"]  # fmt: skip
+    assert main(args) == 0
+    first = (out / "rgb.txt").stat().st_mtime_ns
+    assert (out / OUTPUT_MARKER).read_text() == OUTPUT_MARKER_TEXT
+    capsys.readouterr()
+    assert main(args) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "not empty" in err and str(out) in err
-    assert [p.name for p in out.iterdir()] == ["keep.txt"]
+    assert (out / "rgb.txt").stat().st_mtime_ns == first
+    assert main([*args, "--overwrite"]) == 0  # a uss-synth output: replaced
+    assert (out / "rgb.txt").stat().st_mtime_ns != first
     assert sorted(p.name for p in tmp_path.iterdir()) == ["seq"]  # no partial sibling left
-    assert main([*args, "--quiet", "--overwrite"]) == 0
-    assert not (out / "keep.txt").exists() and (out / "rgb.txt").is_file()
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["seq"]
+
+
+@pytest.mark.parametrize("marker", [None, "synthetic.yaml", "demo.yaml"])
+def test_overwrite_refuses_a_folder_uss_synth_did_not_write(
+    tmp_path: Path, capsys, marker: str | None
+) -> None:
+    out = tmp_path / "VOC2012"
+    out.mkdir()
+    (out / "keep.txt").write_text("mine")
+    if marker:  # a yaml that is not ours does not count either
+        (out / marker).write_text("generator: labelme\n")
+    args = ["voc", "--images", "1", "--size", "32x24", "--out", str(out), "--quiet"]
+    assert main([*args, "--overwrite"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == (
+        f"uss-synth: error: {out}: not a uss-synth output (no {OUTPUT_MARKER} or "
+        "synthetic.yaml in it); refusing to overwrite it"
+    )
+    assert sorted(p.name for p in out.iterdir()) == sorted(
+        ["keep.txt", *([marker] if marker else [])]
+    )
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["VOC2012"]
+
+
+def test_overwrite_accepts_outputs_of_earlier_versions(tmp_path: Path) -> None:
+    """Folders written before the marker existed: a sequence's synthetic.yaml names uss-synth."""
+    out = tmp_path / "seq"
+    out.mkdir()
+    (out / "synthetic.yaml").write_text("generator: uss-synth\npreset: static_xyz\n")
+    args = ["sequence", "--preset", "static_xyz", "--frames", "2", "--size", "32x24",
+            "--out", str(out), "--quiet", "--overwrite"]  # fmt: skip
+    assert main(args) == 0 and (out / OUTPUT_MARKER).is_file()
 
 
 def test_api_errors(tmp_path: Path) -> None:
@@ -117,7 +142,7 @@ def test_failure_while_rendering_leaves_nothing(tmp_path: Path, monkeypatch) -> 
 
 
 def test_help_documents_everything(capsys) -> None:
-    for command in ([], ["sequence"], ["voc"], ["demo"]):
+    for command in ([], ["sequence"], ["voc"]):
         with pytest.raises(SystemExit) as exit_info:
             main([*command, "--help"])
         assert exit_info.value.code == 0
@@ -126,37 +151,5 @@ def test_help_documents_everything(capsys) -> None:
             for word in ("--preset", "--frames", "--size", "--seed", "--style", "--out",
                          "--overwrite", "walking_halfsphere", "static_xyz", "5000"):  # fmt: skip
                 assert word in text, word
-        if command == ["demo"]:
-            for word in ("--voc-images", "--train-frames", "--slam-frames", "0 to skip"):
-                assert word in text, word
-
-
-def test_demo_small(tmp_path: Path, capsys) -> None:
-    out = tmp_path / "demo"
-    args = ["demo", "--out", str(out), "--quiet", "--voc-images", "5", "--voc-size", "64x48",
-            "--train-frames", "3", "--val-frames", "2", "--train-size", "48x32",
-            "--slam-frames", "2", "--slam-size", "64x48", "--workers", "1"]  # fmt: skip
-    assert main(args) == 0
-    text = capsys.readouterr().out
-    assert str(out.resolve()) in text
-    assert "voc/VOCdevkit/VOC2012: 4 train + 1 val images, 64x48" in text
-    for name in ("walking_xyz", "walking_rpy", "walking_halfsphere", "sitting_static"):
-        assert f"target_train/{name}: 3 frames, 48x32, target style" in text
-        assert (out / "target_train" / name / "groundtruth.txt").is_file()
-    assert "target_val/walking_xyz: 2 frames, 48x32" in text
-    assert "slam/walking_xyz: 2 frames, 64x48" in text and "slam/static_xyz: 2 frames" in text
-    assert "person" in text and "%" in text
-    # --reuse keeps a complete demo made with the same arguments, and only then
-    stamp = (out / "slam" / "walking_xyz" / "rgb.txt").stat().st_mtime_ns
-    assert main([*args, "--reuse"]) == 0
-    assert "reusing" in capsys.readouterr().out
-    assert (out / "slam" / "walking_xyz" / "rgb.txt").stat().st_mtime_ns == stamp
-    changed = [a if a != "5" else "6" for a in args]  # --voc-images 6
-    assert main([*changed, "--reuse"]) == 2  # different arguments: not reusable, not empty
-    assert "not empty" in capsys.readouterr().err
-    # two worker processes produce the same files
-    again = tmp_path / "again"
-    assert main([*args[:2], str(again), *args[3:-1], "2"]) == 0
-    files = sorted(p.relative_to(out) for p in out.rglob("*") if p.is_file())
-    assert files == sorted(p.relative_to(again) for p in again.rglob("*") if p.is_file())
-    assert all((out / f).read_bytes() == (again / f).read_bytes() for f in files)
+        if command == []:
+            assert "{sequence,voc}" in text and "killed" in text and OUTPUT_MARKER in text
