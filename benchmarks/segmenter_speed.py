@@ -34,7 +34,7 @@ import torch
 from uss_slam.core.classes import CLASS_NAMES
 from uss_slam.core.onnx_contract import INPUT_NAME, SegmenterMetadata
 from uss_slam.datasets.transforms import IMAGENET_MEAN, IMAGENET_STD
-from uss_slam.export.onnx_export import (
+from uss_slam.export import (
     SegmenterExport,
     export_segmenter,
     make_session,

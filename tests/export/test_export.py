@@ -17,10 +17,11 @@ import pytest
 import torch
 import torch.nn.functional as F
 import yaml
-from hydra.utils import instantiate
-from omegaconf import OmegaConf
-from train_helpers import CONFIG_DIR, data_overrides
+from export_helpers import NET_YAML, data_overrides
+from export_helpers import fake_run as _fake_run
+from export_helpers import tiny_net as _tiny_net
 
+import uss_slam.export as export
 from uss_slam.core.classes import CLASS_NAMES
 from uss_slam.core.errors import DataFormatError, UssSlamError
 from uss_slam.core.onnx_contract import (
@@ -30,8 +31,7 @@ from uss_slam.core.onnx_contract import (
     ONNX_METADATA_KEYS,
     SegmenterMetadata,
 )
-from uss_slam.export import onnx_export as export
-from uss_slam.export.onnx_export import (
+from uss_slam.export import (
     ExportVerificationError,
     SegmenterExport,
     export_checkpoint,
@@ -39,23 +39,9 @@ from uss_slam.export.onnx_export import (
     load_checkpoint,
     verification_images,
 )
+from uss_slam.export import cli as export_cli
+from uss_slam.export import verify as export_verify
 from uss_slam.models import DeepLabV2
-
-NET_YAML = CONFIG_DIR / "model" / "net" / "deeplab_small.yaml"
-
-
-def _tiny_net(seed: int = 0) -> DeepLabV2:
-    """The CI / demo segmenter as configured (``configs/model/net/deeplab_small.yaml``)."""
-    torch.manual_seed(seed)
-    net = instantiate(OmegaConf.load(NET_YAML))
-    assert isinstance(net, DeepLabV2) and net.backbone_name == "resnet_small"
-    # Non-trivial BN statistics, so the exported graph must carry them.
-    with torch.no_grad():
-        for module in net.modules():
-            if isinstance(module, torch.nn.BatchNorm2d):
-                module.running_mean.uniform_(-0.2, 0.2)
-                module.running_var.uniform_(0.5, 2.0)
-    return net.eval()
 
 
 def _metadata(head: str = "main") -> SegmenterMetadata:
@@ -134,7 +120,7 @@ def test_export_verifies_at_another_size(
     assert report == result.verify
     assert report["ok"] is True and report["checker"] == "ok"
     assert report["trace_size"] == list(trace_size) and report["verify_size"] == list(verify_size)
-    assert report["logits_shape"] == [export.VERIFY_BATCH, 4, *verify_size]
+    assert report["logits_shape"] == [export_verify.VERIFY_BATCH, 4, *verify_size]
     assert report["max_abs_logit_diff"] <= 1e-4 and report["label_agreement"] >= 0.999
     assert len(report["classes_present"]) >= 2  # the check compares more than one class
     assert set(report["versions"]) == {"uss_slam", "torch", "onnx", "onnxruntime"}
@@ -202,7 +188,7 @@ def test_failed_verification_keeps_earlier_files(
     net, _ = exported
     good = export_segmenter(net, tmp_path / "m.onnx", _metadata())
     before = {p.name: p.read_bytes() for p in (good.path, good.verify_path)}
-    monkeypatch.setattr(export, "MAX_LOGIT_DIFF", -1.0)
+    monkeypatch.setattr(export_verify, "MAX_LOGIT_DIFF", -1.0)
     with pytest.raises(ExportVerificationError, match="failed verification"):
         export_segmenter(_tiny_net(seed=9), tmp_path / "m.onnx", _metadata())
     assert {p.name: p.read_bytes() for p in (good.path, good.verify_path)} == before
@@ -222,28 +208,6 @@ def test_export_refuses_equal_trace_and_verify_size(tmp_path: Path) -> None:
 
 
 # ---------------------------------------------------------------------------- checkpoints
-
-
-def _fake_run(root: Path, net: DeepLabV2, run_name: str = "fake") -> Path:
-    """A run folder as uss-train writes it: ``.hydra/config.yaml`` + ``checkpoints/last.ckpt``
-    (segmenter and discriminator weights)."""
-    (root / ".hydra").mkdir(parents=True)
-    (root / "checkpoints").mkdir()
-    net_cfg = yaml.safe_load(NET_YAML.read_text())
-    config = {"run_name": run_name, "model": {"net": net_cfg}}
-    (root / ".hydra" / "config.yaml").write_text(yaml.safe_dump(config))
-    state = {f"segmenter.{k}": v for k, v in net.state_dict().items()}
-    state["d_main.layers.0.weight"] = torch.ones(2, 4, 4, 4)
-    ckpt = root / "checkpoints" / "last.ckpt"
-    torch.save(
-        {
-            "state_dict": state,
-            "hyper_parameters": {"class_names": list(CLASS_NAMES)},
-            "iteration": 7,
-        },
-        ckpt,
-    )
-    return ckpt
 
 
 def test_load_checkpoint_uses_the_run_config(tmp_path: Path) -> None:
@@ -292,13 +256,13 @@ def test_cli_failed_verification_exits_nonzero(
     monkeypatch.chdir(tmp_path)
     argv = ["uss-export", f"ckpt_path={ckpt}", "out_dir=exports"]
     monkeypatch.setattr(sys, "argv", argv)
-    export.main()
+    export_cli.main()
     model = tmp_path / "exports" / "fake.onnx"
     before = model.read_bytes()
     assert "wrote exports/fake.onnx" in capsys.readouterr().out
-    monkeypatch.setattr(export, "MIN_LABEL_AGREEMENT", 1.5)
+    monkeypatch.setattr(export_verify, "MIN_LABEL_AGREEMENT", 1.5)
     with pytest.raises(SystemExit) as exit_info:
-        export.main()
+        export_cli.main()
     assert exit_info.value.code == 1
     err = capsys.readouterr().err
     assert err.startswith("uss-export: error: exports/fake.onnx: exported model failed")
