@@ -554,19 +554,22 @@ def read_tum_folder(
     root = Path(root).expanduser()
     needed = f"{RGB_LIST} and {DEPTH_LIST}" if depth else RGB_LIST
     if not root.is_dir():
-        raise DataFormatError(root, f"not a folder; expected a TUM RGB-D sequence with {needed}")
+        raise DataFormatError(
+            root, f"TUM sequence folder not found (expected a folder with {needed})"
+        )
     lists = [RGB_LIST, DEPTH_LIST] if depth else [RGB_LIST]
     for name in lists:
         if not (root / name).is_file():
             raise DataFormatError(root / name, f"not a TUM RGB-D sequence: {name} not found")
     rgb = read_file_list(root / RGB_LIST, skipped=skipped)
     if len(rgb) == 0:
-        raise DataFormatError(rgb.path, "lists no images")
+        raise DataFormatError(rgb.path, "the sequence lists no images")
     labels_dir = root / LABELS_DIR
     if labels and not labels_dir.is_dir():
         raise DataFormatError(
             labels_dir,
-            "folder not found; labels were requested (uint8 class-id PNGs named as the rgb/ files)",
+            "labels requested but the folder does not exist (uint8 class-id PNGs named as the "
+            "rgb/ files)",
         )
 
     def label(index: int) -> Path | None:

@@ -224,7 +224,9 @@ def test_tum_folder_associates_and_finds_missing_files(tmp_path: Path) -> None:
 
 
 def test_tum_folder_errors_name_the_path(tmp_path: Path) -> None:
-    with pytest.raises(DataFormatError, match=r"nope: not a folder; expected a TUM RGB-D"):
+    with pytest.raises(
+        DataFormatError, match=r"nope: TUM sequence folder not found \(expected a folder with"
+    ):
         read_tum_folder(tmp_path / "nope")
     root = _folder(tmp_path / "seq", depth_offset=0.5)
     with pytest.raises(DataFormatError, match=r"depth\.txt: no depth stamp within 0\.02 s"):
@@ -235,5 +237,5 @@ def test_tum_folder_errors_name_the_path(tmp_path: Path) -> None:
         read_tum_folder(root)
     assert len(read_tum_folder(root, depth=False).frames) == 4
     (root / "rgb.txt").write_text("# nothing\n")
-    with pytest.raises(DataFormatError, match=r"rgb\.txt: lists no images"):
+    with pytest.raises(DataFormatError, match=r"rgb\.txt: the sequence lists no images"):
         read_tum_folder(root, depth=False)

@@ -103,7 +103,7 @@ def test_camera_from_path_must_match_image_size(write_sequence, tmp_path: Path) 
 
 
 def test_not_a_folder(tmp_path: Path) -> None:
-    with pytest.raises(DataFormatError, match=r"nope: not a folder"):
+    with pytest.raises(DataFormatError, match=r"nope: TUM sequence folder not found"):
         TumSequence(tmp_path / "nope")
 
 
@@ -187,7 +187,9 @@ def test_labels_requested_but_missing(write_sequence) -> None:
     root = write_sequence()
     shutil.rmtree(root / "labels")
     assert len(TumSequence(root)) == 6  # fine without labels
-    with pytest.raises(DataFormatError, match=r"labels: folder not found; labels were requested"):
+    with pytest.raises(
+        DataFormatError, match=r"labels: labels requested but the folder does not exist"
+    ):
         TumSequence(root, load_labels=True)
 
 
