@@ -68,6 +68,10 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     """
     plan = check(cfg)
     out = check_writable(output_dir(cfg))
+    if OmegaConf.select(cfg, "system.name") == "orbslam3":  # the real ORB-SLAM3, not the harness
+        from .orbslam3 import run_from_config
+
+        return run_from_config(cfg, out)
     segmenter: Segmenter = hydra.utils.instantiate(cfg.segmenter)
     seq_cfg = cfg.sequence
     sequence = TumSequence(

@@ -1,0 +1,146 @@
+"""``uss-vocab``: build a small DBoW2 ORB vocabulary for ORB-SLAM3 from TUM sequence frames, or
+check one.
+
+Exit codes: 0 success, 1 bad input (one line on stderr naming the file or option), 2 bad
+arguments (argparse).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from uss_slam.core.errors import UssSlamError
+
+from .vocabulary import MAX_BRANCHING, MAX_LEVELS, build_from_sequences, read_vocabulary
+
+PROG = "uss-vocab"
+
+
+def _int_at_least(minimum: int):
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"expected an integer >= {minimum}, got {value}")
+        return value
+
+    return parse
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog=PROG,
+        description="DBoW2 ORB vocabularies for `uss-slam system=orbslam3 system.vocabulary=FILE`.",
+        epilog="Exit codes: 0 ok, 1 bad input, 2 bad arguments.",
+    )
+    sub = parser.add_subparsers(dest="command", required=True, metavar="{build,info}")
+    build = sub.add_parser(
+        "build",
+        help="cluster the ORB descriptors of sequence frames into a vocabulary tree",
+        description="Extract ORB descriptors (ORB-SLAM's settings: 1000 features, scale 1.2, "
+        "8 levels) from the rgb.txt frames of TUM sequence folders, cluster them into a tree "
+        "of branching K and depth L by hierarchical k-majority (DBoW2's k-medians for binary "
+        "descriptors), weight the words by TF-IDF and write DBoW2's text format "
+        "(ORB-SLAM3's loadFromTextFile). Deterministic for a --seed.",
+    )
+    build.add_argument("sequences", nargs="+", type=Path, metavar="SEQUENCE_DIR")
+    build.add_argument("--out", type=Path, required=True, metavar="FILE", help="vocabulary file")
+    build.add_argument(
+        "-k",
+        "--branching",
+        type=_int_at_least(2),
+        default=10,
+        metavar="K",
+        help=f"children per node, 2..{MAX_BRANCHING} (default: %(default)s)",
+    )
+    build.add_argument(
+        "-L",
+        "--levels",
+        type=_int_at_least(1),
+        default=4,
+        metavar="L",
+        help=f"tree depth, 1..{MAX_LEVELS}: up to K^L words (default: %(default)s)",
+    )
+    build.add_argument(
+        "--stride",
+        type=_int_at_least(1),
+        default=5,
+        metavar="N",
+        help="use every N-th listed frame of each sequence (default: %(default)s)",
+    )
+    build.add_argument(
+        "--max-frames",
+        type=_int_at_least(1),
+        default=None,
+        metavar="N",
+        help="at most N frames per sequence (default: all)",
+    )
+    build.add_argument(
+        "--features",
+        type=_int_at_least(1),
+        default=1000,
+        metavar="N",
+        help="ORB features per frame (default: %(default)s)",
+    )
+    build.add_argument("--seed", type=int, default=0, help="random seed (default: %(default)s)")
+    build.add_argument(
+        "--max-iterations",
+        type=_int_at_least(1),
+        default=100,
+        metavar="N",
+        help="cap of k-majority iterations per node (default: %(default)s)",
+    )
+    build.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
+    info = sub.add_parser(
+        "info",
+        help="read and check a DBoW2 text vocabulary, print k, L and its size",
+        description="Read a DBoW2 text vocabulary (this tool's or ORB-SLAM's ORBvoc.txt), "
+        "check every line, and print its parameters and size.",
+    )
+    info.add_argument("vocabulary", type=Path, metavar="FILE")
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        if args.command == "build":
+            if args.out.exists() and not args.overwrite:
+                raise UssSlamError(f"{args.out}: exists; pass --overwrite to replace it")
+            report = build_from_sequences(
+                args.sequences,
+                args.out,
+                k=args.branching,
+                levels=args.levels,
+                stride=args.stride,
+                max_frames=args.max_frames,
+                n_features=args.features,
+                seed=args.seed,
+                max_iterations=args.max_iterations,
+            )
+            print(
+                f"wrote {report.path}: k={args.branching} L={args.levels}, {report.nodes} nodes, "
+                f"{report.words} words ({report.zero_weight_words} with weight 0) from "
+                f"{report.descriptors} descriptors of {report.images} frames "
+                f"(extraction {report.extract_s:.1f} s, clustering {report.cluster_s:.1f} s)"
+            )
+        else:
+            vocab = read_vocabulary(args.vocabulary)
+            print(
+                f"{args.vocabulary}: k={vocab.k} L={vocab.levels} scoring={vocab.scoring} "
+                f"weighting={vocab.weighting}, {vocab.n_nodes} nodes, {vocab.n_words} words"
+            )
+    except UssSlamError as err:
+        print(f"{PROG}: error: {err}", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
