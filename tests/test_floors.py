@@ -10,6 +10,7 @@ not load torch.
 from __future__ import annotations
 
 import ast
+import re
 import subprocess
 import sys
 import textwrap
@@ -250,3 +251,24 @@ def test_checker_accepts_allowed_imports(package: str, source: str) -> None:
 def test_relative_import_in_package_init_stays_inside() -> None:
     assert _check("core", "from . import errors\n", "__init__.py") == []
     assert _check("core", "from .. import train\n", "__init__.py") != []
+
+
+def readme_floors() -> dict[str, tuple[int, set[str], bool]]:
+    """The README's table: ``| floor | `package/` | role | may import |`` rows."""
+    rows = {}
+    for line in README.read_text(encoding="utf-8").splitlines():
+        match = re.fullmatch(r"\| (\d) \| `(\w+)/` \|.*\| ([^|]+) \|", line)
+        if match:
+            floor, package, may = int(match[1]), match[2], match[3]
+            allowed = (
+                set(FLOORS) - {package}
+                if "everything" in may
+                else {word for word in re.findall(r"\w+", may) if word in FLOORS}
+            )
+            rows[package] = (floor, allowed, bool(re.search(r"\((no|never) torch\)", may)))
+    return rows
+
+
+def test_readme_table_matches_floors() -> None:
+    expected = {p: (floor, set(allowed), free) for p, (floor, allowed, free) in FLOORS.items()}
+    assert readme_floors() == expected
