@@ -14,6 +14,7 @@ writes ``source_manifest.json`` into the run directory (the trainer's ``default_
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -26,6 +27,17 @@ from uss_slam.datasets.sampling import SeededDataset, StreamSampler
 
 SOURCE_DOMAIN = 0
 TARGET_DOMAIN = 1
+
+
+def _loaders(iterables: Any) -> list[Any]:
+    """The loaders of ``trainer.train_dataloader`` (a loader, or a dict / list of them)."""
+    if isinstance(iterables, CombinedLoader):
+        return list(iterables.flattened)
+    if isinstance(iterables, Mapping):
+        return [x for value in iterables.values() for x in _loaders(value)]
+    if isinstance(iterables, (list, tuple)):
+        return [x for value in iterables for x in _loaders(value)]
+    return [] if iterables is None else [iterables]
 
 
 class UDADataModule(LightningDataModule):
@@ -72,6 +84,7 @@ class UDADataModule(LightningDataModule):
         self.pin_memory = pin_memory
         self.manifest_dir = manifest_dir
         self.manifest_path: Path | None = None
+        self._streams_checked = False
 
     def setup(self, stage: str) -> None:
         write = getattr(self.source, "write_manifest", None)
@@ -87,15 +100,29 @@ class UDADataModule(LightningDataModule):
             self.manifest_path = write(directory)
 
     def _rank_and_world(self) -> tuple[int, int]:
-        trainer = self.trainer
-        if trainer is None:
+        """This process's shard of the sample streams: Lightning's distributed-sampler arguments
+        under a multi-process strategy, else the whole stream."""
+        kwargs = self.trainer.distributed_sampler_kwargs if self.trainer is not None else None
+        if not kwargs:
             return 0, 1
-        if trainer.world_size > 1 and trainer._accelerator_connector.use_distributed_sampler:
-            raise UssSlamError(
-                "UDADataModule shards its sample streams itself: set "
-                "trainer.use_distributed_sampler=false for multi-process training"
-            )
-        return trainer.global_rank, trainer.world_size
+        return int(kwargs.get("rank", 0)), int(kwargs.get("num_replicas", 1))
+
+    def on_before_batch_transfer(self, batch: Any, dataloader_idx: int) -> Any:
+        # Checked once, at the first training batch: with trainer.use_distributed_sampler=true
+        # Lightning re-creates the training loaders around a DistributedSampler, which would
+        # shard (and shuffle) the already sharded, seeded streams a second time.
+        trainer = self.trainer
+        if not self._streams_checked and trainer is not None and trainer.training:
+            for loader in _loaders(trainer.train_dataloader):
+                sampler = getattr(loader, "sampler", None)
+                if not isinstance(sampler, StreamSampler):
+                    raise UssSlamError(
+                        "UDADataModule shards its sample streams itself: set "
+                        "trainer.use_distributed_sampler=false (Lightning replaced the training "
+                        f"sampler with {type(sampler).__name__})"
+                    )
+            self._streams_checked = True
+        return batch
 
     def _stream(self, dataset: Dataset, domain: int) -> DataLoader:
         rank, world = self._rank_and_world()
@@ -119,6 +146,7 @@ class UDADataModule(LightningDataModule):
         )
 
     def train_dataloader(self) -> CombinedLoader:
+        self._streams_checked = False
         loaders = {
             "source": self._stream(self.source, SOURCE_DOMAIN),
             "target": self._stream(self.target, TARGET_DOMAIN),

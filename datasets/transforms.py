@@ -15,7 +15,6 @@ import torch
 from torchvision import tv_tensors
 from torchvision.transforms import v2
 from torchvision.transforms.v2 import functional as F
-from torchvision.transforms.v2 import query_size
 
 from uss_slam.core.classes import IGNORE_INDEX
 from uss_slam.core.normalization import IMAGENET_MEAN, IMAGENET_STD
@@ -35,7 +34,7 @@ class RandomScale(v2.Transform):
         self.scale_range = (low, high)
 
     def make_params(self, flat_inputs: list[Any]) -> dict[str, Any]:
-        height, width = query_size(flat_inputs)
+        height, width = v2.query_size(flat_inputs)
         low, high = self.scale_range
         scale = low + (high - low) * float(torch.rand(()))
         return {"size": [max(1, round(height * scale)), max(1, round(width * scale))]}

@@ -26,10 +26,10 @@ from typing import Literal
 import torch
 from lightning.pytorch import Callback, LightningModule, Trainer
 from torch import nn
-from torch.nn.modules.batchnorm import _BatchNorm
 from torch.utils.data import Dataset
 
 from uss_slam.core.errors import UssSlamError
+from uss_slam.train.methods.base import BATCH_NORM_LAYERS
 
 log = logging.getLogger(__name__)
 
@@ -53,7 +53,9 @@ def recompute_batchnorm(
     batch statistics over ``dataset[i]["image"]`` for ``i`` in ``indices`` (batches of
     ``batch_size`` equal-size images). Returns the number of images; 0 leaves ``net`` as it was.
     Train / eval modes and momenta are restored afterwards."""
-    layers = [m for m in net.modules() if isinstance(m, _BatchNorm) and m.track_running_stats]
+    layers = [
+        m for m in net.modules() if isinstance(m, BATCH_NORM_LAYERS) and m.track_running_stats
+    ]
     if not layers or not indices:
         return 0
     saved = [(m, m.training, m.momentum) for m in layers]

@@ -13,6 +13,7 @@ import pytest
 import torch
 from lightning.pytorch import Callback, LightningModule, Trainer
 
+from uss_slam.train.methods import SourceOnly
 from uss_slam.train.module import AdversarialSegmentation
 
 _PATH = Path(__file__).resolve().parents[2] / "benchmarks" / "train_step.py"
@@ -27,7 +28,8 @@ def _module(
 ) -> AdversarialSegmentation:
     torch.manual_seed(0)
     module = bench.build_module("resnet_small", max_iters=10, n_layers=5, ndf=8)
-    module.adaptation = adaptation
+    if not adaptation:
+        module.method = SourceOnly()
     module.batch_domains = batch_domains
     module.channels_last = channels_last
     return module
@@ -263,7 +265,7 @@ def test_scalars_reach_tensorboard_on_logging_steps_only(adaptation: bool, tmp_p
 def test_discriminators_frozen_restores_on_error() -> None:
     module = _module()
     module.d_main.layers[0].weight.requires_grad_(False)  # a user-frozen parameter stays frozen
-    with pytest.raises(RuntimeError, match="inside"), module._discriminators_frozen():
+    with pytest.raises(RuntimeError, match="inside"), module.discriminators_frozen():
         assert not any(
             p.requires_grad for d in (module.d_aux, module.d_main) for p in d.parameters()
         )

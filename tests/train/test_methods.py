@@ -1,0 +1,223 @@
+"""Adaptation methods as a config group: the shipped choices, the deprecated flag, the shared
+two-domain pass, and a new method added in one class + one yaml file."""
+
+from __future__ import annotations
+
+import copy
+import logging
+from pathlib import Path
+from typing import ClassVar
+
+import pytest
+import torch
+import torch.nn.functional as F
+from hydra.utils import instantiate
+from lightning.pytorch import Trainer
+from torch import Tensor, nn
+from train_helpers import compose_train, data_overrides
+
+from uss_slam.core.errors import UssSlamError
+from uss_slam.train.losses import upsample
+from uss_slam.train.methods import (
+    AdaptSegNet,
+    DomainPass,
+    Method,
+    SourceOnly,
+    SourceSegmentation,
+    StepValues,
+    TrainBatch,
+    can_batch_domains,
+)
+from uss_slam.train.module import AdversarialSegmentation
+from uss_slam.train.train import train
+
+
+class TargetEntropy(Method):
+    """A toy method (MinEnt-like): segmentation loss on source + ``weight`` × the mean entropy of
+    the target's main-head softmax; no discriminators."""
+
+    name: ClassVar[str] = "target_entropy"
+    adapts: ClassVar[bool] = True
+    trains_discriminators: ClassVar[bool] = False
+
+    def __init__(self, weight: float = 1.0) -> None:
+        super().__init__()
+        self.weight = weight
+
+    def training_step(self, module: AdversarialSegmentation, batch: TrainBatch) -> StepValues:
+        opt_seg, _ = module.optimizers()
+        opt_seg.zero_grad()
+        src_img, trg_img = batch["source"]["image"], batch["target"]["image"]
+        batched = can_batch_domains(module, src_img, trg_img)
+        with DomainPass(module.segmenter, src_img, trg_img, module.manual_backward, batched) as p:
+            src = SourceSegmentation(
+                p.source(), batch["source"]["label"], module.loss_weights, module.iteration
+            )
+            p.backward(src.loss)
+            logp = F.log_softmax(upsample(p.target().main, trg_img.shape[-2:]), dim=1)
+            entropy = -(logp.exp() * logp).sum(dim=1).mean()
+            p.backward(self.weight * entropy)
+        opt_seg.step()
+        return {**src.values, "loss_ent_trg_main": entropy.detach()}
+
+
+def _compose(tmp_path: Path, *overrides: str):
+    return compose_train(["experiment=ci", *overrides], tmp_path / "run")
+
+
+@pytest.mark.parametrize(
+    ("overrides", "kind"),
+    [
+        ([], AdaptSegNet),
+        (["model/method=adaptsegnet"], AdaptSegNet),
+        (["model/method=source_only"], SourceOnly),
+        (["model=source_only"], SourceOnly),
+    ],
+)
+def test_method_config_group(overrides: list[str], kind: type, tmp_path: Path) -> None:
+    model = instantiate(_compose(tmp_path, *overrides).model)
+    assert type(model.method) is kind
+    assert model.adaptation is kind.adapts
+    assert model.hparams["method"] == kind.name and model.hparams["adaptation"] is kind.adapts
+
+
+def test_checkpoint_keys_are_the_networks_only(tmp_path: Path) -> None:
+    # Checkpoints of earlier versions resume: the methods add no parameters or buffers.
+    for method in ("adaptsegnet", "source_only"):
+        model = instantiate(_compose(tmp_path, f"model/method={method}").model)
+        prefixes = {key.split(".")[0] for key in model.state_dict()}
+        assert prefixes == {"segmenter", "d_aux", "d_main"}
+
+
+def test_deprecated_adaptation_flag_selects_the_method(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    with caplog.at_level(logging.WARNING):
+        model = instantiate(_compose(tmp_path, "model.adaptation=false").model)
+    assert isinstance(model.method, SourceOnly)
+    assert "use model/method=source_only" in caplog.text
+    assert isinstance(
+        instantiate(_compose(tmp_path, "model.adaptation=true").model).method, AdaptSegNet
+    )
+    with pytest.raises(Exception) as info:
+        instantiate(_compose(tmp_path, "model.adaptation=true", "model/method=source_only").model)
+    assert "contradicts model/method=source_only" in str(info.value)
+
+
+def test_method_must_be_a_method(tmp_path: Path) -> None:
+    cfg = _compose(tmp_path, "model.method._target_=torch.nn.Identity")
+    with pytest.raises(Exception) as info:
+        instantiate(cfg.model)
+    assert isinstance(info.value.__cause__ or info.value, UssSlamError)
+    assert "model.method must be an adaptation method" in str(info.value)
+
+
+# --------------------------------------------------------------------------- DomainPass
+
+
+class _Net(nn.Module):
+    def __init__(self) -> None:
+        super().__init__()
+        self.conv = nn.Conv2d(3, 4, 3)
+        self.forwards: list[int] = []
+
+    def forward(self, x: Tensor) -> tuple[Tensor, Tensor]:
+        self.forwards.append(x.shape[0])
+        y = self.conv(x)
+        return y, 2 * y
+
+
+@pytest.mark.parametrize("batched", [True, False])
+def test_domain_pass_batched_and_unbatched_give_the_same_gradients(batched: bool) -> None:
+    torch.manual_seed(0)
+    net = _Net()
+    src, trg = torch.randn(2, 3, 9, 9), torch.randn(3, 3, 9, 9)
+    backwards: list[float] = []
+
+    def backward(loss: Tensor) -> None:
+        backwards.append(float(loss))
+        loss.backward()
+
+    with DomainPass(net, src, trg, backward, batched) as p:
+        out_src = p.source()
+        assert backwards == [] and out_src[0].shape[0] == 2
+        p.backward(out_src[0].square().mean())
+        out_trg = p.target()
+        assert out_trg[1].shape[0] == 3 and type(out_trg) is tuple
+        p.backward(out_trg[1].abs().mean())
+        assert len(backwards) == (0 if batched else 2)
+    assert len(backwards) == 1 if batched else 2
+    assert net.forwards == ([5] if batched else [2, 3])
+
+    ref = copy.deepcopy(net)
+    ref.zero_grad()
+    (ref(src)[0].square().mean() + ref(trg)[1].abs().mean()).backward()
+    for mine, theirs in zip(net.parameters(), ref.parameters(), strict=True):
+        torch.testing.assert_close(mine.grad, theirs.grad, rtol=1e-6, atol=1e-7)
+
+
+def test_domain_pass_error_skips_the_pending_backward() -> None:
+    net = _Net()
+    calls: list[Tensor] = []
+    with (
+        pytest.raises(RuntimeError, match="stop"),
+        DomainPass(net, torch.randn(1, 3, 5, 5), torch.randn(1, 3, 5, 5), calls.append, True) as p,
+    ):
+        p.backward(p.source()[0].sum())
+        raise RuntimeError("stop")
+    assert calls == []
+    with DomainPass(net, torch.randn(1, 3, 5, 5), None, calls.append, True) as p:
+        p.backward(p.source()[0].sum())
+        assert len(calls) == 1  # no target: unbatched
+        with pytest.raises(ValueError, match="no target input"):
+            p.target()
+
+
+# --------------------------------------------------------------------------- a new method
+
+
+TOY_CONFIG = "_target_: test_methods.TargetEntropy\nweight: 0.5\n"
+
+
+def test_a_new_method_plugs_in_by_config(uda_data: dict[str, Path], tmp_path: Path) -> None:
+    """One class (above) + one ``model/method/<name>.yaml``: chosen on the command line."""
+    configs = tmp_path / "configs"
+    (configs / "model" / "method").mkdir(parents=True)
+    (configs / "model" / "method" / "target_entropy.yaml").write_text(TOY_CONFIG)
+    overrides = [
+        f"hydra.searchpath=[file://{configs}]",
+        "model/method=target_entropy",
+        *data_overrides(uda_data),
+        "logger=none",
+    ]
+    cfg = _compose(tmp_path, *overrides)
+    model = instantiate(cfg.model)
+    assert isinstance(model.method, TargetEntropy) and model.method.weight == 0.5
+
+    # Two iterations through the module: the segmenter learns, the discriminators and their
+    # optimiser / schedule stay untouched, the toy's own value is what gets logged.
+    d_before = copy.deepcopy(model.d_main.state_dict())
+    seg_before = copy.deepcopy(model.segmenter.state_dict())
+    datamodule = instantiate(cfg.data)
+    trainer = Trainer(
+        accelerator="cpu",
+        max_epochs=1,
+        limit_val_batches=0,
+        logger=False,
+        enable_checkpointing=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+    )
+    trainer.fit(model, datamodule=datamodule)
+    assert model.iteration == cfg.data.iterations_per_epoch == 2
+    assert all(torch.equal(v, d_before[k]) for k, v in model.d_main.state_dict().items())
+    assert not all(torch.equal(v, seg_before[k]) for k, v in model.segmenter.state_dict().items())
+    opt_seg, opt_d = trainer.optimizers
+    assert len(opt_d.state) == 0 and len(opt_seg.state) > 0
+    sched_seg, sched_d = (c.scheduler for c in trainer.lr_scheduler_configs)
+    assert (sched_seg.last_epoch, sched_d.last_epoch) == (2, 0)
+
+    # The same through uss-train's glue, logged keys included.
+    metrics = train(_compose(tmp_path, *overrides, "+trainer.fast_dev_run=true"))
+    assert {"train/loss_seg_src_main", "train/loss_ent_trg_main"} <= set(metrics)
+    assert not any(k.startswith(("train/loss_adv", "train/loss_d")) for k in metrics)

@@ -1,0 +1,314 @@
+"""What every adaptation method shares: the :class:`Method` interface, the two-domain forward /
+backward (:class:`DomainPass`), the source segmentation loss and the discriminator update.
+
+A method computes the losses of one training iteration and steps the optimisers of the
+:class:`~uss_slam.train.module.AdversarialSegmentation` it is given (Lightning manual
+optimisation); the module owns the networks, the optimisers, the poly schedules, the iteration
+counter, logging and checkpoints. The segmenter stays a plain network that never sees domains.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from abc import ABC, abstractmethod
+from collections.abc import Callable, Iterator
+from typing import TYPE_CHECKING, Any, ClassVar, Generic, TypeVar
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from uss_slam.core.errors import UssSlamError
+from uss_slam.models.deeplab import SegmenterOutput
+from uss_slam.train.losses import (
+    SOURCE_LABEL,
+    TARGET_LABEL,
+    LossWeights,
+    domain_accuracy,
+    domain_loss,
+    segmentation_loss,
+    upsample,
+)
+
+if TYPE_CHECKING:
+    from uss_slam.train.module import AdversarialSegmentation
+
+TrainBatch = dict[str, dict[str, Any]]
+"""``{"source": {"image" (N, 3, H, W), "label" (N, H, W) int64, ...}, "target": {"image", ...}}``."""
+StepValues = dict[str, Tensor]
+"""Detached values of one iteration, named like the logged keys without ``train/``."""
+
+In = TypeVar("In")
+Out = TypeVar("Out")
+
+
+class NonFiniteLossError(UssSlamError):
+    """A loss became NaN or infinite; raised before any optimiser step applies it."""
+
+
+def check_finite(iteration: int, **losses: Tensor) -> None:
+    """Raise :class:`NonFiniteLossError` naming the first non-finite loss (one host sync for
+    all of them; names are looked up only on failure)."""
+    if bool(torch.isfinite(torch.stack([v.detach() for v in losses.values()])).all()):
+        return
+    for name, value in losses.items():
+        if not bool(torch.isfinite(value)):
+            raise NonFiniteLossError(
+                f"non-finite {name} ({value.item()}) at iteration {iteration}: training "
+                "stopped before applying it; the last checkpoint written is the last good state"
+            )
+
+
+BATCH_NORM_LAYERS: tuple[type[nn.Module], ...] = (
+    nn.BatchNorm1d,
+    nn.BatchNorm2d,
+    nn.BatchNorm3d,
+    nn.SyncBatchNorm,
+)
+"""The BatchNorm layer types (torch's public classes)."""
+
+
+def uses_batch_statistics(net: nn.Module) -> bool:
+    """True when a layer of ``net`` normalises with batch statistics (BatchNorm in train mode):
+    then source and target must not share a forward pass."""
+    return any(m.training for m in net.modules() if isinstance(m, BATCH_NORM_LAYERS))
+
+
+def can_batch_domains(module: AdversarialSegmentation, source: Tensor, target: Tensor) -> bool:
+    """Source and target through one forward when the module allows it
+    (``batch_domains``), the crops have one size and every layer treats samples independently:
+    the same numbers, better CPU/GPU use."""
+    return (
+        module.batch_domains
+        and source.shape[1:] == target.shape[1:]
+        and not uses_batch_statistics(module.segmenter)
+    )
+
+
+def _like(template: tuple, items: list[Any]) -> tuple:
+    """A tuple of ``template``'s type (plain or named) holding ``items``."""
+    return tuple(items) if type(template) is tuple else type(template)(*items)
+
+
+def _cat(a: Any, b: Any) -> Any:
+    if isinstance(a, Tensor):
+        return torch.cat([a, b])
+    return _like(a, [_cat(x, y) for x, y in zip(a, b, strict=True)])
+
+
+def _split(x: Any, n: int) -> tuple[Any, Any]:
+    if isinstance(x, Tensor):
+        return x[:n], x[n:]
+    parts = [_split(v, n) for v in x]
+    return _like(x, [p[0] for p in parts]), _like(x, [p[1] for p in parts])
+
+
+def _batch_size(x: Any) -> int:
+    return x.shape[0] if isinstance(x, Tensor) else _batch_size(x[0])
+
+
+class DomainPass(Generic[In, Out]):
+    """Source and target inputs through one network, and the backward passes of their losses.
+
+    Call :meth:`source`, :meth:`backward` of the source loss, then :meth:`target` and
+    :meth:`backward` of the target loss, inside ``with``:
+
+    - unbatched: each call runs at once (the source graph is freed by its backward before the
+      target forward: lowest peak memory);
+    - batched: :meth:`source` runs the network once on both inputs concatenated along the batch
+      (tensors, or tuples of tensors such as ``(aux, main)``), the losses are summed and leaving
+      the ``with`` block runs one backward. The gradients are the same.
+
+    An exception inside the block (e.g. :class:`NonFiniteLossError`) skips the pending backward.
+    Without a target input the pass is the source forward and its backward.
+
+    Args:
+        net: ``net(inputs) -> outputs`` (e.g. the segmenter, or both discriminators).
+        source: source inputs (batch first).
+        target: target inputs, or ``None``.
+        backward: ``LightningModule.manual_backward``.
+        batched: run both domains as one batch (callers decide with :func:`can_batch_domains`).
+    """
+
+    def __init__(
+        self,
+        net: Callable[[In], Out],
+        source: In,
+        target: In | None,
+        backward: Callable[[Tensor], None],
+        batched: bool,
+    ) -> None:
+        self.net = net
+        self.inputs = (source, target)
+        self.run_backward = backward
+        self.batched = batched and target is not None
+        self._target_output: Out | None = None
+        self._pending: Tensor | None = None
+
+    def __enter__(self) -> DomainPass[In, Out]:
+        return self
+
+    def __exit__(self, kind: type[BaseException] | None, *_: object) -> None:
+        if kind is None and self._pending is not None:
+            self.run_backward(self._pending)
+        self._pending = None
+
+    def source(self) -> Out:
+        source, target = self.inputs
+        if not self.batched:
+            return self.net(source)
+        out_src, self._target_output = _split(self.net(_cat(source, target)), _batch_size(source))
+        return out_src
+
+    def target(self) -> Out:
+        target = self.inputs[1]
+        if target is None:
+            raise ValueError("DomainPass.target(): the pass has no target input")
+        if self.batched:
+            if self._target_output is None:
+                raise ValueError("DomainPass.target() before source() in a batched pass")
+            return self._target_output
+        return self.net(target)
+
+    def backward(self, loss: Tensor) -> None:
+        if not self.batched:
+            self.run_backward(loss)
+        else:
+            self._pending = loss if self._pending is None else self._pending + loss
+
+
+class SourceSegmentation:
+    """``L_seg = λ_seg_aux·CE(aux) + λ_seg_main·CE(main)`` of source logits (upsampled to the
+    label size), with the log-probabilities kept for the discriminators.
+
+    Attributes:
+        loss: the weighted sum (to back-propagate).
+        log_probs: ``(aux, main)`` log-softmax maps ``(N, C, H, W)`` at label size.
+        values: detached ``loss_seg_src_aux`` / ``loss_seg_src_main``.
+    """
+
+    def __init__(
+        self, pred: SegmenterOutput, labels: Tensor, weights: LossWeights, iteration: int
+    ) -> None:
+        size = labels.shape[-2:]
+        logp_aux = F.log_softmax(upsample(pred.aux, size), dim=1)
+        logp_main = F.log_softmax(upsample(pred.main, size), dim=1)
+        loss_aux = segmentation_loss(logp_aux, labels)
+        loss_main = segmentation_loss(logp_main, labels)
+        self.loss = weights.lambda_seg_aux * loss_aux + weights.lambda_seg_main * loss_main
+        check_finite(
+            iteration, loss_seg_src_aux=loss_aux, loss_seg_src_main=loss_main, loss_seg=self.loss
+        )
+        self.log_probs = (logp_aux, logp_main)
+        self.values: StepValues = {
+            "loss_seg_src_aux": loss_aux.detach(),
+            "loss_seg_src_main": loss_main.detach(),
+        }
+
+
+def discriminator_step(
+    module: AdversarialSegmentation,
+    source: tuple[Tensor, Tensor],
+    target: tuple[Tensor, Tensor],
+    batched: bool,
+) -> StepValues:
+    """Steps (3) + (4) of Algorithm 1: ``d_aux`` / ``d_main`` learn to tell the detached source
+    maps (label 0) from the target maps (label 1); one step of the discriminator optimiser.
+
+    ``source`` and ``target`` are ``(aux, main)`` maps ``(N, C, H, W)`` (detached here; the
+    segmenter needs no freezing). Returns the detached losses and discriminator logits
+    (``loss_d_src_aux``, ``d_trg_main``, ...) for :func:`discriminator_scalars`.
+    """
+    _, opt_d = module.optimizers()
+    opt_d.zero_grad()
+
+    def both(maps: tuple[Tensor, Tensor]) -> tuple[Tensor, Tensor]:
+        return module.d_aux(maps[0]), module.d_main(maps[1])
+
+    src = (source[0].detach(), source[1].detach())
+    trg = (target[0].detach(), target[1].detach())
+    with DomainPass(both, src, trg, module.manual_backward, batched) as d:
+        d_src_aux, d_src_main = d.source()
+        loss_src_aux = domain_loss(d_src_aux, SOURCE_LABEL)
+        loss_src_main = domain_loss(d_src_main, SOURCE_LABEL)
+        check_finite(module.iteration, loss_d_src_aux=loss_src_aux, loss_d_src_main=loss_src_main)
+        d.backward(loss_src_aux + loss_src_main)
+        d_trg_aux, d_trg_main = d.target()
+        loss_trg_aux = domain_loss(d_trg_aux, TARGET_LABEL)
+        loss_trg_main = domain_loss(d_trg_main, TARGET_LABEL)
+        check_finite(module.iteration, loss_d_trg_aux=loss_trg_aux, loss_d_trg_main=loss_trg_main)
+        d.backward(loss_trg_aux + loss_trg_main)
+    opt_d.step()
+    return {
+        "loss_d_src_aux": loss_src_aux.detach(),
+        "loss_d_trg_aux": loss_trg_aux.detach(),
+        "loss_d_src_main": loss_src_main.detach(),
+        "loss_d_trg_main": loss_trg_main.detach(),
+        "d_src_aux": d_src_aux.detach(),
+        "d_trg_aux": d_trg_aux.detach(),
+        "d_src_main": d_src_main.detach(),
+        "d_trg_main": d_trg_main.detach(),
+    }
+
+
+@torch.no_grad()
+def discriminator_scalars(step: StepValues) -> dict[str, Tensor]:
+    """``train/loss_d_<head>`` (source + target loss) and ``train/d_acc_<head>`` (share of
+    patches whose domain the discriminator gets right) from :func:`discriminator_step`'s values."""
+    scalars = {}
+    for head in ("aux", "main"):
+        scalars[f"train/loss_d_{head}"] = step[f"loss_d_src_{head}"] + step[f"loss_d_trg_{head}"]
+        scalars[f"train/d_acc_{head}"] = 0.5 * (
+            domain_accuracy(step[f"d_src_{head}"], SOURCE_LABEL)
+            + domain_accuracy(step[f"d_trg_{head}"], TARGET_LABEL)
+        )
+    return scalars
+
+
+class Method(nn.Module, ABC):
+    """One adaptation method: the losses and optimiser steps of a training iteration.
+
+    Subclasses set the class attributes and implement :meth:`training_step`; a method with
+    state of its own (e.g. a teacher network) registers it as submodules or buffers, which then
+    move with the LightningModule and are saved in its checkpoints (under ``method.``).
+
+    Attributes:
+        name: the option of the config group ``model/method`` (stored in checkpoints).
+        adapts: the method trains on target frames (callbacks that pick a domain, such as
+            ``PreciseBatchNorm(domain="auto")``, then pick the target).
+        trains_discriminators: the method steps the discriminator optimiser (its poly schedule
+            advances only then).
+    """
+
+    name: ClassVar[str]
+    adapts: ClassVar[bool]
+    trains_discriminators: ClassVar[bool]
+
+    @abstractmethod
+    def training_step(self, module: AdversarialSegmentation, batch: TrainBatch) -> StepValues:
+        """Compute the losses of one iteration, back-propagate them with
+        ``module.manual_backward`` and step ``module.optimizers()`` (segmenter first, then the
+        discriminators when :attr:`trains_discriminators`). The images are already on the
+        module's device and memory format. Returns detached values for :meth:`train_scalars`."""
+
+    def train_scalars(self, step: StepValues) -> dict[str, Tensor]:
+        """The logged ``train/*`` scalars of one iteration (only computed on logging steps);
+        by default every value of :meth:`training_step` as ``train/<name>``."""
+        return {f"train/{name}": value for name, value in step.items()}
+
+    def extra_repr(self) -> str:
+        return f"name={self.name!r}"
+
+
+@contextlib.contextmanager
+def frozen(*nets: nn.Module) -> Iterator[None]:
+    """``requires_grad=False`` on the trainable parameters of ``nets`` inside the block, restored
+    afterwards (also on errors); parameters frozen before stay frozen."""
+    params = [p for net in nets for p in net.parameters() if p.requires_grad]
+    for p in params:
+        p.requires_grad_(False)
+    try:
+        yield
+    finally:
+        for p in params:
+            p.requires_grad_(True)
