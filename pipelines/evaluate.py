@@ -151,8 +151,9 @@ class CheckpointSegmenter:
         return out if self.lut is None else self.lut[out]
 
 
-def load_segmenter(path: Path, threads: int | None = None) -> tuple[Callable, dict[str, Any]]:
-    """``(infer, info)`` of a ``.ckpt`` or ``.onnx`` model file."""
+def model_kind(path: Path) -> str:
+    """``checkpoint`` or ``onnx`` by the file's extension; an error for anything else or a
+    missing file."""
     kind = MODEL_KINDS.get(path.suffix.lower())
     if kind is None:
         raise UssSlamError(
@@ -160,7 +161,12 @@ def load_segmenter(path: Path, threads: int | None = None) -> tuple[Callable, di
         )
     if not path.is_file():
         raise UssSlamError(f"{path}: no such file")
-    if kind == "checkpoint":
+    return kind
+
+
+def load_segmenter(path: Path, threads: int | None = None) -> tuple[Callable, dict[str, Any]]:
+    """``(infer, info)`` of a ``.ckpt`` or ``.onnx`` model file."""
+    if model_kind(path) == "checkpoint":
         model = CheckpointSegmenter(path, threads)
         return model.infer, model.info
     from uss_slam.slam_eval.onnx_segmenter import OnnxSegmenter
@@ -345,6 +351,7 @@ def evaluate(
 ) -> dict[str, Any]:
     """Evaluate ``model`` and write ``out/eval.json``, ``out/eval.md`` (and overlays); returns
     the content of ``eval.json``. Every argument is checked before the model runs."""
+    model_kind(model)
     if stride < 1:
         raise UssSlamError(f"--stride must be >= 1, got {stride}")
     if overlays < 0:
