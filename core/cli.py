@@ -3,13 +3,20 @@
 Unexpected internal errors keep their traceback; only the project's own errors (and the config
 errors an entry point names) count as the user's. Hydra wraps errors raised while instantiating an
 object, so the whole ``__cause__`` / ``__context__`` chain is searched.
+
+Hydra apps (``uss-train``, ``uss-slam``) also let the jobs of a multirun fail independently: a
+user error in one job is printed and recorded, the other jobs run, and the failed ones are
+listed at the end with exit code 1. Hydra and OmegaConf are imported only inside the functions
+that need them (this module stays importable without them).
 """
 
 from __future__ import annotations
 
+import os
 import sys
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass, field
 
 from uss_slam.core.errors import UssSlamError
 
@@ -34,13 +41,81 @@ def error_line(prog: str, error: BaseException) -> str:
     return f"{prog}: error: {text.splitlines()[0]}"
 
 
+@dataclass(frozen=True)
+class FailedJob:
+    """A multirun job stopped by a user error."""
+
+    num: int
+    overrides: tuple[str, ...]
+    line: str
+
+
+@dataclass
+class JobReport:
+    """The jobs of one Hydra app call (one run, or every job of a multirun)."""
+
+    prog: str
+    started: int = 0
+    """Jobs whose task function started (0: Hydra failed before running any)."""
+    overrides: list[tuple[str, ...]] = field(default_factory=list)
+    """The task overrides of each multirun job started."""
+    failures: list[FailedJob] = field(default_factory=list)
+
+    def summary(self) -> str:
+        """``<prog>: k of n jobs failed:`` and one line per failed job: its number, the
+        overrides that tell it from the other jobs, its error line."""
+        common = set.intersection(*map(set, self.overrides)) if len(self.overrides) > 1 else set()
+        lines = [f"{self.prog}: {len(self.failures)} of {self.started} jobs failed:"]
+        for failed in self.failures:
+            own = " ".join(o for o in failed.overrides if o not in common) or "(no overrides)"
+            lines.append(f"  #{failed.num} {own}: {failed.line}")
+        return "\n".join(lines)
+
+
+class JobFailed(Exception):
+    """A Hydra multirun job stopped by a user error, already printed and recorded: Hydra marks
+    the job failed and runs the others (raised instead of exiting the process)."""
+
+
+_report: JobReport | None = None
+"""The report of the Hydra app call in progress (set by :func:`report_failed_jobs`)."""
+
+
+def _multirun_job() -> tuple[int, tuple[str, ...]] | None:
+    """``(job number, task overrides)`` inside a job of a Hydra multirun, else None (Hydra is
+    imported only if the process already did)."""
+    if "hydra" not in sys.modules:
+        return None
+    from hydra.core.hydra_config import HydraConfig
+    from hydra.types import RunMode
+
+    if not HydraConfig.initialized():
+        return None
+    config = HydraConfig.get()
+    if config.mode != RunMode.MULTIRUN:
+        return None
+    return int(config.job.num), tuple(str(o) for o in config.overrides.task)
+
+
 @contextmanager
 def exit_on_user_error(prog: str, kinds: tuple[type[BaseException], ...] = ()) -> Iterator[None]:
     """Run the body; a user error anywhere in the cause chain becomes one line and exit code 1.
 
     ``kinds`` adds exception types the entry point treats as user errors (Hydra apps pass
     OmegaConf's config errors). Anything else propagates with its traceback.
+
+    Inside a job of a Hydra multirun whose console script runs the app under
+    :func:`report_failed_jobs`, the line is printed and recorded and :class:`JobFailed` is
+    raised instead of exiting: the other jobs still run, the failed ones are listed at the end.
+    The Hydra task catches it and returns (``None``), so that Hydra counts the job as done and
+    adds no report of its own.
     """
+    report = _report
+    if report is not None:
+        report.started += 1
+        job = _multirun_job()
+        if job is not None:
+            report.overrides.append(job[1])
     try:
         yield
     except (KeyboardInterrupt, SystemExit):
@@ -49,5 +124,87 @@ def exit_on_user_error(prog: str, kinds: tuple[type[BaseException], ...] = ()) -
         cause = user_error(error, kinds)
         if cause is None:
             raise
-        print(error_line(prog, cause), file=sys.stderr)
+        line = error_line(prog, cause)
+        print(line, file=sys.stderr)
+        job = _multirun_job() if report is not None else None
+        if report is None or job is None:
+            sys.exit(1)
+        report.failures.append(FailedJob(job[0], job[1], line))
+        raise JobFailed(line) from None
+
+
+@contextmanager
+def report_failed_jobs(prog: str) -> Iterator[JobReport]:
+    """Around the call of a ``@hydra.main`` app in its console script: a multirun job that
+    fails with a user error (in :func:`exit_on_user_error`) does not stop the sweep; at the end
+    the failed jobs are listed on stderr and the exit code is 1.
+
+    Hydra must raise its errors rather than print its own report (``HYDRA_FULL_ERROR=1``, as
+    :func:`run_hydra_app` sets): its sweeper re-raises the first failed job after running them
+    all. Yields the :class:`JobReport` (jobs started, failures).
+    """
+    global _report
+    report, previous = JobReport(prog), _report
+    _report = report
+    try:
+        yield report
+    except JobFailed:
+        pass
+    finally:
+        _report = previous
+        if report.failures:
+            print(report.summary(), file=sys.stderr)
+    if report.failures:
         sys.exit(1)
+
+
+def hydra_error_line(error: BaseException) -> str | None:
+    """One line for an error Hydra raises while composing the config (unknown key or option,
+    bad override syntax, a config value of the wrong type), naming the key; None for anything
+    else."""
+    from hydra.errors import HydraException
+    from omegaconf.errors import OmegaConfBaseException
+
+    chain: list[BaseException] = []
+    current: BaseException | None = error
+    while current is not None and all(current is not c for c in chain):
+        chain.append(current)
+        current = current.__cause__ or current.__context__
+    for item in chain:
+        if isinstance(item, OmegaConfBaseException):
+            key = getattr(item, "full_key", None)
+            message = " ".join(str(getattr(item, "msg", None) or item).split("\n")[0].split())
+            return f"{key}: {message}" if key and str(key) not in message else message
+    for item in chain:
+        if isinstance(item, HydraException):
+            lines = [line.strip() for line in str(item).strip().splitlines() if line.strip()]
+            lines = [line for line in lines if not line.startswith("Config search path")]
+            return " ".join(lines) if lines else type(item).__name__
+    return None
+
+
+def run_hydra_app(prog: str, app: Callable[[], object]) -> None:
+    """The console script of a ``@hydra.main`` app: ``app()`` with every user error as one
+    line on stderr and exit code 1 — config composition errors, an output folder Hydra cannot
+    create, the app's own errors (:func:`exit_on_user_error` inside it) — and a multirun's
+    failed jobs listed at the end (:func:`report_failed_jobs`). Internal errors keep their
+    traceback."""
+    previous = os.environ.get("HYDRA_FULL_ERROR")
+    os.environ["HYDRA_FULL_ERROR"] = "1"  # Hydra raises instead of printing its own report
+    report = JobReport(prog)
+    try:
+        with report_failed_jobs(prog) as report:
+            app()
+    except Exception as error:
+        line = hydra_error_line(error)
+        if line is None and isinstance(error, OSError) and not report.started:
+            line = f"cannot create the output folder {error.filename} ({error.strerror})"
+        if line is None:
+            raise
+        print(f"{prog}: error: {line}", file=sys.stderr)
+        sys.exit(1)
+    finally:
+        if previous is None:
+            os.environ.pop("HYDRA_FULL_ERROR", None)
+        else:
+            os.environ["HYDRA_FULL_ERROR"] = previous

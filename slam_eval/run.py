@@ -17,7 +17,7 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
-from uss_slam.core.cli import exit_on_user_error
+from uss_slam.core.cli import JobFailed, exit_on_user_error, report_failed_jobs
 
 from .config import check, config_error_line, register_configs, run_name
 from .filters import build_filters
@@ -139,8 +139,11 @@ def run(cfg: DictConfig) -> dict[str, Any]:
 def app(cfg: DictConfig) -> float | None:
     """The Hydra task; returns the ATE RMSE (metres) for sweepers, None if not evaluated."""
     _started.append(True)
-    with exit_on_user_error(PROG, (OmegaConfBaseException,)):
-        data = run(cfg)
+    try:
+        with exit_on_user_error(PROG, (OmegaConfBaseException,)):
+            data = run(cfg)
+    except JobFailed:  # a multirun job: printed and recorded, the other jobs go on
+        return None
     ate = data.get("ate")
     return None if ate is None else float(ate["rmse"])
 
@@ -153,7 +156,8 @@ def main() -> None:
     previous = os.environ.get("HYDRA_FULL_ERROR")
     os.environ["HYDRA_FULL_ERROR"] = "1"  # Hydra raises instead of printing its own report
     try:
-        app()
+        with report_failed_jobs(PROG):  # multirun: a failed job does not stop the others
+            app()
     except Exception as error:
         line = config_error_line(error)
         if line is None and isinstance(error, OSError) and not _started:  # Hydra's mkdir

@@ -1,10 +1,12 @@
-"""Training callbacks: TensorBoard prediction images and a DDP replica consistency check."""
+"""Training callbacks: TensorBoard prediction images, a DDP replica consistency check, and a
+ModelCheckpoint that keeps its best score across resumes."""
 
 from __future__ import annotations
 
 import hashlib
 import json
 import logging
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -12,6 +14,7 @@ from typing import Any
 import numpy as np
 import torch
 from lightning.pytorch import Callback, LightningModule, Trainer
+from lightning.pytorch.callbacks import ModelCheckpoint
 from lightning.pytorch.loggers import TensorBoardLogger
 
 from uss_slam.core.classes import colorize
@@ -153,3 +156,49 @@ class ReplicaConsistencyCheck(Callback):
                 "buffers (BatchNorm statistics) differ across ranks: freeze BatchNorm or set "
                 "trainer.sync_batchnorm=true (GPUs); checkpoints hold rank 0's"
             )
+
+
+class ResumableModelCheckpoint(ModelCheckpoint):
+    """:class:`~lightning.pytorch.callbacks.ModelCheckpoint` whose best-so-far survives a
+    resume into another folder.
+
+    Every ``uss-train`` run writes into its own folder, also when it resumes an earlier run
+    (``ckpt_path=last``). Lightning then restores only ``best_model_path`` from the checkpoint's
+    callback state (its ``dirpath`` differs), so the resumed run would take its first score for
+    the best. This restores the whole score tracking (``best_model_score``, ``best_k_models``,
+    ``kth_*``) of the earlier run's checkpoint files that still exist: a later score replaces
+    them only if it is better. The earlier run's files are never deleted (Lightning removes
+    only files in its own ``dirpath``). The state key is ModelCheckpoint's, so checkpoints
+    written with either class restore into both.
+    """
+
+    @property
+    def state_key(self) -> str:
+        key = super().state_key
+        return key.replace(type(self).__qualname__, ModelCheckpoint.__qualname__, 1)
+
+    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        if state_dict.get("dirpath", self.dirpath) == self.dirpath or self.monitor is None:
+            with warnings.catch_warnings():
+                # "dirpath has changed ... won't be reloaded": true, and handled here.
+                warnings.filterwarnings("ignore", message="The dirpath has changed")
+                super().load_state_dict(state_dict)
+            return
+        kept = {
+            path: score
+            for path, score in (state_dict.get("best_k_models") or {}).items()
+            if Path(path).is_file()
+        }
+        self.best_k_models = kept
+        if not kept:
+            log.warning(
+                "%s: the best checkpoints of the resumed run are gone; tracking starts anew",
+                self.monitor,
+            )
+            self.best_model_path, self.best_model_score = "", None
+            return
+        better, worse = (max, min) if self.mode == "max" else (min, max)
+        self.best_model_path = better(kept, key=lambda p: float(kept[p]))
+        self.best_model_score = kept[self.best_model_path]
+        self.kth_best_model_path = worse(kept, key=lambda p: float(kept[p]))
+        self.kth_value = kept[self.kth_best_model_path]

@@ -12,6 +12,7 @@ Returns the value of ``optimized_metric`` (``val/mIoU``) so Hydra sweepers can o
 from __future__ import annotations
 
 import logging
+import os
 from pathlib import Path
 from typing import Any
 
@@ -25,10 +26,13 @@ from lightning.pytorch.loggers import Logger
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
-from uss_slam.core.cli import exit_on_user_error
+from uss_slam.core.cli import JobFailed, exit_on_user_error, run_hydra_app
 from uss_slam.core.errors import UssSlamError
+from uss_slam.models.checkpoint import CheckpointInfo, read_checkpoint
+from uss_slam.train.config_check import check_config_types
 
 log = logging.getLogger(__name__)
+PROG = "uss-train"
 
 
 def _instantiate_all(group: DictConfig | None) -> list[Any]:
@@ -63,16 +67,94 @@ def resolve_ckpt_path(cfg: DictConfig) -> str | None:
     return str(newest)
 
 
+TYPED_SECTIONS = ("data", "model", "trainer", "callbacks", "logger")
+"""Config sections whose ``_target_`` nodes are checked against their targets' signatures."""
+
+
+def _output_folders(cfg: DictConfig) -> list[tuple[str, str]]:
+    """``(config key, folder)`` of every folder the run writes into besides Hydra's own."""
+    folders = []
+    if cfg.trainer.get("default_root_dir"):
+        folders.append(("trainer.default_root_dir", str(cfg.trainer.default_root_dir)))
+    for section, attribute in (("callbacks", "dirpath"), ("logger", "save_dir")):
+        for name, node in (cfg.get(section) or {}).items():
+            if node and "_target_" in node and node.get(attribute):
+                folders.append((f"{section}.{name}.{attribute}", str(node[attribute])))
+    return folders
+
+
+def check_writable(key: str, folder: str | Path) -> None:
+    """Raise naming ``key`` unless ``folder`` exists as a writable folder or can be created
+    (nothing is created here)."""
+    path = Path(folder).absolute()
+    existing = path
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if not existing.is_dir():
+        raise UssSlamError(f"{key}: cannot write to {path}: {existing} is not a folder")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise UssSlamError(f"{key}: cannot write to {path}: {existing} is not writable")
+
+
+def check_checkpoint(path: str, cfg: DictConfig) -> CheckpointInfo:
+    """The ``ckpt_path`` file is a readable ``uss-train`` checkpoint with the configured
+    number of classes (one error line naming the file otherwise)."""
+    num_classes = cfg.model.get("net", {}).get("num_classes")
+    info = read_checkpoint(path, num_classes=None if num_classes is None else int(num_classes))
+    if info.iteration is None:
+        raise UssSlamError(
+            f"ckpt_path {path}: no 'iteration' (not a uss-train checkpoint, cannot resume)"
+        )
+    return info
+
+
+def check_architecture(model: LightningModule, info: CheckpointInfo) -> None:
+    """The checkpoint's weights fit the configured networks (same names and shapes), so that
+    Lightning's restore cannot fail after the run started."""
+    mine = model.state_dict()
+    theirs = info.state_dict
+    for key, value in mine.items():
+        if key not in theirs:
+            raise UssSlamError(
+                f"ckpt_path {info.path}: has no {key} (trained with another architecture than "
+                "the configured model.net / model.discriminator?)"
+            )
+        if tuple(theirs[key].shape) != tuple(value.shape):
+            raise UssSlamError(
+                f"ckpt_path {info.path}: {key} has shape {tuple(theirs[key].shape)}, the "
+                f"configured model {tuple(value.shape)} (another model.net / "
+                "model.discriminator?)"
+            )
+    extra = sorted(set(theirs) - set(mine))
+    if extra:
+        raise UssSlamError(
+            f"ckpt_path {info.path}: holds {extra[0]} that the configured model does not have "
+            "(another model.net / model.discriminator?)"
+        )
+
+
 def train(cfg: DictConfig) -> dict[str, float]:
-    """Fit the configured model; returns the final callback metrics as floats."""
+    """Fit the configured model; returns the final callback metrics as floats.
+
+    Everything a user can get wrong is checked before the trainer starts (value types of the
+    config, the checkpoint to resume, the output folders), so that a bad run leaves no
+    checkpoints or logs behind.
+    """
+    check_config_types(cfg, TYPED_SECTIONS)
     if cfg.get("num_threads"):
         torch.set_num_threads(int(cfg.num_threads))
     if cfg.get("seed") is not None:
         L.seed_everything(int(cfg.seed), workers=True, verbose=False)
     ckpt_path = resolve_ckpt_path(cfg)
+    checkpoint = check_checkpoint(ckpt_path, cfg) if ckpt_path is not None else None
+    for key, folder in _output_folders(cfg):
+        check_writable(key, folder)
 
     datamodule: LightningDataModule = instantiate(cfg.data)
     model: LightningModule = instantiate(cfg.model)
+    if checkpoint is not None:
+        check_architecture(model, checkpoint)
+        del checkpoint  # Lightning reads the file again; do not hold two copies
     callbacks: list[Callback] = _instantiate_all(cfg.get("callbacks"))
     loggers: list[Logger] = _instantiate_all(cfg.get("logger"))
     if not loggers:  # `logger=none`: nothing to monitor learning rates into
@@ -86,22 +168,30 @@ def train(cfg: DictConfig) -> dict[str, float]:
     trainer.fit(model, datamodule=datamodule, ckpt_path=ckpt_path)
 
     metrics = {k: float(v) for k, v in trainer.callback_metrics.items()}
-    checkpoint = getattr(trainer.checkpoint_callback, "best_model_path", "")
+    best = getattr(trainer.checkpoint_callback, "best_model_path", "")
     if trainer.is_global_zero:
-        log.info(
-            "iterations: %s, best checkpoint: %s", getattr(model, "iteration", "?"), checkpoint
-        )
+        log.info("iterations: %s, best checkpoint: %s", getattr(model, "iteration", "?"), best)
         log.info("metrics: %s", {k: round(v, 4) for k, v in metrics.items()})
     return metrics
 
 
 @hydra.main(version_base="1.3", config_path="../configs", config_name="train")
-def main(cfg: DictConfig) -> float | None:
-    """Hydra entry point; returns ``cfg.optimized_metric`` for sweepers."""
-    with exit_on_user_error("uss-train", (OmegaConfBaseException,)):
-        metrics = train(cfg)
+def app(cfg: DictConfig) -> float | None:
+    """The Hydra task; returns ``cfg.optimized_metric`` for sweepers."""
+    try:
+        with exit_on_user_error(PROG, (OmegaConfBaseException,)):
+            metrics = train(cfg)
+    except JobFailed:  # a multirun job: printed and recorded, the other jobs go on
+        return None
     metric = cfg.get("optimized_metric")
     return metrics.get(metric) if metric else None
+
+
+def main() -> None:
+    """``uss-train``: every user error is one line on stderr and exit code 1 (config
+    composition, an output folder that cannot be created, the run's own checks); in a multirun
+    a failed job does not stop the others, and the failed ones are listed at the end."""
+    run_hydra_app(PROG, app)
 
 
 if __name__ == "__main__":

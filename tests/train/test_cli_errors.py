@@ -1,0 +1,213 @@
+"""``uss-train`` as a user runs it (its console-script ``main``, in this process): every user
+error is exit code 1 and one line on stderr naming the key or file, found before the trainer
+starts, leaving no checkpoints or logs behind; a multirun's failing job does not stop the
+others (``uss-train -m`` and ``uss-slam -m``)."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+import yaml
+from hydra.utils import instantiate
+from train_helpers import compose_train, data_overrides
+
+from uss_slam.train import train as train_cli
+
+HYDRA_FILES = {".hydra", "train.log"}
+
+
+def _cli(
+    main, prog: str, args: list[str], monkeypatch: pytest.MonkeyPatch, capsys
+) -> tuple[int, list[str]]:
+    """Exit code and stderr lines of ``main()`` with ``args`` on the command line."""
+    monkeypatch.setattr(sys, "argv", [prog, *args])
+    capsys.readouterr()
+    try:
+        main()
+        code = 0
+    except SystemExit as done:
+        code = int(done.code or 0)
+    return code, capsys.readouterr().err.strip().splitlines()
+
+
+def _uss_train(args: list[str], monkeypatch, capsys) -> tuple[int, list[str]]:
+    return _cli(train_cli.main, "uss-train", args, monkeypatch, capsys)
+
+
+def _common(data: dict[str, Path], tmp_path: Path) -> list[str]:
+    return [
+        "experiment=ci",
+        *data_overrides(data),
+        f"hydra.run.dir={tmp_path / 'run'}",
+        f"paths.log_dir={tmp_path / 'logs'}",
+    ]
+
+
+def _left_behind(run: Path) -> set[str]:
+    """What the failed run wrote besides Hydra's config record and log."""
+    return {p.name for p in run.iterdir()} - HYDRA_FILES if run.exists() else set()
+
+
+def _checkpoint(tmp_path: Path, name: str, overrides: list[str]) -> Path:
+    """A checkpoint in uss-train's format (weights of the ``ci`` model built with
+    ``overrides``), without training."""
+    cfg = compose_train(["experiment=ci", *overrides], tmp_path / "build")
+    model = instantiate(cfg.model)
+    path = tmp_path / name
+    torch.save(
+        {
+            "state_dict": model.state_dict(),
+            "hyper_parameters": dict(model.hparams),
+            "iteration": 2,
+        },
+        path,
+    )
+    return path
+
+
+def _bad_checkpoint(kind: str, tmp_path: Path) -> tuple[Path, str]:
+    if kind == "truncated":
+        path = _checkpoint(tmp_path, "truncated.ckpt", [])
+        path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+        return path, "not a readable checkpoint"
+    if kind == "random":
+        path = tmp_path / "random.ckpt"
+        path.write_bytes(torch.randint(0, 256, (4096,), dtype=torch.uint8).numpy().tobytes())
+        return path, "not a readable checkpoint"
+    if kind == "not_lightning":
+        path = tmp_path / "weights.pth"
+        torch.save({"conv.weight": torch.zeros(2, 2)}, path)
+        return path, "not a Lightning checkpoint"
+    if kind == "classes":
+        overrides = ["model.net.num_classes=3", "model.class_names=[background,person,chair]"]
+        return _checkpoint(tmp_path, "three.ckpt", overrides), "checkpoint has 3 classes"
+    if kind == "architecture":
+        overrides = ["model.discriminator.n_layers=5"]
+        return _checkpoint(tmp_path, "deeper.ckpt", overrides), "d_aux.layers"
+    raise AssertionError(kind)
+
+
+@pytest.mark.parametrize(
+    "kind", ["truncated", "random", "not_lightning", "classes", "architecture"]
+)
+def test_bad_checkpoint_is_one_line_before_the_trainer_starts(
+    kind: str, uda_data: dict[str, Path], tmp_path: Path, monkeypatch, capsys
+) -> None:
+    path, expected = _bad_checkpoint(kind, tmp_path)
+    before = path.read_bytes()
+    code, err = _uss_train([*_common(uda_data, tmp_path), f"ckpt_path={path}"], monkeypatch, capsys)
+    assert code == 1
+    assert len(err) == 1, err
+    assert err[0].startswith("uss-train: error: ") and str(path) in err[0] and expected in err[0]
+    assert _left_behind(tmp_path / "run") == set()  # no checkpoints/, tensorboard/, manifest
+    assert path.read_bytes() == before
+
+
+@pytest.mark.parametrize(
+    ("override", "line"),
+    [
+        ("model.max_iters=abc", "model.max_iters: expected an integer, got 'abc'"),
+        ("trainer.max_epochs=x", "trainer.max_epochs: expected an integer or null, got 'x'"),
+        ("model.optimizer.lr=fast", "model.optimizer.lr: expected a number, got 'fast'"),
+        ("model.net.num_classes=2.5", "model.net.num_classes: expected an integer, got 2.5"),
+        ("model.batch_domains=maybe", "model.batch_domains: expected true or false, got 'maybe'"),
+    ],
+)
+def test_wrong_value_type_is_one_line_naming_the_key(
+    override: str, line: str, uda_data: dict[str, Path], tmp_path: Path, monkeypatch, capsys
+) -> None:
+    code, err = _uss_train([*_common(uda_data, tmp_path), override], monkeypatch, capsys)
+    assert (code, err) == (1, [f"uss-train: error: {line}"])
+    assert _left_behind(tmp_path / "run") == set()
+
+
+def test_unknown_key_is_one_line(uda_data: dict[str, Path], tmp_path: Path, monkeypatch, capsys):
+    code, err = _uss_train([*_common(uda_data, tmp_path), "model.max_iter=3"], monkeypatch, capsys)
+    assert code == 1 and len(err) == 1, err
+    assert err[0].startswith("uss-train: error: model.max_iter: ")
+    assert not (tmp_path / "run").exists()  # Hydra stopped while composing
+
+
+@pytest.mark.parametrize(
+    "key",
+    ["hydra.run.dir", "callbacks.model_checkpoint.dirpath", "logger.tensorboard.save_dir"],
+)
+def test_unwritable_output_folder_is_one_line(
+    key: str, uda_data: dict[str, Path], tmp_path: Path, monkeypatch, capsys
+) -> None:
+    blocker = tmp_path / "a_file"
+    blocker.write_text("not a folder\n")
+    target = blocker / "out"
+    code, err = _uss_train([*_common(uda_data, tmp_path), f"{key}={target}"], monkeypatch, capsys)
+    assert code == 1 and len(err) == 1, err
+    if key == "hydra.run.dir":
+        assert (
+            err[0]
+            == f"uss-train: error: cannot create the output folder {target} (Not a directory)"
+        )
+    else:
+        assert (
+            err[0]
+            == f"uss-train: error: {key}: cannot write to {target}: {blocker} is not a folder"
+        )
+        assert _left_behind(tmp_path / "run") == set()
+    assert blocker.read_text() == "not a folder\n"
+
+
+# --------------------------------------------------------------------------- multirun
+
+
+@pytest.mark.slow
+def test_train_multirun_jobs_fail_independently(
+    uda_data: dict[str, Path], tmp_path: Path, monkeypatch, capsys
+) -> None:
+    sweep = tmp_path / "sweep"
+    args = [
+        "-m",
+        "experiment=ci",
+        *data_overrides(uda_data),
+        "logger=none",
+        "+trainer.limit_val_batches=1",
+        "model.max_iters=abc,2",
+        f"hydra.sweep.dir={sweep}",
+        f"paths.log_dir={tmp_path / 'logs'}",
+    ]
+    code, err = _uss_train(args, monkeypatch, capsys)
+    line = "uss-train: error: model.max_iters: expected an integer, got 'abc'"
+    assert code == 1
+    assert err == [line, "uss-train: 1 of 2 jobs failed:", f"  #0 model.max_iters=abc: {line}"]
+    # The bad job left nothing; the good one trained to the end.
+    assert _left_behind(sweep / "0") == set()
+    assert "model.max_iters=2" in yaml.safe_load(
+        (sweep / "1" / ".hydra" / "overrides.yaml").read_text()
+    )
+    state = torch.load(sweep / "1" / "checkpoints" / "last.ckpt", weights_only=True)
+    assert state["iteration"] == 2
+
+
+@pytest.mark.slow
+def test_slam_multirun_jobs_fail_independently(
+    synthetic_sequence, tmp_path: Path, monkeypatch, capsys
+) -> None:
+    from uss_slam.slam_eval import run as slam_cli
+
+    seq = synthetic_sequence(preset="walking_xyz", frames=30)
+    out = tmp_path / "slam"
+    args = [
+        "-m",
+        f"sequence.path={seq}",
+        "sequence.max_frames=8",
+        "progress=false",
+        f"out_dir={out}",
+        "slam.orb.scale_factor=0.9,1.2",
+    ]
+    code, err = _cli(slam_cli.main, "uss-slam", args, monkeypatch, capsys)
+    assert code == 1
+    assert len(err) == 3, err
+    assert err[0].startswith("uss-slam: error: slam.orb.scale_factor must be > 1, got 0.9")
+    assert err[1:] == ["uss-slam: 1 of 2 jobs failed:", f"  #0 slam.orb.scale_factor=0.9: {err[0]}"]
+    assert (out / "1" / "metrics.json").is_file()
+    assert not (out / "0" / "metrics.json").exists()
