@@ -22,6 +22,7 @@ from torch import Tensor
 from uss_slam.core.errors import UssSlamError
 
 _SCALARS = {int: "an integer", float: "a number", bool: "true or false", str: "a string"}
+_PLURALS = {int: "integers", float: "numbers", bool: "booleans", str: "strings"}
 _SEQUENCES = (list, tuple, Sequence, typing.Sequence, typing.List, typing.Tuple)  # noqa: UP006
 
 
@@ -85,7 +86,9 @@ def describe(annotation: Any) -> str:
         return " or ".join(dict.fromkeys(describe(a) for a in args if a is not Tensor))
     if origin in _SEQUENCES:
         inner = [a for a in args if a is not Ellipsis]
-        return "a list" + (f" of {describe(inner[0])}" if inner else "")
+        if not inner:
+            return "a list"
+        return f"a list of {_PLURALS.get(inner[0]) or describe(inner[0])}"
     return getattr(annotation, "__name__", str(annotation))
 
 
