@@ -1,0 +1,234 @@
+"""``uss-experiments``: the USS-SLAM paper's tables by one command (``configs/experiments.yaml``).
+
+Stages, in order, each printed with its time (``stages=[...]`` runs a subset):
+
+1. ``data``: synthetic data rendered into ``out_dir/data`` (``uss-synth demo`` for training;
+   each evaluation sequence with a held-out seed), or the real folders of ``data.real`` checked.
+2. ``train``: the training grid (source-only; adapted with each discriminator depth; each loss
+   weight combination; each seed) as one Hydra multirun through ``launcher``.
+3. ``export``: each complete training's best checkpoint to ``out_dir/exports/<model>/``.
+4. ``slam``: a Hydra multirun of the segmentation evaluations (each model on every labelled
+   evaluation sequence) and the SLAM runs (each system, sequence and variant; each model).
+5. ``tables``: ``runs.csv`` (one row per job), ``tables.md``, ``tables.json`` and ``plots/``.
+
+Every job is cached (a stamp with the key of its inputs, written after its result): a rerun
+launches only the jobs that are missing, failed or whose inputs changed. A failed job never
+stops the others; the tables mark it and list why. Bad keys (scale, launcher, method, sequence,
+variant, system, stage) and missing or incomplete data folders are one error line before any
+work starts.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from typing import Any
+
+import hydra
+from omegaconf import DictConfig
+from omegaconf.errors import OmegaConfBaseException
+
+from uss_slam.core.cli import exit_on_user_error
+from uss_slam.pipelines.stages import Progress
+
+from . import tables as tbl
+from .data import Data, stage_data
+from .experiment import Experiment, check, check_choices, eval_seed
+from .jobs import reason_of, stage_of
+from .launch import NOT_RUN, Launch, describe_plan, launch, result_rows, status_of
+from .plan import (
+    blocked_jobs,
+    existing_exports,
+    export_stage,
+    model_path,
+    plan_slam,
+    plan_train,
+)
+
+PROG = "uss-experiments"
+
+
+def run_experiments(cfg: DictConfig) -> dict[str, Any]:
+    """Run the configured stages; returns ``{"rows": runs.csv rows, "tables": tables.json}``
+    (``{}`` for a dry run)."""
+    exp = check(cfg)
+    out = exp.out
+    out.mkdir(parents=True, exist_ok=True)
+    dry = bool(exp.cfg.get("dry_run"))
+    progress = Progress(total=len(exp.stages))
+    data_holder: dict[str, Data] = {}
+
+    def do_data() -> str:
+        data, status = stage_data(exp, run="data" in exp.stages and not dry, dry=dry)
+        data_holder["data"] = data
+        return status
+
+    if "data" in exp.stages and not dry:
+        progress.run("data", f"data -> {out / 'data'}", do_data)
+    else:
+        print(f"data: {do_data()}")
+    data = data_holder["data"]
+
+    train_jobs = plan_train(exp, data)
+    exp.train_specs.update({j.id: j.spec for j in train_jobs})
+    launches: dict[str, Launch] = {}
+    if dry:
+        print(describe_plan(exp, "train", train_jobs, set()))
+        exports = existing_exports(exp)
+        slam_jobs = plan_slam(exp, data, exports)
+        blocked = {j.id for j in slam_jobs if j.needs is not None and j.needs not in exports}
+        print(describe_plan(exp, "slam", slam_jobs, blocked))
+        return {}
+    if "train" in exp.stages:
+        progress.run(
+            "train",
+            f"train: {len(train_jobs)} training jobs",
+            lambda: _launch_status(launches, "train", launch(exp, "train", train_jobs, set())),
+        )
+    export_failures: dict[str, str] = {}
+    export_rows: list[dict[str, Any]] = []
+    if "export" in exp.stages:
+        progress.run(
+            "export",
+            "export: best checkpoints -> ONNX",
+            lambda: stage_exports(exp, export_failures, export_rows),
+        )
+    exports = existing_exports(exp)
+    slam_jobs = plan_slam(exp, data, exports)
+    blocked = blocked_jobs(exp, slam_jobs, exports, export_failures)
+    if "slam" in exp.stages:
+        progress.run(
+            "slam",
+            f"slam: {len(slam_jobs)} segmentation evaluations and SLAM runs",
+            lambda: _launch_status(launches, "slam", launch(exp, "slam", slam_jobs, set(blocked))),
+        )
+    rows: list[dict[str, Any]] = []
+    for job in train_jobs:
+        status, reason, result = status_of(exp, job, {}, launches)
+        rows += result_rows(job, status, reason, result, exp.grid.sequences)
+    rows += export_rows
+    for job in slam_jobs:
+        status, reason, result = status_of(exp, job, blocked, launches)
+        rows += result_rows(job, status, reason, result, exp.grid.sequences)
+    tables: dict[str, Any] = {}
+    if "tables" in exp.stages:
+
+        def do_tables() -> str:
+            tbl.write_runs(out / "runs.csv", rows)
+            read = tbl.read_runs(out / "runs.csv")
+            tables.update(
+                tbl.write_tables(
+                    out, read, exp.cfg["tables"]["n_layers"], header=_header(exp, data)
+                )
+            )
+            return (
+                f"{out / 'tables.md'}, {out / 'tables.json'}, {out / 'runs.csv'}, {out / 'plots'}"
+            )
+
+        progress.run("tables", "tables", do_tables)
+    bad = sorted({r["id"] for r in rows if r["status"] != "ok" and r["reason"] != NOT_RUN})
+    total = time.perf_counter() - progress.start
+    print(
+        f"{PROG}: done in {total:.1f} s; {len({r['id'] for r in rows})} jobs, "
+        f"{len(bad)} without a result"
+        + (f" (see the Failures table of {out / 'tables.md'})" if bad and tables else "")
+    )
+    return {"rows": rows, "tables": tables, "failed": bad}
+
+
+def _launch_status(launches: dict[str, Launch], stage: str, result: Launch) -> str:
+    launches[stage] = result
+    if result.returncode is None:
+        return "every job complete already (reused)"
+    return f"ran {len(result.pending)} jobs (multirun exit code {result.returncode})"
+
+
+def stage_exports(exp: Experiment, failures: dict[str, str], rows: list[dict[str, Any]]) -> str:
+    """Export every complete training not exported yet (in this process); a failure is
+    recorded for the tables and blocks that model's jobs."""
+    from uss_slam.export import export_checkpoint
+    from uss_slam.pipelines.demo import best_checkpoint
+
+    done = reused = 0
+    for cell in exp.grid.trainings:
+        row = {
+            "kind": "export",
+            "id": f"exports/{cell.model}",
+            "folder": f"exports/{cell.model}",
+            **cell.describe(),
+        }
+        stage = export_stage(exp, cell)
+        if stage is None:
+            continue  # training not complete: its own row says why
+        if stage.complete():
+            reused += 1
+            rows.append({**row, "status": "ok"})
+            continue
+        t0 = time.perf_counter()
+        stage.start()
+        try:
+            export_checkpoint(
+                best_checkpoint(stage_of(exp.out, exp.train_specs[cell.id], cell.id).folder),
+                model_path(exp, cell),
+            )
+        except Exception as error:  # recorded, like a failed job, so that the others go on
+            failures[cell.model] = reason_of(error)
+            rows.append({**row, "status": "failed", "reason": failures[cell.model]})
+            print(f"  export {cell.model} failed: {failures[cell.model]}", flush=True)
+            continue
+        stage.finish()
+        done += 1
+        rows.append({**row, "status": "ok", "seconds": time.perf_counter() - t0})
+    return f"{done} exported, {reused} reused"
+
+
+def _header(exp: Experiment, data: Data) -> list[str]:
+    cfg = exp.cfg
+    grid = cfg["grid"]
+    lines = [
+        f"# USS-SLAM experiments: scale {cfg['scale_name']}",
+        "",
+        f"- data: {'synthetic (out_dir/data)' if exp.synthetic else 'real'}; training "
+        f"experiment `{cfg['train']['experiment']}`; methods {', '.join(grid['methods'])}; "
+        f"discriminator depths {', '.join(map(str, grid['n_layers']))}; seeds "
+        f"{', '.join(map(str, grid['seeds']))}"
+        + (f"; loss weights {grid['loss']}" if grid.get("loss") else ""),
+        f"- evaluation sequences: {', '.join(exp.grid.sequences)}"
+        + (
+            ""
+            if not exp.synthetic
+            else " (rendered with held-out seeds "
+            + ", ".join(str(eval_seed(cfg, s)) for s in exp.grid.sequences)
+            + ")"
+        ),
+        f"- systems: {', '.join(exp.grid.systems)}; variants: {', '.join(exp.grid.variants)}"
+        + (
+            ""
+            if "orbslam3" not in exp.grid.systems
+            else f" (ORB-SLAM3: median of {cfg['slam']['orbslam3']['repeats']} runs per job)"
+        ),
+        f"- segmentation metrics on 1 labelled frame in {cfg['segeval']['stride']} of "
+        + (", ".join(data.labelled) if data.labelled else "no sequence (none has labels/)"),
+        "- each cell: mean ± sample s.d. over seeds (n = successful jobs); runs.csv has every job",
+        "",
+    ]
+    return lines
+
+
+@hydra.main(version_base="1.3", config_path="../../configs", config_name="experiments")
+def _app(cfg: DictConfig) -> None:
+    with exit_on_user_error(PROG, (OmegaConfBaseException,)):
+        result = run_experiments(cfg)
+    if result.get("failed"):
+        sys.exit(1)
+
+
+def main() -> None:
+    """Console script: the scale / launcher choices checked first, then the Hydra app."""
+    with exit_on_user_error(PROG):
+        check_choices(sys.argv[1:])
+    _app()
+
+
+if __name__ == "__main__":
+    main()

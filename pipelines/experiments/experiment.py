@@ -1,0 +1,149 @@
+"""The checked configuration of ``uss-experiments``: every key that can be wrong is checked here,
+before any work starts, and named in a one-line error with the accepted values."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from omegaconf import DictConfig, OmegaConf
+
+from uss_slam.core.errors import UssSlamError
+
+from .grid import SYNTHETIC_SEQUENCES, TUM_SEQUENCES, Grid, choose, expand
+
+CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
+
+
+STAGES = ("data", "train", "export", "slam", "tables")
+
+
+LAUNCHERS = ("basic", "joblib", "submitit_local", "submitit_slurm")
+
+
+def check_choices(argv: Sequence[str]) -> None:
+    """Unknown ``scale=`` / ``launcher=`` options: one line naming the key and the accepted
+    values (before Hydra, which would print a multi-line error)."""
+    for arg in argv:
+        key, sep, value = arg.lstrip("+~").partition("=")
+        if sep and key in ("scale", "launcher"):
+            accepted = sorted(p.stem for p in (CONFIG_DIR / key).glob("*.yaml"))
+            choose(key, value, accepted)
+
+
+def _size(key: str, text: Any) -> str:
+    from uss_slam.synthetic.output import SynthArgumentError, parse_size
+
+    try:
+        parse_size(str(text))
+    except SynthArgumentError as error:
+        raise UssSlamError(f"{key}: {error}") from None
+    return str(text)
+
+
+@dataclass
+class Experiment:
+    """The checked configuration: everything the stages need."""
+
+    cfg: dict[str, Any]
+    out: Path
+    grid: Grid
+    stages: tuple[str, ...]
+    synthetic: bool
+    launcher: dict[str, Any]
+    missing_launcher_keys: list[str]
+    train_specs: dict[str, dict[str, Any]] = field(default_factory=dict)
+    """Training id -> its job spec (set when the trainings are planned)."""
+
+    @property
+    def fast(self) -> bool:
+        return bool(self.cfg.get("fast_dev_run"))
+
+
+def training_seeds(seed: int) -> set[int]:
+    """The seeds of the synthetic training data (VOC set, target training sequences,
+    validation sequence): the evaluation sequences' seeds must differ from all of them."""
+    from uss_slam.pipelines.demo_data import TRAIN_PRESETS, VAL_SEED_OFFSET
+
+    return {seed, *(seed + 1 + k for k in range(len(TRAIN_PRESETS))), seed + VAL_SEED_OFFSET}
+
+
+def check_orbslam3(orb: Mapping[str, Any]) -> None:
+    """``systems=[...,orbslam3]``: the bindings installed, a readable vocabulary (when given)
+    and a repeat count, before any work."""
+    import importlib.util
+
+    from uss_slam.slam_eval.orbslam3 import INSTALL_HINT, check_vocabulary
+
+    if importlib.util.find_spec("pyorbslam3") is None:
+        raise UssSlamError(
+            f"systems: orbslam3 needs the pyorbslam3 package ({INSTALL_HINT}); without it "
+            "accepted: harness"
+        )
+    repeats = orb.get("repeats")
+    if isinstance(repeats, bool) or not isinstance(repeats, int) or repeats < 1:
+        raise UssSlamError(f"slam.orbslam3.repeats: expected an integer >= 1, got {repeats!r}")
+    if orb.get("vocabulary") is not None:
+        try:
+            check_vocabulary(str(orb["vocabulary"]))
+        except UssSlamError as error:
+            raise UssSlamError(f"slam.orbslam3.vocabulary: {error}") from None
+
+
+def eval_seed(cfg: Mapping[str, Any], name: str) -> int:
+    """The held-out seed of synthetic evaluation sequence ``name``."""
+    return int(cfg["data"]["synthetic"]["eval_seed"]) + SYNTHETIC_SEQUENCES.index(name)
+
+
+def check(cfg: DictConfig) -> Experiment:
+    """Everything that can be checked before any work starts (one error line each)."""
+    launcher_node = cfg.get("launcher")
+    missing = []
+    if launcher_node is not None:
+        for section in ("params", "train", "slam"):
+            node = launcher_node.get(section) or {}
+            missing += [f"launcher.{section}.{k}" for k in node if OmegaConf.is_missing(node, k)]
+    plain: dict[str, Any] = OmegaConf.to_container(cfg, resolve=True)  # type: ignore[assignment]
+    stages = [str(s) for s in plain.get("stages") or []]
+    if not stages:
+        raise UssSlamError(f"stages: expected a non-empty list of {', '.join(STAGES)}")
+    for s in stages:
+        choose("stages", s, STAGES)
+    kind = choose("data.kind", plain["data"]["kind"], ("synthetic", "real"))
+    synthetic = kind == "synthetic"
+    grid = expand(plain, SYNTHETIC_SEQUENCES if synthetic else TUM_SEQUENCES)
+    launcher = plain.get("launcher") or {}
+    choose("launcher.name", launcher.get("name"), LAUNCHERS)
+    if "orbslam3" in grid.systems:
+        check_orbslam3(plain["slam"].get("orbslam3") or {})
+    if synthetic:
+        syn = plain["data"]["synthetic"]
+        for key in ("voc_size", "train_size", "eval_size"):
+            _size(f"data.synthetic.{key}", syn[key])
+        used = training_seeds(int(syn["seed"]))
+        for name in grid.sequences:
+            if eval_seed(plain, name) in used:
+                raise UssSlamError(
+                    f"data.synthetic.eval_seed: sequence {name} would be rendered with seed "
+                    f"{eval_seed(plain, name)}, a training or validation seed "
+                    f"({', '.join(map(str, sorted(used)))}); choose another eval_seed"
+                )
+    else:
+        real = plain["data"]["real"]
+        for key in ("voc", "sbd", "coco", "tum"):
+            if real.get(key) in (None, "???"):
+                raise UssSlamError(
+                    f"data.real.{key}: missing; data.kind=real needs the {key.upper()} folder "
+                    f"(data.real.{key}=PATH)"
+                )
+        targets = [str(t) for t in real.get("target") or []]
+        if not targets:
+            raise UssSlamError("data.real.target: expected a non-empty list of TUM sequences")
+        for t in targets:
+            choose("data.real.target", t, TUM_SEQUENCES)
+    out = Path(str(plain["out_dir"])).expanduser().resolve()
+    return Experiment(
+        plain, out, grid, tuple(s for s in STAGES if s in stages), synthetic, launcher, missing
+    )

@@ -1,0 +1,330 @@
+"""The experiment grid of ``uss-experiments``: which trainings, segmentation evaluations and SLAM
+runs a configuration asks for, each with the stable id that names its folder under ``out_dir``.
+
+Pure Python (no torch, no Hydra): the grid is expanded and checked before any work starts, so a
+bad key (unknown method, sequence, variant, system) is one error line naming the key and the
+accepted values.
+
+Ids (= folders under ``out_dir``)::
+
+    train/<config>_s<seed>                         one training (config = method [+ _n<n>] [+ loss])
+    segeval/<config>_s<seed>                       its segmentation metrics on every sequence
+    slam/<system>/<sequence>/<variant>             a model-free SLAM run (no filter, geometry, oracle)
+    slam/<system>/<sequence>/<variant>/<model>     a SLAM run with an exported model
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+from uss_slam.core.errors import UssSlamError
+
+METHODS: dict[str, tuple[str, ...]] = {
+    # uss-train overrides of each adaptation method ("without ATL" / "with ATL").
+    "source_only": ("model/method=source_only",),
+    "adaptsegnet": ("model/method=adaptsegnet",),
+}
+ADAPTED = "adaptsegnet"
+LOSS_KEYS = ("lambda_seg_aux", "lambda_seg_main", "lambda_adv_aux", "lambda_adv_main")
+ADVERSARIAL_LOSS_KEYS = ("lambda_adv_aux", "lambda_adv_main")
+N_LAYERS_RANGE = range(1, 9)
+"""Discriminator depths the grid accepts (the paper sweeps 4..7)."""
+
+SYSTEMS = ("harness", "orbslam3")
+
+
+@dataclass(frozen=True)
+class Variant:
+    """One dynamic-point treatment of the SLAM runs."""
+
+    name: str
+    label: str
+    segmenter: str  # none | labels | model (the exported segmenter of a training)
+    filters: tuple[str, ...]
+
+
+VARIANTS: dict[str, Variant] = {
+    v.name: v
+    for v in (
+        Variant("none", "no filter", "none", ()),
+        Variant("geometry", "geometry", "none", ("geometry",)),
+        Variant("semantic", "semantic", "model", ("semantic",)),
+        Variant("semantic_geometry", "semantic+geometry", "model", ("semantic", "geometry")),
+        Variant(
+            "semantic_geometry_object",
+            "semantic+geometry+object",
+            "model",
+            ("semantic", "geometry", "object"),
+        ),
+        Variant("oracle", "ground-truth masks", "labels", ("semantic",)),
+    )
+}
+"""The variants by name, in the tables' order."""
+
+SYSTEM_VARIANTS: dict[str, tuple[str, ...]] = {
+    "harness": tuple(VARIANTS),
+    # ORB-SLAM3 gets the image with the dynamic mask blanked out: only mask variants apply
+    # (the geometry and object checks are the harness's own).
+    "orbslam3": ("none", "semantic", "oracle"),
+}
+
+SYNTHETIC_SEQUENCES = (
+    "walking_xyz",
+    "walking_static",
+    "walking_rpy",
+    "walking_halfsphere",
+    "sitting_static",
+    "static_xyz",
+)
+"""Evaluation sequences of synthetic data (``uss-synth`` presets)."""
+
+TUM_SEQUENCES = tuple(
+    f"{people}_{motion}"
+    for people in ("walking", "sitting")
+    for motion in ("xyz", "static", "rpy", "halfsphere")
+)
+"""Evaluation sequences of real data: TUM RGB-D fr3 ``rgbd_dataset_freiburg3_<name>``."""
+
+
+def choose(key: str, value: Any, accepted: Iterable[str]) -> str:
+    """``value`` if it is one of ``accepted``; else the one-line error naming ``key``."""
+    accepted = tuple(accepted)
+    if str(value) not in accepted:
+        raise UssSlamError(f"{key}: unknown value {value!r}; accepted: {', '.join(accepted)}")
+    return str(value)
+
+
+def _unique(key: str, values: Sequence[Any]) -> None:
+    seen = [v for k, v in enumerate(values) if v in values[:k]]
+    if seen:
+        raise UssSlamError(f"{key}: {seen[0]!r} is listed twice")
+
+
+def _non_empty_list(key: str, values: Any) -> list[Any]:
+    if isinstance(values, (str, bytes)) or not isinstance(values, Sequence) or not values:
+        raise UssSlamError(f"{key}: expected a non-empty list, got {values!r}")
+    return list(values)
+
+
+def _number(key: str, value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise UssSlamError(f"{key}: expected a number, got {value!r}")
+    return float(value)
+
+
+def _short(value: float) -> str:
+    return f"{value:g}"
+
+
+@dataclass(frozen=True)
+class TrainCell:
+    """One training of the grid."""
+
+    method: str
+    seed: int
+    n_layers: int | None = None  # adapted only
+    loss: tuple[tuple[str, float], ...] = ()  # (key, value) pinned for this training
+    tag: str = ""  # loss suffix of the config name when the grid varies the loss weights
+
+    @property
+    def config(self) -> str:
+        """The configuration the tables aggregate over seeds: method, depth, loss weights."""
+        name = self.method if self.n_layers is None else f"{self.method}_n{self.n_layers}"
+        return f"{name}{self.tag}"
+
+    @property
+    def model(self) -> str:
+        return f"{self.config}_s{self.seed}"
+
+    @property
+    def id(self) -> str:
+        return f"train/{self.model}"
+
+    def overrides(self) -> list[str]:
+        """The cell's own ``uss-train`` overrides (after the scale's)."""
+        out = [*METHODS[self.method], f"seed={self.seed}", f"run_name={self.model}"]
+        if self.n_layers is not None:
+            out.append(f"model.discriminator.n_layers={self.n_layers}")
+        out += [f"model.loss.{k}={_short(v)}" for k, v in self.loss]
+        return out
+
+    def describe(self) -> dict[str, Any]:
+        return {
+            "method": self.method,
+            "n_layers": self.n_layers,
+            "loss": ";".join(f"{k}={_short(v)}" for k, v in self.loss),
+            "config": self.config,
+            "seed": self.seed,
+        }
+
+
+@dataclass(frozen=True)
+class SlamCell:
+    """One SLAM run: a system on a sequence with a variant (and a model when it needs one)."""
+
+    system: str
+    sequence: str
+    variant: str
+    model: TrainCell | None = None
+
+    @property
+    def id(self) -> str:
+        base = f"slam/{self.system}/{self.sequence}/{self.variant}"
+        return base if self.model is None else f"{base}/{self.model.model}"
+
+
+@dataclass(frozen=True)
+class SegEvalCell:
+    """The segmentation metrics of one trained model on every evaluation sequence."""
+
+    model: TrainCell
+
+    @property
+    def id(self) -> str:
+        return f"segeval/{self.model.model}"
+
+
+@dataclass(frozen=True)
+class Grid:
+    trainings: tuple[TrainCell, ...]
+    segevals: tuple[SegEvalCell, ...]
+    slams: tuple[SlamCell, ...]
+    sequences: tuple[str, ...]
+    systems: tuple[str, ...]
+    variants: tuple[str, ...]
+    table_configs: tuple[str, ...] = field(default=())
+    """Configs of T2 / T3 / the downstream ratio: source-only and the adapted one of ``n``."""
+
+    def training(self, model: str) -> TrainCell:
+        for cell in self.trainings:
+            if cell.model == model:
+                return cell
+        raise KeyError(model)
+
+
+def loss_combinations(loss: Mapping[str, Any] | None) -> list[tuple[tuple[str, float], ...]]:
+    """Every combination of the loss weights given as lists (``{key: [v1, v2]}``), in order."""
+    if not loss:
+        return [()]
+    keys = list(loss)
+    for key in keys:
+        choose("grid.loss", key, LOSS_KEYS)
+    values = []
+    for key in keys:
+        listed = loss[key]
+        listed = [listed] if isinstance(listed, (int, float)) else listed
+        items = _non_empty_list(f"grid.loss.{key}", listed)
+        nums = [_number(f"grid.loss.{key}", v) for v in items]
+        _unique(f"grid.loss.{key}", nums)
+        values.append(nums)
+    return [tuple(zip(keys, combo, strict=True)) for combo in itertools.product(*values)]
+
+
+def _loss_tag(combo: tuple[tuple[str, float], ...], varied: set[str]) -> str:
+    """``_adv_main0.001`` for each varied key (the config name only shows what changes)."""
+    return "".join(f"_{k.removeprefix('lambda_')}{_short(v)}" for k, v in combo if k in varied)
+
+
+def training_cells(grid: Mapping[str, Any]) -> list[TrainCell]:
+    """The trainings of ``grid`` (``methods``, ``n_layers``, ``seeds``, ``loss``), in table order:
+    per configuration (source-only first, then each depth), every seed."""
+    methods = _non_empty_list("grid.methods", grid.get("methods"))
+    for m in methods:
+        choose("grid.methods", m, METHODS)
+    _unique("grid.methods", methods)
+    seeds = _non_empty_list("grid.seeds", grid.get("seeds"))
+    for s in seeds:
+        if isinstance(s, bool) or not isinstance(s, int) or s < 0:
+            raise UssSlamError(f"grid.seeds: expected integers >= 0, got {s!r}")
+    _unique("grid.seeds", seeds)
+    depths: list[int] = []
+    if ADAPTED in methods:
+        depths = _non_empty_list("grid.n_layers", grid.get("n_layers"))
+        for n in depths:
+            if isinstance(n, bool) or not isinstance(n, int) or n not in N_LAYERS_RANGE:
+                raise UssSlamError(
+                    f"grid.n_layers: expected integers {N_LAYERS_RANGE.start}.."
+                    f"{N_LAYERS_RANGE.stop - 1}, got {n!r}"
+                )
+        _unique("grid.n_layers", depths)
+    combos = loss_combinations(grid.get("loss"))
+    varied = {k for k in (grid.get("loss") or {}) if len({dict(c)[k] for c in combos}) > 1}
+    cells: list[TrainCell] = []
+    for method in methods:
+        adapted = method == ADAPTED
+        method_combos: list[tuple[tuple[str, float], ...]] = []
+        for combo in combos:
+            # Source-only never uses the adversarial weights: one training per seg-loss setting.
+            kept = (
+                combo
+                if adapted
+                else tuple(kv for kv in combo if kv[0] not in ADVERSARIAL_LOSS_KEYS)
+            )
+            if kept not in method_combos:
+                method_combos.append(kept)
+        for n in depths if adapted else [None]:
+            for combo in method_combos:
+                tag = _loss_tag(combo, varied)
+                for seed in seeds:
+                    cells.append(TrainCell(method, int(seed), n, combo, tag))
+    return cells
+
+
+def check_sequences(sequences: Any, accepted: Sequence[str]) -> list[str]:
+    names = [str(s) for s in _non_empty_list("sequences", sequences)]
+    for s in names:
+        choose("sequences", s, accepted)
+    _unique("sequences", names)
+    return names
+
+
+def expand(cfg: Mapping[str, Any], accepted_sequences: Sequence[str]) -> Grid:
+    """The whole grid of a (resolved, plain-container) ``uss-experiments`` config."""
+    trainings = training_cells(cfg["grid"])
+    sequences = check_sequences(cfg.get("sequences"), accepted_sequences)
+    systems = [str(s) for s in _non_empty_list("systems", cfg.get("systems"))]
+    for s in systems:
+        choose("systems", s, SYSTEMS)
+    _unique("systems", systems)
+    variants = [str(v) for v in _non_empty_list("variants", cfg.get("variants"))]
+    for v in variants:
+        choose("variants", v, VARIANTS)
+    _unique("variants", variants)
+    n_table = (cfg.get("tables") or {}).get("n_layers")
+    depths = sorted({t.n_layers for t in trainings if t.n_layers is not None})
+    if depths and n_table not in depths:
+        raise UssSlamError(
+            f"tables.n_layers: {n_table!r} is not a depth of the grid; accepted: "
+            f"{', '.join(map(str, depths))}"
+        )
+    table_configs = list(
+        dict.fromkeys(t.config for t in trainings if t.n_layers in (None, n_table))
+    )
+    every_model = bool((cfg.get("slam") or {}).get("every_model", False))
+    slams: list[SlamCell] = []
+    for system in systems:
+        for sequence in sequences:
+            for name in variants:
+                if name not in SYSTEM_VARIANTS[system]:
+                    continue
+                variant = VARIANTS[name]
+                if variant.segmenter != "model":
+                    slams.append(SlamCell(system, sequence, name))
+                    continue
+                for cell in trainings:
+                    # semantic runs for every model (T1); the geometry variants for the models
+                    # the tables compare (T3), unless slam.every_model.
+                    if name == "semantic" or every_model or cell.config in table_configs:
+                        slams.append(SlamCell(system, sequence, name, cell))
+    return Grid(
+        trainings=tuple(trainings),
+        segevals=tuple(SegEvalCell(t) for t in trainings),
+        slams=tuple(slams),
+        sequences=tuple(sequences),
+        systems=tuple(systems),
+        variants=tuple(variants),
+        table_configs=tuple(table_configs),
+    )

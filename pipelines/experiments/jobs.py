@@ -1,0 +1,222 @@
+"""One job of ``uss-experiments`` (a training, a segmentation evaluation or a SLAM run) as a Hydra
+app, and the multirun that runs a list of them through a Hydra launcher.
+
+``uss-experiments`` writes a plan (``out_dir/jobs/<stage>.json``: every job of the stage with
+its kind, its inputs and the key of its cache stamp) and runs::
+
+    python -m uss_slam.pipelines.experiments.jobs -m plan=PLAN out=OUT 'cell=ID1','ID2',... \\
+        hydra/launcher=joblib hydra.launcher.n_jobs=2
+
+so Hydra's launcher decides where the jobs run: one after another (basic), in parallel
+processes (joblib) or as a SLURM job array (submitit). Each job works in ``OUT/<id>/`` (Hydra's
+job directory), logs to ``OUT/logs/<id>.log`` and ends in one of two ways:
+
+- done: ``result.json`` and then the cache stamp (so a job killed half-way is redone next time);
+- failed: ``failure.json`` with the reason (one line) and the traceback; the job returns normally,
+  so a failure never stops the other jobs.
+
+A job also runs alone (to debug one cell): the same command without ``-m`` and with one id.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+import traceback
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any
+
+import hydra
+from omegaconf import DictConfig
+
+from uss_slam.core.errors import UssSlamError
+from uss_slam.pipelines.stages import Stage, write_json_atomic
+
+log = logging.getLogger(__name__)
+
+RESULT = "result.json"
+FAILURE = "failure.json"
+
+
+def stage_of(out: Path, spec: Mapping[str, Any], cell: str) -> Stage:
+    """The cache :class:`Stage` of a job (the orchestrator and the job build the same one)."""
+    return Stage(
+        out / cell,
+        key=spec["key"],
+        outputs=(Path(RESULT), *(Path(p) for p in spec.get("outputs", ()))),
+    )
+
+
+def reason_of(error: BaseException) -> str:
+    """One line saying why a job failed: a project error's own message, else type and message."""
+    text = str(error).strip().splitlines()
+    first = text[0] if text else ""
+    if isinstance(error, UssSlamError):
+        return first or type(error).__name__
+    return f"{type(error).__name__}: {first}" if first else type(error).__name__
+
+
+# ------------------------------------------------------------------------------------ kinds
+
+
+def _compose(config_name: str, overrides: list[str]) -> DictConfig:
+    """Compose one of the package's configs (inside a Hydra job, or after initialising Hydra)."""
+    from hydra import compose, initialize_config_dir
+    from hydra.core.global_hydra import GlobalHydra
+
+    if GlobalHydra.instance().is_initialized():
+        return compose(config_name, overrides=overrides)
+    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
+        return compose(config_name, overrides=overrides)
+
+
+CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
+
+
+def run_train(folder: Path, spec: Mapping[str, Any]) -> dict[str, Any]:
+    """``uss-train`` with the cell's overrides into ``folder`` (checkpoints/, .hydra/config.yaml
+    as uss-train writes it, for uss-export)."""
+    from omegaconf import OmegaConf
+
+    from uss_slam.pipelines.demo import best_checkpoint, checkpoint_miou
+    from uss_slam.train.train import train
+
+    overrides = [*spec["overrides"], f"paths.output_dir={folder}"]
+    cfg = _compose("train", overrides)
+    hydra_dir = folder / ".hydra"
+    hydra_dir.mkdir(parents=True, exist_ok=True)
+    OmegaConf.save(
+        OmegaConf.create(OmegaConf.to_container(cfg, resolve=True)), hydra_dir / "config.yaml"
+    )
+    OmegaConf.save(OmegaConf.create(overrides), hydra_dir / "overrides.yaml")
+    metrics = train(cfg)
+    ckpt = best_checkpoint(folder)
+    val = checkpoint_miou(ckpt)
+    return {
+        "checkpoint": str(ckpt.relative_to(folder)),
+        "val_mIoU": val if val is not None else metrics.get("val/mIoU"),
+        "metrics": metrics,
+    }
+
+
+def run_segeval(folder: Path, spec: Mapping[str, Any]) -> dict[str, Any]:
+    """An exported model's mIoU, per-class IoU and person-mask frame metrics (``uss-eval``'s)
+    on the labelled frames of every evaluation sequence (every ``stride``-th), per sequence
+    and pooled over all of them (``"all"``)."""
+    import numpy as np
+
+    from uss_slam.core.classes import CLASS_NAMES
+    from uss_slam.core.seg_metrics import iou_report, mask_metrics
+    from uss_slam.pipelines.evaluate import evaluate_frames, load_segmenter, sequence_frames
+
+    infer, info = load_segmenter(Path(spec["model"]), spec.get("threads"))
+    dynamic = [CLASS_NAMES.index(c) for c in spec.get("dynamic_classes", ["person"])]
+    n = len(CLASS_NAMES)
+    pooled = np.zeros((n, n), np.int64)
+    pooled_masks = []
+    scores: dict[str, Any] = {}
+    for name, path in spec["sequences"].items():
+        source = sequence_frames([Path(path)], int(spec["stride"]))
+        result = evaluate_frames(infer, source.frames(), CLASS_NAMES, dynamic)
+        pooled += result.matrix
+        pooled_masks += result.mask_counts
+        scores[name] = {
+            **iou_report(result.matrix, CLASS_NAMES),
+            "person": mask_metrics(result.mask_counts),
+            "frames": len(result.names),
+        }
+    scores["all"] = {
+        **iou_report(pooled, CLASS_NAMES),
+        "person": mask_metrics(pooled_masks),
+        "frames": len(pooled_masks),
+    }
+    return {"model": info, "sequences": scores}
+
+
+def run_slam(folder: Path, spec: Mapping[str, Any]) -> dict[str, Any]:
+    """``uss-slam`` with the cell's overrides, writing its outputs into ``folder``."""
+    from uss_slam.slam_eval.run import run
+
+    cfg = _compose("slam_eval", [*spec["overrides"], f"out_dir={folder}", "progress=false"])
+    data = run(cfg)
+    result = {
+        "ate": data.get("ate"),
+        "tracked_fraction": data.get("tracked_fraction"),
+        "fps": data.get("fps"),
+    }
+    if "ate_rmse_repeats" in data:  # ORB-SLAM3: the spread of its repeated runs
+        result["ate_rmse_repeats"] = data["ate_rmse_repeats"]
+    return result
+
+
+KINDS: dict[str, Callable[[Path, Mapping[str, Any]], dict[str, Any]]] = {
+    "train": run_train,
+    "segeval": run_segeval,
+    "slam": run_slam,
+}
+
+
+# ------------------------------------------------------------------------------------ one job
+
+
+def load_plan(path: Path) -> dict[str, Any]:
+    try:
+        plan = json.loads(Path(path).read_text())
+    except (OSError, json.JSONDecodeError) as error:
+        raise UssSlamError(f"{path}: not a uss-experiments job plan ({error})") from None
+    if not isinstance(plan, dict) or not isinstance(plan.get("cells"), dict):
+        raise UssSlamError(f"{path}: not a uss-experiments job plan (no 'cells')")
+    return plan
+
+
+def run_cell(plan_path: Path, out: Path, cell: str) -> dict[str, Any]:
+    """Run job ``cell`` of a plan into ``out/<cell>``; a failure is recorded, never raised
+    (KeyboardInterrupt and SystemExit still stop it)."""
+    plan = load_plan(plan_path)
+    spec = plan["cells"].get(cell)
+    if spec is None:
+        raise UssSlamError(f"{plan_path}: no job {cell!r}")
+    stage = stage_of(out, spec, cell)
+    if stage.complete():
+        log.info("%s: complete already, reused", cell)
+        return {"status": "reused"}
+    stage.start()
+    t0 = time.perf_counter()
+    try:
+        result = KINDS[spec["kind"]](stage.folder, spec)
+    except Exception as error:
+        seconds = time.perf_counter() - t0
+        reason = reason_of(error)
+        log.error("%s failed after %.1f s: %s", cell, seconds, reason, exc_info=True)
+        write_json_atomic(
+            stage.folder / FAILURE,
+            {
+                "reason": reason,
+                "type": type(error).__name__,
+                "seconds": seconds,
+                "traceback": traceback.format_exc(),
+            },
+        )
+        return {"status": "failed", "reason": reason}
+    result["seconds"] = time.perf_counter() - t0
+    write_json_atomic(stage.folder / RESULT, result)
+    stage.finish()
+    log.info("%s: done in %.1f s", cell, result["seconds"])
+    return {"status": "ok", "seconds": result["seconds"]}
+
+
+@hydra.main(version_base="1.3", config_path="../../configs", config_name="experiments_job")
+def main(cfg: DictConfig) -> dict[str, Any]:
+    """Hydra entry point of one job (``plan``, ``out``, ``cell``)."""
+    return run_cell(Path(str(cfg.plan)), Path(str(cfg.out)), str(cfg.cell))
+
+
+def clear_failure(folder: Path) -> None:
+    """Remove a stale failure record of a job about to be (re)launched."""
+    (folder / FAILURE).unlink(missing_ok=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,210 @@
+"""The jobs of each stage of ``uss-experiments``: the ``uss-train`` / ``uss-slam`` overrides of
+every cell of the grid and the cache key of each job (what its result depends on)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from uss_slam.core.files import file_sha256
+from uss_slam.pipelines.stages import Stage
+
+from .data import Data
+from .experiment import Experiment
+from .grid import VARIANTS, SlamCell, TrainCell
+from .jobs import stage_of
+
+FAST_TRAIN = (
+    "model.max_iters=1",
+    "data.iterations_per_epoch=1",
+    "data.num_workers=0",
+    "trainer.num_sanity_val_steps=0",
+    "++trainer.limit_val_batches=1",
+)
+"""``fast_dev_run``: one training iteration (a checkpoint is still written and exported)."""
+
+
+FAST_FRAMES = 20
+"""``fast_dev_run``: frames per SLAM run."""
+
+
+@dataclass
+class Job:
+    """A job of the plan: its id (= folder), its spec (what the job app reads) and the row
+    fields the tables group it by."""
+
+    id: str
+    spec: dict[str, Any]
+    row: dict[str, Any]
+    needs: str | None = None  # the export it needs (model name)
+
+
+def _portable(values: Sequence[str], out: Path) -> list[str]:
+    """Overrides as they go into a cache key: ``out_dir`` written as ``$OUT`` so that a moved
+    output folder keeps its cache."""
+    return [v.replace(str(out), "$OUT") for v in values]
+
+
+def train_overrides(exp: Experiment, data: Data, cell: TrainCell) -> tuple[list[str], list[str]]:
+    """``(overrides that define the training, runtime-only overrides)``."""
+    cfg = exp.cfg
+    base = [f"experiment={cfg['train']['experiment']}", f"paths.log_dir={exp.out}"]
+    if exp.synthetic:
+        base.append(f"paths.data_dir={data.train_dir}")
+    else:
+        real = cfg["data"]["real"]
+        key = data.train_key
+        base += [
+            f"data.source.voc.root={real['voc']}",
+            f"data.source.sbd.root={real['sbd']}",
+            f"data.source.coco.root={real['coco']}",
+            f"data.target.roots=[{','.join(key['target'])}]",
+        ]
+    base += [str(o) for o in cfg["train"].get("overrides") or []]
+    if exp.fast:
+        base += FAST_TRAIN
+    base += cell.overrides()
+    threads = cfg["train"].get("num_threads")
+    return base, ([] if threads is None else [f"num_threads={int(threads)}"])
+
+
+def plan_train(exp: Experiment, data: Data) -> list[Job]:
+    jobs = []
+    for cell in exp.grid.trainings:
+        overrides, runtime = train_overrides(exp, data, cell)
+        spec = {
+            "kind": "train",
+            "overrides": [*overrides, *runtime],
+            "key": {"overrides": _portable(overrides, exp.out), "data": data.train_key},
+            "outputs": ["checkpoints/*.ckpt"],
+        }
+        jobs.append(Job(cell.id, spec, {"kind": "train", **cell.describe()}))
+    return jobs
+
+
+def export_stage(exp: Experiment, cell: TrainCell) -> Stage | None:
+    """The export of a complete training (None while the training is not complete)."""
+    from uss_slam.pipelines.demo import best_checkpoint
+
+    train_job = stage_of(exp.out, exp.train_specs[cell.id], cell.id)
+    if not train_job.complete():
+        return None
+    ckpt = best_checkpoint(train_job.folder)
+    stat = ckpt.stat()
+    # The checkpoint's name, size and time rather than its hash: a ResNet-101 checkpoint with
+    # its optimiser states is ~0.5 GB, hashed 15 times at every run otherwise.
+    key = {
+        "checkpoint": str(ckpt.relative_to(exp.out)),
+        "bytes": stat.st_size,
+        "mtime_ns": stat.st_mtime_ns,
+        "train": train_job.key,
+    }
+    return Stage(exp.out / "exports" / cell.model, key, outputs=(Path(f"{cell.model}.onnx"),))
+
+
+def model_path(exp: Experiment, cell: TrainCell) -> Path:
+    return exp.out / "exports" / cell.model / f"{cell.model}.onnx"
+
+
+def slam_overrides(exp: Experiment, data: Data, cell: SlamCell) -> list[str]:
+    from uss_slam.pipelines.demo import slam_overrides as demo_slam_overrides
+
+    variant = VARIANTS[cell.variant]
+    models = {"model": model_path(exp, cell.model)} if cell.model is not None else {}
+    overrides = demo_slam_overrides(variant, data.sequences[cell.sequence], models)  # type: ignore[arg-type]
+    overrides += [str(o) for o in exp.cfg["slam"].get("overrides") or []]
+    if cell.system == "orbslam3":
+        # ORB-SLAM3 gets the dynamic mask blanked out of its input, not the harness's filters
+        orb = exp.cfg["slam"]["orbslam3"]
+        overrides = [o for o in overrides if not o.startswith("filters=")]
+        overrides += [
+            "filters=[]",
+            "system=orbslam3",
+            f"system.vocabulary={data.vocabulary}",
+            f"system.repeats={int(orb['repeats'])}",
+            *(str(o) for o in orb.get("overrides") or []),
+        ]
+    if exp.fast:
+        overrides.append(f"sequence.max_frames={FAST_FRAMES}")
+    return overrides
+
+
+def plan_slam(exp: Experiment, data: Data, exports: Mapping[str, str]) -> list[Job]:
+    """Segmentation evaluations and SLAM runs; ``exports``: model -> ONNX sha256 (complete
+    exports only; a job whose model has none is planned but blocked)."""
+    jobs: list[Job] = []
+    labelled = {n: str(data.sequences[n]) for n in exp.grid.sequences if n in data.labelled}
+    seg_cfg = exp.cfg["segeval"]
+    if labelled:
+        for seg in exp.grid.segevals:
+            key = {
+                "model": exports.get(seg.model.model),
+                "sequences": {n: data.sequence_keys[n] for n in labelled},
+                "stride": int(seg_cfg["stride"]),
+            }
+            spec = {
+                "kind": "segeval",
+                "model": str(model_path(exp, seg.model)),
+                "sequences": labelled,
+                "stride": int(seg_cfg["stride"]),
+                "threads": seg_cfg.get("threads"),
+                "key": key,
+            }
+            jobs.append(
+                Job(
+                    seg.id, spec, {"kind": "segeval", **seg.model.describe()}, needs=seg.model.model
+                )
+            )
+    for cell in exp.grid.slams:
+        overrides = slam_overrides(exp, data, cell)
+        model = cell.model.model if cell.model is not None else None
+        key = {
+            "overrides": _portable(overrides, exp.out),
+            "sequence": data.sequence_keys[cell.sequence],
+            "model": exports.get(model) if model else None,
+        }
+        if cell.system == "orbslam3":
+            key["vocabulary"] = data.vocabulary_key
+        spec = {"kind": "slam", "overrides": overrides, "key": key, "outputs": ["metrics.json"]}
+        row = {
+            "kind": "slam",
+            "system": cell.system,
+            "sequence": cell.sequence,
+            "variant": cell.variant,
+            **(cell.model.describe() if cell.model else {}),
+        }
+        jobs.append(Job(cell.id, spec, row, needs=model))
+    return jobs
+
+
+def existing_exports(exp: Experiment) -> dict[str, str]:
+    """Model -> sha256 of its ONNX file, for every complete export."""
+    found = {}
+    for cell in exp.grid.trainings:
+        stage = export_stage(exp, cell)
+        if stage is not None and stage.complete():
+            found[cell.model] = file_sha256(model_path(exp, cell))
+    return found
+
+
+def blocked_jobs(
+    exp: Experiment,
+    jobs: Sequence[Job],
+    exports: Mapping[str, str],
+    export_failures: Mapping[str, str],
+) -> dict[str, str]:
+    """Jobs whose model has no export, and why."""
+    blocked = {}
+    for job in jobs:
+        if job.needs is None or job.needs in exports:
+            continue
+        training = f"train/{job.needs}"
+        if job.needs in export_failures:
+            blocked[job.id] = f"needs exports/{job.needs}: its export failed"
+        elif stage_of(exp.out, exp.train_specs[training], training).complete():
+            blocked[job.id] = f"needs exports/{job.needs}: not exported yet (the export stage)"
+        else:
+            blocked[job.id] = f"needs exports/{job.needs}: training {training} has no result"
+    return blocked

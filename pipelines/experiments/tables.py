@@ -1,0 +1,767 @@
+"""The paper's tables from ``runs.csv`` (one row per job of the grid): mean ± s.d. over seeds.
+
+- **T1** discriminator depth: target mIoU and per-class IoU of every configuration (source-only,
+  adapted with n = 4..7), and its ATE RMSE per sequence (semantic filter);
+- **T2** "ATL" (with / without adversarial transfer learning): per sequence, mIoU, the person-mask
+  frame metrics (FPR, FNR, recall, precision, PWC) and ATE RMSE / mean / median / S.D. of
+  source-only against adapted, with the improvement % the paper prints
+  (``(without − with) / without`` for errors, ``(with − without) / without`` for scores);
+- **T3** "MVG" (with / without multi-view geometry): semantic against semantic+geometry (and
+  +object) of the adapted model, with the improvement %;
+- baselines (no filter, geometry alone, ground-truth masks) and the downstream ratio
+  ``(ATE_none − ATE_model) / (ATE_none − ATE_oracle)`` per sequence and seed (1 = as good as
+  ground-truth masks, 0 = no better than no filter);
+- failures: every job that failed, was blocked by a failed job, or left no result, and why.
+
+Each cell is ``mean ± s.d. (n=k)`` over the seeds whose job succeeded (sample s.d., ``n − 1``);
+a cell with failed jobs says how many (``n=2, 1 failed``); a cell with none says ``failed``.
+Pure Python + numpy (matplotlib for the plots only).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import statistics
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from uss_slam.core.classes import CLASS_NAMES
+from uss_slam.core.errors import DataFormatError
+
+from .grid import ADAPTED, VARIANTS
+
+RATES = ("FPR", "FNR", "recall", "precision", "PWC")
+ATE_KEYS = ("ate_rmse", "ate_mean", "ate_median", "ate_std")
+COLUMNS: tuple[str, ...] = (
+    "kind",
+    "id",
+    "status",
+    "reason",
+    "method",
+    "n_layers",
+    "loss",
+    "config",
+    "seed",
+    "system",
+    "sequence",
+    "variant",
+    "val_mIoU",
+    "mIoU",
+    *(f"IoU_{c}" for c in CLASS_NAMES),
+    *(f"person_{r}" for r in RATES),
+    *ATE_KEYS,
+    "tracked_fraction",
+    "fps",
+    "seconds",
+    "folder",
+)
+"""The columns of ``runs.csv``, in order."""
+INT_COLUMNS = ("n_layers", "seed")
+TEXT_COLUMNS = (
+    "kind",
+    "id",
+    "status",
+    "reason",
+    "method",
+    "loss",
+    "config",
+    "system",
+    "sequence",
+    "variant",
+    "folder",
+)
+STATUSES = ("ok", "failed", "blocked", "missing")
+ALL_SEQUENCES = "all"
+"""``sequence`` of a segeval row pooled over every evaluation sequence."""
+
+LOWER_IS_BETTER = {"person_FPR", "person_FNR", "person_PWC", *ATE_KEYS}
+LABELS = {
+    "mIoU": "mIoU",
+    "val_mIoU": "val mIoU",
+    **{f"person_{r}": f"person {r}" for r in RATES},
+    "ate_rmse": "ATE RMSE [m]",
+    "ate_mean": "ATE mean [m]",
+    "ate_median": "ATE median [m]",
+    "ate_std": "ATE S.D. [m]",
+}
+
+
+# ---------------------------------------------------------------------------------- runs.csv
+
+
+def write_runs(path: Path, rows: Iterable[Mapping[str, Any]]) -> None:
+    """``runs.csv`` with :data:`COLUMNS` (empty cell = no value)."""
+    tmp = path.with_name(path.name + ".tmp")
+    with tmp.open("w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=COLUMNS, extrasaction="raise")
+        writer.writeheader()
+        for row in rows:
+            writer.writerow({k: "" if row.get(k) is None else row[k] for k in COLUMNS})
+    tmp.replace(path)
+
+
+def read_runs(path: Path) -> list[dict[str, Any]]:
+    """The rows of a ``runs.csv`` with numbers as int / float and empty cells as None."""
+    try:
+        text = path.read_text()
+    except OSError as error:
+        raise DataFormatError(path, f"cannot read runs table ({error.strerror})") from None
+    reader = csv.DictReader(text.splitlines())
+    missing = [c for c in ("kind", "id", "status") if c not in (reader.fieldnames or [])]
+    if missing:
+        raise DataFormatError(path, f"missing column(s) {', '.join(missing)}", line=1)
+    rows = []
+    for line, raw in enumerate(reader, start=2):
+        row: dict[str, Any] = {}
+        for key, value in raw.items():
+            if key is None:
+                raise DataFormatError(path, "more cells than columns", line=line)
+            if value is None or value == "":
+                row[key] = None
+            elif key in TEXT_COLUMNS:
+                row[key] = value
+            else:
+                try:
+                    row[key] = int(value) if key in INT_COLUMNS else float(value)
+                except ValueError:
+                    raise DataFormatError(
+                        path, f"column {key}: expected a number, got {value!r}", line=line
+                    ) from None
+        if row.get("status") not in STATUSES:
+            raise DataFormatError(
+                path,
+                f"column status: expected one of {', '.join(STATUSES)}, got {row.get('status')!r}",
+                line=line,
+            )
+        rows.append(row)
+    return rows
+
+
+# ---------------------------------------------------------------------------------- statistics
+
+
+@dataclass(frozen=True)
+class Stat:
+    """A table cell: the values of the successful jobs, and how many jobs gave none."""
+
+    values: tuple[float, ...]
+    failed: int = 0  # jobs failed, blocked or without a result
+    undefined: int = 0  # jobs that succeeded without a value for this metric
+
+    @property
+    def n(self) -> int:
+        return len(self.values)
+
+    @property
+    def mean(self) -> float | None:
+        return statistics.fmean(self.values) if self.values else None
+
+    @property
+    def sd(self) -> float | None:
+        """Sample standard deviation (``n − 1``); None for fewer than two values."""
+        return statistics.stdev(self.values) if len(self.values) > 1 else None
+
+    def text(self, digits: int = 4) -> str:
+        notes = [f"{self.failed} failed"] if self.failed else []
+        notes += [f"{self.undefined} n/a"] if self.undefined else []
+        if not self.values:
+            if self.failed:
+                return "failed" + (f" ({self.failed})" if self.failed > 1 else "")
+            return "n/a" if self.undefined else "—"
+        body = f"{self.mean:.{digits}f}"
+        if self.sd is not None:
+            body += f" ± {self.sd:.{digits}f}"
+        return f"{body} (n={self.n}{''.join(', ' + n for n in notes)})"
+
+    def as_json(self) -> dict[str, Any]:
+        return {
+            "mean": self.mean,
+            "sd": self.sd,
+            "n": self.n,
+            "failed": self.failed,
+            "undefined": self.undefined,
+            "values": list(self.values),
+        }
+
+
+def stat(rows: Iterable[Mapping[str, Any]], key: str) -> Stat:
+    """The :class:`Stat` of column ``key`` over ``rows``."""
+    values, failed, undefined = [], 0, 0
+    for row in rows:
+        if row["status"] != "ok":
+            failed += 1
+        elif row.get(key) is None or (isinstance(row[key], float) and math.isnan(row[key])):
+            undefined += 1
+        else:
+            values.append(float(row[key]))
+    return Stat(tuple(values), failed, undefined)
+
+
+def improvement(without: Stat, with_: Stat, key: str) -> float | None:
+    """The paper's improvement % of the means: positive = ``with_`` is better."""
+    a, b = without.mean, with_.mean
+    if a is None or b is None or a == 0:
+        return None
+    gain = (a - b) if key in LOWER_IS_BETTER else (b - a)
+    return 100.0 * gain / abs(a)
+
+
+def _pct(value: float | None) -> str:
+    return "—" if value is None else f"{value:.2f}%"
+
+
+def _select(rows: Sequence[Mapping[str, Any]], **where: Any) -> list[Mapping[str, Any]]:
+    return [r for r in rows if all(r.get(k) == v for k, v in where.items())]
+
+
+def _digits(key: str) -> int:
+    return 4 if key.startswith("ate_") else 3
+
+
+def _md(header: Sequence[str], body: Iterable[Sequence[str]]) -> list[str]:
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(cells) + " |" for cells in body]
+    return lines
+
+
+# ---------------------------------------------------------------------------------- tables
+
+
+@dataclass(frozen=True)
+class Layout:
+    """What the tables show: names in the grid's order."""
+
+    configs: tuple[str, ...]  # every training config (T1 rows)
+    sequences: tuple[str, ...]
+    systems: tuple[str, ...]
+    variants: tuple[str, ...]
+    source_only: str | None  # the "without ATL" config of T2 / the ratio
+    adapted: tuple[str, ...]  # the "with ATL" config(s): adapted with tables.n_layers
+
+
+def layout_from_rows(rows: Sequence[Mapping[str, Any]], n_layers: int | None) -> Layout:
+    """The layout implied by the rows (names in order of first appearance)."""
+
+    def ordered(key: str, kind: str | None = None) -> tuple[str, ...]:
+        return tuple(
+            dict.fromkeys(
+                r[key]
+                for r in rows
+                if r.get(key) is not None and (kind is None or r["kind"] == kind)
+            )
+        )
+
+    configs = ordered("config", "train")
+    trains = _select(rows, kind="train")
+    source_only = next((r["config"] for r in trains if r["method"] == "source_only"), None)
+    adapted = tuple(
+        dict.fromkeys(
+            r["config"] for r in trains if r["method"] == ADAPTED and r["n_layers"] == n_layers
+        )
+    )
+    sequences = tuple(s for s in ordered("sequence") if s != ALL_SEQUENCES)
+    return Layout(
+        configs,
+        sequences,
+        ordered("system", "slam"),
+        ordered("variant", "slam"),
+        source_only,
+        adapted,
+    )
+
+
+def _seg_rows(rows, config: str, sequence: str) -> list[Mapping[str, Any]]:
+    return _select(rows, kind="segeval", config=config, sequence=sequence)
+
+
+def _slam_rows(rows, system: str, sequence: str, variant: str, config: str | None = None):
+    return _select(
+        rows, kind="slam", system=system, sequence=sequence, variant=variant, config=config
+    )
+
+
+def table_t1(rows, layout: Layout) -> tuple[dict[str, Any], list[str]]:
+    classes = [f"IoU_{c}" for c in CLASS_NAMES]
+    seg_keys = ["val_mIoU", "mIoU", *classes]
+    data: dict[str, Any] = {"segmentation": [], "ate_rmse": []}
+    body = []
+    for config in layout.configs:
+        seg = _seg_rows(rows, config, ALL_SEQUENCES)
+        val = _select(rows, kind="train", config=config)
+        stats = {"val_mIoU": stat(val, "val_mIoU"), **{k: stat(seg, k) for k in seg_keys[1:]}}
+        data["segmentation"].append(
+            {"config": config, **{k: s.as_json() for k, s in stats.items()}}
+        )
+        body.append([config, *(stats[k].text(3) for k in seg_keys)])
+    header = ["configuration", "val mIoU", "target mIoU", *(f"IoU {c}" for c in CLASS_NAMES)]
+    lines = [
+        "### T1a: segmentation by discriminator depth",
+        "",
+        "Target mIoU and per-class IoU on the labelled frames of every evaluation sequence "
+        "(pooled); val mIoU = the exported checkpoint's target validation mIoU.",
+        "",
+        *_md(header, body),
+        "",
+    ]
+    for system in layout.systems:
+        body = []
+        for config in layout.configs:
+            cells = []
+            for sequence in layout.sequences:
+                s = stat(_slam_rows(rows, system, sequence, "semantic", config), "ate_rmse")
+                data["ate_rmse"].append(
+                    {"system": system, "config": config, "sequence": sequence, **s.as_json()}
+                )
+                cells.append(s.text(4))
+            body.append([config, *cells])
+        lines += [
+            f"### T1b: ATE RMSE [m] by discriminator depth ({system}, semantic filter)",
+            "",
+            *_md(["configuration", *layout.sequences], body),
+            "",
+        ]
+    return data, lines
+
+
+T2_SEG = ("mIoU", *(f"person_{r}" for r in RATES))
+
+
+def table_t2(rows, layout: Layout) -> tuple[dict[str, Any], list[str]]:
+    data: dict[str, Any] = {"per_sequence": [], "improvement": []}
+    lines: list[str] = []
+    if layout.source_only is None or not layout.adapted:
+        return data, [
+            "### T2: with / without ATL",
+            "",
+            "Not computed: the grid needs source_only and adaptsegnet with tables.n_layers.",
+            "",
+        ]
+    so = layout.source_only
+    summary: dict[tuple[str, str], list[str]] = {}
+    for adapted in layout.adapted:
+        lines += [
+            f"### T2: without ATL ({so}) vs with ATL ({adapted})",
+            "",
+            "Person-mask metrics count frames (the robust-semantic-mapping paper's "
+            "Table III: a frame is a true positive when the predicted person mask has IoU "
+            ">= 0.5 with the true one); ATE with the semantic filter. Improvement: "
+            "positive = better with ATL.",
+            "",
+        ]
+        for sequence in layout.sequences:
+            metrics: list[tuple[str, str, list, list]] = [
+                (
+                    key,
+                    LABELS[key],
+                    _seg_rows(rows, so, sequence),
+                    _seg_rows(rows, adapted, sequence),
+                )
+                for key in T2_SEG
+            ]
+            for system in layout.systems:
+                for key in ATE_KEYS:
+                    metrics.append(
+                        (
+                            key,
+                            f"{LABELS[key]} ({system})",
+                            _slam_rows(rows, system, sequence, "semantic", so),
+                            _slam_rows(rows, system, sequence, "semantic", adapted),
+                        )
+                    )
+            body = []
+            for key, label, without_rows, with_rows in metrics:
+                without, with_ = stat(without_rows, key), stat(with_rows, key)
+                gain = improvement(without, with_, key)
+                data["per_sequence"].append(
+                    {
+                        "sequence": sequence,
+                        "metric": label,
+                        "without": without.as_json(),
+                        "with": with_.as_json(),
+                        "improvement_pct": gain,
+                        "without_config": so,
+                        "with_config": adapted,
+                    }
+                )
+                body.append(
+                    [label, without.text(_digits(key)), with_.text(_digits(key)), _pct(gain)]
+                )
+                summary.setdefault((adapted, label), []).append(_pct(gain))
+            lines += [
+                f"#### {sequence}",
+                "",
+                *_md(["metric", "without ATL", "with ATL", "improvement"], body),
+                "",
+            ]
+    lines += [
+        "### T2 summary: improvement with ATL per sequence",
+        "",
+        "The improvement % of the means (the paper's Table 5 layout).",
+        "",
+    ]
+    body = [
+        [f"{label} ({adapted})" if len(layout.adapted) > 1 else label, *cells]
+        for (adapted, label), cells in summary.items()
+    ]
+    for (adapted, label), cells in summary.items():
+        data["improvement"].append(
+            {
+                "with_config": adapted,
+                "metric": label,
+                "per_sequence": dict(zip(layout.sequences, cells, strict=True)),
+            }
+        )
+    lines += [*_md(["metric", *layout.sequences], body), ""]
+    return data, lines
+
+
+def table_t3(rows, layout: Layout) -> tuple[dict[str, Any], list[str]]:
+    data: list[dict[str, Any]] = []
+    lines: list[str] = []
+    if not layout.adapted or "semantic" not in layout.variants:
+        return {"rows": data}, [
+            "### T3: with / without multi-view geometry",
+            "",
+            "Not computed: needs the semantic variant and the adapted model of tables.n_layers.",
+            "",
+        ]
+    extra = [v for v in ("semantic_geometry", "semantic_geometry_object") if v in layout.variants]
+    for adapted in layout.adapted:
+        for system in layout.systems:
+            has = [v for v in extra if _select(rows, kind="slam", system=system, variant=v)]
+            if "semantic_geometry" not in has:
+                continue
+            header = ["sequence", "metric", "semantic", "semantic+geometry", "improvement"]
+            header += ["semantic+geometry+object"] if "semantic_geometry_object" in has else []
+            body = []
+            for sequence in layout.sequences:
+                for key in ATE_KEYS:
+                    sem = stat(_slam_rows(rows, system, sequence, "semantic", adapted), key)
+                    geo = stat(
+                        _slam_rows(rows, system, sequence, "semantic_geometry", adapted), key
+                    )
+                    gain = improvement(sem, geo, key)
+                    cells = [sequence, LABELS[key], sem.text(4), geo.text(4), _pct(gain)]
+                    entry = {
+                        "system": system,
+                        "config": adapted,
+                        "sequence": sequence,
+                        "metric": key,
+                        "semantic": sem.as_json(),
+                        "semantic_geometry": geo.as_json(),
+                        "improvement_pct": gain,
+                    }
+                    if "semantic_geometry_object" in has:
+                        obj = stat(
+                            _slam_rows(rows, system, sequence, "semantic_geometry_object", adapted),
+                            key,
+                        )
+                        cells.append(obj.text(4))
+                        entry["semantic_geometry_object"] = obj.as_json()
+                    body.append(cells)
+                    data.append(entry)
+            lines += [
+                f"### T3: without / with multi-view geometry ({adapted}, {system})",
+                "",
+                "Improvement: positive = better with geometry.",
+                "",
+                *_md(header, body),
+                "",
+            ]
+    if not lines:
+        lines = [
+            "### T3: with / without multi-view geometry",
+            "",
+            "Not computed: no semantic_geometry runs (variants).",
+            "",
+        ]
+    return {"rows": data}, lines
+
+
+BASELINES = ("none", "geometry", "oracle")
+
+
+def table_baselines(rows, layout: Layout) -> tuple[list[dict[str, Any]], list[str]]:
+    data: list[dict[str, Any]] = []
+    lines: list[str] = []
+    shown = [v for v in BASELINES if v in layout.variants]
+    if not shown:
+        return data, []
+    for system in layout.systems:
+        body = []
+        for sequence in layout.sequences:
+            cells = [sequence]
+            for variant in shown:
+                s = stat(_slam_rows(rows, system, sequence, variant), "ate_rmse")
+                cells.append(s.text(4))
+                data.append(
+                    {"system": system, "sequence": sequence, "variant": variant, **s.as_json()}
+                )
+            body.append(cells)
+        lines += [
+            f"### Baselines: ATE RMSE [m] without a trained segmenter ({system})",
+            "",
+            *_md(["sequence", *(VARIANTS[v].label for v in shown)], body),
+            "",
+        ]
+    return data, lines
+
+
+def downstream_ratio(none: float | None, model: float | None, oracle: float | None) -> float | None:
+    """``(none − model) / (none − oracle)``; None when a value is missing or the oracle is no
+    better than no filter (the ratio is then meaningless)."""
+    if none is None or model is None or oracle is None or none - oracle <= 0:
+        return None
+    return (none - model) / (none - oracle)
+
+
+def table_ratio(rows, layout: Layout) -> tuple[list[dict[str, Any]], list[str]]:
+    data: list[dict[str, Any]] = []
+    needed = {"none", "oracle", "semantic"}
+    if not needed <= set(layout.variants):
+        return data, [
+            "### Downstream ratio",
+            "",
+            "Not computed: needs the variants none, oracle and semantic.",
+            "",
+        ]
+    lines = [
+        "### Downstream ratio (ATE_none − ATE_model) / (ATE_none − ATE_oracle)",
+        "",
+        "Per sequence and seed, semantic filter: 1 = as good as ground-truth masks, 0 = no "
+        "better than no filter; — = a run failed or the oracle was no better than no "
+        "filter.",
+        "",
+    ]
+    configs = [c for c in (layout.source_only, *layout.adapted) if c is not None]
+    for system in layout.systems:
+        body = []
+        per_sequence: dict[tuple[str, str], list[float]] = {}
+        for config in configs:
+            seeds = [r["seed"] for r in _select(rows, kind="train", config=config)]
+            for seed in seeds:
+                cells = [config, str(seed)]
+                for sequence in layout.sequences:
+                    none_ = _one(_slam_rows(rows, system, sequence, "none"))
+                    oracle = _one(_slam_rows(rows, system, sequence, "oracle"))
+                    model = _one(
+                        [
+                            r
+                            for r in _slam_rows(rows, system, sequence, "semantic", config)
+                            if r["seed"] == seed
+                        ]
+                    )
+                    value = downstream_ratio(none_, model, oracle)
+                    data.append(
+                        {
+                            "system": system,
+                            "config": config,
+                            "seed": seed,
+                            "sequence": sequence,
+                            "ratio": value,
+                        }
+                    )
+                    if value is not None:
+                        per_sequence.setdefault((config, sequence), []).append(value)
+                    cells.append("—" if value is None else f"{value:.3f}")
+                body.append(cells)
+            means = [
+                Stat(tuple(per_sequence.get((config, s), ()))).text(3) for s in layout.sequences
+            ]
+            body.append([config, "mean ± s.d.", *means])
+        lines += [
+            f"#### {system}",
+            "",
+            *_md(["configuration", "seed", *layout.sequences], body),
+            "",
+        ]
+    return data, lines
+
+
+def _one(rows: Sequence[Mapping[str, Any]]) -> float | None:
+    """The mean ATE RMSE of the successful runs among ``rows`` (None if none)."""
+    return stat(rows, "ate_rmse").mean
+
+
+def table_failures(rows) -> tuple[list[dict[str, Any]], list[str]]:
+    bad = [r for r in rows if r["status"] != "ok"]
+    data = [{"id": r["id"], "status": r["status"], "reason": r.get("reason") or ""} for r in bad]
+    seen: set[str] = set()
+    body = []
+    for r in bad:  # segeval jobs have one row per sequence: list each job once
+        if r["id"] in seen:
+            continue
+        seen.add(r["id"])
+        body.append([f"`{r['id']}`", r["status"], (r.get("reason") or "").replace("|", "\\|")])
+    lines = ["### Failures", ""]
+    if not body:
+        return data, [*lines, "Every job succeeded.", ""]
+    counts = {s: len({r["id"] for r in bad if r["status"] == s}) for s in STATUSES[1:]}
+    lines += [
+        ", ".join(f"{n} {s}" for s, n in counts.items() if n) + " (blocked = an earlier job "
+        "it needs failed; missing = the job left no result: killed or interrupted).",
+        "",
+    ]
+    return data, [*lines, *_md(["job", "status", "reason"], body), ""]
+
+
+def compute(
+    rows: Sequence[Mapping[str, Any]], n_layers: int | None, layout: Layout | None = None
+) -> tuple[dict[str, Any], str]:
+    """Every table: ``(tables.json content, tables.md text)``."""
+    layout = layout or layout_from_rows(rows, n_layers)
+    t1, t1_md = table_t1(rows, layout)
+    t2, t2_md = table_t2(rows, layout)
+    t3, t3_md = table_t3(rows, layout)
+    base, base_md = table_baselines(rows, layout)
+    ratio, ratio_md = table_ratio(rows, layout)
+    failures, failures_md = table_failures(rows)
+    data = {
+        "layout": {
+            "configs": list(layout.configs),
+            "sequences": list(layout.sequences),
+            "systems": list(layout.systems),
+            "variants": list(layout.variants),
+            "source_only": layout.source_only,
+            "adapted": list(layout.adapted),
+            "n_layers": n_layers,
+        },
+        "T1": t1,
+        "T2": t2,
+        "T3": t3,
+        "baselines": base,
+        "downstream_ratio": ratio,
+        "failures": failures,
+    }
+    text = "\n".join([*t1_md, *t2_md, *t3_md, *base_md, *ratio_md, *failures_md])
+    return data, text
+
+
+# ---------------------------------------------------------------------------------- plots
+
+
+def _bars(
+    ax: Any, groups: Sequence[str], series: Sequence[tuple[str, Sequence[Stat]]], scale: float = 1.0
+) -> None:
+    """Grouped bars of the means with s.d. error bars; failed / empty cells show no bar."""
+    import numpy as np
+
+    width = 0.8 / max(len(series), 1)
+    x = np.arange(len(groups))
+    for k, (label, stats) in enumerate(series):
+        means = [scale * s.mean if s.mean is not None else np.nan for s in stats]
+        errs = [scale * s.sd if s.sd is not None else 0.0 for s in stats]
+        ax.bar(
+            x + (k - (len(series) - 1) / 2) * width, means, width, yerr=errs, capsize=3, label=label
+        )
+    ax.set_xticks(x, groups, rotation=15, fontsize=8)
+
+
+def write_plots(out: Path, rows: Sequence[Mapping[str, Any]], layout: Layout) -> list[Path]:
+    """``t1_miou.png``, ``t1_iou_per_class.png`` and ``ate_per_sequence.png`` in ``out``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out.mkdir(parents=True, exist_ok=True)
+    written = []
+
+    def save(fig: Any, name: str) -> None:
+        path = out / name
+        tmp = out / f".{name}.tmp.png"
+        fig.tight_layout()
+        fig.savefig(tmp, dpi=110)
+        plt.close(fig)
+        tmp.replace(path)
+        written.append(path)
+
+    configs = list(layout.configs)
+    fig, ax = plt.subplots(figsize=(max(5.0, 1.1 * len(configs)), 3.4))
+    _bars(
+        ax,
+        configs,
+        [("target mIoU", [stat(_seg_rows(rows, c, ALL_SEQUENCES), "mIoU") for c in configs])],
+    )
+    ax.set_ylabel("mIoU")
+    ax.set_title("T1: target mIoU by configuration (mean ± s.d. over seeds)")
+    save(fig, "t1_miou.png")
+
+    fig, ax = plt.subplots(figsize=(max(6.0, 1.4 * len(CLASS_NAMES) + 2), 3.6))
+    _bars(
+        ax,
+        list(CLASS_NAMES),
+        [
+            (c, [stat(_seg_rows(rows, c, ALL_SEQUENCES), f"IoU_{name}") for name in CLASS_NAMES])
+            for c in configs
+        ],
+    )
+    ax.set_ylabel("IoU")
+    ax.set_title("Per-class IoU on the evaluation sequences (mean ± s.d. over seeds)")
+    ax.legend(fontsize=7)
+    save(fig, "t1_iou_per_class.png")
+
+    series_spec: list[tuple[str, str, str | None]] = [
+        (VARIANTS[v].label, v, None) for v in BASELINES if v in layout.variants
+    ]
+    for config in (layout.source_only, *layout.adapted):
+        if config is None:
+            continue
+        for v in ("semantic", "semantic_geometry", "semantic_geometry_object"):
+            if v in layout.variants:
+                series_spec.append((f"{config} {VARIANTS[v].label}", v, config))
+    systems = list(layout.systems) or ["harness"]
+    fig, axes = plt.subplots(
+        len(systems),
+        1,
+        figsize=(max(7.0, 2.2 * len(layout.sequences)), 3.6 * len(systems)),
+        squeeze=False,
+    )
+    for ax, system in zip(axes[:, 0], systems, strict=True):
+        _bars(
+            ax,
+            list(layout.sequences),
+            [
+                (
+                    label,
+                    [stat(_slam_rows(rows, system, s, v, c), "ate_rmse") for s in layout.sequences],
+                )
+                for label, v, c in series_spec
+            ],
+            scale=100.0,
+        )
+        ax.set_ylabel("ATE RMSE [cm]")
+        ax.set_title(f"ATE per sequence ({system}; mean ± s.d. over seeds)")
+        ax.legend(fontsize=6, ncol=2)
+    save(fig, "ate_per_sequence.png")
+    return written
+
+
+def write_tables(
+    out: Path,
+    rows: Sequence[Mapping[str, Any]],
+    n_layers: int | None,
+    header: Sequence[str] = (),
+    layout: Layout | None = None,
+    plots: bool = True,
+) -> dict[str, Any]:
+    """``tables.md``, ``tables.json`` and the plots (under ``plots/``) in ``out``."""
+    layout = layout or layout_from_rows(rows, n_layers)
+    data, text = compute(rows, n_layers, layout)
+    images = write_plots(out / "plots", rows, layout) if plots else []
+    md = [*header, text]
+    if images:
+        md += ["### Plots", "", *(f"![{p.stem}](plots/{p.name})" for p in images), ""]
+    _atomic_text(out / "tables.md", "\n".join(md))
+    _atomic_text(out / "tables.json", json.dumps(data, indent=2) + "\n")
+    return data
+
+
+def _atomic_text(path: Path, text: str) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(text)
+    tmp.replace(path)

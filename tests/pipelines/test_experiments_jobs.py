@@ -1,0 +1,290 @@
+"""uss-experiments' jobs and checks: one job's cache stamp and failure record, the state of a
+job read back from its folder, the Hydra override quoting, and every bad input as one line
+before any work starts."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+from hydra import compose, initialize_config_dir
+
+from uss_slam.core.errors import DataFormatError, UssSlamError
+from uss_slam.pipelines.experiments import data, experiment, jobs, launch, plan
+from uss_slam.pipelines.stages import write_json_atomic
+
+CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
+PROG = [sys.executable, "-m", "uss_slam.pipelines.experiments.cli"]
+
+
+def compose_experiments(*overrides: str):
+    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
+        return compose("experiments", overrides=list(overrides))
+
+
+def slam_plan(tmp_path: Path, sequence: Path, cells: dict[str, str]) -> Path:
+    """A plan of SLAM jobs (id -> sequence path) as uss-experiments writes it."""
+    specs = {
+        cell: {
+            "kind": "slam",
+            "overrides": [f"sequence.path={path}", "segmenter=none", "filters=[]"],
+            "key": {"sequence": str(path)},
+            "outputs": ["metrics.json"],
+        }
+        for cell, path in cells.items()
+    }
+    plan_file = tmp_path / "jobs" / "slam.json"
+    write_json_atomic(plan_file, {"stage": "slam", "out": str(tmp_path), "cells": specs})
+    return plan_file
+
+
+# ------------------------------------------------------------------------------------ jobs
+
+
+def test_a_job_stamps_its_result_and_is_reused(
+    tmp_path: Path, synthetic_sequence: Callable[..., Path]
+) -> None:
+    seq = synthetic_sequence(preset="static_xyz", frames=12)
+    plan_file = slam_plan(tmp_path, seq, {"slam/harness/static_xyz/none": str(seq)})
+    result = jobs.run_cell(plan_file, tmp_path, "slam/harness/static_xyz/none")
+    assert result["status"] == "ok"
+    folder = tmp_path / "slam/harness/static_xyz/none"
+    record = json.loads((folder / jobs.RESULT).read_text())
+    metrics = json.loads((folder / "metrics.json").read_text())
+    assert record["ate"] == metrics["ate"] and record["seconds"] > 0
+    assert json.loads((folder / ".uss-demo.json").read_text()) == {"sequence": str(seq)}
+    assert jobs.run_cell(plan_file, tmp_path, "slam/harness/static_xyz/none") == {
+        "status": "reused"
+    }
+
+
+def test_a_failed_job_records_why_and_raises_nothing(
+    tmp_path: Path, synthetic_sequence: Callable[..., Path]
+) -> None:
+    seq = synthetic_sequence(preset="static_xyz", frames=12)
+    missing = tmp_path / "no_such_sequence"
+    plan_file = slam_plan(tmp_path, seq, {"slam/a": str(missing), "slam/b": str(seq)})
+    failed = jobs.run_cell(plan_file, tmp_path, "slam/a")
+    assert failed["status"] == "failed" and str(missing) in failed["reason"]
+    record = json.loads((tmp_path / "slam/a" / jobs.FAILURE).read_text())
+    assert record["reason"] == failed["reason"] and "Traceback" in record["traceback"]
+    assert not (tmp_path / "slam/a" / ".uss-demo.json").exists()
+    assert jobs.run_cell(plan_file, tmp_path, "slam/b")["status"] == "ok"  # the other job runs
+
+
+def test_reason_is_one_line() -> None:
+    assert jobs.reason_of(UssSlamError("x.png: not found\nmore")) == "x.png: not found"
+    assert jobs.reason_of(ValueError("a 8-layer discriminator needs ...")) == (
+        "ValueError: a 8-layer discriminator needs ..."
+    )
+    assert jobs.reason_of(MemoryError()) == "MemoryError"
+
+
+def test_status_from_the_folder(tmp_path: Path) -> None:
+    exp = experiment.check(compose_experiments(f"out_dir={tmp_path}"))
+    spec = {"kind": "slam", "key": {"k": 1}, "outputs": ["metrics.json"]}
+    job = plan.Job("slam/x", spec, {"kind": "slam"})
+    launched = {"slam": launch.Launch(pending=["slam/x"], returncode=1)}
+    status, reason, _ = launch.status_of(exp, job, {}, launched)
+    assert status == "missing" and "killed or interrupted" in reason and "exit code 1" in reason
+    assert launch.status_of(exp, job, {}, {})[:2] == ("missing", launch.NOT_RUN)
+    assert launch.status_of(exp, job, {"slam/x": "needs exports/m"}, launched)[:2] == (
+        "blocked",
+        "needs exports/m",
+    )
+    folder = tmp_path / "slam/x"
+    write_json_atomic(folder / jobs.FAILURE, {"reason": "boom", "seconds": 1.0})
+    assert launch.status_of(exp, job, {}, launched)[:2] == ("failed", "boom (log: logs/slam/x.log)")
+    (folder / "metrics.json").write_text("{}")
+    write_json_atomic(folder / jobs.RESULT, {"ate": None})
+    write_json_atomic(folder / ".uss-demo.json", {"k": 1})
+    assert launch.status_of(exp, job, {}, launched)[0] == "ok"  # complete wins over a stale record
+
+
+# ------------------------------------------------------------------------------------ checks
+
+
+def test_hydra_override_values_are_quoted_when_needed() -> None:
+    assert (
+        launch.hydra_value("train/adaptsegnet_n5_adv_main0.001_s0")
+        == "train/adaptsegnet_n5_adv_main0.001_s0"
+    )
+    assert launch.hydra_value("/data/my runs/x") == "'/data/my runs/x'"
+    assert launch.hydra_value("it's") == "'it\\'s'"
+    assert launch.hydra_value("true") == "'true'" and launch.hydra_value("1e5") == "'1e5'"
+    assert (
+        launch.hydra_value(4) == "4"
+        and launch.hydra_value(None) == "null"
+        and launch.hydra_value(True) == "true"
+    )
+    assert launch.hydra_value(["a", 2]) == "[a,2]"
+
+
+def test_launcher_overrides_merge_the_stage_section() -> None:
+    exp = experiment.check(compose_experiments("launcher=slurm", "launcher.params.partition=gpu"))
+    train = launch.launcher_overrides(exp, "train")
+    slam = launch.launcher_overrides(exp, "slam")
+    assert train[0] == slam[0] == "hydra/launcher=submitit_slurm"
+    assert "hydra.launcher.partition=gpu" in train and "hydra.launcher.gpus_per_node=1" in train
+    assert (
+        "hydra.launcher.gpus_per_node=0" in slam and "hydra.launcher.array_parallelism=16" in slam
+    )
+
+
+@pytest.mark.parametrize(
+    ("overrides", "message"),
+    [
+        (
+            ["stages=[data,evaluate]"],
+            "stages: unknown value 'evaluate'; accepted: data, train, export, slam, tables",
+        ),
+        (["data.kind=cloud"], "data.kind: unknown value 'cloud'; accepted: synthetic, real"),
+        (
+            ["launcher.name=ray"],
+            "launcher.name: unknown value 'ray'; accepted: basic, joblib, submitit_local, "
+            "submitit_slurm",
+        ),
+        (
+            ["data.synthetic.eval_seed=1"],
+            "data.synthetic.eval_seed: sequence walking_xyz would be rendered with seed 1, a "
+            "training or validation seed (0, 1, 2, 3, 4, 100); choose another eval_seed",
+        ),
+        (["data.synthetic.eval_size=640"], "data.synthetic.eval_size: "),
+        (
+            ["scale=paper"],
+            "data.real.voc: missing; data.kind=real needs the VOC folder (data.real.voc=PATH)",
+        ),
+        (["sequences=[walking_xyz,kitchen]"], "sequences: unknown value 'kitchen'; accepted: "),
+    ],
+)
+def test_bad_config_is_one_line(overrides: list[str], message: str) -> None:
+    with pytest.raises(UssSlamError) as info:
+        experiment.check(compose_experiments(*overrides))
+    assert str(info.value).startswith(message) and "\n" not in str(info.value)
+
+
+def test_orbslam3_needs_its_bindings_and_a_vocabulary(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import importlib.util
+
+    cfg = compose_experiments(
+        "systems=[harness,orbslam3]", f"slam.orbslam3.vocabulary={tmp_path / 'missing.txt'}"
+    )
+    if importlib.util.find_spec("pyorbslam3") is not None:
+        with pytest.raises(UssSlamError) as info:
+            experiment.check(cfg)
+        assert str(info.value).startswith(
+            f"slam.orbslam3.vocabulary: system.vocabulary={tmp_path / 'missing.txt'}: file not found"
+        )
+    find_spec = importlib.util.find_spec
+    monkeypatch.setattr(
+        importlib.util,
+        "find_spec",
+        lambda name, *a: None if name == "pyorbslam3" else find_spec(name, *a),
+    )
+    with pytest.raises(UssSlamError) as info:
+        experiment.check(cfg)
+    assert str(info.value) == (
+        "systems: orbslam3 needs the pyorbslam3 package (pip install "
+        "'uss-slam[orbslam3]'); without it accepted: harness"
+    )
+
+
+def test_missing_synthetic_data_names_the_folder(tmp_path: Path) -> None:
+    exp = experiment.check(compose_experiments(f"out_dir={tmp_path}", "stages=[train]"))
+    with pytest.raises(DataFormatError) as info:
+        data.stage_data(exp, run=False)
+    assert str(info.value).startswith(f"{tmp_path / 'data' / 'train'}: missing or incomplete")
+
+
+def test_incomplete_real_data_names_the_folder(tmp_path: Path) -> None:
+    (tmp_path / "voc").mkdir()
+    overrides = [
+        "scale=paper",
+        f"data.real.voc={tmp_path / 'voc'}",
+        f"data.real.sbd={tmp_path}",
+        f"data.real.coco={tmp_path}",
+        f"data.real.tum={tmp_path}",
+    ]
+    exp = experiment.check(compose_experiments(*overrides))
+    with pytest.raises(DataFormatError) as info:
+        data.stage_data(exp, run=False)
+    assert str(info.value).startswith(f"{tmp_path / 'voc'}: not a VOC tree")
+
+
+def test_missing_launcher_key_is_named_before_launching(tmp_path: Path) -> None:
+    exp = experiment.check(compose_experiments("launcher=slurm", f"out_dir={tmp_path}"))
+    assert exp.missing_launcher_keys == ["launcher.params.partition"]
+    job = plan.Job("train/x", {"kind": "train", "key": {}, "overrides": []}, {})
+    with pytest.raises(UssSlamError) as info:
+        launch.launch(exp, "train", [job], set())
+    assert str(info.value) == (
+        "launcher.params.partition: missing; launcher=submitit_slurm "
+        "needs it (launcher.params.partition=VALUE)"
+    )
+
+
+@pytest.mark.parametrize(
+    ("args", "line"),
+    [
+        (
+            ["scale=huge"],
+            "uss-experiments: error: scale: unknown value 'huge'; accepted: paper, quick, standard",
+        ),
+        (
+            ["launcher=ray"],
+            "uss-experiments: error: launcher: unknown value 'ray'; accepted: "
+            "joblib, local, slurm, submitit_local",
+        ),
+        (
+            ["grid.methods=[source_only,dann]"],
+            "uss-experiments: error: grid.methods: unknown "
+            "value 'dann'; accepted: source_only, adaptsegnet",
+        ),
+        (
+            ["variants=[none,flow]"],
+            "uss-experiments: error: variants: unknown value 'flow'; "
+            "accepted: none, geometry, semantic, semantic_geometry, "
+            "semantic_geometry_object, oracle",
+        ),
+    ],
+)
+def test_console_script_bad_input_one_line_no_work(
+    tmp_path: Path, args: list[str], line: str
+) -> None:
+    out = tmp_path / "out"
+    proc = subprocess.run(
+        [*PROG, f"out_dir={out}", *args], capture_output=True, text=True, cwd=tmp_path
+    )
+    assert proc.returncode == 1
+    assert proc.stderr.strip() == line
+    assert not (out / "data").exists() and not (out / "train").exists()
+
+
+def test_paper_scale_composes(tmp_path: Path) -> None:
+    proc = subprocess.run(
+        [*PROG, "scale=paper", "--cfg", "job"], capture_output=True, text=True, cwd=tmp_path
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert "experiment: uss_slam_paper" in proc.stdout and "kind: real" in proc.stdout
+    assert "scale_name: paper" in proc.stdout
+
+
+def test_dry_run_prints_the_plan_without_work(tmp_path: Path) -> None:
+    proc = subprocess.run(
+        [*PROG, f"out_dir={tmp_path}", "dry_run=true", "grid.seeds=[0]"],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert "train: 5 jobs, 0 complete, 5 to run" in proc.stdout
+    assert "  to run: train/adaptsegnet_n7_s0" in proc.stdout
+    # 5 segmentation evaluations + 2 sequences x (3 model-free + 5 semantic + 2 x 2 geometry)
+    assert "slam: 29 jobs, 0 complete, 6 to run, 23 blocked until their model exists" in proc.stdout
+    assert not (tmp_path / "data").exists() and not (tmp_path / "train").exists()

@@ -1,0 +1,245 @@
+"""uss-experiments end to end (slow): scale=quick as CI runs it, a rerun that reuses every job,
+an interrupted run resumed, a failing job marked while the others go on (through submitit's
+local executor, the SLURM launcher's path), and the paper scale's one-iteration fast_dev_run on
+files in the real data formats."""
+
+from __future__ import annotations
+
+import csv
+import importlib.util
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from uss_slam.synthetic import render_sequence
+
+pytestmark = pytest.mark.slow
+PROG = [sys.executable, "-m", "uss_slam.pipelines.experiments.cli"]
+STAMP = ".uss-demo.json"
+
+
+def run(out: Path, *overrides: str, cwd: Path) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [*PROG, f"out_dir={out}", *overrides], capture_output=True, text=True, cwd=cwd, timeout=1800
+    )
+
+
+def runs_csv(out: Path) -> list[dict[str, str]]:
+    with (out / "runs.csv").open() as f:
+        return list(csv.DictReader(f))
+
+
+def pending(out: Path, stage: str) -> list[str]:
+    return json.loads((out / "jobs" / f"{stage}.json").read_text())["pending"]
+
+
+def test_quick_end_to_end_then_reuse_then_resume(tmp_path: Path) -> None:
+    out = tmp_path / "quick"
+    first = run(out, cwd=tmp_path)
+    assert first.returncode == 0, first.stdout[-3000:] + first.stderr[-3000:]
+    rows = runs_csv(out)
+    kinds = [r["kind"] for r in rows]
+    # 10 trainings (source-only + n = 4..7, 2 seeds), their exports, their segmentation metrics
+    # (2 sequences + pooled), 2 x (3 model-free + 10 semantic + 4 x 2 geometry variants) SLAM runs
+    assert (
+        kinds.count("train"),
+        kinds.count("export"),
+        kinds.count("segeval"),
+        kinds.count("slam"),
+    ) == (10, 10, 30, 42)
+    assert {r["status"] for r in rows} == {"ok"}
+    assert all(r["ate_rmse"] for r in rows if r["kind"] == "slam")
+    md = (out / "tables.md").read_text()
+    for title in (
+        "### T1a",
+        "### T1b",
+        "### T2: without ATL (source_only) vs with ATL (adaptsegnet_n5)",
+        "### T2 summary",
+        "### T3",
+        "### Baselines",
+        "### Downstream ratio",
+        "### Failures",
+    ):
+        assert title in md
+    assert "Every job succeeded." in md
+    tables = json.loads((out / "tables.json").read_text())
+    seg = {r["config"]: r["mIoU"] for r in tables["T1"]["segmentation"]}
+    assert list(seg) == ["source_only", *(f"adaptsegnet_n{n}" for n in (4, 5, 6, 7))]
+    assert all(s["n"] == 2 and s["failed"] == 0 for s in seg.values())
+    for name in ("t1_miou.png", "t1_iou_per_class.png", "ate_per_sequence.png"):
+        assert (out / "plots" / name).stat().st_size > 0
+    for sequence in ("walking_xyz", "static_xyz"):  # held-out seeds 1000 + preset index
+        record = json.loads((out / "data" / "eval" / sequence / STAMP).read_text())
+        assert record["seed"] not in (0, 1, 2, 3, 4, 100)
+
+    again = run(out, cwd=tmp_path)
+    assert again.returncode == 0, again.stderr[-3000:]
+    assert "train: 10 training jobs: every job complete already (reused)" in again.stdout
+    assert "every job complete already (reused)" in again.stdout.split("slam:")[-1]
+    assert pending(out, "train") == [] and pending(out, "slam") == []
+
+    # An interrupted run: one training and one SLAM run left no stamp (a killed job never
+    # writes it). The rerun redoes exactly those, and what depends on the retrained model only
+    # if its export changed.
+    (out / "train" / "adaptsegnet_n6_s1" / STAMP).unlink()
+    killed_slam = "slam/harness/walking_xyz/semantic/source_only_s0"
+    (out / killed_slam / STAMP).unlink()
+    resumed = run(out, cwd=tmp_path)
+    assert resumed.returncode == 0, resumed.stderr[-3000:]
+    assert pending(out, "train") == ["train/adaptsegnet_n6_s1"]
+    redone = pending(out, "slam")
+    assert killed_slam in redone
+    assert all(j == killed_slam or j.endswith("/adaptsegnet_n6_s1") for j in redone), redone
+    assert {r["status"] for r in runs_csv(out)} == {"ok"}
+
+
+def test_submitit_local_failed_job_marked_others_go_on(tmp_path: Path) -> None:
+    out = tmp_path / "sub"
+    grid = [
+        "launcher=submitit_local",
+        "grid.seeds=[0]",
+        "grid.n_layers=[4,8]",
+        "sequences=[static_xyz]",
+        "variants=[none,semantic,oracle]",
+        "tables.n_layers=4",
+        "data.synthetic.eval_frames=12",
+    ]
+    first = run(out, *grid, cwd=tmp_path)
+    # n = 8 needs 256-pixel inputs: the training fails, its model's jobs are blocked, exit 1
+    assert first.returncode == 1, first.stdout[-3000:] + first.stderr[-3000:]
+    assert (out / ".submitit").is_dir()  # the jobs went through submitit
+    status = {r["id"]: (r["status"], r["reason"]) for r in runs_csv(out)}
+    assert status["train/source_only_s0"][0] == status["train/adaptsegnet_n4_s0"][0] == "ok"
+    failed, reason = status["train/adaptsegnet_n8_s0"]
+    assert failed == "failed"
+    assert reason.startswith(
+        "ValueError: a 8-layer discriminator needs inputs of at least 256×256 pixels, got 129×129"
+    )
+    assert status["slam/harness/static_xyz/semantic/adaptsegnet_n8_s0"] == (
+        "blocked",
+        "needs exports/adaptsegnet_n8_s0: training train/adaptsegnet_n8_s0 has no result",
+    )
+    assert status["slam/harness/static_xyz/semantic/adaptsegnet_n4_s0"][0] == "ok"
+    md = (out / "tables.md").read_text()
+    assert "| `train/adaptsegnet_n8_s0` | failed | ValueError: a 8-layer discriminator" in md
+    assert "| adaptsegnet_n8 | failed |" in md  # T1b cell of the failed configuration
+    assert "uss-experiments: done" in first.stdout
+
+    # Without the impossible depth every job is complete: nothing runs, exit 0.
+    fixed = run(out, *[g.replace("[4,8]", "[4]") for g in grid], cwd=tmp_path)
+    assert fixed.returncode == 0, fixed.stderr[-3000:]
+    assert pending(out, "train") == [] and pending(out, "slam") == []
+
+
+def _realdata_helpers():
+    """tests/datasets/realdata_helpers.py (the writers of files in the real formats)."""
+    if "realdata_helpers" in sys.modules:  # imported by the dataset tests of this session
+        return sys.modules["realdata_helpers"]
+    path = Path(__file__).resolve().parents[1] / "datasets" / "realdata_helpers.py"
+    spec = importlib.util.spec_from_file_location("realdata_helpers", path)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["realdata_helpers"] = module  # dataclasses look their module up there
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_paper_scale_fast_dev_run_on_real_formats(tmp_path: Path) -> None:
+    helpers = _realdata_helpers()
+    shape = (40, 48)
+    scenes = helpers.standard_scenes(shape)
+    labels = {name: helpers.paint_voc(shape, scene) for name, scene in scenes.items()}
+    names = list(labels)
+    voc = helpers.write_voc(tmp_path / "voc", labels, {"trainval": names, "val": names[3:]})
+    sbd_labels = {n.replace("2008", "2009"): label for n, label in labels.items()}
+    helpers.write_sbd(tmp_path / "sbd", sbd_labels, {"train": list(sbd_labels)})
+    coco = helpers.write_coco(
+        tmp_path / "coco",
+        {k + 1: (f"{n}.jpg", s) for k, (n, s) in enumerate(scenes.items())},
+        shape,
+    )
+    tum = tmp_path / "tum"
+    for name in ("walking_xyz", "sitting_static"):  # TUM's layout: no labels/
+        folder = render_sequence(
+            tum / f"rgbd_dataset_freiburg3_{name}", preset=name, frames=8, size=(96, 72), seed=7
+        )
+        shutil.rmtree(folder / "labels")
+    out = tmp_path / "paper"
+    overrides = [
+        "scale=paper",
+        "fast_dev_run=true",
+        "stages=[data,train]",
+        f"data.real.voc={voc}",
+        f"data.real.sbd={tmp_path / 'sbd'}",
+        f"data.real.coco={coco}",
+        f"data.real.tum={tum}",
+        "data.real.target=[walking_xyz,sitting_static]",
+        "sequences=[walking_xyz]",
+        "grid.seeds=[0]",
+        "grid.n_layers=[5]",
+        # on this CPU machine, offline: no ImageNet download, small crops, no GPU
+        'train.overrides=["model.net.backbone_weights=null","trainer=cpu","logger=none",'
+        '"data.source.transform.crop_size=65","data.target.transform.crop_size=65"]',
+    ]
+    dry = run(out, *overrides, "dry_run=true", cwd=tmp_path)
+    assert dry.returncode == 0, dry.stderr[-3000:]
+    assert (
+        "real data checked: VOC, SBD, COCO, 2 target and 1 evaluation sequences (0 labelled)"
+        in dry.stdout
+    )
+    assert "train: 2 jobs, 0 complete, 2 to run" in dry.stdout
+    done = run(out, *overrides, cwd=tmp_path)
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    for model in ("source_only_s0", "adaptsegnet_n5_s0"):
+        folder = out / "train" / model
+        assert json.loads((folder / STAMP).read_text())["data"]["target"] == [
+            str(tum / "rgbd_dataset_freiburg3_walking_xyz"),
+            str(tum / "rgbd_dataset_freiburg3_sitting_static"),
+        ]
+        config = (folder / ".hydra" / "config.yaml").read_text()
+        assert "backbone: resnet101" in config and "max_iters: 1" in config
+        assert list((folder / "checkpoints").glob("*.ckpt"))
+
+
+def test_orbslam3_runs_next_to_the_harness(tmp_path: Path) -> None:
+    pytest.importorskip("pyorbslam3")
+    out = tmp_path / "orb"
+    done = run(
+        out,
+        "grid.methods=[source_only]",
+        "grid.seeds=[0]",
+        "systems=[harness,orbslam3]",
+        "sequences=[walking_xyz]",
+        "variants=[none,semantic,geometry,oracle]",
+        "slam.orbslam3.repeats=2",
+        cwd=tmp_path,
+    )
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    rows = {r["id"]: r for r in runs_csv(out)}
+    orb = {i for i in rows if i.startswith("slam/orbslam3/")}
+    # the mask variants only: geometry is the harness's own check
+    assert orb == {
+        "slam/orbslam3/walking_xyz/none",
+        "slam/orbslam3/walking_xyz/oracle",
+        "slam/orbslam3/walking_xyz/semantic/source_only_s0",
+    }
+    assert all(rows[i]["status"] == "ok" and rows[i]["ate_rmse"] for i in orb)
+    vocabulary = out / "data" / "orbslam3_vocabulary" / "vocabulary.txt"
+    plan = json.loads((out / "jobs" / "slam.json").read_text())["cells"]
+    overrides = plan["slam/orbslam3/walking_xyz/oracle"]["overrides"]
+    assert overrides[-4:] == [
+        "filters=[]",
+        "system=orbslam3",
+        f"system.vocabulary={vocabulary}",
+        "system.repeats=2",
+    ]
+    result = json.loads((out / "slam/orbslam3/walking_xyz/oracle/result.json").read_text())
+    assert result["ate_rmse_repeats"]["evaluated"] == 2
+    assert (
+        "### Baselines: ATE RMSE [m] without a trained segmenter (orbslam3)"
+        in (out / "tables.md").read_text()
+    )

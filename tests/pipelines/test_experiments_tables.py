@@ -1,0 +1,186 @@
+"""The tables of uss-experiments from a small hand-written runs.csv: mean ± s.d. over seeds,
+the paper's improvement %, the downstream ratio, failure marking and the runs.csv format."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import pytest
+
+from uss_slam.core.errors import DataFormatError
+from uss_slam.pipelines.experiments import tables as tbl
+
+# source-only over seeds 0-2; adapted (n = 5) over seeds 0-1, its seed-2 training failed (so its
+# segmentation evaluation and SLAM runs are blocked). One sequence, the harness.
+RUNS_CSV = """\
+kind,id,status,reason,method,n_layers,config,seed,system,sequence,variant,val_mIoU,mIoU,person_FPR,ate_rmse
+train,train/source_only_s0,ok,,source_only,,source_only,0,,,,0.30,,,
+train,train/source_only_s1,ok,,source_only,,source_only,1,,,,0.32,,,
+train,train/source_only_s2,ok,,source_only,,source_only,2,,,,0.34,,,
+train,train/adaptsegnet_n5_s0,ok,,adaptsegnet,5,adaptsegnet_n5,0,,,,0.40,,,
+train,train/adaptsegnet_n5_s1,ok,,adaptsegnet,5,adaptsegnet_n5,1,,,,0.44,,,
+train,train/adaptsegnet_n5_s2,failed,ValueError: boom,adaptsegnet,5,adaptsegnet_n5,2,,,,,,,
+segeval,segeval/source_only_s0,ok,,source_only,,source_only,0,,walking_xyz,,,0.20,0.1,
+segeval,segeval/source_only_s0,ok,,source_only,,source_only,0,,all,,,0.20,0.1,
+segeval,segeval/source_only_s1,ok,,source_only,,source_only,1,,walking_xyz,,,0.22,0.2,
+segeval,segeval/source_only_s1,ok,,source_only,,source_only,1,,all,,,0.22,0.2,
+segeval,segeval/source_only_s2,ok,,source_only,,source_only,2,,walking_xyz,,,0.24,0.3,
+segeval,segeval/source_only_s2,ok,,source_only,,source_only,2,,all,,,0.24,0.3,
+segeval,segeval/adaptsegnet_n5_s0,ok,,adaptsegnet,5,adaptsegnet_n5,0,,walking_xyz,,,0.30,0.05,
+segeval,segeval/adaptsegnet_n5_s0,ok,,adaptsegnet,5,adaptsegnet_n5,0,,all,,,0.30,0.05,
+segeval,segeval/adaptsegnet_n5_s1,ok,,adaptsegnet,5,adaptsegnet_n5,1,,walking_xyz,,,0.34,0.15,
+segeval,segeval/adaptsegnet_n5_s1,ok,,adaptsegnet,5,adaptsegnet_n5,1,,all,,,0.34,0.15,
+segeval,segeval/adaptsegnet_n5_s2,blocked,needs exports/adaptsegnet_n5_s2,adaptsegnet,5,adaptsegnet_n5,2,,walking_xyz,,,,,
+segeval,segeval/adaptsegnet_n5_s2,blocked,needs exports/adaptsegnet_n5_s2,adaptsegnet,5,adaptsegnet_n5,2,,all,,,,,
+slam,slam/harness/walking_xyz/none,ok,,,,,,harness,walking_xyz,none,,,,0.100
+slam,slam/harness/walking_xyz/semantic/source_only_s0,ok,,source_only,,source_only,0,harness,walking_xyz,semantic,,,,0.060
+slam,slam/harness/walking_xyz/semantic/source_only_s1,ok,,source_only,,source_only,1,harness,walking_xyz,semantic,,,,0.070
+slam,slam/harness/walking_xyz/semantic/source_only_s2,ok,,source_only,,source_only,2,harness,walking_xyz,semantic,,,,0.080
+slam,slam/harness/walking_xyz/semantic/adaptsegnet_n5_s0,ok,,adaptsegnet,5,adaptsegnet_n5,0,harness,walking_xyz,semantic,,,,0.040
+slam,slam/harness/walking_xyz/semantic/adaptsegnet_n5_s1,ok,,adaptsegnet,5,adaptsegnet_n5,1,harness,walking_xyz,semantic,,,,0.047
+slam,slam/harness/walking_xyz/semantic/adaptsegnet_n5_s2,blocked,needs exports/adaptsegnet_n5_s2,adaptsegnet,5,adaptsegnet_n5,2,harness,walking_xyz,semantic,,,,
+slam,slam/harness/walking_xyz/semantic_geometry/adaptsegnet_n5_s0,ok,,adaptsegnet,5,adaptsegnet_n5,0,harness,walking_xyz,semantic_geometry,,,,0.030
+slam,slam/harness/walking_xyz/semantic_geometry/adaptsegnet_n5_s1,ok,,adaptsegnet,5,adaptsegnet_n5,1,harness,walking_xyz,semantic_geometry,,,,0.040
+slam,slam/harness/walking_xyz/semantic_geometry/adaptsegnet_n5_s2,blocked,needs exports/adaptsegnet_n5_s2,adaptsegnet,5,adaptsegnet_n5,2,harness,walking_xyz,semantic_geometry,,,,
+slam,slam/harness/walking_xyz/oracle,ok,,,,,,harness,walking_xyz,oracle,,,,0.020
+"""
+
+
+@pytest.fixture()
+def rows(tmp_path: Path) -> list[dict]:
+    path = tmp_path / "runs.csv"
+    path.write_text(RUNS_CSV)
+    return tbl.read_runs(path)
+
+
+def test_stat_is_mean_and_sample_sd_with_counts() -> None:
+    s = tbl.Stat((0.010, 0.012, 0.014))
+    assert s.mean == pytest.approx(0.012) and s.sd == pytest.approx(0.002)  # sqrt(8e-6 / 2)
+    assert s.text(4) == "0.0120 ± 0.0020 (n=3)"
+    assert tbl.Stat((0.5,), failed=2).text(3) == "0.500 (n=1, 2 failed)"
+    assert tbl.Stat((), failed=1).text() == "failed"
+    assert tbl.Stat((), failed=3).text() == "failed (3)"
+    assert tbl.Stat((), undefined=2).text() == "n/a"
+    assert tbl.Stat(()).text() == "—"
+
+
+def test_read_runs_types_and_empty_cells(rows: list[dict]) -> None:
+    assert len(rows) == 29
+    first = rows[3]
+    assert first["n_layers"] == 5 and isinstance(first["n_layers"], int)
+    assert first["val_mIoU"] == 0.40 and first["ate_rmse"] is None and first["reason"] is None
+
+
+def test_t1_t2_t3_ratio_and_failures(rows: list[dict], tmp_path: Path) -> None:
+    data, text = tbl.compute(rows, n_layers=5)
+    assert data["layout"]["configs"] == ["source_only", "adaptsegnet_n5"]
+    assert data["layout"]["sequences"] == ["walking_xyz"]
+
+    seg = {r["config"]: r for r in data["T1"]["segmentation"]}
+    assert seg["source_only"]["val_mIoU"]["mean"] == pytest.approx(0.32)
+    assert seg["source_only"]["val_mIoU"]["sd"] == pytest.approx(0.02)
+    assert seg["adaptsegnet_n5"]["mIoU"]["values"] == [0.30, 0.34]
+    assert seg["adaptsegnet_n5"]["mIoU"]["failed"] == 1
+    assert "| source_only | 0.320 ± 0.020 (n=3) | 0.220 ± 0.020 (n=3) |" in text
+    assert (
+        "| adaptsegnet_n5 | 0.420 ± 0.028 (n=2, 1 failed) | 0.320 ± 0.028 (n=2, 1 failed) |" in text
+    )
+
+    t2 = {r["metric"]: r for r in data["T2"]["per_sequence"]}
+    ate = t2["ATE RMSE [m] (harness)"]
+    assert ate["without"]["mean"] == pytest.approx(0.070) and ate["without"]["sd"] == pytest.approx(
+        0.010
+    )
+    assert ate["with"]["mean"] == pytest.approx(0.0435)
+    assert ate["with"]["sd"] == pytest.approx(0.007 / math.sqrt(2))
+    assert ate["improvement_pct"] == pytest.approx(100 * (0.070 - 0.0435) / 0.070)  # 37.86
+    assert t2["mIoU"]["improvement_pct"] == pytest.approx(100 * (0.32 - 0.22) / 0.22)  # 45.45
+    assert t2["person FPR"]["improvement_pct"] == pytest.approx(50.0)  # lower is better
+    assert (
+        "| ATE RMSE [m] (harness) | 0.0700 ± 0.0100 (n=3) | 0.0435 ± 0.0049 (n=2, 1 failed) "
+        "| 37.86% |"
+    ) in text
+    assert "| mIoU | 0.220 ± 0.020 (n=3) | 0.320 ± 0.028 (n=2, 1 failed) | 45.45% |" in text
+
+    t3 = [r for r in data["T3"]["rows"] if r["metric"] == "ate_rmse"]
+    assert len(t3) == 1 and t3[0]["semantic_geometry"]["mean"] == pytest.approx(0.035)
+    assert t3[0]["improvement_pct"] == pytest.approx(100 * (0.0435 - 0.035) / 0.0435)  # 19.54
+    assert (
+        "| walking_xyz | ATE RMSE [m] | 0.0435 ± 0.0049 (n=2, 1 failed) "
+        "| 0.0350 ± 0.0071 (n=2, 1 failed) | 19.54% |"
+    ) in text
+
+    ratio = {(r["config"], r["seed"]): r["ratio"] for r in data["downstream_ratio"]}
+    assert ratio[("source_only", 0)] == pytest.approx((0.1 - 0.06) / (0.1 - 0.02))  # 0.5
+    assert ratio[("source_only", 2)] == pytest.approx(0.25)
+    assert ratio[("adaptsegnet_n5", 1)] == pytest.approx((0.1 - 0.047) / 0.08)  # 0.6625
+    assert ratio[("adaptsegnet_n5", 2)] is None  # blocked
+    assert "| source_only | mean ± s.d. | 0.375 ± 0.125 (n=3) |" in text
+    assert "| adaptsegnet_n5 | mean ± s.d. | 0.706 ± 0.062 (n=2) |" in text
+    assert "| adaptsegnet_n5 | 2 | — |" in text
+
+    assert "| none | oracle |" not in text  # labels, not names
+    assert "| walking_xyz | 0.1000 (n=1) | 0.0200 (n=1) |" in text
+
+    failures = {f["id"]: f for f in data["failures"]}
+    assert failures["train/adaptsegnet_n5_s2"]["status"] == "failed"
+    assert failures["train/adaptsegnet_n5_s2"]["reason"] == "ValueError: boom"
+    assert {k for k, f in failures.items() if f["status"] == "blocked"} == {
+        "segeval/adaptsegnet_n5_s2",
+        "slam/harness/walking_xyz/semantic/adaptsegnet_n5_s2",
+        "slam/harness/walking_xyz/semantic_geometry/adaptsegnet_n5_s2",
+    }
+    assert "1 failed, 3 blocked" in text
+    assert text.count("| `segeval/adaptsegnet_n5_s2` | blocked |") == 1  # one line per job
+
+
+def test_write_tables_writes_markdown_json_and_plots(rows: list[dict], tmp_path: Path) -> None:
+    data = tbl.write_tables(tmp_path, rows, n_layers=5, header=["# title", ""])
+    md = (tmp_path / "tables.md").read_text()
+    assert md.startswith("# title\n") and "![ate_per_sequence](plots/ate_per_sequence.png)" in md
+    assert json.loads((tmp_path / "tables.json").read_text()) == json.loads(json.dumps(data))
+    for name in ("t1_miou.png", "t1_iou_per_class.png", "ate_per_sequence.png"):
+        assert (tmp_path / "plots" / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_runs_csv_round_trip(rows: list[dict], tmp_path: Path) -> None:
+    path = tmp_path / "again.csv"
+    tbl.write_runs(path, rows)
+    header = path.read_text().splitlines()[0].split(",")
+    assert tuple(header) == tbl.COLUMNS
+    again = tbl.read_runs(path)
+    assert [{k: r.get(k) for k in rows[0]} for r in again] == rows
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("kind,id\ntrain,x\n", "missing column(s) status"),
+        (
+            "kind,id,status\ntrain,x,maybe\n",
+            ":2: column status: expected one of ok, failed, blocked, missing, got 'maybe'",
+        ),
+        (
+            "kind,id,status,ate_rmse\nslam,x,ok,fast\n",
+            ":2: column ate_rmse: expected a number, got 'fast'",
+        ),
+    ],
+)
+def test_read_runs_errors_name_file_and_line(tmp_path: Path, text: str, message: str) -> None:
+    path = tmp_path / "runs.csv"
+    path.write_text(text)
+    with pytest.raises(DataFormatError) as info:
+        tbl.read_runs(path)
+    assert str(info.value).startswith(str(path)) and message in str(info.value)
+
+
+def test_improvement_and_ratio_edge_cases() -> None:
+    assert tbl.improvement(tbl.Stat((0.0,)), tbl.Stat((0.1,)), "ate_rmse") is None
+    assert tbl.improvement(tbl.Stat(()), tbl.Stat((0.1,)), "mIoU") is None
+    assert tbl.improvement(tbl.Stat((0.2,)), tbl.Stat((0.1,)), "ate_rmse") == pytest.approx(50.0)
+    assert tbl.improvement(tbl.Stat((0.2,)), tbl.Stat((0.1,)), "mIoU") == pytest.approx(-50.0)
+    assert tbl.downstream_ratio(0.1, 0.05, 0.12) is None  # oracle no better than no filter
+    assert tbl.downstream_ratio(0.1, None, 0.02) is None
+    assert tbl.downstream_ratio(0.1, 0.12, 0.02) == pytest.approx(-0.25)  # worse than no filter
