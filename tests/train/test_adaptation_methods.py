@@ -176,7 +176,7 @@ def test_domain_pass_error_skips_the_pending_backward() -> None:
 # --------------------------------------------------------------------------- a new method
 
 
-TOY_CONFIG = "_target_: test_methods.TargetEntropy\nweight: 0.5\n"
+TOY_CONFIG = "_target_: test_adaptation_methods.TargetEntropy\nweight: 0.5\n"
 
 
 def test_a_new_method_plugs_in_by_config(uda_data: dict[str, Path], tmp_path: Path) -> None:
