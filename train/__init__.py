@@ -1,1 +1,2 @@
-"""The adaptation method (LightningModule), losses, schedules, callbacks and the ``uss-train`` entry."""
+"""Adaptation methods (``train/methods/``, config group ``model/method``), the LightningModule, losses, schedules,
+callbacks, config checks and the ``uss-train`` entry."""
