@@ -1,2 +1,2 @@
-"""Adaptation methods (``train/methods/``, config group ``model/method``), the LightningModule, losses, schedules,
-callbacks, config checks and the ``uss-train`` entry."""
+"""Adaptation methods (``train/methods/``, config group ``model/method``), the LightningModule,
+losses, schedules, callbacks, config checks and the ``uss-train`` entry."""
