@@ -2,7 +2,12 @@
 onnxruntime (never torch).
 
 ``uss-slam segmenter=onnx segmenter.path=exports/x.onnx [segmenter.threads=1]
-[segmenter.providers=cpu|cuda|auto]`` (``configs/segmenter/onnx.yaml``).
+[segmenter.providers=cpu|cuda|auto] [segmenter.threshold=0.3]`` (``configs/segmenter/onnx.yaml``).
+
+``threshold`` (default ``None``: the model's own ``labels``, the argmax) labels a pixel with a
+dynamic class when that class's softmax probability, from the model's ``logits``, is at least
+``threshold``; a pixel whose argmax is a dynamic class below ``threshold`` gets its most probable
+static class. Below 0.5 it trades static pixels for more of the people a model half sees.
 
 The model must follow the contract of :mod:`uss_slam.core.onnx_contract` (``exports/README.md``):
 input ``image`` uint8 RGB NHWC with dynamic batch / height / width, output ``labels`` uint8
@@ -32,6 +37,7 @@ from uss_slam.core.errors import DataFormatError, UssSlamError
 from uss_slam.core.onnx_contract import (
     INPUT_NAME,
     OUTPUT_LABELS,
+    OUTPUT_LOGITS,
     SegmenterMetadata,
 )
 
@@ -90,6 +96,7 @@ class OnnxSegmenter(ImageSegmenter):
         path: str | PathLike[str],
         threads: int | None = None,
         providers: str | Sequence[str] | None = "cpu",
+        threshold: float | None = None,
     ) -> None:
         self.path = Path(path)
         if not self.path.is_file():
@@ -102,6 +109,15 @@ class OnnxSegmenter(ImageSegmenter):
             raise UssSlamError(
                 f"segmenter.threads must be a whole number >= 1 or null, got {threads!r}"
             )
+        if threshold is not None and (
+            isinstance(threshold, bool)
+            or not isinstance(threshold, int | float)
+            or not 0.0 < threshold < 1.0
+        ):
+            raise UssSlamError(
+                f"segmenter.threshold must be a probability in (0, 1) or null, got {threshold!r}"
+            )
+        self.threshold = None if threshold is None else float(threshold)
         options = ort.SessionOptions()
         if threads is not None:
             options.intra_op_num_threads = int(threads)
@@ -121,6 +137,12 @@ class OnnxSegmenter(ImageSegmenter):
             session.get_modelmeta().custom_metadata_map, self.path
         )
         self._check_io(session)
+        if self.threshold is not None and OUTPUT_LOGITS not in {
+            o.name for o in session.get_outputs()
+        }:
+            raise DataFormatError(
+                self.path, f"segmenter.threshold needs the model's {OUTPUT_LOGITS!r} output"
+            )
         self.session = session
         self.providers = session.get_providers()
         self.threads = None if threads is None else int(threads)
@@ -140,6 +162,11 @@ class OnnxSegmenter(ImageSegmenter):
             lut = np.zeros(256, np.uint8)
             lut[: len(ids)] = ids
             self._lut = lut
+        # Model channels of the dynamic classes (for ``threshold``).
+        names = list(self.metadata.class_names)
+        self._dynamic_channels = np.array(
+            [names.index(n) for n in self.dynamic_classes if n in names], np.int64
+        )
 
     def _check_io(self, session: ort.InferenceSession) -> None:
         inputs = session.get_inputs()
@@ -182,8 +209,12 @@ class OnnxSegmenter(ImageSegmenter):
                 f"and dtype {rgb.dtype}"
             )
         batch = np.ascontiguousarray(rgb)[None]
-        (labels,) = self.session.run([OUTPUT_LABELS], {INPUT_NAME: batch})
-        labels = labels[0]
+        if self.threshold is None:
+            (labels,) = self.session.run([OUTPUT_LABELS], {INPUT_NAME: batch})
+            labels = labels[0]
+        else:
+            (logits,) = self.session.run([OUTPUT_LOGITS], {INPUT_NAME: batch})
+            labels = self._thresholded(logits[0])
         if labels.shape != rgb.shape[:2]:
             raise DataFormatError(
                 self.path,
@@ -194,8 +225,31 @@ class OnnxSegmenter(ImageSegmenter):
             labels = self._lut[labels]
         return labels
 
+    def _thresholded(self, logits: np.ndarray) -> np.ndarray:
+        """``(C, H, W)`` logits -> ``(H, W)`` uint8 model class indices with the dynamic classes
+        decided by ``threshold`` on their softmax probability."""
+        if logits.ndim != 3 or logits.shape[0] != len(self.metadata.class_names):
+            raise DataFormatError(
+                self.path,
+                f"output {OUTPUT_LOGITS!r} has shape {logits.shape[:]} per image; expected "
+                f"({len(self.metadata.class_names)}, H, W)",
+            )
+        shifted = np.exp(logits - logits.max(axis=0, keepdims=True))
+        prob = shifted / shifted.sum(axis=0, keepdims=True)
+        dyn = self._dynamic_channels
+        static = prob.copy()
+        static[dyn] = -1.0
+        labels = static.argmax(axis=0).astype(np.uint8)
+        if dyn.size:
+            dyn_prob = prob[dyn]
+            best = dyn_prob.argmax(axis=0)
+            chosen = np.take_along_axis(dyn_prob, best[None], axis=0)[0] >= self.threshold
+            labels[chosen] = dyn[best[chosen]].astype(np.uint8)
+        return labels
+
     def __repr__(self) -> str:
         return (
             f"OnnxSegmenter({str(self.path)!r}, threads={self.threads}, "
-            f"providers={self.providers}, classes={list(self.metadata.class_names)})"
+            f"providers={self.providers}, threshold={self.threshold}, "
+            f"classes={list(self.metadata.class_names)})"
         )

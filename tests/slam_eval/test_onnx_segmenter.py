@@ -162,6 +162,16 @@ def test_missing_labels_output_is_refused(tmp_path: Path) -> None:
     assert str(path) in str(info.value)
 
 
+def test_threshold_needs_the_logits_output(tmp_path: Path) -> None:
+    path = tiny_model(tmp_path / "m.onnx", _metadata())
+    model = onnx.load(str(path))
+    del model.graph.output[0]  # only `labels` left: enough for argmax, not for a threshold
+    onnx.save(model, str(path))
+    assert OnnxSegmenter(path).threshold is None
+    with pytest.raises(DataFormatError, match=r"segmenter.threshold needs the model's 'logits'"):
+        OnnxSegmenter(path, threshold=0.3)
+
+
 def test_not_an_onnx_file_names_it(tmp_path: Path) -> None:
     path = tmp_path / "junk.onnx"
     path.write_bytes(b"not a model")
@@ -180,6 +190,55 @@ def test_class_names_map_to_project_ids_by_name(tmp_path: Path) -> None:
     project = np.array([CLASS_NAMES.index(n) for n in order], np.uint8)
     np.testing.assert_array_equal(seg.infer(rgb), project[model_ids])
     assert set(np.unique(model_ids)) == {0, 1, 2, 3}  # every mapping entry was exercised
+
+
+def _near_tie_rgb(h: int, w: int, seed: int = 0) -> np.ndarray:
+    """Channels within a few units of the background logit 128: graded softmax probabilities."""
+    return np.random.default_rng(seed).integers(124, 133, (h, w, 3), dtype=np.uint8)
+
+
+def _threshold_reference(rgb: np.ndarray, threshold: float, person: int) -> np.ndarray:
+    """Model indices: ``person`` where its softmax probability >= threshold, else the most
+    probable other index (first on ties, as argmax)."""
+    logits = np.concatenate([np.full(rgb.shape[:2] + (1,), 128.0), rgb.astype(np.float64)], 2)
+    prob = np.exp(logits) / np.exp(logits).sum(axis=2, keepdims=True)
+    others = [c for c in range(4) if c != person]
+    labels = np.array(others)[np.argmax(prob[..., others], axis=2)]
+    return np.where(prob[..., person] >= threshold, person, labels).astype(np.uint8)
+
+
+@pytest.mark.parametrize("threshold", [0.1, 0.3, 0.5, 0.8])
+def test_threshold_on_the_person_probability(tmp_path: Path, threshold: float) -> None:
+    path = tiny_model(tmp_path / "m.onnx", _metadata())
+    rgb = _near_tie_rgb(40, 50)
+    seg = OnnxSegmenter(path, threshold=threshold)
+    labels = seg.infer(rgb)
+    np.testing.assert_array_equal(labels, _threshold_reference(rgb, threshold, person=1))
+    person = labels == CLASS_NAMES.index("person")
+    argmax_person = OnnxSegmenter(path).infer(rgb) == CLASS_NAMES.index("person")
+    assert 0 < person.sum() < person.size  # graded: the threshold decides some pixels
+    if threshold < 0.5:  # a lower threshold keeps every argmax person pixel and adds others
+        assert (person >= argmax_person).all() and person.sum() > argmax_person.sum()
+    else:
+        assert (person <= argmax_person).all()
+    assert "threshold=" in repr(seg)
+
+
+def test_threshold_maps_model_classes_by_name(tmp_path: Path) -> None:
+    order = ("background", "monitor", "person", "chair")  # person is model index 2
+    seg = OnnxSegmenter(tiny_model(tmp_path / "m.onnx", _metadata(order)), threshold=0.3)
+    rgb = _near_tie_rgb(30, 30, seed=1)
+    project = np.array([CLASS_NAMES.index(n) for n in order], np.uint8)
+    np.testing.assert_array_equal(seg.infer(rgb), project[_threshold_reference(rgb, 0.3, 2)])
+
+
+@pytest.mark.parametrize("bad", [0, 0.0, 1, 1.5, -0.2, True, "0.3"])
+def test_bad_threshold_is_refused(tmp_path: Path, bad: object) -> None:
+    path = tiny_model(tmp_path / "m.onnx", _metadata())
+    with pytest.raises(
+        UssSlamError, match=r"segmenter.threshold must be a probability in \(0, 1\)"
+    ):
+        OnnxSegmenter(path, threshold=bad)
 
 
 def test_unknown_class_name_is_refused(tmp_path: Path) -> None:
@@ -250,6 +309,7 @@ def test_config_composes() -> None:
     assert cfg.segmenter._target_ == "uss_slam.slam_eval.onnx_segmenter.OnnxSegmenter"
     assert cfg.segmenter.path == "exports/x.onnx"
     assert cfg.segmenter.threads == 1 and cfg.segmenter.providers == "cpu"
+    assert cfg.segmenter.threshold is None  # the model's argmax unless asked
 
 
 def test_uss_slam_runs_an_onnx_segmenter(synthetic_sequence, tmp_path: Path) -> None:
