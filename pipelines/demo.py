@@ -7,7 +7,7 @@ everything; a stage that was interrupted is redone):
 1. ``data``: the synthetic data set (:mod:`.demo_data`: source VOC tree, target training,
    validation and SLAM sequences) in ``OUT/data``.
 2. ``train``: the ``--experiment`` (``demo``, or ``ci`` for a seconds-long smoke run) twice: with
-   adversarial adaptation and source-only (``model.adaptation=false``), into
+   adversarial adaptation and source-only (``model/method=source_only``), into
    ``OUT/train/{adapted,source_only}`` (checkpoints/, tensorboard/, .hydra/config.yaml).
 3. ``export``: the best checkpoint (by target val mIoU) of each run to
    ``OUT/exports/{adapted,source_only}.onnx`` with ``uss-export``'s verification.
@@ -99,8 +99,8 @@ VARIANTS = (
     Variant("adapted", "adapted ONNX", "adapted", ("semantic",)),
     Variant("adapted_geometry", "adapted ONNX + geometry", "adapted", ("semantic", "geometry")),
 )
-TRAININGS = {"adapted": True, "source_only": False}
-"""Training run name -> ``model.adaptation``."""
+TRAININGS = {"adapted": "adaptsegnet", "source_only": "source_only"}
+"""Training run name -> ``model/method``."""
 
 
 # ------------------------------------------------------------------------------- stages
@@ -146,7 +146,7 @@ def train_overrides(plan: Plan, data: Path, name: str, threads: int | None = Non
     ``threads`` overrides the experiment's ``num_threads``."""
     return [
         f"experiment={plan.experiment}",
-        f"model.adaptation={str(TRAININGS[name]).lower()}",
+        f"model/method={TRAININGS[name]}",
         f"paths.data_dir={data}",
         f"run_name={plan.experiment}_{name}",
         *plan.train_overrides,

@@ -29,7 +29,7 @@ from uss_slam.core.errors import UssSlamError
 from uss_slam.core.seg_metrics import iou_per_class
 from uss_slam.models.deeplab import DeepLabV2, SegmenterOutput
 from uss_slam.train.losses import LossWeights, upsample
-from uss_slam.train.methods import AdaptSegNet, Method, SourceOnly, StepValues, TrainBatch, frozen
+from uss_slam.train.methods import AdaptSegNet, Method, StepValues, TrainBatch, frozen
 from uss_slam.train.methods.base import NonFiniteLossError
 from uss_slam.train.schedules import PolyLR
 
@@ -57,9 +57,6 @@ class AdversarialSegmentation(LightningModule):
             the poly schedules decay to 0 there and training stops.
         poly_power: exponent of the poly schedules.
         head_lr_mult: learning-rate multiplier of the segmenter heads.
-        adaptation: deprecated alias kept for existing command lines: ``False`` selects
-            :class:`~uss_slam.train.methods.SourceOnly` (use ``model/method=source_only``);
-            ``None`` (default) leaves the choice to ``method``.
         class_names: names for ``val/IoU/<class>``; their count is the number of classes.
         batch_domains: run source and target through one segmenter forward and one
             discriminator pass per head when no layer uses batch statistics (frozen BN) and the
@@ -79,7 +76,6 @@ class AdversarialSegmentation(LightningModule):
         max_iters: int = 250_000,
         poly_power: float = 0.9,
         head_lr_mult: float = 10.0,
-        adaptation: bool | None = None,
         class_names: Sequence[str] = CLASS_NAMES,
         batch_domains: bool = True,
         channels_last: bool = False,
@@ -91,9 +87,7 @@ class AdversarialSegmentation(LightningModule):
         self.segmenter = net
         self.d_aux = discriminator()
         self.d_main = discriminator()
-        self.method = self._choose_method(
-            method if method is not None else AdaptSegNet(), adaptation
-        )
+        self.method = self._check_method(method if method is not None else AdaptSegNet())
         self.optimizer_factory = optimizer
         self.d_optimizer_factory = d_optimizer
         self.loss_weights = loss if loss is not None else LossWeights()
@@ -127,24 +121,13 @@ class AdversarialSegmentation(LightningModule):
         )
 
     @staticmethod
-    def _choose_method(method: Method, adaptation: bool | None) -> Method:
+    def _check_method(method: Method) -> Method:
         if not isinstance(method, Method):
             raise UssSlamError(
                 f"model.method must be an adaptation method (uss_slam.train.methods.Method), "
                 f"got {type(method).__name__}"
             )
-        if adaptation is None or adaptation == method.adapts:
-            return method
-        if adaptation is False:
-            log.warning(
-                "model.adaptation=false is deprecated: use model/method=source_only "
-                "(the same training)"
-            )
-            return SourceOnly()
-        raise UssSlamError(
-            f"model.adaptation=true contradicts model/method={method.name} (which does not "
-            "adapt): drop model.adaptation and choose the method with model/method=..."
-        )
+        return method
 
     @property
     def adaptation(self) -> bool:

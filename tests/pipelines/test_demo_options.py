@@ -17,10 +17,13 @@ def test_train_threads_override_only_when_given() -> None:
     default = demo.train_overrides(plan, Path("/d"), "adapted")
     assert not any(o.startswith("num_threads=") for o in default)
     one = demo.train_overrides(plan, Path("/d"), "source_only", threads=1)
-    assert one[: len(default)] == [o.replace("true", "false") for o in default[:2]] + [
+    assert one[: len(default)] == [
+        "experiment=demo",
+        "model/method=source_only",
         "paths.data_dir=/d",
         "run_name=demo_source_only",
     ]
+    assert default[1] == "model/method=adaptsegnet"
     assert one[-1] == "num_threads=1"
 
 

@@ -92,8 +92,8 @@ def test_demo_ci_end_to_end_then_reused(tmp_path: Path, capsys: pytest.CaptureFi
         name: json.loads((out / "train" / name / STAMP).read_text())["overrides"]
         for name in ("adapted", "source_only")
     }
-    assert "model.adaptation=true" in adaptation["adapted"]
-    assert "model.adaptation=false" in adaptation["source_only"]
+    assert "model/method=adaptsegnet" in adaptation["adapted"]
+    assert "model/method=source_only" in adaptation["source_only"]
     comparison = (out / "slam" / "comparison.md").read_text()
     assert all(f" {v.name} " in comparison.splitlines()[2] for v in demo.VARIANTS)
 

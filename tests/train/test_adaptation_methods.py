@@ -4,13 +4,13 @@ two-domain pass, and a new method added in one class + one yaml file."""
 from __future__ import annotations
 
 import copy
-import logging
 from pathlib import Path
 from typing import ClassVar
 
 import pytest
 import torch
 import torch.nn.functional as F
+from hydra.errors import ConfigCompositionException
 from hydra.utils import instantiate
 from lightning.pytorch import Trainer
 from torch import Tensor, nn
@@ -89,19 +89,12 @@ def test_checkpoint_keys_are_the_networks_only(tmp_path: Path) -> None:
         assert prefixes == {"segmenter", "d_aux", "d_main"}
 
 
-def test_deprecated_adaptation_flag_selects_the_method(
-    tmp_path: Path, caplog: pytest.LogCaptureFixture
-) -> None:
-    with caplog.at_level(logging.WARNING):
-        model = instantiate(_compose(tmp_path, "model.adaptation=false").model)
-    assert isinstance(model.method, SourceOnly)
-    assert "use model/method=source_only" in caplog.text
-    assert isinstance(
-        instantiate(_compose(tmp_path, "model.adaptation=true").model).method, AdaptSegNet
-    )
-    with pytest.raises(Exception) as info:
-        instantiate(_compose(tmp_path, "model.adaptation=true", "model/method=source_only").model)
-    assert "contradicts model/method=source_only" in str(info.value)
+def test_the_method_is_chosen_by_its_config_group_only(tmp_path: Path) -> None:
+    """There is no ``model.adaptation`` flag: ``model/method`` alone says what is trained."""
+    with pytest.raises(ConfigCompositionException, match="model.adaptation"):
+        _compose(tmp_path, "model.adaptation=false")
+    assert isinstance(instantiate(_compose(tmp_path, "model=source_only").model).method, SourceOnly)
+    assert isinstance(instantiate(_compose(tmp_path).model).method, AdaptSegNet)
 
 
 def test_method_must_be_a_method(tmp_path: Path) -> None:
