@@ -1,9 +1,19 @@
-"""Small torch-free file helpers shared by the data loaders, the exporter and ``uss-demo``."""
+"""Small torch-free file helpers shared by every package: hashing, atomic writes (a temporary
+sibling renamed into place), and the check that an output folder can be written."""
 
 from __future__ import annotations
 
 import hashlib
+import json
+import os
+import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
+from os import PathLike
 from pathlib import Path
+from typing import Any
+
+from uss_slam.core.errors import UssSlamError
 
 
 def file_sha256(path: Path) -> str:
@@ -13,3 +23,57 @@ def file_sha256(path: Path) -> str:
         for block in iter(lambda: file.read(1 << 20), b""):
             digest.update(block)
     return digest.hexdigest()
+
+
+@contextmanager
+def atomic_path(path: str | PathLike[str], prefix: str = ".") -> Iterator[Path]:
+    """Yield a temporary sibling of ``path`` to write; it is renamed onto ``path`` only when the
+    block ends normally and removed when it raises, so a reader never sees half a file and an
+    interrupted write leaves ``path`` as it was. The temporary name is
+    ``<prefix><name>.<random>.tmp`` (callers that clean up after killed runs match the prefix).
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, name = tempfile.mkstemp(prefix=f"{prefix}{path.name}.", suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    tmp = Path(name)
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def write_bytes_atomic(path: str | PathLike[str], data: bytes) -> None:
+    """Write ``data`` to ``path`` through :func:`atomic_path` (creating the folder)."""
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(data)
+
+
+def write_text_atomic(path: str | PathLike[str], text: str) -> None:
+    """Write ``text`` to ``path`` through :func:`atomic_path` (creating the folder)."""
+    with atomic_path(path) as tmp:
+        tmp.write_text(text)
+
+
+def write_json_atomic(path: str | PathLike[str], data: Any) -> None:
+    """Indented JSON with a final newline, written atomically."""
+    write_text_atomic(path, json.dumps(data, indent=2) + "\n")
+
+
+def check_writable(folder: str | PathLike[str], key: str | None = None) -> Path:
+    """Create ``folder`` (with parents) and prove a file can be created in it; otherwise raise a
+    one-line :class:`UssSlamError` naming the folder (as ``key=folder`` when ``key``, the option
+    that chose it, is given)."""
+    path = Path(folder)
+    where = str(path) if key is None else f"{key}={path}"
+    if path.exists() and not path.is_dir():
+        raise UssSlamError(f"{where}: output folder is a file, not a folder")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=path, prefix=".uss-slam-probe."):
+            pass
+    except OSError as error:
+        reason = error.strerror or type(error).__name__
+        raise UssSlamError(f"{where}: cannot write to the output folder ({reason})") from None
+    return path

@@ -14,8 +14,6 @@ the item out and records the error in ``dataset.skipped`` (reported in the selec
 from __future__ import annotations
 
 import logging
-import os
-import tempfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -66,20 +64,6 @@ class LabelStats:
 
 
 Transform = Callable[[dict[str, Any]], dict[str, Any]]
-
-
-def atomic_write(path: Path, data: bytes) -> None:
-    """Write ``data`` via a temporary file and a rename (creating the folder), so that readers
-    (other ranks, data-loader workers) never see half a file."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
-    try:
-        with os.fdopen(fd, "wb") as file:
-            file.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def check_on_error(on_error: str) -> OnError:

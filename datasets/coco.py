@@ -41,14 +41,13 @@ from tqdm.auto import tqdm
 
 from uss_slam.core.classes import CLASS_NAMES, IGNORE_INDEX, NUM_CLASSES
 from uss_slam.core.errors import DataFormatError
-from uss_slam.core.files import file_sha256
+from uss_slam.core.files import file_sha256, write_bytes_atomic
 from uss_slam.datasets.base import (
     ImageItem,
     LabelStats,
     OnError,
     SegmentationDataset,
     Transform,
-    atomic_write,
     check_on_error,
     handle_bad_input,
     inspect_image,
@@ -471,7 +470,7 @@ class COCOSegmentation(SegmentationDataset):
             return
         (self.cache / "masks").mkdir(parents=True, exist_ok=True)
         index = {**index, "counts": {str(k): v for k, v in self._counts.items()}}
-        atomic_write(self.cache / "index.json", json.dumps(index).encode())
+        write_bytes_atomic(self.cache / "index.json", json.dumps(index).encode())
 
     def _mask_file(self, image_id: int) -> Path:
         assert self.cache is not None
@@ -513,7 +512,7 @@ class COCOSegmentation(SegmentationDataset):
                 continue
             ok, png = cv2.imencode(".png", label)
             assert ok
-            atomic_write(self._mask_file(image_id), png.tobytes())
+            write_bytes_atomic(self._mask_file(image_id), png.tobytes())
             self._counts[image_id] = np.bincount(label.ravel(), minlength=256)[
                 :NUM_CLASSES
             ].tolist()
@@ -549,7 +548,7 @@ class COCOSegmentation(SegmentationDataset):
                 self.annotation_file, f"image {image_id}: cannot rasterise ({error})"
             ) from error
         if self.cache is not None:  # read outside selection (e.g. as a validation set): keep it
-            atomic_write(self._mask_file(image_id), cv2.imencode(".png", label)[1].tobytes())
+            write_bytes_atomic(self._mask_file(image_id), cv2.imencode(".png", label)[1].tobytes())
         return label
 
     def label_stats(self, index: int) -> LabelStats:

@@ -36,13 +36,13 @@ from tqdm.auto import tqdm
 
 from uss_slam.core.classes import CLASS_NAMES, NUM_CLASSES
 from uss_slam.core.errors import DataFormatError, UssSlamError
+from uss_slam.core.files import write_bytes_atomic
 from uss_slam.datasets.base import (
     LabelStats,
     OnError,
     SegmentationDataset,
     SegmentationSample,
     Transform,
-    atomic_write,
     check_on_error,
     finish_sample,
     handle_bad_input,
@@ -253,7 +253,7 @@ class StatsCache:
             counts=np.array([r[2] for r in rows], dtype=np.int64).reshape(-1, NUM_CLASSES),
             hw=np.array([(r[3], r[4]) for r in rows], dtype=np.int64).reshape(-1, 2),
         )
-        atomic_write(self.path, buffer.getvalue())
+        write_bytes_atomic(self.path, buffer.getvalue())
         self.dirty = False
 
 
@@ -581,6 +581,6 @@ class SelectedSources(Dataset):
     def write_manifest(self, directory: str | Path) -> Path:
         """Write ``source_manifest.json`` into ``directory`` (the run directory); returns it."""
         path = Path(directory) / MANIFEST_NAME
-        atomic_write(path, (json.dumps(self.manifest(), indent=1) + "\n").encode())
+        write_bytes_atomic(path, (json.dumps(self.manifest(), indent=1) + "\n").encode())
         log.info("source manifest: %s (%d images)", path, len(self))
         return path

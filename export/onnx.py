@@ -34,6 +34,7 @@ from torch import Tensor, nn
 
 from uss_slam.core.classes import DYNAMIC_CLASSES
 from uss_slam.core.errors import UssSlamError
+from uss_slam.core.files import check_writable
 from uss_slam.core.normalization import IMAGENET_MEAN, IMAGENET_STD
 from uss_slam.core.onnx_contract import (
     HEADS,
@@ -50,7 +51,6 @@ from uss_slam.export.outputs import (
     ExportResult,
     StagedFiles,
     check_output_path,
-    prepare_folder,
     sidecar,
     write_json,
 )
@@ -240,7 +240,7 @@ def export_segmenter(
         out, opset, trace_size, verify_size, int8=calibration is not None
     )
     wrapper = SegmenterExport(segmenter, metadata.head, metadata.mean, metadata.std).eval()
-    prepare_folder(out.parent)
+    check_writable(out.parent)
     verify_path = sidecar(out, VERIFY_SUFFIX)
     int8_out = sidecar(out, INT8_SUFFIX)
     started = time.perf_counter()

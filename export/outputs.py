@@ -11,7 +11,6 @@ from __future__ import annotations
 import json
 import logging
 import os
-import tempfile
 import uuid
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
@@ -55,19 +54,6 @@ def check_output_path(out: Path) -> None:
         raise UssSlamError(f"out must end in .onnx, got {out}")
     if out.is_dir():
         raise UssSlamError(f"out {out} is a folder; expected a file name ending in .onnx")
-
-
-def prepare_folder(folder: Path) -> None:
-    """Create ``folder`` (with parents) and prove that files can be created in it."""
-    if folder.exists() and not folder.is_dir():
-        raise UssSlamError(f"{folder}: output folder is a file, not a folder")
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryFile(dir=folder, prefix=".uss-export-probe."):
-            pass
-    except OSError as error:
-        reason = error.strerror or type(error).__name__
-        raise UssSlamError(f"{folder}: cannot write to the output folder ({reason})") from error
 
 
 class StagedFiles:

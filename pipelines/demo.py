@@ -39,11 +39,11 @@ from typing import Any
 from uss_slam.core.classes import CLASS_NAMES
 from uss_slam.core.cli import exit_on_user_error
 from uss_slam.core.errors import UssSlamError
-from uss_slam.core.files import file_sha256
+from uss_slam.core.files import file_sha256, write_json_atomic, write_text_atomic
 
 from . import demo_data, demo_report
 from .demo_data import DemoData
-from .stages import Progress, Stage, run_stage, write_json_atomic, write_text_atomic
+from .stages import Progress, Stage, run_stage
 
 CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"
 MIOU_STRIDE = 10

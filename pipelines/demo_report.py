@@ -11,8 +11,7 @@ from typing import TYPE_CHECKING, Any
 
 from uss_slam.core.classes import CLASS_NAMES
 from uss_slam.core.errors import UssSlamError
-
-from .stages import atomic_path
+from uss_slam.core.files import atomic_path
 
 if TYPE_CHECKING:
     from .demo import Variant

@@ -35,7 +35,7 @@ import numpy as np
 from uss_slam.core.classes import CLASS_NAMES, DYNAMIC_CLASSES, colorize
 from uss_slam.core.cli import exit_on_user_error
 from uss_slam.core.errors import UssSlamError
-from uss_slam.core.files import file_sha256
+from uss_slam.core.files import atomic_path, file_sha256, write_json_atomic, write_text_atomic
 from uss_slam.core.seg_metrics import (
     RATE_NAMES,
     BinaryCounts,
@@ -44,8 +44,6 @@ from uss_slam.core.seg_metrics import (
     mask_counts,
     mask_metrics,
 )
-
-from .stages import atomic_path, write_json_atomic, write_text_atomic
 
 PROG = "uss-eval"
 CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"

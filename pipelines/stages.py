@@ -14,45 +14,18 @@ folder is being deleted) has no stamp and is redone on the next run, never reuse
 
 from __future__ import annotations
 
-import contextlib
 import json
-import os
 import shutil
-import tempfile
 import time
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from uss_slam.core.files import write_json_atomic
+
 STAMP = ".uss-demo.json"
 """Name of the completion stamp in a stage folder (JSON of the stage's key)."""
-
-
-@contextlib.contextmanager
-def atomic_path(path: Path) -> Iterator[Path]:
-    """Yield a temporary sibling of ``path`` to write; it replaces ``path`` only if the body
-    finishes (a reader never sees half a file, an interrupted write leaves ``path`` as it was)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    os.close(fd)
-    try:
-        yield Path(tmp)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-
-
-def write_text_atomic(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` through :func:`atomic_path`."""
-    with atomic_path(path) as tmp:
-        tmp.write_text(text)
-
-
-def write_json_atomic(path: Path, data: Any) -> None:
-    """Indented JSON with a final newline, written atomically."""
-    write_text_atomic(path, json.dumps(data, indent=2) + "\n")
 
 
 @dataclass(frozen=True)

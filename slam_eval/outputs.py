@@ -17,15 +17,13 @@ Rules, so that a folder never mixes two runs unnoticed:
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 import time
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import AbstractContextManager, contextmanager
 from pathlib import Path
 from typing import Any
 
-from uss_slam.core.errors import UssSlamError
+from uss_slam.core import files
 from uss_slam.core.files import file_sha256
 from uss_slam.core.tum_io import StrPath
 
@@ -45,34 +43,10 @@ OUTPUT_NAMES = (
 HYDRA_FILES = (".hydra/config.yaml", ".hydra/hydra.yaml", ".hydra/overrides.yaml")
 
 
-@contextmanager
-def atomic_path(path: StrPath) -> Iterator[Path]:
-    """Yield a temporary path beside ``path`` to write to; renamed onto ``path`` when the block
-    ends normally, removed when it raises."""
-    path = Path(path)
-    fd, name = tempfile.mkstemp(prefix=f"{TMP_PREFIX}{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    tmp = Path(name)
-    try:
-        yield tmp
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
-
-
-def check_writable(folder: StrPath, key: str = "out_dir") -> Path:
-    """Create ``folder`` if needed and prove a file can be written there (then removed)."""
-    path = Path(folder)
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-        fd, name = tempfile.mkstemp(prefix=TMP_PREFIX, suffix=".tmp", dir=path)
-        os.close(fd)
-        os.unlink(name)
-    except OSError as err:
-        raise UssSlamError(
-            f"{key}={path}: cannot write there ({err.strerror or type(err).__name__})"
-        ) from None
-    return path
+def atomic_path(path: StrPath) -> AbstractContextManager[Path]:
+    """:func:`uss_slam.core.files.atomic_path` with this folder's temporary prefix (what
+    :func:`clear_outputs` removes after a killed run)."""
+    return files.atomic_path(path, prefix=TMP_PREFIX)
 
 
 class RunFolder:

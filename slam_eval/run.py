@@ -18,10 +18,11 @@ from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from uss_slam.core.cli import JobFailed, exit_on_user_error, report_failed_jobs
+from uss_slam.core.files import check_writable
 
 from .config import check, config_error_line, register_configs, run_name
 from .filters import build_filters
-from .outputs import RunFolder, check_writable
+from .outputs import RunFolder
 from .pipeline import SlamPipeline
 from .report import evaluate, write_comparison, write_run
 from .segmenters import Segmenter
@@ -67,7 +68,7 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     only once the first SLAM run has finished (see :mod:`.outputs`).
     """
     plan = check(cfg)
-    out = check_writable(output_dir(cfg))
+    out = check_writable(output_dir(cfg), "out_dir")
     if OmegaConf.select(cfg, "system.name") == "orbslam3":  # the real ORB-SLAM3, not the harness
         from .orbslam3 import run_from_config
 

@@ -14,14 +14,8 @@ from pathlib import Path
 
 import pytest
 
-from uss_slam.pipelines.stages import (
-    STAMP,
-    Progress,
-    Stage,
-    atomic_path,
-    run_stage,
-    write_json_atomic,
-)
+from uss_slam.core.files import atomic_path, write_json_atomic
+from uss_slam.pipelines.stages import STAMP, Progress, Stage, run_stage
 
 
 def _work(folder: Path, calls: list[str], text: str = "done") -> str:
