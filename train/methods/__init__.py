@@ -9,6 +9,7 @@ segmenter, the discriminators, the schedules, logging and checkpoints. To add on
 """
 
 from uss_slam.train.methods.adaptsegnet import AdaptSegNet
+from uss_slam.train.methods.advent import AdvEnt
 from uss_slam.train.methods.base import (
     DomainPass,
     Method,
@@ -23,13 +24,18 @@ from uss_slam.train.methods.base import (
     frozen,
     uses_batch_statistics,
 )
+from uss_slam.train.methods.minent import MinEnt
+from uss_slam.train.methods.self_training import SelfTraining
 from uss_slam.train.methods.source_only import SourceOnly
 
 __all__ = [
     "AdaptSegNet",
+    "AdvEnt",
     "DomainPass",
     "Method",
+    "MinEnt",
     "NonFiniteLossError",
+    "SelfTraining",
     "SourceOnly",
     "SourceSegmentation",
     "StepValues",
