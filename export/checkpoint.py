@@ -1,4 +1,4 @@
-"""A ``uss-train`` checkpoint -> its segmenter (``DeepLabV2``, eval mode, CPU).
+"""A ``uss-train`` checkpoint -> its segmenter (``DeepLabV2`` or ``PSPNet``, eval mode, CPU).
 
 The weights come from :func:`uss_slam.models.checkpoint.read_checkpoint`; the architecture from
 the training run's ``.hydra/config.yaml`` (``model.net``) next to the checkpoint's folder, or from
@@ -18,8 +18,10 @@ from omegaconf import DictConfig, OmegaConf
 
 from uss_slam.core.errors import DataFormatError, UssSlamError
 from uss_slam.core.files import file_sha256
+from uss_slam.models import SEGMENTERS
 from uss_slam.models.checkpoint import read_checkpoint
 from uss_slam.models.deeplab import DeepLabV2
+from uss_slam.models.pspnet import PSPNet
 
 
 def run_config_path(ckpt_path: Path) -> Path:
@@ -55,7 +57,7 @@ def run_name(ckpt_path: Path) -> str | None:
 
 @dataclass(frozen=True)
 class LoadedCheckpoint:
-    segmenter: DeepLabV2
+    segmenter: DeepLabV2 | PSPNet
     class_names: tuple[str, ...]
     experiment: str
     """The training run's ``run_name``, else the checkpoint's file stem."""
@@ -112,9 +114,10 @@ def load_checkpoint(
         if key in node:
             node[key] = None
     segmenter = instantiate(node)
-    if not isinstance(segmenter, DeepLabV2):
+    if not isinstance(segmenter, SEGMENTERS):
+        expected = " or ".join(c.__name__ for c in SEGMENTERS)
         raise DataFormatError(
-            ckpt_path, f"net config builds {type(segmenter).__name__}, expected DeepLabV2"
+            ckpt_path, f"net config builds {type(segmenter).__name__}, expected {expected}"
         )
     if segmenter.num_classes != info.num_classes:
         raise DataFormatError(

@@ -21,8 +21,9 @@ from uss_slam.core.classes import CLASS_NAMES
 from uss_slam.core.errors import DataFormatError
 
 SEGMENTER_PREFIX = "segmenter."
-HEAD_WEIGHT = "main.branches.0.weight"
-"""The segmenter entry whose first dimension is the class count (DeepLab-v2's main head)."""
+HEAD_WEIGHTS = ("main.branches.0.weight", "main.classifier.weight")
+"""Segmenter entries whose first dimension is the class count: DeepLab-v2's main head (its
+first ASPP branch), PSPNet's main classifier; the first present counts."""
 
 
 @dataclass(frozen=True)
@@ -110,11 +111,10 @@ def read_checkpoint(path: str | Path, num_classes: int | None = None) -> Checkpo
     }
     if not segmenter:
         raise DataFormatError(path, "checkpoint state_dict has no 'segmenter.*' entries")
-    head = segmenter.get(HEAD_WEIGHT)
+    head = next((segmenter[k] for k in HEAD_WEIGHTS if k in segmenter), None)
     if head is None or head.dim() != 4:
-        raise DataFormatError(
-            path, f"no 4-D '{SEGMENTER_PREFIX}{HEAD_WEIGHT}' (not a DeepLab-v2 segmenter?)"
-        )
+        names = " or ".join(f"'{SEGMENTER_PREFIX}{k}'" for k in HEAD_WEIGHTS)
+        raise DataFormatError(path, f"no 4-D {names} (not a DeepLab-v2 or PSPNet segmenter?)")
     classes = int(head.shape[0])
 
     names = hparams.get("class_names")

@@ -1,9 +1,10 @@
-"""Initialising a :class:`~uss_slam.models.deeplab.DeepLabV2` from a local file.
+"""Initialising a :class:`~uss_slam.models.deeplab.DeepLabV2` or
+:class:`~uss_slam.models.pspnet.PSPNet` from a local file.
 
 Accepted files (read with ``torch.load(weights_only=True)``, never executing pickled code):
 
 - a training checkpoint of ``uss-train`` (``state_dict`` with ``segmenter.*`` keys);
-- a DeepLabV2 state dict (``backbone.* aux.* main.*``);
+- a segmenter state dict (``backbone.* aux.* main.*``);
 - a torchvision ResNet state dict (``conv1.* layer1.* ... fc.*``): backbone only.
 
 A file whose heads have another class count (e.g. a 21-class VOC model) loads its backbone, keeps
@@ -20,6 +21,7 @@ import torch
 from torch import Tensor, nn
 
 from uss_slam.core.errors import DataFormatError
+from uss_slam.models.checkpoint import HEAD_WEIGHTS
 
 log = logging.getLogger(__name__)
 
@@ -67,7 +69,8 @@ def _read_state_dict(path: Path) -> tuple[dict[str, Tensor], str]:
 
 
 def load_segmenter_weights(model: nn.Module, path: str | Path) -> LoadReport:
-    """Copy weights from ``path`` into ``model`` (a DeepLabV2); see the module docstring.
+    """Copy weights from ``path`` into ``model`` (a DeepLabV2 or PSPNet); see the module
+    docstring.
 
     Raises :class:`DataFormatError` naming the file when it is unreadable, when backbone
     tensors are missing, or when their shapes differ from the model's (another architecture).
@@ -102,10 +105,10 @@ def load_segmenter_weights(model: nn.Module, path: str | Path) -> LoadReport:
     elif any(k not in state for k in head_keys):
         note = "file has no (complete) heads: heads keep their initialisation"
     elif any(state[k].shape != own[k].shape for k in head_keys):
-        file_classes = state["main.branches.0.weight"].shape[0]
+        classes = next(k for k in HEAD_WEIGHTS if k in own)
         note = (
-            f"file heads have {file_classes} classes, the model has "
-            f"{own['main.branches.0.weight'].shape[0]}: backbone loaded, heads re-initialised"
+            f"file heads have {state[classes].shape[0]} classes, the model has "
+            f"{own[classes].shape[0]}: backbone loaded, heads re-initialised"
         )
     else:
         to_load.update({k: state[k] for k in head_keys})

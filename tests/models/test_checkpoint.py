@@ -117,7 +117,8 @@ def test_not_a_lightning_checkpoint(tmp_path: Path) -> None:
     no_head = {k: v for k, v in state.items() if not k.startswith("segmenter.main.")}
     headless = _save(tmp_path / "headless.ckpt", {"state_dict": no_head, "hyper_parameters": {}})
     assert _error(headless) == (
-        "no 4-D 'segmenter.main.branches.0.weight' (not a DeepLab-v2 segmenter?)"
+        "no 4-D 'segmenter.main.branches.0.weight' or 'segmenter.main.classifier.weight' "
+        "(not a DeepLab-v2 or PSPNet segmenter?)"
     )
 
 

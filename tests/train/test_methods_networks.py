@@ -1,0 +1,51 @@
+"""Every adaptation method trains every two-head segmenter: one iteration of each shipped
+``model/method`` with ``model/net=deeplab_small`` and ``pspnet_small`` (tiny crops)."""
+
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+
+import pytest
+import torch
+from hydra.utils import instantiate
+from lightning.pytorch import Trainer
+from train_helpers import compose_train, train_step_benchmark
+
+from uss_slam.models import SEGMENTERS
+
+bench = train_step_benchmark()
+
+METHODS = ["source_only", "adaptsegnet", "advent", "minent", "self_training"]
+NETS = {"deeplab_small": "DeepLabV2", "pspnet_small": "PSPNet"}
+
+
+@pytest.mark.parametrize("net", sorted(NETS))
+@pytest.mark.parametrize("method", METHODS)
+def test_one_iteration_of_every_method_on_every_network(
+    method: str, net: str, tmp_path: Path
+) -> None:
+    cfg = compose_train(["experiment=ci", f"model/method={method}", f"model/net={net}"], tmp_path)
+    torch.manual_seed(0)
+    model = instantiate(cfg.model)
+    assert isinstance(model.segmenter, SEGMENTERS)
+    assert type(model.segmenter).__name__ == NETS[net] and model.method.name == method
+    seg_before = copy.deepcopy(model.segmenter.state_dict())
+    d_before = copy.deepcopy(model.d_main.state_dict())
+    loader = torch.utils.data.DataLoader(
+        bench._Repeat(bench.random_batch(33, 2), 1), batch_size=None
+    )
+    Trainer(
+        accelerator="cpu",
+        max_epochs=1,
+        logger=False,
+        enable_checkpointing=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+    ).fit(model, train_dataloaders=loader)
+    assert model.iteration == 1
+    after = model.segmenter.state_dict()
+    assert all(torch.isfinite(v).all() for v in after.values() if v.is_floating_point())
+    assert not all(torch.equal(v, seg_before[k]) for k, v in after.items())
+    d_moved = not all(torch.equal(v, d_before[k]) for k, v in model.d_main.state_dict().items())
+    assert d_moved is model.method.trains_discriminators
