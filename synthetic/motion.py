@@ -14,13 +14,18 @@ import numpy as np
 from .primitives import rot_x, rot_y, rot_z
 from .seeding import stream
 
+LOOP_PERIOD = 12.0
+"""Seconds per turn of the ``loop`` motion (360 frames at 30 Hz)."""
+LOOP_RADIUS = 0.3
+"""Radius of the ``loop`` motion's circle, metres."""
+
 
 @dataclass(frozen=True)
 class Preset:
     """A sequence recipe: how the camera moves and what the people do."""
 
     name: str
-    motion: str  # "xyz", "static", "rpy", "halfsphere"
+    motion: str  # "xyz", "static", "rpy", "halfsphere", "loop"
     people: str  # "walking", "sitting", "frozen"
     description: str
 
@@ -40,6 +45,9 @@ PRESETS: dict[str, Preset] = {
                "camera almost still; two seated people gesture and turn their heads"),
         Preset("static_xyz", "xyz", "frozen",
                "control: camera translated along its axes; two seated people who never move"),
+        Preset("loop", "loop", "frozen",
+               "camera tours the room on a circle looking outwards, back at its start every "
+               f"{LOOP_PERIOD:g} s (loop closing; >= {int(LOOP_PERIOD * 30) + 90} frames)"),
     )
 }  # fmt: skip
 """The presets by name (``uss-synth sequence --preset NAME``)."""
@@ -62,7 +70,7 @@ class CameraMotion:
     """
 
     def __init__(self, kind: str, eye: np.ndarray, target: np.ndarray, seed: int) -> None:
-        if kind not in ("xyz", "static", "rpy", "halfsphere"):
+        if kind not in ("xyz", "static", "rpy", "halfsphere", "loop"):
             raise ValueError(f"unknown camera motion {kind!r}")
         self.kind = kind
         self.eye = np.asarray(eye, np.float64)
@@ -94,6 +102,16 @@ class CameraMotion:
             # camera axes: z ahead (roll), x right (pitch), y down (yaw)
             rot = rot @ rot_y(yaw) @ rot_x(pitch) @ rot_z(roll)
             pos = pos + self.base @ (0.01 * np.array([w(t, 3, 4.1), w(t, 4, 5.3), w(t, 5, 6.7)]))
+        elif self.kind == "loop":
+            # On a circle 1.5 m ahead of the eye (mid-room), looking outwards and a little down,
+            # one turn every LOOP_PERIOD: the whole room passes by, then the start view again.
+            forward = self.base[:, 2].copy()
+            forward[2] = 0.0
+            forward /= np.linalg.norm(forward)
+            angle = 2 * math.pi * t / LOOP_PERIOD
+            heading = rot_z(angle) @ forward
+            pos = self.eye + (1.5 - LOOP_RADIUS) * forward + LOOP_RADIUS * heading
+            rot = look_at(pos, pos + 2.0 * heading + np.array([0.0, 0.0, -0.45]))
         else:  # halfsphere: radius 0.5 m around a centre half a metre ahead of the eye
             forward = self.base[:, 2]
             right = self.base[:, 0]
