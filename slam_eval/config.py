@@ -2,7 +2,9 @@
 SLAM work starts.
 
 Defaults live in the dataclasses (:class:`~.frontend.OrbConfig`, :class:`~.tracker.TrackerConfig`,
-:class:`~.semantic_map.MapConfig`, :class:`~.report.EvalConfig`) and in the filters' constructors.
+:class:`~.semantic_map.MapConfig`, :class:`~.local_mapping.LocalMappingConfig`,
+:class:`~.loop_closing.LoopClosingConfig`, :class:`~.report.EvalConfig`) and in the filters'
+constructors.
 :func:`register_configs` turns them into Hydra structured configs in Hydra's ConfigStore
 (``uss_slam_schema/slam``, ``uss_slam_schema/eval``), which ``configs/slam/orb_rgbd.yaml`` and
 ``configs/slam_eval.yaml`` list in their defaults: ``uss-slam --cfg job`` prints the values,
@@ -30,6 +32,8 @@ from uss_slam.core.errors import UssSlamError
 
 from .filters import FILTERS, build_filters
 from .frontend import OrbConfig
+from .local_mapping import LocalMappingConfig
+from .loop_closing import LoopClosingConfig
 from .pipeline import SEGMENT_SCHEDULES
 from .report import EvalConfig
 from .semantic_map import MapConfig
@@ -67,6 +71,13 @@ class SlamConfig:
     """Background threads (PNG decoding releases the GIL)."""
     parallel: bool = True
     """Segment and extract ORB in those threads too (overlaps tracking)."""
+    local_ba: bool = False
+    """Local bundle adjustment and keyframe culling after each new keyframe (ORB-SLAM2's local
+    mapping, on GTSAM); false = the tracker alone, trajectories as without a back end."""
+    loop_closing: bool = False
+    """Loop detection, verification and essential-graph optimisation (ORB-SLAM2's loop closing)."""
+    local_ba_params: LocalMappingConfig = field(default_factory=LocalMappingConfig)
+    loop_closing_params: LoopClosingConfig = field(default_factory=LoopClosingConfig)
 
 
 def _editable(cls: type) -> DictConfig:
@@ -106,6 +117,9 @@ class RunPlan:
     runs: list[tuple[str | None, list[str]]]
     """``(sub-folder or None, filter names)`` per SLAM run: one run, or the baseline and each
     filter set of ``compare``."""
+    backend: dict[str, Any] = field(default_factory=dict)
+    """The back-end keyword arguments of :class:`~.pipeline.SlamPipeline` (``local_ba``,
+    ``loop_closing`` and their parameters)."""
 
 
 def run_name(filters: Sequence[str]) -> str:
@@ -246,6 +260,16 @@ def check(cfg: DictConfig) -> RunPlan:
     tracker = _dataclass(TrackerConfig, slam.tracker, "slam.tracker")
     semantic_map = _dataclass(MapConfig, slam.map, "slam.map")
     evaluation = _dataclass(EvalConfig, cfg.eval, "eval")
+    backend = {
+        "local_ba": bool(slam.local_ba),
+        "loop_closing": bool(slam.loop_closing),
+        "local_ba_params": _dataclass(
+            LocalMappingConfig, slam.local_ba_params, "slam.local_ba_params"
+        ),
+        "loop_closing_params": _dataclass(
+            LoopClosingConfig, slam.loop_closing_params, "slam.loop_closing_params"
+        ),
+    }
     for key in ("prefetch", "workers"):
         if int(slam[key]) < (0 if key == "prefetch" else 1):
             raise UssSlamError(f"slam.{key}: must be >= {0 if key == 'prefetch' else 1}")
@@ -259,7 +283,7 @@ def check(cfg: DictConfig) -> RunPlan:
         build_filters(names, params)
     build_filters(list(FILTERS), params)  # the parameters of unused filters are checked too
     _check_segmenter(cfg.segmenter)
-    return RunPlan(orb, tracker, semantic_map, evaluation, params, runs)
+    return RunPlan(orb, tracker, semantic_map, evaluation, params, runs, backend)
 
 
 # ------------------------------------------------------------------------- config errors

@@ -112,3 +112,33 @@ def optimise_pose(
         if np.abs(step).max() < 1e-7:  # sub-micrometre / sub-microradian: converged
             break
     return pose
+
+
+def chi2_per_observation(
+    k: np.ndarray,
+    bf: float,
+    poses_cw: np.ndarray,
+    world: np.ndarray,
+    obs: np.ndarray,
+    stereo: np.ndarray,
+    inv_sigma2: np.ndarray,
+    disparity_sigma: float = 0.0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`chi2` with one pose per observation: ``poses_cw`` (M, 4, 4), the other arrays as
+    there. Returns the weighted squared errors ``(M,)`` and the in-front test ``(M,)`` (what
+    ORB-SLAM2's bundle adjustments test after optimising: ``chi2()`` and ``isDepthPositive()``).
+
+    ``disparity_sigma`` > 0 (pixels): the stereo observations' ``u`` and ``u_r`` share the
+    keypoint's noise and differ by the disparity ``bf / z``, whose own noise is this sigma, so the
+    error is ``(e_u² + e_v²) / σ² + (e_u - e_ur)² / disparity_sigma²`` (the Mahalanobis form of
+    that covariance); 0 = ORB-SLAM2's independent ``(u, v, u_r)``."""
+    cam = np.einsum("mij,mj->mi", poses_cw[:, :3, :3], world) + poses_cw[:, :3, 3]
+    z = cam[:, 2]
+    inv_z = 1.0 / np.where(np.abs(z) < 1e-9, 1e-9, z)
+    u = k[0, 0] * cam[:, 0] * inv_z + k[0, 2]
+    v = k[1, 1] * cam[:, 1] * inv_z + k[1, 2]
+    eu, ev, er = u - obs[:, 0], v - obs[:, 1], (u - bf * inv_z) - obs[:, 2]
+    e2 = (eu**2 + ev**2) * inv_sigma2
+    # Correlated model: (e_u - e_ur) is the disparity's error.
+    extra = (eu - er) ** 2 / disparity_sigma**2 if disparity_sigma > 0 else er**2 * inv_sigma2
+    return e2 + np.where(stereo, extra, 0.0), z > 0

@@ -11,7 +11,13 @@ per filter), ``timing_ms`` (mean wall ms per frame of each module and ``total``)
 ORB-extraction wall time of the same run; below 1 is possible, as extraction runs in parallel),
 and ``segmentation``: ``schedule`` (``every_frame`` | ``keyframes``), ``thread`` (``prefetch``:
 concurrently with ORB extraction; ``main``), ``frames_segmented``, ``wall_ms`` / ``cpu_ms`` per
-segmented frame, next to ``orb_wall_ms`` / ``orb_cpu_ms`` per frame for comparison.
+segmented frame, next to ``orb_wall_ms`` / ``orb_cpu_ms`` per frame for comparison; the back
+end: ``local_ba`` (null when off, else ``runs``, mean ``wall_ms`` per run, ``keyframes_culled``,
+``observations_erased``, ``mean_free_keyframes``, ``mean_points``), ``loop_closing`` (on/off),
+``loop_closures`` (how many) and ``loop_closure_frames`` (per closure: ``frame``, ``stamp``,
+``keyframe``, ``loop_frame``, ``loop_keyframe``, ``inliers``, ``correction_m``,
+``correction_deg``, ``fused`` points, ``wall_ms``), ``loop_candidates_rejected`` (recognised
+places that failed the geometric verification).
 """
 
 from __future__ import annotations
@@ -158,6 +164,11 @@ def metrics_dict(result: RunResult, evaluation: Evaluation, config: EvalConfig) 
             "orb_cpu_ms": result.cpu_ms.get("orb", 0.0),
         },
         "semantic_map_points": len(result.cloud),
+        "local_ba": result.local_ba,
+        "loop_closing": result.loop_closing,
+        "loop_closures": len(result.loop_closures),
+        "loop_closure_frames": result.loop_closures,
+        "loop_candidates_rejected": result.loop_candidates_rejected,
     }
 
 
@@ -322,9 +333,50 @@ def _report_md(
         f"Semantic map: `map.ply`, {len(result.cloud)} points.",
         "",
     ]
+    lines += _backend_md(result)
     for plot in plots:
         lines += [f"![{plot}]({plot})", ""]
     return "\n".join(lines)
+
+
+def _backend_md(result: RunResult) -> list[str]:
+    """The back-end section of ``report.md`` (empty when the back end is off)."""
+    if result.local_ba is None and not result.loop_closing:
+        return []
+    lines = ["## Back end", ""]
+    ba = result.local_ba
+    if ba is None:
+        lines.append("Local bundle adjustment: off.")
+    else:
+        lines.append(
+            f"Local bundle adjustment: {ba['runs']} runs, {ba['wall_ms']:.1f} ms each "
+            f"({ba['mean_free_keyframes']:.1f} keyframes and {ba['mean_points']:.0f} points "
+            f"optimised on average); {ba['observations_erased']} outlier observations erased; "
+            f"{ba['keyframes_culled']} redundant keyframes culled."
+        )
+    lines.append("")
+    if not result.loop_closing:
+        lines += ["Loop closing: off.", ""]
+        return lines
+    closures = result.loop_closures
+    lines += [
+        f"Loop closing: {len(closures)} loop(s) closed; {result.loop_candidates_rejected} "
+        "recognised place(s) failed the geometric verification.",
+        "",
+    ]
+    if closures:
+        lines += [
+            "| frame | loop frame | inliers | correction [m] | correction [deg] | fused | ms |",
+            "|---|---|---|---|---|---|---|",
+        ]
+        for c in closures:
+            lines.append(
+                f"| {c['frame']} | {c['loop_frame']} | {c['inliers']} | "
+                f"{c['correction_m']:.4f} | {c['correction_deg']:.3f} | {c['fused']} | "
+                f"{c['wall_ms']:.0f} |"
+            )
+        lines.append("")
+    return lines
 
 
 # ---------------------------------------------------------------------- comparison

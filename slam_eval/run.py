@@ -100,6 +100,7 @@ def run(cfg: DictConfig) -> dict[str, Any]:
                 prefetch=int(slam.prefetch),
                 workers=int(slam.workers),
                 parallel=bool(slam.parallel),
+                **plan.backend,
                 segment=str(cfg.segment),
                 progress=bool(cfg.progress),
                 description=f"{sequence.path.name} [{run_name(names)}]",

@@ -98,16 +98,21 @@ class SemanticMapBuilder:
 
     def build(self) -> PointCloud:
         """The merged cloud of every keyframe added so far."""
-        if not self._chunks:
-            return PointCloud(
-                np.zeros((0, 3), np.float32), np.zeros((0, 3), np.uint8), np.zeros(0, np.uint8)
-            )
-        merged = PointCloud(
-            np.concatenate([c.points for c in self._chunks]),
-            np.concatenate([c.colors for c in self._chunks]),
-            np.concatenate([c.labels for c in self._chunks]),
+        return merge_clouds(self._chunks, self.config.voxel)
+
+
+def merge_clouds(clouds: list[PointCloud], voxel: float) -> PointCloud:
+    """One voxel-merged cloud of ``clouds`` (keyframe clouds in one frame, e.g. the world)."""
+    if not clouds:
+        return PointCloud(
+            np.zeros((0, 3), np.float32), np.zeros((0, 3), np.uint8), np.zeros(0, np.uint8)
         )
-        return _voxelise(merged, self.config.voxel)
+    merged = PointCloud(
+        np.concatenate([c.points for c in clouds]),
+        np.concatenate([c.colors for c in clouds]),
+        np.concatenate([c.labels for c in clouds]),
+    )
+    return _voxelise(merged, voxel)
 
 
 def _voxelise(cloud: PointCloud, voxel: float) -> PointCloud:

@@ -1,4 +1,5 @@
-"""RGB-D tracking in the style of ORB-SLAM2's tracking thread (no loop closing, no bundle adjustment).
+"""RGB-D tracking in the style of ORB-SLAM2's tracking thread (the back end, local bundle
+adjustment and loop closing, is :mod:`.local_mapping` and :mod:`.loop_closing`).
 
 Per frame:
 
@@ -7,7 +8,9 @@ Per frame:
 2. **Guided matching** of the local map (points of the keyframes that share the most points with
    the previous frame, plus the latest keyframe) projected with the predicted pose, in a window of
    ``search_radius`` × the predicted level's scale (doubled once when too few matches are found).
-3. **PnP-RANSAC** (``cv2.solvePnPRansac``, seeded with the prediction), then **refinement**
+3. **PnP-RANSAC** (``cv2.solvePnPRansac``, seeded with the prediction; or PROSAC, OpenCV's USAC
+   sampling the matches in order of descriptor distance, with ``sampler="prosac"``), then
+   **refinement**
    (``cv2.solvePnPRefineLM``) alternated with re-classifying inliers by the χ² test of
    ORB-SLAM2 (5.991 × the level's variance).
 4. **Local-map tracking**: the local map is projected again with the estimated pose, matched in a
@@ -42,6 +45,9 @@ from .matching import Matches, guided_match, hamming
 from .pose import CHI2_MONO, CHI2_STEREO, chi2, observations, optimise_pose
 from .slam_map import KeyFrame, SlamMap
 
+SAMPLERS = ("ransac", "prosac")
+"""Values of :attr:`TrackerConfig.sampler`."""
+
 
 @dataclass(frozen=True)
 class TrackerConfig:
@@ -62,6 +68,10 @@ class TrackerConfig:
     ransac_iterations: int = 100
     ransac_threshold: float = 3.0
     """PnP-RANSAC reprojection threshold, px (refinement then uses the per-level χ² test)."""
+    sampler: str = "ransac"
+    """How PnP hypotheses are sampled: ``ransac`` (uniformly, ``cv2.solvePnPRansac`` with
+    AP3P / EPnP seeded with the prediction) or ``prosac`` (OpenCV's USAC with PROSAC sampling:
+    the matches sorted by descriptor distance, the most distinctive tried first)."""
     refine_rounds: int = 4
     rgbd_refinement: bool = True
     """Refine with depth as a virtual stereo coordinate (ORB-SLAM2 RGB-D); False = reprojection
@@ -92,9 +102,11 @@ class TrackerConfig:
 
     def __post_init__(self) -> None:
         # Messages start with the field name: uss-slam prefixes the config section.
+        if self.sampler not in SAMPLERS:
+            raise ValueError(f"sampler must be one of {', '.join(SAMPLERS)}, got {self.sampler!r}")
         for item in fields(self):
             value = getattr(self, item.name)
-            if isinstance(value, bool):
+            if isinstance(value, (bool, str)):
                 continue
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"{item.name} must be a finite number >= 0, got {value}")
@@ -155,6 +167,7 @@ class Tracker:
         self.last_pose_cw: np.ndarray | None = None
         self.last_points = np.zeros(0, np.int64)
         self.reference: KeyFrame | None = None
+        self._last_in_reference: np.ndarray | None = None
         self.frames_since_keyframe = 0
         self._previous_tracked = False
         self.relocalisations = 0
@@ -225,7 +238,7 @@ class Tracker:
         if not np.any(drop & (matched >= 0)) or keep.sum() < self.config.min_inliers:
             matched = np.where(drop, -1, matched)
             return pose_wc, matched
-        pose_cw, inl = self._refine(
+        pose_cw, inl = self.refine_pose(
             self.map.points.position.view[matched[keep]],
             features,
             np.flatnonzero(keep),
@@ -307,6 +320,26 @@ class Tracker:
             self.reference = kf
         elif len(counts) and counts.max() > 0:
             self.reference = self.map.keyframes[int(np.argmax(counts))]
+        if self.reference is not None:
+            self._last_in_reference = pose_cw @ self.reference.pose_wc
+
+    def anchor(self) -> tuple[int, np.ndarray] | None:
+        """The last tracked frame relative to its reference keyframe: ``(keyframe id, T_c,kf)``
+        (4, 4), what ORB-SLAM2 stores per frame so that its trajectory follows the keyframes
+        when the back end moves them; None before the first keyframe."""
+        if self.reference is None or self._last_in_reference is None:
+            return None
+        return self.reference.id, self._last_in_reference.copy()
+
+    def map_changed(self) -> None:
+        """The back end moved keyframes: put the last pose back on its reference keyframe
+        (ORB-SLAM2's ``UpdateLastFrame``), so that the next prediction is in the corrected map."""
+        anchor = self.anchor()
+        if anchor is None or self.last_pose_cw is None:
+            return
+        kf_id, in_reference = anchor
+        self.last_pose_cw = in_reference @ invert(self.map.pose_wc(kf_id))
+        self._last_in_reference = in_reference
 
     def _local_points(self) -> np.ndarray:
         counts = self.map.covisibility(self.last_points)
@@ -342,7 +375,7 @@ class Tracker:
         ids = point_ids[ok]
         return ids, uv[ok], self.map.predict_level(ids, dist[ok]), cos_view[ok]
 
-    def _search(
+    def match_projected(
         self,
         point_ids: np.ndarray,
         pose_cw: np.ndarray,
@@ -351,6 +384,11 @@ class Tracker:
         radius: float,
         local: bool = False,
     ) -> tuple[np.ndarray, Matches]:
+        """ORB-SLAM2's ``SearchByProjection``: the map points ``point_ids`` in the view of
+        ``pose_cw`` (frustum, distance and viewing-angle tests) matched to the ``available``
+        keypoints of ``features`` within ``radius`` × the predicted level's scale, px. Returns
+        the projected ids and the matches (``query`` indexes those ids). ``local``: count the
+        points as visible (local-map tracking) and narrow the window for frontal views."""
         ids, uv, level, cos_view = self._project(point_ids, pose_cw)
         r = radius * self.extractor.scales[level]
         if local:
@@ -378,13 +416,17 @@ class Tracker:
         velocity = self.velocity if self.velocity is not None else np.eye(4)
         predicted = velocity @ self.last_pose_cw
         local = self._local_points()
-        ids, m = self._search(local, predicted, features, static, cfg.search_radius)
+        ids, m = self.match_projected(local, predicted, features, static, cfg.search_radius)
         if len(m) < cfg.min_matches:
-            ids, m = self._search(local, predicted, features, static, 2 * cfg.search_radius)
+            ids, m = self.match_projected(local, predicted, features, static, 2 * cfg.search_radius)
         if len(m) < cfg.min_matches:
             return None, None
         pose_cw = self._pnp(
-            self.map.points.position.view[ids[m.query]], features, m.keypoint, predicted
+            self.map.points.position.view[ids[m.query]],
+            features,
+            m.keypoint,
+            predicted,
+            m.distance,
         )
         if pose_cw is None:
             return None, None
@@ -393,12 +435,12 @@ class Tracker:
     def _track_local_map(
         self, local: np.ndarray, pose_cw: np.ndarray, features: Features, static: np.ndarray
     ):
-        ids, m = self._search(
+        ids, m = self.match_projected(
             local, pose_cw, features, static, self.config.local_radius, local=True
         )
         if len(m) < self.config.min_inliers:
             return None, None
-        pose_cw, inl = self._refine(
+        pose_cw, inl = self.refine_pose(
             self.map.points.position.view[ids[m.query]], features, m.keypoint, pose_cw
         )
         if inl.sum() < self.config.min_inliers:
@@ -408,12 +450,21 @@ class Tracker:
         return pose_cw, matched
 
     def _pnp(
-        self, world: np.ndarray, features: Features, kp: np.ndarray, guess_cw: np.ndarray | None
+        self,
+        world: np.ndarray,
+        features: Features,
+        kp: np.ndarray,
+        guess_cw: np.ndarray | None,
+        distance: np.ndarray,
     ) -> np.ndarray | None:
         cfg = self.config
-        uv = features.uv[kp]
         if len(world) < 6:
             return None
+        if cfg.sampler == "prosac":
+            ok, rvec, tvec, inliers = self._prosac(world, features, kp, distance)
+            found = self._refined_hypothesis(world, features, kp, ok, rvec, tvec, inliers, 6)
+            return None if found is None else found[0]
+        uv = features.uv[kp]
         if guess_cw is not None:
             rvec, tvec = to_rvec(guess_cw)
             use_guess = True
@@ -433,12 +484,43 @@ class Tracker:
             confidence=0.999,
             flags=cv2.SOLVEPNP_EPNP if use_guess else cv2.SOLVEPNP_AP3P,
         )
-        if not ok or inliers is None or len(inliers) < 6:
-            return None
-        pose_cw, inl = self._refine(world, features, kp, from_rvec(rvec, tvec))
-        return pose_cw if inl.sum() >= 6 else None
+        found = self._refined_hypothesis(world, features, kp, ok, rvec, tvec, inliers, 6)
+        return None if found is None else found[0]
 
-    def _refine(
+    def _prosac(
+        self,
+        world: np.ndarray,
+        features: Features,
+        kp: np.ndarray,
+        distance: np.ndarray,
+        iterations: int | None = None,
+    ):
+        """PnP with OpenCV's USAC and PROSAC sampling: matches sorted by descriptor distance
+        (PROSAC draws its samples from the best-ranked matches first). Returns
+        ``cv2.solvePnPRansac``'s outputs (inlier indices refer to the sorted order)."""
+        order = np.argsort(distance, kind="stable")
+        return cv2.solvePnPRansac(
+            world[order].reshape(-1, 1, 3).astype(np.float64),
+            features.uv[kp[order]].reshape(-1, 1, 2).astype(np.float64),
+            self.k,
+            None,
+            iterationsCount=iterations or self.config.ransac_iterations,
+            reprojectionError=self.config.ransac_threshold,
+            confidence=0.999,
+            flags=cv2.USAC_PROSAC,
+        )
+
+    def _refined_hypothesis(
+        self, world, features, kp, ok, rvec, tvec, inliers, min_inliers: int
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """The RANSAC pose refined (:meth:`refine_pose`) and its inlier mask over the given
+        matches (in their given order), or None with too few inliers."""
+        if not ok or inliers is None or len(inliers) < min_inliers:
+            return None
+        pose_cw, inl = self.refine_pose(world, features, kp, from_rvec(rvec, tvec))
+        return (pose_cw, inl) if inl.sum() >= min_inliers else None
+
+    def refine_pose(
         self, world: np.ndarray, features: Features, kp: np.ndarray, pose_cw: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
         """Refine a pose on matches ``world[i] <-> keypoint kp[i]``; returns ``(pose_cw, inliers)``.
@@ -503,7 +585,7 @@ class Tracker:
             return None, None
         query = np.flatnonzero(static)
         bad = self.map.points.bad.view
-        scored: list[tuple[int, int, np.ndarray, np.ndarray]] = []
+        scored: list[tuple[int, int, np.ndarray, np.ndarray, np.ndarray]] = []
         for k, kf in enumerate(kfs):
             ids = kf.point_ids
             usable = np.flatnonzero((ids >= 0) & ~bad[np.maximum(ids, 0)])
@@ -524,13 +606,14 @@ class Tracker:
             # Keep one keypoint per map point (the first, i.e. arbitrary but deterministic).
             _, first = np.unique(pid, return_index=True)
             if len(first) >= cfg.min_matches:
-                scored.append((len(first), k, kp[first], pid[first]))
+                scored.append((len(first), k, kp[first], pid[first], dist[good, 0][first]))
         # Most matches first; ties: the latest keyframe first.
         scored.sort(key=lambda c: (-c[0], -c[1]))
-        for _, k, kp, pid in scored[: cfg.reloc_keyframes]:
-            pose_cw = self._pnp_global(self.map.points.position.view[pid], features, kp)
-            if pose_cw is None:
+        for _, k, kp, pid, distance in scored[: cfg.reloc_keyframes]:
+            found = self.pnp_global(self.map.points.position.view[pid], features, kp, distance)
+            if found is None:
                 continue
+            pose_cw = found[0]
             local = self.map.points_of(
                 np.union1d(
                     [k],
@@ -542,9 +625,16 @@ class Tracker:
                 return pose2, matched
         return None, None
 
-    def _pnp_global(
-        self, world: np.ndarray, features: Features, kp: np.ndarray
-    ) -> np.ndarray | None:
+    def pnp_global(
+        self, world: np.ndarray, features: Features, kp: np.ndarray, distance: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """Pose of a frame from matches ``world[i] <-> keypoint kp[i]`` (Hamming ``distance``)
+        without a prior (relocalisation, loop verification): PnP-RANSAC (or PROSAC) and the
+        RGB-D refinement, 10 inliers needed. Returns ``(pose_cw, inlier mask)`` or None."""
+        if self.config.sampler == "prosac":
+            iterations = max(self.config.ransac_iterations, 300)
+            ok, rvec, tvec, inl = self._prosac(world, features, kp, distance, iterations)
+            return self._refined_hypothesis(world, features, kp, ok, rvec, tvec, inl, 10)
         uv = features.uv[kp]
         ok, rvec, tvec, inliers = cv2.solvePnPRansac(
             world.reshape(-1, 1, 3).astype(np.float64),
@@ -556,10 +646,7 @@ class Tracker:
             confidence=0.999,
             flags=cv2.SOLVEPNP_AP3P,
         )
-        if not ok or inliers is None or len(inliers) < 10:
-            return None
-        pose_cw, inl = self._refine(world, features, kp, from_rvec(rvec, tvec))
-        return pose_cw if inl.sum() >= 10 else None
+        return self._refined_hypothesis(world, features, kp, ok, rvec, tvec, inliers, 10)
 
     # ------------------------------------------------------------------ keyframes
 
