@@ -1,0 +1,130 @@
+"""The SLAM harness's back end measured: local bundle adjustment, loop closing and the PROSAC
+sampler against the tracker alone, ATE RMSE and frames/s on synthetic sequences over seeds.
+
+    python benchmarks/slam_backend.py --presets static_xyz walking_xyz --seeds 0 1 2 \\
+        --frames 300 --size 640x480 --variants tracker local_ba local_ba_orbslam2 prosac
+    python benchmarks/slam_backend.py --presets loop --frames 450 --variants tracker local_ba loop
+
+Variants (all with the ``--filters`` given, default none):
+
+- ``tracker``: no back end (the harness as before; reference of every ratio);
+- ``local_ba``: local bundle adjustment + keyframe culling with the default parameters;
+- ``local_ba_orbslam2``: the same with ORB-SLAM2's isotropic stereo noise (``depth_noise=0``);
+- ``loop``: local BA and loop closing; ``loop_only``: loop closing without local BA;
+- ``prosac``: the tracker alone with PROSAC sampling (``sampler=prosac``).
+
+Per run: ATE RMSE (SE(3)-aligned), tracked fraction, frames/s, the back end's mean ms per local
+BA and the loop closures; then per preset and variant the median over seeds and its ratio to
+``tracker``. The machine's load average is printed with the timings (frames/s depends on it).
+Sequences are rendered into ``--data`` on first use (uss-synth, target style) and reused.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import sys
+import time
+from pathlib import Path
+
+from uss_slam.slam_eval.filters import build_filters
+from uss_slam.slam_eval.local_mapping import LocalMappingConfig
+from uss_slam.slam_eval.metrics import ate
+from uss_slam.slam_eval.pipeline import SlamPipeline
+from uss_slam.slam_eval.segmenters import LabelsSegmenter
+from uss_slam.slam_eval.sequence import TumSequence
+from uss_slam.slam_eval.tracker import TrackerConfig
+from uss_slam.synthetic import render_sequence
+
+VARIANTS = {
+    "tracker": {},
+    "local_ba": {"local_ba": True},
+    "local_ba_orbslam2": {
+        "local_ba": True,
+        "local_ba_params": LocalMappingConfig(depth_noise=0.0),
+    },
+    "loop": {"local_ba": True, "loop_closing": True},
+    "loop_only": {"loop_closing": True},
+    "prosac": {"tracker": TrackerConfig(sampler="prosac")},
+}
+
+
+def sequence_path(data: Path, preset: str, frames: int, size: tuple[int, int], seed: int) -> Path:
+    path = data / f"{preset}_{frames}_{size[0]}x{size[1]}_seed{seed}"
+    if not (path / "rgb.txt").is_file():
+        print(f"rendering {path} ...", file=sys.stderr)
+        render_sequence(path, preset=preset, frames=frames, size=size, seed=seed, progress=True)
+    return path
+
+
+def run(path: Path, variant: str, filters: list[str]) -> dict:
+    seq = TumSequence(path, load_labels=True)
+    result = SlamPipeline(
+        seq, LabelsSegmenter(), build_filters(filters), progress=False, **VARIANTS[variant]
+    ).run()
+    stats = ate(seq.groundtruth, result.trajectory).stats
+    return {
+        "ate_rmse": stats.rmse,
+        "tracked_fraction": result.tracked_fraction,
+        "fps": result.fps,
+        "keyframes": result.keyframes,
+        "local_ba_ms": (result.local_ba or {}).get("wall_ms"),
+        "keyframes_culled": (result.local_ba or {}).get("keyframes_culled"),
+        "loop_closures": [(c["frame"], c["loop_frame"]) for c in result.loop_closures],
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--data", type=Path, default=Path("outputs/bench/slam"))
+    parser.add_argument("--frames", type=int, default=300)
+    parser.add_argument("--size", default="640x480", help="WxH (default 640x480)")
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    parser.add_argument("--presets", nargs="+", default=["static_xyz", "walking_xyz"])
+    parser.add_argument("--variants", nargs="+", default=["tracker", "local_ba"])
+    parser.add_argument("--filters", nargs="*", default=[], help="e.g. semantic")
+    parser.add_argument("--json", type=Path, help="also write the results here")
+    args = parser.parse_args()
+    unknown = [v for v in args.variants if v not in VARIANTS]
+    if unknown:
+        parser.error(f"unknown variant(s) {unknown}; choose from {', '.join(VARIANTS)}")
+    size = tuple(int(v) for v in args.size.lower().split("x"))
+    print(f"load average before: {os.getloadavg()[0]:.1f} ({os.cpu_count()} cores)")
+    results: dict[str, dict[str, list[dict]]] = {}
+    start = time.perf_counter()
+    for preset in args.presets:
+        for seed in args.seeds:
+            path = sequence_path(args.data, preset, args.frames, size, seed)
+            for variant in args.variants:
+                r = run(path, variant, args.filters)
+                r["seed"] = seed
+                results.setdefault(preset, {}).setdefault(variant, []).append(r)
+                ba = "" if r["local_ba_ms"] is None else f"  local BA {r['local_ba_ms']:.0f} ms"
+                print(
+                    f"{preset:14s} seed {seed} {variant:18s} ATE {r['ate_rmse']:.4f} m  tracked "
+                    f"{r['tracked_fraction']:.2f}  {r['fps']:5.1f} frames/s  kf {r['keyframes']}"
+                    f"{ba}  loops {r['loop_closures']}  (load {os.getloadavg()[0]:.1f})",
+                    flush=True,
+                )
+    print(f"\nmedians over seeds {args.seeds} ({args.frames} frames, {args.size}, filters "
+          f"{args.filters or 'none'}):")  # fmt: skip
+    summary: dict[str, dict[str, dict]] = {}
+    for preset, variants in results.items():
+        ref = variants.get("tracker")
+        ref_ate = statistics.median(r["ate_rmse"] for r in ref) if ref else None
+        ref_fps = statistics.median(r["fps"] for r in ref) if ref else None
+        for variant, rows in variants.items():
+            ate_m = statistics.median(r["ate_rmse"] for r in rows)
+            fps_m = statistics.median(r["fps"] for r in rows)
+            summary.setdefault(preset, {})[variant] = {"ate_rmse": ate_m, "fps": fps_m}
+            ratio = f"  ATE x{ate_m / ref_ate:.2f}  speed x{fps_m / ref_fps:.2f}" if ref else ""
+            print(f"  {preset:14s} {variant:18s} ATE {ate_m:.4f} m  {fps_m:5.1f} frames/s{ratio}")
+    print(f"load average after: {os.getloadavg()[0]:.1f}; {time.perf_counter() - start:.0f} s")
+    if args.json:
+        args.json.write_text(json.dumps({"runs": results, "medians": summary}, indent=2) + "\n")
+
+
+if __name__ == "__main__":
+    main()
