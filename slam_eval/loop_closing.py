@@ -35,7 +35,6 @@ import math
 import time
 from dataclasses import dataclass, fields
 
-import cv2
 import gtsam
 import numpy as np
 
@@ -179,25 +178,15 @@ class LoopCloser:
         query = np.flatnonzero(~kf.dynamic)
         if len(query) < cfg.min_matches:
             return []
-        bad = self.map.points.bad.view
         scored = []
         for other in self.map.keyframes:
             if other.bad or other.id in near:
                 continue
-            ids = other.point_ids
-            usable = np.flatnonzero((ids >= 0) & ~bad[np.maximum(ids, 0)])
-            if len(usable) < cfg.min_matches:
-                continue
-            kp, pid, distance = _match(
-                kf.features.descriptors[query],
-                other.features.descriptors[usable],
-                cfg.ratio,
-                cfg.max_hamming,
+            found = self.tracker.match_keyframe(
+                kf.features, query, other, cfg.ratio, cfg.max_hamming, cfg.min_matches
             )
-            kp, pid = query[kp], ids[usable[pid]]
-            _, first = np.unique(pid, return_index=True)
-            if len(first) >= cfg.min_matches:
-                scored.append((len(first), other.id, kp[first], pid[first], distance[first]))
+            if found is not None and len(found[0]) >= cfg.min_matches:
+                scored.append((len(found[0]), other.id, *found))
         scored.sort(key=lambda c: (-c[0], c[1]))
         return [c[1:] for c in scored[: cfg.candidates]]
 
@@ -414,33 +403,13 @@ class LoopCloser:
         ref = np.where(side, reference[ids], pts.first_keyframe.view[ids])
         for r, on_side in sorted(set(zip(ref.tolist(), side.tolist(), strict=True))):
             sel = ids[(ref == r) & (side == on_side)]
-            old = _resolved(slam_map, r, before if on_side else uncorrected)
+            old = slam_map.pose_wc(r, before if on_side else uncorrected)
             change = slam_map.pose_wc(r) @ invert(old)
             pts.position.view[sel] = pts.position.view[sel] @ change[:3, :3].T + change[:3, 3]
 
 
 def _points(kf: KeyFrame) -> np.ndarray:
     return kf.point_ids[kf.point_ids >= 0]
-
-
-def _resolved(slam_map: SlamMap, keyframe_id: int, poses_wc: dict[int, np.ndarray]) -> np.ndarray:
-    """Pose of a (culled) keyframe through its parent chain, with the parents' ``poses_wc``."""
-    kf = slam_map.keyframes[keyframe_id]
-    if not kf.bad:
-        return poses_wc[keyframe_id]
-    assert kf.parent is not None and kf.pose_in_parent is not None
-    return _resolved(slam_map, kf.parent, poses_wc) @ invert(kf.pose_in_parent)
-
-
-def _match(
-    query: np.ndarray, train: np.ndarray, ratio: float, max_hamming: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Nearest-neighbour descriptor matches with the ratio test: ``(query index, train index,
-    distance)``."""
-    dist, nearest = cv2.batchDistance(query, train, cv2.CV_32S, normType=cv2.NORM_HAMMING, K=2)
-    good = (dist[:, 0] < ratio * dist[:, 1]) & (dist[:, 0] <= max_hamming)
-    q = np.flatnonzero(good)
-    return q, nearest[good, 0], dist[good, 0]
 
 
 __all__ = ["LoopCloser", "LoopClosingConfig", "LoopClosure"]

@@ -184,13 +184,16 @@ class SlamMap:
         counts[keyframe_id] = 0
         return np.flatnonzero(counts >= max(min_shared, 1))
 
-    def pose_wc(self, keyframe_id: int) -> np.ndarray:
-        """Camera-to-world pose of a keyframe; a culled one's follows its parent chain."""
+    def pose_wc(
+        self, keyframe_id: int, poses_wc: dict[int, np.ndarray] | None = None
+    ) -> np.ndarray:
+        """Camera-to-world pose of a keyframe; a culled one's follows its parent chain.
+        ``poses_wc``: the good keyframes' poses to use instead of their current ones."""
         kf = self.keyframes[keyframe_id]
         if not kf.bad:
-            return kf.pose_wc
+            return kf.pose_wc if poses_wc is None else poses_wc[keyframe_id]
         assert kf.parent is not None and kf.pose_in_parent is not None
-        return self.pose_wc(kf.parent) @ invert(kf.pose_in_parent)
+        return self.pose_wc(kf.parent, poses_wc) @ invert(kf.pose_in_parent)
 
     def predict_level(self, point_ids: np.ndarray, distance: np.ndarray) -> np.ndarray:
         """Pyramid level at which a point at ``distance`` should be detected (ORB-SLAM2 rule)."""

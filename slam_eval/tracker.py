@@ -584,29 +584,13 @@ class Tracker:
         if not kfs or static.sum() < cfg.min_inliers:
             return None, None
         query = np.flatnonzero(static)
-        bad = self.map.points.bad.view
         scored: list[tuple[int, int, np.ndarray, np.ndarray, np.ndarray]] = []
         for k, kf in enumerate(kfs):
-            ids = kf.point_ids
-            usable = np.flatnonzero((ids >= 0) & ~bad[np.maximum(ids, 0)])
-            if len(usable) < cfg.min_inliers:
-                continue
-            dist, nearest = cv2.batchDistance(
-                features.descriptors[query],
-                kf.features.descriptors[usable],
-                cv2.CV_32S,
-                normType=cv2.NORM_HAMMING,
-                K=2,
+            found = self.match_keyframe(
+                features, query, kf, cfg.reloc_ratio, cfg.reloc_max_hamming, cfg.min_inliers
             )
-            good = (dist[:, 0] < cfg.reloc_ratio * dist[:, 1]) & (
-                dist[:, 0] <= cfg.reloc_max_hamming
-            )
-            kp = query[np.flatnonzero(good)]
-            pid = ids[usable[nearest[good, 0]]]
-            # Keep one keypoint per map point (the first, i.e. arbitrary but deterministic).
-            _, first = np.unique(pid, return_index=True)
-            if len(first) >= cfg.min_matches:
-                scored.append((len(first), k, kp[first], pid[first], dist[good, 0][first]))
+            if found is not None and len(found[0]) >= cfg.min_matches:
+                scored.append((len(found[0]), k, *found))
         # Most matches first; ties: the latest keyframe first.
         scored.sort(key=lambda c: (-c[0], -c[1]))
         for _, k, kp, pid, distance in scored[: cfg.reloc_keyframes]:
@@ -624,6 +608,38 @@ class Tracker:
             if pose2 is not None and (matched >= 0).sum() >= cfg.reloc_min_inliers:
                 return pose2, matched
         return None, None
+
+    def match_keyframe(
+        self,
+        features: Features,
+        query: np.ndarray,
+        kf: KeyFrame,
+        ratio: float,
+        max_hamming: int,
+        min_points: int,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """Keypoints ``query`` of ``features`` matched to the good map points of a keyframe by
+        descriptor (nearest neighbour in Hamming distance among the keyframe's keypoints that
+        hold one, ratio test, at most ``max_hamming``), one keypoint per map point: ``(keypoint
+        indices, map point ids, distances)``; None when the keyframe holds fewer than
+        ``min_points`` good points (relocalisation and loop detection)."""
+        ids = kf.point_ids
+        usable = np.flatnonzero((ids >= 0) & ~self.map.points.bad.view[np.maximum(ids, 0)])
+        if len(usable) < min_points:
+            return None
+        dist, nearest = cv2.batchDistance(
+            features.descriptors[query],
+            kf.features.descriptors[usable],
+            cv2.CV_32S,
+            normType=cv2.NORM_HAMMING,
+            K=2,
+        )
+        good = (dist[:, 0] < ratio * dist[:, 1]) & (dist[:, 0] <= max_hamming)
+        kp = query[np.flatnonzero(good)]
+        pid = ids[usable[nearest[good, 0]]]
+        # Keep one keypoint per map point (the first, i.e. arbitrary but deterministic).
+        _, first = np.unique(pid, return_index=True)
+        return kp[first], pid[first], dist[good, 0][first]
 
     def pnp_global(
         self, world: np.ndarray, features: Features, kp: np.ndarray, distance: np.ndarray
