@@ -2,12 +2,18 @@
 onnxruntime (never torch).
 
 ``uss-slam segmenter=onnx segmenter.path=exports/x.onnx [segmenter.threads=1]
-[segmenter.providers=cpu|cuda|auto] [segmenter.threshold=0.3]`` (``configs/segmenter/onnx.yaml``).
+[segmenter.providers=cpu|cuda|auto] [segmenter.threshold=0.3] [segmenter.crf=true]``
+(``configs/segmenter/onnx.yaml``).
 
 ``threshold`` (default ``None``: the model's own ``labels``, the argmax) labels a pixel with a
 dynamic class when that class's softmax probability, from the model's ``logits``, is at least
 ``threshold``; a pixel whose argmax is a dynamic class below ``threshold`` gets its most probable
 static class. Below 0.5 it trades static pixels for more of the people a model half sees.
+
+``crf`` (default ``False``: unchanged) refines the softmax of the model's ``logits`` with a dense
+CRF (:mod:`.crf`, parameters ``crf_params``) before the labels are taken (argmax, or
+``threshold`` on the refined probabilities); its time per call is reported by
+:meth:`OnnxSegmenter.stage_times` (the ``segmentation.crf`` row of the run's timing table).
 
 The model must follow the contract of :mod:`uss_slam.core.onnx_contract` (``exports/README.md``):
 input ``image`` uint8 RGB NHWC with dynamic batch / height / width, output ``labels`` uint8
@@ -17,17 +23,20 @@ by name, so a model trained with another class order still yields project ids.
 
 Thread safety: the pipeline calls :meth:`OnnxSegmenter.infer` from its prefetch threads at once
 (``segment=every_frame``, ``slam.workers`` threads). ``onnxruntime.InferenceSession.run`` is
-thread-safe (one session, concurrent ``run`` calls are supported by onnxruntime), and ``infer``
-keeps no other state, so one segmenter is shared by all threads. Each call uses up to
-``threads`` intra-op threads: with ``slam.workers`` concurrent calls, ``threads`` x
-``slam.workers`` should not exceed the cores.
+thread-safe (one session, concurrent ``run`` calls are supported by onnxruntime), the CRF is
+built per call and the stage times are kept per thread, so one segmenter is shared by all
+threads. Each call uses up to ``threads`` intra-op threads: with ``slam.workers`` concurrent
+calls, ``threads`` x ``slam.workers`` should not exceed the cores.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import threading
+import time
+from collections.abc import Mapping, Sequence
 from os import PathLike
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import onnxruntime as ort
@@ -41,6 +50,7 @@ from uss_slam.core.onnx_contract import (
     SegmenterMetadata,
 )
 
+from .crf import DenseCrf, check_available, softmax
 from .segmenters import ImageSegmenter
 
 PROVIDER_ALIASES = {"cpu": "CPUExecutionProvider", "cuda": "CUDAExecutionProvider"}
@@ -83,7 +93,8 @@ class OnnxSegmenter(ImageSegmenter):
 
     ``path``: the ``.onnx`` file. ``threads``: intra-op threads per call (``None``: onnxruntime's
     default, all cores). ``providers``: ``"cpu"`` (default), ``"cuda"``, ``"auto"`` or a list of
-    provider names (see :func:`resolve_providers`).
+    provider names (see :func:`resolve_providers`). ``threshold``, ``crf`` and ``crf_params``: see
+    the module docstring (``crf_params`` keys: :class:`~.crf.DenseCrf`, missing ones default).
 
     Attributes: ``metadata`` (:class:`~uss_slam.core.onnx_contract.SegmenterMetadata`),
     ``providers`` (the session's providers), ``dynamic_classes`` (the model's, by name).
@@ -97,6 +108,8 @@ class OnnxSegmenter(ImageSegmenter):
         threads: int | None = None,
         providers: str | Sequence[str] | None = "cpu",
         threshold: float | None = None,
+        crf: bool = False,
+        crf_params: Mapping[str, Any] | None = None,
     ) -> None:
         self.path = Path(path)
         if not self.path.is_file():
@@ -118,6 +131,12 @@ class OnnxSegmenter(ImageSegmenter):
                 f"segmenter.threshold must be a probability in (0, 1) or null, got {threshold!r}"
             )
         self.threshold = None if threshold is None else float(threshold)
+        if not isinstance(crf, bool):
+            raise UssSlamError(f"segmenter.crf must be true or false, got {crf!r}")
+        self.crf = DenseCrf.from_config(crf_params, "segmenter.crf_params") if crf else None
+        if self.crf is not None:
+            check_available()
+        self._local = threading.local()
         options = ort.SessionOptions()
         if threads is not None:
             options.intra_op_num_threads = int(threads)
@@ -137,12 +156,12 @@ class OnnxSegmenter(ImageSegmenter):
             session.get_modelmeta().custom_metadata_map, self.path
         )
         self._check_io(session)
-        if self.threshold is not None and OUTPUT_LOGITS not in {
-            o.name for o in session.get_outputs()
-        }:
-            raise DataFormatError(
-                self.path, f"segmenter.threshold needs the model's {OUTPUT_LOGITS!r} output"
-            )
+        has_logits = OUTPUT_LOGITS in {o.name for o in session.get_outputs()}
+        for key, used in (("threshold", self.threshold is not None), ("crf", crf)):
+            if used and not has_logits:
+                raise DataFormatError(
+                    self.path, f"segmenter.{key} needs the model's {OUTPUT_LOGITS!r} output"
+                )
         self.session = session
         self.providers = session.get_providers()
         self.threads = None if threads is None else int(threads)
@@ -209,12 +228,20 @@ class OnnxSegmenter(ImageSegmenter):
                 f"and dtype {rgb.dtype}"
             )
         batch = np.ascontiguousarray(rgb)[None]
-        if self.threshold is None:
+        if self.threshold is None and self.crf is None:
             (labels,) = self.session.run([OUTPUT_LABELS], {INPUT_NAME: batch})
             labels = labels[0]
         else:
             (logits,) = self.session.run([OUTPUT_LOGITS], {INPUT_NAME: batch})
-            labels = self._thresholded(logits[0])
+            prob = softmax(self._checked_logits(logits[0]))
+            if self.crf is not None:
+                wall, cpu = time.perf_counter(), time.thread_time()
+                prob = self.crf.refine(rgb, prob)
+                self._local.times = {"crf": (time.perf_counter() - wall, time.thread_time() - cpu)}
+            if self.threshold is None:
+                labels = prob.argmax(axis=0).astype(np.uint8)
+            else:
+                labels = self._thresholded(prob)
         if labels.shape != rgb.shape[:2]:
             raise DataFormatError(
                 self.path,
@@ -225,17 +252,25 @@ class OnnxSegmenter(ImageSegmenter):
             labels = self._lut[labels]
         return labels
 
-    def _thresholded(self, logits: np.ndarray) -> np.ndarray:
-        """``(C, H, W)`` logits -> ``(H, W)`` uint8 model class indices with the dynamic classes
-        decided by ``threshold`` on their softmax probability."""
+    def stage_times(self) -> dict[str, tuple[float, float]]:
+        """Wall and CPU seconds of the named stages of the calling thread's last :meth:`infer`
+        (``{"crf": (wall, cpu)}`` with ``crf``, else empty), forgotten once read."""
+        times = getattr(self._local, "times", {})
+        self._local.times = {}
+        return times
+
+    def _checked_logits(self, logits: np.ndarray) -> np.ndarray:
         if logits.ndim != 3 or logits.shape[0] != len(self.metadata.class_names):
             raise DataFormatError(
                 self.path,
                 f"output {OUTPUT_LOGITS!r} has shape {logits.shape[:]} per image; expected "
                 f"({len(self.metadata.class_names)}, H, W)",
             )
-        shifted = np.exp(logits - logits.max(axis=0, keepdims=True))
-        prob = shifted / shifted.sum(axis=0, keepdims=True)
+        return logits
+
+    def _thresholded(self, prob: np.ndarray) -> np.ndarray:
+        """``(C, H, W)`` class probabilities -> ``(H, W)`` uint8 model class indices with the
+        dynamic classes decided by ``threshold`` on their probability."""
         dyn = self._dynamic_channels
         static = prob.copy()
         static[dyn] = -1.0
@@ -250,6 +285,6 @@ class OnnxSegmenter(ImageSegmenter):
     def __repr__(self) -> str:
         return (
             f"OnnxSegmenter({str(self.path)!r}, threads={self.threads}, "
-            f"providers={self.providers}, threshold={self.threshold}, "
+            f"providers={self.providers}, threshold={self.threshold}, crf={self.crf}, "
             f"classes={list(self.metadata.class_names)})"
         )

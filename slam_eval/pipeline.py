@@ -32,6 +32,8 @@ milliseconds of each module's own thread (robust to a busy machine; a segmenter 
 a thread pool of its own, as onnxruntime does, shows only its calling thread's share there).
 ``segmentation`` in both is per *processed* frame; :attr:`RunResult.segmented_frames` and
 :attr:`RunResult.segmentation_ms` give the count and the mean wall / CPU ms per *segmented* frame.
+Stages a segmenter times itself (its ``stage_times()``, e.g. the dense CRF of
+``segmenter.crf=true``) are the rows ``segmentation.<stage>``, included in ``segmentation``.
 
 Back end (``local_ba``, ``loop_closing``, both off by default): after each new keyframe, local
 bundle adjustment and keyframe culling (:mod:`.local_mapping`), then loop detection and
@@ -239,8 +241,7 @@ class SlamPipeline:
         timer.add("read", *frame.read_time)
         labels = None
         if self.segment == "every_frame":
-            with timer("segmentation"):
-                labels = self.segmenter.segment(frame)
+            labels = self._segment_timed(frame, timer)
         with timer("orb"):
             features = self.extractor(frame.gray, frame.depth)
         return _Prepared(frame, labels, features, timer)
@@ -265,10 +266,20 @@ class SlamPipeline:
         if out.region is not None:
             state.regions.append(out.region)
 
+    def _segment_timed(self, frame: Frame, timer: Timer) -> np.ndarray | None:
+        """The segmenter on ``frame``, timed as ``segmentation``, with its own stages as
+        ``segmentation.<stage>`` (segmenters with a ``stage_times()`` method)."""
+        with timer("segmentation"):
+            labels = self.segmenter.segment(frame)
+        stage_times = getattr(self.segmenter, "stage_times", None)
+        if stage_times is not None:
+            for stage, (wall, cpu) in stage_times().items():
+                timer.add(f"segmentation.{stage}", wall, cpu)
+        return labels
+
     def _segment_now(self, frame: Frame, timer: Timer) -> np.ndarray | None:
         """Segment ``frame`` in the main thread (``keyframes`` schedule)."""
-        with timer("segmentation"):
-            return self.segmenter.segment(frame)
+        return self._segment_timed(frame, timer)
 
     def run(self) -> RunResult:
         timer = Timer()

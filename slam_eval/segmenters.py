@@ -11,7 +11,10 @@ keys are its constructor's keyword arguments (``uss-slam segmenter=<option> segm
 raise :class:`~uss_slam.core.errors.UssSlamError` for bad arguments or files (``uss-slam``
 prints it as one line and exits 1). When it runs is the pipeline's business (``segment=every_frame``:
 every frame, in ``slam.workers`` prefetch threads at once, so ``infer`` must be thread-safe;
-``segment=keyframes``: keyframes only, in the main thread; see :mod:`.pipeline`).
+``segment=keyframes``: keyframes only, in the main thread; see :mod:`.pipeline`). A segmenter
+that times stages of its own offers ``stage_times() -> {stage: (wall_s, cpu_s)}`` for the calling
+thread's last call; the pipeline adds them as timing rows ``segmentation.<stage>`` (the ONNX
+segmenter's dense CRF: ``segmentation.crf``).
 """
 
 from __future__ import annotations
