@@ -8,6 +8,7 @@ accepted values.
 Ids (= folders under ``out_dir``)::
 
     train/<config>_s<seed>                         one training (config = method [+ _n<n>] [+ loss])
+                                                   (_n<n>: methods with discriminators)
     segeval/<config>_s<seed>                       its segmentation metrics on every sequence
     slam/<system>/<sequence>/<variant>             a model-free SLAM run (no filter, geometry, oracle)
     slam/<system>/<sequence>/<variant>/<model>     a SLAM run with an exported model
@@ -23,11 +24,19 @@ from typing import Any
 from uss_slam.core.errors import UssSlamError
 
 METHODS: dict[str, tuple[str, ...]] = {
-    # uss-train overrides of each adaptation method ("without ATL" / "with ATL").
+    # uss-train overrides of each adaptation method ("without ATL" / "with ATL", then the
+    # methods that followed AdaptSegNet).
     "source_only": ("model/method=source_only",),
     "adaptsegnet": ("model/method=adaptsegnet",),
+    "advent": ("model/method=advent",),
+    "minent": ("model/method=minent",),
+    "self_training": ("model/method=self_training",),
 }
 ADAPTED = "adaptsegnet"
+"""The paper's adapted model: the "with ATL" side of T2 / T3 and the downstream ratio."""
+DISCRIMINATOR_METHODS = ("adaptsegnet", "advent")
+"""Methods with discriminators: one training per depth of ``grid.n_layers``, and the only ones
+the adversarial loss weights of ``grid.loss`` apply to."""
 LOSS_KEYS = ("lambda_seg_aux", "lambda_seg_main", "lambda_adv_aux", "lambda_adv_main")
 ADVERSARIAL_LOSS_KEYS = ("lambda_adv_aux", "lambda_adv_main")
 N_LAYERS_RANGE = range(1, 9)
@@ -125,7 +134,7 @@ class TrainCell:
 
     method: str
     seed: int
-    n_layers: int | None = None  # adapted only
+    n_layers: int | None = None  # methods with discriminators only
     loss: tuple[tuple[str, float], ...] = ()  # (key, value) pinned for this training
     tag: str = ""  # loss suffix of the config name when the grid varies the loss weights
 
@@ -230,7 +239,7 @@ def _loss_tag(combo: tuple[tuple[str, float], ...], varied: set[str]) -> str:
 
 def training_cells(grid: Mapping[str, Any]) -> list[TrainCell]:
     """The trainings of ``grid`` (``methods``, ``n_layers``, ``seeds``, ``loss``), in table order:
-    per configuration (source-only first, then each depth), every seed."""
+    per method in the order listed (a method with discriminators once per depth), every seed."""
     methods = _non_empty_list("grid.methods", grid.get("methods"))
     for m in methods:
         choose("grid.methods", m, METHODS)
@@ -241,7 +250,7 @@ def training_cells(grid: Mapping[str, Any]) -> list[TrainCell]:
             raise UssSlamError(f"grid.seeds: expected integers >= 0, got {s!r}")
     _unique("grid.seeds", seeds)
     depths: list[int] = []
-    if ADAPTED in methods:
+    if any(m in DISCRIMINATOR_METHODS for m in methods):
         depths = _non_empty_list("grid.n_layers", grid.get("n_layers"))
         for n in depths:
             if isinstance(n, bool) or not isinstance(n, int) or n not in N_LAYERS_RANGE:
@@ -254,18 +263,19 @@ def training_cells(grid: Mapping[str, Any]) -> list[TrainCell]:
     varied = {k for k in (grid.get("loss") or {}) if len({dict(c)[k] for c in combos}) > 1}
     cells: list[TrainCell] = []
     for method in methods:
-        adapted = method == ADAPTED
+        adversarial = method in DISCRIMINATOR_METHODS
         method_combos: list[tuple[tuple[str, float], ...]] = []
         for combo in combos:
-            # Source-only never uses the adversarial weights: one training per seg-loss setting.
+            # Methods without discriminators never use the adversarial weights: one training
+            # per seg-loss setting.
             kept = (
                 combo
-                if adapted
+                if adversarial
                 else tuple(kv for kv in combo if kv[0] not in ADVERSARIAL_LOSS_KEYS)
             )
             if kept not in method_combos:
                 method_combos.append(kept)
-        for n in depths if adapted else [None]:
+        for n in depths if adversarial else [None]:
             for combo in method_combos:
                 tag = _loss_tag(combo, varied)
                 for seed in seeds:
@@ -301,7 +311,11 @@ def expand(cfg: Mapping[str, Any], accepted_sequences: Sequence[str]) -> Grid:
             f"{', '.join(map(str, depths))}"
         )
     table_configs = list(
-        dict.fromkeys(t.config for t in trainings if t.n_layers in (None, n_table))
+        dict.fromkeys(
+            t.config
+            for t in trainings
+            if t.method in ("source_only", ADAPTED) and t.n_layers in (None, n_table)
+        )
     )
     every_model = bool((cfg.get("slam") or {}).get("every_model", False))
     slams: list[SlamCell] = []

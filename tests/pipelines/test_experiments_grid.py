@@ -142,7 +142,8 @@ def test_orbslam3_gets_the_mask_variants_only() -> None:
     [
         (
             {"grid.methods": ["source_only", "dann"]},
-            "grid.methods: unknown value 'dann'; accepted: source_only, adaptsegnet",
+            "grid.methods: unknown value 'dann'; accepted: source_only, adaptsegnet, advent, "
+            "minent, self_training",
         ),
         (
             {"sequences": ["walking_xyz", "office"]},
