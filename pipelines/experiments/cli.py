@@ -140,7 +140,8 @@ def _launch_status(launches: dict[str, Launch], stage: str, result: Launch) -> s
     launches[stage] = result
     if result.returncode is None:
         return "every job complete already (reused)"
-    return f"ran {len(result.pending)} jobs (multirun exit code {result.returncode})"
+    n = len(result.pending)
+    return f"ran {n} job{'' if n == 1 else 's'} (multirun exit code {result.returncode})"
 
 
 def stage_exports(exp: Experiment, failures: dict[str, str], rows: list[dict[str, Any]]) -> str:

@@ -4,6 +4,8 @@ folders checked; and ORB-SLAM3's vocabulary when a system needs it."""
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -60,6 +62,22 @@ def sequence_stage(exp: Experiment, name: str) -> Stage:
     return Stage(folder, key, outputs=(Path("rgb.txt"), Path("groundtruth.txt"), Path("labels")))
 
 
+def render_eval_sequence(folder: Path, key: dict[str, Any]) -> Path:
+    """Render an evaluation sequence from its stage key (in a worker process)."""
+    from uss_slam.synthetic.output import parse_size
+    from uss_slam.synthetic.sequence import render_sequence
+
+    return render_sequence(
+        folder,
+        preset=key["preset"],
+        frames=key["frames"],
+        size=parse_size(key["size"]),
+        seed=key["seed"],
+        style=key["style"],
+        overwrite=True,
+    )
+
+
 def stage_data(exp: Experiment, run: bool, dry: bool = False) -> tuple[Data, str]:
     """Render (``run``) or find the data; returns it and a status line. ``dry``: what is
     missing is reported, not an error."""
@@ -99,8 +117,6 @@ def _vocabulary(exp: Experiment, data: Data, run: bool, dry: bool) -> str:
 
 def _synthetic_data(exp: Experiment, run: bool, dry: bool) -> tuple[Data, str]:
     from uss_slam.pipelines import demo_data
-    from uss_slam.synthetic.output import parse_size
-    from uss_slam.synthetic.sequence import render_sequence
 
     data = Data(train_dir=exp.out / "data" / "train")
     assert data.train_dir is not None
@@ -125,8 +141,7 @@ def _synthetic_data(exp: Experiment, run: bool, dry: bool) -> tuple[Data, str]:
         )
     data.train_key = record.read_text() if record.is_file() else None
     data.target = [data.train_dir / "target_train" / p for p in demo_data.TRAIN_PRESETS]
-    syn = exp.cfg["data"]["synthetic"]
-    rendered = 0
+    missing = []
     for name in exp.grid.sequences:
         stage = sequence_stage(exp, name)
         if not stage.complete() and dry:
@@ -136,21 +151,21 @@ def _synthetic_data(exp: Experiment, run: bool, dry: bool) -> tuple[Data, str]:
                 raise DataFormatError(
                     stage.folder, "missing or incomplete evaluation sequence; run the data stage"
                 )
-            stage.start()
-            render_sequence(
-                stage.folder,
-                preset=name,
-                frames=int(syn["eval_frames"]),
-                size=parse_size(str(syn["eval_size"])),
-                seed=eval_seed(exp.cfg, name),
-                style="target",
-                overwrite=True,
-            )
-            stage.finish()
-            rendered += 1
+            missing.append(stage)
         data.sequences[name] = stage.folder
         data.sequence_keys[name] = dict(stage.key)
         data.labelled.append(name)
+    # The sequences are independent: rendered on two processes (PNG writing costs as much as
+    # the rendering at 640x480), each stamped as soon as it is complete.
+    if missing:
+        with ProcessPoolExecutor(max_workers=min(2, os.cpu_count() or 1)) as pool:
+            for stage in missing:
+                stage.start()
+            futures = {pool.submit(render_eval_sequence, s.folder, dict(s.key)): s for s in missing}
+            for future in as_completed(futures):
+                future.result()
+                futures[future].finish()
+    rendered = len(missing)
     if run:
         done.append(
             f"{len(exp.grid.sequences)} evaluation sequences "

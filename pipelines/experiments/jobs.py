@@ -137,8 +137,12 @@ def run_segeval(folder: Path, spec: Mapping[str, Any]) -> dict[str, Any]:
 
 def run_slam(folder: Path, spec: Mapping[str, Any]) -> dict[str, Any]:
     """``uss-slam`` with the cell's overrides, writing its outputs into ``folder``."""
+    from uss_slam.slam_eval.config import register_configs
     from uss_slam.slam_eval.run import run
 
+    # The typed slam / eval defaults, every time: a launcher's worker process (joblib, submitit)
+    # gets Hydra's ConfigStore as it was when the jobs were launched, not as this module left it.
+    register_configs()
     cfg = _compose("slam_eval", [*spec["overrides"], f"out_dir={folder}", "progress=false"])
     data = run(cfg)
     result = {

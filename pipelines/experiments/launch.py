@@ -108,7 +108,8 @@ def launch(exp: Experiment, stage: str, jobs: Sequence[Job], blocked: set[str]) 
     command = multirun_command(exp, stage, plan, pending)
     log = exp.out / "logs" / f"{stage}.multirun.log"
     print(
-        f"  {stage}: {len(pending)} jobs via hydra/launcher={exp.launcher['name']} "
+        f"  {stage}: {len(pending)} job{'' if len(pending) == 1 else 's'} via "
+        f"hydra/launcher={exp.launcher['name']} "
         f"(plan {plan}; Hydra's output in {log}, each job's in {exp.out / 'logs'})",
         flush=True,
     )
@@ -148,27 +149,47 @@ def _run_and_watch(
     """Run the multirun (its output into ``log``), printing how many jobs finished whenever
     that changes; returns its exit code."""
     t0 = time.perf_counter()
-    last = (0, 0)
     with log.open("a") as out:
         out.write(f"$ {shlex.join(command)}\n")
         out.flush()
         proc = subprocess.Popen(command, stdout=out, stderr=subprocess.STDOUT)
-        while True:
-            try:
-                code = proc.wait(timeout=every)
-            except subprocess.TimeoutExpired:
-                code = None
-            counts = _finished(exp, stage, pending)
-            if counts != last:
-                last = counts
-                print(
-                    f"  {stage}: {sum(counts)}/{len(pending)} jobs finished"
-                    + (f" ({counts[1]} failed)" if counts[1] else "")
-                    + f" after {time.perf_counter() - t0:.0f} s",
-                    flush=True,
-                )
-            if code is not None:
-                return code
+        try:
+            return _watch(exp, stage, proc, pending, every, t0)
+        finally:
+            if proc.poll() is None:  # interrupted here: do not leave the jobs running unseen
+                proc.terminate()
+                try:
+                    proc.wait(timeout=30)
+                except subprocess.TimeoutExpired:
+                    proc.kill()
+
+
+def _watch(
+    exp: Experiment,
+    stage: str,
+    proc: subprocess.Popen[bytes],
+    pending: Sequence[str],
+    every: float,
+    t0: float,
+) -> int:
+    """Wait for ``proc``; print the count of finished jobs whenever it changes."""
+    last = (0, 0)
+    while True:
+        try:
+            code: int | None = proc.wait(timeout=every)
+        except subprocess.TimeoutExpired:
+            code = None
+        counts = _finished(exp, stage, pending)
+        if counts != last:
+            last = counts
+            print(
+                f"  {stage}: {sum(counts)}/{len(pending)} jobs finished"
+                + (f" ({counts[1]} failed)" if counts[1] else "")
+                + f" after {time.perf_counter() - t0:.0f} s",
+                flush=True,
+            )
+        if code is not None:
+            return code
 
 
 def status_of(

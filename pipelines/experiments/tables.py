@@ -691,7 +691,7 @@ def write_plots(out: Path, rows: Sequence[Mapping[str, Any]], layout: Layout) ->
     ax.set_title("T1: target mIoU by configuration (mean ± s.d. over seeds)")
     save(fig, "t1_miou.png")
 
-    fig, ax = plt.subplots(figsize=(max(6.0, 1.4 * len(CLASS_NAMES) + 2), 3.6))
+    fig, ax = plt.subplots(figsize=(max(6.0, 1.4 * len(CLASS_NAMES) + 2) + 2.0, 3.6))
     _bars(
         ax,
         list(CLASS_NAMES),
@@ -702,7 +702,7 @@ def write_plots(out: Path, rows: Sequence[Mapping[str, Any]], layout: Layout) ->
     )
     ax.set_ylabel("IoU")
     ax.set_title("Per-class IoU on the evaluation sequences (mean ± s.d. over seeds)")
-    ax.legend(fontsize=7)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
     save(fig, "t1_iou_per_class.png")
 
     series_spec: list[tuple[str, str, str | None]] = [
@@ -718,7 +718,7 @@ def write_plots(out: Path, rows: Sequence[Mapping[str, Any]], layout: Layout) ->
     fig, axes = plt.subplots(
         len(systems),
         1,
-        figsize=(max(7.0, 2.2 * len(layout.sequences)), 3.6 * len(systems)),
+        figsize=(max(7.0, 2.2 * len(layout.sequences)) + 3.0, 3.6 * len(systems)),
         squeeze=False,
     )
     for ax, system in zip(axes[:, 0], systems, strict=True):
@@ -736,7 +736,7 @@ def write_plots(out: Path, rows: Sequence[Mapping[str, Any]], layout: Layout) ->
         )
         ax.set_ylabel("ATE RMSE [cm]")
         ax.set_title(f"ATE per sequence ({system}; mean ± s.d. over seeds)")
-        ax.legend(fontsize=6, ncol=2)
+        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
     save(fig, "ate_per_sequence.png")
     return written
 

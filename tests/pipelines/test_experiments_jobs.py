@@ -244,7 +244,7 @@ def test_missing_launcher_key_is_named_before_launching(tmp_path: Path) -> None:
         (
             ["grid.methods=[source_only,dann]"],
             "uss-experiments: error: grid.methods: unknown "
-            "value 'dann'; accepted: source_only, adaptsegnet",
+            "value 'dann'; accepted: source_only, adaptsegnet, advent, minent, self_training",
         ),
         (
             ["variants=[none,flow]"],

@@ -129,10 +129,35 @@ def test_submitit_local_failed_job_marked_others_go_on(tmp_path: Path) -> None:
     assert "| adaptsegnet_n8 | failed |" in md  # T1b cell of the failed configuration
     assert "uss-experiments: done" in first.stdout
 
+    # The same command again retries the failed training only (its jobs stay blocked).
+    again = run(out, *grid, cwd=tmp_path)
+    assert again.returncode == 1
+    assert pending(out, "train") == ["train/adaptsegnet_n8_s0"] and pending(out, "slam") == []
+
     # Without the impossible depth every job is complete: nothing runs, exit 0.
     fixed = run(out, *[g.replace("[4,8]", "[4]") for g in grid], cwd=tmp_path)
     assert fixed.returncode == 0, fixed.stderr[-3000:]
     assert pending(out, "train") == [] and pending(out, "slam") == []
+
+
+def test_joblib_runs_jobs_in_parallel_processes(tmp_path: Path) -> None:
+    out = tmp_path / "joblib"
+    done = run(
+        out,
+        "launcher=joblib",
+        "launcher.params.n_jobs=2",
+        "grid.methods=[source_only]",
+        "grid.seeds=[0,1]",
+        "sequences=[static_xyz]",
+        "variants=[none,semantic]",
+        "data.synthetic.eval_frames=12",
+        cwd=tmp_path,
+    )
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    log = (out / "logs" / "train.multirun.log").read_text()
+    assert "hydra/launcher=joblib" in log and "Joblib.Parallel(n_jobs=2," in log
+    rows = runs_csv(out)
+    assert len(rows) == 2 + 2 + 2 * 2 + 3 and {r["status"] for r in rows} == {"ok"}
 
 
 def _realdata_helpers():
