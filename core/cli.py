@@ -17,8 +17,12 @@ import sys
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from pathlib import Path
 
 from uss_slam.core.errors import UssSlamError
+
+INTERRUPTED = 130
+"""Exit code after Ctrl-C (128 + SIGINT, as shells report a process stopped by it)."""
 
 
 def user_error(
@@ -102,7 +106,9 @@ def exit_on_user_error(prog: str, kinds: tuple[type[BaseException], ...] = ()) -
     """Run the body; a user error anywhere in the cause chain becomes one line and exit code 1.
 
     ``kinds`` adds exception types the entry point treats as user errors (Hydra apps pass
-    OmegaConf's config errors). Anything else propagates with its traceback.
+    OmegaConf's config errors). Ctrl-C is one line ``<prog>: interrupted`` and exit code
+    :data:`INTERRUPTED` (a multirun stops as a whole). Anything else propagates with its
+    traceback.
 
     Inside a job of a Hydra multirun whose console script runs the app under
     :func:`report_failed_jobs`, the line is printed and recorded and :class:`JobFailed` is
@@ -118,8 +124,12 @@ def exit_on_user_error(prog: str, kinds: tuple[type[BaseException], ...] = ()) -
             report.overrides.append(job[1])
     try:
         yield
-    except (KeyboardInterrupt, SystemExit):
+    except SystemExit:
         raise
+    except KeyboardInterrupt:
+        # Ctrl-C: the user's own stop, not a failure to explain with a traceback.
+        print(f"{prog}: interrupted", file=sys.stderr)
+        sys.exit(INTERRUPTED)
     except BaseException as error:
         cause = user_error(error, kinds)
         if cause is None:
@@ -178,9 +188,34 @@ def hydra_error_line(error: BaseException) -> str | None:
     for item in chain:
         if isinstance(item, HydraException):
             lines = [line.strip() for line in str(item).strip().splitlines() if line.strip()]
-            lines = [line for line in lines if not line.startswith("Config search path")]
-            return " ".join(lines) if lines else type(item).__name__
+            if not lines:
+                return type(item).__name__
+            head, parts = lines[0], []
+            for line in lines[1:]:
+                if line.startswith("Config search path"):
+                    break  # Hydra's internals (its config providers), not the user's concern
+                if parts and parts[-1].endswith(":"):
+                    parts[-1] += " " + line  # "Available options in 'model':" + the first one
+                elif parts and ":" in parts[-1] and not line.endswith(":"):
+                    parts[-1] += ", " + line  # the other options, comma-separated
+                else:
+                    parts.append(line)
+            return head + (f" ({'; '.join(parts)})" if parts else "")
     return None
+
+
+def output_folder_line(error: OSError) -> str:
+    """``cannot create the output folder <path> (<why>)`` for an ``OSError`` of ``mkdir``;
+    names the file in the way when a part of the path is a file."""
+    path = Path(str(error.filename))
+    existing = path
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if existing.exists() and not existing.is_dir():
+        why = "it is a file" if existing == path else f"{existing} is a file"
+    else:
+        why = error.strerror or type(error).__name__
+    return f"cannot create the output folder {path} ({why})"
 
 
 def run_hydra_app(prog: str, app: Callable[[], object]) -> None:
@@ -198,7 +233,7 @@ def run_hydra_app(prog: str, app: Callable[[], object]) -> None:
     except Exception as error:
         line = hydra_error_line(error)
         if line is None and isinstance(error, OSError) and not report.started:
-            line = f"cannot create the output folder {error.filename} ({error.strerror})"
+            line = output_folder_line(error)  # Hydra could not create its output folder
         if line is None:
             raise
         print(f"{prog}: error: {line}", file=sys.stderr)

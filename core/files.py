@@ -61,17 +61,29 @@ def write_json_atomic(path: str | PathLike[str], data: Any) -> None:
     write_text_atomic(path, json.dumps(data, indent=2) + "\n")
 
 
-def check_writable(folder: str | PathLike[str], key: str | None = None) -> Path:
+def check_writable(
+    folder: str | PathLike[str], key: str | None = None, *, create: bool = True
+) -> Path:
     """Create ``folder`` (with parents) and prove a file can be created in it; otherwise raise a
     one-line :class:`UssSlamError` naming the folder (as ``key=folder`` when ``key``, the option
-    that chose it, is given)."""
+    that chose it, is given).
+
+    ``create=False`` creates nothing (for a check long before the first output is written):
+    the nearest existing folder on the way to ``folder`` must be a folder that can be written.
+    """
     path = Path(folder)
     where = str(path) if key is None else f"{key}={path}"
     if path.exists() and not path.is_dir():
         raise UssSlamError(f"{where}: output folder is a file, not a folder")
+    probe = path  # the nearest existing folder on the way to it
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    if probe.exists() and not probe.is_dir():
+        raise UssSlamError(f"{where}: cannot create the output folder ({probe} is a file)")
     try:
-        path.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryFile(dir=path, prefix=".uss-slam-probe."):
+        if create:
+            path.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=path if create else probe, prefix=".uss-slam-probe."):
             pass
     except OSError as error:
         reason = error.strerror or type(error).__name__

@@ -73,6 +73,14 @@ class UDADataModule(LightningDataModule):
         manifest_dir: str | Path | None = None,
     ) -> None:
         super().__init__()
+        for name, value, minimum in (
+            ("batch_size", batch_size, 1),
+            ("iterations_per_epoch", iterations_per_epoch, 1),
+            ("val_batch_size", val_batch_size, 1),
+            ("num_workers", num_workers, 0),
+        ):
+            if value < minimum:
+                raise ValueError(f"{name} must be >= {minimum}, got {value}")
         self.source = source
         self.target = target
         self.val = val

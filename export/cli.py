@@ -13,6 +13,7 @@ line on stderr naming the key or file, and exit code 1.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -22,13 +23,15 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
-from uss_slam.core.cli import exit_on_user_error
+from uss_slam.core.cli import JobFailed, exit_on_user_error, run_hydra_app
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.onnx_contract import HEADS
 from uss_slam.export.checkpoint import run_name
 from uss_slam.export.onnx import check_options, export_checkpoint
 from uss_slam.export.outputs import ExportResult
 from uss_slam.export.quantize import CalibrationSet
+
+PROG = "uss-export"
 
 
 def _value(cfg: DictConfig, key: str) -> Any:
@@ -49,10 +52,14 @@ def _int(cfg: DictConfig, key: str, *, optional: bool = False, minimum: int = 1)
     return value
 
 
-def _number(cfg: DictConfig, key: str) -> float | None:
+def _number(cfg: DictConfig, key: str, low: float, high: float = math.inf) -> float | None:
+    """A number in ``(low, high]``, or null."""
     value = _value(cfg, key)
     if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))):
         raise UssSlamError(f"{key} must be a number or null, got {value!r}")
+    if value is not None and not low < value <= high:
+        within = f"> {low:g}" if math.isinf(high) else f"in ({low:g}, {high:g}]"
+        raise UssSlamError(f"{key} must be {within} or null, got {value!r}")
     return None if value is None else float(value)
 
 
@@ -132,8 +139,8 @@ class ExportOptions:
             dynamic_classes=tuple(dynamic),
             trace_size=_value(cfg, "trace_size"),
             verify_size=_value(cfg, "verify_size"),
-            max_logit_diff=_number(cfg, "max_logit_diff"),
-            min_label_agreement=_number(cfg, "min_label_agreement"),
+            max_logit_diff=_number(cfg, "max_logit_diff", 0.0),
+            min_label_agreement=_number(cfg, "min_label_agreement", 0.0, 1.0),
             num_threads=_int(cfg, "num_threads", optional=True),
             calibration_root=Path(root) if int8 and root is not None else None,
             calibration_frames=_int(cfg, "calibration.frames"),  # type: ignore[arg-type]
@@ -175,9 +182,13 @@ def run(cfg: DictConfig) -> ExportResult:
 
 
 @hydra.main(version_base="1.3", config_path="../configs", config_name="export")
-def main(cfg: DictConfig) -> None:
-    with exit_on_user_error("uss-export", (OmegaConfBaseException,)):
-        result = run(cfg)
+def app(cfg: DictConfig) -> None:
+    """The Hydra task: export, then print what was written."""
+    try:
+        with exit_on_user_error(PROG, (OmegaConfBaseException,)):
+            result = run(cfg)
+    except JobFailed:  # a multirun job: printed and recorded, the other jobs go on
+        return
     v = result.verify
     print(
         f"uss-export: wrote {result.path} (verified at {v['verify_size']}: max |logit diff| "
@@ -190,6 +201,13 @@ def main(cfg: DictConfig) -> None:
             f"uss-export: wrote {result.int8_path} ({q['speedup']:.2f}x faster than FP32 at "
             f"{q['frame_size']}, label agreement with FP32 {q['label_agreement_vs_fp32']:.4f})"
         )
+
+
+def main() -> None:
+    """``uss-export``: every user error is one line on stderr and exit code 1, the errors Hydra
+    raises while composing the config (an unknown key, bad override syntax, an output folder it
+    cannot create) included."""
+    run_hydra_app(PROG, app)
 
 
 if __name__ == "__main__":

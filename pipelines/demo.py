@@ -39,7 +39,7 @@ from typing import Any
 from uss_slam.core.classes import CLASS_NAMES
 from uss_slam.core.cli import exit_on_user_error
 from uss_slam.core.errors import UssSlamError
-from uss_slam.core.files import file_sha256, write_json_atomic, write_text_atomic
+from uss_slam.core.files import check_writable, file_sha256, write_json_atomic, write_text_atomic
 
 from . import demo_data, demo_report
 from .demo_data import DemoData
@@ -463,6 +463,7 @@ def run_demo(
         raise UssSlamError(f"--until {until}: not a stage ({', '.join(STAGES)})")
     if out.exists() and not out.is_dir():
         raise UssSlamError(f"--out {out}: exists and is not a folder")
+    check_writable(out, "--out", create=False)
     data = out / "data"
     # A bad --sequence fails here, before any work: a folder is checked now, a name after the
     # data stage made it.

@@ -33,9 +33,15 @@ import cv2
 import numpy as np
 
 from uss_slam.core.classes import CLASS_NAMES, DYNAMIC_CLASSES, colorize
-from uss_slam.core.cli import exit_on_user_error
+from uss_slam.core.cli import exit_on_user_error, hydra_error_line
 from uss_slam.core.errors import UssSlamError
-from uss_slam.core.files import atomic_path, file_sha256, write_json_atomic, write_text_atomic
+from uss_slam.core.files import (
+    atomic_path,
+    check_writable,
+    file_sha256,
+    write_json_atomic,
+    write_text_atomic,
+)
 from uss_slam.core.seg_metrics import (
     RATE_NAMES,
     BinaryCounts,
@@ -224,6 +230,8 @@ def config_val_frames(overrides: Sequence[str]) -> FrameSource:
     from hydra.utils import instantiate
     from omegaconf import OmegaConf
 
+    from uss_slam.train.config_check import check_config_types
+
     bad = [o for o in overrides if "=" not in o]
     if bad:
         raise UssSlamError(
@@ -234,11 +242,17 @@ def config_val_frames(overrides: Sequence[str]) -> FrameSource:
     try:
         with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
             cfg = compose("train", overrides=list(overrides))
+    except Exception as error:  # an unknown key or option, bad override syntax: one line
+        line = hydra_error_line(error)
+        if line is None:
+            raise
+        raise UssSlamError(line) from None
     finally:
         GlobalHydra.instance().clear()
     node = OmegaConf.select(cfg, "data.val")
     if node is None:
         raise UssSlamError("the composed data config has no data.val (the validation set)")
+    check_config_types(cfg, ("data",))  # data.val.stride=abc: one line naming the key
     dataset = instantiate(node)
     if not getattr(dataset, "labelled", False):
         raise UssSlamError("data.val has no labels: nothing to evaluate against")
@@ -369,6 +383,7 @@ def evaluate(
         )
     if out.exists() and not out.is_dir():
         raise UssSlamError(f"--out {out}: exists and is not a folder")
+    check_writable(out, "--out", create=False)
     source = sequence_frames(sequences, stride) if sequences else config_val_frames(overrides)
     if source.count == 0:
         raise UssSlamError("no labelled frames to evaluate")
@@ -441,7 +456,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     from hydra.errors import ConfigCompositionException, OverrideParseException
     from omegaconf.errors import OmegaConfBaseException
 
-    args = build_parser().parse_args(argv)
+    # Intermixed: data-config overrides may follow the options (MODEL --out DIR data=real).
+    args = build_parser().parse_intermixed_args(argv)
     out = args.out if args.out is not None else Path("outputs") / "eval" / args.model.stem
     config_errors = (ConfigCompositionException, OverrideParseException, OmegaConfBaseException)
     with exit_on_user_error(PROG, config_errors):

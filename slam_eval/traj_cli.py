@@ -14,6 +14,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from uss_slam.core.errors import UssSlamError
+from uss_slam.core.files import check_writable
 from uss_slam.core.tum_io import read_trajectory
 
 from .metrics import (
@@ -183,6 +184,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         if args.command == "ate" and args.plot is not None:
             check_plot_path(args.plot)  # before any work
+            if args.plot.is_dir():
+                raise UssSlamError(f"--plot {args.plot}: is a folder; expected a file name")
+            if not args.plot.parent.is_dir():
+                raise UssSlamError(f"--plot {args.plot}: {args.plot.parent} is not a folder")
+            check_writable(args.plot.parent, create=False)
         gt = read_trajectory(args.gt)
         est = read_trajectory(args.est)
         if args.command == "ate":

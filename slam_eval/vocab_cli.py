@@ -12,19 +12,25 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from uss_slam.core.cli import INTERRUPTED
 from uss_slam.core.errors import UssSlamError
+from uss_slam.core.files import check_writable
 
 from .vocabulary import MAX_BRANCHING, MAX_LEVELS, build_from_sequences, read_vocabulary
 
 PROG = "uss-vocab"
 
 
-def _int_at_least(minimum: int):
+def _int_at_least(minimum: int, maximum: int | None = None):
     def parse(text: str) -> int:
         try:
             value = int(text)
         except ValueError:
             raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if maximum is not None and not minimum <= value <= maximum:
+            raise argparse.ArgumentTypeError(
+                f"expected an integer in {minimum}..{maximum}, got {value}"
+            )
         if value < minimum:
             raise argparse.ArgumentTypeError(f"expected an integer >= {minimum}, got {value}")
         return value
@@ -53,7 +59,7 @@ def build_parser() -> argparse.ArgumentParser:
     build.add_argument(
         "-k",
         "--branching",
-        type=_int_at_least(2),
+        type=_int_at_least(2, MAX_BRANCHING),
         default=10,
         metavar="K",
         help=f"children per node, 2..{MAX_BRANCHING} (default: %(default)s)",
@@ -61,7 +67,7 @@ def build_parser() -> argparse.ArgumentParser:
     build.add_argument(
         "-L",
         "--levels",
-        type=_int_at_least(1),
+        type=_int_at_least(1, MAX_LEVELS),
         default=4,
         metavar="L",
         help=f"tree depth, 1..{MAX_LEVELS}: up to K^L words (default: %(default)s)",
@@ -111,8 +117,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         if args.command == "build":
+            if args.out.is_dir():
+                raise UssSlamError(f"--out {args.out}: is a folder; expected a vocabulary file")
             if args.out.exists() and not args.overwrite:
                 raise UssSlamError(f"{args.out}: exists; pass --overwrite to replace it")
+            check_writable(args.out.parent, create=False)  # before the clustering, not after
             report = build_from_sequences(
                 args.sequences,
                 args.out,
@@ -139,6 +148,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except UssSlamError as err:
         print(f"{PROG}: error: {err}", file=sys.stderr)
         return 1
+    except KeyboardInterrupt:  # --out is written atomically: nothing half-written is left
+        print(f"{PROG}: interrupted", file=sys.stderr)
+        return INTERRUPTED
     return 0
 
 

@@ -45,6 +45,7 @@ import cv2
 import numpy as np
 
 from uss_slam.core.errors import DataFormatError, UssSlamError
+from uss_slam.core.files import write_text_atomic
 from uss_slam.core.tum_io import StrPath, read_file_list
 
 DESCRIPTOR_BYTES = 32
@@ -296,9 +297,8 @@ def write_vocabulary(path: StrPath, vocab: Vocabulary) -> Path:
         strict=True,
     ):
         lines.append(f"{parent} {int(leaf)} {' '.join(map(str, desc))} {float(weight)!r}")
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text("\n".join(lines))
+    try:  # atomically: a killed run never leaves half a vocabulary under the final name
+        write_text_atomic(path, "\n".join(lines))
     except OSError as err:
         raise UssSlamError(f"{path}: cannot write the vocabulary ({err.strerror})") from None
     return path

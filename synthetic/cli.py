@@ -13,6 +13,7 @@ import cv2
 
 from uss_slam.core.classes import CLASS_NAMES
 from uss_slam.core.errors import UssSlamError
+from uss_slam.core.files import check_writable
 
 from .motion import PRESETS
 from .output import (
@@ -165,6 +166,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     start = time.perf_counter()
     try:
         check_output(args.out, args.overwrite)
+        check_writable(args.out, "--out", create=False)  # before rendering, not after
         for folder in clean_stale_partials(args.out):
             print(f"uss-synth: removed {folder} (left by a killed run)", file=sys.stderr)
         if args.command == "sequence":

@@ -83,6 +83,12 @@ class AdversarialSegmentation(LightningModule):
         super().__init__()
         if isinstance(max_iters, bool) or not isinstance(max_iters, int) or max_iters <= 0:
             raise UssSlamError(f"model.max_iters must be a positive integer, got {max_iters!r}")
+        num_classes = getattr(net, "num_classes", None)
+        if num_classes is not None and num_classes != len(class_names):
+            raise UssSlamError(
+                f"model.net.num_classes is {num_classes} but model.class_names lists "
+                f"{len(class_names)} ({', '.join(class_names)}); they must agree"
+            )
         self.automatic_optimization = False
         self.segmenter = net
         self.d_aux = discriminator()

@@ -19,6 +19,7 @@ from typing import Any
 import hydra
 import lightning as L
 import torch
+from hydra.errors import InstantiationException
 from hydra.utils import instantiate
 from lightning.pytorch import Callback, LightningDataModule, LightningModule, Trainer
 from lightning.pytorch.callbacks import LearningRateMonitor
@@ -133,6 +134,36 @@ def check_architecture(model: LightningModule, info: CheckpointInfo) -> None:
         )
 
 
+def check_optimizers(cfg: DictConfig) -> None:
+    """Build each configured optimiser on a dummy parameter: a value torch rejects
+    (``model.optimizer.lr=-1``, Adam betas outside [0, 1)) is one line naming the key before
+    anything is built or written, not a traceback once training started."""
+    for key in ("optimizer", "d_optimizer"):
+        node = cfg.model.get(key)
+        if not isinstance(node, DictConfig) or "_target_" not in node:
+            continue
+        factory = instantiate(node)
+        try:
+            factory(params=[torch.nn.Parameter(torch.zeros(1))])
+        except ValueError as error:
+            raise UssSlamError(f"model.{key}: {error}") from None
+
+
+def build(cfg: DictConfig, key: str) -> Any:
+    """``instantiate(cfg[key])``; a ``ValueError`` its constructors raise for a value out of
+    range (``data.batch_size=0``, ``model.discriminator.n_layers=0``) becomes one line naming
+    ``key`` (Hydra wraps it with the target's name and no key)."""
+    try:
+        return instantiate(cfg[key])
+    except InstantiationException as error:
+        cause: BaseException | None = error
+        while isinstance(cause, InstantiationException):
+            cause = cause.__cause__
+        if isinstance(cause, ValueError) and not isinstance(cause, UssSlamError):
+            raise UssSlamError(f"{key}: {cause}") from error
+        raise
+
+
 def train(cfg: DictConfig) -> dict[str, float]:
     """Fit the configured model; returns the final callback metrics as floats.
 
@@ -141,6 +172,7 @@ def train(cfg: DictConfig) -> dict[str, float]:
     checkpoints or logs behind.
     """
     check_config_types(cfg, TYPED_SECTIONS)
+    check_optimizers(cfg)
     if cfg.get("num_threads"):
         torch.set_num_threads(int(cfg.num_threads))
     if cfg.get("seed") is not None:
@@ -150,8 +182,8 @@ def train(cfg: DictConfig) -> dict[str, float]:
     for key, folder in _output_folders(cfg):
         check_writable(key, folder)
 
-    datamodule: LightningDataModule = instantiate(cfg.data)
-    model: LightningModule = instantiate(cfg.model)
+    datamodule: LightningDataModule = build(cfg, "data")
+    model: LightningModule = build(cfg, "model")
     if checkpoint is not None:
         check_architecture(model, checkpoint)
         del checkpoint  # Lightning reads the file again; do not hold two copies

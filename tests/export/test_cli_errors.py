@@ -309,7 +309,7 @@ def test_output_folder_that_cannot_be_written(
     _assert_one_line(code, err, f"{blocker}: output folder is a file, not a folder")
     code, _, err = uss_export(f"ckpt_path={runs['a']}", f"out_dir={blocker / 'sub'}")
     _assert_one_line(
-        code, err, f"{blocker / 'sub'}: cannot write to the output folder (Not a directory)"
+        code, err, f"{blocker / 'sub'}: cannot create the output folder ({blocker} is a file)"
     )
     (tmp_path / "taken.onnx").mkdir()
     code, _, err = uss_export(f"ckpt_path={runs['a']}", "out=taken.onnx")

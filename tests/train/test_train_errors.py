@@ -146,7 +146,7 @@ def test_unwritable_output_folder_is_one_line(
     if key == "hydra.run.dir":
         assert (
             err[0]
-            == f"uss-train: error: cannot create the output folder {target} (Not a directory)"
+            == f"uss-train: error: cannot create the output folder {target} ({blocker} is a file)"
         )
     else:
         assert (
