@@ -244,6 +244,31 @@ def _check_segmenter(section: Any) -> None:
         raise UssSlamError(f"segmenter.{missing[0]}: required by {class_name}")
 
 
+def _check_sequence(cfg: DictConfig) -> None:
+    """The frame selection and association of ``sequence`` and the ``progress`` flag (plain
+    keys without a typed schema): a wrong type is one line, never a traceback or a silent
+    truthy string."""
+    seq = cfg.get("sequence") or {}
+    for key, minimum, nullable in (
+        ("start", 0, False),
+        ("stride", 1, False),
+        ("max_frames", 1, True),
+    ):
+        value = seq.get(key)
+        if value is None and nullable:
+            continue
+        if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+            null = " or null" if nullable else ""
+            raise UssSlamError(
+                f"sequence.{key} must be a whole number >= {minimum}{null}, got {value!r}"
+            )
+    max_diff = seq.get("max_diff")
+    if isinstance(max_diff, bool) or not isinstance(max_diff, (int, float)) or not max_diff >= 0:
+        raise UssSlamError(f"sequence.max_diff must be a number of seconds >= 0, got {max_diff!r}")
+    if not isinstance(cfg.get("progress", True), bool):
+        raise UssSlamError(f"progress must be true or false, got {cfg.progress!r}")
+
+
 def check(cfg: DictConfig) -> RunPlan:
     """Validate everything the run will use, before any frame is read or file written."""
     for key in ("segment", "filters", "compare", "eval", "slam", "segmenter", "out_dir"):
@@ -273,6 +298,7 @@ def check(cfg: DictConfig) -> RunPlan:
     for key in ("prefetch", "workers"):
         if int(slam[key]) < (0 if key == "prefetch" else 1):
             raise UssSlamError(f"slam.{key}: must be >= {0 if key == 'prefetch' else 1}")
+    _check_sequence(cfg)
     params = _check_filter_params(OmegaConf.to_container(slam.filter_params, resolve=True))
     if cfg.compare is None:
         runs: list[tuple[str | None, list[str]]] = [(None, _filter_names(cfg.filters, "filters"))]

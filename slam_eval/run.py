@@ -17,7 +17,12 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
-from uss_slam.core.cli import JobFailed, exit_on_user_error, report_failed_jobs
+from uss_slam.core.cli import (
+    JobFailed,
+    exit_on_user_error,
+    output_folder_line,
+    report_failed_jobs,
+)
 from uss_slam.core.files import check_writable
 
 from .config import check, config_error_line, register_configs, run_name
@@ -163,7 +168,7 @@ def main() -> None:
     except Exception as error:
         line = config_error_line(error)
         if line is None and isinstance(error, OSError) and not _started:  # Hydra's mkdir
-            line = f"cannot create the output folder {error.filename} ({error.strerror})"
+            line = output_folder_line(error)
         if line is None:
             raise
         print(f"{PROG}: error: {line}", file=sys.stderr)
