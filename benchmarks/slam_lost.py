@@ -5,7 +5,7 @@ the stretches of frames not tracked together with what the view holds there (gro
 ``labels/`` and depth: share of the image on a person, share that is static *and* has depth,
 share of the person without depth, i.e. closer than the sensor's minimum range), and the frames
 with the largest ATE (SE(3)-aligned, per frame). With ``--plot`` also the ATE of both runs over
-time in one PNG. Used in BENCHMARKS.md ("SLAM harness", issue 4: walking targets over seeds).
+time in one PNG. Used in BENCHMARKS.md ("SLAM harness": walking targets over seeds).
 
     python benchmarks/slam_lost.py /tmp/st12/walking_xyz_300_640x480_seed1 --plot ate.png
 """

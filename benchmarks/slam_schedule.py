@@ -1,4 +1,4 @@
-"""Segmentation schedule of the SLAM harness (issue 5, "Runtime"): keyframes only vs every frame.
+"""Segmentation schedule of the SLAM harness: keyframes only vs every frame.
 
 Segmentation is the slow stage (USS-SLAM: 0.31 s per frame on a GTX 1080). This script runs the
 pipeline with the ``semantic`` filter under both schedules (``segment=every_frame``: every frame,

@@ -1,4 +1,4 @@
-"""End-to-end speed of the SLAM harness (issue 4 target: >= 25 frames/s at 640x480 with the
+"""End-to-end speed of the SLAM harness (target: >= 25 frames/s at 640x480 with the
 ``semantic`` filter on 2 cores), and its ratio to ORB extraction alone, measured in the same run.
 
 Each repeat runs the whole pipeline (PNG decoding, oracle segmentation and ORB in two prefetch

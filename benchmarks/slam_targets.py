@@ -1,4 +1,4 @@
-"""Accuracy targets of the SLAM harness on synthetic sequences (issue 4, BENCHMARKS.md).
+"""Accuracy targets of the SLAM harness on synthetic sequences (results in BENCHMARKS.md).
 
 For each preset (640x480, >= 300 frames) the unfiltered baseline and the ``labels`` segmenter +
 ``semantic`` filter run on the same sequence; the script prints ATE RMSE of both, their ratio and

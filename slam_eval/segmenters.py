@@ -2,7 +2,7 @@
 
 A segmenter turns a frame into ``(H, W)`` uint8 project class ids (``classes.CLASS_NAMES``) or
 None. Image segmenters implement :meth:`ImageSegmenter.infer` on the RGB image alone (the ONNX
-runtime segmenter of the export issue is one); the oracle :class:`LabelsSegmenter` returns the
+runtime segmenter of ``uss-export`` models is one); the oracle :class:`LabelsSegmenter` returns the
 ground-truth ``labels/`` PNG that the sequence reader loaded with the frame.
 
 Plugging in a segmenter: subclass :class:`ImageSegmenter`, give it a ``name`` and implement

@@ -312,7 +312,7 @@ def test_undecodable_rle_fails_at_rasterisation_naming_the_image(
 
 
 def test_default_names_give_design_ids_on_the_official_categories() -> None:
-    """DESIGN.md §4: COCO category ids 1 -> person, 62 -> chair, 72 (tv) -> monitor."""
+    """The project's class map: COCO category ids 1 -> person, 62 -> chair, 72 (tv) -> monitor."""
     table = category_table(DEFAULT_CATEGORIES)
     mapped = {c["id"]: table.get(normalize_name(c["name"]), 0) for c in COCO_CATEGORIES}
     assert {k: v for k, v in mapped.items() if v} == COCO_TO_PROJECT

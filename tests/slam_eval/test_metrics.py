@@ -36,7 +36,7 @@ else:  # pragma: no cover
 
 needs_evo = pytest.mark.skipif(not HAVE_EVO, reason="evo needs Python >= 3.11")
 
-TOL = 1e-9  # metres / degrees: the agreement the issue asks for
+TOL = 1e-9  # metres / degrees: agreement with evo
 
 
 # --------------------------------------------------------------------------- helpers

@@ -163,7 +163,7 @@ def test_not_enough_depth_to_initialise(synthetic_sequence) -> None:
 
 @pytest.mark.slow
 def test_semantic_filter_beats_the_baseline_on_a_walking_sequence(synthetic_sequence) -> None:
-    # At the 640x480: at 320x240 the walkers (up to ~60% of the view) leave the
+    # At the target's 640x480: at 320x240 the walkers (up to ~60% of the view) leave the
     # filtered run too few keypoints for a while and it loses track (known, see the README).
     path = synthetic_sequence(preset="walking_xyz", frames=120, size=(640, 480))
     seq, baseline = _run(path, labels=True)
