@@ -1,5 +1,5 @@
-"""The ONNX segmenter runtime (``slam_eval/segmenter.py``): contract checks, class mapping, output
-size, providers, ``uss-slam segmenter=onnx``; parity with the PyTorch checkpoint .
+"""The ONNX segmenter runtime (``slam_eval/onnx_segmenter.py``): contract checks, class mapping, output
+size, providers, ``uss-slam segmenter=onnx``; parity with the PyTorch checkpoint.
 
 The tiny models are built with ``onnx.helper`` (no torch): logits = (128, R, G, B) per pixel, so
 the label of a pixel is 0 where every channel is below 128 (ties go to the first index, as
