@@ -197,7 +197,7 @@ def test_the_loop_preset_is_closed_and_its_error_falls(synthetic_sequence) -> No
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("preset", ["static_xyz", "walking_xyz"])
+@pytest.mark.parametrize("preset", ["static_xyz", "walking_xyz", "walking_halfsphere"])
 def test_no_loop_closure_on_the_xyz_presets(synthetic_sequence, preset: str) -> None:
     result, _ = _run(
         synthetic_sequence(preset=preset, frames=150), local_ba=True, loop_closing=True
