@@ -280,15 +280,14 @@ class BundleAdjuster:
         point_ids: np.ndarray,
         first_iterations: int = 5,
         second_iterations: int = 10,
-        fix: np.ndarray | None = None,
     ) -> Adjustment:
         """Bundle-adjust keyframes ``free`` and points ``point_ids`` (sorted); every other
-        keyframe observing those points is fixed, and so are keyframe 0 and ``fix``. Updates the
-        map (poses, positions, erased outlier observations)."""
+        keyframe observing those points is fixed, and so is keyframe 0 (the gauge). Updates the
+        map (poses, positions, erased outlier observations); ``second_iterations = 0`` skips the
+        second pass (the outliers are still erased)."""
         obs = self._gather(slam_map, point_ids)
         involved = np.unique(obs.keyframe)
         fixed = set(int(k) for k in np.setdiff1d(involved, free))
-        fixed |= {int(k) for k in (fix if fix is not None else ()) if k in involved}
         if 0 in involved:
             fixed.add(0)
         poses = {int(k): slam_map.keyframes[int(k)].pose_wc.copy() for k in involved}

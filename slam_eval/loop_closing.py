@@ -281,9 +281,7 @@ class LoopCloser:
         if cfg.global_ba:
             good = np.array([k.id for k in kfs if not k.bad], np.int64)
             all_points = slam_map.points_of(good)
-            self.adjuster.adjust(
-                slam_map, good, all_points, cfg.global_ba_iterations, 0, fix=np.array([0])
-            )
+            self.adjuster.adjust(slam_map, good, all_points, cfg.global_ba_iterations, 0)
         slam_map.update_geometry(slam_map.points_of(np.array([k.id for k in kfs if not k.bad])))
         return LoopClosure(
             frame=kf.frame_index,
