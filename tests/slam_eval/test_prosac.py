@@ -62,7 +62,7 @@ def test_pose_from_matches_with_each_sampler(sampler: str, monkeypatch) -> None:
     original = cv2.solvePnPRansac
 
     def spy(*args, **kwargs):
-        calls.append((np.asarray(args[1]).reshape(-1, 2).copy(), kwargs["flags"]))
+        calls.append((np.asarray(args[1]).reshape(-1, 2).copy(), kwargs))
         return original(*args, **kwargs)
 
     monkeypatch.setattr(cv2, "solvePnPRansac", spy)
@@ -74,14 +74,16 @@ def test_pose_from_matches_with_each_sampler(sampler: str, monkeypatch) -> None:
     assert np.linalg.norm(error[:3, 3]) < 0.005
     # The inlier mask is in the caller's order: the wrong matches are out, nearly all others in.
     assert not inliers[wrong].any() and inliers[~wrong].mean() > 0.95
-    (image_points, flags), *_ = calls
+    (image_points, options), *_ = calls
     if sampler == "prosac":
-        assert flags == cv2.USAC_PROSAC
+        params = options["params"]
+        assert params.sampler == cv2.SAMPLING_PROSAC and params.maxIterations == 300
+        assert params.loMethod == cv2.LOCAL_OPTIM_NULL and params.threshold == 3.0
         order = np.argsort(distance, kind="stable")
         np.testing.assert_array_equal(image_points, features.uv[order])
         assert np.all(np.diff(distance[order]) >= 0)
     else:
-        assert flags == cv2.SOLVEPNP_AP3P
+        assert options["flags"] == cv2.SOLVEPNP_AP3P and options["iterationsCount"] == 300
         np.testing.assert_array_equal(image_points, features.uv)
 
 
