@@ -414,7 +414,21 @@ def evaluate(
     }
     write_json_atomic(out / "eval.json", result)
     write_text_atomic(out / "eval.md", markdown(result))
+    _remove_stale_overlays(out / "overlays", written)
     return result
+
+
+def _remove_stale_overlays(folder: Path, written: Sequence[str]) -> None:
+    """Overlays of an earlier evaluation into the same ``--out`` that this one did not write
+    (fewer ``--overlays``, other frames): removed, so that the folder holds one run's."""
+    if not folder.is_dir():
+        return
+    mine = {Path(name).name for name in written}
+    for path in folder.glob("[0-9][0-9][0-9]_*.png"):
+        if path.name not in mine:
+            path.unlink()
+    if not any(folder.iterdir()):
+        folder.rmdir()
 
 
 # ------------------------------------------------------------------------------ main

@@ -77,6 +77,8 @@ def _save(fig: Figure, path: StrPath) -> Path:
     """Save ``fig`` to ``path`` atomically (temporary sibling, then rename)."""
     path = check_plot_path(path)
     fig.tight_layout()
+    if not path.parent.is_dir():  # atomic_path would create it: a plot goes into a folder
+        raise UssSlamError(f"{path}: cannot write the plot (no folder {path.parent})")
     try:
         with atomic_path(path) as tmp:
             fig.savefig(tmp, format=path.suffix.lower().lstrip("."), dpi=DPI)

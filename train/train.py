@@ -97,6 +97,24 @@ def check_writable(key: str, folder: str | Path) -> None:
         raise UssSlamError(f"{key}: cannot write to {path}: {existing} is not writable")
 
 
+def check_no_earlier_checkpoints(cfg: DictConfig, ckpt_path: str | None) -> None:
+    """A checkpoint folder holding another run's checkpoints is refused unless this run
+    resumes from a checkpoint in it: two runs' best / last checkpoints would sit side by side
+    (Lightning only warns), and ``ckpt_path=last`` or an export could pick the wrong one."""
+    for key, folder in _output_folders(cfg):
+        if not key.startswith("callbacks."):
+            continue
+        path = Path(folder)
+        found = sorted(path.glob("*.ckpt")) if path.is_dir() else []
+        resumed = ckpt_path is not None and Path(ckpt_path).resolve().parent == path.resolve()
+        if found and not resumed:
+            raise UssSlamError(
+                f"{key}={path}: holds checkpoints of an earlier run ({found[0].name}, "
+                f"{len(found)} in all); resume it with ckpt_path={path / 'last.ckpt'} or "
+                "train into a new hydra.run.dir"
+            )
+
+
 def check_checkpoint(path: str, cfg: DictConfig) -> CheckpointInfo:
     """The ``ckpt_path`` file is a readable ``uss-train`` checkpoint with the configured
     number of classes (one error line naming the file otherwise)."""
@@ -181,6 +199,7 @@ def train(cfg: DictConfig) -> dict[str, float]:
     checkpoint = check_checkpoint(ckpt_path, cfg) if ckpt_path is not None else None
     for key, folder in _output_folders(cfg):
         check_writable(key, folder)
+    check_no_earlier_checkpoints(cfg, ckpt_path)
 
     datamodule: LightningDataModule = build(cfg, "data")
     model: LightningModule = build(cfg, "model")

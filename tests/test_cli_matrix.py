@@ -1,0 +1,652 @@
+"""Bad inputs a new user gives every console script, and what each must do with them.
+
+One parametrized matrix over all nine console scripts, run in this process (``main(argv)`` for
+the argparse scripts, ``sys.argv`` + ``main()`` for the Hydra apps). For every case:
+
+- the exit code: 1 for a bad file, value, key or folder; 2 for an argparse usage error;
+  130 after Ctrl-C;
+- stderr: exactly one line ``<prog>: error: ...`` naming the file (and line) or the key, and
+  what was expected (a usage error: argparse's usage, then that line; Ctrl-C:
+  ``<prog>: interrupted``); never a traceback;
+- the disk: nothing written (every file under the test's folder byte for byte as before the
+  call, an earlier run or export in the output folder included). Hydra's own record of a call
+  (its ``.hydra/`` folder and log file in the run folder) is the only exception.
+
+Cases that an existing test already asserts the same way are not repeated here (see the
+``tests/<package>/`` error tests); this file is about breadth. A kill -9 of ``uss-export``
+while it writes is at the end.
+"""
+
+from __future__ import annotations
+
+import importlib
+import importlib.util
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import ModuleType
+from typing import Any
+
+import cv2
+import numpy as np
+import pytest
+from hydra.core.global_hydra import GlobalHydra
+from hydra.core.hydra_config import HydraConfig
+
+from uss_slam.core.files import file_sha256
+
+TESTS = Path(__file__).resolve().parent
+
+# Console script -> (module of its entry point, how main is called: "argv" = main(argv)
+# returning or exiting with the code; "sys.argv" = a Hydra app reading sys.argv).
+ENTRY_POINTS = {
+    "uss-synth": ("uss_slam.synthetic.cli", "argv"),
+    "uss-traj": ("uss_slam.slam_eval.traj_cli", "argv"),
+    "uss-vocab": ("uss_slam.slam_eval.vocab_cli", "argv"),
+    "uss-eval": ("uss_slam.pipelines.evaluate", "argv"),
+    "uss-demo": ("uss_slam.pipelines.demo", "argv"),
+    "uss-slam": ("uss_slam.slam_eval.run", "sys.argv"),
+    "uss-train": ("uss_slam.train.train", "sys.argv"),
+    "uss-export": ("uss_slam.export.cli", "sys.argv"),
+    "uss-experiments": ("uss_slam.pipelines.experiments.cli", "sys.argv"),
+}
+HYDRA_RECORDS = ("hydra/", "run/.hydra/", "exp/.hydra/")
+"""Folders (relative to the test's folder) where Hydra records a call before the app runs."""
+
+
+def _export_helpers() -> ModuleType:
+    """``tests/export/export_helpers.py`` (a tiny uss-train run folder), imported by path."""
+    spec = importlib.util.spec_from_file_location(
+        "cli_matrix_export_helpers", TESTS / "export" / "export_helpers.py"
+    )
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+# ------------------------------------------------------------------------------ the world
+
+
+@pytest.fixture(scope="module")
+def world(
+    tmp_path_factory: pytest.TempPathFactory, synthetic_sequence, synthetic_voc
+) -> dict[str, Path]:
+    """Read-only inputs shared by the cases: a small labelled sequence, the training data of the
+    train tests, a uss-train run folder, and a complete earlier uss-slam run."""
+    root = tmp_path_factory.mktemp("matrix")
+    seq = synthetic_sequence(preset="walking_xyz", frames=8, size=(160, 120), seed=5)
+    helpers = _export_helpers()
+    ckpt = helpers.fake_run(root / "train_run", helpers.tiny_net(seed=3))
+    slam = root / "slam_run"
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(sys, "argv", ["uss-slam", f"sequence.path={seq}", f"out_dir={slam}",
+                                    "progress=false"])  # fmt: skip
+        try:
+            importlib.import_module("uss_slam.slam_eval.run").main()
+        finally:
+            HydraConfig.instance().cfg = None
+            GlobalHydra.instance().clear()
+    assert (slam / "run.json").is_file()
+    return {
+        "seq": seq,
+        "gt": seq / "groundtruth.txt",
+        "voc": synthetic_voc(),
+        "target": synthetic_sequence(),
+        "val": synthetic_sequence(frames=6, size=(160, 120), seed=1),
+        "ckpt": ckpt,
+        "slam_run": slam,
+    }
+
+
+# ------------------------------------------------------------------------------ setups
+# Each setup prepares the case's inputs in its own folder; ``p`` maps template names to paths
+# (``tmp`` the case's folder, the world's inputs, and what the setup adds).
+
+Setup = Callable[[dict[str, Path]], None]
+
+
+def afile(p: dict[str, Path]) -> None:
+    """``{afile}``: a file where the user meant a folder."""
+    p["afile"] = p["tmp"] / "afile"
+    p["afile"].write_text("a file, not a folder\n")
+
+
+def folder(name: str, ext: str = "") -> Setup:
+    def make(p: dict[str, Path]) -> None:
+        p[name] = p["tmp"] / f"{name}{ext}"
+        p[name].mkdir()
+
+    return make
+
+
+def write(
+    name: str, data: bytes | str | Callable[[dict[str, Path]], bytes], ext: str = ""
+) -> Setup:
+    """``{name}``: a file ``<name><ext>`` in the case's folder with ``data`` (or ``data(p)``)."""
+
+    def make(p: dict[str, Path]) -> None:
+        content = data(p) if callable(data) else data
+        p[name] = p["tmp"] / f"{name}{ext}"
+        p[name].write_bytes(content.encode() if isinstance(content, str) else content)
+
+    return make
+
+
+def seq_copy(change: Callable[[Path], None] = lambda seq: None) -> Setup:
+    """``{s}``: a copy of the world's sequence, then ``change(copy)``."""
+
+    def make(p: dict[str, Path]) -> None:
+        p["s"] = p["tmp"] / "s"
+        shutil.copytree(p["seq"], p["s"])
+        change(p["s"])
+
+    return make
+
+
+def earlier_slam_run(p: dict[str, Path]) -> None:
+    """``{out}``: a complete earlier uss-slam run (the call must leave it as it is)."""
+    p["out"] = p["tmp"] / "out"
+    shutil.copytree(p["slam_run"], p["out"])
+
+
+def earlier_checkpoint(p: dict[str, Path]) -> None:
+    """An earlier training's checkpoint in the run folder the case trains into."""
+    folder = p["tmp"] / "run" / "checkpoints"
+    folder.mkdir(parents=True)
+    shutil.copy(p["ckpt"], folder / "last.ckpt")
+
+
+def earlier_export(p: dict[str, Path]) -> None:
+    """``{exports}``: files of an earlier export under the names uss-export would write."""
+    p["exports"] = p["tmp"] / "exports"
+    p["exports"].mkdir()
+    for name in ("fake.onnx", "fake.int8.onnx", "fake.verify.json"):
+        (p["exports"] / name).write_bytes(f"earlier {name}\n".encode())
+
+
+def nth(folder: str, k: int) -> Callable[[Path], Path]:
+    return lambda seq: sorted((seq / folder).iterdir())[k]
+
+
+def corrupt(folder: str, k: int, data: bytes = b"\x89PNG\r\n\x1a\ntruncated") -> Callable:
+    return lambda seq: nth(folder, k)(seq).write_bytes(data)
+
+
+def plain_onnx(p: dict[str, Path]) -> bytes:
+    """A valid ONNX model that is not a uss-export segmenter (no metadata)."""
+    import onnx
+    from onnx import TensorProto, helper
+
+    x = helper.make_tensor_value_info("x", TensorProto.FLOAT, [1])
+    y = helper.make_tensor_value_info("y", TensorProto.FLOAT, [1])
+    graph = helper.make_graph([helper.make_node("Identity", ["x"], ["y"])], "g", [x], [y])
+    return onnx.helper.make_model(graph).SerializeToString()
+
+
+def truncated(name: str, keep: float = 0.5) -> Callable[[dict[str, Path]], bytes]:
+    def data(p: dict[str, Path]) -> bytes:
+        content = p[name].read_bytes()
+        return content[: int(len(content) * keep)]
+
+    return data
+
+
+def png_bytes(p: dict[str, Path]) -> bytes:
+    return nth("rgb", 0)(p["seq"]).read_bytes()
+
+
+def vocabulary_text(rows: int) -> str:
+    """A DBoW2 text vocabulary header and ``rows`` well-formed nodes of a k=10, L=4 tree."""
+    node = "0 1 " + " ".join(["7"] * 32) + " 0.5"
+    return "\n".join(["10 4 0 0", *[node] * rows])
+
+
+# ------------------------------------------------------------------------------ cases
+
+
+@dataclass(frozen=True)
+class Case:
+    """One bad input. ``argv`` and ``says`` are templates over the case's paths (``{tmp}``,
+    ``{seq}``, ...); every ``says`` item must appear in the error line."""
+
+    id: str
+    prog: str
+    argv: tuple[str, ...]
+    code: int
+    says: tuple[str, ...]
+    setup: tuple[Setup, ...] = ()
+    interrupt: tuple[str, int] | None = None
+    """``("module:Object.attr", n)``: that callable raises KeyboardInterrupt on call n + 1."""
+    marks: tuple[Any, ...] = field(default_factory=tuple)
+
+
+def case(id: str, prog: str, argv: str, code: int, *says: str, **kw: Any) -> Case:
+    return Case(id, prog, tuple(argv.split()), code, says, **kw)
+
+
+SLAM = "sequence.path={seq} out_dir={out} progress=false"
+SLAM_S = "sequence.path={s} out_dir={out} progress=false"
+TRAIN = (
+    "experiment=ci data.source.root={voc} data.target.roots=[{target}] data.val.roots=[{val}] "
+    "data.val.stride=1 hydra.run.dir={tmp}/run paths.log_dir={tmp}/logs logger=none"
+)
+EXPORT = "ckpt_path={ckpt} out_dir={tmp}/exports hydra.run.dir={tmp}/hydra"
+EXPERIMENTS = "out_dir={tmp}/exp dry_run=true"
+OTHERS_WORK = pytest.mark.xfail(
+    strict=True,
+    reason="uss-experiments' console script does not run its Hydra app under "
+    "core.cli.run_hydra_app yet (Hydra's multi-line report or a traceback)",
+)
+
+CASES = [
+    # ---------------------------------------------------------------- uss-synth (argparse)
+    case("synth-out-under-a-file", "uss-synth",
+         "sequence --preset walking_xyz --frames 2 --size 32x24 --out {afile}/seq --quiet", 1,
+         "--out={afile}/seq", "cannot create the output folder ({afile} is a file)",
+         setup=(afile,)),
+    case("synth-out-is-a-file", "uss-synth", "voc --images 1 --size 32x24 --out {afile}", 2,
+         "{afile}: exists and is not a folder", setup=(afile,)),
+    case("synth-seed-not-a-number", "uss-synth",
+         "voc --images 1 --seed one --out {tmp}/voc", 2, "--seed", "invalid int value: 'one'"),
+    case("synth-missing-preset", "uss-synth", "sequence --out {tmp}/seq", 2,
+         "the following arguments are required: --preset"),
+    case("synth-ctrl-c-while-rendering", "uss-synth",
+         "sequence --preset static_xyz --frames 4 --size 32x24 --out {tmp}/seq --quiet", 130,
+         "uss-synth: interrupted; nothing was written",
+         interrupt=("uss_slam.synthetic.sequence:SequenceRenderer.frame", 2)),
+    # ---------------------------------------------------------------- uss-traj (argparse)
+    case("traj-png-as-trajectory", "uss-traj", "ate {gt} {png}", 1,
+         "{png}: not a text file", setup=(write("png", png_bytes),)),
+    case("traj-truncated-groundtruth", "uss-traj", "ate {gt} {cut}", 1,
+         "{cut}:", "expected 8 columns", setup=(write("cut", lambda p: p["gt"].read_bytes()[:200]),)),
+    case("traj-latin1-garbage", "uss-traj", "rpe {bad} {gt}", 1, "{bad}: not a text file",
+         setup=(write("bad", b"\xff\xfe\x00 caf\xe9\n"),)),
+    case("traj-zero-quaternion", "uss-traj", "ate {gt} {zq}", 1,
+         "{zq}:1:", "unit norm, got norm 0.000000",
+         setup=(write("zq", "1 0 0 0 0 0 0 0\n2 0 0 0 0 0 0 1\n3 0 0 0 0 0 0 1\n"),)),
+    case("traj-plot-under-a-file", "uss-traj", "ate {gt} {gt} --plot {afile}/ate.png", 1,
+         "--plot {afile}/ate.png", "{afile} is not a folder", setup=(afile,)),
+    case("traj-plot-is-a-folder", "uss-traj", "ate {gt} {gt} --plot {plots}", 1,
+         "--plot {plots}: is a folder", setup=(folder("plots", ".png"),)),
+    case("traj-offset-nan", "uss-traj", "ate {gt} {gt} --offset nan", 2,
+         "argument --offset", "expected a finite number, got 'nan'"),
+    case("traj-delta-finer-than-sampling", "uss-traj",
+         "rpe {gt} {gt} --unit seconds --delta 0.0001", 1,
+         "{gt}: no pose pairs 0.0001 seconds apart"),
+    # ---------------------------------------------------------------- uss-vocab (argparse)
+    case("vocab-build-not-a-sequence", "uss-vocab", "build {voc} --out {tmp}/v.txt", 1,
+         "{voc}/rgb.txt: file not found"),
+    case("vocab-build-out-under-a-file", "uss-vocab",
+         "build {seq} --out {afile}/v.txt -k 3 -L 2", 1,
+         "{afile}: output folder is a file", setup=(afile,)),
+    case("vocab-build-out-is-a-folder", "uss-vocab",
+         "build {seq} --out {vocab} --overwrite -k 3 -L 2", 1,
+         "--out {vocab}: is a folder; expected a vocabulary file", setup=(folder("vocab"),)),
+    case("vocab-build-k-too-large", "uss-vocab", "build {seq} --out {tmp}/v.txt -k 21", 2,
+         "argument -k/--branching", "expected an integer in 2..20, got 21"),
+    case("vocab-build-missing-frame", "uss-vocab", "build {s} --out {tmp}/v.txt --stride 1",
+         1, "{s}/rgb/", "not a readable image",
+         setup=(seq_copy(corrupt("rgb", 0, b"")),)),
+    case("vocab-info-truncated", "uss-vocab", "info {v}", 1,
+         "{v}:3: expected 'parent is_leaf' + 32 descriptor bytes + 'weight' (35 fields)",
+         setup=(write("v", vocabulary_text(3)[:120]),)),
+    case("vocab-info-binary", "uss-vocab", "info {png}", 1,
+         "{png}: not a DBoW2 text vocabulary", setup=(write("png", png_bytes),)),
+    case("vocab-ctrl-c-while-clustering", "uss-vocab",
+         "build {seq} --out {tmp}/v.txt -k 3 -L 2 --max-frames 2", 130,
+         "uss-vocab: interrupted",
+         interrupt=("uss_slam.slam_eval.vocabulary:build_vocabulary", 0)),
+    # ---------------------------------------------------------------- uss-eval (argparse)
+    case("eval-truncated-onnx", "uss-eval", "{m} --sequence {seq} --out {tmp}/eval", 1,
+         "{m}: onnxruntime cannot load it as an ONNX model",
+         setup=(write("m", b"\x08\x07\x12\x04onnx", ".onnx"),)),
+    case("eval-onnx-without-metadata", "uss-eval", "{m} --sequence {seq} --out {tmp}/eval",
+         1, "{m}: not a uss-slam segmenter", "(export it with uss-export)",
+         setup=(write("m", plain_onnx, ".onnx"),)),
+    case("eval-garbage-ckpt", "uss-eval", "{m} --sequence {seq} --out {tmp}/eval", 1,
+         "{m}: not a readable checkpoint", setup=(write("m", "not a checkpoint\n", ".ckpt"),)),
+    case("eval-out-under-a-file", "uss-eval", "{m} --sequence {seq} --out {afile}/eval", 1,
+         "--out={afile}/eval", "({afile} is a file)",
+         setup=(afile, write("m", "not read: --out is checked first", ".onnx"))),
+    case("eval-unknown-data-option-after-options", "uss-eval",
+         "{m} --out {tmp}/eval data=nope", 1,
+         "Could not find 'data/nope'", "(Available options in 'data': real, synthetic)",
+         setup=(write("m", "not read: the data config is composed first", ".onnx"),)),
+    case("eval-unknown-data-key", "uss-eval", "{m} data.val.bogus=1 --out {tmp}/eval", 1,
+         "data.val.bogus: Key 'bogus' is not in struct",
+         setup=(write("m", "not read", ".onnx"),)),
+    case("eval-data-value-type", "uss-eval", "{m} data.val.stride=abc --out {tmp}/eval", 1,
+         "data.val.stride: expected an integer, got 'abc'", setup=(write("m", "not read", ".onnx"),)),
+    case("eval-corrupt-label-png", "uss-eval", "{ckpt} --sequence {s} --out {tmp}/eval", 1,
+         "{s}/labels/", "not a readable image", setup=(seq_copy(corrupt("labels", 3)),)),
+    case("eval-threads-zero", "uss-eval", "{m} --sequence {seq} --threads 0 --out {tmp}/e", 1,
+         "--threads must be >= 1, got 0", setup=(write("m", "not read", ".onnx"),)),
+    # ---------------------------------------------------------------- uss-demo (argparse)
+    case("demo-out-under-a-file", "uss-demo",
+         "--out {afile}/demo --experiment ci --until data --quiet", 1,
+         "--out={afile}/demo", "({afile} is a file)", setup=(afile,)),
+    case("demo-sequence-garbage-groundtruth", "uss-demo",
+         "--out {tmp}/demo --experiment ci --sequence {s} --quiet", 1,
+         "--sequence {s}", "{s}/groundtruth.txt:1: expected 8 columns",
+         setup=(seq_copy(lambda s: (s / "groundtruth.txt").write_text("garbage\n")),)),
+    case("demo-sequence-empty-rgb-list", "uss-demo",
+         "--out {tmp}/demo --experiment ci --sequence {s} --quiet", 1,
+         "{s}/rgb.txt", "lists no images",
+         setup=(seq_copy(lambda s: (s / "rgb.txt").write_text("")),)),
+    case("demo-unknown-experiment", "uss-demo", "--out {tmp}/demo --experiment paper", 2,
+         "argument --experiment: invalid choice: 'paper'"),
+    case("demo-train-threads-not-a-number", "uss-demo", "--out {tmp}/d --train-threads two", 2,
+         "argument --train-threads: invalid int value: 'two'"),
+    case("demo-ctrl-c-in-the-data-stage", "uss-demo",
+         "--out {tmp}/demo --experiment ci --until data --quiet", 130, "uss-demo: interrupted",
+         interrupt=("uss_slam.pipelines.demo_data:render_demo_data", 0)),
+    # ---------------------------------------------------------------- uss-slam (Hydra)
+    case("slam-stride-not-a-number", "uss-slam", f"{SLAM} sequence.stride=abc", 1,
+         "sequence.stride must be a whole number >= 1, got 'abc'", setup=(earlier_slam_run,)),
+    case("slam-progress-not-a-bool", "uss-slam", f"{SLAM} progress=maybe", 1,
+         "progress must be true or false, got 'maybe'", setup=(earlier_slam_run,)),
+    case("slam-negative-max-diff", "uss-slam", f"{SLAM} sequence.max_diff=-1", 1,
+         "sequence.max_diff must be a number of seconds >= 0, got -1",
+         setup=(earlier_slam_run,)),
+    case("slam-out-dir-under-a-file", "uss-slam",
+         "sequence.path={seq} out_dir={afile}/run progress=false", 1,
+         "cannot create the output folder {afile}/run ({afile} is a file)", setup=(afile,)),
+    case("slam-unknown-system", "uss-slam", f"{SLAM} system=orbslam2", 1,
+         "Could not find 'system/orbslam2'", "(Available options in 'system': harness, "
+         "orbslam3)", setup=(earlier_slam_run,)),
+    case("slam-garbage-groundtruth", "uss-slam", SLAM_S, 1,
+         "{s}/groundtruth.txt:1: expected 8 columns",
+         setup=(seq_copy(lambda s: (s / "groundtruth.txt").write_text("1 2 3\n")),
+                earlier_slam_run)),
+    case("slam-intrinsics-not-yaml", "uss-slam", SLAM_S, 1,
+         "{s}/intrinsics.yaml:2: not valid YAML",
+         setup=(seq_copy(lambda s: (s / "intrinsics.yaml").write_text("fx: [1,\n")),
+                earlier_slam_run)),
+    case("slam-intrinsics-missing-keys", "uss-slam", SLAM_S, 1,
+         "{s}/intrinsics.yaml: expected a mapping with keys fx, fy, cx, cy, width, height",
+         setup=(seq_copy(lambda s: (s / "intrinsics.yaml").write_text("fx: 100\n")),
+                earlier_slam_run)),
+    case("slam-empty-rgb-list", "uss-slam", SLAM_S, 1,
+         "{s}/rgb.txt: the sequence lists no images",
+         setup=(seq_copy(lambda s: (s / "rgb.txt").write_text("")), earlier_slam_run)),
+    case("slam-depth-png-is-8-bit-colour", "uss-slam", SLAM_S, 1,
+         "{s}/depth/", "expected a single-channel uint16 depth PNG, got uint8",
+         setup=(seq_copy(lambda s: cv2.imwrite(str(nth("depth", 4)(s)),
+                                               np.zeros((120, 160, 3), np.uint8))),
+                earlier_slam_run)),
+    case("slam-corrupt-label-png-mid-run", "uss-slam",
+         f"{SLAM_S} segmenter=labels filters=[semantic]", 1, "{s}/labels/",
+         "not a readable image",
+         setup=(seq_copy(corrupt("labels", 5)), earlier_slam_run)),
+    case("slam-truncated-onnx", "uss-slam",
+         f"{SLAM} segmenter=onnx segmenter.path={{m}} filters=[semantic]", 1,
+         "{m}: onnxruntime cannot load it as an ONNX model",
+         setup=(write("m", b"\x08\x07\x12\x04onnx", ".onnx"), earlier_slam_run)),
+    case("slam-onnx-without-metadata", "uss-slam",
+         f"{SLAM} segmenter=onnx segmenter.path={{m}} filters=[semantic]", 1,
+         "{m}: not a uss-slam segmenter", setup=(write("m", plain_onnx, ".onnx"), earlier_slam_run)),
+    case("slam-ctrl-c-mid-run", "uss-slam", SLAM, 130, "uss-slam: interrupted",
+         setup=(earlier_slam_run,),
+         interrupt=("uss_slam.slam_eval.sequence:TumSequence.load", 3)),
+    # ---------------------------------------------------------------- uss-train (Hydra)
+    case("train-negative-learning-rate", "uss-train", f"{TRAIN} model.optimizer.lr=-1", 1,
+         "model.optimizer: Invalid learning rate: -1"),
+    case("train-adam-betas-out-of-range", "uss-train", f"{TRAIN} model.d_optimizer.betas=[2,0.9]",
+         1, "model.d_optimizer: Invalid beta parameter at index 0: 2"),
+    case("train-batch-size-zero", "uss-train", f"{TRAIN} data.batch_size=0", 1,
+         "data: batch_size must be >= 1, got 0"),
+    case("train-discriminator-without-layers", "uss-train",
+         f"{TRAIN} model.discriminator.n_layers=0", 1, "model: n_layers must be >= 1, got 0"),
+    case("train-classes-disagree", "uss-train", f"{TRAIN} model.net.num_classes=3", 1,
+         "model.net.num_classes is 3 but model.class_names lists 4"),
+    case("train-unknown-experiment", "uss-train", "experiment=paper hydra.run.dir={tmp}/run", 1,
+         "Could not find 'experiment/paper' (Available options in 'experiment': ci, demo,"),
+    case("train-unknown-method", "uss-train", f"{TRAIN} model/method=dann", 1,
+         "Could not find 'model/method/dann'", "adaptsegnet, "),
+    case("train-source-is-a-sequence", "uss-train", f"{TRAIN} data.source.root={{seq}}", 1,
+         "{seq}: not a VOC tree"),
+    case("train-resume-from-a-folder", "uss-train", f"{TRAIN} ckpt_path={{tmp}}", 1,
+         "ckpt_path {tmp} does not exist"),
+    case("train-second-run-into-a-used-folder", "uss-train", TRAIN, 1,
+         "callbacks.model_checkpoint.dirpath={tmp}/run/checkpoints: holds checkpoints of an "
+         "earlier run (last.ckpt, 1 in all); resume it with "
+         "ckpt_path={tmp}/run/checkpoints/last.ckpt", setup=(earlier_checkpoint,)),
+    # ---------------------------------------------------------------- uss-export (Hydra)
+    case("export-unknown-key", "uss-export", f"{EXPORT} opsett=17", 1,
+         "Key 'opsett' is not in struct"),
+    case("export-bad-override-syntax", "uss-export", f"{EXPORT} trace_size=[1", 1,
+         "no viable alternative at input '[1'"),
+    case("export-hydra-dir-under-a-file", "uss-export",
+         "ckpt_path={ckpt} out_dir={tmp}/exports hydra.run.dir={afile}/hydra", 1,
+         "cannot create the output folder {afile}/hydra ({afile} is a file)", setup=(afile,)),
+    case("export-label-agreement-above-one", "uss-export", f"{EXPORT} min_label_agreement=2",
+         1, "min_label_agreement must be in (0, 1] or null, got 2"),
+    case("export-logit-diff-zero", "uss-export", f"{EXPORT} max_logit_diff=0", 1,
+         "max_logit_diff must be > 0 or null, got 0"),
+    case("export-onnx-as-checkpoint", "uss-export",
+         "ckpt_path={m} out_dir={exports} hydra.run.dir={tmp}/hydra", 1,
+         "{m}: not a readable checkpoint",
+         setup=(write("m", plain_onnx, ".onnx"), earlier_export)),
+    case("export-checkpoint-is-a-folder", "uss-export",
+         "ckpt_path={tmp} out_dir={exports} hydra.run.dir={tmp}/hydra", 1,
+         "{tmp}: is not a file (expected a uss-train .ckpt)", setup=(earlier_export,)),
+    case("export-net-config-without-target", "uss-export",
+         f"{EXPORT} net_config={{y}}", 1, "net config {y} has no _target_",
+         setup=(write("y", "num_classes: 4\n"),)),
+    case("export-unknown-dynamic-class", "uss-export", f"{EXPORT} dynamic_classes=[ghost]", 1,
+         "dynamic_classes ['ghost'] are not among"),
+    case("export-out-under-a-file", "uss-export",
+         "ckpt_path={ckpt} out={afile}/m.onnx hydra.run.dir={tmp}/hydra", 1,
+         "{afile}: output folder is a file, not a folder", setup=(afile,)),
+    # ---------------------------------------------------------------- uss-experiments (Hydra)
+    case("experiments-unknown-scale", "uss-experiments", f"{EXPERIMENTS} scale=huge", 1,
+         "scale: unknown value 'huge'; accepted: paper, quick, standard"),
+    case("experiments-unknown-launcher", "uss-experiments", f"{EXPERIMENTS} launcher=k8s", 1,
+         "launcher: unknown value 'k8s'; accepted: joblib, local, slurm, submitit_local"),
+    case("experiments-unknown-stage", "uss-experiments", f"{EXPERIMENTS} stages=[deploy]", 1,
+         "stages: unknown value 'deploy'; accepted: data, train, export, slam, tables"),
+    case("experiments-depth-out-of-range", "uss-experiments", f"{EXPERIMENTS} grid.n_layers=[0]",
+         1, "grid.n_layers: expected integers 1..8, got 0"),
+    case("experiments-seeds-not-a-list", "uss-experiments", f"{EXPERIMENTS} grid.seeds=abc", 1,
+         "grid.seeds: expected a non-empty list, got 'abc'"),
+    case("experiments-unknown-key", "uss-experiments", f"{EXPERIMENTS} grid.depths=[4]", 1,
+         "grid.depths", marks=(OTHERS_WORK,)),
+    case("experiments-bad-override-syntax", "uss-experiments", f"{EXPERIMENTS} grid.seeds=[0",
+         1, "no viable alternative at input '[0'", marks=(OTHERS_WORK,)),
+    case("experiments-out-dir-is-a-file", "uss-experiments",
+         "out_dir={afile} dry_run=true", 1, "{afile}", setup=(afile,), marks=(OTHERS_WORK,)),
+]  # fmt: skip
+
+
+# ------------------------------------------------------------------------------ running
+
+
+def run_console_script(
+    prog: str, argv: list[str], monkeypatch: pytest.MonkeyPatch, capsys
+) -> tuple[int, str, str]:
+    """``prog ARGV`` in this process: (exit code, stdout, stderr)."""
+    module, style = ENTRY_POINTS[prog]
+    main = importlib.import_module(module).main
+    capsys.readouterr()
+    try:
+        if style == "argv":
+            code = main(argv)
+        else:
+            monkeypatch.setattr(sys, "argv", [prog, *argv])
+            code = main()
+    except SystemExit as stop:
+        code = stop.code
+    out, err = capsys.readouterr()
+    return int(code or 0), out, err
+
+
+def interrupt_after(monkeypatch: pytest.MonkeyPatch, target: str, calls: int) -> None:
+    """Make ``module:Object.attr`` raise KeyboardInterrupt (Ctrl-C) on call ``calls + 1``."""
+    module, _, path = target.partition(":")
+    owner: Any = importlib.import_module(module)
+    *parents, name = path.split(".")
+    for parent in parents:
+        owner = getattr(owner, parent)
+    original = getattr(owner, name)
+    count = [0]
+
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        count[0] += 1
+        if count[0] > calls:
+            raise KeyboardInterrupt
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(owner, name, wrapper)
+
+
+def snapshot(root: Path) -> dict[str, str]:
+    """Every file under ``root`` -> its SHA-256, without Hydra's record of a call."""
+    files = {}
+    for path in sorted(root.rglob("*")):
+        rel = path.relative_to(root).as_posix()
+        if path.is_file() and not rel.startswith(HYDRA_RECORDS) and path.suffix != ".log":
+            files[rel] = file_sha256(path)
+    return files
+
+
+@pytest.mark.parametrize("bad", [pytest.param(c, id=c.id, marks=c.marks) for c in CASES])
+def test_bad_input(
+    bad: Case,
+    world: dict[str, Path],
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys,
+) -> None:
+    paths = {**world, "tmp": tmp_path}
+    for setup in bad.setup:
+        setup(paths)
+    argv = [arg.format(**paths) for arg in bad.argv]
+    says = [text.format(**paths) for text in bad.says]
+    if bad.interrupt is not None:
+        interrupt_after(monkeypatch, *bad.interrupt)
+    monkeypatch.chdir(tmp_path)  # relative defaults (outputs/...) stay in the test's folder
+    before = snapshot(tmp_path)
+
+    code, _, err = run_console_script(bad.prog, argv, monkeypatch, capsys)
+
+    assert "Traceback" not in err, err
+    lines = err.strip().splitlines()
+    assert code == bad.code, err
+    if code == 2:  # argparse: its usage (uss-synth: none), then the error line
+        assert lines[-1].startswith(bad.prog) and ": error: " in lines[-1], err
+        assert all(line.startswith(("usage:", " ")) for line in lines[:-1]), err
+    elif code == 130:
+        assert lines == says, err
+    else:
+        assert len(lines) == 1 and lines[0].startswith(f"{bad.prog}: error: "), err
+    for text in says:
+        assert text in lines[-1], (text, lines[-1])
+    assert snapshot(tmp_path) == before  # nothing written; an earlier run or export intact
+
+
+def test_every_console_script_is_in_the_matrix() -> None:
+    """Each console script of pyproject has at least four cases here."""
+    import tomllib
+
+    scripts = tomllib.loads((TESTS.parent / "pyproject.toml").read_text())["project"]["scripts"]
+    assert set(scripts) == set(ENTRY_POINTS)
+    for prog, target in scripts.items():
+        assert target == f"{ENTRY_POINTS[prog][0]}:main"
+        assert sum(c.prog == prog for c in CASES) >= 4, prog
+    assert len(CASES) >= 60
+
+
+# ------------------------------------------------------------------------------ reruns
+
+
+def test_eval_rerun_into_the_same_out_holds_one_runs_files(
+    world: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    """A second ``uss-eval`` into a used ``--out`` with fewer overlays: the folder holds the
+    second run's overlays only (those of the first were not left beside them)."""
+    out = tmp_path / "eval"
+    base = [str(world["ckpt"]), "--sequence", str(world["seq"]), "--out", str(out)]
+    for overlays, expected in ((3, 3), (1, 1), (0, 0)):
+        code, _, err = run_console_script(
+            "uss-eval", [*base, "--overlays", str(overlays)], monkeypatch, capsys
+        )
+        assert code == 0, err
+        listed = json.loads((out / "eval.json").read_text())["overlays"]
+        present = sorted(p.relative_to(out).as_posix() for p in out.glob("overlays/*"))
+        assert len(listed) == expected and present == listed
+    assert sorted(p.name for p in out.iterdir()) == ["eval.json", "eval.md"]
+
+
+# ------------------------------------------------------------------------------ kill -9
+
+
+def _pair(folder: Path) -> dict[str, str]:
+    """The export's files under their final names -> SHA-256."""
+    names = ("fake.onnx", "fake.int8.onnx", "fake.verify.json")
+    return {n: file_sha256(folder / n) for n in names if (folder / n).is_file()}
+
+
+def _checkpoint_of_pair(folder: Path) -> set[str]:
+    """The checkpoint SHA-256 every file of the pair names (one value for a consistent pair)."""
+    import onnx
+
+    from uss_slam.core.onnx_contract import SegmenterMetadata
+
+    found = {json.loads((folder / "fake.verify.json").read_text())["checkpoint_sha256"]}
+    for name in ("fake.onnx", "fake.int8.onnx"):
+        props = {p.key: p.value for p in onnx.load(str(folder / name)).metadata_props}
+        found.add(SegmenterMetadata.from_props(props, folder / name).checkpoint_sha256)
+    return found
+
+
+@pytest.mark.slow  # three uss-export processes with INT8, each importing torch: ~40 s
+def test_export_killed_while_writing_keeps_the_earlier_pair(
+    world: dict[str, Path], tmp_path: Path
+) -> None:
+    """kill -9 of ``uss-export`` while it writes the new FP32 / INT8 pair (its files staged
+    under temporary names in the output folder): the earlier pair stays, consistent, under
+    the final names; a rerun replaces it with a consistent pair of the new checkpoint."""
+    helpers = _export_helpers()
+    other = helpers.fake_run(tmp_path / "run_b", helpers.tiny_net(seed=4))
+    script = Path(sys.executable).parent / "uss-export"
+    exports = tmp_path / "exports"
+    common = ["out_dir=exports", "int8=true", f"calibration.root={world['seq']}",
+              "calibration.frames=2", "num_threads=1"]  # fmt: skip
+
+    def export(ckpt: Path, tag: str) -> subprocess.Popen:
+        return subprocess.Popen(
+            [str(script), f"ckpt_path={ckpt}", *common, f"hydra.run.dir=hydra_{tag}"],
+            cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        )  # fmt: skip
+
+    first = export(world["ckpt"], "a")
+    _, err = first.communicate(timeout=600)
+    assert first.returncode == 0, err
+    pair = _pair(exports)
+    assert len(pair) == 3 and _checkpoint_of_pair(exports) == {file_sha256(world["ckpt"])}
+
+    killed = export(other, "b")
+    deadline = time.monotonic() + 300
+    while not any(p.name.endswith(".tmp") for p in exports.iterdir()):
+        assert killed.poll() is None, "uss-export ended before it staged a file"
+        assert time.monotonic() < deadline
+        time.sleep(0.01)
+    os.kill(killed.pid, signal.SIGKILL)
+    killed.wait(timeout=60)
+    assert killed.returncode == -signal.SIGKILL
+    assert _pair(exports) == pair  # the earlier pair, byte for byte
+    leftovers = {p.name for p in exports.iterdir()} - set(pair)
+    assert leftovers and all(n.startswith(".fake.") and n.endswith(".tmp") for n in leftovers)
+
+    rerun = export(other, "c")
+    _, err = rerun.communicate(timeout=600)
+    assert rerun.returncode == 0, err
+    assert _checkpoint_of_pair(exports) == {file_sha256(other)}
