@@ -244,11 +244,28 @@ def _check_segmenter(section: Any) -> None:
         raise UssSlamError(f"segmenter.{missing[0]}: required by {class_name}")
 
 
+TOP_LEVEL_KEYS = ("sequence", "segmenter", "slam", "system", "eval", "filters", "segment",
+                  "compare", "out_dir", "progress")  # fmt: skip
+"""The top-level keys of ``configs/slam_eval.yaml`` as composed."""
+SEQUENCE_KEYS = ("path", "camera", "max_diff", "start", "stride", "max_frames")
+"""The keys of ``configs/sequence/default.yaml``."""
+
+
 def _check_sequence(cfg: DictConfig) -> None:
     """The frame selection and association of ``sequence`` and the ``progress`` flag (plain
     keys without a typed schema): a wrong type is one line, never a traceback or a silent
     truthy string."""
+    unknown = sorted(str(k) for k in cfg if str(k) not in TOP_LEVEL_KEYS)
+    if unknown:  # added with +key=value: nothing would read it
+        raise UssSlamError(
+            f"{unknown[0]}: unknown key; uss-slam's keys are {', '.join(TOP_LEVEL_KEYS)}"
+        )
     seq = cfg.get("sequence") or {}
+    unknown = sorted(str(k) for k in seq if str(k) not in SEQUENCE_KEYS)
+    if unknown:
+        raise UssSlamError(
+            f"sequence.{unknown[0]}: unknown key; expected one of {', '.join(SEQUENCE_KEYS)}"
+        )
     for key, minimum, nullable in (
         ("start", 0, False),
         ("stride", 1, False),
