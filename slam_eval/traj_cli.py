@@ -13,6 +13,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from uss_slam.core.cli import INTERRUPTED
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.files import check_writable
 from uss_slam.core.tum_io import read_trajectory
@@ -213,6 +214,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except UssSlamError as err:
         print(f"{PROG}: error: {err}", file=sys.stderr)
         return 1
+    except KeyboardInterrupt:  # the plot is written atomically: nothing half-written is left
+        print(f"{PROG}: interrupted", file=sys.stderr)
+        return INTERRUPTED
     print(out)
     return 0
 

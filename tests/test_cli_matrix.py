@@ -281,6 +281,9 @@ CASES = [
     case("traj-delta-finer-than-sampling", "uss-traj",
          "rpe {gt} {gt} --unit seconds --delta 0.0001", 1,
          "{gt}: no pose pairs 0.0001 seconds apart"),
+    case("traj-ctrl-c-while-plotting", "uss-traj", "ate {gt} {gt} --plot {tmp}/ate.png", 130,
+         "uss-traj: interrupted",
+         interrupt=("uss_slam.slam_eval.traj_cli:plot_ate", 0)),
     # ---------------------------------------------------------------- uss-vocab (argparse)
     case("vocab-build-not-a-sequence", "uss-vocab", "build {voc} --out {tmp}/v.txt", 1,
          "{voc}/rgb.txt: file not found"),
@@ -329,6 +332,9 @@ CASES = [
          "{s}/labels/", "not a readable image", setup=(seq_copy(corrupt("labels", 3)),)),
     case("eval-threads-zero", "uss-eval", "{m} --sequence {seq} --threads 0 --out {tmp}/e", 1,
          "--threads must be >= 1, got 0", setup=(write("m", "not read", ".onnx"),)),
+    case("eval-ctrl-c-while-inferring", "uss-eval",
+         "{ckpt} --sequence {seq} --overlays 2 --out {tmp}/eval", 130, "uss-eval: interrupted",
+         interrupt=("uss_slam.pipelines.evaluate:CheckpointSegmenter.infer", 2)),
     # ---------------------------------------------------------------- uss-demo (argparse)
     case("demo-out-under-a-file", "uss-demo",
          "--out {afile}/demo --experiment ci --until data --quiet", 1,
@@ -452,6 +458,10 @@ CASES = [
     case("export-out-under-a-file", "uss-export",
          "ckpt_path={ckpt} out={afile}/m.onnx hydra.run.dir={tmp}/hydra", 1,
          "{afile}: output folder is a file, not a folder", setup=(afile,)),
+    case("export-ctrl-c-while-writing", "uss-export",
+         "ckpt_path={ckpt} out_dir={exports} hydra.run.dir={tmp}/hydra", 130,
+         "uss-export: interrupted", setup=(earlier_export,),
+         interrupt=("uss_slam.export.onnx:verify_model", 0)),
     # ---------------------------------------------------------------- uss-experiments (Hydra)
     case("experiments-unknown-scale", "uss-experiments", f"{EXPERIMENTS} scale=huge", 1,
          "scale: unknown value 'huge'; accepted: paper, quick, standard"),
