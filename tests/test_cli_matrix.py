@@ -240,12 +240,6 @@ TRAIN = (
 )
 EXPORT = "ckpt_path={ckpt} out_dir={tmp}/exports hydra.run.dir={tmp}/hydra"
 EXPERIMENTS = "out_dir={tmp}/exp dry_run=true"
-OTHERS_WORK = pytest.mark.xfail(
-    strict=True,
-    reason="uss-experiments' console script does not run its Hydra app under "
-    "core.cli.run_hydra_app yet (Hydra's multi-line report or a traceback)",
-)
-
 CASES = [
     # ---------------------------------------------------------------- uss-synth (argparse)
     case("synth-out-under-a-file", "uss-synth",
@@ -474,11 +468,13 @@ CASES = [
     case("experiments-seeds-not-a-list", "uss-experiments", f"{EXPERIMENTS} grid.seeds=abc", 1,
          "grid.seeds: expected a non-empty list, got 'abc'"),
     case("experiments-unknown-key", "uss-experiments", f"{EXPERIMENTS} grid.depths=[4]", 1,
-         "grid.depths", marks=(OTHERS_WORK,)),
+         "grid.depths"),
     case("experiments-bad-override-syntax", "uss-experiments", f"{EXPERIMENTS} grid.seeds=[0",
-         1, "no viable alternative at input '[0'", marks=(OTHERS_WORK,)),
+         1, "no viable alternative at input '[0'"),
     case("experiments-out-dir-is-a-file", "uss-experiments",
-         "out_dir={afile} dry_run=true", 1, "{afile}", setup=(afile,), marks=(OTHERS_WORK,)),
+         "out_dir={afile} dry_run=true", 1, "{afile}", setup=(afile,)),
+    case("experiments-dry-run-not-a-bool", "uss-experiments", "out_dir={tmp}/exp dry_run=maybe",
+         1, "dry_run must be true or false, got 'maybe'"),
 ]  # fmt: skip
 
 

@@ -28,7 +28,7 @@ import hydra
 from omegaconf import DictConfig
 from omegaconf.errors import OmegaConfBaseException
 
-from uss_slam.core.cli import exit_on_user_error
+from uss_slam.core.cli import JobFailed, exit_on_user_error, run_hydra_app
 from uss_slam.pipelines.stages import Progress
 
 from . import tables as tbl
@@ -218,17 +218,21 @@ def _header(exp: Experiment, data: Data) -> list[str]:
 
 @hydra.main(version_base="1.3", config_path="../../configs", config_name="experiments")
 def _app(cfg: DictConfig) -> None:
-    with exit_on_user_error(PROG, (OmegaConfBaseException,)):
-        result = run_experiments(cfg)
+    try:
+        with exit_on_user_error(PROG, (OmegaConfBaseException,)):
+            result = run_experiments(cfg)
+    except JobFailed:  # under -m: printed and recorded, the other sweeps go on
+        return
     if result.get("failed"):
         sys.exit(1)
 
 
 def main() -> None:
-    """Console script: the scale / launcher choices checked first, then the Hydra app."""
+    """Console script: the scale / launcher choices checked first, then the Hydra app (config
+    errors and an output folder Hydra cannot create are one line, as in the other scripts)."""
     with exit_on_user_error(PROG):
         check_choices(sys.argv[1:])
-    _app()
+    run_hydra_app(PROG, _app)
 
 
 if __name__ == "__main__":

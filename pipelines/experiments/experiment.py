@@ -106,6 +106,9 @@ def check(cfg: DictConfig) -> Experiment:
             node = launcher_node.get(section) or {}
             missing += [f"launcher.{section}.{k}" for k in node if OmegaConf.is_missing(node, k)]
     plain: dict[str, Any] = OmegaConf.to_container(cfg, resolve=True)  # type: ignore[assignment]
+    for key in ("dry_run", "fast_dev_run"):
+        if not isinstance(plain.get(key, False), bool):
+            raise UssSlamError(f"{key} must be true or false, got {plain.get(key)!r}")
     stages = [str(s) for s in plain.get("stages") or []]
     if not stages:
         raise UssSlamError(f"stages: expected a non-empty list of {', '.join(STAGES)}")
