@@ -24,9 +24,7 @@ from dataclasses import dataclass, field, fields
 from typing import Any
 
 from hydra.core.config_store import ConfigStore
-from hydra.errors import HydraException
 from omegaconf import DictConfig, ListConfig, OmegaConf
-from omegaconf.errors import OmegaConfBaseException
 
 from uss_slam.core.errors import UssSlamError
 
@@ -330,40 +328,3 @@ def check(cfg: DictConfig) -> RunPlan:
 
 
 # ------------------------------------------------------------------------- config errors
-
-
-def config_error_line(error: BaseException) -> str | None:
-    """One line for an error raised while Hydra composed the config (wrong type, unknown key or
-    option, bad override syntax), naming the key; None for anything else."""
-    chain: list[BaseException] = []
-    seen: set[int] = set()
-    current: BaseException | None = error
-    while current is not None and id(current) not in seen:
-        chain.append(current)
-        seen.add(id(current))
-        current = current.__cause__ or current.__context__
-    for item in chain:
-        if isinstance(item, OmegaConfBaseException):
-            key = getattr(item, "full_key", None)
-            msg = getattr(item, "msg", None) or str(item)
-            first = " ".join(str(msg).split("\n")[0].split())
-            if key and str(key) not in first:
-                return f"{key}: {first}"
-            return first
-    for item in chain:
-        if isinstance(item, HydraException):
-            lines = [line.strip() for line in str(item).strip().splitlines() if line.strip()]
-            if not lines:
-                return type(item).__name__
-            head, parts = lines[0], []
-            for line in lines[1:]:
-                if line.startswith("Config search path"):
-                    break  # Hydra's internals, not the user's concern
-                if parts and parts[-1].endswith(":"):
-                    parts[-1] += " " + line
-                elif parts and ":" in parts[-1] and not line.endswith(":"):
-                    parts[-1] += ", " + line
-                else:
-                    parts.append(line)
-            return head + (f" ({'; '.join(parts)})" if parts else "")
-    return None

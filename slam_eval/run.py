@@ -7,8 +7,6 @@ write the report (one run, or the baseline plus each filter set of ``compare``).
 from __future__ import annotations
 
 import logging
-import os
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -17,15 +15,10 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
-from uss_slam.core.cli import (
-    JobFailed,
-    exit_on_user_error,
-    output_folder_line,
-    report_failed_jobs,
-)
+from uss_slam.core.cli import JobFailed, exit_on_user_error, run_hydra_app
 from uss_slam.core.files import check_writable
 
-from .config import check, config_error_line, register_configs, run_name
+from .config import check, register_configs, run_name
 from .filters import build_filters
 from .outputs import RunFolder
 from .pipeline import SlamPipeline
@@ -35,9 +28,6 @@ from .sequence import TumSequence
 
 log = logging.getLogger(__name__)
 PROG = "uss-slam"
-
-_started: list[bool] = []
-"""Non-empty once Hydra called the task (an OSError before that is Hydra creating out_dir)."""
 
 register_configs()  # the typed slam / eval defaults, before Hydra composes configs/slam_eval.yaml
 
@@ -145,7 +135,6 @@ def run(cfg: DictConfig) -> dict[str, Any]:
 @hydra.main(version_base="1.3", config_path="../configs", config_name="slam_eval")
 def app(cfg: DictConfig) -> float | None:
     """The Hydra task; returns the ATE RMSE (metres) for sweepers, None if not evaluated."""
-    _started.append(True)
     try:
         with exit_on_user_error(PROG, (OmegaConfBaseException,)):
             data = run(cfg)
@@ -159,25 +148,7 @@ def main() -> None:
     """``uss-slam``: the Hydra app, with the errors Hydra raises while composing the config (a
     wrong type, an unknown key or option, a folder it cannot create) as one line and exit code 1
     instead of Hydra's multi-line report. Internal errors keep their traceback."""
-    _started.clear()
-    previous = os.environ.get("HYDRA_FULL_ERROR")
-    os.environ["HYDRA_FULL_ERROR"] = "1"  # Hydra raises instead of printing its own report
-    try:
-        with report_failed_jobs(PROG):  # multirun: a failed job does not stop the others
-            app()
-    except Exception as error:
-        line = config_error_line(error)
-        if line is None and isinstance(error, OSError) and not _started:  # Hydra's mkdir
-            line = output_folder_line(error)
-        if line is None:
-            raise
-        print(f"{PROG}: error: {line}", file=sys.stderr)
-        sys.exit(1)
-    finally:
-        if previous is None:
-            os.environ.pop("HYDRA_FULL_ERROR", None)
-        else:
-            os.environ["HYDRA_FULL_ERROR"] = previous
+    run_hydra_app(PROG, app)
 
 
 if __name__ == "__main__":
