@@ -8,6 +8,7 @@ anything. Keep sizes and frame counts small (rendering takes tens of millisecond
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -70,3 +71,28 @@ def _forget_hydra_state() -> Iterator[None]:
     yield
     HydraConfig.instance().cfg = None
     GlobalHydra.instance().clear()
+
+
+@pytest.fixture(scope="session")
+def uda_data(synthetic_voc: VocFactory, synthetic_sequence: SequenceFactory) -> dict[str, Path]:
+    """The data of a tiny ``uss-train`` run (training, export and pipeline tests): source VOC
+    tree, a target training sequence and a labelled target validation sequence (another seed)."""
+    return {
+        "voc": synthetic_voc(),
+        "target": synthetic_sequence(),
+        "val": synthetic_sequence(frames=6, size=(160, 120), seed=1),
+    }
+
+
+@pytest.fixture(autouse=True)
+def _two_torch_threads() -> Iterator[None]:
+    """Tests that use torch run it on two threads (the CI machine's cores); torch-free test
+    areas never import it."""
+    torch = sys.modules.get("torch")
+    if torch is None:
+        yield
+        return
+    threads = torch.get_num_threads()
+    torch.set_num_threads(2)
+    yield
+    torch.set_num_threads(threads)
