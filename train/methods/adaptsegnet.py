@@ -44,6 +44,15 @@ class AdaptSegNet(Method):
     adapts: ClassVar[bool] = True
     trains_discriminators: ClassVar[bool] = True
 
+    def target_map(self, logits: Tensor) -> Tensor:
+        """What a discriminator sees of target ``(N, C, H, W)`` logits (upsampled to image
+        size): their softmax ``P``. Subclasses (ADVENT) change only this and :meth:`source_map`."""
+        return F.softmax(logits, dim=1)
+
+    def source_map(self, log_probs: Tensor) -> Tensor:
+        """The same map of the detached source log-probabilities the source loss computed."""
+        return log_probs.exp()
+
     def training_step(self, module: AdversarialSegmentation, batch: TrainBatch) -> StepValues:
         w = module.loss_weights
         opt_seg, _ = module.optimizers()
@@ -64,8 +73,8 @@ class AdaptSegNet(Method):
                 pred_trg = seg.target()
                 size = images_trg.shape[-2:]
                 prob_trg = (
-                    F.softmax(upsample(pred_trg.aux, size), dim=1),
-                    F.softmax(upsample(pred_trg.main, size), dim=1),
+                    self.target_map(upsample(pred_trg.aux, size)),
+                    self.target_map(upsample(pred_trg.main, size)),
                 )
                 adv_aux = domain_loss(module.d_aux(prob_trg[0]), SOURCE_LABEL)
                 adv_main = domain_loss(module.d_main(prob_trg[1]), SOURCE_LABEL)
@@ -79,11 +88,14 @@ class AdaptSegNet(Method):
                 seg.backward(loss_adv)
             opt_seg.step()
 
-        # (3) + (4): the source softmax is exp of the log-softmax the loss already computed.
+        # (3) + (4): the source maps come from the log-softmax the loss already computed.
         step = dict(src.values)
         step["loss_adv_trg_aux"] = adv_aux.detach()
         step["loss_adv_trg_main"] = adv_main.detach()
-        source_maps = (src.log_probs[0].detach().exp(), src.log_probs[1].detach().exp())
+        source_maps = (
+            self.source_map(src.log_probs[0].detach()),
+            self.source_map(src.log_probs[1].detach()),
+        )
         step.update(discriminator_step(module, source_maps, prob_trg, batched))
         return step
 
