@@ -31,6 +31,7 @@ from torch import Tensor
 
 from uss_slam.train.methods.adaptsegnet import AdaptSegNet
 
+
 def self_information(log_probs: Tensor) -> Tensor:
     """ADVENT's weighted self-information map ``-P·log P / log C`` of ``(N, C, H, W)``
     log-probabilities, same shape, values in ``[0, 1/(e·ln C)]``; its sum over classes is the
