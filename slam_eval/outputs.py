@@ -53,7 +53,8 @@ class RunFolder:
     """Writes one run's outputs under ``root`` (see the module docstring)."""
 
     def __init__(self, root: StrPath) -> None:
-        self.root = Path(root)
+        # Absolute: the files recorded under it may be named relative to the working directory.
+        self.root = Path(root).absolute()
         self.files: list[str] = []
 
     @classmethod
@@ -66,7 +67,10 @@ class RunFolder:
 
     def _relative(self, path: StrPath) -> str:
         path = Path(path)
-        full = path if path.is_absolute() else self.root / path
+        if not path.is_absolute():  # relative to the working directory, or else to the folder
+            cwd_relative = path.absolute()
+            path = cwd_relative if cwd_relative.is_relative_to(self.root) else self.root / path
+        full = path
         try:
             return full.relative_to(self.root).as_posix()
         except ValueError:

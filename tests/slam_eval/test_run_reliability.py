@@ -381,3 +381,19 @@ def test_motion_filter_and_object_rule_flag_keypoints(synthetic_sequence, tmp_pa
     assert f"| geometry | {kp['flagged']['geometry']} | {kp['dropped']['geometry']} |" in report
     assert f"| object | {kp['flagged']['object']} | {kp['dropped']['object']} |" in report
     assert verify_run(out) == []
+
+
+def test_relative_out_dir(earlier, tmp_path: Path, monkeypatch, capsys) -> None:
+    """``out_dir`` relative to the working directory (as ``make demo`` passes it): the manifest
+    lists the files inside it, not a doubled path."""
+    seq, _ = earlier
+    monkeypatch.chdir(tmp_path)
+    code, _, err = _uss_slam(
+        monkeypatch,
+        capsys,
+        [f"sequence.path={seq}", "sequence.max_frames=8", "out_dir=runs/rel", "progress=false"],
+    )
+    assert code == 0, err
+    manifest = json.loads((tmp_path / "runs/rel/run.json").read_text())
+    assert {"trajectory.txt", "metrics.json", "report.md", "ate.png"} <= set(manifest["files"])
+    assert verify_run(tmp_path / "runs/rel") == []
