@@ -17,6 +17,7 @@ from pathlib import Path
 import pytest
 import yaml
 
+import uss_slam.configs
 from uss_slam.core.files import file_sha256
 from uss_slam.core.tum_io import read_trajectory
 from uss_slam.slam_eval.outputs import (
@@ -383,17 +384,24 @@ def test_motion_filter_and_object_rule_flag_keypoints(synthetic_sequence, tmp_pa
     assert verify_run(out) == []
 
 
-def test_relative_out_dir(earlier, tmp_path: Path, monkeypatch, capsys) -> None:
-    """``out_dir`` relative to the working directory (as ``make demo`` passes it): the manifest
-    lists the files inside it, not a doubled path."""
+def test_relative_out_dir(earlier, tmp_path: Path, monkeypatch) -> None:
+    """``run(cfg)`` without Hydra's job folder and with ``out_dir`` relative to the working
+    directory (as ``uss-demo`` calls it): the manifest lists the files inside the folder, not a
+    doubled path."""
+    from hydra import compose, initialize_config_dir
+
+    from uss_slam.slam_eval.run import run
+
     seq, _ = earlier
     monkeypatch.chdir(tmp_path)
-    code, _, err = _uss_slam(
-        monkeypatch,
-        capsys,
-        [f"sequence.path={seq}", "sequence.max_frames=8", "out_dir=runs/rel", "progress=false"],
-    )
-    assert code == 0, err
+    config_dir = Path(uss_slam.configs.__file__).parent
+    with initialize_config_dir(config_dir=str(config_dir), version_base="1.3"):
+        cfg = compose(
+            "slam_eval",
+            overrides=[f"sequence.path={seq}", "sequence.max_frames=8", "out_dir=runs/rel",
+                       "progress=false"],
+        )  # fmt: skip
+    run(cfg)
     manifest = json.loads((tmp_path / "runs/rel/run.json").read_text())
     assert {"trajectory.txt", "metrics.json", "report.md", "ate.png"} <= set(manifest["files"])
     assert verify_run(tmp_path / "runs/rel") == []
