@@ -13,8 +13,8 @@ Stages, in order, each printed with its time (``stages=[...]`` runs a subset):
 
 Every job is cached (a stamp with the key of its inputs, written after its result): a rerun
 launches only the jobs that are missing, failed or whose inputs changed. A failed job never
-stops the others; the tables mark it and list why. Bad keys (scale, launcher, method, sequence,
-variant, system, stage) and missing or incomplete data folders are one error line before any
+stops the others; the tables mark it and list why. Bad keys (scale, launcher, training
+experiment, method, depth sweep, sequence, variant, system, stage, CRF parameters) and missing or incomplete data folders are one error line before any
 work starts.
 """
 
@@ -34,6 +34,7 @@ from uss_slam.pipelines.stages import Progress
 from . import tables as tbl
 from .data import Data, stage_data
 from .experiment import Experiment, check, check_choices, eval_seed
+from .grid import given
 from .jobs import reason_of, stage_of
 from .launch import NOT_RUN, Launch, describe_plan, launch, result_rows, status_of
 from .plan import (
@@ -191,9 +192,11 @@ def _header(exp: Experiment, data: Data) -> list[str]:
         "",
         f"- data: {'synthetic (out_dir/data)' if exp.synthetic else 'real'}; training "
         f"experiment `{cfg['train']['experiment']}`; methods {', '.join(grid['methods'])}; "
-        f"discriminator depths {', '.join(map(str, grid['n_layers']))}; seeds "
+        f"discriminator depths {', '.join(map(str, grid['n_layers']))} (for "
+        f"{', '.join(grid.get('depth_sweep') or []) or 'no method'}; the others at "
+        f"{cfg['tables']['n_layers']}); seeds "
         f"{', '.join(map(str, grid['seeds']))}"
-        + (f"; loss weights {grid['loss']}" if grid.get("loss") else ""),
+        + (f"; loss weights {given(grid['loss'])}" if given(grid.get("loss")) else ""),
         f"- evaluation sequences: {', '.join(exp.grid.sequences)}"
         + (
             ""

@@ -3,6 +3,7 @@ before any work starts, and named in a one-line error with the accepted values."
 
 from __future__ import annotations
 
+import importlib.util
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -12,7 +13,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from uss_slam.core.errors import UssSlamError
 
-from .grid import SYNTHETIC_SEQUENCES, TUM_SEQUENCES, Grid, choose, expand
+from .grid import SYNTHETIC_SEQUENCES, TUM_SEQUENCES, VARIANTS, Grid, choose, expand, given
 
 CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
 
@@ -92,6 +93,20 @@ def check_orbslam3(orb: Mapping[str, Any]) -> None:
             raise UssSlamError(f"slam.orbslam3.vocabulary: {error}") from None
 
 
+def check_crf(cfg: Mapping[str, Any], grid: Grid) -> None:
+    """``crf_params`` (the dense CRF's, for the ``*_crf`` variants) and, when a ``*_crf``
+    variant is asked for, pydensecrf installed."""
+    from uss_slam.slam_eval.crf import INSTALL_HINT, DenseCrf
+
+    params = cfg.get("crf_params") or {}
+    if not isinstance(params, Mapping):
+        raise UssSlamError(f"crf_params: expected a mapping of CRF parameters, got {params!r}")
+    DenseCrf.from_config(given(params), "crf_params")
+    wanted = [v for v in grid.variants if VARIANTS[v].crf]
+    if wanted and importlib.util.find_spec("pydensecrf") is None:
+        raise UssSlamError(f"variants: {wanted[0]} needs pydensecrf ({INSTALL_HINT})")
+
+
 def eval_seed(cfg: Mapping[str, Any], name: str) -> int:
     """The held-out seed of synthetic evaluation sequence ``name``."""
     return int(cfg["data"]["synthetic"]["eval_seed"]) + SYNTHETIC_SEQUENCES.index(name)
@@ -116,7 +131,10 @@ def check(cfg: DictConfig) -> Experiment:
         choose("stages", s, STAGES)
     kind = choose("data.kind", plain["data"]["kind"], ("synthetic", "real"))
     synthetic = kind == "synthetic"
+    experiments = sorted(p.stem for p in (CONFIG_DIR / "experiment").glob("*.yaml"))
+    choose("train.experiment", plain["train"].get("experiment"), experiments)
     grid = expand(plain, SYNTHETIC_SEQUENCES if synthetic else TUM_SEQUENCES)
+    check_crf(plain, grid)
     launcher = plain.get("launcher") or {}
     choose("launcher.name", launcher.get("name"), LAUNCHERS)
     if "orbslam3" in grid.systems:

@@ -10,6 +10,7 @@ Ids (= folders under ``out_dir``)::
     train/<config>_s<seed>                         one training (config = method [+ _n<n>] [+ loss])
                                                    (_n<n>: methods with discriminators)
     segeval/<config>_s<seed>                       its segmentation metrics on every sequence
+    segeval/crf/<config>_s<seed>                   the same with the dense CRF (the *_crf variants)
     slam/<system>/<sequence>/<variant>             a model-free SLAM run (no filter, geometry, oracle)
     slam/<system>/<sequence>/<variant>/<model>     a SLAM run with an exported model
 """
@@ -35,8 +36,12 @@ METHODS: dict[str, tuple[str, ...]] = {
 ADAPTED = "adaptsegnet"
 """The paper's adapted model: the "with ATL" side of T2 / T3 and the downstream ratio."""
 DISCRIMINATOR_METHODS = ("adaptsegnet", "advent")
-"""Methods with discriminators: one training per depth of ``grid.n_layers``, and the only ones
-the adversarial loss weights of ``grid.loss`` apply to."""
+"""Methods with discriminators: trained at a discriminator depth (every depth of
+``grid.n_layers`` when listed in ``grid.depth_sweep``, else ``tables.n_layers`` only), and the
+only ones the adversarial loss weights of ``grid.loss`` apply to."""
+DEPTH_SWEEP = (ADAPTED,)
+"""``grid.depth_sweep`` when not given: the paper sweeps the depth of AdaptSegNet's
+discriminators; the other methods are compared at the tables' depth."""
 LOSS_KEYS = ("lambda_seg_aux", "lambda_seg_main", "lambda_adv_aux", "lambda_adv_main")
 ADVERSARIAL_LOSS_KEYS = ("lambda_adv_aux", "lambda_adv_main")
 N_LAYERS_RANGE = range(1, 9)
@@ -53,6 +58,7 @@ class Variant:
     label: str
     segmenter: str  # none | labels | model (the exported segmenter of a training)
     filters: tuple[str, ...]
+    crf: bool = False  # dense-CRF refinement of the model's output (uss-slam segmenter.crf=true)
 
 
 VARIANTS: dict[str, Variant] = {
@@ -61,7 +67,15 @@ VARIANTS: dict[str, Variant] = {
         Variant("none", "no filter", "none", ()),
         Variant("geometry", "geometry", "none", ("geometry",)),
         Variant("semantic", "semantic", "model", ("semantic",)),
+        Variant("semantic_crf", "semantic (CRF)", "model", ("semantic",), crf=True),
         Variant("semantic_geometry", "semantic+geometry", "model", ("semantic", "geometry")),
+        Variant(
+            "semantic_geometry_crf",
+            "semantic+geometry (CRF)",
+            "model",
+            ("semantic", "geometry"),
+            crf=True,
+        ),
         Variant(
             "semantic_geometry_object",
             "semantic+geometry+object",
@@ -77,7 +91,7 @@ SYSTEM_VARIANTS: dict[str, tuple[str, ...]] = {
     "harness": tuple(VARIANTS),
     # ORB-SLAM3 gets the image with the dynamic mask blanked out: only mask variants apply
     # (the geometry and object checks are the harness's own).
-    "orbslam3": ("none", "semantic", "oracle"),
+    "orbslam3": ("none", "semantic", "semantic_crf", "oracle"),
 }
 
 SYNTHETIC_SEQUENCES = (
@@ -187,13 +201,15 @@ class SlamCell:
 
 @dataclass(frozen=True)
 class SegEvalCell:
-    """The segmentation metrics of one trained model on every evaluation sequence."""
+    """The segmentation metrics of one trained model on every evaluation sequence (with the
+    dense CRF of the ``*_crf`` variants when ``crf``)."""
 
     model: TrainCell
+    crf: bool = False
 
     @property
     def id(self) -> str:
-        return f"segeval/{self.model.model}"
+        return f"segeval/{'crf/' if self.crf else ''}{self.model.model}"
 
 
 @dataclass(frozen=True)
@@ -214,8 +230,15 @@ class Grid:
         raise KeyError(model)
 
 
+def given(values: Mapping[str, Any] | None) -> dict[str, Any]:
+    """The entries of a mapping of options that are set (null = not given)."""
+    return {k: v for k, v in (values or {}).items() if v is not None}
+
+
 def loss_combinations(loss: Mapping[str, Any] | None) -> list[tuple[tuple[str, float], ...]]:
-    """Every combination of the loss weights given as lists (``{key: [v1, v2]}``), in order."""
+    """Every combination of the loss weights given as lists (``{key: [v1, v2]}``; null = not
+    varied), in order."""
+    loss = given(loss)
     if not loss:
         return [()]
     keys = list(loss)
@@ -237,30 +260,49 @@ def _loss_tag(combo: tuple[tuple[str, float], ...], varied: set[str]) -> str:
     return "".join(f"_{k.removeprefix('lambda_')}{_short(v)}" for k, v in combo if k in varied)
 
 
-def training_cells(grid: Mapping[str, Any]) -> list[TrainCell]:
-    """The trainings of ``grid`` (``methods``, ``n_layers``, ``seeds``, ``loss``), in table order:
-    per method in the order listed (a method with discriminators once per depth), every seed."""
+def _depth(key: str, n: Any, what: str = "integers") -> int:
+    if isinstance(n, bool) or not isinstance(n, int) or n not in N_LAYERS_RANGE:
+        raise UssSlamError(
+            f"{key}: expected {what} {N_LAYERS_RANGE.start}..{N_LAYERS_RANGE.stop - 1}, got {n!r}"
+        )
+    return n
+
+
+def training_cells(grid: Mapping[str, Any], n_table: Any = None) -> list[TrainCell]:
+    """The trainings of ``grid`` (``methods``, ``n_layers``, ``depth_sweep``, ``seeds``,
+    ``loss``), in table order: per method in the order listed, every seed. A method with
+    discriminators is trained once per depth of ``n_layers`` when ``depth_sweep`` lists it, else
+    at ``n_table`` (``tables.n_layers``) only."""
     methods = _non_empty_list("grid.methods", grid.get("methods"))
     for m in methods:
         choose("grid.methods", m, METHODS)
     _unique("grid.methods", methods)
+    sweep = grid.get("depth_sweep", list(DEPTH_SWEEP))
+    if isinstance(sweep, (str, bytes)) or not isinstance(sweep, Sequence):
+        raise UssSlamError(f"grid.depth_sweep: expected a list of methods, got {sweep!r}")
+    for m in sweep:
+        choose("grid.depth_sweep", m, DISCRIMINATOR_METHODS)
+    _unique("grid.depth_sweep", list(sweep))
     seeds = _non_empty_list("grid.seeds", grid.get("seeds"))
     for s in seeds:
         if isinstance(s, bool) or not isinstance(s, int) or s < 0:
             raise UssSlamError(f"grid.seeds: expected integers >= 0, got {s!r}")
     _unique("grid.seeds", seeds)
     depths: list[int] = []
-    if any(m in DISCRIMINATOR_METHODS for m in methods):
+    if any(m in sweep for m in methods):
         depths = _non_empty_list("grid.n_layers", grid.get("n_layers"))
         for n in depths:
-            if isinstance(n, bool) or not isinstance(n, int) or n not in N_LAYERS_RANGE:
-                raise UssSlamError(
-                    f"grid.n_layers: expected integers {N_LAYERS_RANGE.start}.."
-                    f"{N_LAYERS_RANGE.stop - 1}, got {n!r}"
-                )
+            _depth("grid.n_layers", n)
         _unique("grid.n_layers", depths)
+        if n_table is not None and n_table not in depths:
+            raise UssSlamError(
+                f"tables.n_layers: {n_table!r} is not a depth of the grid; accepted: "
+                f"{', '.join(map(str, depths))}"
+            )
+    if any(m in DISCRIMINATOR_METHODS and m not in sweep for m in methods):
+        _depth("tables.n_layers", n_table, "a discriminator depth")
     combos = loss_combinations(grid.get("loss"))
-    varied = {k for k in (grid.get("loss") or {}) if len({dict(c)[k] for c in combos}) > 1}
+    varied = {k for k in given(grid.get("loss")) if len({dict(c)[k] for c in combos}) > 1}
     cells: list[TrainCell] = []
     for method in methods:
         adversarial = method in DISCRIMINATOR_METHODS
@@ -275,7 +317,8 @@ def training_cells(grid: Mapping[str, Any]) -> list[TrainCell]:
             )
             if kept not in method_combos:
                 method_combos.append(kept)
-        for n in depths if adversarial else [None]:
+        method_depths = (depths if method in sweep else [n_table]) if adversarial else [None]
+        for n in method_depths:
             for combo in method_combos:
                 tag = _loss_tag(combo, varied)
                 for seed in seeds:
@@ -293,7 +336,8 @@ def check_sequences(sequences: Any, accepted: Sequence[str]) -> list[str]:
 
 def expand(cfg: Mapping[str, Any], accepted_sequences: Sequence[str]) -> Grid:
     """The whole grid of a (resolved, plain-container) ``uss-experiments`` config."""
-    trainings = training_cells(cfg["grid"])
+    n_table = (cfg.get("tables") or {}).get("n_layers")
+    trainings = training_cells(cfg["grid"], n_table)
     sequences = check_sequences(cfg.get("sequences"), accepted_sequences)
     systems = [str(s) for s in _non_empty_list("systems", cfg.get("systems"))]
     for s in systems:
@@ -303,13 +347,8 @@ def expand(cfg: Mapping[str, Any], accepted_sequences: Sequence[str]) -> Grid:
     for v in variants:
         choose("variants", v, VARIANTS)
     _unique("variants", variants)
-    n_table = (cfg.get("tables") or {}).get("n_layers")
-    depths = sorted({t.n_layers for t in trainings if t.n_layers is not None})
-    if depths and n_table not in depths:
-        raise UssSlamError(
-            f"tables.n_layers: {n_table!r} is not a depth of the grid; accepted: "
-            f"{', '.join(map(str, depths))}"
-        )
+    if n_table is None and any(t.n_layers is not None for t in trainings):
+        raise UssSlamError("tables.n_layers: missing; expected a depth of grid.n_layers")
     table_configs = list(
         dict.fromkeys(
             t.config
@@ -329,13 +368,19 @@ def expand(cfg: Mapping[str, Any], accepted_sequences: Sequence[str]) -> Grid:
                     slams.append(SlamCell(system, sequence, name))
                     continue
                 for cell in trainings:
-                    # semantic runs for every model (T1); the geometry variants for the models
-                    # the tables compare (T3), unless slam.every_model.
+                    # semantic runs for every model (T1); the geometry and CRF variants for the
+                    # models the tables compare (T2, T3), unless slam.every_model.
                     if name == "semantic" or every_model or cell.config in table_configs:
                         slams.append(SlamCell(system, sequence, name, cell))
+    segevals = [SegEvalCell(t) for t in trainings]
+    if any(VARIANTS[v].crf for v in variants):
+        # the CRF's segmentation metrics for the models that have CRF runs
+        segevals += [
+            SegEvalCell(t, crf=True) for t in trainings if every_model or t.config in table_configs
+        ]
     return Grid(
         trainings=tuple(trainings),
-        segevals=tuple(SegEvalCell(t) for t in trainings),
+        segevals=tuple(segevals),
         slams=tuple(slams),
         sequences=tuple(sequences),
         systems=tuple(systems),

@@ -198,7 +198,10 @@ def status_of(
     """``(status, reason, result)`` of a job from its folder."""
     stage = stage_of(exp.out, job.spec, job.id)
     if stage.complete():
-        return "ok", "", json.loads((stage.folder / RESULT).read_text())
+        result = json.loads((stage.folder / RESULT).read_text())
+        if job.spec["kind"] == "slam":
+            result["timing_ms"] = slam_timing(stage.folder / "metrics.json")
+        return "ok", "", result
     failure = stage.folder / FAILURE
     if failure.is_file():
         record = json.loads(failure.read_text())
@@ -222,6 +225,16 @@ def status_of(
             {},
         )
     return "missing", "no result (not launched)", {}
+
+
+def slam_timing(metrics: Path) -> dict[str, float]:
+    """The mean wall ms per frame of a SLAM run's modules (its ``metrics.json``'s ``timing_ms``:
+    ``segmentation``, ``segmentation.crf``, ``total``, ...; empty when it has none)."""
+    try:
+        timing = json.loads(metrics.read_text()).get("timing_ms")
+    except (OSError, json.JSONDecodeError):
+        return {}
+    return dict(timing) if isinstance(timing, dict) else {}
 
 
 def result_rows(
@@ -249,6 +262,10 @@ def result_rows(
                 **{f"ate_{k}": ate.get(k) for k in ("rmse", "mean", "median", "std")},
                 "tracked_fraction": result.get("tracked_fraction"),
                 "fps": result.get("fps"),
+                **{
+                    column: (result.get("timing_ms") or {}).get(key)
+                    for column, key in tbl.TIMING_COLUMNS.items()
+                },
             }
         ]
     rows = []

@@ -13,7 +13,7 @@ from uss_slam.pipelines.stages import Stage
 
 from .data import Data
 from .experiment import Experiment
-from .grid import VARIANTS, SlamCell, TrainCell
+from .grid import VARIANTS, SlamCell, TrainCell, given
 from .jobs import stage_of
 
 FAST_TRAIN = (
@@ -114,6 +114,8 @@ def slam_overrides(exp: Experiment, data: Data, cell: SlamCell) -> list[str]:
     variant = VARIANTS[cell.variant]
     models = {"model": model_path(exp, cell.model)} if cell.model is not None else {}
     overrides = demo_slam_overrides(variant, data.sequences[cell.sequence], models)  # type: ignore[arg-type]
+    if variant.crf:
+        overrides += ["segmenter.crf=true", *crf_overrides(exp)]
     overrides += [str(o) for o in exp.cfg["slam"].get("overrides") or []]
     if cell.system == "orbslam3":
         # ORB-SLAM3 gets the dynamic mask blanked out of its input, not the harness's filters
@@ -129,6 +131,12 @@ def slam_overrides(exp: Experiment, data: Data, cell: SlamCell) -> list[str]:
     if exp.fast:
         overrides.append(f"sequence.max_frames={FAST_FRAMES}")
     return overrides
+
+
+def crf_overrides(exp: Experiment) -> list[str]:
+    """``segmenter.crf_params.<key>=<value>`` of the ``crf_params`` that are set (the others
+    keep the CRF's defaults)."""
+    return [f"segmenter.crf_params.{k}={v}" for k, v in given(exp.cfg.get("crf_params")).items()]
 
 
 def plan_slam(exp: Experiment, data: Data, exports: Mapping[str, str]) -> list[Job]:
@@ -152,11 +160,10 @@ def plan_slam(exp: Experiment, data: Data, exports: Mapping[str, str]) -> list[J
                 "threads": seg_cfg.get("threads"),
                 "key": key,
             }
-            jobs.append(
-                Job(
-                    seg.id, spec, {"kind": "segeval", **seg.model.describe()}, needs=seg.model.model
-                )
-            )
+            if seg.crf:  # (the key of a segmentation evaluation without the CRF has no "crf")
+                key["crf"] = spec["crf"] = given(exp.cfg.get("crf_params"))
+            row = {"kind": "segeval", **seg.model.describe(), "crf": int(seg.crf)}
+            jobs.append(Job(seg.id, spec, row, needs=seg.model.model))
     for cell in exp.grid.slams:
         overrides = slam_overrides(exp, data, cell)
         model = cell.model.model if cell.model is not None else None
@@ -174,6 +181,7 @@ def plan_slam(exp: Experiment, data: Data, exports: Mapping[str, str]) -> list[J
             "sequence": cell.sequence,
             "variant": cell.variant,
             **(cell.model.describe() if cell.model else {}),
+            "crf": int(VARIANTS[cell.variant].crf),
         }
         jobs.append(Job(cell.id, spec, row, needs=model))
     return jobs

@@ -56,11 +56,22 @@ COLUMNS: tuple[str, ...] = (
     *ATE_KEYS,
     "tracked_fraction",
     "fps",
+    "segmentation_ms",
+    "crf_ms",
+    "total_ms",
+    "crf",
     "seconds",
     "folder",
 )
 """The columns of ``runs.csv``, in order."""
-INT_COLUMNS = ("n_layers", "seed")
+TIMING_COLUMNS = {
+    "segmentation_ms": "segmentation",
+    "crf_ms": "segmentation.crf",
+    "total_ms": "total",
+}
+"""``runs.csv`` column -> key of a SLAM run's ``timing_ms`` (mean wall ms per processed frame;
+``segmentation`` includes the CRF's ``segmentation.crf``)."""
+INT_COLUMNS = ("n_layers", "seed", "crf")
 TEXT_COLUMNS = (
     "kind",
     "id",
@@ -241,6 +252,8 @@ class Layout:
     variants: tuple[str, ...]
     source_only: str | None  # the "without ATL" config of T2 / the ratio
     adapted: tuple[str, ...]  # the "with ATL" config(s): adapted with tables.n_layers
+    methods: tuple[str, ...] = ()  # one config per method at tables.n_layers (T2 by method)
+    crf_configs: tuple[str, ...] = ()  # configs with dense-CRF runs or segmentation metrics
 
 
 def layout_from_rows(rows: Sequence[Mapping[str, Any]], n_layers: int | None) -> Layout:
@@ -264,6 +277,16 @@ def layout_from_rows(rows: Sequence[Mapping[str, Any]], n_layers: int | None) ->
         )
     )
     sequences = tuple(s for s in ordered("sequence") if s != ALL_SEQUENCES)
+    methods = tuple(
+        dict.fromkeys(r["config"] for r in trains if r.get("n_layers") in (None, n_layers))
+    )
+    crf_configs = tuple(
+        dict.fromkeys(
+            r["config"]
+            for r in rows
+            if r.get("crf") and r.get("config") is not None and r["kind"] in ("segeval", "slam")
+        )
+    )
     return Layout(
         configs,
         sequences,
@@ -271,11 +294,29 @@ def layout_from_rows(rows: Sequence[Mapping[str, Any]], n_layers: int | None) ->
         ordered("variant", "slam"),
         source_only,
         adapted,
+        methods,
+        crf_configs,
     )
 
 
-def _seg_rows(rows, config: str, sequence: str) -> list[Mapping[str, Any]]:
-    return _select(rows, kind="segeval", config=config, sequence=sequence)
+def _seg_rows(rows, config: str, sequence: str, crf: bool = False) -> list[Mapping[str, Any]]:
+    """Segmentation rows of ``config`` (with the dense CRF when ``crf``)."""
+    return [
+        r
+        for r in _select(rows, kind="segeval", config=config, sequence=sequence)
+        if bool(r.get("crf")) == crf
+    ]
+
+
+def points(stat_: Stat, reference: Stat) -> float | None:
+    """The difference of the means in points (100 × the difference of two rates / IoUs)."""
+    if stat_.mean is None or reference.mean is None:
+        return None
+    return 100.0 * (stat_.mean - reference.mean)
+
+
+def _points(value: float | None) -> str:
+    return "—" if value is None else f"{value:+.2f}"
 
 
 def _slam_rows(rows, system: str, sequence: str, variant: str, config: str | None = None):
@@ -289,20 +330,45 @@ def table_t1(rows, layout: Layout) -> tuple[dict[str, Any], list[str]]:
     seg_keys = ["val_mIoU", "mIoU", *classes]
     data: dict[str, Any] = {"segmentation": [], "ate_rmse": []}
     body = []
+    reference = (
+        stat(_seg_rows(rows, layout.source_only, ALL_SEQUENCES), "mIoU")
+        if layout.source_only is not None
+        else Stat(())
+    )
     for config in layout.configs:
         seg = _seg_rows(rows, config, ALL_SEQUENCES)
         val = _select(rows, kind="train", config=config)
         stats = {"val_mIoU": stat(val, "val_mIoU"), **{k: stat(seg, k) for k in seg_keys[1:]}}
+        delta = points(stats["mIoU"], reference)
         data["segmentation"].append(
-            {"config": config, **{k: s.as_json() for k, s in stats.items()}}
+            {
+                "config": config,
+                **{k: s.as_json() for k, s in stats.items()},
+                "mIoU_vs_source_only_points": delta,
+            }
         )
-        body.append([config, *(stats[k].text(3) for k in seg_keys)])
-    header = ["configuration", "val mIoU", "target mIoU", *(f"IoU {c}" for c in CLASS_NAMES)]
+        body.append(
+            [
+                config,
+                stats["val_mIoU"].text(3),
+                stats["mIoU"].text(3),
+                _points(delta),
+                *(stats[k].text(3) for k in classes),
+            ]
+        )
+    header = [
+        "configuration",
+        "val mIoU",
+        "target mIoU",
+        "Δ mIoU [points]",
+        *(f"IoU {c}" for c in CLASS_NAMES),
+    ]
     lines = [
         "### T1a: segmentation by discriminator depth",
         "",
         "Target mIoU and per-class IoU on the labelled frames of every evaluation sequence "
-        "(pooled); val mIoU = the exported checkpoint's target validation mIoU.",
+        "(pooled); val mIoU = the exported checkpoint's target validation mIoU; Δ mIoU = target "
+        "mIoU minus source-only's, in points (100 × the difference of the means).",
         "",
         *_md(header, body),
         "",
@@ -482,6 +548,147 @@ def table_t3(rows, layout: Layout) -> tuple[dict[str, Any], list[str]]:
     return {"rows": data}, lines
 
 
+def table_methods(rows, layout: Layout) -> tuple[list[dict[str, Any]], list[str]]:
+    """T2 by method: one row per method at the tables' depth, with its difference to
+    source-only in points."""
+    data: list[dict[str, Any]] = []
+    if layout.source_only is None or len(layout.methods) < 2:
+        return data, []
+    so = layout.source_only
+    seg_keys = ("mIoU", "IoU_person")
+    reference = {k: stat(_seg_rows(rows, so, ALL_SEQUENCES), k) for k in seg_keys}
+    lines = [
+        "### T2 by method: adapted vs source-only",
+        "",
+        "One row per method (discriminator depth = tables.n_layers): target mIoU and person "
+        "IoU (pooled over the labelled evaluation frames) with their difference to source-only "
+        "in points (100 × the difference of the means), ATE RMSE [m] with the semantic filter.",
+        "",
+    ]
+    systems = list(layout.systems)
+    header = ["configuration", "target mIoU", "Δ mIoU [points]", "IoU person", "Δ [points]"]
+    header += [
+        f"ATE {seq}" + (f" ({system})" if len(systems) > 1 else "")
+        for system in systems
+        for seq in layout.sequences
+    ]
+    body = []
+    for config in layout.methods:
+        seg = {k: stat(_seg_rows(rows, config, ALL_SEQUENCES), k) for k in seg_keys}
+        entry: dict[str, Any] = {"config": config}
+        cells = [config]
+        for k in seg_keys:
+            delta = points(seg[k], reference[k])
+            entry[k] = seg[k].as_json()
+            entry[f"{k}_vs_source_only_points"] = delta
+            cells += [seg[k].text(3), _points(delta)]
+        entry["ate_rmse"] = []
+        for system in systems:
+            for sequence in layout.sequences:
+                s_ = stat(_slam_rows(rows, system, sequence, "semantic", config), "ate_rmse")
+                entry["ate_rmse"].append({"system": system, "sequence": sequence, **s_.as_json()})
+                cells.append(s_.text(4))
+        data.append(entry)
+        body.append(cells)
+    return data, [*lines, *_md(header, body), ""]
+
+
+CRF_PAIRS = (("semantic", "semantic_crf"), ("semantic_geometry", "semantic_geometry_crf"))
+"""(filter variant, the same with the dense CRF)."""
+
+
+def table_crf(rows, layout: Layout) -> tuple[list[dict[str, Any]], list[str]]:
+    """Dense CRF off / on: segmentation metrics and ATE of each model with CRF runs."""
+    data: list[dict[str, Any]] = []
+    pairs = [(off, on) for off, on in CRF_PAIRS if on in layout.variants]
+    if not layout.crf_configs:
+        return data, []
+    seg_keys = ("mIoU", "IoU_person", "person_FNR", "person_FPR")
+    lines: list[str] = []
+    for system in layout.systems:
+        header = ["configuration", "filter", "CRF", "target mIoU", "IoU person", "person FNR"]
+        header += ["person FPR", *(f"ATE {s}" for s in layout.sequences)]
+        body = []
+        for config in layout.crf_configs:
+            for off, on in pairs or [("semantic", "semantic_crf")]:
+                for crf, variant in ((False, off), (True, on)):
+                    seg = {
+                        k: stat(_seg_rows(rows, config, ALL_SEQUENCES, crf=crf), k)
+                        for k in seg_keys
+                    }
+                    ate = {
+                        seq: stat(_slam_rows(rows, system, seq, variant, config), "ate_rmse")
+                        for seq in layout.sequences
+                    }
+                    data.append(
+                        {
+                            "system": system,
+                            "config": config,
+                            "filter": off,
+                            "crf": crf,
+                            **{k: v.as_json() for k, v in seg.items()},
+                            "ate_rmse": {seq: v.as_json() for seq, v in ate.items()},
+                        }
+                    )
+                    body.append(
+                        [
+                            config,
+                            VARIANTS[off].label,
+                            "on" if crf else "off",
+                            *(seg[k].text(3) for k in seg_keys),
+                            *(ate[seq].text(4) for seq in layout.sequences),
+                        ]
+                    )
+        lines += [
+            f"### Dense CRF off / on ({system})",
+            "",
+            "The same exported model without and with the dense-CRF refinement of its output "
+            "(uss-slam segmenter.crf=true): segmentation metrics pooled over the labelled "
+            "evaluation frames, ATE RMSE [m] per sequence; its time is in the timing table.",
+            "",
+            *_md(header, body),
+            "",
+        ]
+    return data, lines
+
+
+def table_timing(rows, layout: Layout) -> tuple[list[dict[str, Any]], list[str]]:
+    """Mean wall ms per frame of the SLAM runs of each variant: segmentation (the segmenter's
+    whole cost), its dense CRF, the whole run."""
+    data: list[dict[str, Any]] = []
+    if not any(r.get("total_ms") is not None for r in _select(rows, kind="slam")):
+        return data, []  # a runs.csv from before the timing columns
+    lines: list[str] = []
+    keys = ("segmentation_ms", "crf_ms", "total_ms", "fps")
+    for system in layout.systems:
+        body = []
+        for variant in layout.variants:
+            runs = _select(rows, kind="slam", system=system, variant=variant)
+            stats = {k: stat(runs, k) for k in keys}
+            if variant not in VARIANTS or not VARIANTS[variant].crf:
+                stats["crf_ms"] = Stat(())  # no CRF in these runs
+            data.append(
+                {
+                    "system": system,
+                    "variant": variant,
+                    **{k: v.as_json() for k, v in stats.items()},
+                }
+            )
+            label = VARIANTS[variant].label if variant in VARIANTS else variant
+            body.append([label, *(stats[k].text(1) for k in keys)])
+        lines += [
+            f"### Time per frame ({system})",
+            "",
+            "Mean wall milliseconds per frame over every run of the variant (all models and "
+            "sequences; the SLAM runs' timing_ms). Segmentation includes the dense CRF; it runs "
+            "in the prefetch threads, in parallel with tracking, so it can exceed the total.",
+            "",
+            *_md(["variant", "segmentation [ms]", "CRF [ms]", "total [ms]", "frames/s"], body),
+            "",
+        ]
+    return data, lines
+
+
 BASELINES = ("none", "geometry", "oracle")
 
 
@@ -616,9 +823,13 @@ def compute(
     layout = layout or layout_from_rows(rows, n_layers)
     t1, t1_md = table_t1(rows, layout)
     t2, t2_md = table_t2(rows, layout)
+    methods, methods_md = table_methods(rows, layout)
+    t2["by_method"] = methods
     t3, t3_md = table_t3(rows, layout)
+    crf, crf_md = table_crf(rows, layout)
     base, base_md = table_baselines(rows, layout)
     ratio, ratio_md = table_ratio(rows, layout)
+    timing, timing_md = table_timing(rows, layout)
     failures, failures_md = table_failures(rows)
     data = {
         "layout": {
@@ -628,16 +839,32 @@ def compute(
             "variants": list(layout.variants),
             "source_only": layout.source_only,
             "adapted": list(layout.adapted),
+            "methods": list(layout.methods),
+            "crf_configs": list(layout.crf_configs),
             "n_layers": n_layers,
         },
         "T1": t1,
         "T2": t2,
         "T3": t3,
+        "crf": crf,
         "baselines": base,
         "downstream_ratio": ratio,
+        "timing": timing,
         "failures": failures,
     }
-    text = "\n".join([*t1_md, *t2_md, *t3_md, *base_md, *ratio_md, *failures_md])
+    text = "\n".join(
+        [
+            *t1_md,
+            *t2_md,
+            *methods_md,
+            *t3_md,
+            *crf_md,
+            *base_md,
+            *ratio_md,
+            *timing_md,
+            *failures_md,
+        ]
+    )
     return data, text
 
 
@@ -711,8 +938,8 @@ def write_plots(out: Path, rows: Sequence[Mapping[str, Any]], layout: Layout) ->
     for config in (layout.source_only, *layout.adapted):
         if config is None:
             continue
-        for v in ("semantic", "semantic_geometry", "semantic_geometry_object"):
-            if v in layout.variants:
+        for v in VARIANTS:
+            if VARIANTS[v].segmenter == "model" and v in layout.variants:
                 series_spec.append((f"{config} {VARIANTS[v].label}", v, config))
     systems = list(layout.systems) or ["harness"]
     fig, axes = plt.subplots(

@@ -151,8 +151,8 @@ def test_orbslam3_gets_the_mask_variants_only() -> None:
         ),
         (
             {"variants": ["none", "flow"]},
-            "variants: unknown value 'flow'; accepted: none, geometry, semantic, semantic_geometry, "
-            "semantic_geometry_object, oracle",
+            "variants: unknown value 'flow'; accepted: none, geometry, semantic, semantic_crf, "
+            "semantic_geometry, semantic_geometry_crf, semantic_geometry_object, oracle",
         ),
         (
             {"systems": ["orbslam2"]},

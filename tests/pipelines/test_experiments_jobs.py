@@ -159,12 +159,51 @@ def test_launcher_overrides_merge_the_stage_section() -> None:
             "data.real.voc: missing; data.kind=real needs the VOC folder (data.real.voc=PATH)",
         ),
         (["sequences=[walking_xyz,kitchen]"], "sequences: unknown value 'kitchen'; accepted: "),
+        (
+            ["train.experiment=nope"],
+            "train.experiment: unknown value 'nope'; accepted: ci, demo, uss_slam_paper",
+        ),
+        (
+            ["systems=[harness,orbslam2]"],
+            "systems: unknown value 'orbslam2'; accepted: harness, orbslam3",
+        ),
+        (
+            ["grid.depth_sweep=[self_training]"],
+            "grid.depth_sweep: unknown value 'self_training'; accepted: adaptsegnet, advent",
+        ),
+        (
+            ["crf_params.iterations=0"],
+            "crf_params.iterations must be a whole number >= 1, got 0",
+        ),
+        (
+            ["+crf_params.sigma=3"],
+            "crf_params: unknown key 'sigma'; known: iterations, gaussian_sxy, gaussian_compat, "
+            "bilateral_sxy, bilateral_srgb, bilateral_compat",
+        ),
     ],
 )
 def test_bad_config_is_one_line(overrides: list[str], message: str) -> None:
     with pytest.raises(UssSlamError) as info:
         experiment.check(compose_experiments(*overrides))
     assert str(info.value).startswith(message) and "\n" not in str(info.value)
+
+
+def test_crf_variants_need_pydensecrf(monkeypatch: pytest.MonkeyPatch) -> None:
+    import importlib.util
+
+    cfg = compose_experiments("variants=[none,semantic,semantic_crf]")
+    find_spec = importlib.util.find_spec
+    monkeypatch.setattr(
+        importlib.util,
+        "find_spec",
+        lambda name, *a: None if name == "pydensecrf" else find_spec(name, *a),
+    )
+    with pytest.raises(UssSlamError) as info:
+        experiment.check(cfg)
+    assert str(info.value) == (
+        "variants: semantic_crf needs pydensecrf (pip install 'uss-slam[crf]' (pydensecrf2))"
+    )
+    experiment.check(compose_experiments("variants=[none,semantic]"))  # no CRF: not needed
 
 
 def test_orbslam3_needs_its_bindings_and_a_vocabulary(
@@ -247,10 +286,19 @@ def test_missing_launcher_key_is_named_before_launching(tmp_path: Path) -> None:
             "value 'dann'; accepted: source_only, adaptsegnet, advent, minent, self_training",
         ),
         (
+            ["train.experiment=nope"],
+            "uss-experiments: error: train.experiment: unknown value 'nope'; accepted: ci, demo, "
+            "uss_slam_paper",
+        ),
+        (
+            ["systems=[harness,orbslam2]"],
+            "uss-experiments: error: systems: unknown value 'orbslam2'; accepted: harness, orbslam3",
+        ),
+        (
             ["variants=[none,flow]"],
             "uss-experiments: error: variants: unknown value 'flow'; "
-            "accepted: none, geometry, semantic, semantic_geometry, "
-            "semantic_geometry_object, oracle",
+            "accepted: none, geometry, semantic, semantic_crf, semantic_geometry, "
+            "semantic_geometry_crf, semantic_geometry_object, oracle",
         ),
     ],
 )
@@ -288,3 +336,39 @@ def test_dry_run_prints_the_plan_without_work(tmp_path: Path) -> None:
     # 5 segmentation evaluations + 2 sequences x (3 model-free + 5 semantic + 2 x 2 geometry)
     assert "slam: 29 jobs, 0 complete, 6 to run, 23 blocked until their model exists" in proc.stdout
     assert not (tmp_path / "data").exists() and not (tmp_path / "train").exists()
+
+
+def _tiny_onnx(path: Path) -> Path:
+    """tests/slam_eval's tiny exported segmenter (logits from the pixel colours)."""
+    import importlib.util
+
+    source = Path(__file__).resolve().parents[1] / "slam_eval" / "test_onnx_segmenter.py"
+    spec = importlib.util.spec_from_file_location("onnx_segmenter_tests", source)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module.tiny_model(path, module._metadata(), bias=150.0)
+
+
+def test_segeval_with_the_crf_uses_the_slam_runtime_crf(
+    tmp_path: Path, synthetic_sequence: Callable[..., Path]
+) -> None:
+    pytest.importorskip("pydensecrf")
+    from uss_slam.core.classes import CLASS_NAMES
+    from uss_slam.core.seg_metrics import iou_report
+    from uss_slam.pipelines.evaluate import evaluate_frames, sequence_frames
+    from uss_slam.slam_eval.onnx_segmenter import OnnxSegmenter
+
+    seq = synthetic_sequence(preset="walking_xyz", frames=6, size=(96, 72))
+    model = _tiny_onnx(tmp_path / "m.onnx")
+    spec = {"model": str(model), "sequences": {"walking_xyz": str(seq)}, "stride": 2}
+    plain = jobs.run_segeval(tmp_path / "plain", spec)
+    crf = jobs.run_segeval(tmp_path / "crf", {**spec, "crf": {"iterations": 2}})
+    assert "crf" not in plain["model"] and crf["model"]["crf"] == {"iterations": 2}
+    assert crf["sequences"]["all"]["frames"] == plain["sequences"]["all"]["frames"] == 3
+    # the same CRF as uss-slam segmenter=onnx segmenter.crf=true segmenter.crf_params.iterations=2
+    runtime = OnnxSegmenter(model, threads=1, crf=True, crf_params={"iterations": 2})
+    frames = sequence_frames([seq], 2).frames()
+    expected = iou_report(evaluate_frames(runtime.infer, frames, CLASS_NAMES).matrix, CLASS_NAMES)
+    assert crf["sequences"]["walking_xyz"]["mIoU"] == expected["mIoU"]
+    assert crf["sequences"]["walking_xyz"]["mIoU"] != plain["sequences"]["walking_xyz"]["mIoU"]

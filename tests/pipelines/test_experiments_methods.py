@@ -6,8 +6,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pytest
 from hydra import compose, initialize_config_dir
 
+from uss_slam.core.errors import UssSlamError
 from uss_slam.pipelines.experiments.grid import (
     DISCRIMINATOR_METHODS,
     METHODS,
@@ -32,17 +34,17 @@ def test_every_shipped_method_is_in_the_grid() -> None:
 
 
 def test_methods_axis_trainings() -> None:
-    cells = training_cells(_grid())
+    # the default depth sweep: AdaptSegNet at every depth, the other methods at tables.n_layers
+    cells = training_cells(_grid(), 5)
     assert [c.model for c in cells] == [
         "source_only_s0",
         "adaptsegnet_n4_s0",
         "adaptsegnet_n5_s0",
-        "advent_n4_s0",
         "advent_n5_s0",
         "minent_s0",
         "self_training_s0",
     ]
-    advent = cells[4]
+    advent = cells[3]
     assert advent.overrides() == [
         "model/method=advent",
         "seed=0",
@@ -54,11 +56,57 @@ def test_methods_axis_trainings() -> None:
         "seed=0",
         "run_name=self_training_s0",
     ]
+    swept = training_cells(_grid(depth_sweep=["adaptsegnet", "advent"]), 5)
+    assert [c.model for c in swept if c.method == "advent"] == ["advent_n4_s0", "advent_n5_s0"]
+    assert [c.model for c in training_cells(_grid(depth_sweep=[]), 4)] == [
+        "source_only_s0",
+        "adaptsegnet_n4_s0",
+        "advent_n4_s0",
+        "minent_s0",
+        "self_training_s0",
+    ]
+
+
+def test_standard_scale_with_every_method_costs_24_trainings() -> None:
+    # 3 source-only + 4 depths x 3 AdaptSegNet + 3 x (ADVENT at n = 5, MinEnt, self-training)
+    grid = {"methods": ALL, "n_layers": [4, 5, 6, 7], "seeds": [0, 1, 2], "loss": {}}
+    cells = training_cells({**grid, "depth_sweep": ["adaptsegnet"]}, 5)
+    assert len(cells) == 3 + 12 + 3 * 3 == 24
+    assert {c.n_layers for c in cells if c.method == "advent"} == {5}
+    assert len(training_cells({**grid, "depth_sweep": ["adaptsegnet", "advent"]}, 5)) == 33
+
+
+@pytest.mark.parametrize(
+    ("changes", "n_table", "message"),
+    [
+        (
+            {"depth_sweep": ["minent"]},
+            5,
+            "grid.depth_sweep: unknown value 'minent'; accepted: adaptsegnet, advent",
+        ),
+        ({"depth_sweep": "adaptsegnet"}, 5, "grid.depth_sweep: expected a list of methods"),
+        (
+            {"depth_sweep": ["advent", "advent"]},
+            5,
+            "grid.depth_sweep: 'advent' is listed twice",
+        ),
+        (
+            {"depth_sweep": []},
+            None,
+            "tables.n_layers: expected a discriminator depth 1..8, got None",
+        ),
+        ({}, 6, "tables.n_layers: 6 is not a depth of the grid; accepted: 4, 5"),
+    ],
+)
+def test_bad_depth_sweep_is_one_line(changes: dict, n_table: object, message: str) -> None:
+    with pytest.raises(UssSlamError) as info:
+        training_cells(_grid(**changes), n_table)
+    assert str(info.value).startswith(message) and "\n" not in str(info.value)
 
 
 def test_adversarial_weights_only_for_methods_with_discriminators() -> None:
     cells = training_cells(
-        _grid(n_layers=[5], loss={"lambda_adv_main": [0.001, 0.01], "lambda_seg_aux": 0.4})
+        _grid(n_layers=[5], loss={"lambda_adv_main": [0.001, 0.01], "lambda_seg_aux": 0.4}), 5
     )
     by_method: dict[str, list[str]] = {}
     for c in cells:
@@ -93,4 +141,85 @@ def test_experiments_config_accepts_the_methods_axis() -> None:
     with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
         cfg = compose("experiments", overrides=[f"grid.methods=[{','.join(ALL)}]"])
     assert list(cfg.grid.methods) == ALL
-    assert list(dict.fromkeys(c.method for c in training_cells(cfg.grid))) == ALL
+    assert list(dict.fromkeys(c.method for c in training_cells(cfg.grid, 5))) == ALL
+
+
+def _job_keys(tmp_path: Path, *overrides: str) -> dict[str, dict]:
+    """Every job id of a ``uss-experiments`` config -> its cache key (data and exports faked:
+    the keys only read their names)."""
+    from uss_slam.pipelines.experiments import experiment
+    from uss_slam.pipelines.experiments.data import Data
+    from uss_slam.pipelines.experiments.plan import plan_slam, plan_train
+
+    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
+        cfg = compose("experiments", overrides=[f"out_dir={tmp_path}", *overrides])
+    exp = experiment.check(cfg)
+    names = exp.grid.sequences
+    data = Data(
+        train_key={"demo": "key"},
+        train_dir=tmp_path / "data" / "train",
+        sequences={n: tmp_path / "data" / "eval" / n for n in names},
+        sequence_keys={n: {"sequence": n} for n in names},
+        labelled=list(names),
+    )
+    exports = {t.model: f"sha256-of-{t.model}" for t in exp.grid.trainings}
+    jobs = plan_train(exp, data) + plan_slam(exp, data, exports)
+    exp.train_specs.update({j.id: j.spec for j in jobs})
+    return {j.id: j.spec["key"] for j in jobs}
+
+
+CRF_VARIANTS = "variants=[none,semantic,geometry,semantic_geometry,semantic_geometry_object,oracle,semantic_crf,semantic_geometry_crf]"
+
+
+def test_more_methods_and_crf_variants_keep_every_job_key(tmp_path: Path) -> None:
+    pytest.importorskip("pydensecrf")
+    base = _job_keys(tmp_path, "scale=standard")
+    more = _job_keys(tmp_path, "scale=standard", f"grid.methods=[{','.join(ALL)}]", CRF_VARIANTS)
+    # every job of the default grid is a job of the bigger one, with the same key: a run of
+    # the default grid is reused by a rerun with more methods and the CRF variants
+    assert {k: more[k] for k in base} == base
+    added = sorted(set(more) - set(base))
+    trainings = [k for k in added if k.startswith("train/")]
+    assert trainings == [
+        f"train/{m}_s{s}" for m in ("advent_n5", "minent", "self_training") for s in range(3)
+    ]
+    # the keys the default grid has had (a change would redo a finished standard run)
+    assert base["train/adaptsegnet_n5_s0"]["overrides"] == [
+        "experiment=demo",
+        "paths.log_dir=$OUT",
+        "paths.data_dir=$OUT/data/train",
+        "logger=none",
+        "callbacks.image_logger=null",
+        "++trainer.enable_progress_bar=false",
+        "model/method=adaptsegnet",
+        "seed=0",
+        "run_name=adaptsegnet_n5_s0",
+        "model.discriminator.n_layers=5",
+    ]
+    assert base["segeval/adaptsegnet_n5_s0"] == {
+        "model": "sha256-of-adaptsegnet_n5_s0",
+        "sequences": {n: {"sequence": n} for n in STANDARD_SEQUENCES},
+        "stride": 5,
+    }
+    semantic = "slam/harness/walking_xyz/semantic/adaptsegnet_n5_s0"
+    model = "$OUT/exports/adaptsegnet_n5_s0/adaptsegnet_n5_s0.onnx"
+    assert base[semantic] == {
+        "overrides": [
+            "sequence.path=$OUT/data/eval/walking_xyz",
+            "segmenter=onnx",
+            f"segmenter.path={model}",
+            "filters=[semantic]",
+        ],
+        "sequence": {"sequence": "walking_xyz"},
+        "model": "sha256-of-adaptsegnet_n5_s0",
+    }
+    crf = more["slam/harness/walking_xyz/semantic_crf/adaptsegnet_n5_s0"]
+    assert crf["overrides"] == [*base[semantic]["overrides"], "segmenter.crf=true"]
+    assert more["segeval/crf/adaptsegnet_n5_s0"] == {**base["segeval/adaptsegnet_n5_s0"], "crf": {}}
+    # CRF runs and metrics for the models T2 / T3 compare only
+    crf_models = {k.rsplit("/", 1)[1] for k in added if "crf" in k}
+    assert crf_models == {f"{c}_s{s}" for c in ("source_only", "adaptsegnet_n5") for s in range(3)}
+    assert len([k for k in added if k.startswith("slam/") and "_crf/" in k]) == 4 * 2 * 6
+
+
+STANDARD_SEQUENCES = ("walking_xyz", "walking_rpy", "walking_halfsphere", "static_xyz")

@@ -96,6 +96,108 @@ def test_quick_end_to_end_then_reuse_then_resume(tmp_path: Path) -> None:
     assert all(j == killed_slam or j.endswith("/adaptsegnet_n6_s1") for j in redone), redone
     assert {r["status"] for r in runs_csv(out)} == {"ok"}
 
+    # More methods on the finished run: every job of it is complete in the new plan; only the
+    # new methods' trainings (at tables.n_layers) and their jobs are to run.
+    more = run(out, "dry_run=true", f"grid.methods=[{','.join(ALL_METHODS)}]", cwd=tmp_path)
+    assert more.returncode == 0, more.stderr[-3000:]
+    assert "train: 16 jobs, 10 complete, 6 to run" in more.stdout
+    planned = [line.split(": ", 1)[1] for line in more.stdout.splitlines() if "  to run: " in line]
+    assert {p for p in planned if p.startswith("train/")} == {
+        f"train/{c}_s{s}" for c in ("advent_n5", "minent", "self_training") for s in (0, 1)
+    }
+    # 6 segmentation evaluations + 2 sequences x 6 semantic runs, blocked until exported
+    assert "slam: 70 jobs, 52 complete, 0 to run, 18 blocked until their model exists" in (
+        more.stdout
+    )
+
+
+ALL_METHODS = ("source_only", "adaptsegnet", "advent", "minent", "self_training")
+
+
+def test_more_methods_and_the_crf_reuse_a_finished_run(tmp_path: Path) -> None:
+    pytest.importorskip("pydensecrf")
+    out = tmp_path / "crf"
+    grid = [
+        "grid.seeds=[0]",
+        "grid.n_layers=[4,5]",
+        "sequences=[walking_xyz]",
+        "data.synthetic.eval_frames=12",
+    ]
+    first = run(out, *grid, "variants=[none,semantic,semantic_geometry,oracle]", cwd=tmp_path)
+    assert first.returncode == 0, first.stdout[-3000:] + first.stderr[-3000:]
+    done = {r["id"] for r in runs_csv(out)}
+    assert len(done) == 3 + 3 + 3 + (2 + 3 + 2)  # trainings, exports, segeval, SLAM runs
+
+    variants = (
+        "variants=[none,semantic,semantic_crf,semantic_geometry,semantic_geometry_crf,oracle]"
+    )
+    methods = f"grid.methods=[{','.join(ALL_METHODS)}]"
+    more = run(out, *grid, methods, variants, cwd=tmp_path)
+    assert more.returncode == 0, more.stdout[-3000:] + more.stderr[-3000:]
+    # every finished job reused: only the new methods' trainings and the new jobs ran
+    assert pending(out, "train") == [
+        "train/advent_n5_s0",
+        "train/minent_s0",
+        "train/self_training_s0",
+    ]
+    ran = set(pending(out, "slam"))
+    assert not ran & done
+    crf = {
+        "segeval/crf/source_only_s0",
+        "segeval/crf/adaptsegnet_n5_s0",
+        *(
+            f"slam/harness/walking_xyz/{v}/{m}"
+            for v in ("semantic_crf", "semantic_geometry_crf")
+            for m in ("source_only_s0", "adaptsegnet_n5_s0")
+        ),
+    }
+    new_methods = {
+        f"{kind}/{m}"
+        for kind in ("segeval", "slam/harness/walking_xyz/semantic")
+        for m in ("advent_n5_s0", "minent_s0", "self_training_s0")
+    }
+    assert ran == crf | new_methods
+    rows = runs_csv(out)
+    assert {r["status"] for r in rows} == {"ok"}
+    slam = {r["id"]: r for r in rows if r["kind"] == "slam"}
+    for run_id, row in slam.items():
+        with_crf = "_crf/" in run_id
+        assert row["crf"] == str(int(with_crf))
+        assert bool(row["crf_ms"]) == with_crf, run_id  # the CRF's time, in its runs only
+        if with_crf:
+            assert 0 < float(row["crf_ms"]) <= float(row["segmentation_ms"])
+        assert float(row["total_ms"]) > 0
+    seg_crf = [r for r in rows if r["id"] == "segeval/crf/adaptsegnet_n5_s0"]
+    assert [r["sequence"] for r in seg_crf] == ["walking_xyz", "all"]
+    assert all(r["crf"] == "1" and r["mIoU"] for r in seg_crf)
+    md = (out / "tables.md").read_text()
+    for title in (
+        "### T2 by method: adapted vs source-only",
+        "### Dense CRF off / on (harness)",
+        "### Time per frame (harness)",
+    ):
+        assert title in md
+    tables = json.loads((out / "tables.json").read_text())
+    assert [r["config"] for r in tables["T2"]["by_method"]] == [
+        "source_only",
+        "adaptsegnet_n5",
+        "advent_n5",
+        "minent",
+        "self_training",
+    ]
+    assert tables["T2"]["by_method"][0]["mIoU_vs_source_only_points"] == 0.0
+    crf_rows = [(r["config"], r["filter"], r["crf"]) for r in tables["crf"]]
+    assert crf_rows == [
+        (c, f, on)
+        for c in ("source_only", "adaptsegnet_n5")
+        for f in ("semantic", "semantic_geometry")
+        for on in (False, True)
+    ]
+    assert all(r["ate_rmse"]["walking_xyz"]["n"] == 1 for r in tables["crf"])
+    timing = {r["variant"]: r for r in tables["timing"]}
+    assert timing["semantic_crf"]["crf_ms"]["n"] == 2  # the two compared models
+    assert timing["semantic"]["crf_ms"]["n"] == 0
+
 
 def test_submitit_local_failed_job_marked_others_go_on(tmp_path: Path) -> None:
     out = tmp_path / "sub"

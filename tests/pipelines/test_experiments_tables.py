@@ -184,3 +184,107 @@ def test_improvement_and_ratio_edge_cases() -> None:
     assert tbl.downstream_ratio(0.1, 0.05, 0.12) is None  # oracle no better than no filter
     assert tbl.downstream_ratio(0.1, None, 0.02) is None
     assert tbl.downstream_ratio(0.1, 0.12, 0.02) == pytest.approx(-0.25)  # worse than no filter
+
+
+def _runs_with_methods_and_crf() -> list[dict]:
+    """Source-only, AdaptSegNet (n = 4, 5), MinEnt over seeds 0-1 on one sequence; the adapted
+    model of n = 5 also with the dense CRF (segmentation and SLAM)."""
+    rows: list[dict] = []
+    miou = {
+        "source_only": (0.20, 0.22),
+        "adaptsegnet_n4": (0.25, 0.27),
+        "adaptsegnet_n5": (0.30, 0.34),
+        "minent": (0.24, 0.26),
+    }
+    person = {"source_only": (0.10, 0.14), "adaptsegnet_n5": (0.30, 0.34)}
+    for config, values in miou.items():
+        method, _, n = config.partition("_n")
+        common = {"method": method, "n_layers": int(n) if n else None, "config": config}
+        for seed, value in enumerate(values):
+            model = f"{config}_s{seed}"
+            rows.append(
+                {"kind": "train", "id": f"train/{model}", "status": "ok", **common, "seed": seed}
+            )
+            iou = person.get(config, (0.2, 0.2))[seed]
+            for crf in (False, True) if config == "adaptsegnet_n5" else (False,):
+                rows.append(
+                    {
+                        "kind": "segeval",
+                        "id": f"segeval/{'crf/' if crf else ''}{model}",
+                        "status": "ok",
+                        **common,
+                        "seed": seed,
+                        "sequence": "all",
+                        "mIoU": value + (0.04 if crf else 0.0),
+                        "IoU_person": iou,
+                        "crf": int(crf),
+                    }
+                )
+            variants = ("semantic", "semantic_crf") if config == "adaptsegnet_n5" else ("semantic",)
+            for variant in variants:
+                crf = variant.endswith("_crf")
+                rows.append(
+                    {
+                        "kind": "slam",
+                        "id": f"slam/harness/walking_xyz/{variant}/{model}",
+                        "status": "ok",
+                        **common,
+                        "seed": seed,
+                        "system": "harness",
+                        "sequence": "walking_xyz",
+                        "variant": variant,
+                        "ate_rmse": 0.05 - 0.01 * seed - (0.005 if crf else 0.0),
+                        "segmentation_ms": 10.0 + (40.0 + 4 * seed if crf else 0.0),
+                        "crf_ms": 40.0 + 4 * seed if crf else None,
+                        "total_ms": 30.0 + (40.0 if crf else 0.0),
+                        "fps": 1000.0 / (30.0 + (40.0 if crf else 0.0)),
+                        "crf": int(crf),
+                    }
+                )
+    return rows
+
+
+def test_methods_crf_and_timing_tables(tmp_path: Path) -> None:
+    path = tmp_path / "runs.csv"
+    tbl.write_runs(path, _runs_with_methods_and_crf())
+    rows = tbl.read_runs(path)
+    data, text = tbl.compute(rows, n_layers=5)
+    assert data["layout"]["methods"] == ["source_only", "adaptsegnet_n5", "minent"]
+    assert data["layout"]["crf_configs"] == ["adaptsegnet_n5"]
+
+    # T1a: the CRF's metrics are not the model's own; Δ in points against source-only
+    t1 = {r["config"]: r for r in data["T1"]["segmentation"]}
+    assert t1["adaptsegnet_n5"]["mIoU"]["values"] == [0.30, 0.34]
+    assert t1["adaptsegnet_n4"]["mIoU_vs_source_only_points"] == pytest.approx(5.0)
+    assert "| adaptsegnet_n4 | n/a | 0.260 ± 0.014 (n=2) | +5.00 |" in text
+
+    by_method = {r["config"]: r for r in data["T2"]["by_method"]}
+    assert list(by_method) == ["source_only", "adaptsegnet_n5", "minent"]
+    assert by_method["adaptsegnet_n5"]["mIoU_vs_source_only_points"] == pytest.approx(11.0)
+    assert by_method["adaptsegnet_n5"]["IoU_person_vs_source_only_points"] == pytest.approx(20.0)
+    assert by_method["minent"]["mIoU_vs_source_only_points"] == pytest.approx(4.0)
+    assert (
+        "| adaptsegnet_n5 | 0.320 ± 0.028 (n=2) | +11.00 | 0.320 ± 0.028 (n=2) | +20.00 "
+        "| 0.0450 ± 0.0071 (n=2) |"
+    ) in text
+
+    crf = [(r["config"], r["filter"], r["crf"], r["mIoU"]["mean"]) for r in data["crf"]]
+    assert crf == [
+        ("adaptsegnet_n5", "semantic", False, pytest.approx(0.32)),
+        ("adaptsegnet_n5", "semantic", True, pytest.approx(0.36)),
+    ]
+    assert data["crf"][1]["ate_rmse"]["walking_xyz"]["mean"] == pytest.approx(0.04)
+    assert "| adaptsegnet_n5 | semantic | on | 0.360 ± 0.028 (n=2) |" in text
+
+    timing = {r["variant"]: r for r in data["timing"]}
+    assert timing["semantic_crf"]["crf_ms"]["mean"] == pytest.approx(42.0)
+    assert timing["semantic"]["crf_ms"]["n"] == 0  # no CRF in these runs
+    assert "| semantic (CRF) | 52.0 ± 2.8 (n=2) | 42.0 ± 2.8 (n=2) | 70.0 ± 0.0 (n=2) |" in text
+    assert "| semantic | 10.0 ± 0.0 (n=8) | — | 30.0 ± 0.0 (n=8) |" in text
+
+
+def test_tables_without_crf_or_timing_columns_leave_them_out(rows: list[dict]) -> None:
+    data, text = tbl.compute(rows, n_layers=5)
+    assert data["crf"] == [] and data["timing"] == []
+    assert "Dense CRF" not in text and "Time per frame" not in text
+    assert [r["config"] for r in data["T2"]["by_method"]] == ["source_only", "adaptsegnet_n5"]
