@@ -36,6 +36,7 @@ OUTPUT_NAMES = (
     "trajectory.png",
     "ate.png",
     "map.ply",
+    "octomap.ot",
     "comparison.md",
     "comparison.json",
 )

@@ -67,6 +67,7 @@ from .frontend import Features, OrbConfig, OrbExtractor
 from .geometry import invert
 from .local_mapping import BundleAdjuster, LocalMapping, LocalMappingConfig
 from .loop_closing import LoopCloser, LoopClosingConfig
+from .octomap import OctoMapBuilder, SemanticOctoMap, load_pyoctomap
 from .segmenters import Segmenter
 from .semantic_map import MapConfig, PointCloud, SemanticMapBuilder, merge_clouds
 from .sequence import Frame, TumSequence
@@ -164,6 +165,8 @@ class RunResult:
     """One entry per closed loop (:class:`~.loop_closing.LoopClosure`)."""
     loop_candidates_rejected: int = 0
     """Consistent loop candidates that failed the geometric verification."""
+    octomap: SemanticOctoMap | None = None
+    """The semantic OctoMap (``slam.map.octomap=true``), else None."""
 
     @property
     def tracked_fraction(self) -> float:
@@ -223,6 +226,8 @@ class SlamPipeline:
         self.extractor = OrbExtractor(orb or OrbConfig(), sequence.camera)
         self.tracker_config = tracker or TrackerConfig()
         self.map_config = semantic_map or MapConfig()
+        if self.map_config.octomap:
+            load_pyoctomap()  # a missing extra is one clear line before any frame
         self.prefetch = prefetch
         self.workers = workers
         self.parallel = parallel and prefetch > 0
@@ -286,6 +291,7 @@ class SlamPipeline:
         extractor = self.extractor
         tracker = Tracker(self.tracker_config, extractor)
         builder = SemanticMapBuilder(self.map_config, extractor)
+        octo = OctoMapBuilder(self.map_config, extractor) if self.map_config.octomap else None
         adjuster = BundleAdjuster(
             tracker.k, tracker.bf, extractor.sigma2, self.local_ba_params.depth_noise
         )
@@ -375,6 +381,8 @@ class SlamPipeline:
                             keyframe_clouds.append((kf.id, own.build()))
                         else:
                             builder.add(kf.pose_wc, frame.rgb, frame.depth, labels, region)
+                        if octo is not None:
+                            octo.add(kf.id, frame.rgb, frame.depth, labels, region)
                 if result.pose_wc is not None and backend:
                     anchor = tracker.anchor()
                     assert anchor is not None
@@ -438,6 +446,8 @@ class SlamPipeline:
                 cloud = merge_clouds(placed, self.map_config.voxel)
             else:
                 cloud = builder.build()
+        with timer("octomap"):  # every keyframe at its final pose
+            octomap = octo.build(tracker.map.pose_wc) if octo is not None else None
         if backend:  # ORB-SLAM2's SaveTrajectoryTUM: each frame on its keyframe's final pose
             poses = [tracker.map.pose_wc(k) @ invert(rel) for k, rel in anchors]
         trajectory = (
@@ -478,4 +488,5 @@ class SlamPipeline:
             loop_closing=closer is not None,
             loop_closures=[c.as_dict() for c in closer.closures] if closer is not None else [],
             loop_candidates_rejected=closer.rejected if closer is not None else 0,
+            octomap=octomap,
         )

@@ -1,4 +1,5 @@
-"""Run outputs: ``trajectory.txt``, ``metrics.json``, ``report.md``, plots, ``map.ply``; and the
+"""Run outputs: ``trajectory.txt``, ``metrics.json``, ``report.md``, plots, ``map.ply`` (and
+``octomap.ot`` with ``slam.map.octomap=true``); and the
 comparison table of several filter sets on one sequence (baseline vs each, improvement %).
 
 ``metrics.json`` keys: ``ate`` (``rmse mean median std min max pairs``, metres, SE(3)-aligned by
@@ -17,7 +18,9 @@ end: ``local_ba`` (null when off, else ``runs``, mean ``wall_ms`` per run, ``key
 ``loop_closures`` (how many) and ``loop_closure_frames`` (per closure: ``frame``, ``stamp``,
 ``keyframe``, ``loop_frame``, ``loop_keyframe``, ``inliers``, ``correction_m``,
 ``correction_deg``, ``fused`` points, ``wall_ms``), ``loop_candidates_rejected`` (recognised
-places that failed the geometric verification).
+places that failed the geometric verification); ``octomap`` (null when off, else ``resolution``,
+``occupied_voxels``, ``occupied_per_class`` by class name, ``measured_voxels_carved``,
+``tree_nodes``, ``cpu_ms_per_keyframe``).
 """
 
 from __future__ import annotations
@@ -164,6 +167,7 @@ def metrics_dict(result: RunResult, evaluation: Evaluation, config: EvalConfig) 
             "orb_cpu_ms": result.cpu_ms.get("orb", 0.0),
         },
         "semantic_map_points": len(result.cloud),
+        "octomap": result.octomap.summary() if result.octomap is not None else None,
         "local_ba": result.local_ba,
         "loop_closing": result.loop_closing,
         "loop_closures": len(result.loop_closures),
@@ -223,6 +227,9 @@ def write_run(
     )
     with folder.writing(out / "map.ply") as tmp:
         write_ply(tmp, result.cloud)
+    if result.octomap is not None:
+        with folder.writing(out / "octomap.ot") as tmp:
+            result.octomap.write(tmp)
     title = Path(result.sequence).name
     names = _plots(out, evaluation, title)
     for name in names:
@@ -333,6 +340,16 @@ def _report_md(
         f"Semantic map: `map.ply`, {len(result.cloud)} points.",
         "",
     ]
+    if data.get("octomap") is not None:
+        octo = data["octomap"]
+        per_class = ", ".join(f"{k} {v}" for k, v in octo["occupied_per_class"].items())
+        lines += [
+            f"Semantic OctoMap: `octomap.ot`, {octo['resolution']:g} m voxels, "
+            f"{octo['occupied_voxels']} occupied ({per_class}); "
+            f"{octo['measured_voxels_carved']} measured voxels carved free by later rays; "
+            f"{octo['cpu_ms_per_keyframe']:.1f} ms CPU per keyframe.",
+            "",
+        ]
     lines += _backend_md(result)
     for plot in plots:
         lines += [f"![{plot}]({plot})", ""]

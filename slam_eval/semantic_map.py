@@ -33,11 +33,15 @@ class MapConfig:
     """Voxel size of the merged cloud, metres."""
     max_depth: float = 4.0
     """Ignore depth beyond this (noisy), metres."""
+    octomap: bool = False
+    """Also build a semantic OctoMap (``octomap.ot``, :mod:`.octomap`; needs pyoctomap)."""
+    octomap_resolution: float = 0.05
+    """Voxel size of the OctoMap, metres."""
 
     def __post_init__(self) -> None:
         if self.stride < 1:
             raise ValueError(f"stride must be >= 1 px, got {self.stride}")
-        for name in ("voxel", "max_depth"):
+        for name in ("voxel", "max_depth", "octomap_resolution"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0 m, got {getattr(self, name)}")
 
