@@ -171,7 +171,7 @@ def _synthetic_data(exp: Experiment, run: bool, dry: bool) -> tuple[Data, str]:
             f"{len(exp.grid.sequences)} evaluation sequences "
             f"({rendered} rendered, {len(exp.grid.sequences) - rendered} reused)"
         )
-    return data, ", ".join(done)
+    return data, ", ".join(done) or "training data and evaluation sequences complete (reused)"
 
 
 def _real_data(exp: Experiment) -> tuple[Data, str]:

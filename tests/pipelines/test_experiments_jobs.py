@@ -103,6 +103,13 @@ def test_status_from_the_folder(tmp_path: Path) -> None:
     write_json_atomic(folder / jobs.RESULT, {"ate": None})
     write_json_atomic(folder / ".uss-demo.json", {"k": 1})
     assert launch.status_of(exp, job, {}, launched)[0] == "ok"  # complete wins over a stale record
+    # a SLAM run's time per frame comes from its metrics.json (also for runs finished earlier)
+    timing = {"segmentation": 52.0, "segmentation.crf": 41.5, "orb": 9.0, "total": 70.0}
+    (folder / "metrics.json").write_text(json.dumps({"timing_ms": timing}))
+    status, _, result = launch.status_of(exp, job, {}, launched)
+    assert result == {"ate": None, "timing_ms": timing}
+    [row] = launch.result_rows(job, status, "", result, ["walking_xyz"])
+    assert (row["segmentation_ms"], row["crf_ms"], row["total_ms"]) == (52.0, 41.5, 70.0)
 
 
 # ------------------------------------------------------------------------------------ checks
