@@ -18,6 +18,8 @@ LOOP_PERIOD = 12.0
 """Seconds per turn of the ``loop`` motion (360 frames at 30 Hz)."""
 LOOP_RADIUS = 0.3
 """Radius of the ``loop`` motion's circle, metres."""
+MOTIONS = ("xyz", "static", "rpy", "halfsphere", "loop", "handheld")
+"""The camera motion kinds (:attr:`Preset.motion`)."""
 
 
 @dataclass(frozen=True)
@@ -25,7 +27,7 @@ class Preset:
     """A sequence recipe: how the camera moves and what the people do."""
 
     name: str
-    motion: str  # "xyz", "static", "rpy", "halfsphere", "loop"
+    motion: str  # one of MOTIONS
     people: str  # "walking", "sitting", "frozen"
     description: str
 
@@ -48,6 +50,10 @@ PRESETS: dict[str, Preset] = {
         Preset("loop", "loop", "frozen",
                "camera tours the room on a circle looking outwards, back at its start every "
                f"{LOOP_PERIOD:g} s (loop closing; >= {int(LOOP_PERIOD * 30) + 90} frames)"),
+        Preset("handheld_rpy", "handheld", "frozen",
+               "control with handheld motion (like TUM fr1/fr2 rpy): fast roll, pitch and yaw "
+               "(up to ~60 deg/s, ~40 on average) with hand shake and a few cm of drift; two seated people who "
+               "never move"),
     )
 }  # fmt: skip
 """The presets by name (``uss-synth sequence --preset NAME``)."""
@@ -70,7 +76,7 @@ class CameraMotion:
     """
 
     def __init__(self, kind: str, eye: np.ndarray, target: np.ndarray, seed: int) -> None:
-        if kind not in ("xyz", "static", "rpy", "halfsphere", "loop"):
+        if kind not in MOTIONS:
             raise ValueError(f"unknown camera motion {kind!r}")
         self.kind = kind
         self.eye = np.asarray(eye, np.float64)
@@ -79,9 +85,16 @@ class CameraMotion:
         rng = stream(seed, f"camera/{kind}")
         self.phase = rng.uniform(0, 2 * np.pi, 6)
         self.period = rng.uniform(0.9, 1.1, 6)
+        if kind == "handheld":  # a stream of its own: the other motions stay as they were
+            shake = stream(seed, "camera/handheld/shake")
+            self.shake_phase = shake.uniform(0, 2 * np.pi, 6)
+            self.shake_period = shake.uniform(0.9, 1.1, 6)
 
     def _wave(self, t: float, i: int, period: float) -> float:
         return math.sin(2 * math.pi * t / (period * self.period[i]) + self.phase[i])
+
+    def _shake(self, t: float, i: int, period: float) -> float:
+        return math.sin(2 * math.pi * t / (period * self.shake_period[i]) + self.shake_phase[i])
 
     def pose(self, t: float) -> np.ndarray:
         """The 4×4 camera-to-world matrix at ``t`` seconds."""
@@ -102,6 +115,19 @@ class CameraMotion:
             # camera axes: z ahead (roll), x right (pitch), y down (yaw)
             rot = rot @ rot_y(yaw) @ rot_x(pitch) @ rot_z(roll)
             pos = pos + self.base @ (0.01 * np.array([w(t, 3, 4.1), w(t, 4, 5.3), w(t, 5, 6.7)]))
+        elif self.kind == "handheld":
+            # A hand-held camera swept about its axes (TUM fr1/rpy): slow swings of 11-17 deg
+            # plus a faster hand shake, so each axis turns at up to ~35 (roll), ~45 (pitch) and
+            # ~60 deg/s (yaw), ~40 deg/s on average; the hand drifts a few cm, trembles 2 mm.
+            roll = math.radians(11) * w(t, 0, 3.7) + math.radians(2.2) * self._shake(t, 0, 0.93)
+            pitch = math.radians(12) * w(t, 1, 2.9) + math.radians(2.4) * self._shake(t, 1, 0.71)
+            yaw = math.radians(17) * w(t, 2, 3.3) + math.radians(3.3) * self._shake(t, 2, 0.83)
+            rot = rot @ rot_y(yaw) @ rot_x(pitch) @ rot_z(roll)
+            drift = 0.03 * np.array([w(t, 3, 4.3), w(t, 4, 5.1), w(t, 5, 6.2)])
+            tremble = 0.002 * np.array(
+                [self._shake(t, k, p) for k, p in ((3, 0.47), (4, 0.53), (5, 0.61))]
+            )
+            pos = pos + self.base @ (drift + tremble)
         elif self.kind == "loop":
             # On a circle 1.5 m ahead of the eye (mid-room), looking outwards and a little down,
             # one turn every LOOP_PERIOD: the whole room passes by, then the start view again.
