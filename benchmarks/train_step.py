@@ -1,4 +1,5 @@
-"""Seconds per training iteration: the Lightning module vs a plain-PyTorch loop, same run.
+"""Seconds per training iteration: the Lightning module vs a plain-PyTorch loop, same run;
+with ``--suite speed``, the speed options (compile, channels-last, bf16, fused optimisers).
 
 One iteration = the paper's Algorithm 1: source and target forward, segmentation and
 adversarial losses, segmenter step, both discriminator updates. Both loops train the same
@@ -10,6 +11,18 @@ iteration of each and the ratio Lightning / plain.
     .venv/bin/python benchmarks/train_step.py --models small --iters 20
     .venv/bin/python benchmarks/train_step.py --clock cpu --threads 1   # busy machine
     .venv/bin/python benchmarks/train_step.py --models tiny   # Lightning's fixed cost, in ms
+
+``--suite speed`` times the module's speed options against the eager module (``eager`` = the
+shipped defaults) and the plain loop, same run: ``compile`` (``model.compile``),
+``channels_last``, ``bf16`` (``trainer.precision=bf16-mixed``), ``fused``
+(``model.optimizer_kernels=fused``), ``fast`` (the settings of ``trainer=fast_cpu``) and
+``fast+compile`` (``trainer=fast_cpu model.compile=true``). Each
+variant trains one instance across the repeats (compiled networks compile once; that cost is
+reported separately, not in the median, with a cold inductor cache unless ``--warm-cache``), and
+after the timing each variant's losses and weights after 2 iterations from the same start are
+compared with ``eager``'s.
+
+    .venv/bin/python benchmarks/train_step.py --suite speed --models resnet101 small
 
 ``--clock cpu`` times with the process's CPU time (all threads) instead of the wall clock: on a
 shared machine the wall clock measures the other jobs; with one thread CPU time does not.
@@ -27,11 +40,12 @@ import copy
 import functools
 import importlib.util
 import logging
+import os
 import statistics
 import tempfile
 import time
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import torch
@@ -40,6 +54,7 @@ from torch import Tensor, nn
 
 from uss_slam.models import DeepLabV2, PatchDiscriminator
 from uss_slam.train.losses import LossWeights
+from uss_slam.train.methods import StepValues
 from uss_slam.train.module import AdversarialSegmentation
 from uss_slam.train.schedules import PolyLR
 
@@ -197,9 +212,17 @@ class _Timer:
         return [b - a for a, b in zip(self.starts, self.starts[1:], strict=False)]
 
 
-def time_lightning(module: AdversarialSegmentation, batch: dict, iters: int) -> list[float]:
+def time_lightning(
+    module: AdversarialSegmentation,
+    batch: dict,
+    iters: int,
+    precision: str = "32-true",
+    losses: list[dict[str, float]] | None = None,
+) -> list[float]:
     """Seconds per iteration under a Trainer that logs as ``uss-train`` does (TensorBoard
-    into a temporary folder, ``log_every_n_steps: 10`` of ``configs/trainer/default.yaml``)."""
+    into a temporary folder, ``log_every_n_steps: 10`` of ``configs/trainer/default.yaml``),
+    at ``precision`` (``trainer.precision``). ``losses`` receives each iteration's ``train/*``
+    scalars (a host sync per iteration: pass it only when not timing)."""
     from lightning.pytorch import Callback, Trainer
     from lightning.pytorch.loggers import TensorBoardLogger
 
@@ -209,6 +232,12 @@ def time_lightning(module: AdversarialSegmentation, batch: dict, iters: int) -> 
         def on_train_batch_start(self, *args: object) -> None:
             timer.starts.append(clock())
 
+        def on_train_batch_end(self, trainer: object, pl_module: object, *args: object) -> None:
+            if losses is not None:  # before the module's own hook clears its step values
+                step: StepValues = pl_module._step_values[0]  # type: ignore[attr-defined]
+                scalars = pl_module.method.train_scalars(step)  # type: ignore[attr-defined]
+                losses.append({k: float(v) for k, v in scalars.items()})
+
         def on_train_end(self, *args: object) -> None:
             timer.starts.append(clock())
 
@@ -217,6 +246,7 @@ def time_lightning(module: AdversarialSegmentation, batch: dict, iters: int) -> 
         trainer = Trainer(
             accelerator="cpu",
             max_epochs=1,
+            precision=precision,
             logger=TensorBoardLogger(logdir, name="", version=""),
             log_every_n_steps=10,
             enable_checkpointing=False,
@@ -315,6 +345,124 @@ def run(
         )
 
 
+@dataclass(frozen=True)
+class Speed:
+    """One variant of ``--suite speed``: module attributes and the trainer's precision."""
+
+    settings: dict[str, object] = field(default_factory=dict)
+    precision: str = "32-true"
+
+
+FAST_CPU = Speed({"channels_last": True, "optimizer_kernels": "fused"}, "bf16-mixed")
+"""What ``trainer=fast_cpu`` sets (a test keeps the two equal)."""
+
+SPEED_VARIANTS = {
+    "eager": Speed(),  # the shipped defaults: batched domains, NCHW, float32, eager
+    "compile": Speed({"compile_networks": True}),
+    "channels_last": Speed({"channels_last": True}),
+    "bf16": Speed(precision="bf16-mixed"),
+    "fused": Speed({"optimizer_kernels": "fused"}),
+    "fast": FAST_CPU,
+    "fast+compile": Speed({**FAST_CPU.settings, "compile_networks": True}, FAST_CPU.precision),
+}
+
+
+def speed_variant(module: AdversarialSegmentation, speed: Speed) -> AdversarialSegmentation:
+    variant = copy.deepcopy(module)
+    for name, value in speed.settings.items():
+        if not hasattr(variant, name):
+            raise AttributeError(f"AdversarialSegmentation has no {name}")
+        setattr(variant, name, value)
+    return variant
+
+
+def _restart(variant: AdversarialSegmentation, start: AdversarialSegmentation) -> None:
+    """Back to ``start``'s weights and iteration 0 (the next fit builds fresh optimisers)."""
+    variant.load_state_dict(start.state_dict())
+    variant.iteration = 0
+
+
+def run_speed(
+    backbone: str,
+    size: int,
+    batch_size: int,
+    iters: int,
+    repeats: int,
+    ndf: int,
+    freeze_bn: bool = True,
+    variants: list[str] | None = None,
+) -> None:
+    torch.manual_seed(0)
+    module = build_module(backbone, ndf=ndf, freeze_bn=freeze_bn)
+    batch = random_batch(size, batch_size)
+    calibrate_batchnorm(
+        module.segmenter, torch.cat([batch["source"]["image"], batch["target"]["image"]])
+    )
+    weights = module.loss_weights
+    speeds = {name: SPEED_VARIANTS[name] for name in variants or SPEED_VARIANTS}
+    # One instance per variant for the whole run: compiled networks compile in its first fit.
+    instances = {name: speed_variant(module, speed) for name, speed in speeds.items()}
+    first: dict[str, float] = {}
+    results: dict[str, list[float]] = {"plain": [], **{name: [] for name in speeds}}
+    names = list(results)
+    state = plain_state_from(module)
+    for repeat in range(repeats):
+        for name in names[repeat % len(names) :] + names[: repeat % len(names)]:
+            if name == "plain":
+                results["plain"] += time_plain(state, batch, iters, weights)[1:]
+                continue
+            times = time_lightning(instances[name], batch, iters, speeds[name].precision)
+            first.setdefault(name, times[0])
+            results[name] += times[1:]
+    # Same computation: 2 iterations of every variant from the same start, against eager.
+    losses: dict[str, list[dict[str, float]]] = {}
+    finals: dict[str, dict[str, Tensor]] = {}
+    for name, variant in instances.items():
+        _restart(variant, module)
+        losses[name] = []
+        time_lightning(variant, batch, 2, speeds[name].precision, losses[name])
+        finals[name] = {k: v.detach().float().clone() for k, v in variant.state_dict().items()}
+    plain = statistics.median(results["plain"])
+    eager = statistics.median(results["eager"]) if "eager" in results else plain
+    bn = "frozen BN" if freeze_bn else "BN trained (domains unbatched)"
+    print(
+        f"{backbone} {size}x{size} batch {batch_size} (D ndf {ndf}, {bn}): median s/iteration "
+        f"over {iters - 1} x {repeats} iterations each (the first of each fit excluded)"
+    )
+    print(
+        f"  {'variant':14s} {'s/it':>8s} {'vs plain':>9s} {'vs eager':>9s} {'compile s':>10s} "
+        f"{'max |dloss|/loss':>17s} {'max |dweight|':>14s}"
+    )
+    for name, times in results.items():
+        median = statistics.median(times)
+        compiled = speeds[name].settings.get("compile_networks") if name in speeds else False
+        compile_s = instances[name].compile_seconds if compiled else None
+        if compiled and compile_s is None:  # fewer than 2 iterations per fit
+            compile_s = first[name] - median
+        loss_diff = weight_diff = "-"
+        if name in losses and "eager" in losses and name != "eager":
+            loss_diff = f"{_max_relative(losses[name], losses['eager']):.1e}"
+            weight_diff = f"{_max_abs(finals[name], finals['eager']):.1e}"
+        print(
+            f"  {name:14s} {median:8.4f} {median / plain:9.3f} {median / eager:9.3f} "
+            f"{'-' if compile_s is None else f'{compile_s:.1f}':>10s} {loss_diff:>17s} "
+            f"{weight_diff:>14s}"
+        )
+
+
+def _max_relative(a: list[dict[str, float]], b: list[dict[str, float]]) -> float:
+    return max(
+        abs(x[k] - y[k]) / max(abs(y[k]), 1e-12)
+        for x, y in zip(a, b, strict=True)
+        for k in y
+        if k.startswith("train/loss")
+    )
+
+
+def _max_abs(a: dict[str, Tensor], b: dict[str, Tensor]) -> float:
+    return max(float((a[k] - b[k]).abs().max()) for k in b if b[k].is_floating_point())
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument(
@@ -324,6 +472,26 @@ def main() -> None:
         choices=["resnet101", "resnet50", "small", "tiny"],
         help="small: the demo's shapes; tiny: the small model at 33x33, batch 1, where compute "
         "is negligible and the difference to plain is Lightning's fixed cost per iteration",
+    )
+    parser.add_argument(
+        "--suite",
+        choices=["lightning", "speed"],
+        default="lightning",
+        help="lightning: the module's overhead over plain PyTorch (the batched / channels-last "
+        "variants); speed: compile, channels-last, bf16, fused optimisers and their "
+        "combination (trainer=fast_cpu) against the eager module",
+    )
+    parser.add_argument(
+        "--variants",
+        nargs="+",
+        choices=list(SPEED_VARIANTS),
+        help="--suite speed: only these variants (default: all)",
+    )
+    parser.add_argument(
+        "--warm-cache",
+        action="store_true",
+        help="--suite speed: keep inductor's compile cache (default: a fresh one, so the "
+        "compile time is that of a first run)",
     )
     parser.add_argument("--iters", type=int, default=6, help="iterations per repeat")
     parser.add_argument("--repeats", type=int, default=3)
@@ -348,6 +516,8 @@ def main() -> None:
         help="time the Lightning variants with the TQDM progress bar (interactive uss-train)",
     )
     args = parser.parse_args()
+    if args.suite == "speed":
+        return main_speed(args)
     global clock, progress_bar
     clock = CLOCKS[args.clock]
     progress_bar = args.progress_bar
@@ -369,6 +539,48 @@ def main() -> None:
             run("resnet_small", 33, 1, args.iters * 20, *settings)
         else:  # the paper's shapes
             run(name, 321, 1, args.iters, args.repeats, 64, not args.train_bn, compare)
+
+
+def main_speed(args: argparse.Namespace) -> None:
+    global clock
+    clock = CLOCKS[args.clock]
+    logging.getLogger("lightning.pytorch").setLevel(logging.WARNING)
+    torch.set_num_threads(args.threads)
+    with tempfile.TemporaryDirectory(prefix="inductor_") as cache:
+        if not args.warm_cache:
+            os.environ["TORCHINDUCTOR_CACHE_DIR"] = cache
+        print(
+            f"torch {torch.__version__}, {args.threads} threads, {args.clock} clock, "
+            f"{'warm' if args.warm_cache else 'cold'} compile cache, load "
+            f"{os.getloadavg()[0]:.1f}"
+        )
+        for name in args.models:
+            variants = args.variants
+            if name == "small":
+                run_speed(
+                    "resnet_small",
+                    129,
+                    4,
+                    args.iters * 4,
+                    args.repeats,
+                    16,
+                    not args.train_bn,
+                    variants,
+                )
+            elif name == "tiny":
+                run_speed(
+                    "resnet_small",
+                    33,
+                    1,
+                    args.iters * 20,
+                    args.repeats,
+                    16,
+                    not args.train_bn,
+                    variants,
+                )
+            else:
+                run_speed(name, 321, 1, args.iters, args.repeats, 64, not args.train_bn, variants)
+        print(f"load at the end {os.getloadavg()[0]:.1f}")
 
 
 if __name__ == "__main__":

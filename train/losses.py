@@ -31,12 +31,14 @@ class LossWeights:
 
 
 def upsample(logits: Tensor, size: tuple[int, int]) -> Tensor:
-    """Bilinear upsampling of ``(N, C, h, w)`` head logits to ``size = (H, W)``.
+    """Bilinear upsampling of ``(N, C, h, w)`` head logits to ``size = (H, W)``, in float32:
+    under mixed precision the heads return bfloat16 / float16 logits, and the softmax maps and
+    losses computed from them stay float32 (a no-op in full precision).
 
     ``align_corners=True`` as DeepLab-v2 and its adaptation descendants: an input of ``8k + 1``
     pixels maps its ``k + 1`` logit rows exactly onto pixel rows ``0, 8, ..., 8k``.
     """
-    return F.interpolate(logits, size=size, mode="bilinear", align_corners=True)
+    return F.interpolate(logits.float(), size=size, mode="bilinear", align_corners=True)
 
 
 def segmentation_loss(log_probs: Tensor, labels: Tensor) -> Tensor:
@@ -51,7 +53,9 @@ def segmentation_loss(log_probs: Tensor, labels: Tensor) -> Tensor:
 
 def domain_loss(d_logits: Tensor, domain: float) -> Tensor:
     """Binary cross-entropy of discriminator logits against a constant domain label
-    (eqs. 4–8: ``-log D`` for label 1, ``-log(1 - D)`` for label 0)."""
+    (eqs. 4–8: ``-log D`` for label 1, ``-log(1 - D)`` for label 0), in float32 also when the
+    discriminator ran in reduced precision."""
+    d_logits = d_logits.float()
     return F.binary_cross_entropy_with_logits(d_logits, torch.full_like(d_logits, domain))
 
 

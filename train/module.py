@@ -7,6 +7,12 @@ discriminators Adam) with their poly schedules, the own iteration counter, loggi
 and checkpoints (manual optimisation). What one training iteration computes is the *method*'s
 (config group ``model/method``, :mod:`uss_slam.train.methods`): ``adaptsegnet``, the paper's
 Algorithm 1 (the default), or ``source_only``, the "without ATL" baseline.
+
+Speed options that leave the computation unchanged (tested against the eager step):
+``compile`` (``torch.compile`` of the segmenter and both discriminators), ``channels_last``,
+``batch_domains`` and ``optimizer_kernels`` (foreach / fused optimiser steps). Mixed precision
+is the trainer's (``trainer.precision=bf16-mixed`` / ``16-mixed``); the losses are computed in
+float32 under it (:mod:`uss_slam.train.losses`).
 """
 
 from __future__ import annotations
@@ -14,9 +20,10 @@ from __future__ import annotations
 import contextlib
 import itertools
 import logging
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict
-from typing import Any
+from typing import Any, Literal
 
 import torch
 from lightning.pytorch import LightningModule
@@ -36,6 +43,10 @@ from uss_slam.train.schedules import PolyLR
 log = logging.getLogger(__name__)
 
 OptimizerFactory = Callable[..., Optimizer]
+OptimizerKernels = Literal["default", "foreach", "fused"]
+
+COMPILE_MODES = ("default", "reduce-overhead", "max-autotune", "max-autotune-no-cudagraphs")
+"""``torch.compile`` modes of the inductor backend."""
 
 __all__ = ["AdversarialSegmentation", "NonFiniteLossError"]
 
@@ -63,6 +74,20 @@ class AdversarialSegmentation(LightningModule):
             crops have one size. Identical losses and gradients; peak activation memory holds
             both domains at once (set ``False`` on a tight GPU).
         channels_last: NHWC memory layout for the networks and inputs (same results).
+        compile: ``torch.compile`` the segmenter and both discriminators in place (parameter
+            names, checkpoints and exports stay those of the eager networks). Compilation runs
+            in the first iteration (and again at the first validation batch, eval mode); its
+            cost is logged once as ``train/compile_s``.
+        compile_mode: ``torch.compile`` mode (inductor: ``default``, ``reduce-overhead``,
+            ``max-autotune``, ``max-autotune-no-cudagraphs``).
+        compile_backend: ``torch.compile`` backend (``inductor``: C++ on CPU, Triton on GPU).
+        compile_dynamic: ``torch.compile``'s ``dynamic``: ``False`` compiles one graph per input
+            shape (the discriminators see two batch sizes when domains are batched), ``None``
+            lets torch decide after a shape changes.
+        optimizer_kernels: how the optimisers update the weights: ``default`` (the optimiser
+            config's own choice; torch picks foreach on GPUs, a loop over tensors on CPU),
+            ``foreach`` (multi-tensor kernels) or ``fused`` (one fused kernel where the optimiser
+            and the device support it, else foreach; logged). Same update up to rounding.
     """
 
     def __init__(
@@ -79,6 +104,11 @@ class AdversarialSegmentation(LightningModule):
         class_names: Sequence[str] = CLASS_NAMES,
         batch_domains: bool = True,
         channels_last: bool = False,
+        compile: bool = False,
+        compile_mode: str = "default",
+        compile_backend: str = "inductor",
+        compile_dynamic: bool | None = False,
+        optimizer_kernels: OptimizerKernels = "default",
     ) -> None:
         super().__init__()
         if isinstance(max_iters, bool) or not isinstance(max_iters, int) or max_iters <= 0:
@@ -103,6 +133,23 @@ class AdversarialSegmentation(LightningModule):
         self.class_names = tuple(class_names)
         self.batch_domains = batch_domains
         self.channels_last = channels_last
+        self.compile_networks = compile
+        self.compile_options = self._check_compile_options(
+            compile_mode, compile_backend, compile_dynamic
+        )
+        if optimizer_kernels not in ("default", "foreach", "fused"):
+            raise UssSlamError(
+                "model.optimizer_kernels must be default, foreach or fused, got "
+                f"{optimizer_kernels!r}"
+            )
+        self.optimizer_kernels = optimizer_kernels
+        self._compiled = False
+        # Host seconds of the first two iterations this process runs with compiled networks:
+        # their difference is the compilation cost (train/compile_s).
+        self._first_iterations: list[float] = []
+        self._batch_started = 0.0
+        self.compile_seconds: float | None = None
+        """Compilation cost logged as ``train/compile_s`` (set after the second iteration)."""
         self.iteration = 0
         """Completed training iterations (saved in checkpoints)."""
         self._step_values: tuple[StepValues, int] | None = None
@@ -135,6 +182,23 @@ class AdversarialSegmentation(LightningModule):
             )
         return method
 
+    @staticmethod
+    def _check_compile_options(mode: str, backend: str, dynamic: bool | None) -> dict[str, Any]:
+        backends = torch.compiler.list_backends(exclude_tags=())
+        if backend not in backends:
+            raise UssSlamError(
+                f"model.compile_backend must be one of {', '.join(sorted(backends))}, "
+                f"got {backend!r}"
+            )
+        if backend == "inductor" and mode not in COMPILE_MODES:
+            raise UssSlamError(
+                f"model.compile_mode must be one of {', '.join(COMPILE_MODES)}, got {mode!r}"
+            )
+        options: dict[str, Any] = {"backend": backend, "dynamic": dynamic}
+        if backend == "inductor":
+            options["mode"] = mode
+        return options
+
     @property
     def adaptation(self) -> bool:
         """True when the method trains on target frames (read-only; choose the method with
@@ -147,12 +211,26 @@ class AdversarialSegmentation(LightningModule):
         lr = getattr(self.optimizer_factory, "keywords", {}).get("lr")
         if lr is None:
             raise UssSlamError("model.optimizer must set lr (the backbone learning rate)")
-        opt_seg = self.optimizer_factory(params=self.segmenter.param_groups(lr, self.head_lr_mult))
-        opt_d = self.d_optimizer_factory(
-            params=itertools.chain(self.d_aux.parameters(), self.d_main.parameters())
+        opt_seg = self._optimizer(
+            self.optimizer_factory, self.segmenter.param_groups(lr, self.head_lr_mult)
+        )
+        opt_d = self._optimizer(
+            self.d_optimizer_factory,
+            list(itertools.chain(self.d_aux.parameters(), self.d_main.parameters())),
         )
         schedules = [PolyLR(opt, self.max_iters, self.poly_power) for opt in (opt_seg, opt_d)]
         return [opt_seg, opt_d], schedules
+
+    def _optimizer(self, factory: OptimizerFactory, params: list[Any]) -> Optimizer:
+        """``factory(params)`` with the kernels of ``optimizer_kernels``."""
+        if self.optimizer_kernels == "default":
+            return factory(params=params)
+        if self.optimizer_kernels == "fused":
+            try:
+                return factory(params=params, fused=True, foreach=False)
+            except (RuntimeError, TypeError) as error:  # no fused kernel for this class / device
+                log.info("fused optimiser step unavailable (%s): using foreach", error)
+        return factory(params=params, foreach=True)
 
     # ------------------------------------------------------------------ training
 
@@ -167,9 +245,16 @@ class AdversarialSegmentation(LightningModule):
         return self.segmenter(images)
 
     def setup(self, stage: str) -> None:
+        nets = (self.segmenter, self.d_aux, self.d_main)
         if self.channels_last:
-            for net in (self.segmenter, self.d_aux, self.d_main):
+            for net in nets:
                 net.to(memory_format=torch.channels_last)
+        if self.compile_networks and not self._compiled:
+            # In place (nn.Module.compile): the state dict keeps the eager names. Compilation
+            # itself happens at the first call of each network (first iteration).
+            for net in nets:
+                net.compile(**self.compile_options)
+            self._compiled = True
 
     def _prepare(self, images: Tensor) -> Tensor:
         return (
@@ -213,6 +298,8 @@ class AdversarialSegmentation(LightningModule):
 
     def on_train_batch_start(self, batch: Any, batch_idx: int) -> int | None:
         self._step_values = None
+        if self._compiled and len(self._first_iterations) < 2:
+            self._batch_started = time.perf_counter()
         if self.iteration >= self.max_iters:
             self.trainer.should_stop = True
             return -1  # resumed a finished run: skip the rest of the epoch
@@ -221,6 +308,8 @@ class AdversarialSegmentation(LightningModule):
     def on_train_batch_end(self, outputs: Any, batch: Any, batch_idx: int) -> None:
         if self.iteration >= self.max_iters:
             self.trainer.should_stop = True
+        if self._compiled and len(self._first_iterations) < 2 and self._step_values is not None:
+            self._record_compile_time(time.perf_counter() - self._batch_started)
         # Logged here, after should_stop is known, and only on the steps that reach the loggers
         # (the values in between would never be written): each self.log costs ~0.5 ms of
         # Lightning bookkeeping, 8 scalars at every step were ~2% of a demo iteration.
@@ -228,6 +317,26 @@ class AdversarialSegmentation(LightningModule):
             step, n_src = self._step_values
             self.log_dict(self._train_scalars(step), on_step=True, on_epoch=False, batch_size=n_src)
         self._step_values = None
+
+    def _record_compile_time(self, seconds: float) -> None:
+        """After the second compiled iteration: log the first one's extra host time over the
+        second (compilation, plus one-off warm-up that an eager first iteration has too) once,
+        as a log line and ``train/compile_s``."""
+        self._first_iterations.append(seconds)
+        if len(self._first_iterations) < 2:
+            return
+        first, second = self._first_iterations
+        compile_s = max(first - second, 0.0)
+        self.compile_seconds = compile_s
+        if self.trainer.is_global_zero:
+            log.info(
+                "torch.compile: first iteration %.1f s, second %.2f s: compilation ~%.1f s",
+                first,
+                second,
+                compile_s,
+            )
+        for logger in self.loggers:
+            logger.log_metrics({"train/compile_s": compile_s}, step=self.iteration - 1)
 
     # ------------------------------------------------------------------ validation
 
