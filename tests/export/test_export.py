@@ -189,11 +189,12 @@ def test_failed_verification_keeps_earlier_files(
     good = export_segmenter(net, tmp_path / "m.onnx", _metadata())
     before = {p.name: p.read_bytes() for p in (good.path, good.verify_path)}
     monkeypatch.setattr(export_verify, "MAX_LOGIT_DIFF", -1.0)
+    monkeypatch.setattr(export_verify, "MAX_RELATIVE_LOGIT_DIFF", -1.0)
     with pytest.raises(ExportVerificationError, match="failed verification"):
         export_segmenter(_tiny_net(seed=9), tmp_path / "m.onnx", _metadata())
     assert {p.name: p.read_bytes() for p in (good.path, good.verify_path)} == before
     failed = json.loads((tmp_path / "m.verify.failed.json").read_text())
-    assert failed["ok"] is False and failed["max_logit_diff_allowed"] == -1.0
+    assert failed["ok"] is False and failed["max_logit_diff_allowed"] < 0
     assert sorted(p.name for p in tmp_path.iterdir()) == [
         "m.onnx",
         "m.verify.failed.json",
@@ -356,3 +357,26 @@ def test_tolerances_are_parameters(tmp_path: Path) -> None:
     assert failed["max_logit_diff_allowed"] == -1.0 and failed["min_label_agreement"] == 0.999
     assert failed["label_agreement"] >= 0.999  # only the tolerance made it fail
     assert sorted(p.name for p in tmp_path.iterdir()) == ["m.verify.failed.json"]
+
+
+def test_default_logit_tolerance_grows_with_the_logits(
+    exported: tuple[DeepLabV2, export.ExportResult], tmp_path: Path
+) -> None:
+    """Scaling the classifier by 1000 multiplies the logits (and float32 reordering errors) by
+    1000: the default tolerance follows the largest |logit|; an explicit one stays absolute."""
+    net = _tiny_net(seed=3)
+    with torch.no_grad():
+        for head in (net.main, net.aux):
+            for p in head.parameters():
+                p.mul_(1000.0)
+    result = export_segmenter(net, tmp_path / "big.onnx", _metadata())
+    report = json.loads(result.verify_path.read_text())
+    assert report["max_abs_logit"] > 10.0
+    assert report["max_logit_diff_allowed"] == pytest.approx(
+        max(
+            export_verify.MAX_LOGIT_DIFF,
+            export_verify.MAX_RELATIVE_LOGIT_DIFF * report["max_abs_logit"],
+        )
+    )
+    with pytest.raises(ExportVerificationError, match="failed verification"):
+        export_segmenter(net, tmp_path / "strict.onnx", _metadata(), max_logit_diff=1e-9)
