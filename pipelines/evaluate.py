@@ -24,7 +24,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -168,14 +168,21 @@ def model_kind(path: Path) -> str:
     return kind
 
 
-def load_segmenter(path: Path, threads: int | None = None) -> tuple[Callable, dict[str, Any]]:
-    """``(infer, info)`` of a ``.ckpt`` or ``.onnx`` model file."""
+def load_segmenter(
+    path: Path, threads: int | None = None, crf_params: Mapping[str, Any] | None = None
+) -> tuple[Callable, dict[str, Any]]:
+    """``(infer, info)`` of a ``.ckpt`` or ``.onnx`` model file; with ``crf_params`` (an ONNX
+    model only; empty = the CRF's defaults), followed by the dense CRF of ``uss-slam
+    segmenter.crf=true``."""
     if model_kind(path) == "checkpoint":
+        if crf_params is not None:
+            raise UssSlamError(f"{path}: the dense CRF runs on an exported .onnx model")
         model = CheckpointSegmenter(path, threads)
         return model.infer, model.info
     from uss_slam.slam_eval.onnx_segmenter import OnnxSegmenter
 
-    onnx = OnnxSegmenter(path, threads=threads)
+    crf = crf_params is not None
+    onnx = OnnxSegmenter(path, threads=threads, crf=crf, crf_params=crf_params if crf else None)
     meta = onnx.metadata
     info = {
         "path": str(path),
@@ -185,6 +192,8 @@ def load_segmenter(path: Path, threads: int | None = None) -> tuple[Callable, di
         "checkpoint_sha256": meta.checkpoint_sha256,
         "class_names": list(meta.class_names),
     }
+    if crf:
+        info["crf"] = dict(crf_params)
     return onnx.infer, info
 
 

@@ -38,7 +38,7 @@ from uss_slam.core.errors import UssSlamError
 from uss_slam.core.tum_io import StrPath
 
 from .frontend import OrbExtractor
-from .semantic_map import MapConfig
+from .semantic_map import MapConfig, keyframe_pixels
 
 KEY_OFFSET = 32768
 """OctoMap's key of the voxel at the origin (tree depth 16): key = floor(x / resolution) + 32768."""
@@ -158,20 +158,7 @@ class OctoMapBuilder:
         ``labels`` (H, W) uint8 or None, ``dynamic`` (H, W) bool pixels to leave out or None
         (the same pixels as :meth:`.SemanticMapBuilder.add`)."""
         start = time.thread_time()
-        s = self.config.stride
-        d = depth[::s, ::s]
-        keep = (d > 0) & (d <= self.config.max_depth)
-        if dynamic is not None:
-            keep &= ~dynamic[::s, ::s]
-        rows, cols = np.nonzero(keep)
-        xy = np.stack([cols * s, rows * s], axis=1).astype(np.float64)
-        cam = self.extractor.backproject(self.extractor.undistort(xy), d[rows, cols])
-        lab = (
-            np.full(len(rows), IGNORE_INDEX, np.uint8)
-            if labels is None
-            else labels[::s, ::s][rows, cols].astype(np.uint8)
-        )
-        colors = rgb[::s, ::s][rows, cols]
+        cam, colors, lab = keyframe_pixels(self.extractor, self.config, rgb, depth, labels, dynamic)
         self._keyframes.append(_Keyframe(keyframe_id, cam.astype(np.float32), lab, colors))
         self._cpu += time.thread_time() - start
 

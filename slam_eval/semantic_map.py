@@ -77,23 +77,12 @@ class SemanticMapBuilder:
     ) -> None:
         """Add one keyframe: ``rgb`` (H, W, 3) uint8, ``depth`` (H, W) metres, ``labels`` (H, W)
         uint8 or None, ``dynamic`` (H, W) bool pixels to leave out or None."""
-        s = self.config.stride
-        d = depth[::s, ::s]
-        keep = (d > 0) & (d <= self.config.max_depth)
-        if dynamic is not None:
-            keep &= ~dynamic[::s, ::s]
-        rows, cols = np.nonzero(keep)
-        if len(rows) == 0:
+        cam, colors, lab = keyframe_pixels(self.extractor, self.config, rgb, depth, labels, dynamic)
+        if len(cam) == 0:
             self.keyframes += 1
             return
-        xy = np.stack([cols * s, rows * s], axis=1).astype(np.float64)
-        cam = self.extractor.backproject(self.extractor.undistort(xy), d[rows, cols])
         world = transform(pose_wc, cam).astype(np.float32)
-        colors = rgb[::s, ::s][rows, cols]
-        if labels is None:
-            lab = np.full(len(rows), IGNORE_INDEX, np.uint8)
-        else:
-            lab = labels[::s, ::s][rows, cols].astype(np.uint8)
+        if labels is not None:
             known = (lab > 0) & (lab < len(CLASS_COLORS))
             colors = colors.copy()
             colors[known] = CLASS_COLORS[lab[known]]
@@ -103,6 +92,35 @@ class SemanticMapBuilder:
     def build(self) -> PointCloud:
         """The merged cloud of every keyframe added so far."""
         return merge_clouds(self._chunks, self.config.voxel)
+
+
+def keyframe_pixels(
+    extractor: OrbExtractor,
+    config: MapConfig,
+    rgb: np.ndarray,
+    depth: np.ndarray,
+    labels: np.ndarray | None,
+    dynamic: np.ndarray | None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The pixels a keyframe gives the maps: every ``config.stride``-th pixel with depth in
+    (0, ``config.max_depth``], minus ``dynamic``; as camera-frame points (N, 3) float64, their
+    image colours (N, 3) uint8 and labels (N,) uint8 (``IGNORE_INDEX`` without ``labels``)."""
+    s = config.stride
+    d = depth[::s, ::s]
+    keep = (d > 0) & (d <= config.max_depth)
+    if dynamic is not None:
+        keep &= ~dynamic[::s, ::s]
+    rows, cols = np.nonzero(keep)
+    if len(rows) == 0:
+        return np.zeros((0, 3)), np.zeros((0, 3), np.uint8), np.zeros(0, np.uint8)
+    xy = np.stack([cols * s, rows * s], axis=1).astype(np.float64)
+    cam = extractor.backproject(extractor.undistort(xy), d[rows, cols])
+    colors = rgb[::s, ::s][rows, cols]
+    if labels is None:
+        lab = np.full(len(rows), IGNORE_INDEX, np.uint8)
+    else:
+        lab = labels[::s, ::s][rows, cols].astype(np.uint8)
+    return cam, colors, lab
 
 
 def merge_clouds(clouds: list[PointCloud], voxel: float) -> PointCloud:

@@ -101,28 +101,6 @@ def run_train(folder: Path, spec: Mapping[str, Any]) -> dict[str, Any]:
     }
 
 
-def crf_segmenter(
-    path: Path, threads: int | None, params: Mapping[str, Any]
-) -> tuple[Callable[[Any], Any], dict[str, Any]]:
-    """``(infer, info)`` of an exported model with the dense CRF of ``uss-slam
-    segmenter.crf=true`` (the same runtime, parameters ``params``; empty = its defaults)."""
-    from uss_slam.core.files import file_sha256
-    from uss_slam.slam_eval.onnx_segmenter import OnnxSegmenter
-
-    onnx = OnnxSegmenter(path, threads=threads, crf=True, crf_params=params)
-    meta = onnx.metadata
-    info = {
-        "path": str(path),
-        "kind": "onnx",
-        "sha256": file_sha256(path),
-        "experiment": meta.experiment,
-        "checkpoint_sha256": meta.checkpoint_sha256,
-        "class_names": list(meta.class_names),
-        "crf": dict(params),
-    }
-    return onnx.infer, info
-
-
 def run_segeval(folder: Path, spec: Mapping[str, Any]) -> dict[str, Any]:
     """An exported model's mIoU, per-class IoU and person-mask frame metrics (``uss-eval``'s)
     on the labelled frames of every evaluation sequence (every ``stride``-th), per sequence
@@ -134,10 +112,7 @@ def run_segeval(folder: Path, spec: Mapping[str, Any]) -> dict[str, Any]:
     from uss_slam.core.seg_metrics import iou_report, mask_metrics
     from uss_slam.pipelines.evaluate import evaluate_frames, load_segmenter, sequence_frames
 
-    if spec.get("crf") is None:
-        infer, info = load_segmenter(Path(spec["model"]), spec.get("threads"))
-    else:
-        infer, info = crf_segmenter(Path(spec["model"]), spec.get("threads"), spec["crf"])
+    infer, info = load_segmenter(Path(spec["model"]), spec.get("threads"), spec.get("crf"))
     dynamic = [CLASS_NAMES.index(c) for c in spec.get("dynamic_classes", ["person"])]
     n = len(CLASS_NAMES)
     pooled = np.zeros((n, n), np.int64)
