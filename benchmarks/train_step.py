@@ -282,6 +282,20 @@ VARIANTS = {
 }
 
 
+def benchmark_start(
+    backbone: str, size: int, batch_size: int, ndf: int, freeze_bn: bool
+) -> tuple[AdversarialSegmentation, dict]:
+    """The seeded module and fixed random batch every variant starts from (BatchNorm
+    statistics calibrated on the batch)."""
+    torch.manual_seed(0)
+    module = build_module(backbone, ndf=ndf, freeze_bn=freeze_bn)
+    batch = random_batch(size, batch_size)
+    calibrate_batchnorm(
+        module.segmenter, torch.cat([batch["source"]["image"], batch["target"]["image"]])
+    )
+    return module, batch
+
+
 def run(
     backbone: str,
     size: int,
@@ -292,12 +306,7 @@ def run(
     freeze_bn: bool = True,
     compare: type[AdversarialSegmentation] | None = None,
 ) -> None:
-    torch.manual_seed(0)
-    module = build_module(backbone, ndf=ndf, freeze_bn=freeze_bn)
-    batch = random_batch(size, batch_size)
-    calibrate_batchnorm(
-        module.segmenter, torch.cat([batch["source"]["image"], batch["target"]["image"]])
-    )
+    module, batch = benchmark_start(backbone, size, batch_size, ndf, freeze_bn)
     weights = module.loss_weights
     results: dict[str, list[float]] = {"plain": [], **{name: [] for name in VARIANTS}}
     if compare is not None:
@@ -392,12 +401,7 @@ def run_speed(
     freeze_bn: bool = True,
     variants: list[str] | None = None,
 ) -> None:
-    torch.manual_seed(0)
-    module = build_module(backbone, ndf=ndf, freeze_bn=freeze_bn)
-    batch = random_batch(size, batch_size)
-    calibrate_batchnorm(
-        module.segmenter, torch.cat([batch["source"]["image"], batch["target"]["image"]])
-    )
+    module, batch = benchmark_start(backbone, size, batch_size, ndf, freeze_bn)
     weights = module.loss_weights
     speeds = {name: SPEED_VARIANTS[name] for name in variants or SPEED_VARIANTS}
     # One instance per variant for the whole run: compiled networks compile in its first fit.
