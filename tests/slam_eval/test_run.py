@@ -12,6 +12,7 @@ import pytest
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
+from uss_slam.core.classes import CLASS_NAMES
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.tum_io import read_trajectory
 from uss_slam.slam_eval.config import filter_defaults
@@ -94,7 +95,8 @@ def test_run_writes_every_output(synthetic_sequence, tmp_path: Path) -> None:
     assert len(trajectory) == 30
     cloud = read_ply(out / "map.ply")
     assert len(cloud) == metrics["semantic_map_points"] > 1000
-    assert 1 not in set(cloud.labels.tolist())  # people are filtered out of the map
+    person = CLASS_NAMES.index("person")
+    assert person not in set(cloud.labels.tolist())  # people are filtered out of the map
     report = (out / "report.md").read_text()
     assert "| ATE [m] |" in report and "| semantic |" in report and "![trajectory.png]" in report
 

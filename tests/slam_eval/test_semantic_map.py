@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from uss_slam.core.classes import CLASS_COLORS, IGNORE_INDEX
+from uss_slam.core.classes import CLASS_COLORS, CLASS_NAMES, IGNORE_INDEX
 from uss_slam.core.errors import DataFormatError
 from uss_slam.core.tum_io import TUM_CAMERAS
 from uss_slam.slam_eval.frontend import OrbConfig, OrbExtractor
@@ -47,7 +47,7 @@ def test_keyframe_points_colours_and_dynamic_pixels() -> None:
     expected = int(((depth > 0) & ~dynamic).sum())
     assert len(cloud) == expected  # tiny voxels: one point per pixel
     np.testing.assert_allclose(cloud.points[:, 2], 5.0, atol=1e-5)  # depth 2 m + pose z 3 m
-    assert 1 not in cloud.labels  # the person is left out
+    assert CLASS_NAMES.index("person") not in cloud.labels  # the person is left out
     monitor = cloud.labels == 3
     assert monitor.sum() == 100
     np.testing.assert_array_equal(cloud.colors[monitor], np.tile(CLASS_COLORS[3], (100, 1)))
