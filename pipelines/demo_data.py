@@ -32,6 +32,7 @@ from uss_slam.core.errors import UssSlamError
 from uss_slam.core.tum_io import read_file_list
 from uss_slam.synthetic import render_sequence, render_voc
 from uss_slam.synthetic.output import check_size, staged_output
+from uss_slam.synthetic.textures import WARDROBES
 
 TRAIN_PRESETS = ("walking_xyz", "walking_rpy", "walking_halfsphere", "sitting_static")
 """Target training sequences (one seed each: ``seed + 1 + k``)."""
@@ -57,8 +58,13 @@ class DemoData:
     train_size: tuple[int, int] = (320, 240)
     slam_frames: int = 300
     slam_size: tuple[int, int] = (640, 480)
+    source_outfits: str = "classic"  # the VOC set's people's clothing (synthetic.WARDROBES)
 
     def __post_init__(self) -> None:
+        if self.source_outfits not in WARDROBES:
+            raise UssSlamError(
+                f"source_outfits must be one of {', '.join(WARDROBES)}, got {self.source_outfits!r}"
+            )
         if self.voc_images < 0:
             raise UssSlamError(f"voc_images must be >= 0 (0 skips), got {self.voc_images}")
         for name in ("train_frames", "val_frames", "slam_frames"):
@@ -69,8 +75,9 @@ class DemoData:
             check_size(getattr(self, name))
 
     def record(self) -> dict[str, Any]:
-        """The content of ``demo.yaml`` (same keys and order as ever: old data sets match)."""
-        return {
+        """The content of ``demo.yaml`` (same keys and order as ever: old data sets match;
+        ``source_outfits`` only when not ``classic``)."""
+        record = {
             "generator": GENERATOR,
             "seed": self.seed,
             "voc_images": self.voc_images,
@@ -81,6 +88,9 @@ class DemoData:
             "slam_frames": self.slam_frames,
             "slam_size": list(self.slam_size),
         }
+        if self.source_outfits != "classic":
+            record["source_outfits"] = self.source_outfits
+        return record
 
 
 def is_complete(out: Path, spec: DemoData) -> bool:
@@ -98,7 +108,8 @@ def _tasks(root: Path, spec: DemoData) -> list[Task]:
     tasks: list[Task] = []
     if spec.voc_images:
         tasks.append(("voc", render_voc, dict(out_dir=root / "voc", images=spec.voc_images,
-                                              size=spec.voc_size, seed=spec.seed)))  # fmt: skip
+                                              size=spec.voc_size, seed=spec.seed,
+                                              outfits=spec.source_outfits)))  # fmt: skip
     if spec.train_frames:
         for k, preset in enumerate(TRAIN_PRESETS):
             tasks.append((f"target_train/{preset}", render_sequence, dict(

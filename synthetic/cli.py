@@ -25,6 +25,7 @@ from .output import (
 )
 from .sequence import render_sequence
 from .styles import STYLES
+from .textures import WARDROBES
 from .voc import render_voc
 
 
@@ -154,6 +155,14 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="WxH",
         help="image size (default: 320x240)",
     )
+    voc.add_argument(
+        "--outfits",
+        choices=WARDROBES,
+        default="classic",
+        help="the people's clothing: classic = saturated stripes, checks and prints (12 outfits); "
+        "varied = every kind of fabric and colour, a new wardrobe of 4 outfits every 20 images "
+        "(default: classic)",
+    )
     common(voc)
 
     return parser
@@ -177,7 +186,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                   f"{args.size[0]}x{args.size[1]}) to {out}")  # fmt: skip
         else:
             out = render_voc(args.out, images=args.images, size=args.size, seed=args.seed,
-                             overwrite=args.overwrite, progress=not args.quiet)  # fmt: skip
+                             outfits=args.outfits, overwrite=args.overwrite,
+                             progress=not args.quiet)  # fmt: skip
             print(f"wrote {args.images} images ({args.size[0]}x{args.size[1]}) to {out}")
     except SynthArgumentError as err:
         print(f"uss-synth: error: {err}", file=sys.stderr)

@@ -353,6 +353,78 @@ def _src_shirt(rng, size: int) -> np.ndarray:
     return img
 
 
+def _wardrobe_colour(rng) -> RGB:
+    """Any clothing colour: saturated or muted, light or dark (the varied wardrobe)."""
+    return _vivid(rng) if rng.random() < 0.5 else _muted(rng, 25, 235)
+
+
+def _varied_shirt(rng, size: int) -> np.ndarray:
+    """A shirt of the varied wardrobe: any colours, and one of six kinds of fabric.
+
+    Real photo sets show people in every kind of clothing; the classic source shirts are only
+    saturated stripes, checks and prints. Plain, striped, checked, plaid, blotched and printed
+    fabrics in saturated or muted colours, with a weave texture of random strength.
+    """
+    a, b = _contrasting(rng, lambda: _wardrobe_colour(rng))
+    img = np.full((size, size, 3), a, np.uint8)
+    kind = int(rng.integers(0, 6))
+    step = int(rng.integers(16, 56))
+    if kind == 1:  # stripes, either way
+        for p in range(0, size, step):
+            if rng.random() < 0.5:
+                _rect(img, 0, p, size, step // 2, b)
+            else:
+                _rect(img, p, 0, step // 2, size, b)
+    elif kind == 2:  # checks
+        for y in range(0, size, step):
+            for x in range(0, size, step):
+                if (x // step + y // step) % 2:
+                    _rect(img, x, y, step - 1, step - 1, b)
+    elif kind == 3:  # plaid
+        for p in range(0, size, step):
+            _rect(img, p, 0, step // 3, size, b)
+            _rect(img, 0, p, size, step // 3, _shade(b, 0.7))
+    elif kind == 4:  # blotches
+        n = _periodic_noise(rng, size, rng.uniform(4, 12))
+        img = np.where((n > rng.uniform(-0.3, 0.5))[..., None], np.array(a, np.uint8),
+                       np.array(b, np.uint8)).astype(np.uint8)  # fmt: skip
+        img = np.ascontiguousarray(img)
+    elif kind == 5:  # print
+        _print(img, rng, (a, b), int(rng.integers(100, 700)), 3, 8)
+    # kind 0: plain, with the seams and a few marks below
+    _scatter(
+        img, rng, int(rng.integers(20, 200)), 2, 6, lambda: _shade(a, float(rng.choice([0.5, 1.6])))
+    )
+    return _modulate(img, _periodic_noise(rng, size, rng.uniform(1.0, 3.0)), rng.uniform(0.0, 0.2))
+
+
+def _varied_trousers(rng, size: int) -> np.ndarray:
+    """Trousers of the varied wardrobe: dark saturated, denim or muted, with seams."""
+    pick = rng.random()
+    if pick < 0.35:
+        base = _shade(_vivid(rng), 0.45)
+    elif pick < 0.7:
+        base = tuple(int(c) for c in np.array((50, 70, 120)) * rng.uniform(0.6, 1.4))
+    else:
+        base = _muted(rng, 25, 200)
+    img = _tgt_noisy(rng, size, base, rng.uniform(0.05, 0.35), rng.uniform(1.0, 3.0))
+    seam = _shade(base, 2.4) if rng.random() < 0.5 else (200, 180, 120)
+    for x in range(0, size, int(rng.integers(24, 60))):
+        cv2.line(img, (x, 0), (x, size), seam, 2)
+    for _ in range(int(rng.integers(4, 14))):
+        x, y = rng.uniform(0, size, 2)
+        _rect(img, x, y, rng.uniform(15, 40), rng.uniform(15, 40), seam, 2)
+    _scatter(
+        img,
+        rng,
+        int(rng.integers(50, 250)),
+        2,
+        6,
+        lambda: _shade(base, float(rng.choice([0.4, 2.2]))),
+    )
+    return img
+
+
 def _src_trousers(rng, size: int) -> np.ndarray:
     base = _shade(_vivid(rng), 0.45)
     light = _shade(base, 2.6)
@@ -711,4 +783,34 @@ def texture_bank(family: str, variant: int = 0) -> TextureBank:
     for role in ROLES:
         rng = stream(variant, f"texture/{family}/{role.name}")
         images.append(_generate(role, family, rng))
+    return TextureBank(images, [r.texel for r in ROLES])
+
+
+WARDROBES = ("classic", "varied")
+"""People's clothing in the VOC-style source set: ``classic`` = the outfits of the source banks
+(saturated stripes, checks and prints: 3 banks x 4 slots); ``varied`` = a new wardrobe every
+:data:`WARDROBE_IMAGES` images, drawn from every kind of fabric and colour."""
+WARDROBE_IMAGES = 20
+"""Consecutive VOC images that share one wardrobe of the ``varied`` kind (4 outfits)."""
+
+
+def _wardrobe_image(role: Role, rng: np.random.Generator) -> np.ndarray:
+    kind = role.name.rsplit("_", 1)[0]
+    if kind == "shirt":
+        return _varied_shirt(rng, role.size)
+    if kind == "trousers":
+        return _varied_trousers(rng, role.size)
+    return _generate(role, "source", rng)  # skin tones and hair as in the classic wardrobe
+
+
+@functools.lru_cache(maxsize=4)
+def wardrobe_bank(variant: int, wardrobe: int) -> TextureBank:
+    """Source bank ``variant`` with the people's materials of varied wardrobe ``wardrobe``."""
+    base = texture_bank("source", variant)
+    images = [
+        _wardrobe_image(role, stream(wardrobe, f"texture/wardrobe/{role.name}"))
+        if role.name.startswith(("shirt_", "trousers_", "skin_", "hair_"))
+        else base.images[i]
+        for i, role in enumerate(ROLES)
+    ]
     return TextureBank(images, [r.texel for r in ROLES])

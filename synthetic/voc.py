@@ -28,7 +28,7 @@ from .renderer import Renderer
 from .scene import Scene, random_scene
 from .seeding import stream
 from .styles import to_uint8
-from .textures import texture_bank
+from .textures import WARDROBE_IMAGES, WARDROBES, texture_bank, wardrobe_bank
 
 VOC_VARIANTS = 3
 """Texture banks the set draws from (image ``i`` uses bank ``i % VOC_VARIANTS``)."""
@@ -75,11 +75,23 @@ def _inside_something(point: np.ndarray, prims: PrimArrays, margin: float = 0.15
     return bool(((point >= lo) & (point <= hi)).all(axis=1).any())
 
 
-def render_voc_sample(seed: int, index: int, size: tuple[int, int]) -> VocSample:
-    """Render image ``index`` of the set with ``seed`` (deterministic, independent of the others)."""
+def render_voc_sample(
+    seed: int, index: int, size: tuple[int, int], outfits: str = "classic"
+) -> VocSample:
+    """Render image ``index`` of the set with ``seed`` (deterministic, independent of the others).
+
+    ``outfits``: the people's clothing, one of :data:`~.textures.WARDROBES`.
+    """
+    if outfits not in WARDROBES:
+        raise SynthArgumentError(
+            f"unknown outfits {outfits!r}; choose one of {', '.join(WARDROBES)}"
+        )
     rng = stream(seed, "voc/view", index)
     w, h = size
-    bank = texture_bank("source", index % VOC_VARIANTS)
+    if outfits == "classic":
+        bank = texture_bank("source", index % VOC_VARIANTS)
+    else:
+        bank = wardrobe_bank(index % VOC_VARIANTS, index // WARDROBE_IMAGES)
     for attempt in range(200):
         scene: Scene = random_scene(seed, index * 1000 + attempt // 20)
         prims = scene.prims_at(0.0)
@@ -118,6 +130,7 @@ def render_voc(
     images: int,
     size: tuple[int, int] = (320, 240),
     seed: int = 0,
+    outfits: str = "classic",
     overwrite: bool = False,
     progress: bool = False,
 ) -> Path:
@@ -126,7 +139,13 @@ def render_voc(
     ``images`` JPEGs (quality 90) with palette PNG labels; ``train.txt`` / ``val.txt`` (every
     fifth image) and ``trainval.txt``. Returns the ``.../VOC2012`` path. The folder appears only
     when complete; an existing non-empty ``out_dir`` is an error unless ``overwrite``.
+    ``outfits``: the people's clothing (:data:`~.textures.WARDROBES`; ``varied``: every kind of
+    fabric and colour, a new wardrobe of 4 outfits every 20 images).
     """
+    if outfits not in WARDROBES:
+        raise SynthArgumentError(
+            f"unknown outfits {outfits!r}; choose one of {', '.join(WARDROBES)}"
+        )
     if isinstance(images, bool) or not isinstance(images, (int, np.integer)) or images < 1:
         raise SynthArgumentError(f"images must be an integer >= 1, got {images!r}")
     size = check_size(size)
@@ -143,7 +162,7 @@ def render_voc(
             folder.mkdir(parents=True)
         names = []
         for i in tqdm(range(images), desc="VOC images", unit="img", disable=not progress):
-            sample = render_voc_sample(seed, i, size)
+            sample = render_voc_sample(seed, i, size, outfits)
             write_jpeg(jpeg / f"{sample.name}.jpg", sample.rgb)
             png = Image.fromarray(voc_indices(sample.labels, band), mode="P")
             png.putpalette(palette)

@@ -46,6 +46,7 @@ def demo_data_spec(exp: Experiment) -> Any:
         val_frames=int(syn["val_frames"]),
         train_size=parse_size(str(syn["train_size"])),
         slam_frames=0,
+        source_outfits=str(syn.get("source_outfits", "classic")),
     )
 
 

@@ -47,11 +47,19 @@ def test_record_is_unchanged_for_existing_data_sets() -> None:
         ({"voc_images": -1}, "voc_images must be >= 0"),
         ({"slam_frames": 1}, "slam_frames must be 0 (skip) or >= 2, got 1"),
         ({"train_size": (8, 8)}, "between 16x16"),
+        ({"source_outfits": "bogus"}, "source_outfits must be one of classic, varied, got 'bogus'"),
     ],
 )
 def test_bad_spec(kwargs: dict, message: str) -> None:
     with pytest.raises(UssSlamError, match=message.replace("(", r"\(").replace(")", r"\)")):
         DemoData(**kwargs)
+
+
+def test_source_outfits_record() -> None:
+    """Classic data sets keep the record they always had (so they are reused); varied ones say so."""
+    assert "source_outfits" not in DemoData().record()
+    assert DemoData(source_outfits="varied").record()["source_outfits"] == "varied"
+    assert DemoData(source_outfits="varied").record() != DemoData().record()
 
 
 def test_small_data_set(tmp_path: Path) -> None:

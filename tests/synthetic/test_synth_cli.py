@@ -37,6 +37,7 @@ def _run(args: list[str], cwd: Path) -> subprocess.CompletedProcess:
         ),
         (["sequence", "--preset", "walking_xyz"], "--out"),
         (["voc", "--images", "0", "--out", "x"], "must be >= 1"),
+        (["voc", "--outfits", "plain", "--out", "x"], "invalid choice: 'plain'"),
         (["demo", "--out", "x"], "invalid choice: 'demo'"),  # the demo data: uss-demo
         (["render", "--out", "x"], "invalid choice"),
     ],
@@ -151,5 +152,7 @@ def test_help_documents_everything(capsys) -> None:
             for word in ("--preset", "--frames", "--size", "--seed", "--style", "--out",
                          "--overwrite", "walking_halfsphere", "static_xyz", "5000"):  # fmt: skip
                 assert word in text, word
+        if command == ["voc"]:
+            assert "--outfits {classic,varied}" in text and "varied = every kind of" in text
         if command == []:
             assert "{sequence,voc}" in text and "killed" in text and OUTPUT_MARKER in text
