@@ -9,6 +9,7 @@ machine better than absolute time), and the frame rate the measured CPU times al
 cores (the machine this runs on is shared: its load average is printed).
 
     python benchmarks/slam_speed.py --data outputs/bench/slam --frames 300 --repeats 3
+    python benchmarks/slam_speed.py --filters --local-ba --loop-closing   # the back end on
 """
 
 from __future__ import annotations
@@ -36,20 +37,27 @@ def main() -> None:
     parser.add_argument("--size", default="640x480")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--filters", nargs="*", default=["semantic"])
+    parser.add_argument("--local-ba", action="store_true", help="slam.local_ba=true")
+    parser.add_argument("--loop-closing", action="store_true", help="slam.loop_closing=true")
     args = parser.parse_args()
     size = tuple(int(v) for v in args.size.lower().split("x"))
     path = sequence_path(args.data, args.preset, args.frames, size, 0)
     seq = TumSequence(path, load_labels=True)
     frames = [seq.load(i) for i in range(len(seq))]
     extractor = OrbExtractor(OrbConfig(), seq.camera)
-    print(f"{path}: {len(seq)} frames {size[0]}x{size[1]}, filters {args.filters}, "
-          f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f}")  # fmt: skip
+    print(f"{path}: {len(seq)} frames {size[0]}x{size[1]}, filters {args.filters}, local BA "
+          f"{args.local_ba}, loop closing {args.loop_closing}, {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f}")  # fmt: skip
 
     fps, ratios, own_ratios, modules, cpus, bounds = [], [], [], [], [], []
     worker_modules = {"read", "segmentation", "orb"}
     for repeat in range(args.repeats):
         result = SlamPipeline(
-            seq, LabelsSegmenter(), build_filters(args.filters), progress=False
+            seq,
+            LabelsSegmenter(),
+            build_filters(args.filters),
+            progress=False,
+            local_ba=args.local_ba,
+            loop_closing=args.loop_closing,
         ).run()
         start = time.perf_counter()
         for frame in frames:
