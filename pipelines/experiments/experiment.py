@@ -143,6 +143,9 @@ def check(cfg: DictConfig) -> Experiment:
         syn = plain["data"]["synthetic"]
         for key in ("voc_size", "train_size", "eval_size"):
             _size(f"data.synthetic.{key}", syn[key])
+        from uss_slam.synthetic.textures import WARDROBES
+
+        choose("data.synthetic.source_outfits", syn.get("source_outfits", "classic"), WARDROBES)
         used = training_seeds(int(syn["seed"]))
         for name in grid.sequences:
             if eval_seed(plain, name) in used:

@@ -162,6 +162,10 @@ def test_launcher_overrides_merge_the_stage_section() -> None:
         ),
         (["data.synthetic.eval_size=640"], "data.synthetic.eval_size: "),
         (
+            ["data.synthetic.source_outfits=plain"],
+            "data.synthetic.source_outfits: unknown value 'plain'; accepted: classic, varied",
+        ),
+        (
             ["scale=paper"],
             "data.real.voc: missing; data.kind=real needs the VOC folder (data.real.voc=PATH)",
         ),
