@@ -726,6 +726,10 @@ def downstream_ratio(none: float | None, model: float | None, oracle: float | No
     return (none - model) / (none - oracle)
 
 
+RATIO_FILTERS = ("semantic", "semantic_geometry")
+"""The filters of the downstream ratio tables (each when its SLAM runs were made)."""
+
+
 def table_ratio(rows, layout: Layout) -> tuple[list[dict[str, Any]], list[str]]:
     data: list[dict[str, Any]] = []
     needed = {"none", "oracle", "semantic"}
@@ -739,14 +743,16 @@ def table_ratio(rows, layout: Layout) -> tuple[list[dict[str, Any]], list[str]]:
     lines = [
         "### Downstream ratio (ATE_none − ATE_model) / (ATE_none − ATE_oracle)",
         "",
-        "Per sequence and seed, semantic filter: 1 = as good as ground-truth masks, 0 = no "
-        "better than no filter; — = a run failed or the oracle was no better than no "
-        "filter.",
+        "Per sequence and seed, for each model filter: 1 = as good as ground-truth masks, 0 = no "
+        "better than no filter; — = a run failed, was not made, or the oracle was no better "
+        "than no filter. Median and mean ± s.d. over the seeds.",
         "",
     ]
     configs = [c for c in (layout.source_only, *layout.adapted) if c is not None]
-    for system in layout.systems:
+    filters = [f for f in RATIO_FILTERS if f in layout.variants]
+    for system, variant in ((s, f) for s in layout.systems for f in filters):
         body = []
+        made = False
         per_sequence: dict[tuple[str, str], list[float]] = {}
         for config in configs:
             seeds = [r["seed"] for r in _select(rows, kind="train", config=config)]
@@ -755,17 +761,17 @@ def table_ratio(rows, layout: Layout) -> tuple[list[dict[str, Any]], list[str]]:
                 for sequence in layout.sequences:
                     none_ = _one(_slam_rows(rows, system, sequence, "none"))
                     oracle = _one(_slam_rows(rows, system, sequence, "oracle"))
-                    model = _one(
-                        [
-                            r
-                            for r in _slam_rows(rows, system, sequence, "semantic", config)
-                            if r["seed"] == seed
-                        ]
-                    )
-                    value = downstream_ratio(none_, model, oracle)
+                    runs = [
+                        r
+                        for r in _slam_rows(rows, system, sequence, variant, config)
+                        if r["seed"] == seed
+                    ]
+                    made = made or bool(runs)
+                    value = downstream_ratio(none_, _one(runs), oracle)
                     data.append(
                         {
                             "system": system,
+                            "filter": variant,
                             "config": config,
                             "seed": seed,
                             "sequence": sequence,
@@ -776,12 +782,15 @@ def table_ratio(rows, layout: Layout) -> tuple[list[dict[str, Any]], list[str]]:
                         per_sequence.setdefault((config, sequence), []).append(value)
                     cells.append("—" if value is None else f"{value:.3f}")
                 body.append(cells)
-            means = [
-                Stat(tuple(per_sequence.get((config, s), ()))).text(3) for s in layout.sequences
-            ]
-            body.append([config, "mean ± s.d.", *means])
+            values = [per_sequence.get((config, s), []) for s in layout.sequences]
+            body.append(
+                [config, "median", *(f"{statistics.median(v):.3f}" if v else "—" for v in values)]
+            )
+            body.append([config, "mean ± s.d.", *(Stat(tuple(v)).text(3) for v in values)])
+        if not made:  # e.g. ORB-SLAM3 has no semantic_geometry runs
+            continue
         lines += [
-            f"#### {system}",
+            f"#### {system}, {variant.replace('_', '+')}",
             "",
             *_md(["configuration", "seed", *layout.sequences], body),
             "",

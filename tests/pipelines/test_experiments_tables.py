@@ -112,7 +112,11 @@ def test_t1_t2_t3_ratio_and_failures(rows: list[dict], tmp_path: Path) -> None:
         "| 0.0350 ± 0.0071 (n=2, 1 failed) | 19.54% |"
     ) in text
 
-    ratio = {(r["config"], r["seed"]): r["ratio"] for r in data["downstream_ratio"]}
+    ratio = {
+        (r["config"], r["seed"]): r["ratio"]
+        for r in data["downstream_ratio"]
+        if r["filter"] == "semantic"
+    }
     assert ratio[("source_only", 0)] == pytest.approx((0.1 - 0.06) / (0.1 - 0.02))  # 0.5
     assert ratio[("source_only", 2)] == pytest.approx(0.25)
     assert ratio[("adaptsegnet_n5", 1)] == pytest.approx((0.1 - 0.047) / 0.08)  # 0.6625
@@ -120,6 +124,15 @@ def test_t1_t2_t3_ratio_and_failures(rows: list[dict], tmp_path: Path) -> None:
     assert "| source_only | mean ± s.d. | 0.375 ± 0.125 (n=3) |" in text
     assert "| adaptsegnet_n5 | mean ± s.d. | 0.706 ± 0.062 (n=2) |" in text
     assert "| adaptsegnet_n5 | 2 | — |" in text
+    assert "| source_only | median | 0.375 |" in text  # of 0.5, 0.25, 0.375
+    assert "| adaptsegnet_n5 | median | 0.706 |" in text  # of two seeds: their mean
+    geometry = {
+        (r["config"], r["seed"]): r["ratio"]
+        for r in data["downstream_ratio"]
+        if r["filter"] == "semantic_geometry"
+    }
+    assert geometry[("adaptsegnet_n5", 0)] == pytest.approx((0.1 - 0.03) / 0.08)
+    assert "#### harness, semantic+geometry" in text and "#### harness, semantic\n" in text
 
     assert "| none | oracle |" not in text  # labels, not names
     assert "| walking_xyz | 0.1000 (n=1) | 0.0200 (n=1) |" in text
