@@ -748,7 +748,9 @@ def table_ratio(rows, layout: Layout) -> tuple[list[dict[str, Any]], list[str]]:
         "than no filter. Median and mean ± s.d. over the seeds.",
         "",
     ]
-    configs = [c for c in (layout.source_only, *layout.adapted) if c is not None]
+    configs = list(
+        dict.fromkeys(c for c in (layout.source_only, *layout.adapted, *layout.methods) if c)
+    )
     filters = [f for f in RATIO_FILTERS if f in layout.variants]
     for system, variant in ((s, f) for s in layout.systems for f in filters):
         body = []
@@ -756,6 +758,8 @@ def table_ratio(rows, layout: Layout) -> tuple[list[dict[str, Any]], list[str]]:
         per_sequence: dict[tuple[str, str], list[float]] = {}
         for config in configs:
             seeds = [r["seed"] for r in _select(rows, kind="train", config=config)]
+            if not any(_slam_rows(rows, system, s, variant, config) for s in layout.sequences):
+                continue  # this filter was not run with this model
             for seed in seeds:
                 cells = [config, str(seed)]
                 for sequence in layout.sequences:

@@ -132,6 +132,11 @@ def test_t1_t2_t3_ratio_and_failures(rows: list[dict], tmp_path: Path) -> None:
         if r["filter"] == "semantic_geometry"
     }
     assert geometry[("adaptsegnet_n5", 0)] == pytest.approx((0.1 - 0.03) / 0.08)
+    assert ("source_only", 0) not in geometry  # source-only had no semantic+geometry runs
+    block = text.split("#### harness, semantic+geometry")[1].split("###")[0]
+    assert (
+        "| adaptsegnet_n5 | median | 0.812 |" in block
+    )  # of 0.875, 0.75 and "source_only" not in block
     assert "#### harness, semantic+geometry" in text and "#### harness, semantic\n" in text
 
     assert "| none | oracle |" not in text  # labels, not names
