@@ -26,21 +26,15 @@ from tqdm import tqdm
 from uss_slam.core.classes import CLASS_NAMES
 from uss_slam.core.seg_metrics import confusion_matrix, iou_per_class
 from uss_slam.synthetic.sequence import SequenceRenderer
-from uss_slam.synthetic.textures import ROLES, TextureBank, texture_bank
+from uss_slam.synthetic.textures import TextureBank, texture_bank, with_people
 
-PEOPLE_ROLES = ("shirt_", "trousers_", "skin_", "hair_")
 PERSON = CLASS_NAMES.index("person")
 
 
 def swapped_bank(target_variant: int, source_variant: int) -> TextureBank:
     """The target bank with the people's materials of source bank ``source_variant``."""
-    tgt = texture_bank("target", target_variant)
-    src = texture_bank("source", source_variant)
-    images = [
-        src.images[i] if r.name.startswith(PEOPLE_ROLES) else tgt.images[i]
-        for i, r in enumerate(ROLES)
-    ]
-    return TextureBank(images, [r.texel for r in ROLES])
+    source = texture_bank("source", source_variant)
+    return with_people(texture_bank("target", target_variant), lambda i, _: source.images[i])
 
 
 def main(argv: list[str] | None = None) -> int:

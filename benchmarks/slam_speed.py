@@ -46,7 +46,8 @@ def main() -> None:
     frames = [seq.load(i) for i in range(len(seq))]
     extractor = OrbExtractor(OrbConfig(), seq.camera)
     print(f"{path}: {len(seq)} frames {size[0]}x{size[1]}, filters {args.filters}, local BA "
-          f"{args.local_ba}, loop closing {args.loop_closing}, {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f}")  # fmt: skip
+          f"{args.local_ba}, loop closing {args.loop_closing}, {os.cpu_count()} CPUs, "
+          f"load average {os.getloadavg()[0]:.2f}")  # fmt: skip
 
     fps, ratios, own_ratios, modules, cpus, bounds = [], [], [], [], [], []
     worker_modules = {"read", "segmentation", "orb"}

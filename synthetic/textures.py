@@ -803,14 +803,23 @@ def _wardrobe_image(role: Role, rng: np.random.Generator) -> np.ndarray:
     return _generate(role, "source", rng)  # skin tones and hair as in the classic wardrobe
 
 
-@functools.lru_cache(maxsize=4)
-def wardrobe_bank(variant: int, wardrobe: int) -> TextureBank:
-    """Source bank ``variant`` with the people's materials of varied wardrobe ``wardrobe``."""
-    base = texture_bank("source", variant)
+PEOPLE_ROLES = ("shirt_", "trousers_", "skin_", "hair_")
+"""Name prefixes of the roles people wear (one of each per outfit slot)."""
+
+
+def with_people(base: TextureBank, people: Callable[[int, Role], np.ndarray]) -> TextureBank:
+    """``base`` with each people's material ``i`` (role ``r``) replaced by ``people(i, r)``."""
     images = [
-        _wardrobe_image(role, stream(wardrobe, f"texture/wardrobe/{role.name}"))
-        if role.name.startswith(("shirt_", "trousers_", "skin_", "hair_"))
-        else base.images[i]
+        people(i, role) if role.name.startswith(PEOPLE_ROLES) else base.images[i]
         for i, role in enumerate(ROLES)
     ]
     return TextureBank(images, [r.texel for r in ROLES])
+
+
+@functools.lru_cache(maxsize=4)
+def wardrobe_bank(variant: int, wardrobe: int) -> TextureBank:
+    """Source bank ``variant`` with the people's materials of varied wardrobe ``wardrobe``."""
+    return with_people(
+        texture_bank("source", variant),
+        lambda _, role: _wardrobe_image(role, stream(wardrobe, f"texture/wardrobe/{role.name}")),
+    )

@@ -75,6 +75,14 @@ def _inside_something(point: np.ndarray, prims: PrimArrays, margin: float = 0.15
     return bool(((point >= lo) & (point <= hi)).all(axis=1).any())
 
 
+def check_outfits(outfits: str) -> None:
+    """``outfits`` must be one of :data:`~.textures.WARDROBES` (else a one-line error)."""
+    if outfits not in WARDROBES:
+        raise SynthArgumentError(
+            f"unknown outfits {outfits!r}; choose one of {', '.join(WARDROBES)}"
+        )
+
+
 def render_voc_sample(
     seed: int, index: int, size: tuple[int, int], outfits: str = "classic"
 ) -> VocSample:
@@ -82,10 +90,7 @@ def render_voc_sample(
 
     ``outfits``: the people's clothing, one of :data:`~.textures.WARDROBES`.
     """
-    if outfits not in WARDROBES:
-        raise SynthArgumentError(
-            f"unknown outfits {outfits!r}; choose one of {', '.join(WARDROBES)}"
-        )
+    check_outfits(outfits)
     rng = stream(seed, "voc/view", index)
     w, h = size
     if outfits == "classic":
@@ -142,10 +147,7 @@ def render_voc(
     ``outfits``: the people's clothing (:data:`~.textures.WARDROBES`; ``varied``: every kind of
     fabric and colour, a new wardrobe of 4 outfits every 20 images).
     """
-    if outfits not in WARDROBES:
-        raise SynthArgumentError(
-            f"unknown outfits {outfits!r}; choose one of {', '.join(WARDROBES)}"
-        )
+    check_outfits(outfits)
     if isinstance(images, bool) or not isinstance(images, (int, np.integer)) or images < 1:
         raise SynthArgumentError(f"images must be an integer >= 1, got {images!r}")
     size = check_size(size)

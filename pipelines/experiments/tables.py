@@ -754,8 +754,14 @@ def table_ratio(rows, layout: Layout) -> tuple[list[dict[str, Any]], list[str]]:
     filters = [f for f in RATIO_FILTERS if f in layout.variants]
     for system, variant in ((s, f) for s in layout.systems for f in filters):
         body = []
-        made = False
         per_sequence: dict[tuple[str, str], list[float]] = {}
+        baselines = {
+            sequence: (
+                _one(_slam_rows(rows, system, sequence, "none")),
+                _one(_slam_rows(rows, system, sequence, "oracle")),
+            )
+            for sequence in layout.sequences
+        }
         for config in configs:
             seeds = [r["seed"] for r in _select(rows, kind="train", config=config)]
             if not any(_slam_rows(rows, system, s, variant, config) for s in layout.sequences):
@@ -763,14 +769,12 @@ def table_ratio(rows, layout: Layout) -> tuple[list[dict[str, Any]], list[str]]:
             for seed in seeds:
                 cells = [config, str(seed)]
                 for sequence in layout.sequences:
-                    none_ = _one(_slam_rows(rows, system, sequence, "none"))
-                    oracle = _one(_slam_rows(rows, system, sequence, "oracle"))
+                    none_, oracle = baselines[sequence]
                     runs = [
                         r
                         for r in _slam_rows(rows, system, sequence, variant, config)
                         if r["seed"] == seed
                     ]
-                    made = made or bool(runs)
                     value = downstream_ratio(none_, _one(runs), oracle)
                     data.append(
                         {
@@ -791,7 +795,7 @@ def table_ratio(rows, layout: Layout) -> tuple[list[dict[str, Any]], list[str]]:
                 [config, "median", *(f"{statistics.median(v):.3f}" if v else "—" for v in values)]
             )
             body.append([config, "mean ± s.d.", *(Stat(tuple(v)).text(3) for v in values)])
-        if not made:  # e.g. ORB-SLAM3 has no semantic_geometry runs
+        if not body:  # no model was run with this filter (e.g. ORB-SLAM3 + geometry)
             continue
         lines += [
             f"#### {system}, {variant.replace('_', '+')}",
