@@ -71,6 +71,7 @@ def check_shift(shift: str, key: str = "shift") -> str:
         raise UssSlamError(f"{key}: unknown shift {shift!r}; expected one of {', '.join(SHIFTS)}")
     return shift
 
+
 TRAIN_PRESETS = ("walking_xyz", "walking_rpy", "walking_halfsphere", "sitting_static")
 """Target training sequences (one seed each: ``seed + 1 + k``)."""
 SLAM_PRESETS = ("walking_xyz", "static_xyz")

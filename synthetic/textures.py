@@ -817,8 +817,8 @@ def any_garment(role: Role, rng: np.random.Generator) -> np.ndarray:
 
 ALL_ROOM_BANKS = (("source", 0), ("source", 1), ("source", 2), ("target", 1), ("target", 2),
                   ("target", 3))  # fmt: skip
-"""Room materials of the ``all`` wardrobe's images (image ``i``: ``ALL_ROOM_BANKS[i % 6]``): the
-three source banks and three target banks other than the recordings' office (target bank 0)."""
+"""Room materials of the ``all`` wardrobe's images (wardrobe ``w``: ``ALL_ROOM_BANKS[w % 6]``):
+the three source banks and three target banks other than the recordings' office (bank 0)."""
 
 
 @functools.lru_cache(maxsize=8)

@@ -30,7 +30,7 @@ from .primitives import PrimArrays
 from .renderer import Renderer
 from .scene import Scene, random_scene
 from .seeding import stream
-from .styles import STYLES, EXPOSURE_TIME, NoisePool, target_rgb, to_uint8
+from .styles import EXPOSURE_TIME, STYLES, NoisePool, target_rgb, to_uint8
 from .textures import (
     WARDROBE_IMAGES,
     WARDROBES,
@@ -123,7 +123,8 @@ def render_voc_sample(
     elif outfits == "varied":
         bank = wardrobe_bank(index % VOC_VARIANTS, index // WARDROBE_IMAGES)
     else:
-        bank = all_wardrobe_bank(index, index // WARDROBE_IMAGES)
+        # one room bank per wardrobe: a bank is built once for its 20 images
+        bank = all_wardrobe_bank(index // WARDROBE_IMAGES, index // WARDROBE_IMAGES)
     for attempt in range(200):
         scene: Scene = random_scene(seed, index * 1000 + attempt // 20)
         prims = scene.prims_at(0.0)
