@@ -65,9 +65,12 @@ def spec_of(data: Path) -> DemoData:
     )
 
 
-def train_overrides(data: Path, spec: DemoData, method: str, seed: int, iters: int) -> list[str]:
+def train_overrides(
+    data: Path, spec: DemoData, method: str, seed: int, iters: int, threads: int
+) -> list[str]:
     common = [
         "experiment=demo",
+        f"num_threads={threads}",
         f"paths.data_dir={data}",
         f"seed={seed}",
         f"model.max_iters={iters}",
@@ -136,7 +139,12 @@ def main() -> None:
     parser.add_argument("--methods", default="source_only,adaptsegnet,oracle")
     parser.add_argument("--iters", type=int, default=1200)
     parser.add_argument("--stride", type=int, default=5, help="every N-th test frame")
-    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument(
+        "--threads",
+        type=int,
+        default=2,
+        help="threads of each training and of the scoring (default: 2)",
+    )
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     spec = spec_of(args.data)
@@ -153,7 +161,9 @@ def main() -> None:
     for seed in seeds:
         for method in methods:
             run = args.runs / f"{method}_s{seed}"
-            cpu = train(run, train_overrides(args.data, spec, method, seed, args.iters))
+            cpu = train(
+                run, train_overrides(args.data, spec, method, seed, args.iters, args.threads)
+            )
             rows = {method: load_checkpoint(run / "checkpoints" / "last.ckpt").segmenter.eval()}
             if method == "source_only":
                 adabn = load_checkpoint(run / "checkpoints" / "last.ckpt").segmenter.eval()
