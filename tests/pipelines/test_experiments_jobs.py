@@ -14,9 +14,9 @@ import pytest
 from hydra import compose, initialize_config_dir
 
 from uss_slam.core.errors import DataFormatError, UssSlamError
+from uss_slam.core.files import write_json_atomic
 from uss_slam.pipelines.experiments import data, experiment, jobs, launch, plan
 from uss_slam.pipelines.runs import SlamJob
-from uss_slam.pipelines.stages import write_json_atomic
 
 CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
 PROG = [sys.executable, "-m", "uss_slam.pipelines.experiments.cli"]

@@ -150,8 +150,8 @@ def test_unwritable_output_folder_is_one_line(
         )
     else:
         assert (
-            err[0]
-            == f"uss-train: error: {key}: cannot write to {target}: {blocker} is not a folder"
+            err[0] == f"uss-train: error: {key}={target}: cannot create the output folder "
+            f"({blocker} is a file)"
         )
         assert _left_behind(tmp_path / "run") == set()
     assert blocker.read_text() == "not a folder\n"

@@ -3,11 +3,8 @@ that makes a run diverge."""
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from collections.abc import Sequence
 from pathlib import Path
-from types import ModuleType
 from typing import Any
 
 import torch
@@ -18,19 +15,6 @@ from lightning.pytorch import Callback, LightningModule, Trainer
 from omegaconf import DictConfig, open_dict
 
 CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
-BENCHMARK = Path(__file__).resolve().parents[2] / "benchmarks" / "train_step.py"
-
-
-def train_step_benchmark() -> ModuleType:
-    """``benchmarks/train_step.py`` (the plain-PyTorch reference and module builders), loaded
-    once per session under the name ``train_step_benchmark``."""
-    name = "train_step_benchmark"
-    if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(name, BENCHMARK)
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[name] = module
-        spec.loader.exec_module(module)
-    return sys.modules[name]
 
 
 def data_overrides(data: dict[str, Path]) -> list[str]:
