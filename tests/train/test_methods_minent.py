@@ -13,8 +13,8 @@ import torch.nn.functional as F
 import train_step as bench
 from hydra.utils import instantiate
 from lightning.pytorch import Trainer
+from shared_helpers import compose_train
 from torch import Tensor
-from train_helpers import compose_train
 
 from uss_slam.core.errors import UssSlamError
 from uss_slam.train.losses import LossWeights

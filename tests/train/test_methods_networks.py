@@ -11,7 +11,7 @@ import torch
 import train_step as bench
 from hydra.utils import instantiate
 from lightning.pytorch import Trainer
-from train_helpers import compose_train
+from shared_helpers import compose_train
 
 from uss_slam.models import SEGMENTERS
 

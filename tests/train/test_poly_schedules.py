@@ -13,7 +13,7 @@ import torch
 import train_step as bench
 from hydra.utils import instantiate
 from lightning.pytorch import Callback, LightningModule, Trainer
-from train_helpers import compose_train
+from shared_helpers import compose_train
 
 MAX_ITERS = 6
 

@@ -12,7 +12,7 @@ import pytest
 import torch
 import yaml
 from hydra.utils import instantiate
-from train_helpers import compose_train, data_overrides
+from shared_helpers import compose_train, data_overrides
 
 from uss_slam.train import train as train_cli
 
