@@ -10,8 +10,9 @@ Trains (with ``uss-train``, each run reused when its ``last.ckpt`` exists) and s
   re-estimated on 48 evenly spaced target training frames (AdaBN, row ``adabn``),
 
 and prints per seed and as mean +- standard error over seeds: mIoU, person IoU and closure =
-(method - source-only) / (oracle - source-only), paired by seed (source-only with its own
-statistics as the reference, AdaBN as a method). ``oracle`` = source-only trained on the
+(method - source-only) / (oracle - source-only) of the mean mIoU over the ``--test`` folders,
+paired by seed (source-only with its own statistics as the reference, AdaBN as a method;
+``--extra`` folders are scored, not in the closure). ``oracle`` = source-only trained on the
 *labelled* target training frames (same network, budget and crops; BatchNorm statistics from
 its own training). Data: a ``DemoData`` folder of any shift (``pipelines/demo_data.py``).
 
@@ -65,6 +66,21 @@ def spec_of(data: Path) -> DemoData:
     )
 
 
+DIAGNOSTICS = {
+    # the adversarial term alone: AdaptSegNet's weights scored with source BatchNorm statistics
+    "adaptsegnet+srcbn": ["model/method=adaptsegnet", "callbacks.precise_bn.domain=source"],
+    # ten times the paper's adversarial weights (lambda_adv_aux 0.002, lambda_adv_main 0.01)
+    "adaptsegnet+adv10": [
+        "model/method=adaptsegnet",
+        "model.loss.lambda_adv_aux=0.02",
+        "model.loss.lambda_adv_main=0.1",
+    ],  # fmt: skip
+    # ten times the discriminators' learning rate (Adam 1e-4)
+    "adaptsegnet+dlr10": ["model/method=adaptsegnet", "model.d_optimizer.lr=0.001"],
+}
+"""Rows that vary one knob of AdaptSegNet (``--methods adaptsegnet+adv10,...``)."""
+
+
 def train_overrides(
     data: Path, spec: DemoData, method: str, seed: int, iters: int, threads: int
 ) -> list[str]:
@@ -79,6 +95,8 @@ def train_overrides(
         "++trainer.enable_progress_bar=false",
         *spec.train_overrides(data),
     ]
+    if method in DIAGNOSTICS:
+        return [*common, *DIAGNOSTICS[method]]
     if method != "oracle":
         return [*common, f"model/method={method}"]
     roots = ",".join(str(data / f) for f in spec.target_folders())
@@ -133,7 +151,21 @@ def mean_se(values: list[float]) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--data", type=Path, required=True)
-    parser.add_argument("--test", type=Path, action="append", required=True)
+    parser.add_argument(
+        "--test",
+        type=Path,
+        action="append",
+        required=True,
+        help="a labelled target test folder (repeatable; closure is on these)",
+    )
+    parser.add_argument(
+        "--extra",
+        type=Path,
+        action="append",
+        default=[],
+        help="a labelled diagnostic folder, scored but not in the closure (e.g. "
+        "the test content in the source style)",
+    )
     parser.add_argument("--runs", type=Path, required=True)
     parser.add_argument("--seeds", default="0")
     parser.add_argument("--methods", default="source_only,adaptsegnet,oracle")
@@ -153,7 +185,7 @@ def main() -> None:
     args.runs.mkdir(parents=True, exist_ok=True)
     sets = {"source_val": VOCSegmentation(args.data / "voc", split="val",
                                           transform=eval_transform())}  # fmt: skip
-    for test in args.test:
+    for test in [*args.test, *args.extra]:
         sets[test.name] = TUMFrames([test], labels=True, stride=args.stride,
                                     transform=eval_transform())  # fmt: skip
     target = TUMFrames([args.data / f for f in spec.target_folders()], transform=eval_transform())
@@ -187,7 +219,7 @@ def main() -> None:
             cells.append(mean_se([per_seed[s][key]["mIoU"] for s in per_seed]))
             cells.append(mean_se([per_seed[s][key]["person"] for s in per_seed]))
         closure = []
-        if "oracle" in results and "source_only" in results and name not in ("source_only",):
+        if "oracle" in results and "source_only" in results and name != "source_only":
             for s in per_seed:
                 if s in results["oracle"] and s in results["source_only"]:
                     lo = np.mean([results["source_only"][s][t]["mIoU"] for t in tests])

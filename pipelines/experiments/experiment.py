@@ -159,11 +159,6 @@ def check(cfg: DictConfig) -> Experiment:
                     f"dresses the source in {SHIFT_WARDROBE[shift]}); set it to null, or use "
                     "data.synthetic.shift=full"
                 )
-        if shift == "appearance" and "slam" in stages and grid.sequences:
-            raise UssSlamError(
-                "data.synthetic.shift: appearance has no recordings to run SLAM on (its target "
-                "is images); use stages without slam, or shift=tum_like"
-            )
         used = training_seeds(int(syn["seed"]))
         for name in grid.sequences:
             if eval_seed(plain, name) in used:

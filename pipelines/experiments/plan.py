@@ -109,6 +109,12 @@ def export_stage(exp: Experiment, cell: TrainCell) -> Stage | None:
     return Stage(exp.out / "exports" / cell.model, key, outputs=(Path(f"{cell.model}.onnx"),))
 
 
+def images_only(exp: Experiment) -> bool:
+    """True when the evaluation data are labelled images, not recordings (the synthetic
+    ``appearance`` shift): segmentation is evaluated, SLAM is not run."""
+    return exp.synthetic and exp.cfg["data"]["synthetic"].get("shift") == "appearance"
+
+
 def checkpoint_policy(exp: Experiment) -> str:
     """The configured checkpoint policy (``train.checkpoint``, checked before any work)."""
     return str(exp.cfg["train"].get("checkpoint") or "last")
@@ -166,7 +172,7 @@ def plan_slam(exp: Experiment, data: Data, exports: Mapping[str, str]) -> list[J
                 key["crf"] = spec["crf"] = given(exp.cfg.get("crf_params"))
             row = {"kind": "segeval", **seg.model.describe(), "crf": int(seg.crf)}
             jobs.append(Job(seg.id, spec, row, needs=seg.model.model))
-    for cell in exp.grid.slams:
+    for cell in [] if images_only(exp) else exp.grid.slams:
         job = slam_job(exp, data, cell)
         overrides = job.overrides()
         model = cell.model.model if cell.model is not None else None
