@@ -43,13 +43,11 @@ from __future__ import annotations
 import importlib.util
 import json
 import logging
-import math
 import subprocess
 import sys
 import tempfile
 import time
 from collections import Counter
-from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -70,6 +68,7 @@ from uss_slam.core.tum_io import (
 
 from ...filters.dynamic import SemanticFilter
 from ...scoring import plots
+from ...scoring.repeats import median_index
 from ...scoring.report import STAT_KEYS, EvalConfig, Evaluation, evaluate
 from ...segmenters.base import Segmenter
 from ...sequence import TumSequence
@@ -535,13 +534,6 @@ class SequenceSpec:
             stride=self.stride,
             max_frames=self.max_frames,
         )
-
-
-def median_index(rmses: Sequence[float | None]) -> int:
-    """Index of the median run by ATE RMSE (a run without ATE counts as the worst); for an
-    even count the lower of the two middle runs, so the reported median is a real run's."""
-    order = sorted(range(len(rmses)), key=lambda i: (math.inf if rmses[i] is None else rmses[i], i))
-    return order[(len(order) - 1) // 2]
 
 
 def run_orbslam3(
