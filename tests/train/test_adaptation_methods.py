@@ -13,8 +13,8 @@ import torch.nn.functional as F
 from hydra.errors import ConfigCompositionException
 from hydra.utils import instantiate
 from lightning.pytorch import Trainer
+from shared_helpers import compose_train, data_overrides
 from torch import Tensor, nn
-from train_helpers import compose_train, data_overrides
 
 from uss_slam.core.errors import UssSlamError
 from uss_slam.train.losses import upsample
