@@ -28,7 +28,8 @@ from uss_slam.slam_eval.scoring.report import EvalConfig, evaluate
 from uss_slam.slam_eval.segmenters.base import LabelsSegmenter, NoSegmenter
 from uss_slam.slam_eval.sequence import TumSequence
 from uss_slam.slam_eval.systems.harness import SlamPipeline
-from uss_slam.slam_eval.systems.orbslam3.system import OrbSlam3Config, SequenceSpec, run_orbslam3
+from uss_slam.slam_eval.systems.orbslam3.config import OrbSlam3Config
+from uss_slam.slam_eval.systems.orbslam3.system import SequenceSpec, run_orbslam3
 from uss_slam.slam_eval.systems.orbslam3.vocabulary import build_from_sequences
 from uss_slam.synthetic import render_sequence
 

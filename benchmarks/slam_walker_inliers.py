@@ -246,7 +246,8 @@ def _orbslam3_worker(job_path: str) -> None:
     people; its trajectory after shutdown."""
     import pyorbslam3
 
-    from uss_slam.slam_eval.systems.orbslam3.system import OrbSlam3Config, frame_rate, settings_yaml
+    from uss_slam.slam_eval.systems.orbslam3.config import OrbSlam3Config
+    from uss_slam.slam_eval.systems.orbslam3.settings import frame_rate, settings_yaml
 
     job = json.loads(Path(job_path).read_text())
     out = Path(job["out"])
