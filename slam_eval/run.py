@@ -20,7 +20,8 @@ from uss_slam.core.files import check_writable
 
 from .config import check, register_configs, run_name
 from .filters.dynamic import build_filters
-from .scoring.report import evaluate, write_comparison, write_run
+from .scoring.evaluation import evaluate
+from .scoring.report import write_comparison, write_run
 from .scoring.run_folder import RunFolder
 from .segmenters.base import Segmenter
 from .sequence import TumSequence

@@ -14,7 +14,7 @@ import numpy as np
 
 from uss_slam.core.tum_io import Trajectory, read_trajectory, write_trajectory
 
-from ...scoring.report import Evaluation
+from ...scoring.evaluation import Evaluation
 
 TRACKING_STATES = (
     "SYSTEM_NOT_READY",

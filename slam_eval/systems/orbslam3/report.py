@@ -1,10 +1,10 @@
-"""The outputs of an ORB-SLAM3 run: ``trajectory.txt`` (the median repeat's), ``metrics.json``,
-``report.md`` and the plots.
+"""The outputs of an ORB-SLAM3 run: ``trajectory.txt`` (the median repeat's) and the
+``metrics.json`` of its repeats; ``report.md`` and the plots come from the one report writer of
+every system (:func:`~..scoring.report.write_report`).
 """
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
@@ -13,8 +13,9 @@ import numpy as np
 from uss_slam.core.classes import CLASS_NAMES
 
 from ...filters.dynamic import SemanticFilter
-from ...scoring import plots
-from ...scoring.report import STAT_KEYS, EvalConfig, Evaluation
+from ...scoring.evaluation import EvalConfig, Evaluation, scores_dict
+from ...scoring.report import fmt, write_report
+from ...scoring.run_folder import RunFolder
 from ...segmenters.base import Segmenter
 from ...sequence import TumSequence
 from .config import OrbSlam3Config
@@ -38,10 +39,15 @@ def write_outputs(
     results: list[RepeatResult],
     settings: dict[str, Any] | None,
 ) -> dict[str, Any]:
+    """Write the outputs of ORB-SLAM3's ``results`` (every repeat) into ``out``, each file
+    atomically: ``trajectory.txt`` (the median repeat's), ``metrics.json``, ``report.md`` and
+    the plots (``repeats.png`` holds every repeat). Returns the metrics dictionary."""
     median = results[median_index([r.ate_rmse for r in results])]
     chosen = median.evaluation or Evaluation(None, None, None, "not evaluated")
     n = len(sequence)
-    (out / "trajectory.txt").write_bytes(median.trajectory_path.read_bytes())
+    folder = RunFolder(out)
+    with folder.writing(out / "trajectory.txt") as tmp:
+        tmp.write_bytes(median.trajectory_path.read_bytes())
     rmses = [r.ate_rmse for r in results if r.ate_rmse is not None]
     header = read_header(vocabulary)
     data: dict[str, Any] = {
@@ -64,11 +70,7 @@ def write_outputs(
         "tracked_fraction": median.state_counts.get("OK", 0) / max(n, 1),
         "frames_without_pose": n - len(median.trajectory),
         "tracking_states": median.state_counts,
-        "ate": chosen.ate.stats.as_dict() if chosen.ate else None,
-        "rpe": _rpe(chosen.rpe, evaluation.rpe_delta, evaluation.rpe_unit),
-        "rpe_1s": _rpe(chosen.rpe_1s, 1.0, "seconds"),
-        "ate_error": chosen.error,
-        "evaluation": {"max_diff": evaluation.max_diff, "align": evaluation.align},
+        **scores_dict(chosen, evaluation),
         "ate_rmse_repeats": {
             "median": median.ate_rmse,
             "min": min(rmses) if rmses else None,
@@ -102,9 +104,23 @@ def write_outputs(
     }
     if settings is not None:
         data["settings"] = settings
-    (out / "metrics.json").write_text(json.dumps(data, indent=2) + "\n")
-    figures = _plots(out, results, chosen, sequence)
-    (out / "report.md").write_text(_report_md(data, figures))
+    repeats = [
+        (f"repeat {r.index} ({r.ate_rmse:.4f} m)", r.evaluation.ate.est_positions)
+        for r in results
+        if r.evaluation is not None and r.evaluation.ate is not None
+    ]
+    write_report(
+        folder,
+        out,
+        data,
+        chosen,
+        heading=f"ORB-SLAM3 run: {sequence.path.name}",
+        summary=_summary_md(data),
+        sections=_repeats_md(data),
+        error_heading="Trajectory error (median run)",
+        estimate="ORB-SLAM3 (median run)",
+        repeats=repeats,
+    )
     return data
 
 
@@ -121,49 +137,7 @@ def _package_version(name: str) -> str | None:
         return None
 
 
-def _rpe(result: Any, delta: float, unit: str) -> dict[str, Any] | None:
-    if result is None:
-        return None
-    return {
-        "trans": result.trans.as_dict(),
-        "rot_deg": result.rot_deg.as_dict(),
-        "delta": delta,
-        "unit": unit,
-    }
-
-
-def _plots(
-    out: Path, results: list[RepeatResult], chosen: Evaluation, sequence: TumSequence
-) -> list[str]:
-    if chosen.ate is None:
-        return []
-    a = chosen.ate
-    title = sequence.path.name
-    plots.plot_trajectories(
-        out / "trajectory.png",
-        a.gt_positions,
-        [("ORB-SLAM3 (median run)", a.est_positions)],
-        f"{title}: trajectory ({a.stats.pairs} poses, aligned)",
-    )
-    plots.plot_error_over_time(
-        out / "ate.png", a.stamps, a.errors, f"{title}: absolute trajectory error"
-    )
-    estimates = [
-        (f"repeat {r.index} ({r.ate_rmse:.4f} m)", r.evaluation.ate.est_positions)
-        for r in results
-        if r.evaluation is not None and r.evaluation.ate is not None
-    ]
-    plots.plot_trajectories(
-        out / "repeats.png", a.gt_positions, estimates, f"{title}: every repeat (aligned)"
-    )
-    return ["trajectory.png", "ate.png", "repeats.png"]
-
-
-def _fmt(value: float | None, digits: int = 4) -> str:
-    return "—" if value is None else f"{value:.{digits}f}"
-
-
-def _report_md(data: dict[str, Any], figures: list[str]) -> str:
+def _summary_md(data: dict[str, Any]) -> list[str]:
     blanked = data["blanked"]
     masking = (
         "none (segmenter=none)"
@@ -175,52 +149,24 @@ def _report_md(data: dict[str, Any], figures: list[str]) -> str:
     )
     rep = data["ate_rmse_repeats"]
     states = ", ".join(f"{k} {v}" for k, v in data["tracking_states"].items())
-    lines = [
-        f"# ORB-SLAM3 run: {Path(data['sequence']).name}",
-        "",
+    orb = data["orbslam3"]
+    return [
         f"- sequence: `{data['sequence']}`; camera: {data['camera']}",
         f"- dynamic pixels: {masking}",
-        f"- vocabulary: `{data['orbslam3']['vocabulary']}` (k={data['orbslam3']['vocabulary_k_L'][0]}, "
-        f"L={data['orbslam3']['vocabulary_k_L'][1]}); settings: `{data['orbslam3']['settings_file']}`",
-        f"- repeats: {len(data['repeats'])}; ATE RMSE median {_fmt(rep['median'])} m "
-        f"(min {_fmt(rep['min'])}, max {_fmt(rep['max'])}; {rep['evaluated']} evaluated); "
+        f"- vocabulary: `{orb['vocabulary']}` (k={orb['vocabulary_k_L'][0]}, "
+        f"L={orb['vocabulary_k_L'][1]}); settings: `{orb['settings_file']}`",
+        f"- repeats: {len(data['repeats'])}; ATE RMSE median {fmt(rep['median'])} m "
+        f"(min {fmt(rep['min'])}, max {fmt(rep['max'])}; {rep['evaluated']} evaluated); "
         f"the median run is repeat {data['median_repeat']} (`trajectory.txt`)",
         f"- median run: {data['frames']} frames, {data['frames_tracked']} tracked (state OK, "
         f"{100 * data['tracked_fraction']:.1f}%); states: {states}; "
         f"{data['frames_without_pose']} frames without a pose in the trajectory; "
         f"{data['unmatched_rgb_frames']} colour frames without depth partner skipped",
-        "",
-        "## Trajectory error (median run)",
-        "",
     ]
-    if data["ate"] is None:
-        lines += [f"Not evaluated: {data['ate_error']}", ""]
-    else:
-        lines += [
-            "| | RMSE | Mean | Median | S.D. | Min | Max | pairs |",
-            "|---|---|---|---|---|---|---|---|",
-            "| ATE [m] | "
-            + " | ".join(_fmt(data["ate"][k]) for k in STAT_KEYS)
-            + f" | {data['ate']['pairs']} |",
-        ]
-        for key in ("rpe", "rpe_1s"):
-            rpe = data[key]
-            if rpe is None:
-                continue
-            unit = f"{rpe['delta']:g} {rpe['unit']}"
-            for part, label, digits in (("trans", "trans [m]", 4), ("rot_deg", "rot [deg]", 3)):
-                lines.append(
-                    f"| RPE {label} / {unit} | "
-                    + " | ".join(_fmt(rpe[part][k], digits) for k in STAT_KEYS)
-                    + f" | {rpe[part]['pairs']} |"
-                )
-        lines += [
-            "",
-            f"Alignment: {data['evaluation']['align']}; association max difference "
-            f"{data['evaluation']['max_diff']} s.",
-            "",
-        ]
-    lines += [
+
+
+def _repeats_md(data: dict[str, Any]) -> list[str]:
+    lines = [
         "## Repeats",
         "",
         "| repeat | ATE RMSE [m] | poses | frames OK | frames/s | trajectory |",
@@ -228,10 +174,8 @@ def _report_md(data: dict[str, Any], figures: list[str]) -> str:
     ]
     for r in data["repeats"]:
         lines.append(
-            f"| {r['index']} | {_fmt(r['ate_rmse'])} | {r['poses']} | "
-            f"{r['tracking_states'].get('OK', 0)} | {_fmt(r['fps'], 1)} | `{r['trajectory']}` |"
+            f"| {r['index']} | {fmt(r['ate_rmse'])} | {r['poses']} | "
+            f"{r['tracking_states'].get('OK', 0)} | {fmt(r['fps'], 1)} | `{r['trajectory']}` |"
         )
     lines.append("")
-    for figure in figures:
-        lines += [f"![{figure}]({figure})", ""]
-    return "\n".join(lines)
+    return lines

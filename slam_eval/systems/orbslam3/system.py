@@ -2,8 +2,8 @@
 SLAM system next to the harness: ``uss-slam system=orbslam3``.
 
 It runs through the optional ``pyorbslam3`` bindings (GPL-3; ``pip install 'uss-slam[orbslam3]'``)
-on the same TUM sequence reader, segmenters and evaluation as the harness, so that the numbers
-are comparable:
+on the same TUM sequence reader, segmenters, scoring and report writer as the harness, so that
+the numbers are comparable:
 
 - **Settings**: an ORB-SLAM3 settings file (OpenCV ``%YAML:1.0``, ``File.version: "1.0"``, as
   ORB-SLAM3's RGB-D TUM examples) is written from the sequence's :class:`CameraIntrinsics` and
@@ -53,13 +53,14 @@ from uss_slam.core.errors import UssSlamError
 from uss_slam.core.tum_io import StrPath
 
 from ...filters.dynamic import SemanticFilter
-from ...scoring.report import EvalConfig, evaluate
+from ...scoring.evaluation import EvalConfig, evaluate
+from ...scoring.report import fmt
 from ...segmenters.base import Segmenter
 from ...sequence import TumSequence
 from .config import INSTALL_HINT, OrbSlam3Config, check_vocabulary
 from .masking import compute_masks
 from .repeats import RepeatResult, read_estimate
-from .report import _fmt, write_outputs
+from .report import write_outputs
 from .settings import check_settings, frame_rate, settings_yaml
 from .worker import Job, run_worker
 
@@ -234,9 +235,9 @@ def run_from_config(cfg: Any, out_dir: StrPath) -> dict[str, Any]:
     rep = data["ate_rmse_repeats"]
     log.info(
         "orbslam3: ATE RMSE median %s m (min %s, max %s) over %d repeats, %d/%d frames OK -> %s",
-        _fmt(rep["median"]),
-        _fmt(rep["min"]),
-        _fmt(rep["max"]),
+        fmt(rep["median"]),
+        fmt(rep["min"]),
+        fmt(rep["max"]),
         len(data["repeats"]),
         data["frames_tracked"],
         data["frames"],

@@ -15,7 +15,7 @@ import pytest
 from uss_slam.core.errors import DataFormatError, UssSlamError
 from uss_slam.core.tum_io import TUM_CAMERAS, read_trajectory
 from uss_slam.slam_eval.filters.dynamic import SemanticFilter
-from uss_slam.slam_eval.scoring.report import EvalConfig
+from uss_slam.slam_eval.scoring.evaluation import EvalConfig
 from uss_slam.slam_eval.segmenters.base import LabelsSegmenter, NoSegmenter
 from uss_slam.slam_eval.systems.orbslam3.config import OrbSlam3Config, check_vocabulary
 from uss_slam.slam_eval.systems.orbslam3.masking import blank_dynamic, dynamic_mask
