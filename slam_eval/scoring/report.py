@@ -24,7 +24,9 @@ end: ``local_ba`` (null when off, else ``runs``, mean ``wall_ms`` per run, ``key
 ``correction_deg``, ``fused`` points, ``wall_ms``), ``loop_candidates_rejected`` (recognised
 places that failed the geometric verification); ``octomap`` (null when off, else ``resolution``,
 ``occupied_voxels``, ``occupied_per_class`` by class name, ``measured_voxels_carved``,
-``tree_nodes``, ``cpu_ms_per_keyframe``).
+``tree_nodes``, ``cpu_ms_per_keyframe``). With ``slam.repeats`` > 1 the folder holds the median
+run and ``metrics.json`` adds ``ate_rmse_repeats`` and ``rpe_trans_rmse_repeats`` (``median min
+max evaluated``), ``median_repeat`` and ``repeats`` (one entry per run; :mod:`.repeats`).
 """
 
 from __future__ import annotations
@@ -43,6 +45,7 @@ from ..mapping.semantic_map import write_ply
 from ..systems.harness import RunResult
 from . import plots
 from .evaluation import STAT_KEYS, EvalConfig, Evaluation, scores_dict
+from .repeats import repeats_md
 from .run_folder import RunFolder
 
 
@@ -208,10 +211,13 @@ def write_run(
     config: EvalConfig,
     settings: dict[str, Any] | None = None,
     folder: RunFolder | None = None,
+    repeats: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Write every output of one harness run into ``out_dir``, each file atomically; returns the
     metrics dictionary. ``folder``: the run folder (inside which ``out_dir`` lies) that records
-    the files for its manifest; None writes without one."""
+    the files for its manifest; None writes without one. ``repeats``: for the median run of
+    repeated runs, the keys of :func:`~.repeats.repeats_metrics` (added to ``metrics.json`` and
+    the report)."""
     out = Path(out_dir)
     folder = folder or RunFolder(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -222,6 +228,8 @@ def write_run(
             comment=f"uss-slam estimate, filters={result.filters}, camera-to-world",
         )
     data = metrics_dict(result, evaluation, config)
+    if repeats is not None:
+        data.update(repeats)
     if settings is not None:
         data["settings"] = settings
     with folder.writing(out / "map.ply") as tmp:
@@ -312,6 +320,7 @@ def _sections_md(result: RunResult, data: dict[str, Any]) -> list[str]:
             f"{octo['cpu_ms_per_keyframe']:.1f} ms CPU per keyframe.",
             "",
         ]
+    lines += repeats_md(data)
     lines += _backend_md(result)
     return lines
 

@@ -1,12 +1,11 @@
 """The repeats of an ORB-SLAM3 run: one run's trajectory, tracking states and times, and the
-choice of the median run by ATE RMSE.
+choice of the median run by ATE RMSE (:func:`~..scoring.repeats.median_index`, shared with the
+harness's repeats).
 """
 
 from __future__ import annotations
 
-import math
 from collections import Counter
-from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -49,13 +48,6 @@ class RepeatResult:
     def ate_rmse(self) -> float | None:
         ate = self.evaluation.ate if self.evaluation else None
         return None if ate is None else float(ate.stats.rmse)
-
-
-def median_index(rmses: Sequence[float | None]) -> int:
-    """Index of the median run by ATE RMSE (a run without ATE counts as the worst); for an
-    even count the lower of the two middle runs, so the reported median is a real run's."""
-    order = sorted(range(len(rmses)), key=lambda i: (math.inf if rmses[i] is None else rmses[i], i))
-    return order[(len(order) - 1) // 2]
 
 
 def read_estimate(path: Path) -> Trajectory:

@@ -14,13 +14,14 @@ from uss_slam.core.classes import CLASS_NAMES
 
 from ...filters.dynamic import SemanticFilter
 from ...scoring.evaluation import EvalConfig, Evaluation, scores_dict
+from ...scoring.repeats import median_index
 from ...scoring.report import fmt, write_report
 from ...scoring.run_folder import RunFolder
 from ...segmenters.base import Segmenter
 from ...sequence import TumSequence
 from .config import OrbSlam3Config
 from .masking import MaskPass
-from .repeats import RepeatResult, median_index
+from .repeats import RepeatResult
 from .settings import SettingsInfo
 from .vocabulary import read_header
 

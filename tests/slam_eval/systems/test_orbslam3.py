@@ -16,10 +16,10 @@ from uss_slam.core.errors import DataFormatError, UssSlamError
 from uss_slam.core.tum_io import TUM_CAMERAS, read_trajectory
 from uss_slam.slam_eval.filters.dynamic import SemanticFilter
 from uss_slam.slam_eval.scoring.evaluation import EvalConfig
+from uss_slam.slam_eval.scoring.repeats import median_index
 from uss_slam.slam_eval.segmenters.base import LabelsSegmenter, NoSegmenter
 from uss_slam.slam_eval.systems.orbslam3.config import OrbSlam3Config, check_vocabulary
 from uss_slam.slam_eval.systems.orbslam3.masking import blank_dynamic, dynamic_mask
-from uss_slam.slam_eval.systems.orbslam3.repeats import median_index
 from uss_slam.slam_eval.systems.orbslam3.settings import check_settings, frame_rate, settings_yaml
 from uss_slam.slam_eval.systems.orbslam3.system import SequenceSpec, run_orbslam3
 from uss_slam.slam_eval.systems.orbslam3.vocabulary import build_from_sequences, read_vocabulary
