@@ -597,6 +597,39 @@ def test_eval_rerun_into_the_same_out_holds_one_runs_files(
     assert sorted(p.name for p in out.iterdir()) == ["eval.json", "eval.md"]
 
 
+# ------------------------------------------------------------------------------ file modes
+
+
+@pytest.mark.parametrize("umask", [0o022, 0o002])
+def test_outputs_follow_the_umask(
+    umask: int, world: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    """Every file ``uss-slam`` and ``uss-vocab`` write (atomically, through a temporary
+    sibling) gets mode 0666 minus the umask, as a plain ``open()`` would give it: 0644 under
+    umask 022, 0664 under 002 (never 0600 whatever the umask)."""
+    out = tmp_path / "out"
+    previous = os.umask(umask)
+    try:
+        code, _, err = run_console_script(
+            "uss-slam", [f"sequence.path={world['seq']}", f"out_dir={out}", "progress=false"],
+            monkeypatch, capsys,
+        )  # fmt: skip
+        assert code == 0, err
+        code, _, err = run_console_script(
+            "uss-vocab", ["build", str(world["seq"]), "--out", str(out / "v.txt"), "-k", "3",
+                          "-L", "2", "--max-frames", "2"],
+            monkeypatch, capsys,
+        )  # fmt: skip
+        assert code == 0, err
+    finally:
+        os.umask(previous)
+        HydraConfig.instance().cfg = None
+        GlobalHydra.instance().clear()
+    modes = {p.name: p.stat().st_mode & 0o777 for p in out.rglob("*") if p.is_file()}
+    assert {"run.json", "trajectory.txt", "v.txt"} <= set(modes)
+    assert modes == dict.fromkeys(modes, 0o666 & ~umask)
+
+
 # ------------------------------------------------------------------------------ kill -9
 
 
