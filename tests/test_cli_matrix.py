@@ -425,6 +425,10 @@ CASES = [
          "callbacks.model_checkpoint.dirpath={tmp}/run/checkpoints: holds checkpoints of an "
          "earlier run (last.ckpt, 1 in all); resume it with "
          "ckpt_path={tmp}/run/checkpoints/last.ckpt", setup=(earlier_checkpoint,)),
+    case("train-num-threads-negative", "uss-train", f"{TRAIN} num_threads=-1", 1,
+         "num_threads must be an integer >= 1 or null (torch's default), got -1"),
+    case("train-num-threads-zero", "uss-train", f"{TRAIN} num_threads=0", 1,
+         "num_threads must be an integer >= 1 or null (torch's default), got 0"),
     # ---------------------------------------------------------------- uss-export (Hydra)
     case("export-unknown-key", "uss-export", f"{EXPORT} opsett=17", 1,
          "Key 'opsett' is not in struct"),
@@ -595,6 +599,38 @@ def test_eval_rerun_into_the_same_out_holds_one_runs_files(
         present = sorted(p.relative_to(out).as_posix() for p in out.glob("overlays/*"))
         assert len(listed) == expected and present == listed
     assert sorted(p.name for p in out.iterdir()) == ["eval.json", "eval.md"]
+
+
+# ------------------------------------------------------------------------------ Ctrl-C of uss-train
+
+
+def test_train_ctrl_c_exits_130_and_keeps_the_checkpoints(
+    world: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    """Ctrl-C of ``uss-train`` in its third iteration (after the first epoch's checkpoints):
+    exit code 130 and the line ``uss-train: interrupted`` (not Lightning's shutdown notice and
+    exit 1); the checkpoints saved before it stay whole (the first epoch's iteration)."""
+    from uss_slam.models.checkpoint import read_checkpoint
+
+    paths = {**world, "tmp": tmp_path}
+    argv = [arg.format(**paths) for arg in TRAIN.split()]
+    interrupt_after(monkeypatch, "uss_slam.train.module:AdversarialSegmentation.training_step", 2)
+    monkeypatch.chdir(tmp_path)
+    try:
+        code, _, err = run_console_script("uss-train", argv, monkeypatch, capsys)
+    finally:
+        HydraConfig.instance().cfg = None
+        GlobalHydra.instance().clear()
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # Ctrl-C works again
+    # Lightning's own start-up notices (GPU available, ...) go to stderr in every run; after
+    # them, the one line of an interrupt and nothing of Lightning's shutdown.
+    assert code == 130 and err.strip().splitlines()[-1] == "uss-train: interrupted", err
+    assert "Traceback" not in err and "KeyboardInterrupt" not in err, err
+    saved = sorted((tmp_path / "run" / "checkpoints").iterdir())
+    assert [p.name for p in saved if p.name == "last.ckpt"] == ["last.ckpt"]
+    assert len(saved) == 2 and not [p for p in saved if p.name.endswith(".tmp")]
+    for path in saved:  # whole and readable, of the first epoch
+        assert read_checkpoint(path).iteration == 2, path
 
 
 # ------------------------------------------------------------------------------ file modes
