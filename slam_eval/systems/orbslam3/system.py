@@ -54,10 +54,10 @@ from typing import Any
 
 import cv2
 import numpy as np
-from tqdm import tqdm
 
 from uss_slam.core.classes import CLASS_NAMES
 from uss_slam.core.errors import DataFormatError, UssSlamError
+from uss_slam.core.progress import progress_bar
 from uss_slam.core.tum_io import (
     CameraIntrinsics,
     StrPath,
@@ -367,7 +367,7 @@ def compute_masks(
     blanked = 0
     frames = sequence.frames()
     try:
-        for frame in tqdm(
+        for frame in progress_bar(
             frames,
             total=len(sequence),
             desc=f"{sequence.path.name} [segmentation]",
