@@ -22,8 +22,9 @@ from uss_slam.core.files import check_writable
 
 from .config import check, register_configs, run_name
 from .filters.dynamic import build_filters
+from .scoring.evaluation import evaluate
 from .scoring.repeats import Perturbation, repeats_metrics, write_repeat_trajectories
-from .scoring.report import evaluate, metrics_dict, write_comparison, write_run
+from .scoring.report import metrics_dict, write_comparison, write_run
 from .scoring.run_folder import RunFolder
 from .segmenters.base import Segmenter
 from .sequence import TumSequence
