@@ -22,7 +22,7 @@ import torch
 from hydra.errors import InstantiationException
 from hydra.utils import instantiate
 from lightning.pytorch import Callback, LightningDataModule, LightningModule, Trainer
-from lightning.pytorch.callbacks import LearningRateMonitor
+from lightning.pytorch.callbacks import LearningRateMonitor, ProgressBar
 from lightning.pytorch.loggers import Logger
 from lightning_utilities.core import rank_zero
 from omegaconf import DictConfig, OmegaConf
@@ -32,6 +32,7 @@ from uss_slam.core.cli import JobFailed, exit_on_user_error, run_hydra_app
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.files import check_writable
 from uss_slam.models.checkpoint import CheckpointInfo, read_checkpoint
+from uss_slam.train.callbacks import LogProgressBar
 from uss_slam.train.config_check import check_config_types
 
 log = logging.getLogger(__name__)
@@ -244,6 +245,11 @@ def train(cfg: DictConfig) -> dict[str, float]:
         check_architecture(model, checkpoint)
         del checkpoint  # Lightning reads the file again; do not hold two copies
     callbacks: list[Callback] = _instantiate_all(cfg.get("callbacks"))
+    if cfg.trainer.get("enable_progress_bar", True) and not any(
+        isinstance(c, ProgressBar) for c in callbacks
+    ):
+        # Lightning's own bar would write one line per batch into a file or CI log
+        callbacks.append(LogProgressBar())
     loggers: list[Logger] = _instantiate_all(cfg.get("logger"))
     if not loggers:  # `logger=none`: nothing to monitor learning rates into
         callbacks = [c for c in callbacks if not isinstance(c, LearningRateMonitor)]
