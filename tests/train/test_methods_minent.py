@@ -111,8 +111,8 @@ def test_minent_config_and_checks(tmp_path: Path) -> None:
     assert isinstance(model.method, MinEnt)
     assert (model.method.lambda_ent_aux, model.method.lambda_ent_main) == (0.0002, 0.001)
     assert model.hparams["method"] == "minent" and model.adaptation is True
-    # Checkpoint keys are those of every other method (the discriminators are built).
-    assert {k.split(".")[0] for k in model.state_dict()} == {"segmenter", "d_aux", "d_main"}
+    # No discriminators: the segmenter is all the module trains.
+    assert {k.split(".")[0] for k in model.state_dict()} == {"segmenter"}
     with pytest.raises(UssSlamError, match="model.method.lambda_ent_main must be a number >= 0"):
         MinEnt(lambda_ent_main=-1.0)
     with pytest.raises(UssSlamError, match="lambda_ent_aux"):

@@ -4,9 +4,8 @@
 One iteration: source forward with ``L_seg = λ_seg_aux·CE(aux) + λ_seg_main·CE(main)``, target
 forward with ``L_ent = λ_ent_aux·E(aux) + λ_ent_main·E(main)``, one SGD step of the segmenter on
 the sum. ``E`` is the mean over pixels of the entropy normalised by ``log C`` (ADVENT's
-``entropy_loss``) of the softmax of the head's logits upsampled to image size. No discriminator:
-the discriminator optimiser never steps (the discriminators are still built, so checkpoints of
-every method share their keys and load alike).
+``entropy_loss``) of the softmax of the head's logits upsampled to image size. No discriminators
+are built.
 """
 
 from __future__ import annotations
@@ -17,16 +16,15 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from uss_slam.core.errors import UssSlamError
+from uss_slam.models.deeplab import SegmenterOutput
 from uss_slam.train.losses import upsample
 from uss_slam.train.methods.advent import self_information
 from uss_slam.train.methods.base import (
-    DomainPass,
     Method,
-    SourceSegmentation,
     StepValues,
+    TargetLoss,
     TrainBatch,
-    can_batch_domains,
-    check_finite,
+    segmenter_step,
 )
 
 if TYPE_CHECKING:
@@ -66,35 +64,19 @@ class MinEnt(Method):
         self.lambda_ent_main = float(lambda_ent_main)
 
     def training_step(self, module: AdversarialSegmentation, batch: TrainBatch) -> StepValues:
-        opt_seg, _ = module.optimizers()
-        images_src, images_trg = batch["source"]["image"], batch["target"]["image"]
-        batched = can_batch_domains(module, images_src, images_trg)
-        opt_seg.zero_grad()
-        with DomainPass(
-            module.segmenter, images_src, images_trg, module.manual_backward, batched
-        ) as seg:
-            src = SourceSegmentation(
-                seg.source(), batch["source"]["label"], module.loss_weights, module.iteration
+        images_trg = batch["target"]["image"]
+        size = images_trg.shape[-2:]
+
+        def entropy(pred: SegmenterOutput) -> TargetLoss:
+            return TargetLoss(
+                "loss_ent_trg",
+                "loss_ent",
+                entropy_loss(pred.aux, size),
+                entropy_loss(pred.main, size),
+                (self.lambda_ent_aux, self.lambda_ent_main),
             )
-            seg.backward(src.loss)
-            pred_trg = seg.target()
-            size = images_trg.shape[-2:]
-            ent_aux = entropy_loss(pred_trg.aux, size)
-            ent_main = entropy_loss(pred_trg.main, size)
-            loss_ent = self.lambda_ent_aux * ent_aux + self.lambda_ent_main * ent_main
-            check_finite(
-                module.iteration,
-                loss_ent_trg_aux=ent_aux,
-                loss_ent_trg_main=ent_main,
-                loss_ent=loss_ent,
-            )
-            seg.backward(loss_ent)
-        opt_seg.step()
-        return {
-            **src.values,
-            "loss_ent_trg_aux": ent_aux.detach(),
-            "loss_ent_trg_main": ent_main.detach(),
-        }
+
+        return segmenter_step(module, batch["source"], images_trg, entropy).values
 
     def extra_repr(self) -> str:
         return (

@@ -20,7 +20,7 @@ One iteration (DAFormer's ``DACS.forward_train``):
 5. mixed forward, ``L_mix = λ_seg_aux·wCE(aux) + λ_seg_main·wCE(main)`` (pixel-weighted
    cross-entropy, mean over labelled pixels); one SGD step of the student on ``L_seg + L_mix``.
 
-No discriminator (the discriminator optimiser never steps). The student is the segmenter that is
+No discriminators are built. The student is the segmenter that is
 exported; the teacher lives in the method (``method.teacher.*`` in checkpoints, with its update
 count) so that a resumed run continues exactly; it is never exported. The random choices of an
 iteration (classes, augmentation) come from a generator seeded by ``(seed, rank, iteration)``:
@@ -49,15 +49,14 @@ from torchvision.transforms import v2
 from uss_slam.core.classes import IGNORE_INDEX
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.normalization import IMAGENET_MEAN, IMAGENET_STD
+from uss_slam.models.deeplab import SegmenterOutput
 from uss_slam.train.losses import upsample
 from uss_slam.train.methods.base import (
-    DomainPass,
     Method,
-    SourceSegmentation,
     StepValues,
+    TargetLoss,
     TrainBatch,
-    can_batch_domains,
-    check_finite,
+    segmenter_step,
 )
 
 if TYPE_CHECKING:
@@ -272,7 +271,6 @@ class SelfTraining(Method):
 
     def training_step(self, module: AdversarialSegmentation, batch: TrainBatch) -> StepValues:
         w = module.loss_weights
-        opt_seg, _ = module.optimizers()
         images_src, labels_src = batch["source"]["image"], batch["source"]["label"]
         images_trg = batch["target"]["image"]
         if images_src.shape != images_trg.shape:
@@ -306,38 +304,26 @@ class SelfTraining(Method):
         labels_mix = torch.where(mask, labels_src, pseudo)
         weights_mix = torch.where(mask, torch.ones_like(pseudo_weight), pseudo_weight)
 
-        opt_seg.zero_grad()
-        batched = can_batch_domains(module, images_src, mixed)
-        with DomainPass(
-            module.segmenter, images_src, mixed, module.manual_backward, batched
-        ) as seg:
-            # (2) segmentation loss on the source images, both heads.
-            src = SourceSegmentation(seg.source(), labels_src, w, module.iteration)
-            seg.backward(src.loss)
+        size = labels_mix.shape[-2:]
+
+        def mixed_loss(pred_mix: SegmenterOutput) -> TargetLoss:
             # (5) pixel-weighted loss on the mixed crops, both heads.
-            pred_mix = seg.target()
-            size = labels_mix.shape[-2:]
-            mix_aux = weighted_segmentation_loss(
-                F.log_softmax(upsample(pred_mix.aux, size), dim=1), labels_mix, weights_mix
+            return TargetLoss(
+                "loss_seg_mix",
+                "loss_mix",
+                weighted_segmentation_loss(
+                    F.log_softmax(upsample(pred_mix.aux, size), dim=1), labels_mix, weights_mix
+                ),
+                weighted_segmentation_loss(
+                    F.log_softmax(upsample(pred_mix.main, size), dim=1), labels_mix, weights_mix
+                ),
+                (w.lambda_seg_aux, w.lambda_seg_main),
             )
-            mix_main = weighted_segmentation_loss(
-                F.log_softmax(upsample(pred_mix.main, size), dim=1), labels_mix, weights_mix
-            )
-            loss_mix = w.lambda_seg_aux * mix_aux + w.lambda_seg_main * mix_main
-            check_finite(
-                module.iteration,
-                loss_seg_mix_aux=mix_aux,
-                loss_seg_mix_main=mix_main,
-                loss_mix=loss_mix,
-            )
-            seg.backward(loss_mix)
-        opt_seg.step()
-        return {
-            **src.values,
-            "loss_seg_mix_aux": mix_aux.detach(),
-            "loss_seg_mix_main": mix_main.detach(),
-            "pseudo_weight": pseudo_weight,
-        }
+
+        # (2) + (5): one student step on the source loss and the mixed loss.
+        step = segmenter_step(module, batch["source"], mixed, mixed_loss).values
+        step["pseudo_weight"] = pseudo_weight
+        return step
 
     def extra_repr(self) -> str:
         return (
