@@ -48,7 +48,7 @@ from uss_slam.models.deeplab import DeepLabV2, SegmenterOutput
 from uss_slam.train.losses import LossWeights, upsample
 from uss_slam.train.methods import AdaptSegNet, Method, StepValues, TrainBatch, frozen
 from uss_slam.train.methods.base import NonFiniteLossError
-from uss_slam.train.schedules import PolyLR
+from uss_slam.train.schedules import PolyLR, poly_horizon
 
 log = logging.getLogger(__name__)
 
@@ -80,8 +80,11 @@ class AdversarialSegmentation(LightningModule):
         method: what one iteration computes (default :class:`~uss_slam.train.methods.AdaptSegNet`).
         loss: the four loss weights.
         max_iters: training iterations (own counter: ``global_step`` counts optimiser steps);
-            the poly schedules decay to 0 there and training stops.
+            training stops there.
         poly_power: exponent of the poly schedules.
+        poly_total_iters: horizon of the poly schedules (where the rate would reach 0); ``None``
+            = ``max_iters × 250/150``, the reference code's 250k schedule stopped at 150k (the
+            rate ends at 0.44× its base); ``max_iters`` decays to 0 at the last iteration.
         head_lr_mult: learning-rate multiplier of the segmenter heads.
         class_names: names for ``val/IoU/<class>``; their count is the number of classes.
         batch_domains: run source and target through one segmenter forward and one
@@ -115,6 +118,7 @@ class AdversarialSegmentation(LightningModule):
         loss: LossWeights | None = None,
         max_iters: int = 250_000,
         poly_power: float = 0.9,
+        poly_total_iters: int | None = None,
         head_lr_mult: float = 10.0,
         class_names: Sequence[str] = CLASS_NAMES,
         batch_domains: bool = True,
@@ -152,6 +156,7 @@ class AdversarialSegmentation(LightningModule):
         self.loss_weights = loss if loss is not None else LossWeights()
         self.max_iters = max_iters
         self.poly_power = poly_power
+        self.poly_total_iters = poly_horizon(max_iters, poly_total_iters)
         self.head_lr_mult = head_lr_mult
         self.class_names = tuple(class_names)
         self.batch_domains = batch_domains
@@ -187,6 +192,7 @@ class AdversarialSegmentation(LightningModule):
                 "loss": asdict(self.loss_weights),
                 "max_iters": max_iters,
                 "poly_power": poly_power,
+                "poly_total_iters": self.poly_total_iters,
                 "head_lr_mult": head_lr_mult,
                 "method": self.method.name,
                 "adaptation": self.method.adapts,
@@ -252,7 +258,7 @@ class AdversarialSegmentation(LightningModule):
                 raise UssSlamError("model.d_optimizer must be set to train the discriminators")
             params = list(itertools.chain(*(d.parameters() for d in self.discriminators)))
             optimizers.append(self._optimizer(self.d_optimizer_factory, params))
-        schedules = [PolyLR(opt, self.max_iters, self.poly_power) for opt in optimizers]
+        schedules = [PolyLR(opt, self.poly_total_iters, self.poly_power) for opt in optimizers]
         return optimizers, schedules
 
     def _optimizers(self) -> list[Any]:
