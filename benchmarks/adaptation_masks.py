@@ -35,8 +35,8 @@ import numpy as np
 
 from uss_slam.core.classes import CLASS_NAMES
 from uss_slam.core.seg_metrics import BinaryCounts, mask_counts, mask_metrics
-from uss_slam.slam_eval.frontend import OrbConfig, OrbExtractor
-from uss_slam.slam_eval.onnx_segmenter import OnnxSegmenter
+from uss_slam.slam_eval.frontend.orb import OrbConfig, OrbExtractor
+from uss_slam.slam_eval.segmenters.onnx import OnnxSegmenter
 from uss_slam.slam_eval.sequence import TumSequence
 
 PERSON = CLASS_NAMES.index("person")

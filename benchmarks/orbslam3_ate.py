@@ -23,13 +23,13 @@ import sys
 import time
 from pathlib import Path
 
-from uss_slam.slam_eval.filters import SemanticFilter, build_filters
-from uss_slam.slam_eval.orbslam3 import OrbSlam3Config, SequenceSpec, run_orbslam3
-from uss_slam.slam_eval.pipeline import SlamPipeline
-from uss_slam.slam_eval.report import EvalConfig, evaluate
-from uss_slam.slam_eval.segmenters import LabelsSegmenter, NoSegmenter
+from uss_slam.slam_eval.filters.dynamic import SemanticFilter, build_filters
+from uss_slam.slam_eval.scoring.report import EvalConfig, evaluate
+from uss_slam.slam_eval.segmenters.base import LabelsSegmenter, NoSegmenter
 from uss_slam.slam_eval.sequence import TumSequence
-from uss_slam.slam_eval.vocabulary import build_from_sequences
+from uss_slam.slam_eval.systems.harness import SlamPipeline
+from uss_slam.slam_eval.systems.orbslam3.system import OrbSlam3Config, SequenceSpec, run_orbslam3
+from uss_slam.slam_eval.systems.orbslam3.vocabulary import build_from_sequences
 from uss_slam.synthetic import render_sequence
 
 

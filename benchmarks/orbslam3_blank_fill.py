@@ -18,10 +18,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from uss_slam.slam_eval.filters import SemanticFilter
-from uss_slam.slam_eval.orbslam3 import dynamic_mask
+from uss_slam.slam_eval.filters.dynamic import SemanticFilter
 from uss_slam.slam_eval.sequence import TumSequence
-from uss_slam.slam_eval.vocabulary import ORB_SETTINGS
+from uss_slam.slam_eval.systems.orbslam3.system import dynamic_mask
+from uss_slam.slam_eval.systems.orbslam3.vocabulary import ORB_SETTINGS
 
 
 def main() -> None:

@@ -50,7 +50,7 @@ def main(argv: list[str] | None = None) -> int:
         if not m.is_file():
             ap.error(f"{m}: no such ONNX model")
     w, h = (int(v) for v in args.size.lower().split("x"))
-    from uss_slam.slam_eval.onnx_segmenter import OnnxSegmenter
+    from uss_slam.slam_eval.segmenters.onnx import OnnxSegmenter
 
     models = {m: OnnxSegmenter(m, threads=1) for m in args.models}
     seq = SequenceRenderer(args.preset, args.frames * 5, (w, h), args.seed, "target")

@@ -18,11 +18,11 @@ from pathlib import Path
 import numpy as np
 
 from uss_slam.core.classes import CLASS_NAMES
-from uss_slam.slam_eval.filters import build_filters
-from uss_slam.slam_eval.metrics import ate
-from uss_slam.slam_eval.pipeline import RunResult, SlamPipeline
-from uss_slam.slam_eval.segmenters import LabelsSegmenter
+from uss_slam.slam_eval.filters.dynamic import build_filters
+from uss_slam.slam_eval.scoring.metrics import ate
+from uss_slam.slam_eval.segmenters.base import LabelsSegmenter
 from uss_slam.slam_eval.sequence import TumSequence
+from uss_slam.slam_eval.systems.harness import RunResult, SlamPipeline
 
 PERSON = CLASS_NAMES.index("person")
 

@@ -17,11 +17,11 @@ from pathlib import Path
 import numpy as np
 
 from uss_slam.core.classes import CLASS_NAMES
-from uss_slam.slam_eval.metrics import ate, rpe
-from uss_slam.slam_eval.pipeline import SlamPipeline
-from uss_slam.slam_eval.segmenters import LabelsSegmenter
+from uss_slam.slam_eval.scoring.metrics import ate, rpe
+from uss_slam.slam_eval.segmenters.base import LabelsSegmenter
 from uss_slam.slam_eval.sequence import TumSequence
-from uss_slam.slam_eval.tracker import Tracker
+from uss_slam.slam_eval.systems.harness import SlamPipeline
+from uss_slam.slam_eval.tracking.tracker import Tracker
 
 PERSON = CLASS_NAMES.index("person")
 

@@ -10,7 +10,7 @@ Timing part (one sequence): a fake segmenter that costs a fixed time per call (`
 seconds; it sleeps, like a segmenter waiting for a GPU, then answers with the sequence's
 ground-truth labels). Calls are serialised by a lock, as on one device; ``--concurrent`` lets
 the prefetch workers' calls overlap (one device per worker). ``--onnx PATH`` also times an
-exported model (:class:`~uss_slam.slam_eval.onnx_segmenter.OnnxSegmenter`, on the CPU here) under
+exported model (:class:`~uss_slam.slam_eval.segmenters.onnx.OnnxSegmenter`, on the CPU here) under
 both schedules, with the filter on its own labels. On a busy machine the wall-clock frames/s
 say little; the column "CPU-bound, idle" gives the rate the run's measured CPU times (per
 thread) and the segmenter's waiting allow on two otherwise idle cores (:func:`idle_rate`).
@@ -35,11 +35,11 @@ from pathlib import Path
 import numpy as np
 from slam_targets import WALKING, sequence_path
 
-from uss_slam.slam_eval.filters import build_filters
-from uss_slam.slam_eval.metrics import ate
-from uss_slam.slam_eval.pipeline import SEGMENT_SCHEDULES, RunResult, SlamPipeline
-from uss_slam.slam_eval.segmenters import LabelsSegmenter, NoSegmenter
+from uss_slam.slam_eval.filters.dynamic import build_filters
+from uss_slam.slam_eval.scoring.metrics import ate
+from uss_slam.slam_eval.segmenters.base import LabelsSegmenter, NoSegmenter
 from uss_slam.slam_eval.sequence import Frame, TumSequence
+from uss_slam.slam_eval.systems.harness import SEGMENT_SCHEDULES, RunResult, SlamPipeline
 
 
 class FixedCostSegmenter(LabelsSegmenter):
@@ -154,7 +154,7 @@ def main() -> None:
         label = f"fixed {1000 * delay:.0f} ms"
         segmenters.append((label, FixedCostSegmenter(delay, serial), 1000 * delay))
     if args.onnx:
-        from uss_slam.slam_eval.onnx_segmenter import OnnxSegmenter
+        from uss_slam.slam_eval.segmenters.onnx import OnnxSegmenter
 
         onnx = OnnxSegmenter(args.onnx, threads=args.onnx_threads)
         segmenters.append((f"onnx {args.onnx.name}", onnx, 0.0))

@@ -22,11 +22,11 @@ from pathlib import Path
 
 from slam_targets import sequence_path
 
-from uss_slam.slam_eval.filters import build_filters
-from uss_slam.slam_eval.frontend import OrbConfig, OrbExtractor
-from uss_slam.slam_eval.pipeline import SlamPipeline
-from uss_slam.slam_eval.segmenters import LabelsSegmenter
+from uss_slam.slam_eval.filters.dynamic import build_filters
+from uss_slam.slam_eval.frontend.orb import OrbConfig, OrbExtractor
+from uss_slam.slam_eval.segmenters.base import LabelsSegmenter
 from uss_slam.slam_eval.sequence import TumSequence
+from uss_slam.slam_eval.systems.harness import SlamPipeline
 
 
 def main() -> None:

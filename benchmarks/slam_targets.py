@@ -23,11 +23,11 @@ import sys
 import time
 from pathlib import Path
 
-from uss_slam.slam_eval.filters import build_filters
-from uss_slam.slam_eval.metrics import ate
-from uss_slam.slam_eval.pipeline import SlamPipeline
-from uss_slam.slam_eval.segmenters import LabelsSegmenter
+from uss_slam.slam_eval.filters.dynamic import build_filters
+from uss_slam.slam_eval.scoring.metrics import ate
+from uss_slam.slam_eval.segmenters.base import LabelsSegmenter
 from uss_slam.slam_eval.sequence import TumSequence
+from uss_slam.slam_eval.systems.harness import SlamPipeline
 from uss_slam.synthetic import render_sequence
 
 WALKING = ("walking_xyz", "walking_rpy", "walking_halfsphere")

@@ -46,12 +46,12 @@ import yaml
 from uss_slam.core.classes import CLASS_NAMES
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.tum_io import Trajectory, read_trajectory
-from uss_slam.slam_eval import pipeline
-from uss_slam.slam_eval.local_mapping import LocalMappingConfig
-from uss_slam.slam_eval.report import EvalConfig, evaluate
-from uss_slam.slam_eval.segmenters import NoSegmenter
+from uss_slam.slam_eval.mapping.local_mapping import LocalMappingConfig
+from uss_slam.slam_eval.scoring.report import EvalConfig, evaluate
+from uss_slam.slam_eval.segmenters.base import NoSegmenter
 from uss_slam.slam_eval.sequence import TumSequence
-from uss_slam.slam_eval.tracker import Tracker, TrackerConfig
+from uss_slam.slam_eval.systems import harness
+from uss_slam.slam_eval.tracking.tracker import Tracker, TrackerConfig
 
 PERSON = CLASS_NAMES.index("person")
 HIGH_SHARE = 0.25
@@ -137,7 +137,7 @@ class RowResult:
     keyframes: int | None = None
     """Keyframes in the final map (ORB-SLAM3: after its keyframe culling)."""
     seconds: float = 0.0
-    run: pipeline.RunResult | None = None
+    run: harness.RunResult | None = None
     """The harness's own result (trajectory, per-frame log); None for ORB-SLAM3."""
 
 
@@ -202,7 +202,7 @@ def run_harness(path: Path, variant: Variant, people: dict[int, np.ndarray]) -> 
         made.append(_RecordingTracker(*args, **kwargs))
         return made[-1]
 
-    run = pipeline.SlamPipeline(
+    run = harness.SlamPipeline(
         seq,
         NoSegmenter(),
         [],
@@ -212,7 +212,7 @@ def run_harness(path: Path, variant: Variant, people: dict[int, np.ndarray]) -> 
         progress=False,
     )
     start = time.perf_counter()
-    with mock.patch.object(pipeline, "Tracker", factory):
+    with mock.patch.object(harness, "Tracker", factory):
         result = run.run()
     seconds = time.perf_counter() - start
     tracker = made[0]
@@ -246,7 +246,7 @@ def _orbslam3_worker(job_path: str) -> None:
     people; its trajectory after shutdown."""
     import pyorbslam3
 
-    from uss_slam.slam_eval.orbslam3 import OrbSlam3Config, frame_rate, settings_yaml
+    from uss_slam.slam_eval.systems.orbslam3.system import OrbSlam3Config, frame_rate, settings_yaml
 
     job = json.loads(Path(job_path).read_text())
     out = Path(job["out"])

@@ -242,7 +242,7 @@ def miou_scores(sequence: Path, models: dict[str, Path], stride: int) -> dict[st
     """mIoU and per-class IoU (``None``: class in neither truth nor prediction) of each ONNX
     model on every ``stride``-th frame of ``sequence``'s labels, with frames and ms per frame."""
     from uss_slam.core.seg_metrics import iou_report
-    from uss_slam.slam_eval.onnx_segmenter import OnnxSegmenter
+    from uss_slam.slam_eval.segmenters.onnx import OnnxSegmenter
     from uss_slam.slam_eval.sequence import TumSequence
 
     from .evaluate import LabelledFrame, evaluate_frames
@@ -341,7 +341,7 @@ def stage_report(
         f"{sequence.name}: aligned trajectories (top view)",
     )
     plots = ["ate_rmse.png", "trajectories.png"]
-    from uss_slam.slam_eval.report import write_comparison
+    from uss_slam.slam_eval.scoring.report import write_comparison
 
     runs = {v.name: json.loads((slam_dir / v.name / "metrics.json").read_text()) for v in VARIANTS}
     write_comparison(slam_dir, runs)

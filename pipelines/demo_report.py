@@ -1,6 +1,6 @@
 """The demo's table and plots: one row per SLAM variant (ATE, tracking, speed, segmenter mIoU),
 ``ate_rmse.png`` (ATE RMSE per variant) and ``trajectories.png`` (every aligned estimate against
-the ground truth, drawn by :mod:`uss_slam.slam_eval.plots`)."""
+the ground truth, drawn by :mod:`uss_slam.slam_eval.scoring.plots`)."""
 
 from __future__ import annotations
 
@@ -106,7 +106,7 @@ def plot_aligned_trajectories(
     """Top view of every row's trajectory (``slam_dir/<variant>/trajectory.txt``) aligned to
     ``groundtruth`` (SE(3)); a run that cannot be aligned is left out."""
     from uss_slam.core.tum_io import read_trajectory
-    from uss_slam.slam_eval import metrics, plots
+    from uss_slam.slam_eval.scoring import metrics, plots
 
     gt = read_trajectory(groundtruth)
     reference = None

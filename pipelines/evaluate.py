@@ -179,7 +179,7 @@ def load_segmenter(
             raise UssSlamError(f"{path}: the dense CRF runs on an exported .onnx model")
         model = CheckpointSegmenter(path, threads)
         return model.infer, model.info
-    from uss_slam.slam_eval.onnx_segmenter import OnnxSegmenter
+    from uss_slam.slam_eval.segmenters.onnx import OnnxSegmenter
 
     crf = crf_params is not None
     onnx = OnnxSegmenter(path, threads=threads, crf=crf, crf_params=crf_params if crf else None)

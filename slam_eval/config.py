@@ -1,10 +1,11 @@
 """The ``uss-slam`` configuration: one home for every default, and the checks made before any
 SLAM work starts.
 
-Defaults live in the dataclasses (:class:`~.frontend.OrbConfig`, :class:`~.tracker.TrackerConfig`,
-:class:`~.semantic_map.MapConfig`, :class:`~.local_mapping.LocalMappingConfig`,
-:class:`~.loop_closing.LoopClosingConfig`, :class:`~.report.EvalConfig`) and in the filters'
-constructors.
+Defaults live in the dataclasses (:class:`~.frontend.orb.OrbConfig`,
+:class:`~.tracking.tracker.TrackerConfig`, :class:`~.mapping.semantic_map.MapConfig`,
+:class:`~.mapping.local_mapping.LocalMappingConfig`,
+:class:`~.mapping.loop_closing.LoopClosingConfig`, :class:`~.scoring.report.EvalConfig`) and in
+the filters' constructors.
 :func:`register_configs` turns them into Hydra structured configs in Hydra's ConfigStore
 (``uss_slam_schema/slam``, ``uss_slam_schema/eval``), which ``configs/slam/orb_rgbd.yaml`` and
 ``configs/slam_eval.yaml`` list in their defaults: ``uss-slam --cfg job`` prints the values,
@@ -28,14 +29,14 @@ from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from uss_slam.core.errors import UssSlamError
 
-from .filters import FILTERS, build_filters
-from .frontend import OrbConfig
-from .local_mapping import LocalMappingConfig
-from .loop_closing import LoopClosingConfig
-from .pipeline import SEGMENT_SCHEDULES
-from .report import EvalConfig
-from .semantic_map import MapConfig
-from .tracker import TrackerConfig
+from .filters.dynamic import FILTERS, build_filters
+from .frontend.orb import OrbConfig
+from .mapping.local_mapping import LocalMappingConfig
+from .mapping.loop_closing import LoopClosingConfig
+from .mapping.semantic_map import MapConfig
+from .scoring.report import EvalConfig
+from .systems.harness import SEGMENT_SCHEDULES
+from .tracking.tracker import TrackerConfig
 
 SCHEMA_GROUP = "uss_slam_schema"
 """ConfigStore group of the structured configs (not a choice users make)."""
@@ -116,7 +117,7 @@ class RunPlan:
     """``(sub-folder or None, filter names)`` per SLAM run: one run, or the baseline and each
     filter set of ``compare``."""
     backend: dict[str, Any] = field(default_factory=dict)
-    """The back-end keyword arguments of :class:`~.pipeline.SlamPipeline` (``local_ba``,
+    """The back-end keyword arguments of :class:`~.systems.harness.SlamPipeline` (``local_ba``,
     ``loop_closing`` and their parameters)."""
 
 

@@ -19,12 +19,12 @@ from uss_slam.core.cli import JobFailed, exit_on_user_error, run_hydra_app
 from uss_slam.core.files import check_writable
 
 from .config import check, register_configs, run_name
-from .filters import build_filters
-from .outputs import RunFolder
-from .pipeline import SlamPipeline
-from .report import evaluate, write_comparison, write_run
-from .segmenters import Segmenter
+from .filters.dynamic import build_filters
+from .scoring.report import evaluate, write_comparison, write_run
+from .scoring.run_folder import RunFolder
+from .segmenters.base import Segmenter
 from .sequence import TumSequence
+from .systems.harness import SlamPipeline
 
 log = logging.getLogger(__name__)
 PROG = "uss-slam"
@@ -60,12 +60,12 @@ def run(cfg: DictConfig) -> dict[str, Any]:
 
     Everything is checked before the first frame is processed (config values, filters, segmenter,
     sequence, that ``out_dir`` is writable); the outputs replace an earlier run's in ``out_dir``
-    only once the first SLAM run has finished (see :mod:`.outputs`).
+    only once the first SLAM run has finished (see :mod:`.scoring.run_folder`).
     """
     plan = check(cfg)
     out = check_writable(output_dir(cfg), "out_dir")
     if OmegaConf.select(cfg, "system.name") == "orbslam3":  # the real ORB-SLAM3, not the harness
-        from .orbslam3 import run_from_config
+        from .systems.orbslam3.system import run_from_config
 
         return run_from_config(cfg, out)
     segmenter: Segmenter = hydra.utils.instantiate(cfg.segmenter)

@@ -48,8 +48,8 @@ TESTS = Path(__file__).resolve().parent
 # returning or exiting with the code; "sys.argv" = a Hydra app reading sys.argv).
 ENTRY_POINTS = {
     "uss-synth": ("uss_slam.synthetic.cli", "argv"),
-    "uss-traj": ("uss_slam.slam_eval.traj_cli", "argv"),
-    "uss-vocab": ("uss_slam.slam_eval.vocab_cli", "argv"),
+    "uss-traj": ("uss_slam.slam_eval.scoring.traj_cli", "argv"),
+    "uss-vocab": ("uss_slam.slam_eval.systems.orbslam3.vocab_cli", "argv"),
     "uss-eval": ("uss_slam.pipelines.evaluate", "argv"),
     "uss-demo": ("uss_slam.pipelines.demo", "argv"),
     "uss-slam": ("uss_slam.slam_eval.run", "sys.argv"),
@@ -277,7 +277,7 @@ CASES = [
          "{gt}: no pose pairs 0.0001 seconds apart"),
     case("traj-ctrl-c-while-plotting", "uss-traj", "ate {gt} {gt} --plot {tmp}/ate.png", 130,
          "uss-traj: interrupted",
-         interrupt=("uss_slam.slam_eval.traj_cli:plot_ate", 0)),
+         interrupt=("uss_slam.slam_eval.scoring.traj_cli:plot_ate", 0)),
     # ---------------------------------------------------------------- uss-vocab (argparse)
     case("vocab-build-not-a-sequence", "uss-vocab", "build {voc} --out {tmp}/v.txt", 1,
          "{voc}/rgb.txt: file not found"),
@@ -300,7 +300,7 @@ CASES = [
     case("vocab-ctrl-c-while-clustering", "uss-vocab",
          "build {seq} --out {tmp}/v.txt -k 3 -L 2 --max-frames 2", 130,
          "uss-vocab: interrupted",
-         interrupt=("uss_slam.slam_eval.vocabulary:build_vocabulary", 0)),
+         interrupt=("uss_slam.slam_eval.systems.orbslam3.vocabulary:build_vocabulary", 0)),
     # ---------------------------------------------------------------- uss-eval (argparse)
     case("eval-truncated-onnx", "uss-eval", "{m} --sequence {seq} --out {tmp}/eval", 1,
          "{m}: onnxruntime cannot load it as an ONNX model",

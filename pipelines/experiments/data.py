@@ -91,7 +91,7 @@ def stage_data(exp: Experiment, run: bool, dry: bool = False) -> tuple[Data, str
 def _vocabulary(exp: Experiment, data: Data, run: bool, dry: bool) -> str:
     """ORB-SLAM3's vocabulary: the configured file, or one built from the training target
     frames (uss-vocab build's defaults) into ``out_dir/data/orbslam3_vocabulary``."""
-    from uss_slam.slam_eval.vocabulary import build_from_sequences
+    from uss_slam.slam_eval.systems.orbslam3.vocabulary import build_from_sequences
 
     given = exp.cfg["slam"]["orbslam3"].get("vocabulary")
     if given is not None:

@@ -76,7 +76,7 @@ def check_orbslam3(orb: Mapping[str, Any]) -> None:
     and a repeat count, before any work."""
     import importlib.util
 
-    from uss_slam.slam_eval.orbslam3 import INSTALL_HINT, check_vocabulary
+    from uss_slam.slam_eval.systems.orbslam3.system import INSTALL_HINT, check_vocabulary
 
     if importlib.util.find_spec("pyorbslam3") is None:
         raise UssSlamError(
@@ -96,7 +96,7 @@ def check_orbslam3(orb: Mapping[str, Any]) -> None:
 def check_crf(cfg: Mapping[str, Any], grid: Grid) -> None:
     """``crf_params`` (the dense CRF's, for the ``*_crf`` variants) and, when a ``*_crf``
     variant is asked for, pydensecrf installed."""
-    from uss_slam.slam_eval.crf import INSTALL_HINT, DenseCrf
+    from uss_slam.slam_eval.segmenters.crf import INSTALL_HINT, DenseCrf
 
     params = cfg.get("crf_params") or {}
     if not isinstance(params, Mapping):

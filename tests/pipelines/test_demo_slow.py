@@ -14,7 +14,7 @@ from uss_slam.core.classes import CLASS_NAMES
 from uss_slam.core.onnx_contract import SegmenterMetadata
 from uss_slam.pipelines import demo, demo_report
 from uss_slam.pipelines.stages import STAMP
-from uss_slam.slam_eval.onnx_segmenter import OnnxSegmenter
+from uss_slam.slam_eval.segmenters.onnx import OnnxSegmenter
 
 ROW_KEYS = {
     "variant", "label", "segmenter", "filters", "ate_rmse", "ate_mean", "ate_median", "ate_std",

@@ -353,7 +353,9 @@ def _tiny_onnx(path: Path) -> Path:
     """tests/slam_eval's tiny exported segmenter (logits from the pixel colours)."""
     import importlib.util
 
-    source = Path(__file__).resolve().parents[1] / "slam_eval" / "test_onnx_segmenter.py"
+    source = (
+        Path(__file__).resolve().parents[1] / "slam_eval" / "segmenters" / "test_onnx_segmenter.py"
+    )
     spec = importlib.util.spec_from_file_location("onnx_segmenter_tests", source)
     assert spec is not None and spec.loader is not None
     module = importlib.util.module_from_spec(spec)
@@ -368,7 +370,7 @@ def test_segeval_with_the_crf_uses_the_slam_runtime_crf(
     from uss_slam.core.classes import CLASS_NAMES
     from uss_slam.core.seg_metrics import iou_report
     from uss_slam.pipelines.evaluate import evaluate_frames, sequence_frames
-    from uss_slam.slam_eval.onnx_segmenter import OnnxSegmenter
+    from uss_slam.slam_eval.segmenters.onnx import OnnxSegmenter
 
     seq = synthetic_sequence(preset="walking_xyz", frames=6, size=(96, 72))
     model = _tiny_onnx(tmp_path / "m.onnx")

@@ -16,12 +16,12 @@ from uss_slam.core.classes import CLASS_NAMES
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.tum_io import read_trajectory
 from uss_slam.slam_eval.config import filter_defaults
-from uss_slam.slam_eval.frontend import OrbConfig
-from uss_slam.slam_eval.outputs import verify_run
-from uss_slam.slam_eval.report import EvalConfig
+from uss_slam.slam_eval.frontend.orb import OrbConfig
+from uss_slam.slam_eval.mapping.semantic_map import MapConfig, read_ply
 from uss_slam.slam_eval.run import run
-from uss_slam.slam_eval.semantic_map import MapConfig, read_ply
-from uss_slam.slam_eval.tracker import TrackerConfig
+from uss_slam.slam_eval.scoring.report import EvalConfig
+from uss_slam.slam_eval.scoring.run_folder import verify_run
+from uss_slam.slam_eval.tracking.tracker import TrackerConfig
 
 REPO = Path(__file__).resolve().parents[2]
 OUTPUTS = ("trajectory.txt", "metrics.json", "report.md", "trajectory.png", "ate.png", "map.ply")

@@ -20,7 +20,9 @@ import yaml
 import uss_slam.configs
 from uss_slam.core.files import file_sha256
 from uss_slam.core.tum_io import read_trajectory
-from uss_slam.slam_eval.outputs import (
+from uss_slam.slam_eval.mapping.semantic_map import read_ply
+from uss_slam.slam_eval.run import main
+from uss_slam.slam_eval.scoring.run_folder import (
     MANIFEST,
     TMP_PREFIX,
     RunFolder,
@@ -28,8 +30,6 @@ from uss_slam.slam_eval.outputs import (
     clear_outputs,
     verify_run,
 )
-from uss_slam.slam_eval.run import main
-from uss_slam.slam_eval.semantic_map import read_ply
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from uss_slam.core.errors import UssSlamError
-from uss_slam.slam_eval.pipeline import SlamPipeline
-from uss_slam.slam_eval.segmenters import NoSegmenter
+from uss_slam.slam_eval.segmenters.base import NoSegmenter
 from uss_slam.slam_eval.sequence import TumSequence
+from uss_slam.slam_eval.systems.harness import SlamPipeline
 
 _PATH = Path(__file__).resolve().parents[2] / "benchmarks" / "slam_walker_inliers.py"
 _spec = importlib.util.spec_from_file_location("slam_walker_inliers_benchmark", _PATH)

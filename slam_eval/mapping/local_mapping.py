@@ -1,0 +1,423 @@
+"""Local mapping after each new keyframe: local bundle adjustment and keyframe culling, as
+ORB-SLAM2's ``LocalMapping`` (``Optimizer::LocalBundleAdjustment``, ``KeyFrameCulling``), with
+GTSAM factor graphs and Levenberg–Marquardt.
+
+Local bundle adjustment of a new keyframe ``K``:
+
+- **free**: ``K`` and its covisible keyframes (sharing at least ``covisibility`` = 15 good map
+  points), and every good map point they observe;
+- **fixed**: the keyframes that observe those points but are not covisible with ``K`` (they anchor
+  the local map to the rest), and keyframe 0 (the gauge, as ORB-SLAM2);
+- **factors**: one per observation. A keypoint with depth is a stereo observation
+  ``(u, v, u_r = u - bf / z)`` (``GenericStereoFactor3D`` with ``Cal3_S2Stereo`` of baseline
+  ``bf / fx``: the virtual stereo pair the tracker uses), one without depth a monocular ``(u, v)``
+  (``GenericProjectionFactorCal3_S2``); noise of the keypoint level's sigma σ (the scale factor
+  to the power of the level, in pixels), Huber kernel of width √7.815 (stereo) / √5.991
+  (monocular), the 95% χ² quantiles;
+- **depth noise** (``depth_noise``): ORB-SLAM2 gives ``u_r`` the same independent σ as ``u``,
+  i.e. a disparity ``bf / z`` known to √2 σ — at 2 m with the TUM ``bf`` of 40 px that is a depth
+  uncertainty of ±14 cm, so with the points free the depth barely constrains the keyframes and
+  on our synthetic sequences local BA moved them away from the truth (static_xyz: 4 → 22 mm).
+  A Kinect measures depth to ``σ_z ≈ k·z²`` (k ≈ 0.0019 m⁻¹ for the synthetic target style,
+  after Nguyen et al.), i.e. a disparity to ``σ_d = bf·k`` at every distance, and ``u_r`` shares
+  ``u``'s detection noise; with ``depth_noise = k`` > 0 the stereo factors get that covariance
+  (``σ² [[1, 1, 0], [1, 1 + σ_d²/σ², 0], [0, 0, 1]]`` over ``(u_L, u_R, v)``), ``depth_noise = 0``
+  is ORB-SLAM2's model;
+- **two passes**: ``first_iterations`` LM iterations, then observations whose χ² exceeds those
+  quantiles (or that fall behind the camera) are left out, the kernel is dropped, and
+  ``second_iterations`` more; finally the observations still above the quantiles are erased from
+  the map (a point left with one keyframe is marked bad).
+
+Fixed keyframes are variables with a tight prior (σ = 1e-6 m / rad): GTSAM's hard
+``NonlinearEquality`` constraint gives the same result but optimised about five times slower here.
+
+Keyframe culling: a covisible keyframe of ``K`` (never keyframe 0) is removed when more than
+``redundancy`` (90%) of its close map points (those of keypoints with depth) are seen by at least
+``redundant_observers`` (3) other keyframes at the same or a finer pyramid level (± one).
+
+The optimisation runs in the main thread between frames, its cost bounded by the iteration
+counts: GTSAM's Python binding holds the GIL while it optimises, so a background thread would not
+overlap it with tracking, and in the main thread the results do not depend on timing.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, fields
+
+import gtsam
+import numpy as np
+
+from ..geometry import invert
+from ..tracking.pose import CHI2_MONO, CHI2_STEREO, chi2_per_observation, observations
+from .slam_map import SlamMap
+
+FIXED_SIGMA = 1e-6
+"""Prior sigma of fixed keyframes, metres / radians (effectively constant)."""
+
+
+def pose_key(keyframe_id: int) -> int:
+    """GTSAM key of a keyframe pose (``Pose3``, camera-to-world)."""
+    return gtsam.symbol("x", int(keyframe_id))
+
+
+def point_key(point_id: int) -> int:
+    """GTSAM key of a map point (``Point3``, world metres)."""
+    return gtsam.symbol("l", int(point_id))
+
+
+@dataclass(frozen=True)
+class LocalMappingConfig:
+    """Local bundle adjustment and keyframe culling (defaults: ORB-SLAM2's)."""
+
+    depth_noise: float = 0.0019
+    """k of the depth noise ``σ_z = k·z²`` the stereo observations model, metres⁻¹ (module
+    docstring); 0 = ORB-SLAM2's independent ``(u, v, u_r)`` of equal sigma."""
+    covisibility: int = 15
+    """Keyframes sharing at least this many map points with the new keyframe are optimised."""
+    max_keyframes: int = 0
+    """At most this many covisible keyframes are optimised, those sharing the most points first
+    (the others are fixed); 0 = all, as ORB-SLAM2."""
+    first_iterations: int = 5
+    """LM iterations with the Huber kernel (ORB-SLAM2: 5)."""
+    second_iterations: int = 10
+    """LM iterations after leaving the outliers out, without kernel (ORB-SLAM2: 10; 0 = skip)."""
+    culling: bool = True
+    """Remove redundant keyframes after each local bundle adjustment."""
+    redundancy: float = 0.9
+    """A keyframe is redundant when more than this fraction of its close points are seen by
+    ``redundant_observers`` other keyframes (ORB-SLAM2: 0.9)."""
+    redundant_observers: int = 3
+
+    def __post_init__(self) -> None:
+        # Messages start with the field name: uss-slam prefixes the config section.
+        for item in fields(self):
+            value = getattr(self, item.name)
+            if isinstance(value, bool):
+                continue
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"{item.name} must be a finite number >= 0, got {value}")
+        for name in ("covisibility", "first_iterations", "redundant_observers"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if not 0 < self.redundancy <= 1:
+            raise ValueError(f"redundancy must be in (0, 1], got {self.redundancy}")
+
+
+@dataclass
+class Adjustment:
+    """Outcome of one bundle adjustment (the map is already updated).
+
+    ``free`` / ``fixed`` keyframe ids, ``points`` ids of the optimised points, ``observations``
+    factors of the first pass, ``outliers`` observations erased, ``error`` the graph error (half
+    the sum of squared whitened residuals, with the kernel) before and after the first pass.
+    """
+
+    free: np.ndarray
+    fixed: np.ndarray
+    points: np.ndarray
+    observations: int
+    outliers: int
+    error: tuple[float, float]
+    iterations: int
+
+
+@dataclass
+class _Observations:
+    """The observations of one problem, one row each."""
+
+    point: np.ndarray
+    keyframe: np.ndarray
+    meas: np.ndarray  # (M, 3) u, v, u_r
+    stereo: np.ndarray
+    level: np.ndarray
+    inv_sigma2: np.ndarray
+
+
+class BundleAdjuster:
+    """Builds and solves bundle-adjustment factor graphs over a :class:`SlamMap`.
+
+    ``k`` (3, 3) camera matrix, ``bf`` fx × virtual baseline (pixels × metres), ``sigma2`` (L,)
+    the pyramid levels' variances (the scale factor squared to the power of the level),
+    ``depth_noise`` k of ``σ_z = k·z²`` (0 = ORB-SLAM2's model, see the module docstring).
+    """
+
+    def __init__(
+        self, k: np.ndarray, bf: float, sigma2: np.ndarray, depth_noise: float = 0.0
+    ) -> None:
+        self.k = k
+        self.bf = bf
+        self.disparity_sigma = bf * depth_noise
+        self.sigma2 = np.asarray(sigma2, np.float64)
+        fx, fy, cx, cy = k[0, 0], k[1, 1], k[0, 2], k[1, 2]
+        self.stereo_calibration = gtsam.Cal3_S2Stereo(fx, fy, 0.0, cx, cy, bf / fx)
+        self.mono_calibration = gtsam.Cal3_S2(fx, fy, 0.0, cx, cy)
+        self._noise: dict[tuple[bool, int, bool], gtsam.noiseModel.Base] = {}
+        self.fixed_noise = gtsam.noiseModel.Isotropic.Sigma(6, FIXED_SIGMA)
+
+    def noise(self, stereo: bool, level: int, robust: bool) -> gtsam.noiseModel.Base:
+        """Noise of a level's sigma (pixels), with ORB-SLAM2's Huber kernel."""
+        key = (stereo, level, robust)
+        if key not in self._noise:
+            s2 = float(self.sigma2[level])
+            if stereo and self.disparity_sigma > 0:
+                d2 = self.disparity_sigma**2
+                cov = np.array([[s2, s2, 0.0], [s2, s2 + d2, 0.0], [0.0, 0.0, s2]])
+                base = gtsam.noiseModel.Gaussian.Covariance(cov)
+            else:
+                base = gtsam.noiseModel.Isotropic.Sigma(3 if stereo else 2, math.sqrt(s2))
+            if robust:
+                delta = math.sqrt(CHI2_STEREO if stereo else CHI2_MONO)
+                base = gtsam.noiseModel.Robust.Create(
+                    gtsam.noiseModel.mEstimator.Huber.Create(delta), base
+                )
+            self._noise[key] = base
+        return self._noise[key]
+
+    def _gather(self, slam_map: SlamMap, point_ids: np.ndarray) -> _Observations:
+        point, keyframe, keypoint = slam_map.observations_of(point_ids)
+        meas = np.zeros((len(point), 3))
+        stereo = np.zeros(len(point), bool)
+        level = np.zeros(len(point), np.int64)
+        for k in np.unique(keyframe):
+            sel = keyframe == k
+            f = slam_map.keyframes[int(k)].features
+            kp = keypoint[sel]
+            meas[sel], stereo[sel] = observations(f.uv[kp], f.depth[kp], self.bf)
+            level[sel] = f.octave[kp]
+        return _Observations(point, keyframe, meas, stereo, level, 1.0 / self.sigma2[level])
+
+    def _chi2(
+        self, obs: _Observations, poses_wc: dict[int, np.ndarray], positions: np.ndarray, index
+    ) -> np.ndarray:
+        """``(M,)`` True where an observation passes ORB-SLAM2's χ² and in-front tests."""
+        ids = sorted(poses_wc)
+        table = np.stack([invert(poses_wc[i]) for i in ids])
+        row = np.searchsorted(np.array(ids), obs.keyframe)
+        e2, front = chi2_per_observation(
+            self.k,
+            self.bf,
+            table[row],
+            positions[index],
+            obs.meas,
+            obs.stereo,
+            obs.inv_sigma2,
+            self.disparity_sigma,
+        )
+        return front & (e2 < np.where(obs.stereo, CHI2_STEREO, CHI2_MONO))
+
+    def _solve(
+        self,
+        obs: _Observations,
+        use: np.ndarray,
+        poses_wc: dict[int, np.ndarray],
+        fixed: set[int],
+        point_ids: np.ndarray,
+        positions: np.ndarray,
+        index: np.ndarray,
+        robust: bool,
+        iterations: int,
+    ) -> tuple[dict[int, np.ndarray], np.ndarray, float, float, int]:
+        """One LM run over the observations in ``use``; points that the used observations do not
+        determine (a single monocular one) are left out, as are keyframes without observations."""
+        per_point = np.bincount(index[use], minlength=len(point_ids))
+        stereo_point = np.bincount(index[use & obs.stereo], minlength=len(point_ids)) > 0
+        solvable = stereo_point | (per_point >= 2)
+        use = use & solvable[index]
+        graph = gtsam.NonlinearFactorGraph()
+        x = [pose_key(k) for k in obs.keyframe]
+        lk = [point_key(p) for p in obs.point]
+        for i in np.flatnonzero(use):
+            m = obs.meas[i]
+            noise = self.noise(bool(obs.stereo[i]), int(obs.level[i]), robust)
+            if obs.stereo[i]:
+                graph.add(
+                    gtsam.GenericStereoFactor3D(
+                        gtsam.StereoPoint2(m[0], m[2], m[1]),
+                        noise,
+                        x[i],
+                        lk[i],
+                        self.stereo_calibration,
+                    )
+                )
+            else:
+                graph.add(
+                    gtsam.GenericProjectionFactorCal3_S2(
+                        m[:2].copy(), noise, x[i], lk[i], self.mono_calibration
+                    )
+                )
+        values = gtsam.Values()
+        used_kfs = sorted({int(k) for k in obs.keyframe[use]})
+        free_used = [k for k in used_kfs if k not in fixed]
+        anchors = [k for k in used_kfs if k in fixed] or free_used[:1]
+        for k in used_kfs:
+            pose = gtsam.Pose3(poses_wc[k])
+            values.insert(pose_key(k), pose)
+            if k in anchors:
+                graph.add(gtsam.PriorFactorPose3(pose_key(k), pose, self.fixed_noise))
+        used_points = np.flatnonzero(np.bincount(index[use], minlength=len(point_ids)) > 0)
+        for j in used_points:
+            values.insert(point_key(point_ids[j]), positions[j])
+        if graph.size() == 0:
+            return poses_wc, positions, 0.0, 0.0, 0
+        params = gtsam.LevenbergMarquardtParams()
+        params.setMaxIterations(int(iterations))
+        optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
+        before = graph.error(values)
+        result = optimizer.optimize()
+        out_poses = dict(poses_wc)
+        for k in free_used:
+            out_poses[k] = result.atPose3(pose_key(k)).matrix()
+        out_positions = positions.copy()
+        out_positions[used_points] = gtsam.utilities.extractPoint3(result)
+        return out_poses, out_positions, before, graph.error(result), optimizer.iterations()
+
+    def adjust(
+        self,
+        slam_map: SlamMap,
+        free: np.ndarray,
+        point_ids: np.ndarray,
+        first_iterations: int = 5,
+        second_iterations: int = 10,
+    ) -> Adjustment:
+        """Bundle-adjust keyframes ``free`` and points ``point_ids`` (sorted); every other
+        keyframe observing those points is fixed, and so is keyframe 0 (the gauge). Updates the
+        map (poses, positions, erased outlier observations); ``second_iterations = 0`` skips the
+        second pass (the outliers are still erased)."""
+        obs = self._gather(slam_map, point_ids)
+        involved = np.unique(obs.keyframe)
+        fixed = set(int(k) for k in np.setdiff1d(involved, free))
+        if 0 in involved:
+            fixed.add(0)
+        poses = {int(k): slam_map.keyframes[int(k)].pose_wc.copy() for k in involved}
+        positions = slam_map.points.position.view[point_ids].copy()
+        index = np.searchsorted(point_ids, obs.point)
+        use = np.ones(len(obs.point), bool)
+        poses, positions, e0, e1, its = self._solve(
+            obs, use, poses, fixed, point_ids, positions, index, True, first_iterations
+        )
+        if second_iterations > 0:
+            use = self._chi2(obs, poses, positions, index)
+            poses, positions, _, _, its2 = self._solve(
+                obs, use, poses, fixed, point_ids, positions, index, False, second_iterations
+            )
+            its += its2
+        inlier = self._chi2(obs, poses, positions, index)
+        for k in involved:
+            if int(k) not in fixed:
+                slam_map.keyframes[int(k)].pose_wc = poses[int(k)]
+        slam_map.points.position.view[point_ids] = positions
+        erased = slam_map.erase_observations(obs.point[~inlier], obs.keyframe[~inlier])
+        slam_map.update_geometry(point_ids)
+        return Adjustment(
+            free=np.array(sorted(set(int(k) for k in involved) - fixed), np.int64),
+            fixed=np.array(sorted(fixed), np.int64),
+            points=point_ids,
+            observations=len(obs.point),
+            outliers=erased,
+            error=(e0, e1),
+            iterations=its,
+        )
+
+
+@dataclass
+class LocalMappingStats:
+    """Totals over a run: ``runs`` local bundle adjustments, their mean ``wall_ms``, keyframes
+    ``culled``, outlier ``observations_erased``."""
+
+    runs: int = 0
+    wall_s: float = 0.0
+    culled: int = 0
+    observations_erased: int = 0
+    optimised_keyframes: int = 0
+    optimised_points: int = 0
+
+    def as_dict(self) -> dict[str, float | int]:
+        return {
+            "runs": self.runs,
+            "wall_ms": 1000.0 * self.wall_s / max(self.runs, 1),
+            "keyframes_culled": self.culled,
+            "observations_erased": self.observations_erased,
+            "mean_free_keyframes": self.optimised_keyframes / max(self.runs, 1),
+            "mean_points": self.optimised_points / max(self.runs, 1),
+        }
+
+
+class LocalMapping:
+    """Runs local bundle adjustment and keyframe culling on each new keyframe of a map."""
+
+    def __init__(self, config: LocalMappingConfig, adjuster: BundleAdjuster) -> None:
+        self.config = config
+        self.adjuster = adjuster
+        self.stats = LocalMappingStats()
+
+    def local_keyframes(self, slam_map: SlamMap, keyframe_id: int) -> np.ndarray:
+        """The new keyframe and its covisible keyframes (most shared points first if capped)."""
+        cfg = self.config
+        ids = slam_map.keyframes[keyframe_id].point_ids
+        ids = ids[ids >= 0]
+        counts = slam_map.covisibility(ids[~slam_map.points.bad.view[ids]])
+        counts[keyframe_id] = 0
+        order = np.argsort(-counts, kind="stable")
+        order = order[counts[order] >= cfg.covisibility]
+        if cfg.max_keyframes:
+            order = order[: cfg.max_keyframes]
+        return np.union1d(order, [keyframe_id]).astype(np.int64)
+
+    def process(self, slam_map: SlamMap, keyframe_id: int) -> tuple[Adjustment, list[int]]:
+        """Local BA around ``keyframe_id``, then culling of its redundant covisible keyframes;
+        returns the adjustment and the culled keyframe ids."""
+        start = time.perf_counter()
+        local = self.local_keyframes(slam_map, keyframe_id)
+        points = slam_map.points_of(local)
+        adjustment = self.adjuster.adjust(
+            slam_map,
+            local,
+            points,
+            self.config.first_iterations,
+            self.config.second_iterations,
+        )
+        culled = self.cull(slam_map, keyframe_id) if self.config.culling else []
+        s = self.stats
+        s.runs += 1
+        s.wall_s += time.perf_counter() - start
+        s.culled += len(culled)
+        s.observations_erased += adjustment.outliers
+        s.optimised_keyframes += len(adjustment.free)
+        s.optimised_points += len(points)
+        return adjustment, culled
+
+    def cull(self, slam_map: SlamMap, keyframe_id: int) -> list[int]:
+        """ORB-SLAM2's ``KeyFrameCulling`` over the covisible keyframes of ``keyframe_id``."""
+        culled = []
+        for c in slam_map.covisible(keyframe_id, self.config.covisibility):
+            c = int(c)
+            if c == 0 or slam_map.keyframes[c].bad:
+                continue
+            if self.redundant(slam_map, c):
+                slam_map.cull_keyframe(c)
+                culled.append(c)
+        return culled
+
+    def redundant(self, slam_map: SlamMap, keyframe_id: int) -> bool:
+        """More than ``redundancy`` of the keyframe's close good points are seen by at least
+        ``redundant_observers`` other keyframes at a level no coarser than its own + 1."""
+        kf = slam_map.keyframes[keyframe_id]
+        pts = slam_map.points
+        own = np.flatnonzero(kf.point_ids >= 0)
+        own = own[~pts.bad.view[kf.point_ids[own]] & (kf.features.depth[own] > 0)]
+        if len(own) == 0:
+            return False
+        point_ids = kf.point_ids[own]
+        own_level = np.full(slam_map.n_points, -1, np.int64)
+        own_level[point_ids] = kf.features.octave[own]
+        many = point_ids[pts.observations.view[point_ids] > self.config.redundant_observers]
+        point, other, keypoint = slam_map.observations_of(many)
+        keep = other != keyframe_id
+        point, other, keypoint = point[keep], other[keep], keypoint[keep]
+        level = slam_map.levels(other, keypoint)
+        fine = level <= own_level[point] + 1
+        observers = np.bincount(point[fine], minlength=slam_map.n_points)
+        n_redundant = int((observers[point_ids] >= self.config.redundant_observers).sum())
+        return n_redundant > self.config.redundancy * len(point_ids)

@@ -1,0 +1,413 @@
+"""Loop closing, as ORB-SLAM2's ``LoopClosing`` thread with a fixed scale (RGB-D): detect that the
+camera is back at a place it mapped long ago, verify it geometrically, and spread the correction
+over the map with an SE(3) pose graph on GTSAM.
+
+Per new keyframe ``K`` (not within ``min_keyframes`` of the start or of the last loop):
+
+1. **Candidates**: keyframes not covisible with ``K`` (sharing fewer than ``covisibility`` points
+   with it), scored by descriptor matches of ``K``'s static keypoints to their map points (nearest
+   neighbour in Hamming distance, ratio test, as the tracker's relocalisation; ORB-SLAM2 scores
+   with its bag of words), at least ``min_matches``; the ``candidates`` best are kept.
+2. **Consistency** (ORB-SLAM2's ``DetectLoop``): a candidate and its covisible keyframes form a
+   group; a group that overlaps a group of the previous keyframe's detection inherits its count
+   + 1. A candidate is accepted once its count reaches ``consistency`` (ORB-SLAM2: 3), i.e. the
+   same place was recognised from ``consistency`` + 1 consecutive keyframes.
+3. **Geometric verification** (ORB-SLAM2's ``ComputeSim3``, scale fixed): PnP-RANSAC of ``K``'s
+   keypoints on the candidate's matched map points and the RGB-D refinement of the tracker,
+   ``min_inliers`` inliers; then the map points of the candidate and its covisible keyframes are
+   projected into ``K`` with that pose and matched, and after refining on all of them
+   ``min_projected`` inliers are needed (ORB-SLAM2: 20 and 40).
+4. **Correction** (``CorrectLoop``): ``K`` and its covisible keyframes are moved rigidly to the
+   verified pose, their map points with them; the loop side's map points are fused into them
+   (duplicates replaced, unmatched keypoints given the loop's points). Then the **essential
+   graph** is optimised with Levenberg–Marquardt: all keyframes, the loop keyframe fixed, one
+   ``BetweenFactorPose3`` per edge of the spanning tree, per pair sharing at least
+   ``essential_covisibility`` points (ORB-SLAM2: 100), per earlier loop and per new loop link
+   (the relative poses measured before the correction, the new links' after it). Every map point
+   then moves with its reference keyframe (the one that corrected it, else the one that created
+   it). ``global_ba`` finishes with a bundle adjustment of the whole map (ORB-SLAM2 runs one in a
+   thread after each loop), ``global_ba_iterations`` LM iterations.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, fields
+
+import gtsam
+import numpy as np
+
+from ..geometry import invert, rotation_angle_deg
+from ..tracking.tracker import Tracker
+from .local_mapping import FIXED_SIGMA, BundleAdjuster, pose_key
+from .slam_map import KeyFrame, SlamMap
+
+
+@dataclass(frozen=True)
+class LoopClosingConfig:
+    """Loop detection, verification and correction (defaults: ORB-SLAM2's where it has one)."""
+
+    min_keyframes: int = 10
+    """No detection before the map has this many keyframes, nor within this many keyframes of
+    the last loop (ORB-SLAM2: 10)."""
+    covisibility: int = 15
+    """Keyframes sharing at least this many points with the current one are not candidates."""
+    min_matches: int = 30
+    """Descriptor matches a candidate needs before it is considered."""
+    candidates: int = 3
+    """The best-scoring candidates kept per keyframe."""
+    ratio: float = 0.75
+    max_hamming: int = 64
+    consistency: int = 3
+    """Consecutive consistent detections needed (ORB-SLAM2: 3)."""
+    min_inliers: int = 20
+    """PnP inliers of the geometric verification (ORB-SLAM2's Sim3 RANSAC: 20)."""
+    min_projected: int = 40
+    """Inliers after matching the loop's local map by projection (ORB-SLAM2: 40)."""
+    search_radius: float = 10.0
+    """Window of the projection search of the verification, px at level 0 (ORB-SLAM2: 10)."""
+    fuse_radius: float = 4.0
+    """Window of the fusion of the loop's points into the current side, px (ORB-SLAM2: 4)."""
+    essential_covisibility: int = 100
+    """Covisibility edges of the essential graph need this many shared points (ORB-SLAM2: 100)."""
+    iterations: int = 20
+    """LM iterations of the essential-graph optimisation (ORB-SLAM2: 20)."""
+    global_ba: bool = True
+    """Bundle-adjust the whole map after each loop closure."""
+    global_ba_iterations: int = 10
+
+    def __post_init__(self) -> None:
+        # Messages start with the field name: uss-slam prefixes the config section.
+        for item in fields(self):
+            value = getattr(self, item.name)
+            if isinstance(value, bool):
+                continue
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"{item.name} must be a finite number >= 0, got {value}")
+        for name in ("candidates", "min_inliers", "min_projected", "iterations", "min_matches"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if not 0 < self.ratio <= 1:
+            raise ValueError(f"ratio must be in (0, 1], got {self.ratio}")
+
+
+@dataclass
+class LoopClosure:
+    """One closed loop: keyframe ``keyframe`` (of frame ``frame``) recognised ``loop_keyframe``
+    (of frame ``loop_frame``); ``inliers`` of the verification; ``correction_m`` /
+    ``correction_deg`` how far the current keyframe moved; ``fused`` points fused."""
+
+    frame: int
+    stamp: float
+    keyframe: int
+    loop_frame: int
+    loop_keyframe: int
+    inliers: int
+    correction_m: float
+    correction_deg: float
+    fused: int
+    wall_ms: float
+
+    def as_dict(self) -> dict[str, float | int]:
+        return dict(vars(self))
+
+
+@dataclass
+class _Match:
+    """A verified loop: ``pose_cw`` of the current keyframe in the loop's map, and the loop map
+    point matched to each of its keypoints (-1 none)."""
+
+    loop_keyframe: int
+    pose_cw: np.ndarray
+    matched: np.ndarray
+
+
+class LoopCloser:
+    """Detects and closes loops on the keyframes of a tracker's map (feed :meth:`process` each
+    new keyframe after local mapping)."""
+
+    def __init__(self, config: LoopClosingConfig, tracker: Tracker, adjuster: BundleAdjuster):
+        self.config = config
+        self.tracker = tracker
+        self.adjuster = adjuster
+        self.closures: list[LoopClosure] = []
+        self.loop_edges: list[tuple[int, int]] = []
+        self._groups: list[tuple[set[int], int]] = []
+        self._last_loop = -1
+        self.detection_s = 0.0
+        self.rejected = 0
+        """Consistent candidates that failed the geometric verification."""
+
+    @property
+    def map(self) -> SlamMap:
+        return self.tracker.map
+
+    # ------------------------------------------------------------------ detection
+
+    def process(self, keyframe: KeyFrame) -> LoopClosure | None:
+        """Look for a loop at ``keyframe`` and close it; returns the closure or None."""
+        cfg = self.config
+        if keyframe.bad or keyframe.id < cfg.min_keyframes:
+            return None
+        if self._last_loop >= 0 and keyframe.id < self._last_loop + cfg.min_keyframes:
+            return None
+        start = time.perf_counter()
+        candidates = self._consistent(keyframe, self._candidates(keyframe))
+        match = None
+        for loop_kf, kp, pid, distance in candidates:
+            match = self._verify(keyframe, loop_kf, kp, pid, distance)
+            if match is not None:
+                break
+            self.rejected += 1
+        self.detection_s += time.perf_counter() - start
+        if match is None:
+            return None
+        closure = self._correct(keyframe, match)
+        closure.wall_ms = 1000.0 * (time.perf_counter() - start)
+        self.closures.append(closure)
+        self._last_loop = keyframe.id
+        self._groups = []
+        return closure
+
+    def _candidates(self, kf: KeyFrame) -> list[tuple[int, np.ndarray, np.ndarray, np.ndarray]]:
+        """``(keyframe id, keypoints of kf, matched map points, distances)`` of the best-scoring
+        keyframes not covisible with ``kf``."""
+        cfg = self.config
+        near = set(int(k) for k in self.map.covisible(kf.id, cfg.covisibility)) | {kf.id}
+        query = np.flatnonzero(~kf.dynamic)
+        if len(query) < cfg.min_matches:
+            return []
+        scored = []
+        for other in self.map.keyframes:
+            if other.bad or other.id in near:
+                continue
+            found = self.tracker.match_keyframe(
+                kf.features, query, other, cfg.ratio, cfg.max_hamming, cfg.min_matches
+            )
+            if found is not None and len(found[0]) >= cfg.min_matches:
+                scored.append((len(found[0]), other.id, *found))
+        scored.sort(key=lambda c: (-c[0], c[1]))
+        return [c[1:] for c in scored[: cfg.candidates]]
+
+    def _consistent(self, kf: KeyFrame, candidates: list) -> list:
+        """ORB-SLAM2's group consistency: the candidates whose group has been seen by
+        ``consistency`` consecutive earlier keyframes."""
+        cfg = self.config
+        groups: list[tuple[set[int], int]] = []
+        accepted = []
+        for cand in candidates:
+            group = set(int(k) for k in self.map.covisible(cand[0], cfg.covisibility))
+            group.add(cand[0])
+            count = 0
+            for previous, n in self._groups:
+                if group & previous:
+                    count = max(count, n + 1)
+            groups.append((group, count))
+            if count >= cfg.consistency:
+                accepted.append(cand)
+        self._groups = groups
+        return accepted
+
+    # ------------------------------------------------------------------ verification
+
+    def _verify(
+        self, kf: KeyFrame, loop_id: int, kp: np.ndarray, pid: np.ndarray, distance: np.ndarray
+    ) -> _Match | None:
+        cfg = self.config
+        tracker = self.tracker
+        pts = self.map.points
+        features = kf.features
+        found = tracker.pnp_global(pts.position.view[pid], features, kp, distance)
+        if found is None or found[1].sum() < cfg.min_inliers:
+            return None
+        pose_cw = found[0]
+        group = np.union1d(self.map.covisible(loop_id, cfg.covisibility), [loop_id])
+        loop_points = self.map.points_of(group.astype(np.int64))
+        available = ~kf.dynamic
+        ids, m = tracker.match_projected(
+            loop_points, pose_cw, features, available, cfg.search_radius
+        )
+        if len(m) < cfg.min_projected:
+            return None
+        pose_cw, inl = tracker.refine_pose(
+            pts.position.view[ids[m.query]], features, m.keypoint, pose_cw
+        )
+        if inl.sum() < cfg.min_projected:
+            return None
+        matched = np.full(len(features), -1, np.int64)
+        matched[m.keypoint[inl]] = ids[m.query[inl]]
+        return _Match(loop_id, pose_cw, matched)
+
+    # ------------------------------------------------------------------ correction
+
+    def _correct(self, kf: KeyFrame, match: _Match) -> LoopClosure:
+        cfg = self.config
+        slam_map = self.map
+        pts = slam_map.points
+        kfs = slam_map.keyframes
+        uncorrected = {k.id: k.pose_wc.copy() for k in kfs if not k.bad}
+        group = [kf.id] + [int(k) for k in slam_map.covisible(kf.id, cfg.covisibility)]
+        neighbours_before = {g: set(int(k) for k in slam_map.covisible(g, 1)) for g in group}
+        corrected_wc = invert(match.pose_cw)
+        moved = corrected_wc @ kf.pose_cw  # world correction of the current side
+        old_position = kfs[kf.id].center.copy()
+        old_rotation = kfs[kf.id].pose_wc[:3, :3].copy()
+        # Move the current side rigidly, and its points with the keyframe that first holds them.
+        reference = np.full(slam_map.n_points, -1, np.int64)
+        for g in group:
+            ids = kfs[g].point_ids
+            ids = np.unique(ids[ids >= 0])
+            ids = ids[(reference[ids] < 0) & ~pts.bad.view[ids]]
+            reference[ids] = g
+        side = np.flatnonzero(reference >= 0)
+        pts.position.view[side] = pts.position.view[side] @ moved[:3, :3].T + moved[:3, 3]
+        for g in group:
+            kfs[g].pose_wc = moved @ kfs[g].pose_wc
+        # Fuse the loop's points into the current side.
+        fused = self._fuse_matched(kf.id, match.matched)
+        loop_group = np.union1d(
+            slam_map.covisible(match.loop_keyframe, cfg.covisibility), [match.loop_keyframe]
+        ).astype(np.int64)
+        loop_points = slam_map.points_of(loop_group)
+        for g in group:
+            fused += self._fuse_projected(kfs[g], loop_points)
+        links = {}
+        for g in group:
+            now = set(int(k) for k in slam_map.covisible(g, 1))
+            links[g] = now - neighbours_before[g] - set(group)
+        self._optimise_essential_graph(kf.id, match.loop_keyframe, uncorrected, links, reference)
+        self.loop_edges.append((match.loop_keyframe, kf.id))
+        if cfg.global_ba:
+            good = np.array([k.id for k in kfs if not k.bad], np.int64)
+            all_points = slam_map.points_of(good)
+            self.adjuster.adjust(slam_map, good, all_points, cfg.global_ba_iterations, 0)
+        slam_map.update_geometry(slam_map.points_of(np.array([k.id for k in kfs if not k.bad])))
+        return LoopClosure(
+            frame=kf.frame_index,
+            stamp=kf.stamp,
+            keyframe=kf.id,
+            loop_frame=kfs[match.loop_keyframe].frame_index,
+            loop_keyframe=match.loop_keyframe,
+            inliers=int((match.matched >= 0).sum()),
+            correction_m=float(np.linalg.norm(kf.center - old_position)),
+            correction_deg=rotation_angle_deg(old_rotation.T @ kf.pose_wc[:3, :3]),
+            fused=fused,
+            wall_ms=0.0,
+        )
+
+    def _fuse_matched(self, keyframe_id: int, matched: np.ndarray) -> int:
+        """Keypoint ``i`` of the keyframe sees loop point ``matched[i]``: replace its own point
+        by the loop's, or give it the loop's. Returns how many keypoints changed."""
+        slam_map = self.map
+        kf = slam_map.keyframes[keyframe_id]
+        count = 0
+        for i in np.flatnonzero(matched >= 0):
+            loop_point = int(matched[i])
+            if slam_map.points.bad.view[loop_point]:
+                continue
+            own = int(kf.point_ids[i])
+            if own == loop_point:
+                continue
+            if own >= 0:
+                slam_map.replace_point(own, loop_point)
+            elif loop_point not in kf.point_ids:
+                slam_map.add_observation(loop_point, keyframe_id, int(i))
+            else:
+                continue
+            count += 1
+        return count
+
+    def _fuse_projected(self, kf: KeyFrame, loop_points: np.ndarray) -> int:
+        """ORB-SLAM2's ``SearchAndFuse``: the loop's points projected into a current-side
+        keyframe (corrected pose) and fused where they match."""
+        if kf.bad or len(loop_points) == 0:
+            return 0
+        loop_points = loop_points[~self.map.points.bad.view[loop_points]]
+        ids, m = self.tracker.match_projected(
+            loop_points, kf.pose_cw, kf.features, ~kf.dynamic, self.config.fuse_radius
+        )
+        matched = np.full(len(kf.features), -1, np.int64)
+        matched[m.keypoint] = ids[m.query]
+        return self._fuse_matched(kf.id, matched)
+
+    def _optimise_essential_graph(
+        self,
+        current: int,
+        loop_keyframe: int,
+        uncorrected: dict[int, np.ndarray],
+        links: dict[int, set[int]],
+        reference: np.ndarray,
+    ) -> None:
+        """SE(3) pose graph over the essential graph (ORB-SLAM2's ``OptimizeEssentialGraph``,
+        with unit information per edge), then every map point moved with its reference
+        keyframe."""
+        cfg = self.config
+        slam_map = self.map
+        kfs = slam_map.keyframes
+        good = [k.id for k in kfs if not k.bad]
+        before = {k: kfs[k].pose_wc.copy() for k in good}
+        graph = gtsam.NonlinearFactorGraph()
+        values = gtsam.Values()
+        unit = gtsam.noiseModel.Unit.Create(6)
+        for k in good:
+            values.insert(pose_key(k), gtsam.Pose3(before[k]))
+        graph.add(
+            gtsam.PriorFactorPose3(
+                pose_key(loop_keyframe),
+                gtsam.Pose3(before[loop_keyframe]),
+                gtsam.noiseModel.Isotropic.Sigma(6, FIXED_SIGMA),
+            )
+        )
+        edges: set[tuple[int, int]] = set()
+
+        def add(a: int, b: int, poses: dict[int, np.ndarray]) -> None:
+            key = (min(a, b), max(a, b))
+            if a == b or key in edges or kfs[a].bad or kfs[b].bad:
+                return
+            edges.add(key)
+            relative = invert(poses[a]) @ poses[b]
+            graph.add(
+                gtsam.BetweenFactorPose3(pose_key(a), pose_key(b), gtsam.Pose3(relative), unit)
+            )
+
+        # New loop links, measured in the corrected map.
+        for g, others in links.items():
+            for o in others:
+                weight = len(np.intersect1d(_points(kfs[g]), _points(kfs[o])))
+                if (g == current and o == loop_keyframe) or weight >= cfg.essential_covisibility:
+                    add(g, o, before)
+        add(current, loop_keyframe, before)
+        # Spanning tree, earlier loops, strong covisibility: measured before the correction.
+        for k in good:
+            parent = kfs[k].parent
+            if parent is not None:
+                add(parent, k, uncorrected)
+        for a, b in self.loop_edges:
+            add(a, b, uncorrected)
+        for k in good:
+            for o in slam_map.covisible(k, cfg.essential_covisibility):
+                add(k, int(o), uncorrected)
+        params = gtsam.LevenbergMarquardtParams()
+        params.setMaxIterations(cfg.iterations)
+        result = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
+        for k in good:
+            kfs[k].pose_wc = result.atPose3(pose_key(k)).matrix()
+        # Points: with the keyframe that corrected them (its pose after the rigid correction is
+        # theirs), else with the one that created them (its pose before the correction).
+        pts = slam_map.points
+        ids = np.flatnonzero(~pts.bad.view)
+        side = reference[ids] >= 0
+        ref = np.where(side, reference[ids], pts.first_keyframe.view[ids])
+        for r, on_side in sorted(set(zip(ref.tolist(), side.tolist(), strict=True))):
+            sel = ids[(ref == r) & (side == on_side)]
+            old = slam_map.pose_wc(r, before if on_side else uncorrected)
+            change = slam_map.pose_wc(r) @ invert(old)
+            pts.position.view[sel] = pts.position.view[sel] @ change[:3, :3].T + change[:3, 3]
+
+
+def _points(kf: KeyFrame) -> np.ndarray:
+    return kf.point_ids[kf.point_ids >= 0]
+
+
+__all__ = ["LoopCloser", "LoopClosingConfig", "LoopClosure"]

@@ -1,0 +1,100 @@
+"""Where per-pixel class labels come from during a SLAM run.
+
+A segmenter turns a frame into ``(H, W)`` uint8 project class ids (``classes.CLASS_NAMES``) or
+None. Image segmenters implement :meth:`ImageSegmenter.infer` on the RGB image alone (the ONNX
+runtime segmenter of ``uss-export`` models is one); the oracle :class:`LabelsSegmenter` returns the
+ground-truth ``labels/`` PNG that the sequence reader loaded with the frame.
+
+Plugging in a segmenter: subclass :class:`ImageSegmenter`, give it a ``name`` and implement
+``infer``; add ``configs/segmenter/<option>.yaml`` whose ``_target_`` is the class and whose other
+keys are its constructor's keyword arguments (``uss-slam segmenter=<option> segmenter.<arg>=...``);
+raise :class:`~uss_slam.core.errors.UssSlamError` for bad arguments or files (``uss-slam``
+prints it as one line and exits 1). When it runs is the pipeline's business (``segment=every_frame``:
+every frame, in ``slam.workers`` prefetch threads at once, so ``infer`` must be thread-safe;
+``segment=keyframes``: keyframes only, in the main thread; see :mod:`..systems.harness`). A segmenter
+that times stages of its own offers ``stage_times() -> {stage: (wall_s, cpu_s)}`` for the calling
+thread's last call; the pipeline adds them as timing rows ``segmentation.<stage>`` (the ONNX
+segmenter's dense CRF: ``segmentation.crf``).
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from uss_slam.core.classes import CLASS_NAMES
+from uss_slam.core.errors import UssSlamError
+
+from ..sequence import Frame
+
+
+@runtime_checkable
+class Segmenter(Protocol):
+    """Anything that labels a frame: ``segment(frame) -> (H, W) uint8 class ids | None``."""
+
+    name: str
+    needs_labels: bool
+    """True when the sequence reader must load the ``labels/`` folder for it."""
+
+    def segment(self, frame: Frame) -> np.ndarray | None: ...
+
+
+class ImageSegmenter(ABC):
+    """A segmenter that sees only the RGB image; subclasses implement :meth:`infer`."""
+
+    name = "image"
+    needs_labels = False
+
+    @abstractmethod
+    def infer(self, rgb: np.ndarray) -> np.ndarray:
+        """``(H, W, 3)`` uint8 RGB -> ``(H, W)`` uint8 project class ids, same size."""
+
+    def segment(self, frame: Frame) -> np.ndarray:
+        """``infer`` on the frame's RGB image, checked: ``(H, W)`` uint8 of the frame's size."""
+        labels = np.asarray(self.infer(frame.rgb))
+        if labels.shape != frame.gray.shape or labels.dtype != np.uint8:
+            raise UssSlamError(
+                f"segmenter {self.name!r} returned labels of shape {labels.shape} and dtype "
+                f"{labels.dtype} for a frame of shape {frame.gray.shape}; expected "
+                f"{frame.gray.shape} uint8 class ids"
+            )
+        return labels
+
+
+class NoSegmenter:
+    """No segmentation: filters that need labels cannot be used."""
+
+    name = "none"
+    needs_labels = False
+
+    def segment(self, frame: Frame) -> None:
+        return None
+
+
+class LabelsSegmenter:
+    """Oracle: the sequence's own ``labels/`` PNG (exact class ids of the synthetic world)."""
+
+    name = "labels"
+    needs_labels = True
+
+    def segment(self, frame: Frame) -> np.ndarray:
+        if frame.labels is None:
+            raise UssSlamError(
+                "segmenter=labels but the frame has no labels: open the sequence with "
+                "load_labels=True"
+            )
+        return frame.labels
+
+
+def class_ids(names: list[str] | tuple[str, ...]) -> np.ndarray:
+    """Project class ids of class names (errors list the known names)."""
+    ids = []
+    for name in names:
+        if name not in CLASS_NAMES:
+            raise UssSlamError(
+                f"unknown class {name!r}; the project's classes are {', '.join(CLASS_NAMES)}"
+            )
+        ids.append(CLASS_NAMES.index(name))
+    return np.asarray(ids, dtype=np.uint8)

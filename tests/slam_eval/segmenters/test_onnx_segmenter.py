@@ -1,0 +1,412 @@
+"""The ONNX segmenter runtime (``slam_eval/segmenters/onnx.py``): contract checks, class mapping, output
+size, providers, ``uss-slam segmenter=onnx``; parity with the PyTorch checkpoint.
+
+The tiny models are built with ``onnx.helper`` (no torch): logits = (128, R, G, B) per pixel, so
+the label of a pixel is 0 where every channel is below 128 (ties go to the first index, as
+ArgMax), else the index of its largest channel among R, G, B (+1).
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+from pathlib import Path
+
+import numpy as np
+import onnx
+import pytest
+from hydra import compose, initialize_config_dir
+from onnx import TensorProto, helper
+
+from uss_slam.core.classes import CLASS_NAMES
+from uss_slam.core.errors import DataFormatError, UssSlamError
+from uss_slam.core.onnx_contract import KEY_CLASS_NAMES, SegmenterMetadata
+from uss_slam.slam_eval.run import run
+from uss_slam.slam_eval.segmenters.onnx import OnnxSegmenter, resolve_providers
+
+REPO = Path(__file__).resolve().parents[3]
+
+
+def _metadata(class_names=CLASS_NAMES) -> dict[str, str]:
+    return SegmenterMetadata(
+        class_names=tuple(class_names),
+        dynamic_classes=("person",),
+        mean=(0.485, 0.456, 0.406),
+        std=(0.229, 0.224, 0.225),
+        head="main",
+        experiment="test",
+        checkpoint_sha256="0" * 64,
+        version="0.1.0",
+    ).to_props()
+
+
+def tiny_model(
+    path: Path,
+    metadata: dict[str, str] | None = None,
+    *,
+    input_type: int = TensorProto.UINT8,
+    input_shape: tuple = ("N", "H", "W", 3),
+    bias: float = 128.0,
+) -> Path:
+    """Write the (128, R, G, B)-logits model to ``path`` with ``metadata`` as metadata_props."""
+    nodes = [
+        helper.make_node("Cast", ["image"], ["x"], to=TensorProto.FLOAT),
+        helper.make_node("Transpose", ["x"], ["nchw"], perm=[0, 3, 1, 2]),
+        helper.make_node("Conv", ["nchw", "w", "b"], ["logits"]),
+        helper.make_node("ArgMax", ["logits"], ["idx"], axis=1, keepdims=0),
+        helper.make_node("Cast", ["idx"], ["labels"], to=TensorProto.UINT8),
+    ]
+    weight = np.zeros((4, 3, 1, 1), np.float32)
+    weight[1, 0] = weight[2, 1] = weight[3, 2] = 1.0
+    graph = helper.make_graph(
+        nodes,
+        "tiny",
+        [helper.make_tensor_value_info("image", input_type, list(input_shape))],
+        [
+            helper.make_tensor_value_info("logits", TensorProto.FLOAT, ["N", 4, "H", "W"]),
+            helper.make_tensor_value_info("labels", TensorProto.UINT8, ["N", "H", "W"]),
+        ],
+        initializer=[
+            helper.make_tensor("w", TensorProto.FLOAT, weight.shape, weight.ravel()),
+            helper.make_tensor("b", TensorProto.FLOAT, [4], [bias, 0.0, 0.0, 0.0]),
+        ],
+    )
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+    model.ir_version = 9
+    if metadata:
+        helper.set_model_props(model, metadata)
+    onnx.checker.check_model(model)
+    onnx.save(model, str(path))
+    return path
+
+
+def expected_labels(rgb: np.ndarray, bias: float = 128.0) -> np.ndarray:
+    logits = np.concatenate([np.full(rgb.shape[:2] + (1,), bias), rgb.astype(np.float64)], axis=2)
+    return np.argmax(logits, axis=2).astype(np.uint8)
+
+
+def _random_rgb(h: int, w: int, seed: int = 0) -> np.ndarray:
+    return np.random.default_rng(seed).integers(0, 256, (h, w, 3), dtype=np.uint8)
+
+
+def test_labels_at_frame_size(tmp_path: Path) -> None:
+    seg = OnnxSegmenter(tiny_model(tmp_path / "m.onnx", _metadata()))
+    for h, w in ((24, 32), (37, 53)):  # dynamic H, W; odd sizes
+        rgb = _random_rgb(h, w, seed=h)
+        labels = seg.infer(rgb)
+        assert labels.shape == (h, w) and labels.dtype == np.uint8
+        np.testing.assert_array_equal(labels, expected_labels(rgb))
+    assert seg.name == "onnx:m.onnx" and seg.providers == ["CPUExecutionProvider"]
+    assert seg.dynamic_classes == ("person",) and seg.metadata.head == "main"
+
+
+def test_model_without_metadata_is_refused(tmp_path: Path) -> None:
+    path = tiny_model(tmp_path / "plain.onnx", None)
+    with pytest.raises(DataFormatError) as info:
+        OnnxSegmenter(path)
+    message = str(info.value)
+    assert str(path) in message and "uss_slam.format" in message
+    assert "uss_slam.class_names" in message and "uss-export" in message
+
+
+def test_missing_single_key_is_named(tmp_path: Path) -> None:
+    props = _metadata()
+    del props["uss_slam.checkpoint_sha256"]
+    path = tiny_model(tmp_path / "m.onnx", props)
+    with pytest.raises(DataFormatError, match=r"lacks uss_slam\.checkpoint_sha256 \("):
+        OnnxSegmenter(path)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"input_type": TensorProto.FLOAT}, r"input 'image' is tensor\(float\)"),
+        ({"input_shape": ("N", 3, "H", "W")}, r"expected tensor\(uint8\) of shape \(N, H, W, 3\)"),
+        ({"input_shape": ("N", 24, 32, 3)}, r"fixed height/width \[24, 32\]"),
+    ],
+)
+def test_wrong_input_contract_is_refused(tmp_path: Path, kwargs: dict, match: str) -> None:
+    path = tmp_path / "m.onnx"
+    if kwargs.get("input_type") == TensorProto.FLOAT:
+        # the Cast node accepts float input too: a valid graph with the wrong input dtype
+        tiny_model(path, _metadata(), **kwargs)
+    else:
+        model = onnx.load(str(tiny_model(path, _metadata())))
+        dims = model.graph.input[0].type.tensor_type.shape.dim
+        for dim, value in zip(dims, kwargs["input_shape"], strict=True):
+            dim.Clear()
+            if isinstance(value, int):
+                dim.dim_value = value
+            else:
+                dim.dim_param = value
+        onnx.save(model, str(path))
+    with pytest.raises(DataFormatError, match=match) as info:
+        OnnxSegmenter(path)
+    assert str(path) in str(info.value)
+
+
+def test_wrong_layout_metadata_is_refused(tmp_path: Path) -> None:
+    props = {**_metadata(), "uss_slam.input_layout": "NCHW"}
+    path = tiny_model(tmp_path / "m.onnx", props)
+    with pytest.raises(DataFormatError, match=r"uss_slam\.input_layout is 'NCHW', expected 'NHWC'"):
+        OnnxSegmenter(path)
+
+
+def test_missing_labels_output_is_refused(tmp_path: Path) -> None:
+    path = tiny_model(tmp_path / "m.onnx", _metadata())
+    model = onnx.load(str(path))
+    model.graph.output.pop()  # only `logits` left
+    onnx.save(model, str(path))
+    with pytest.raises(DataFormatError, match=r"expected an output 'labels'") as info:
+        OnnxSegmenter(path)
+    assert str(path) in str(info.value)
+
+
+def test_threshold_needs_the_logits_output(tmp_path: Path) -> None:
+    path = tiny_model(tmp_path / "m.onnx", _metadata())
+    model = onnx.load(str(path))
+    del model.graph.output[0]  # only `labels` left: enough for argmax, not for a threshold
+    onnx.save(model, str(path))
+    assert OnnxSegmenter(path).threshold is None
+    with pytest.raises(DataFormatError, match=r"segmenter.threshold needs the model's 'logits'"):
+        OnnxSegmenter(path, threshold=0.3)
+
+
+def test_not_an_onnx_file_names_it(tmp_path: Path) -> None:
+    path = tmp_path / "junk.onnx"
+    path.write_bytes(b"not a model")
+    with pytest.raises(DataFormatError, match="onnxruntime cannot load it") as info:
+        OnnxSegmenter(path)
+    assert str(path) in str(info.value)
+    with pytest.raises(UssSlamError, match="no such file"):
+        OnnxSegmenter(tmp_path / "absent.onnx")
+
+
+def test_class_names_map_to_project_ids_by_name(tmp_path: Path) -> None:
+    order = ("background", "monitor", "person", "chair")  # model index -> name
+    seg = OnnxSegmenter(tiny_model(tmp_path / "m.onnx", _metadata(order)))
+    rgb = _random_rgb(20, 30)
+    model_ids = expected_labels(rgb)
+    project = np.array([CLASS_NAMES.index(n) for n in order], np.uint8)
+    np.testing.assert_array_equal(seg.infer(rgb), project[model_ids])
+    assert set(np.unique(model_ids)) == {0, 1, 2, 3}  # every mapping entry was exercised
+
+
+def _near_tie_rgb(h: int, w: int, seed: int = 0) -> np.ndarray:
+    """Channels within a few units of the background logit 128: graded softmax probabilities."""
+    return np.random.default_rng(seed).integers(124, 133, (h, w, 3), dtype=np.uint8)
+
+
+def _threshold_reference(rgb: np.ndarray, threshold: float, person: int) -> np.ndarray:
+    """Model indices: ``person`` where its softmax probability >= threshold, else the most
+    probable other index (first on ties, as argmax)."""
+    logits = np.concatenate([np.full(rgb.shape[:2] + (1,), 128.0), rgb.astype(np.float64)], 2)
+    prob = np.exp(logits) / np.exp(logits).sum(axis=2, keepdims=True)
+    others = [c for c in range(4) if c != person]
+    labels = np.array(others)[np.argmax(prob[..., others], axis=2)]
+    return np.where(prob[..., person] >= threshold, person, labels).astype(np.uint8)
+
+
+@pytest.mark.parametrize("threshold", [0.1, 0.3, 0.5, 0.8])
+def test_threshold_on_the_person_probability(tmp_path: Path, threshold: float) -> None:
+    path = tiny_model(tmp_path / "m.onnx", _metadata())
+    rgb = _near_tie_rgb(40, 50)
+    seg = OnnxSegmenter(path, threshold=threshold)
+    labels = seg.infer(rgb)
+    np.testing.assert_array_equal(labels, _threshold_reference(rgb, threshold, person=1))
+    person = labels == CLASS_NAMES.index("person")
+    argmax_person = OnnxSegmenter(path).infer(rgb) == CLASS_NAMES.index("person")
+    assert 0 < person.sum() < person.size  # graded: the threshold decides some pixels
+    if threshold < 0.5:  # a lower threshold keeps every argmax person pixel and adds others
+        assert (person >= argmax_person).all() and person.sum() > argmax_person.sum()
+    else:
+        assert (person <= argmax_person).all()
+    assert "threshold=" in repr(seg)
+
+
+def test_threshold_maps_model_classes_by_name(tmp_path: Path) -> None:
+    order = ("background", "monitor", "person", "chair")  # person is model index 2
+    seg = OnnxSegmenter(tiny_model(tmp_path / "m.onnx", _metadata(order)), threshold=0.3)
+    rgb = _near_tie_rgb(30, 30, seed=1)
+    project = np.array([CLASS_NAMES.index(n) for n in order], np.uint8)
+    np.testing.assert_array_equal(seg.infer(rgb), project[_threshold_reference(rgb, 0.3, 2)])
+
+
+@pytest.mark.parametrize("bad", [0, 0.0, 1, 1.5, -0.2, True, "0.3"])
+def test_bad_threshold_is_refused(tmp_path: Path, bad: object) -> None:
+    path = tiny_model(tmp_path / "m.onnx", _metadata())
+    with pytest.raises(
+        UssSlamError, match=r"segmenter.threshold must be a probability in \(0, 1\)"
+    ):
+        OnnxSegmenter(path, threshold=bad)
+
+
+def test_unknown_class_name_is_refused(tmp_path: Path) -> None:
+    props = _metadata(("background", "person", "chair", "sofa"))
+    path = tiny_model(tmp_path / "m.onnx", props)
+    with pytest.raises(DataFormatError, match=r"\['sofa'\] of the model are not project classes"):
+        OnnxSegmenter(path)
+    assert KEY_CLASS_NAMES in props
+
+
+def test_bad_image_is_refused(tmp_path: Path) -> None:
+    seg = OnnxSegmenter(tiny_model(tmp_path / "m.onnx", _metadata()))
+    with pytest.raises(UssSlamError, match=r"expected an \(H, W, 3\) uint8 RGB image"):
+        seg.infer(np.zeros((8, 8), np.uint8))
+    with pytest.raises(UssSlamError, match="dtype float32"):
+        seg.infer(np.zeros((8, 8, 3), np.float32))
+
+
+def test_providers_and_threads(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    assert resolve_providers(None) == ["CPUExecutionProvider"]
+    assert resolve_providers("cpu") == ["CPUExecutionProvider"]
+    assert resolve_providers(["CPUExecutionProvider"]) == ["CPUExecutionProvider"]
+    import onnxruntime as ort
+
+    monkeypatch.setattr(ort, "get_available_providers", lambda: ["CPUExecutionProvider"])
+    assert resolve_providers("auto") == ["CPUExecutionProvider"]
+    with pytest.raises(UssSlamError, match="CUDAExecutionProvider not available"):
+        resolve_providers("cuda")
+    monkeypatch.setattr(
+        ort, "get_available_providers", lambda: ["CUDAExecutionProvider", "CPUExecutionProvider"]
+    )
+    assert resolve_providers("auto") == ["CUDAExecutionProvider", "CPUExecutionProvider"]
+    assert resolve_providers("cuda") == ["CUDAExecutionProvider", "CPUExecutionProvider"]
+    monkeypatch.undo()
+    path = tiny_model(tmp_path / "m.onnx", _metadata())
+    with pytest.raises(UssSlamError, match="threads must be a whole number >= 1"):
+        OnnxSegmenter(path, threads=0)
+    seg = OnnxSegmenter(path, threads=1, providers="auto")
+    assert seg.threads == 1 and "CPUExecutionProvider" in seg.providers
+
+
+def test_concurrent_infer_calls_agree(tmp_path: Path) -> None:
+    """The pipeline calls infer() from several prefetch threads on one segmenter."""
+    seg = OnnxSegmenter(tiny_model(tmp_path / "m.onnx", _metadata()), threads=1)
+    images = [_random_rgb(48, 64, seed=s) for s in range(8)]
+    results: dict[int, np.ndarray] = {}
+
+    def work(k: int) -> None:
+        for _ in range(5):
+            results[k] = seg.infer(images[k])
+
+    threads = [threading.Thread(target=work, args=(k,)) for k in range(len(images))]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    for k, rgb in enumerate(images):
+        np.testing.assert_array_equal(results[k], expected_labels(rgb))
+
+
+def _cfg(overrides: list[str]):
+    with initialize_config_dir(config_dir=str(REPO / "configs"), version_base="1.3"):
+        return compose("slam_eval", overrides=overrides)
+
+
+def test_config_composes() -> None:
+    cfg = _cfg(["sequence.path=/x", "segmenter=onnx", "segmenter.path=exports/x.onnx"])
+    assert cfg.segmenter._target_ == "uss_slam.slam_eval.segmenters.onnx.OnnxSegmenter"
+    assert cfg.segmenter.path == "exports/x.onnx"
+    assert cfg.segmenter.threads == 1 and cfg.segmenter.providers == "cpu"
+    assert cfg.segmenter.threshold is None  # the model's argmax unless asked
+
+
+def test_uss_slam_runs_an_onnx_segmenter(synthetic_sequence, tmp_path: Path) -> None:
+    """``uss-slam segmenter=onnx``: every frame segmented by the model; its labels filter.
+
+    With bias 256 the model labels every pixel background (0): the semantic filter drops nothing
+    and the run equals the unfiltered one's keypoint counts."""
+    seq = synthetic_sequence(preset="walking_xyz", frames=12, size=(160, 120))
+    model = tiny_model(tmp_path / "bg.onnx", _metadata(), bias=256.0)
+    out = tmp_path / "run"
+    cfg = _cfg(
+        [
+            f"sequence.path={seq}",
+            "segmenter=onnx",
+            f"segmenter.path={model}",
+            "filters=[semantic]",
+            f"out_dir={out}",
+            "progress=false",
+        ]
+    )
+    data = run(cfg)
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["segmenter"] == "onnx:bg.onnx" == data["segmenter"]
+    assert metrics["frames"] == 12
+    assert metrics["segmentation"]["frames_segmented"] == 12
+    assert metrics["keypoints"]["dropped"]["semantic"] == 0
+    assert metrics["keypoints"]["kept"] == metrics["keypoints"]["extracted"]
+    assert metrics["settings"]["segmenter"]["path"] == str(model)
+
+
+def test_uss_slam_reports_a_bad_model_in_one_line(tmp_path: Path) -> None:
+    import subprocess
+    import sys
+
+    plain = tiny_model(tmp_path / "plain.onnx", None)
+    result = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "uss_slam.slam_eval.run",
+            f"sequence.path={tmp_path}",
+            "segmenter=onnx",
+            f"segmenter.path={plain}",
+            f"out_dir={tmp_path / 'out'}",
+        ],
+        capture_output=True,
+        text=True,
+    )
+    assert result.returncode == 1
+    lines = result.stderr.strip().splitlines()
+    assert lines[-1].startswith(f"uss-slam: error: {plain}: not a uss-slam segmenter")
+
+
+@pytest.mark.slow  # torch import + export + verification: ~15 s on a quiet 2-core machine
+def test_output_equals_the_checkpoints_pytorch_argmax(synthetic_sequence, tmp_path: Path) -> None:
+    """Checkpoint (as uss-train writes it) -> export_checkpoint -> OnnxSegmenter, against the
+    checkpoint's own PyTorch segmenter on a synthetic target frame (this test imports torch; the
+    runtime does not)."""
+    import torch
+    import torch.nn.functional as F
+    import yaml
+
+    from uss_slam.export import export_checkpoint
+    from uss_slam.models import DeepLabV2
+    from uss_slam.slam_eval.sequence import TumSequence
+
+    torch.manual_seed(3)
+    net = DeepLabV2(4, "resnet_small", freeze_bn=False).eval()
+    run_dir = tmp_path / "run"
+    (run_dir / ".hydra").mkdir(parents=True)
+    (run_dir / "checkpoints").mkdir()
+    net_cfg = yaml.safe_load(
+        (REPO / "configs" / "model" / "net" / "deeplab_small.yaml").read_text()
+    )
+    config = {"run_name": "parity", "model": {"net": net_cfg}}
+    (run_dir / ".hydra" / "config.yaml").write_text(yaml.safe_dump(config))
+    ckpt = run_dir / "checkpoints" / "last.ckpt"
+    state = {f"segmenter.{k}": v for k, v in net.state_dict().items()}
+    torch.save({"state_dict": state, "hyper_parameters": {"class_names": list(CLASS_NAMES)}}, ckpt)
+
+    result = export_checkpoint(ckpt, tmp_path / "exports" / "parity.onnx")
+    seg = OnnxSegmenter(result.path, threads=2)
+    assert seg.metadata.experiment == "parity"
+
+    seq = TumSequence(str(synthetic_sequence(frames=8, size=(320, 240))))
+    rgb = seq.load(5).rgb  # a size the export was neither traced nor verified at
+    labels = seg.infer(rgb)
+
+    x = torch.from_numpy(rgb).permute(2, 0, 1)[None].float() / 255
+    mean = torch.tensor([0.485, 0.456, 0.406]).view(1, 3, 1, 1)
+    std = torch.tensor([0.229, 0.224, 0.225]).view(1, 3, 1, 1)
+    with torch.no_grad():
+        out = net((x - mean) / std).main
+        logits = F.interpolate(out, size=rgb.shape[:2], mode="bilinear", align_corners=True)[0]
+    expected = logits.argmax(0).numpy().astype(np.uint8)
+    top2 = torch.topk(logits, 2, dim=0).values.numpy()
+    clear = (top2[0] - top2[1]) > 1e-4  # pixels whose argmax is not a numerical tie
+    assert labels.shape == (240, 320) and clear.mean() > 0.999
+    np.testing.assert_array_equal(labels[clear], expected[clear])
+    assert len(np.unique(expected)) >= 2  # the frame exercises more than one class

@@ -1,0 +1,282 @@
+"""``uss-slam system=orbslam3``: the settings file, the blanking of dynamic pixels, the checks of
+bad inputs, and a real ORB-SLAM3 run (pyorbslam3, optional) with a vocabulary built in the test."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from uss_slam.core.errors import DataFormatError, UssSlamError
+from uss_slam.core.tum_io import TUM_CAMERAS, read_trajectory
+from uss_slam.slam_eval.filters.dynamic import SemanticFilter
+from uss_slam.slam_eval.scoring.report import EvalConfig
+from uss_slam.slam_eval.segmenters.base import LabelsSegmenter, NoSegmenter
+from uss_slam.slam_eval.systems.orbslam3 import system as o3
+from uss_slam.slam_eval.systems.orbslam3.vocabulary import build_from_sequences, read_vocabulary
+
+
+def _node(storage: cv2.FileStorage, key: str) -> float:
+    return storage.getNode(key).real()
+
+
+def test_settings_file_holds_the_camera_and_orb_settings(tmp_path: Path) -> None:
+    cam = TUM_CAMERAS["fr1"]  # with distortion
+    path = tmp_path / "s.yaml"
+    path.write_text(o3.settings_yaml(cam, o3.OrbSlam3Config(), fps=30))
+    assert path.read_text().startswith("%YAML:1.0\n")
+    info = o3.check_settings(path, (640, 480))
+    assert (info.width, info.height, info.depth_factor, info.rgb) == (640, 480, 1.0, True)
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    assert fs.getNode("File.version").string() == "1.0"
+    assert fs.getNode("Camera.type").string() == "PinHole"
+    got = [_node(fs, f"Camera1.{k}") for k in ("fx", "fy", "cx", "cy")]
+    assert got == [cam.fx, cam.fy, cam.cx, cam.cy]
+    dist = [_node(fs, f"Camera1.{k}") for k in ("k1", "k2", "p1", "p2", "k3")]
+    assert dist == list(cam.distortion)
+    for key, value in {
+        "Camera.fps": 30,
+        "Camera.RGB": 1,
+        "ORBextractor.nFeatures": 1000,
+        "ORBextractor.nLevels": 8,
+        "ORBextractor.iniThFAST": 20,
+        "ORBextractor.minThFAST": 7,
+    }.items():
+        assert fs.getNode(key).isInt() and int(fs.getNode(key).real()) == value, key
+    assert _node(fs, "ORBextractor.scaleFactor") == 1.2
+    assert _node(fs, "Stereo.b") == 0.0747 and _node(fs, "Stereo.ThDepth") == 40.0
+    assert _node(fs, "RGBD.DepthMapFactor") == 1.0
+    fs.release()
+    # fr3 has no distortion: k1..p2 are 0 and k3 is written too (5 coefficients)
+    text = o3.settings_yaml(TUM_CAMERAS["fr3"], o3.OrbSlam3Config(), fps=30)
+    assert "Camera1.k1: 0.0\n" in text and "Camera1.k3: 0.0\n" in text
+
+
+def _settings_without(tmp_path: Path, key: str, replacement: str | None = None) -> Path:
+    text = o3.settings_yaml(TUM_CAMERAS["fr3"], o3.OrbSlam3Config(), fps=30)
+    lines = [
+        (replacement if replacement is not None else None) if line.startswith(key + ":") else line
+        for line in text.splitlines()
+    ]
+    path = tmp_path / "bad.yaml"
+    path.write_text("\n".join(line for line in lines if line is not None) + "\n")
+    return path
+
+
+@pytest.mark.parametrize(
+    ("key", "replacement", "message"),
+    [
+        ("Viewer.KeyFrameSize", None, "missing Viewer.KeyFrameSize"),
+        ("Camera.fps", "Camera.fps: 29.97", "Camera.fps must be an integer"),
+        ("File.version", None, 'File.version: "1.0"'),
+        ("Camera.type", 'Camera.type: "KannalaBrandt8"', 'must be "PinHole"'),
+        ("Camera.width", "Camera.width: 320", "is 320x480 but the sequence's images are 640x480"),
+        ("RGBD.DepthMapFactor", "RGBD.DepthMapFactor: 0.0", "DepthMapFactor must be > 0"),
+    ],
+)
+def test_bad_settings_are_one_line(tmp_path: Path, key: str, replacement, message: str) -> None:
+    path = _settings_without(tmp_path, key, replacement)
+    with pytest.raises(DataFormatError) as info:
+        o3.check_settings(path, (640, 480))
+    assert message in str(info.value) and str(path) in str(info.value)
+    assert "\n" not in str(info.value)
+
+
+def test_unreadable_settings_and_bad_config_values(tmp_path: Path) -> None:
+    (tmp_path / "x.yaml").write_text("%YAML:1.0\n: : [\n")
+    with pytest.raises(DataFormatError, match="not an OpenCV YAML file"):
+        o3.check_settings(tmp_path / "x.yaml")
+    with pytest.raises(DataFormatError, match="file not found"):
+        o3.check_settings(tmp_path / "none.yaml")
+    with pytest.raises(UssSlamError, match=r"system.repeats=0: expected an integer >= 1"):
+        o3.OrbSlam3Config(repeats=0)
+    with pytest.raises(UssSlamError, match=r"system.blank_value=300"):
+        o3.OrbSlam3Config(blank_value=300)
+    with pytest.raises(UssSlamError, match="4 or 5 distortion coefficients"):
+        cam = TUM_CAMERAS["fr3"]
+        eight = type(cam)(cam.fx, cam.fy, cam.cx, cam.cy, 640, 480, (0.0,) * 8)
+        o3.settings_yaml(eight, o3.OrbSlam3Config(), fps=30)
+
+
+def test_missing_vocabulary_names_the_key_and_the_builder(tmp_path: Path) -> None:
+    for value, expected in ((None, "system.vocabulary is not set"), ("", "is not set")):
+        with pytest.raises(UssSlamError) as info:
+            o3.check_vocabulary(value)
+        assert expected in str(info.value) and "uss-vocab build" in str(info.value)
+    with pytest.raises(UssSlamError) as info:
+        o3.check_vocabulary(str(tmp_path / "voc.txt"))
+    message = str(info.value)
+    assert message.startswith(f"system.vocabulary={tmp_path / 'voc.txt'}: file not found")
+    assert "uss-vocab build" in message and "\n" not in message
+    (tmp_path / "bin.txt").write_text("not a vocabulary\n")
+    with pytest.raises(UssSlamError, match=r"system.vocabulary=.*'k L scoring weighting'"):
+        o3.check_vocabulary(str(tmp_path / "bin.txt"))
+
+
+def test_blanked_pixels_are_exactly_the_dilated_mask() -> None:
+    h, w = 40, 50
+    labels = np.zeros((h, w), np.uint8)
+    labels[20, 25] = 1  # person: dynamic
+    labels[5, 5] = 2  # chair: static, left alone
+    semantic = SemanticFilter(dynamic_classes=["person"], dilation=3)
+    mask = o3.dynamic_mask(labels, semantic)
+    # the dilation is the harness's: an elliptic 7x7 structuring element centred on the pixel
+    expected = np.zeros((h, w), bool)
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (7, 7)).astype(bool)
+    expected[17:24, 22:29] = disc
+    assert np.array_equal(mask, expected)
+    rng = np.random.default_rng(0)
+    rgb = rng.integers(0, 256, (h, w, 3), dtype=np.uint8)
+    depth = rng.uniform(0.5, 3.0, (h, w)).astype(np.float32)
+    out_rgb, out_depth = o3.blank_dynamic(rgb, depth, mask, 128)
+    assert np.all(out_rgb[mask] == 128) and np.all(out_depth[mask] == 0.0)
+    assert np.array_equal(out_rgb[~mask], rgb[~mask])
+    assert np.array_equal(out_depth[~mask], depth[~mask])
+    assert out_rgb is not rgb and out_depth is not depth  # the frame is not modified
+    same_rgb, same_depth = o3.blank_dynamic(rgb, depth, np.zeros((h, w), bool))
+    assert same_rgb is rgb and same_depth is depth
+
+
+def test_median_run_and_frame_rate() -> None:
+    assert o3.median_index([0.3, 0.1, 0.2]) == 2
+    assert o3.median_index([0.3, 0.1]) == 1  # an even count: the lower middle run
+    assert o3.median_index([None, 0.5, 0.1]) == 1  # a run without ATE counts as the worst
+    assert o3.median_index([None]) == 0
+    assert o3.frame_rate(np.arange(10) / 30.0) == 30
+    assert o3.frame_rate(np.arange(10) / 15.0) == 15
+    assert o3.frame_rate(np.array([1.0])) == 30
+
+
+# ------------------------------------------------------------------ the real ORB-SLAM3
+
+
+@pytest.mark.slow
+def test_orbslam3_tracks_with_a_vocabulary_built_from_frames(
+    synthetic_sequence, tmp_path: Path
+) -> None:
+    pytest.importorskip("pyorbslam3")
+    seq = synthetic_sequence(preset="static_xyz", frames=30, size=(320, 240))
+    vocab = tmp_path / "voc.txt"
+    built = build_from_sequences([seq], vocab, k=8, levels=3, stride=3)
+    assert read_vocabulary(vocab).n_nodes == built.nodes
+    out = tmp_path / "run"
+    data = o3.run_orbslam3(
+        o3.SequenceSpec(str(seq)),
+        LabelsSegmenter(),
+        SemanticFilter(["person"], 5),
+        o3.OrbSlam3Config(vocabulary=str(vocab), repeats=2, realtime=False),
+        EvalConfig(),
+        out,
+        progress=False,
+    )
+    for name in ("trajectory.txt", "metrics.json", "report.md", "orbslam3_settings.yaml"):
+        assert (out / name).is_file(), name
+    for name in ("trajectory.png", "ate.png", "repeats.png"):
+        assert (out / name).is_file(), name
+    assert json.loads((out / "metrics.json").read_text()) == json.loads(json.dumps(data))
+    assert data["frames"] == 30 and len(data["repeats"]) == 2
+    for r in data["repeats"]:
+        assert sum(r["tracking_states"].values()) == 30
+        assert (out / r["trajectory"]).is_file()
+        assert (out / "repeats" / f"orbslam3_{r['index']}.log").is_file()
+    median = data["repeats"][data["median_repeat"]]
+    assert (out / "trajectory.txt").read_bytes() == (out / median["trajectory"]).read_bytes()
+    assert data["ate_rmse_repeats"]["median"] == median["ate_rmse"] == data["ate"]["rmse"]
+    rmses = [r["ate_rmse"] for r in data["repeats"]]
+    assert data["ate_rmse_repeats"]["min"] == min(rmses)
+    assert data["ate_rmse_repeats"]["max"] == max(rmses)
+    # a static scene, a fixed camera model: ORB-SLAM3 initialises on the first frame and keeps
+    # tracking; its error is millimetres (the synthetic depth noise), far below 5 cm
+    assert data["tracking_states"] == {"OK": 30} and data["frames_without_pose"] == 0
+    assert len(read_trajectory(out / "trajectory.txt")) == 30
+    assert data["ate"]["rmse"] < 0.05
+    assert data["segmenter"] == "labels" and data["blanked"]["dilation"] == 5
+    assert 0 < data["blanked"]["fraction"] < 0.5  # the seated people are blanked
+
+    # Without a segmenter nothing is blanked; a settings file of the user's is used as given.
+    own = tmp_path / "own.yaml"
+    own.write_text((out / "orbslam3_settings.yaml").read_text())
+    data = o3.run_orbslam3(
+        o3.SequenceSpec(str(seq), max_frames=10),
+        NoSegmenter(),
+        SemanticFilter(),
+        o3.OrbSlam3Config(vocabulary=str(vocab), repeats=1, settings_file=str(own)),
+        EvalConfig(),
+        tmp_path / "plain",
+        progress=False,
+    )
+    assert data["blanked"] is None and data["orbslam3"]["settings_file"] == str(own)
+    assert data["frames"] == 10 and data["tracking_states"] == {"OK": 10}
+
+    # Everything blanked: ORB-SLAM3 finds no corner and never initialises; every frame is
+    # counted as untracked, the repeat's (empty) trajectory is kept and ATE says why it is absent.
+    data = o3.run_orbslam3(
+        o3.SequenceSpec(str(seq), max_frames=6),
+        LabelsSegmenter(),
+        SemanticFilter(["background", "person", "chair", "monitor"], 0),
+        o3.OrbSlam3Config(vocabulary=str(vocab), repeats=1, realtime=False),
+        EvalConfig(),
+        tmp_path / "blank",
+        progress=False,
+    )
+    assert data["blanked"]["fraction"] == 1.0
+    assert data["tracking_states"] == {"NOT_INITIALIZED": 6} and data["frames_tracked"] == 0
+    assert data["frames_without_pose"] == 6 and data["ate"] is None
+    assert data["ate_error"] == "only 0 frames were tracked; ATE needs 3 poses"
+    assert len(read_trajectory(tmp_path / "blank" / "trajectory.txt")) == 0
+
+
+# ------------------------------------------------------------------ uss-slam system=orbslam3
+
+REPO = Path(__file__).resolve().parents[3]
+
+
+def _cfg(overrides: list[str]):
+    from hydra import compose, initialize_config_dir
+
+    import uss_slam.slam_eval.run  # noqa: F401  (registers the structured configs it composes)
+
+    with initialize_config_dir(config_dir=str(REPO / "configs"), version_base="1.3"):
+        return compose("slam_eval", overrides=overrides)
+
+
+def test_system_group_composes() -> None:
+    assert _cfg(["sequence.path=/x"]).system.name == "harness"  # the default is unchanged
+    cfg = _cfg(["sequence.path=/x", "system=orbslam3"])
+    system = cfg.system
+    assert system.name == "orbslam3" and system.vocabulary is None and system.repeats == 3
+    values = {k: v for k, v in system.items() if k != "name"}
+    assert o3.OrbSlam3Config(**values) == o3.OrbSlam3Config()  # the YAML holds the defaults
+
+
+def test_uss_slam_orbslam3_bad_inputs_are_one_line(synthetic_sequence, tmp_path: Path) -> None:
+    pytest.importorskip("pyorbslam3")
+    from uss_slam.slam_eval.run import run
+
+    seq = synthetic_sequence(preset="static_xyz", frames=30, size=(320, 240))
+    base = [f"sequence.path={seq}", "system=orbslam3", f"out_dir={tmp_path}", "progress=false"]
+    with pytest.raises(UssSlamError, match=r"^system.vocabulary is not set: .*uss-vocab build"):
+        run(_cfg(base))
+    with pytest.raises(UssSlamError, match=r"takes no harness filters"):
+        run(_cfg([*base, "system.vocabulary=v.txt", "segmenter=labels", "filters=[semantic]"]))
+    with pytest.raises(UssSlamError, match=r"compare= is the harness's"):
+        run(_cfg([*base, "system.vocabulary=v.txt", "compare=[[flow]]"]))
+    with pytest.raises(UssSlamError, match=r"segment=keyframes applies to the harness only"):
+        run(_cfg([*base, "system.vocabulary=v.txt", "segment=keyframes"]))
+    assert not (tmp_path / "metrics.json").exists()
+    # the console script: one line on stderr, exit code 1
+    proc = subprocess.run(
+        [sys.executable, "-m", "uss_slam.slam_eval.run", *base[:3], "system.vocabulary=nope.txt"],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert proc.returncode == 1
+    assert proc.stderr.startswith("uss-slam: error: system.vocabulary=nope.txt: file not found; ")
+    assert proc.stderr.count("\n") == 1 and "uss-vocab build" in proc.stderr
