@@ -18,13 +18,13 @@ torch.set_num_threads(1)
 @pytest.fixture(scope="module")
 def small() -> DeepLabV2:
     torch.manual_seed(0)
-    return DeepLabV2(num_classes=4, backbone="resnet_small")
+    return DeepLabV2(num_classes=4, backbone="resnet_small", freeze_bn=True)
 
 
 @pytest.fixture(scope="module")
 def resnet101() -> DeepLabV2:
     torch.manual_seed(0)
-    return DeepLabV2(num_classes=4, backbone="resnet101")
+    return DeepLabV2(num_classes=4, backbone="resnet101", freeze_bn=True)
 
 
 def test_aspp_output_is_the_sum_of_all_four_branches() -> None:

@@ -167,7 +167,7 @@ def test_teacher_labels_in_train_mode_with_target_batch_statistics() -> None:
     images = torch.randn(2, 3, 33, 33)
     reference = copy.deepcopy(student).train()
     for m in reference.modules():
-        if isinstance(m, torch.nn.Dropout):
+        if isinstance(m, torch.nn.modules.dropout._DropoutNd):
             m.eval()
     with torch.no_grad():
         expected = _up(reference(images).main, images.shape[-2:])
