@@ -34,7 +34,7 @@ from torch import Tensor, nn
 
 from uss_slam.core.classes import DYNAMIC_CLASSES
 from uss_slam.core.errors import UssSlamError
-from uss_slam.core.files import check_writable
+from uss_slam.core.files import StagedFiles, check_writable, write_json_atomic
 from uss_slam.core.normalization import IMAGENET_MEAN, IMAGENET_STD
 from uss_slam.core.onnx_contract import (
     HEADS,
@@ -49,10 +49,8 @@ from uss_slam.export.outputs import (
     INT8_SUFFIX,
     VERIFY_SUFFIX,
     ExportResult,
-    StagedFiles,
     check_output_path,
     sidecar,
-    write_json,
 )
 from uss_slam.export.quantize import CalibrationSet, log_int8, write_int8
 from uss_slam.export.verify import (
@@ -280,7 +278,7 @@ def export_segmenter(
             )
         if not report["ok"]:
             failed = sidecar(out, FAILED_SUFFIX)
-            write_json(failed, report)
+            write_json_atomic(failed, report)
             raise ExportVerificationError(failure_message(out, report, failed))
         if calibration is not None:
             figures = write_int8(

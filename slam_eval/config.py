@@ -4,7 +4,7 @@ SLAM work starts.
 Defaults live in the dataclasses (:class:`~.frontend.orb.OrbConfig`,
 :class:`~.tracking.tracker.TrackerConfig`, :class:`~.mapping.semantic_map.MapConfig`,
 :class:`~.mapping.local_mapping.LocalMappingConfig`,
-:class:`~.mapping.loop_closing.LoopClosingConfig`, :class:`~.scoring.report.EvalConfig`) and in
+:class:`~.mapping.loop_closing.LoopClosingConfig`, :class:`~.scoring.evaluation.EvalConfig`) and in
 the filters' constructors.
 :func:`register_configs` turns them into Hydra structured configs in Hydra's ConfigStore
 (``uss_slam_schema/slam``, ``uss_slam_schema/eval``), which ``configs/slam/orb_rgbd.yaml`` and
@@ -34,7 +34,8 @@ from .frontend.orb import OrbConfig
 from .mapping.local_mapping import LocalMappingConfig
 from .mapping.loop_closing import LoopClosingConfig
 from .mapping.semantic_map import MapConfig
-from .scoring.report import EvalConfig
+from .scoring.evaluation import EvalConfig
+from .scoring.repeats import Perturbation, perturbations
 from .systems.harness import SEGMENT_SCHEDULES
 from .tracking.tracker import TrackerConfig
 
@@ -77,6 +78,13 @@ class SlamConfig:
     """Loop detection, verification and essential-graph optimisation (ORB-SLAM2's loop closing)."""
     local_ba_params: LocalMappingConfig = field(default_factory=LocalMappingConfig)
     loop_closing_params: LoopClosingConfig = field(default_factory=LoopClosingConfig)
+    repeats: int = 1
+    """Runs per filter set: repeat 0 unperturbed, the others with a perturbed feature budget and
+    RANSAC sampling; the outputs are the median run's, with the spread (:mod:`.scoring.repeats`)."""
+    repeat_seed: int = 0
+    """Seed of the repeats' perturbations (the same on every sequence: paired comparisons)."""
+    repeat_budget: float = 0.01
+    """Relative half-width of the repeats' feature-budget jitter (0.01: ``n_features`` ± 1%)."""
 
 
 def _editable(cls: type) -> DictConfig:
@@ -119,6 +127,8 @@ class RunPlan:
     backend: dict[str, Any] = field(default_factory=dict)
     """The back-end keyword arguments of :class:`~.systems.harness.SlamPipeline` (``local_ba``,
     ``loop_closing`` and their parameters)."""
+    repeats: list[Perturbation] = field(default_factory=list)
+    """The perturbation of each repeated run (one, unperturbed, without ``slam.repeats``)."""
 
 
 def run_name(filters: Sequence[str]) -> str:
@@ -315,6 +325,7 @@ def check(cfg: DictConfig) -> RunPlan:
         if int(slam[key]) < (0 if key == "prefetch" else 1):
             raise UssSlamError(f"slam.{key}: must be >= {0 if key == 'prefetch' else 1}")
     _check_sequence(cfg)
+    repeats = _check_repeats(slam, orb.n_features)
     params = _check_filter_params(OmegaConf.to_container(slam.filter_params, resolve=True))
     if cfg.compare is None:
         runs: list[tuple[str | None, list[str]]] = [(None, _filter_names(cfg.filters, "filters"))]
@@ -325,7 +336,18 @@ def check(cfg: DictConfig) -> RunPlan:
         build_filters(names, params)
     build_filters(list(FILTERS), params)  # the parameters of unused filters are checked too
     _check_segmenter(cfg.segmenter)
-    return RunPlan(orb, tracker, semantic_map, evaluation, params, runs, backend)
+    return RunPlan(orb, tracker, semantic_map, evaluation, params, runs, backend, repeats)
+
+
+def _check_repeats(slam: DictConfig, n_features: int) -> list[Perturbation]:
+    """``slam.repeats``, ``slam.repeat_seed`` and ``slam.repeat_budget`` as the repeats'
+    perturbations (the types are enforced by the schema while composing)."""
+    count, budget = int(slam.repeats), float(slam.repeat_budget)
+    if count < 1:
+        raise UssSlamError(f"slam.repeats must be >= 1, got {count}")
+    if not (math.isfinite(budget) and 0 <= budget < 0.5):
+        raise UssSlamError(f"slam.repeat_budget must be in [0, 0.5), got {budget}")
+    return perturbations(count, int(slam.repeat_seed), budget, n_features)
 
 
 # ------------------------------------------------------------------------- config errors

@@ -1,12 +1,14 @@
 """``uss-slam``: the Hydra entry point of the SLAM evaluation harness (``configs/slam_eval.yaml``).
 
 Glue only: compose the config, open the sequence, build segmenter / filters / pipeline, run, and
-write the report (one run, or the baseline plus each filter set of ``compare``).
+write the report (one run, or the baseline plus each filter set of ``compare``; each of them
+``slam.repeats`` times, reported by its median run, :mod:`.scoring.repeats`).
 """
 
 from __future__ import annotations
 
 import logging
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -20,7 +22,9 @@ from uss_slam.core.files import check_writable
 
 from .config import check, register_configs, run_name
 from .filters.dynamic import build_filters
-from .scoring.report import evaluate, write_comparison, write_run
+from .scoring.evaluation import evaluate
+from .scoring.repeats import Perturbation, repeats_metrics, write_repeat_trajectories
+from .scoring.report import metrics_dict, write_comparison, write_run
 from .scoring.run_folder import RunFolder
 from .segmenters.base import Segmenter
 from .sequence import TumSequence
@@ -81,47 +85,52 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     )
     slam = cfg.slam
     settings = OmegaConf.to_container(cfg, resolve=True)
-    pipelines = [
-        (
-            name,
-            names,
-            SlamPipeline(
-                sequence,
-                segmenter,
-                build_filters(names, plan.filter_params),
-                orb=plan.orb,
-                tracker=plan.tracker,
-                semantic_map=plan.semantic_map,
-                prefetch=int(slam.prefetch),
-                workers=int(slam.workers),
-                parallel=bool(slam.parallel),
-                **plan.backend,
-                segment=str(cfg.segment),
-                progress=bool(cfg.progress),
-                description=f"{sequence.path.name} [{run_name(names)}]",
-            ),
+
+    def pipeline(names: list[str], repeat: Perturbation) -> SlamPipeline:
+        return SlamPipeline(
+            sequence,
+            segmenter,
+            build_filters(names, plan.filter_params),
+            orb=replace(plan.orb, n_features=repeat.n_features),
+            tracker=plan.tracker,
+            semantic_map=plan.semantic_map,
+            prefetch=int(slam.prefetch),
+            workers=int(slam.workers),
+            parallel=bool(slam.parallel),
+            **plan.backend,
+            segment=str(cfg.segment),
+            progress=bool(cfg.progress),
+            description=f"{sequence.path.name} [{run_name(names)}]"
+            + (f" repeat {repeat.index}" if len(plan.repeats) > 1 else ""),
+            sampling_seed=repeat.sampling_seed,
         )
-        for name, names in plan.runs
+
+    pipelines = [
+        (name, names, [pipeline(names, r) for r in plan.repeats]) for name, names in plan.runs
     ]
     folder: RunFolder | None = None
     results: dict[str, dict[str, Any]] = {}
-    for name, names, pipeline in pipelines:
-        result = pipeline.run()
-        scores = evaluate(result.trajectory, sequence.groundtruth, plan.evaluation)
+    for name, names, repeats in pipelines:
+        done = []
+        for repeat, job in zip(plan.repeats, repeats, strict=True):
+            result = job.run()
+            scores = evaluate(result.trajectory, sequence.groundtruth, plan.evaluation)
+            done.append((result, scores, metrics_dict(result, scores, plan.evaluation)))
+            if len(plan.repeats) > 1:
+                log.info("%s repeat %d: %s", run_name(names), repeat.index, _summary(done[-1][2]))
         if folder is None:  # the earlier run's outputs go only now
             folder = RunFolder.start(out)
         run_dir = out if name is None else out / name
-        data = write_run(run_dir, result, scores, plan.evaluation, settings, folder)
+        extra = None
+        median = 0
+        if len(plan.repeats) > 1:
+            paths = write_repeat_trajectories(run_dir, [d[0] for d in done], folder)
+            extra = repeats_metrics([d[2] for d in done], plan.repeats, paths)
+            median = extra["median_repeat"]
+        result, scores, _ = done[median]
+        data = write_run(run_dir, result, scores, plan.evaluation, settings, folder, extra)
         results[run_name(names)] = data
-        ate = data["ate"]
-        log.info(
-            "%s: ATE RMSE %s m, tracked %.1f%%, %.1f frames/s -> %s",
-            run_name(names),
-            "n/a" if ate is None else f"{ate['rmse']:.4f}",
-            100 * data["tracked_fraction"],
-            data["fps"],
-            run_dir,
-        )
+        log.info("%s: %s -> %s", run_name(names), _summary(data), run_dir)
     assert folder is not None
     table = write_comparison(out, results, folder) if cfg.compare is not None else None
     overrides = _write_hydra_files(folder, cfg)
@@ -130,6 +139,22 @@ def run(cfg: DictConfig) -> dict[str, Any]:
         print(table)
         return {**data, "comparison": results}
     return data
+
+
+def _summary(data: dict[str, Any]) -> str:
+    """One log line of a run's metrics (with the spread of its repeats, if any)."""
+    ate = data["ate"]
+    text = (
+        f"ATE RMSE {'n/a' if ate is None else format(ate['rmse'], '.4f')} m, "
+        f"tracked {100 * data['tracked_fraction']:.1f}%, {data['fps']:.1f} frames/s"
+    )
+    spread = data.get("ate_rmse_repeats")
+    if spread is not None and spread["evaluated"]:
+        text += (
+            f" (median of {len(data['repeats'])} repeats; min {spread['min']:.4f}, "
+            f"max {spread['max']:.4f})"
+        )
+    return text
 
 
 @hydra.main(version_base="1.3", config_path="../configs", config_name="slam_eval")

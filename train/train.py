@@ -12,7 +12,6 @@ Returns the value of ``optimized_metric`` (``val/mIoU``) so Hydra sweepers can o
 from __future__ import annotations
 
 import logging
-import os
 from pathlib import Path
 from typing import Any
 
@@ -29,6 +28,7 @@ from omegaconf.errors import OmegaConfBaseException
 
 from uss_slam.core.cli import JobFailed, exit_on_user_error, run_hydra_app
 from uss_slam.core.errors import UssSlamError
+from uss_slam.core.files import check_writable
 from uss_slam.models.checkpoint import CheckpointInfo, read_checkpoint
 from uss_slam.train.config_check import check_config_types
 from uss_slam.train.module import AdversarialSegmentation
@@ -83,19 +83,6 @@ def _output_folders(cfg: DictConfig) -> list[tuple[str, str]]:
             if node and "_target_" in node and node.get(attribute):
                 folders.append((f"{section}.{name}.{attribute}", str(node[attribute])))
     return folders
-
-
-def check_writable(key: str, folder: str | Path) -> None:
-    """Raise naming ``key`` unless ``folder`` exists as a writable folder or can be created
-    (nothing is created here)."""
-    path = Path(folder).absolute()
-    existing = path
-    while not existing.exists() and existing != existing.parent:
-        existing = existing.parent
-    if not existing.is_dir():
-        raise UssSlamError(f"{key}: cannot write to {path}: {existing} is not a folder")
-    if not os.access(existing, os.W_OK | os.X_OK):
-        raise UssSlamError(f"{key}: cannot write to {path}: {existing} is not writable")
 
 
 def check_no_earlier_checkpoints(cfg: DictConfig, ckpt_path: str | None) -> None:
@@ -203,7 +190,7 @@ def train(cfg: DictConfig) -> dict[str, float]:
     ckpt_path = resolve_ckpt_path(cfg)
     checkpoint = check_checkpoint(ckpt_path, cfg) if ckpt_path is not None else None
     for key, folder in _output_folders(cfg):
-        check_writable(key, folder)
+        check_writable(Path(folder).absolute(), key, create=False)
     check_no_earlier_checkpoints(cfg, ckpt_path)
 
     datamodule: LightningDataModule = build(cfg, "data")

@@ -205,7 +205,10 @@ class SlamPipeline:
         loop_closing: bool = False,
         local_ba_params: LocalMappingConfig | None = None,
         loop_closing_params: LoopClosingConfig | None = None,
+        sampling_seed: int | None = None,
     ) -> None:
+        """``sampling_seed``: perturbs the tracker's RANSAC sampling (a repeated run,
+        :mod:`.repeats`); None = the deterministic run."""
         if segment not in SEGMENT_SCHEDULES:
             raise UssSlamError(
                 f"segment={segment!r}: choose every_frame (segment every frame, concurrently "
@@ -238,6 +241,7 @@ class SlamPipeline:
         self.loop_closing = loop_closing
         self.local_ba_params = local_ba_params or LocalMappingConfig()
         self.loop_closing_params = loop_closing_params or LoopClosingConfig()
+        self.sampling_seed = sampling_seed
 
     def _prepare(self, frame: Frame) -> _Prepared:
         """Segmentation (``every_frame`` schedule) and ORB extraction of one frame (run in the
@@ -289,7 +293,7 @@ class SlamPipeline:
     def run(self) -> RunResult:
         timer = Timer()
         extractor = self.extractor
-        tracker = Tracker(self.tracker_config, extractor)
+        tracker = Tracker(self.tracker_config, extractor, self.sampling_seed)
         builder = SemanticMapBuilder(self.map_config, extractor)
         octo = OctoMapBuilder(self.map_config, extractor) if self.map_config.octomap else None
         adjuster = BundleAdjuster(

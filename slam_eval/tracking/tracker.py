@@ -154,8 +154,14 @@ class TrackResult:
 class Tracker:
     """Frame-to-local-map RGB-D tracker. Feed frames in order with :meth:`track`."""
 
-    def __init__(self, config: TrackerConfig, extractor: OrbExtractor) -> None:
+    def __init__(
+        self, config: TrackerConfig, extractor: OrbExtractor, sampling_seed: int | None = None
+    ) -> None:
+        """``sampling_seed``: None = RANSAC draws its samples as OpenCV does for the given
+        matches (deterministic); an integer perturbs the sampling reproducibly, for repeated
+        runs (:meth:`_sampling_order`)."""
         self.config = config
+        self._rng = None if sampling_seed is None else np.random.default_rng(sampling_seed)
         self.extractor = extractor
         self.camera = extractor.camera
         self.k = extractor.camera.matrix
@@ -472,9 +478,10 @@ class Tracker:
         else:
             rvec, tvec = np.zeros((3, 1)), np.zeros((3, 1))
             use_guess = False
+        order = self._sampling_order(len(world))
         ok, rvec, tvec, inliers = cv2.solvePnPRansac(
-            world.reshape(-1, 1, 3).astype(np.float64),
-            uv.reshape(-1, 1, 2).astype(np.float64),
+            world[order].reshape(-1, 1, 3).astype(np.float64),
+            uv[order].reshape(-1, 1, 2).astype(np.float64),
             self.k,
             None,
             rvec,
@@ -509,6 +516,8 @@ class Tracker:
         params.maxIterations = int(iterations or self.config.ransac_iterations)
         params.threshold = self.config.ransac_threshold
         params.confidence = 0.999
+        if self._rng is not None:  # USAC seeds its own generator: give it a drawn state
+            params.randomGeneratorState = int(self._rng.integers(1, 2**31))
         ok, _, rvec, tvec, inliers = cv2.solvePnPRansac(
             world[order].reshape(-1, 1, 3).astype(np.float64),
             features.uv[kp[order]].reshape(-1, 1, 2).astype(np.float64),
@@ -517,6 +526,14 @@ class Tracker:
             params=params,
         )
         return ok, rvec, tvec, inliers
+
+    def _sampling_order(self, n: int) -> np.ndarray | slice:
+        """The order in which ``n`` matches are handed to OpenCV's RANSAC: as given (no seed),
+        or a seeded random permutation. OpenCV's RANSAC seeds its generator with a constant, so
+        the samples it draws are fixed by the order of the matches; permuting them draws other
+        minimal sets, a perturbation of the sampling alone (the inliers and the refined pose are
+        computed on the matches in their given order)."""
+        return slice(None) if self._rng is None else self._rng.permutation(n)
 
     def _refined_hypothesis(
         self, world, features, kp, ok, rvec, tvec, inliers, min_inliers: int
@@ -660,9 +677,10 @@ class Tracker:
             ok, rvec, tvec, inl = self._prosac(world, features, kp, distance, iterations)
             return self._refined_hypothesis(world, features, kp, ok, rvec, tvec, inl, 10)
         uv = features.uv[kp]
+        order = self._sampling_order(len(world))
         ok, rvec, tvec, inliers = cv2.solvePnPRansac(
-            world.reshape(-1, 1, 3).astype(np.float64),
-            uv.reshape(-1, 1, 2).astype(np.float64),
+            world[order].reshape(-1, 1, 3).astype(np.float64),
+            uv[order].reshape(-1, 1, 2).astype(np.float64),
             self.k,
             None,
             iterationsCount=max(self.config.ransac_iterations, 300),

@@ -9,7 +9,7 @@ from types import SimpleNamespace
 import pytest
 import torch
 from hydra.utils import instantiate
-from pipeline_helpers import compose_train, data_overrides
+from shared_helpers import compose_train, data_overrides
 from torch import nn
 
 from uss_slam.core.errors import UssSlamError

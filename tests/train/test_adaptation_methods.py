@@ -11,11 +11,12 @@ from typing import ClassVar
 import pytest
 import torch
 import torch.nn.functional as F
+import train_step as bench
 from hydra.errors import ConfigCompositionException
 from hydra.utils import instantiate
 from lightning.pytorch import Trainer
+from shared_helpers import compose_train, data_overrides
 from torch import Tensor, nn
-from train_helpers import compose_train, data_overrides, train_step_benchmark
 
 from uss_slam.core.errors import UssSlamError
 from uss_slam.models.checkpoint import read_checkpoint
@@ -32,8 +33,6 @@ from uss_slam.train.methods import (
 )
 from uss_slam.train.module import AdversarialSegmentation
 from uss_slam.train.train import check_architecture, train
-
-bench = train_step_benchmark()
 
 
 class TargetEntropy(Method):

@@ -11,17 +11,16 @@ import numpy as np
 import pytest
 import torch
 import torch.nn.functional as F
+import train_step as bench
 from hydra.utils import instantiate
 from lightning.pytorch import Callback, LightningModule, Trainer
+from shared_helpers import compose_train
 from torch import Tensor
-from train_helpers import compose_train, train_step_benchmark
 
 from uss_slam.train.losses import LossWeights
 from uss_slam.train.methods import AdvEnt
 from uss_slam.train.methods import advent as advent_module
 from uss_slam.train.methods.advent import self_information
-
-bench = train_step_benchmark()
 
 ADVENT_WEIGHTS = LossWeights(lambda_adv_aux=0.0002, lambda_adv_main=0.001)
 

@@ -10,18 +10,17 @@ import numpy as np
 import pytest
 import torch
 import torch.nn.functional as F
+import train_step as bench
 from hydra.utils import instantiate
 from lightning.pytorch import Trainer
+from shared_helpers import compose_train
 from torch import Tensor
-from train_helpers import compose_train, train_step_benchmark
 
 from uss_slam.core.errors import UssSlamError
 from uss_slam.models import DeepLabV2
 from uss_slam.train.losses import LossWeights
 from uss_slam.train.methods import MinEnt
 from uss_slam.train.methods.minent import entropy_loss
-
-bench = train_step_benchmark()
 
 
 def _up(logits: Tensor, size: torch.Size) -> Tensor:

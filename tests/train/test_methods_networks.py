@@ -8,13 +8,12 @@ from pathlib import Path
 
 import pytest
 import torch
+import train_step as bench
 from hydra.utils import instantiate
 from lightning.pytorch import Trainer
-from train_helpers import compose_train, train_step_benchmark
+from shared_helpers import compose_train
 
 from uss_slam.models import SEGMENTERS
-
-bench = train_step_benchmark()
 
 METHODS = ["source_only", "adaptsegnet", "advent", "minent", "self_training"]
 NETS = {"deeplab_small": "DeepLabV2", "pspnet_small": "PSPNet"}

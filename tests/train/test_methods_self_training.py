@@ -11,10 +11,11 @@ from pathlib import Path
 import pytest
 import torch
 import torch.nn.functional as F
+import train_step as bench
 from hydra.utils import instantiate
 from lightning.pytorch import Trainer
+from shared_helpers import compose_train
 from torch import Tensor
-from train_helpers import compose_train, train_step_benchmark
 
 from uss_slam.core.errors import UssSlamError
 from uss_slam.models import DeepLabV2, PSPNet
@@ -28,8 +29,6 @@ from uss_slam.train.methods.self_training import (
     iteration_seed,
     rare_class_weights,
 )
-
-bench = train_step_benchmark()
 
 
 def _up(logits: Tensor, size: torch.Size) -> Tensor:

@@ -11,9 +11,10 @@ from typing import Any
 
 import pytest
 import torch
+import train_step as bench
 from hydra.utils import instantiate
 from lightning.pytorch import Callback, LightningModule, Trainer
-from train_helpers import compose_train, train_step_benchmark
+from shared_helpers import compose_train
 
 MAX_ITERS = 6
 
@@ -53,7 +54,6 @@ def test_poly_rates_follow_the_closed_form(
     torch.manual_seed(0)
     model = instantiate(cfg.model)
     assert model.poly_total_iters == model.hparams["poly_total_iters"] == horizon
-    bench = train_step_benchmark()
     loader = torch.utils.data.DataLoader(
         bench._Repeat(bench.random_batch(33, 1), MAX_ITERS + 2), batch_size=None
     )
