@@ -31,6 +31,7 @@ from uss_slam.core.errors import UssSlamError
 from uss_slam.core.files import check_writable
 from uss_slam.models.checkpoint import CheckpointInfo, read_checkpoint
 from uss_slam.train.config_check import check_config_types
+from uss_slam.train.module import AdversarialSegmentation
 
 log = logging.getLogger(__name__)
 PROG = "uss-train"
@@ -119,6 +120,10 @@ def check_architecture(model: LightningModule, info: CheckpointInfo) -> None:
     Lightning's restore cannot fail after the run started."""
     mine = model.state_dict()
     theirs = info.state_dict
+    if isinstance(model, AdversarialSegmentation):
+        # What the module's own checkpoint hook keeps (e.g. no unused discriminators).
+        method = info.hyper_parameters.get("method")
+        theirs = model.loadable_state(theirs, method if isinstance(method, str) else None)
     for key, value in mine.items():
         if key not in theirs:
             raise UssSlamError(
