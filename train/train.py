@@ -34,6 +34,7 @@ from uss_slam.core.files import check_writable
 from uss_slam.models.checkpoint import CheckpointInfo, read_checkpoint
 from uss_slam.train.callbacks import LogProgressBar
 from uss_slam.train.config_check import check_config_types
+from uss_slam.train.module import AdversarialSegmentation
 
 log = logging.getLogger(__name__)
 PROG = "uss-train"
@@ -122,6 +123,10 @@ def check_architecture(model: LightningModule, info: CheckpointInfo) -> None:
     Lightning's restore cannot fail after the run started."""
     mine = model.state_dict()
     theirs = info.state_dict
+    if isinstance(model, AdversarialSegmentation):
+        # What the module's own checkpoint hook keeps (e.g. no unused discriminators).
+        method = info.hyper_parameters.get("method")
+        theirs = model.loadable_state(theirs, method if isinstance(method, str) else None)
     for key, value in mine.items():
         if key not in theirs:
             raise UssSlamError(
