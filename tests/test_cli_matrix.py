@@ -22,6 +22,7 @@ from __future__ import annotations
 import importlib
 import importlib.util
 import json
+import logging
 import os
 import shutil
 import signal
@@ -425,6 +426,10 @@ CASES = [
          "callbacks.model_checkpoint.dirpath={tmp}/run/checkpoints: holds checkpoints of an "
          "earlier run (last.ckpt, 1 in all); resume it with "
          "ckpt_path={tmp}/run/checkpoints/last.ckpt", setup=(earlier_checkpoint,)),
+    case("train-num-threads-negative", "uss-train", f"{TRAIN} num_threads=-1", 1,
+         "num_threads must be an integer >= 1 or null (torch's default), got -1"),
+    case("train-num-threads-zero", "uss-train", f"{TRAIN} num_threads=0", 1,
+         "num_threads must be an integer >= 1 or null (torch's default), got 0"),
     # ---------------------------------------------------------------- uss-export (Hydra)
     case("export-unknown-key", "uss-export", f"{EXPORT} opsett=17", 1,
          "Key 'opsett' is not in struct"),
@@ -435,6 +440,11 @@ CASES = [
          "cannot create the output folder {afile}/hydra ({afile} is a file)", setup=(afile,)),
     case("export-label-agreement-above-one", "uss-export", f"{EXPORT} min_label_agreement=2",
          1, "min_label_agreement must be in (0, 1] or null, got 2"),
+    case("export-one-pixel-verification", "uss-export", f"{EXPORT} verify_size=[1,1]", 1,
+         "verify_size must be at least [32, 32], got [1, 1]", "output stride is 8",
+         setup=(earlier_export,)),
+    case("export-thin-verification", "uss-export", f"{EXPORT} verify_size=[120,31]", 1,
+         "verify_size must be at least [32, 32], got [120, 31]"),
     case("export-logit-diff-zero", "uss-export", f"{EXPORT} max_logit_diff=0", 1,
          "max_logit_diff must be > 0 or null, got 0"),
     case("export-onnx-as-checkpoint", "uss-export",
@@ -595,6 +605,74 @@ def test_eval_rerun_into_the_same_out_holds_one_runs_files(
         present = sorted(p.relative_to(out).as_posix() for p in out.glob("overlays/*"))
         assert len(listed) == expected and present == listed
     assert sorted(p.name for p in out.iterdir()) == ["eval.json", "eval.md"]
+
+
+# ------------------------------------------------------------------------------ Ctrl-C of uss-train
+
+
+def test_train_ctrl_c_exits_130_and_keeps_the_checkpoints(
+    world: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    """Ctrl-C of ``uss-train`` in its third iteration (after the first epoch's checkpoints):
+    exit code 130 and the line ``uss-train: interrupted`` (not Lightning's shutdown notice and
+    exit 1); the checkpoints saved before it stay whole (the first epoch's iteration)."""
+    from uss_slam.models.checkpoint import read_checkpoint
+
+    paths = {**world, "tmp": tmp_path}
+    argv = [arg.format(**paths) for arg in TRAIN.split()]
+    interrupt_after(monkeypatch, "uss_slam.train.module:AdversarialSegmentation.training_step", 2)
+    # An earlier in-process app call may leave a log handler on a capture stream pytest has
+    # closed since; its "--- Logging error ---" report is this process's, not uss-train's.
+    monkeypatch.setattr(logging, "raiseExceptions", False)
+    monkeypatch.chdir(tmp_path)
+    try:
+        code, _, err = run_console_script("uss-train", argv, monkeypatch, capsys)
+    finally:
+        HydraConfig.instance().cfg = None
+        GlobalHydra.instance().clear()
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # Ctrl-C works again
+    # Lightning's own start-up notices (GPU available, ...) go to stderr in every run; after
+    # them, the one line of an interrupt and nothing of Lightning's shutdown.
+    assert code == 130 and err.strip().splitlines()[-1] == "uss-train: interrupted", err
+    assert "Traceback" not in err and "KeyboardInterrupt" not in err, err
+    saved = sorted((tmp_path / "run" / "checkpoints").iterdir())
+    assert [p.name for p in saved if p.name == "last.ckpt"] == ["last.ckpt"]
+    assert len(saved) == 2 and not [p for p in saved if p.name.endswith(".tmp")]
+    for path in saved:  # whole and readable, of the first epoch
+        assert read_checkpoint(path).iteration == 2, path
+
+
+# ------------------------------------------------------------------------------ file modes
+
+
+@pytest.mark.parametrize("umask", [0o022, 0o002])
+def test_outputs_follow_the_umask(
+    umask: int, world: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    """Every file ``uss-slam`` and ``uss-vocab`` write (atomically, through a temporary
+    sibling) gets mode 0666 minus the umask, as a plain ``open()`` would give it: 0644 under
+    umask 022, 0664 under 002 (never 0600 whatever the umask)."""
+    out = tmp_path / "out"
+    previous = os.umask(umask)
+    try:
+        code, _, err = run_console_script(
+            "uss-slam", [f"sequence.path={world['seq']}", f"out_dir={out}", "progress=false"],
+            monkeypatch, capsys,
+        )  # fmt: skip
+        assert code == 0, err
+        code, _, err = run_console_script(
+            "uss-vocab", ["build", str(world["seq"]), "--out", str(out / "v.txt"), "-k", "3",
+                          "-L", "2", "--max-frames", "2"],
+            monkeypatch, capsys,
+        )  # fmt: skip
+        assert code == 0, err
+    finally:
+        os.umask(previous)
+        HydraConfig.instance().cfg = None
+        GlobalHydra.instance().clear()
+    modes = {p.name: p.stat().st_mode & 0o777 for p in out.rglob("*") if p.is_file()}
+    assert {"run.json", "trajectory.txt", "v.txt"} <= set(modes)
+    assert modes == dict.fromkeys(modes, 0o666 & ~umask)
 
 
 # ------------------------------------------------------------------------------ kill -9
