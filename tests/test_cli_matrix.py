@@ -200,6 +200,12 @@ def truncated(name: str, keep: float = 0.5) -> Callable[[dict[str, Path]], bytes
     return data
 
 
+def flat_rgb(seq: Path) -> None:
+    """Every RGB frame of ``seq`` one flat grey (no corners for ORB)."""
+    for path in (seq / "rgb").iterdir():
+        cv2.imwrite(str(path), np.full((120, 160, 3), 128, np.uint8))
+
+
 def png_bytes(p: dict[str, Path]) -> bytes:
     return nth("rgb", 0)(p["seq"]).read_bytes()
 
@@ -298,6 +304,14 @@ CASES = [
     case("vocab-build-missing-frame", "uss-vocab", "build {s} --out {tmp}/v.txt --stride 1",
          1, "{s}/rgb/", "not a readable image",
          setup=(seq_copy(corrupt("rgb", 0, b"")),)),
+    case("vocab-build-overwrite-a-non-vocabulary", "uss-vocab",
+         "build {seq} --out {png} --overwrite -k 3 -L 2", 1,
+         "--out {png}: not a DBoW2 text vocabulary; --overwrite replaces only a vocabulary",
+         setup=(write("png", png_bytes, ".png"),)),
+    case("vocab-build-texture-less-frames", "uss-vocab",
+         "build {s} --out {tmp}/v.txt -k 3 -L 2 --max-frames 2", 1,
+         "{s}: no ORB descriptors in the 2 training frames (the frames have no texture)",
+         setup=(seq_copy(flat_rgb),)),
     case("vocab-info-truncated", "uss-vocab", "info {v}", 1,
          "{v}:3: expected 'parent is_leaf' + 32 descriptor bytes + 'weight' (35 fields)",
          setup=(write("v", vocabulary_text(3)[:120]),)),
@@ -647,6 +661,23 @@ def test_train_ctrl_c_exits_130_and_keeps_the_checkpoints(
         assert read_checkpoint(path).iteration == 2, path
 
 
+def test_vocab_of_one_frame_warns_that_every_weight_is_zero(
+    world: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    """``uss-vocab build`` from one frame: every word's idf weight is ln(1/1) = 0; the file is
+    written (exit 0) and stderr holds one warning line naming the sequence folder."""
+    out = tmp_path / "v.txt"
+    argv = ["build", str(world["seq"]), "--out", str(out), "-k", "3", "-L", "2",
+            "--max-frames", "1"]  # fmt: skip
+    code, _, err = run_console_script("uss-vocab", argv, monkeypatch, capsys)
+    assert code == 0 and out.is_file(), err
+    assert err.strip().splitlines() == [
+        f"uss-vocab: warning: {world['seq']}: every word of the vocabulary has weight 0 (each "
+        "occurs in all 1 training frames); use more, and more varied, frames (--stride, "
+        "--max-frames, more sequences)"
+    ]
+
+
 # ------------------------------------------------------------------------------ file modes
 
 
@@ -666,8 +697,8 @@ def test_outputs_follow_the_umask(
         )  # fmt: skip
         assert code == 0, err
         code, _, err = run_console_script(
-            "uss-vocab", ["build", str(world["seq"]), "--out", str(out / "v.txt"), "-k", "3",
-                          "-L", "2", "--max-frames", "2"],
+            "uss-vocab", ["build", str(world["seq"]), "--out", str(out / "v.txt"), "-k", "10",
+                          "-L", "2", "--stride", "1"],
             monkeypatch, capsys,
         )  # fmt: skip
         assert code == 0, err
