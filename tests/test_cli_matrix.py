@@ -661,6 +661,34 @@ def test_train_ctrl_c_exits_130_and_keeps_the_checkpoints(
         assert read_checkpoint(path).iteration == 2, path
 
 
+def test_slam_groundtruth_without_common_time_span_warns(
+    world: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    """``uss-slam`` on a sequence whose ground truth lies 1000 s after its frames: the run
+    succeeds (exit 0, ATE null in metrics.json) and stderr holds one warning line naming
+    groundtruth.txt and both time spans."""
+    seq = tmp_path / "s"
+    shutil.copytree(world["seq"], seq)
+    gt = seq / "groundtruth.txt"
+    rows = [line.split() for line in gt.read_text().splitlines() if not line.startswith("#")]
+    gt.write_text("".join(f"{float(r[0]) + 1000:.6f} {' '.join(r[1:])}\n" for r in rows))
+    out = tmp_path / "out"
+    argv = [f"sequence.path={seq}", f"out_dir={out}", "progress=false"]
+    try:
+        code, _, err = run_console_script("uss-slam", argv, monkeypatch, capsys)
+    finally:
+        HydraConfig.instance().cfg = None
+        GlobalHydra.instance().clear()
+    assert code == 0, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"uss-slam: warning: {gt}: the ground truth "
+                                                  "spans "), err  # fmt: skip
+    first, last = float(rows[0][0]), float(rows[-1][0])
+    assert f"{first + 1000:.3f}-{last + 1000:.3f} s, the frames " in lines[0]
+    assert lines[0].endswith("no time in common, so ATE and RPE are n/a")
+    assert json.loads((out / "metrics.json").read_text())["ate"] is None
+
+
 def test_vocab_of_one_frame_warns_that_every_weight_is_zero(
     world: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
 ) -> None:
