@@ -19,26 +19,18 @@ from __future__ import annotations
 import argparse
 import copy
 import functools
-import importlib.util
 import logging
 import statistics
-import sys
 import time
 from collections.abc import Callable
-from pathlib import Path
 
 import torch
+import train_step as bench  # the sibling script: its module builders and timer
 
 from uss_slam.models import DeepLabV2, PatchDiscriminator, PSPNet
 from uss_slam.train.losses import LossWeights
 from uss_slam.train.methods import AdaptSegNet, AdvEnt, Method, MinEnt, SelfTraining, SourceOnly
 from uss_slam.train.module import AdversarialSegmentation
-
-_PATH = Path(__file__).resolve().parent / "train_step.py"
-_spec = importlib.util.spec_from_file_location("train_step_benchmark", _PATH)
-bench = importlib.util.module_from_spec(_spec)
-sys.modules[_spec.name] = bench
-_spec.loader.exec_module(bench)
 
 NETS: dict[str, Callable[[bool], torch.nn.Module]] = {
     "deeplab_small": lambda freeze: DeepLabV2(4, "resnet_small", freeze_bn=freeze),

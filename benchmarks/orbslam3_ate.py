@@ -4,8 +4,8 @@ on the same synthetic frames.
 For each preset: ORB-SLAM3 with ``segmenter=none`` and with ``segmenter=labels`` (person, dilated
 as the harness's semantic filter, blanked to grey with depth 0), each the median of ``--repeats``
 runs with min / max; then the harness's baseline and ``semantic`` filter (deterministic, one run)
-on the same sequence. ATE RMSE through the same evaluation (``report.evaluate``: SE(3) Umeyama,
-0.02 s association).
+on the same sequence. ATE RMSE through the same evaluation
+(``slam_eval.scoring.evaluation.evaluate``: SE(3) Umeyama, 0.02 s association).
 
     python benchmarks/orbslam3_ate.py --data outputs/bench/orbslam3 --repeats 3
 
@@ -24,11 +24,12 @@ import time
 from pathlib import Path
 
 from uss_slam.slam_eval.filters.dynamic import SemanticFilter, build_filters
-from uss_slam.slam_eval.scoring.report import EvalConfig, evaluate
+from uss_slam.slam_eval.scoring.evaluation import EvalConfig, evaluate
 from uss_slam.slam_eval.segmenters.base import LabelsSegmenter, NoSegmenter
 from uss_slam.slam_eval.sequence import TumSequence
 from uss_slam.slam_eval.systems.harness import SlamPipeline
-from uss_slam.slam_eval.systems.orbslam3.system import OrbSlam3Config, SequenceSpec, run_orbslam3
+from uss_slam.slam_eval.systems.orbslam3.config import OrbSlam3Config
+from uss_slam.slam_eval.systems.orbslam3.system import SequenceSpec, run_orbslam3
 from uss_slam.slam_eval.systems.orbslam3.vocabulary import build_from_sequences
 from uss_slam.synthetic import render_sequence
 

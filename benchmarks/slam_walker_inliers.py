@@ -47,7 +47,7 @@ from uss_slam.core.classes import CLASS_NAMES
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.tum_io import Trajectory, read_trajectory
 from uss_slam.slam_eval.mapping.local_mapping import LocalMappingConfig
-from uss_slam.slam_eval.scoring.report import EvalConfig, evaluate
+from uss_slam.slam_eval.scoring.evaluation import EvalConfig, evaluate
 from uss_slam.slam_eval.segmenters.base import NoSegmenter
 from uss_slam.slam_eval.sequence import TumSequence
 from uss_slam.slam_eval.systems import harness
@@ -246,7 +246,8 @@ def _orbslam3_worker(job_path: str) -> None:
     people; its trajectory after shutdown."""
     import pyorbslam3
 
-    from uss_slam.slam_eval.systems.orbslam3.system import OrbSlam3Config, frame_rate, settings_yaml
+    from uss_slam.slam_eval.systems.orbslam3.config import OrbSlam3Config
+    from uss_slam.slam_eval.systems.orbslam3.settings import frame_rate, settings_yaml
 
     job = json.loads(Path(job_path).read_text())
     out = Path(job["out"])

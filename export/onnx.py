@@ -34,7 +34,7 @@ from torch import Tensor, nn
 
 from uss_slam.core.classes import DYNAMIC_CLASSES
 from uss_slam.core.errors import UssSlamError
-from uss_slam.core.files import check_writable
+from uss_slam.core.files import StagedFiles, check_writable, write_json_atomic
 from uss_slam.core.normalization import IMAGENET_MEAN, IMAGENET_STD
 from uss_slam.core.onnx_contract import (
     HEADS,
@@ -49,10 +49,8 @@ from uss_slam.export.outputs import (
     INT8_SUFFIX,
     VERIFY_SUFFIX,
     ExportResult,
-    StagedFiles,
     check_output_path,
     sidecar,
-    write_json,
 )
 from uss_slam.export.quantize import CalibrationSet, log_int8, write_int8
 from uss_slam.export.verify import (
@@ -138,6 +136,12 @@ def check_opset(opset: int) -> int:
     return opset
 
 
+MIN_VERIFY_SIDE = 32
+"""Smallest height and width (pixels) of the verification images: at output stride 8 that is
+4 x 4 logit cells upsampled to the image, the least where per-pixel logits and labels of the
+ONNX model and the checkpoint can disagree in more than one value."""
+
+
 def check_size(key: str, value: Sequence[int]) -> tuple[int, int]:
     """``(H, W)`` of two positive integers, else a one-line error naming ``key``."""
     items = list(value) if isinstance(value, (list, tuple)) else None
@@ -163,6 +167,12 @@ def check_options(
     check_output_path(out)
     trace = check_size("trace_size", trace_size)
     verify = check_size("verify_size", verify_size)
+    if min(verify) < MIN_VERIFY_SIDE:
+        raise UssSlamError(
+            f"verify_size must be at least [{MIN_VERIFY_SIDE}, {MIN_VERIFY_SIDE}], got "
+            f"{list(verify)}: the segmenters' output stride is 8, so a smaller image gives "
+            "fewer than 4x4 logit cells and the comparison would prove almost nothing"
+        )
     if trace == verify:
         raise UssSlamError(f"verify_size must differ from trace_size ({trace})")
     check_opset(opset)
@@ -280,7 +290,7 @@ def export_segmenter(
             )
         if not report["ok"]:
             failed = sidecar(out, FAILED_SUFFIX)
-            write_json(failed, report)
+            write_json_atomic(failed, report)
             raise ExportVerificationError(failure_message(out, report, failed))
         if calibration is not None:
             figures = write_int8(

@@ -20,9 +20,10 @@ import onnx
 import onnxruntime as ort
 
 from uss_slam.core.errors import DataFormatError, UssSlamError
+from uss_slam.core.files import StagedFiles
 from uss_slam.core.onnx_contract import INPUT_NAME, OUTPUT_LABELS
 from uss_slam.core.tum_io import read_file_list
-from uss_slam.export.outputs import INT8_SUFFIX, ExportResult, StagedFiles, sidecar
+from uss_slam.export.outputs import INT8_SUFFIX, ExportResult, sidecar
 from uss_slam.export.verify import make_session
 
 log = logging.getLogger(__name__)

@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import re
 import sys
 import time
 from collections.abc import Sequence
@@ -43,9 +42,17 @@ from uss_slam.core.files import check_writable, file_sha256, write_json_atomic, 
 
 from . import demo_data, demo_report
 from .demo_data import DemoData
+from .runs import (
+    Segmenter,
+    SlamJob,
+    Variant,
+    checkpoint_miou,
+    run_slam,
+    run_training,
+    select_checkpoint,
+)
 from .stages import Progress, Stage, run_stage
 
-CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"
 MIOU_STRIDE = 10
 """Every 10th frame of the SLAM sequence is scored for mIoU (30 of the demo's 300)."""
 STAGES = ("data", "train", "export", "miou", "slam", "report")
@@ -82,22 +89,18 @@ PLANS = {
 }
 
 
-@dataclass(frozen=True)
-class Variant:
-    """One SLAM run of the comparison."""
-
-    name: str
-    label: str
-    segmenter: str  # none | labels | the export name (adapted / source_only)
-    filters: tuple[str, ...] = field(default_factory=tuple)
-
-
 VARIANTS = (
     Variant("none", "no filter", "none"),
     Variant("labels", "labels (oracle)", "labels", ("semantic",)),
-    Variant("source_only", "source-only ONNX", "source_only", ("semantic",)),
-    Variant("adapted", "adapted ONNX", "adapted", ("semantic",)),
-    Variant("adapted_geometry", "adapted ONNX + geometry", "adapted", ("semantic", "geometry")),
+    Variant("source_only", "source-only ONNX", "model", ("semantic",), model="source_only"),
+    Variant("adapted", "adapted ONNX", "model", ("semantic",), model="adapted"),
+    Variant(
+        "adapted_geometry",
+        "adapted ONNX + geometry",
+        "model",
+        ("semantic", "geometry"),
+        model="adapted",
+    ),
 )
 TRAININGS = {"adapted": "adaptsegnet", "source_only": "source_only"}
 """Training run name -> ``model/method``."""
@@ -154,54 +157,8 @@ def train_overrides(plan: Plan, data: Path, name: str, threads: int | None = Non
     ]
 
 
-def best_checkpoint(run_dir: Path) -> Path:
-    """The best-by-val-mIoU checkpoint of a training run (``last.ckpt`` if there is none)."""
-    folder = run_dir / "checkpoints"
-    best = sorted(folder.glob("best_*.ckpt"))
-    if best:
-        return best[-1]
-    last = folder / "last.ckpt"
-    if last.is_file():
-        return last
-    raise UssSlamError(f"{folder}: no checkpoint (best_*.ckpt or last.ckpt) after training")
-
-
-def checkpoint_miou(ckpt: Path) -> float | None:
-    """``val/mIoU`` recorded in a best checkpoint's name (``best_iter..._miou0.1234.ckpt``)."""
-    match = re.search(r"_miou(\d+\.\d+)\.ckpt$", ckpt.name)
-    return float(match.group(1)) if match else None
-
-
 def _train(run_dir: Path, overrides: list[str]) -> str:
-    from hydra import compose, initialize_config_dir
-    from hydra.core.global_hydra import GlobalHydra
-    from hydra.core.hydra_config import HydraConfig
-    from omegaconf import OmegaConf, open_dict
-
-    from uss_slam.train.train import train
-
-    GlobalHydra.instance().clear()
-    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
-        cfg = compose("train", overrides=overrides, return_hydra_config=True)
-    with open_dict(cfg):
-        cfg.hydra.runtime.output_dir = str(run_dir)
-        cfg.hydra.job.num = 0
-        cfg.hydra.job.name = "uss-demo"
-    HydraConfig().set_config(cfg)
-    try:
-        # What Hydra writes for `uss-train`: uss-export reads the net config from here.
-        hydra_dir = run_dir / ".hydra"
-        hydra_dir.mkdir(parents=True, exist_ok=True)
-        job = OmegaConf.to_container(cfg, resolve=True)
-        job.pop("hydra", None)  # type: ignore[union-attr]
-        OmegaConf.save(OmegaConf.create(job), hydra_dir / "config.yaml")
-        OmegaConf.save(OmegaConf.create(list(overrides)), hydra_dir / "overrides.yaml")
-        with open_dict(cfg):
-            del cfg["hydra"]
-        metrics = train(cfg)
-    finally:
-        HydraConfig.instance().cfg = None  # type: ignore[assignment]
-        GlobalHydra.instance().clear()
+    metrics = run_training(run_dir, overrides)
     write_json_atomic(run_dir / "metrics.json", metrics)
     miou = metrics.get("val/mIoU")
     return "trained" + ("" if miou is None else f", val/mIoU {miou:.3f}")
@@ -217,7 +174,7 @@ def stage_train(run_dir: Path, overrides: list[str], data_key: str, force: bool)
 
 
 def stage_export(run_dir: Path, onnx_path: Path, force: bool) -> str:
-    ckpt = best_checkpoint(run_dir)
+    ckpt = select_checkpoint(run_dir)
     stage = Stage(
         onnx_path.parent / f".{onnx_path.stem}",  # holds only the stamp
         key={"stage": "export", "checkpoint": str(ckpt), "sha256": file_sha256(ckpt)},
@@ -282,41 +239,24 @@ def stage_miou(out: Path, sequence: Path, models: dict[str, Path], stride: int, 
     return run_stage(stage, work, force)
 
 
-def slam_overrides(variant: Variant, sequence: Path, models: dict[str, Path]) -> list[str]:
-    """The ``uss-slam`` overrides of one comparison run."""
-    if variant.segmenter in ("none", "labels"):
-        seg = [f"segmenter={variant.segmenter}"]
-    else:
-        seg = ["segmenter=onnx", f"segmenter.path={models[variant.segmenter]}"]
-    return [f"sequence.path={sequence}", *seg, f"filters=[{','.join(variant.filters)}]"]
+def slam_job(variant: Variant, sequence: Path, models: dict[str, Path]) -> SlamJob:
+    """The SLAM run of one comparison variant (``models``: export name -> ONNX file)."""
+    model = None if variant.model is None else models[variant.model]
+    return SlamJob(sequence, Segmenter.of(variant, model), variant.filters)
 
 
 def stage_slam(
-    run_dir: Path, overrides: list[str], inputs: dict[str, str], force: bool, quiet: bool
+    run_dir: Path, job: SlamJob, inputs: dict[str, str], force: bool, quiet: bool
 ) -> str:
     def work() -> str:
-        from hydra import compose, initialize_config_dir
-        from hydra.core.global_hydra import GlobalHydra
-        from hydra.core.hydra_config import HydraConfig
-
-        from uss_slam.slam_eval.run import run
-
-        HydraConfig.instance().cfg = None  # type: ignore[assignment]
-        GlobalHydra.instance().clear()
-        with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
-            cfg = compose(
-                "slam_eval",
-                overrides=[*overrides, f"out_dir={run_dir}", f"progress={str(not quiet).lower()}"],
-            )
-        GlobalHydra.instance().clear()
-        data = run(cfg)
+        data = run_slam(job, run_dir, progress=not quiet)
         ate = data["ate"]
         rmse = "n/a" if ate is None else f"{ate['rmse']:.4f} m"
         return f"ATE RMSE {rmse}, {data['fps']:.1f} frames/s"
 
     stage = Stage(
         run_dir,
-        key={"stage": "slam", "overrides": overrides, "inputs": inputs},
+        key={"stage": "slam", "overrides": job.overrides(), "inputs": inputs},
         outputs=(Path("metrics.json"),),
     )
     return run_stage(stage, work, force)
@@ -345,7 +285,7 @@ def stage_report(
 
     runs = {v.name: json.loads((slam_dir / v.name / "metrics.json").read_text()) for v in VARIANTS}
     write_comparison(slam_dir, runs)
-    val = {name: checkpoint_miou(best_checkpoint(d)) for name, d in train_dirs.items()}
+    val = {name: checkpoint_miou(select_checkpoint(d)) for name, d in train_dirs.items()}
     summary = {
         "experiment": plan.experiment,
         "sequence": str(sequence),
@@ -506,11 +446,11 @@ def run_demo(
     inputs = {name: file_sha256(model) for name, model in models.items()}
     inputs["sequence"] = data_key if seq_path.parent == data / "slam" else str(seq_path)
     for v in VARIANTS:
-        overrides = slam_overrides(v, seq_path, models)
-        used = {k: inputs[k] for k in ("sequence", v.segmenter) if k in inputs}
-        progress.run("slam", f"slam {v.name}: uss-slam {' '.join(overrides)}",
-                     lambda v=v, o=overrides, u=used: stage_slam(
-                         out / "slam" / v.name, o, u, force, quiet))  # fmt: skip
+        job = slam_job(v, seq_path, models)
+        used = {k: inputs[k] for k in ("sequence", v.model or v.segmenter) if k in inputs}
+        progress.run("slam", f"slam {v.name}: uss-slam {' '.join(job.overrides())}",
+                     lambda v=v, j=job, u=used: stage_slam(
+                         out / "slam" / v.name, j, u, force, quiet))  # fmt: skip
     if until == "slam":
         return _stopped(progress, until, out)
     progress.run("report", "report",

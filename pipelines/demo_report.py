@@ -14,7 +14,7 @@ from uss_slam.core.errors import UssSlamError
 from uss_slam.core.files import atomic_path
 
 if TYPE_CHECKING:
-    from .demo import Variant
+    from .runs import Variant
 
 TABLE_HEADER = (
     "| variant | filters | ATE RMSE [m] | Mean [m] | Median [m] | S.D. [m] | tracked | "
@@ -44,7 +44,7 @@ def summary_rows(
         if v.segmenter == "labels":
             seg_iou: Mapping[str, Any] = {"mIoU": 1.0, "IoU": dict.fromkeys(CLASS_NAMES, 1.0)}
         else:
-            seg_iou = miou.get(v.segmenter, {"mIoU": None, "IoU": {}})
+            seg_iou = miou.get(v.model or "", {"mIoU": None, "IoU": {}})
         rows.append(
             {
                 "variant": v.name,

@@ -4,7 +4,7 @@ SLAM work starts.
 Defaults live in the dataclasses (:class:`~.frontend.orb.OrbConfig`,
 :class:`~.tracking.tracker.TrackerConfig`, :class:`~.mapping.semantic_map.MapConfig`,
 :class:`~.mapping.local_mapping.LocalMappingConfig`,
-:class:`~.mapping.loop_closing.LoopClosingConfig`, :class:`~.scoring.report.EvalConfig`) and in
+:class:`~.mapping.loop_closing.LoopClosingConfig`, :class:`~.scoring.evaluation.EvalConfig`) and in
 the filters' constructors.
 :func:`register_configs` turns them into Hydra structured configs in Hydra's ConfigStore
 (``uss_slam_schema/slam``, ``uss_slam_schema/eval``), which ``configs/slam/orb_rgbd.yaml`` and
@@ -34,8 +34,8 @@ from .frontend.orb import OrbConfig
 from .mapping.local_mapping import LocalMappingConfig
 from .mapping.loop_closing import LoopClosingConfig
 from .mapping.semantic_map import MapConfig
+from .scoring.evaluation import EvalConfig
 from .scoring.repeats import Perturbation, perturbations
-from .scoring.report import EvalConfig
 from .systems.harness import SEGMENT_SCHEDULES
 from .tracking.tracker import TrackerConfig
 

@@ -25,6 +25,7 @@ import numpy as np
 import yaml
 
 from uss_slam.core.errors import UssSlamError
+from uss_slam.core.files import write_text_atomic
 
 PNG_PARAMS = [cv2.IMWRITE_PNG_COMPRESSION, 3]
 JPEG_PARAMS = [cv2.IMWRITE_JPEG_QUALITY, 90]
@@ -111,13 +112,6 @@ _ACTIVE: set[Path] = set()
 """Partial folders this process is writing now (its own pid is never a sign of a dead owner)."""
 
 
-def _write_marker(folder: Path, name: str, text: str) -> None:
-    """Write a marker file atomically: it is either absent or complete."""
-    tmp = folder / f"{name}.tmp"
-    tmp.write_text(text)
-    os.replace(tmp, folder / name)
-
-
 def _owner_gone(folder: Path) -> bool:
     """True when ``folder``'s partial marker names a process of this host that no longer runs."""
     try:
@@ -175,9 +169,9 @@ def staged_output(out_dir: str | PathLike[str], overwrite: bool) -> Iterator[Pat
     _ACTIVE.add(tmp)
     try:
         owner = {"pid": os.getpid(), "host": socket.gethostname(), "out": str(out)}
-        _write_marker(tmp, PARTIAL_MARKER, json.dumps(owner) + "\n")
+        write_text_atomic(tmp / PARTIAL_MARKER, json.dumps(owner) + "\n")
         yield tmp
-        _write_marker(tmp, OUTPUT_MARKER, OUTPUT_MARKER_TEXT)
+        write_text_atomic(tmp / OUTPUT_MARKER, OUTPUT_MARKER_TEXT)
         (tmp / PARTIAL_MARKER).unlink()
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
@@ -192,5 +186,5 @@ def staged_output(out_dir: str | PathLike[str], overwrite: bool) -> Iterator[Pat
     tmp.rename(out)
     if old is not None:
         owner = {"pid": os.getpid(), "host": socket.gethostname(), "out": str(out)}
-        _write_marker(old, PARTIAL_MARKER, json.dumps(owner) + "\n")
+        write_text_atomic(old / PARTIAL_MARKER, json.dumps(owner) + "\n")
         shutil.rmtree(old, ignore_errors=True)

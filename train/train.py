@@ -12,7 +12,7 @@ Returns the value of ``optimized_metric`` (``val/mIoU``) so Hydra sweepers can o
 from __future__ import annotations
 
 import logging
-import os
+import signal
 from pathlib import Path
 from typing import Any
 
@@ -22,15 +22,19 @@ import torch
 from hydra.errors import InstantiationException
 from hydra.utils import instantiate
 from lightning.pytorch import Callback, LightningDataModule, LightningModule, Trainer
-from lightning.pytorch.callbacks import LearningRateMonitor
+from lightning.pytorch.callbacks import LearningRateMonitor, ProgressBar
 from lightning.pytorch.loggers import Logger
+from lightning_utilities.core import rank_zero
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from uss_slam.core.cli import JobFailed, exit_on_user_error, run_hydra_app
 from uss_slam.core.errors import UssSlamError
+from uss_slam.core.files import check_writable
 from uss_slam.models.checkpoint import CheckpointInfo, read_checkpoint
+from uss_slam.train.callbacks import LogProgressBar
 from uss_slam.train.config_check import check_config_types
+from uss_slam.train.module import AdversarialSegmentation
 
 log = logging.getLogger(__name__)
 PROG = "uss-train"
@@ -84,19 +88,6 @@ def _output_folders(cfg: DictConfig) -> list[tuple[str, str]]:
     return folders
 
 
-def check_writable(key: str, folder: str | Path) -> None:
-    """Raise naming ``key`` unless ``folder`` exists as a writable folder or can be created
-    (nothing is created here)."""
-    path = Path(folder).absolute()
-    existing = path
-    while not existing.exists() and existing != existing.parent:
-        existing = existing.parent
-    if not existing.is_dir():
-        raise UssSlamError(f"{key}: cannot write to {path}: {existing} is not a folder")
-    if not os.access(existing, os.W_OK | os.X_OK):
-        raise UssSlamError(f"{key}: cannot write to {path}: {existing} is not writable")
-
-
 def check_no_earlier_checkpoints(cfg: DictConfig, ckpt_path: str | None) -> None:
     """A checkpoint folder holding another run's checkpoints is refused unless this run
     resumes from a checkpoint in it: two runs' best / last checkpoints would sit side by side
@@ -132,6 +123,10 @@ def check_architecture(model: LightningModule, info: CheckpointInfo) -> None:
     Lightning's restore cannot fail after the run started."""
     mine = model.state_dict()
     theirs = info.state_dict
+    if isinstance(model, AdversarialSegmentation):
+        # What the module's own checkpoint hook keeps (e.g. no unused discriminators).
+        method = info.hyper_parameters.get("method")
+        theirs = model.loadable_state(theirs, method if isinstance(method, str) else None)
     for key, value in mine.items():
         if key not in theirs:
             raise UssSlamError(
@@ -182,6 +177,53 @@ def build(cfg: DictConfig, key: str) -> Any:
         raise
 
 
+def check_num_threads(cfg: DictConfig) -> int | None:
+    """``num_threads``: an integer >= 1 (torch's intra-op threads) or null (torch's default).
+    Anything else is one line naming the key before any work: ``-1`` would end in torch's
+    traceback, and ``0`` would silently mean the default."""
+    value = cfg.get("num_threads")
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise UssSlamError(
+            f"num_threads must be an integer >= 1 or null (torch's default), got {value!r}"
+        )
+    return value
+
+
+def fit(
+    trainer: Trainer,
+    model: LightningModule,
+    datamodule: LightningDataModule,
+    ckpt_path: str | None,
+) -> None:
+    """``trainer.fit``, with Ctrl-C raised again as :class:`KeyboardInterrupt`.
+
+    Lightning ends a fit interrupted by Ctrl-C with its own shutdown and ``sys.exit(1)``, and
+    leaves SIGINT ignored; the console script's exit code 130 and its one line
+    ``uss-train: interrupted`` need the interrupt back. The checkpoints saved before it stay as
+    they were (each is written whole before the next iteration runs).
+    """
+    handler = signal.getsignal(signal.SIGINT)
+    announcer = logging.getLogger(rank_zero.log.name)  # where Lightning logs its shutdown
+    announcer.addFilter(_drop_shutdown_notice)
+    try:
+        trainer.fit(model, datamodule=datamodule, ckpt_path=ckpt_path)
+    except SystemExit:
+        if not trainer.interrupted:
+            raise
+        signal.signal(signal.SIGINT, handler)
+        raise KeyboardInterrupt from None
+    finally:
+        announcer.removeFilter(_drop_shutdown_notice)
+
+
+def _drop_shutdown_notice(record: logging.LogRecord) -> bool:
+    """Logging filter: drop Lightning's "Detected KeyboardInterrupt" notice (stderr then holds
+    the one line every console script prints after Ctrl-C)."""
+    return "Detected KeyboardInterrupt" not in str(record.msg)
+
+
 def train(cfg: DictConfig) -> dict[str, float]:
     """Fit the configured model; returns the final callback metrics as floats.
 
@@ -191,14 +233,15 @@ def train(cfg: DictConfig) -> dict[str, float]:
     """
     check_config_types(cfg, TYPED_SECTIONS)
     check_optimizers(cfg)
-    if cfg.get("num_threads"):
-        torch.set_num_threads(int(cfg.num_threads))
+    num_threads = check_num_threads(cfg)
+    if num_threads is not None:
+        torch.set_num_threads(num_threads)
     if cfg.get("seed") is not None:
         L.seed_everything(int(cfg.seed), workers=True, verbose=False)
     ckpt_path = resolve_ckpt_path(cfg)
     checkpoint = check_checkpoint(ckpt_path, cfg) if ckpt_path is not None else None
     for key, folder in _output_folders(cfg):
-        check_writable(key, folder)
+        check_writable(Path(folder).absolute(), key, create=False)
     check_no_earlier_checkpoints(cfg, ckpt_path)
 
     datamodule: LightningDataModule = build(cfg, "data")
@@ -207,6 +250,11 @@ def train(cfg: DictConfig) -> dict[str, float]:
         check_architecture(model, checkpoint)
         del checkpoint  # Lightning reads the file again; do not hold two copies
     callbacks: list[Callback] = _instantiate_all(cfg.get("callbacks"))
+    if cfg.trainer.get("enable_progress_bar", True) and not any(
+        isinstance(c, ProgressBar) for c in callbacks
+    ):
+        # Lightning's own bar would write one line per batch into a file or CI log
+        callbacks.append(LogProgressBar())
     loggers: list[Logger] = _instantiate_all(cfg.get("logger"))
     if not loggers:  # `logger=none`: nothing to monitor learning rates into
         callbacks = [c for c in callbacks if not isinstance(c, LearningRateMonitor)]
@@ -216,7 +264,7 @@ def train(cfg: DictConfig) -> dict[str, float]:
     for logger in loggers:
         logger.log_hyperparams(hparams)  # type: ignore[arg-type]
 
-    trainer.fit(model, datamodule=datamodule, ckpt_path=ckpt_path)
+    fit(trainer, model, datamodule, ckpt_path)
 
     metrics = {k: float(v) for k, v in trainer.callback_metrics.items()}
     best = getattr(trainer.checkpoint_callback, "best_model_path", "")

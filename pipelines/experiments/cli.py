@@ -149,7 +149,7 @@ def stage_exports(exp: Experiment, failures: dict[str, str], rows: list[dict[str
     """Export every complete training not exported yet (in this process); a failure is
     recorded for the tables and blocks that model's jobs."""
     from uss_slam.export import export_checkpoint
-    from uss_slam.pipelines.demo import best_checkpoint
+    from uss_slam.pipelines.runs import select_checkpoint
 
     done = reused = 0
     for cell in exp.grid.trainings:
@@ -170,7 +170,7 @@ def stage_exports(exp: Experiment, failures: dict[str, str], rows: list[dict[str
         stage.start()
         try:
             export_checkpoint(
-                best_checkpoint(stage_of(exp.out, exp.train_specs[cell.id], cell.id).folder),
+                select_checkpoint(stage_of(exp.out, exp.train_specs[cell.id], cell.id).folder),
                 model_path(exp, cell),
             )
         except Exception as error:  # recorded, like a failed job, so that the others go on

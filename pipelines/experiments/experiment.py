@@ -76,7 +76,7 @@ def check_orbslam3(orb: Mapping[str, Any]) -> None:
     and a repeat count, before any work."""
     import importlib.util
 
-    from uss_slam.slam_eval.systems.orbslam3.system import INSTALL_HINT, check_vocabulary
+    from uss_slam.slam_eval.systems.orbslam3.config import INSTALL_HINT, check_vocabulary
 
     if importlib.util.find_spec("pyorbslam3") is None:
         raise UssSlamError(

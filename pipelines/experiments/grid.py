@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from uss_slam.core.errors import UssSlamError
+from uss_slam.pipelines.runs import Variant
 
 METHODS: dict[str, tuple[str, ...]] = {
     # uss-train overrides of each adaptation method ("without ATL" / "with ATL", then the
@@ -48,17 +49,6 @@ N_LAYERS_RANGE = range(1, 9)
 """Discriminator depths the grid accepts (the paper sweeps 4..7)."""
 
 SYSTEMS = ("harness", "orbslam3")
-
-
-@dataclass(frozen=True)
-class Variant:
-    """One dynamic-point treatment of the SLAM runs."""
-
-    name: str
-    label: str
-    segmenter: str  # none | labels | model (the exported segmenter of a training)
-    filters: tuple[str, ...]
-    crf: bool = False  # dense-CRF refinement of the model's output (uss-slam segmenter.crf=true)
 
 
 VARIANTS: dict[str, Variant] = {

@@ -32,7 +32,15 @@ import hydra
 from omegaconf import DictConfig
 
 from uss_slam.core.errors import UssSlamError
-from uss_slam.pipelines.stages import Stage, write_json_atomic
+from uss_slam.core.files import write_json_atomic
+from uss_slam.pipelines.runs import (
+    SlamJob,
+    checkpoint_miou,
+    run_slam,
+    run_training,
+    select_checkpoint,
+)
+from uss_slam.pipelines.stages import Stage
 
 log = logging.getLogger(__name__)
 
@@ -61,38 +69,11 @@ def reason_of(error: BaseException) -> str:
 # ------------------------------------------------------------------------------------ kinds
 
 
-def _compose(config_name: str, overrides: list[str]) -> DictConfig:
-    """Compose one of the package's configs (inside a Hydra job, or after initialising Hydra)."""
-    from hydra import compose, initialize_config_dir
-    from hydra.core.global_hydra import GlobalHydra
-
-    if GlobalHydra.instance().is_initialized():
-        return compose(config_name, overrides=overrides)
-    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
-        return compose(config_name, overrides=overrides)
-
-
-CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
-
-
 def run_train(folder: Path, spec: Mapping[str, Any]) -> dict[str, Any]:
     """``uss-train`` with the cell's overrides into ``folder`` (checkpoints/, .hydra/config.yaml
-    as uss-train writes it, for uss-export)."""
-    from omegaconf import OmegaConf
-
-    from uss_slam.pipelines.demo import best_checkpoint, checkpoint_miou
-    from uss_slam.train.train import train
-
-    overrides = [*spec["overrides"], f"paths.output_dir={folder}"]
-    cfg = _compose("train", overrides)
-    hydra_dir = folder / ".hydra"
-    hydra_dir.mkdir(parents=True, exist_ok=True)
-    OmegaConf.save(
-        OmegaConf.create(OmegaConf.to_container(cfg, resolve=True)), hydra_dir / "config.yaml"
-    )
-    OmegaConf.save(OmegaConf.create(overrides), hydra_dir / "overrides.yaml")
-    metrics = train(cfg)
-    ckpt = best_checkpoint(folder)
+    as uss-train writes it, for uss-export); the checkpoint the export will take."""
+    metrics = run_training(folder, spec["overrides"])
+    ckpt = select_checkpoint(folder)
     val = checkpoint_miou(ckpt)
     return {
         "checkpoint": str(ckpt.relative_to(folder)),
@@ -136,16 +117,10 @@ def run_segeval(folder: Path, spec: Mapping[str, Any]) -> dict[str, Any]:
     return {"model": info, "sequences": scores}
 
 
-def run_slam(folder: Path, spec: Mapping[str, Any]) -> dict[str, Any]:
-    """``uss-slam`` with the cell's overrides, writing its outputs into ``folder``."""
-    from uss_slam.slam_eval.config import register_configs
-    from uss_slam.slam_eval.run import run
-
-    # The typed slam / eval defaults, every time: a launcher's worker process (joblib, submitit)
-    # gets Hydra's ConfigStore as it was when the jobs were launched, not as this module left it.
-    register_configs()
-    cfg = _compose("slam_eval", [*spec["overrides"], f"out_dir={folder}", "progress=false"])
-    data = run(cfg)
+def run_slam_job(folder: Path, spec: Mapping[str, Any]) -> dict[str, Any]:
+    """The cell's :class:`SlamJob` (``spec["job"]``), writing its outputs into ``folder``."""
+    job = SlamJob.from_json(spec["job"], f"SLAM job {folder}")
+    data = run_slam(job, folder, progress=False)
     result = {
         "ate": data.get("ate"),
         "tracked_fraction": data.get("tracked_fraction"),
@@ -159,7 +134,7 @@ def run_slam(folder: Path, spec: Mapping[str, Any]) -> dict[str, Any]:
 KINDS: dict[str, Callable[[Path, Mapping[str, Any]], dict[str, Any]]] = {
     "train": run_train,
     "segeval": run_segeval,
-    "slam": run_slam,
+    "slam": run_slam_job,
 }
 
 

@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from uss_slam.core.errors import UssSlamError
-from uss_slam.pipelines.stages import write_json_atomic
+from uss_slam.core.files import write_json_atomic
 
 from . import tables as tbl
 from .experiment import Experiment

@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from uss_slam.core.files import file_sha256
+from uss_slam.pipelines.runs import OrbSlam3, Segmenter, SlamJob, select_checkpoint
 from uss_slam.pipelines.stages import Stage
 
 from .data import Data
@@ -86,12 +87,10 @@ def plan_train(exp: Experiment, data: Data) -> list[Job]:
 
 def export_stage(exp: Experiment, cell: TrainCell) -> Stage | None:
     """The export of a complete training (None while the training is not complete)."""
-    from uss_slam.pipelines.demo import best_checkpoint
-
     train_job = stage_of(exp.out, exp.train_specs[cell.id], cell.id)
     if not train_job.complete():
         return None
-    ckpt = best_checkpoint(train_job.folder)
+    ckpt = select_checkpoint(train_job.folder)
     stat = ckpt.stat()
     # The checkpoint's name, size and time rather than its hash: a ResNet-101 checkpoint with
     # its optimiser states is ~0.5 GB, hashed 15 times at every run otherwise.
@@ -108,35 +107,27 @@ def model_path(exp: Experiment, cell: TrainCell) -> Path:
     return exp.out / "exports" / cell.model / f"{cell.model}.onnx"
 
 
-def slam_overrides(exp: Experiment, data: Data, cell: SlamCell) -> list[str]:
-    from uss_slam.pipelines.demo import slam_overrides as demo_slam_overrides
-
+def slam_job(exp: Experiment, data: Data, cell: SlamCell) -> SlamJob:
+    """The SLAM run of a cell: its sequence, its variant's segmenter (the cell's exported model)
+    and filters, ``slam.overrides``, ORB-SLAM3 for ``system: orbslam3``."""
     variant = VARIANTS[cell.variant]
-    models = {"model": model_path(exp, cell.model)} if cell.model is not None else {}
-    overrides = demo_slam_overrides(variant, data.sequences[cell.sequence], models)  # type: ignore[arg-type]
-    if variant.crf:
-        overrides += ["segmenter.crf=true", *crf_overrides(exp)]
-    overrides += [str(o) for o in exp.cfg["slam"].get("overrides") or []]
+    model = model_path(exp, cell.model) if cell.model is not None else None
+    orbslam3 = None
     if cell.system == "orbslam3":
-        # ORB-SLAM3 gets the dynamic mask blanked out of its input, not the harness's filters
         orb = exp.cfg["slam"]["orbslam3"]
-        overrides = [o for o in overrides if not o.startswith("filters=")]
-        overrides += [
-            "filters=[]",
-            "system=orbslam3",
-            f"system.vocabulary={data.vocabulary}",
-            f"system.repeats={int(orb['repeats'])}",
-            *(str(o) for o in orb.get("overrides") or []),
-        ]
-    if exp.fast:
-        overrides.append(f"sequence.max_frames={FAST_FRAMES}")
-    return overrides
-
-
-def crf_overrides(exp: Experiment) -> list[str]:
-    """``segmenter.crf_params.<key>=<value>`` of the ``crf_params`` that are set (the others
-    keep the CRF's defaults)."""
-    return [f"segmenter.crf_params.{k}={v}" for k, v in given(exp.cfg.get("crf_params")).items()]
+        orbslam3 = OrbSlam3(
+            Path(str(data.vocabulary)),
+            int(orb["repeats"]),
+            tuple(str(o) for o in orb.get("overrides") or []),
+        )
+    return SlamJob(
+        data.sequences[cell.sequence],
+        Segmenter.of(variant, model, given(exp.cfg.get("crf_params"))),
+        variant.filters,
+        extra=tuple(str(o) for o in exp.cfg["slam"].get("overrides") or []),
+        orbslam3=orbslam3,
+        max_frames=FAST_FRAMES if exp.fast else None,
+    )
 
 
 def plan_slam(exp: Experiment, data: Data, exports: Mapping[str, str]) -> list[Job]:
@@ -165,7 +156,8 @@ def plan_slam(exp: Experiment, data: Data, exports: Mapping[str, str]) -> list[J
             row = {"kind": "segeval", **seg.model.describe(), "crf": int(seg.crf)}
             jobs.append(Job(seg.id, spec, row, needs=seg.model.model))
     for cell in exp.grid.slams:
-        overrides = slam_overrides(exp, data, cell)
+        job = slam_job(exp, data, cell)
+        overrides = job.overrides()
         model = cell.model.model if cell.model is not None else None
         key = {
             "overrides": _portable(overrides, exp.out),
@@ -174,7 +166,7 @@ def plan_slam(exp: Experiment, data: Data, exports: Mapping[str, str]) -> list[J
         }
         if cell.system == "orbslam3":
             key["vocabulary"] = data.vocabulary_key
-        spec = {"kind": "slam", "overrides": overrides, "key": key, "outputs": ["metrics.json"]}
+        spec = {"kind": "slam", "job": job.to_json(), "key": key, "outputs": ["metrics.json"]}
         row = {
             "kind": "slam",
             "system": cell.system,

@@ -31,6 +31,7 @@ from typing import Any
 
 from uss_slam.core.classes import CLASS_NAMES
 from uss_slam.core.errors import DataFormatError
+from uss_slam.core.files import write_text_atomic
 
 from .grid import ADAPTED, VARIANTS
 
@@ -1000,12 +1001,6 @@ def write_tables(
     md = [*header, text]
     if images:
         md += ["### Plots", "", *(f"![{p.stem}](plots/{p.name})" for p in images), ""]
-    _atomic_text(out / "tables.md", "\n".join(md))
-    _atomic_text(out / "tables.json", json.dumps(data, indent=2) + "\n")
+    write_text_atomic(out / "tables.md", "\n".join(md))
+    write_text_atomic(out / "tables.json", json.dumps(data, indent=2) + "\n")
     return data
-
-
-def _atomic_text(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(text)
-    tmp.replace(path)

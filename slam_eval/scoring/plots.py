@@ -21,9 +21,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from uss_slam.core.errors import UssSlamError
+from uss_slam.core.files import atomic_path
 from uss_slam.core.tum_io import StrPath
 
-from .run_folder import atomic_path
+from .run_folder import TMP_PREFIX
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -80,7 +81,7 @@ def _save(fig: Figure, path: StrPath) -> Path:
     if not path.parent.is_dir():  # atomic_path would create it: a plot goes into a folder
         raise UssSlamError(f"{path}: cannot write the plot (no folder {path.parent})")
     try:
-        with atomic_path(path) as tmp:
+        with atomic_path(path, prefix=TMP_PREFIX) as tmp:
             fig.savefig(tmp, format=path.suffix.lower().lstrip("."), dpi=DPI)
     except OSError as err:
         raise UssSlamError(f"{path}: cannot write the plot ({err.strerror})") from None

@@ -1,8 +1,12 @@
-"""Run outputs: ``trajectory.txt``, ``metrics.json``, ``report.md``, plots, ``map.ply`` (and
-``octomap.ot`` with ``slam.map.octomap=true``); and the
-comparison table of several filter sets on one sequence (baseline vs each, improvement %).
+"""The outputs of a SLAM run, one writer for every system: :func:`write_report` writes
+``metrics.json``, the plots (``trajectory.png``, ``ate.png``; ``repeats.png`` for repeated runs)
+and ``report.md`` (the system's summary, the trajectory-error table, the system's sections).
+:func:`write_run` writes a harness run through it (with ``trajectory.txt``, ``map.ply``, and
+``octomap.ot`` with ``slam.map.octomap=true``), :mod:`..systems.orbslam3.report` an ORB-SLAM3
+run; :func:`write_comparison` writes the comparison table of several filter sets on one sequence
+(baseline vs each, improvement %).
 
-``metrics.json`` keys: ``ate`` (``rmse mean median std min max pairs``, metres, SE(3)-aligned by
+The harness's ``metrics.json`` keys: ``ate`` (``rmse mean median std min max pairs``, metres, SE(3)-aligned by
 default) and ``rpe`` (``trans`` metres / ``rot_deg`` degrees, each with the same statistics, over
 ``rpe_delta`` frames by default 1) — both null when the sequence has no ground truth or too few
 tracked poses associate (``ate_error`` says why) — plus ``rpe_1s`` (drift per second), ``frames``,
@@ -29,107 +33,20 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from uss_slam.core.errors import UssSlamError
-from uss_slam.core.tum_io import StrPath, Trajectory, write_trajectory
+from uss_slam.core.tum_io import StrPath, write_trajectory
 
 from ..mapping.semantic_map import write_ply
 from ..systems.harness import RunResult
-from . import metrics, plots
+from . import plots
+from .evaluation import STAT_KEYS, EvalConfig, Evaluation, scores_dict
 from .repeats import repeats_md
 from .run_folder import RunFolder
-
-STAT_KEYS = ("rmse", "mean", "median", "std", "min", "max")
-
-
-@dataclass(frozen=True)
-class EvalConfig:
-    """How trajectories are scored (TUM / evo conventions)."""
-
-    max_diff: float = metrics.DEFAULT_MAX_DIFF
-    """Largest rgb stamp <-> ground-truth stamp difference of an associated pair, seconds."""
-    align: str = "se3"
-    """Umeyama alignment of the estimate: ``se3`` | ``sim3`` | ``none``."""
-    rpe_delta: float = 1.0
-    """RPE pair distance in ``rpe_unit`` (``metrics.json`` also has ``rpe_1s``, per second)."""
-    rpe_unit: str = "frames"
-    """``frames`` | ``seconds``."""
-
-    def __post_init__(self) -> None:
-        # Messages start with the field name: uss-slam prefixes the config section.
-        if not (math.isfinite(self.max_diff) and self.max_diff >= 0):
-            raise ValueError(f"max_diff must be a number of seconds >= 0, got {self.max_diff}")
-        if self.align not in metrics.ALIGNMENTS:
-            raise ValueError(
-                f"align must be one of {', '.join(metrics.ALIGNMENTS)}, got {self.align!r}"
-            )
-        if self.rpe_unit not in metrics.DELTA_UNITS:
-            raise ValueError(
-                f"rpe_unit must be one of {', '.join(metrics.DELTA_UNITS)}, got {self.rpe_unit!r}"
-            )
-        if not (math.isfinite(self.rpe_delta) and self.rpe_delta > 0):
-            raise ValueError(f"rpe_delta must be > 0, got {self.rpe_delta}")
-        if self.rpe_unit == "frames" and not float(self.rpe_delta).is_integer():
-            raise ValueError(
-                f"rpe_delta must be a whole number of frames with rpe_unit=frames, "
-                f"got {self.rpe_delta}"
-            )
-
-
-@dataclass
-class Evaluation:
-    """ATE / RPE of a run, or why they could not be computed."""
-
-    ate: metrics.AteResult | None
-    rpe: metrics.RpeResult | None
-    rpe_1s: metrics.RpeResult | None
-    error: str | None = None
-
-
-def evaluate(
-    trajectory: Trajectory, groundtruth: Trajectory | None, config: EvalConfig
-) -> Evaluation:
-    """Score ``trajectory`` against ``groundtruth`` (None -> nothing to score)."""
-    if groundtruth is None:
-        return Evaluation(None, None, None, "the sequence has no groundtruth.txt")
-    if len(trajectory) < metrics.MIN_ASSOCIATED_POSES:
-        return Evaluation(
-            None, None, None, f"only {len(trajectory)} frames were tracked; ATE needs 3 poses"
-        )
-    try:
-        ate = metrics.ate(groundtruth, trajectory, max_diff=config.max_diff, align=config.align)
-        rpe = metrics.rpe(
-            groundtruth,
-            trajectory,
-            delta=config.rpe_delta,
-            unit=config.rpe_unit,
-            max_diff=config.max_diff,
-        )
-    except UssSlamError as err:
-        return Evaluation(None, None, None, str(err))
-    try:
-        rpe_1s = metrics.rpe(
-            groundtruth, trajectory, delta=1.0, unit="seconds", max_diff=config.max_diff
-        )
-    except UssSlamError:
-        rpe_1s = None  # shorter than a second, or gaps everywhere: reported as null
-    return Evaluation(ate, rpe, rpe_1s)
-
-
-def _rpe_dict(result: metrics.RpeResult | None, delta: float, unit: str) -> dict | None:
-    if result is None:
-        return None
-    return {
-        "trans": result.trans.as_dict(),
-        "rot_deg": result.rot_deg.as_dict(),
-        "delta": delta,
-        "unit": unit,
-    }
 
 
 def metrics_dict(result: RunResult, evaluation: Evaluation, config: EvalConfig) -> dict[str, Any]:
@@ -144,11 +61,7 @@ def metrics_dict(result: RunResult, evaluation: Evaluation, config: EvalConfig) 
         "frames_tracked": result.tracked,
         "tracked_fraction": result.tracked_fraction,
         "unmatched_rgb_frames": result.unmatched_rgb,
-        "ate": evaluation.ate.stats.as_dict() if evaluation.ate else None,
-        "rpe": _rpe_dict(evaluation.rpe, config.rpe_delta, config.rpe_unit),
-        "rpe_1s": _rpe_dict(evaluation.rpe_1s, 1.0, "seconds"),
-        "ate_error": evaluation.error,
-        "evaluation": {"max_diff": config.max_diff, "align": config.align},
+        **scores_dict(evaluation, config),
         "keyframes": result.keyframes,
         "map_points": result.map_points,
         "culled_map_points": result.culled_points,
@@ -179,27 +92,116 @@ def metrics_dict(result: RunResult, evaluation: Evaluation, config: EvalConfig) 
     }
 
 
-def _fmt(value: float | None, digits: int = 4) -> str:
+def fmt(value: float | None, digits: int = 4) -> str:
+    """A table cell: ``value`` with ``digits`` decimals, ``—`` for None or NaN."""
     if value is None or (isinstance(value, float) and math.isnan(value)):
         return "—"
     return f"{value:.{digits}f}"
 
 
-def _plots(out: Path, evaluation: Evaluation, title: str) -> list[str]:
-    """Top view of aligned trajectory vs ground truth and ATE over time; returns file names."""
+def _json_default(value: Any) -> Any:
+    if isinstance(value, np.generic):
+        return value.item()
+    raise TypeError(f"not JSON serialisable: {type(value).__name__}")
+
+
+def write_plots(
+    folder: RunFolder,
+    out: Path,
+    evaluation: Evaluation,
+    title: str,
+    estimate: str = "estimate",
+    repeats: Sequence[tuple[str, np.ndarray]] | None = None,
+) -> list[str]:
+    """Top view of the aligned estimate (labelled ``estimate``) vs ground truth
+    (``trajectory.png``), ATE over time (``ate.png``) and, with ``repeats`` (label, aligned
+    positions (N, 3) metres), every repeat in one top view (``repeats.png``); returns the file
+    names (none without an ATE)."""
     if evaluation.ate is None:
         return []
     a = evaluation.ate
     plots.plot_trajectories(
         out / "trajectory.png",
         a.gt_positions,
-        [("estimate", a.est_positions)],
+        [(estimate, a.est_positions)],
         f"{title}: trajectory ({a.stats.pairs} poses, aligned)",
     )
     plots.plot_error_over_time(
         out / "ate.png", a.stamps, a.errors, f"{title}: absolute trajectory error"
     )
-    return ["trajectory.png", "ate.png"]
+    names = ["trajectory.png", "ate.png"]
+    if repeats is not None:
+        plots.plot_trajectories(
+            out / "repeats.png", a.gt_positions, list(repeats), f"{title}: every repeat (aligned)"
+        )
+        names.append("repeats.png")
+    for name in names:
+        folder.record(out / name)
+    return names
+
+
+def error_table_md(data: dict[str, Any]) -> list[str]:
+    """The trajectory-error table of ``report.md`` from the :func:`~.evaluation.scores_dict`
+    keys of ``data`` (or why there is none)."""
+    if data["ate"] is None:
+        return [f"Not evaluated: {data['ate_error']}", ""]
+    ate = data["ate"]
+    lines = [
+        "| | RMSE | Mean | Median | S.D. | Min | Max | pairs |",
+        "|---|---|---|---|---|---|---|---|",
+        "| ATE [m] | " + " | ".join(fmt(ate[k]) for k in STAT_KEYS) + f" | {ate['pairs']} |",
+    ]
+    for key in ("rpe", "rpe_1s"):
+        rpe = data.get(key)
+        if rpe is None:
+            continue
+        unit = f"{rpe['delta']:g} {rpe['unit']}"
+        for part, label, digits in (("trans", "trans [m]", 4), ("rot_deg", "rot [deg]", 3)):
+            lines.append(
+                f"| RPE {label} / {unit} | "
+                + " | ".join(fmt(rpe[part][k], digits) for k in STAT_KEYS)
+                + f" | {rpe[part]['pairs']} |"
+            )
+    return [
+        *lines,
+        "",
+        f"Alignment: {data['evaluation']['align']}; association max difference "
+        f"{data['evaluation']['max_diff']} s.",
+        "",
+    ]
+
+
+def write_report(
+    folder: RunFolder,
+    out: Path,
+    data: dict[str, Any],
+    evaluation: Evaluation,
+    *,
+    heading: str,
+    summary: Sequence[str],
+    sections: Sequence[str] = (),
+    error_heading: str = "Trajectory error",
+    estimate: str = "estimate",
+    repeats: Sequence[tuple[str, np.ndarray]] | None = None,
+) -> list[str]:
+    """Write ``metrics.json`` (``data``), the plots of :func:`write_plots` and ``report.md`` into
+    ``out``, each file atomically through ``folder``; returns the plot names.
+
+    ``report.md``: ``# heading``, the ``summary`` lines, ``## error_heading`` with
+    :func:`error_table_md`, the system's ``sections`` (Markdown lines), then the plots.
+    """
+    out.mkdir(parents=True, exist_ok=True)
+    folder.write_text(
+        out / "metrics.json", json.dumps(data, indent=2, default=_json_default) + "\n"
+    )
+    title = Path(data["sequence"]).name
+    figures = write_plots(folder, out, evaluation, title, estimate, repeats)
+    lines = [f"# {heading}", "", *summary, "", f"## {error_heading}", "", *error_table_md(data)]
+    lines += sections
+    for figure in figures:
+        lines += [f"![{figure}]({figure})", ""]
+    folder.write_text(out / "report.md", "\n".join(lines))
+    return figures
 
 
 def write_run(
@@ -211,10 +213,11 @@ def write_run(
     folder: RunFolder | None = None,
     repeats: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """Write every output of one run into ``out_dir``, each file atomically; returns the metrics
-    dictionary. ``folder``: the run folder (inside which ``out_dir`` lies) that records the files
-    for its manifest; None writes without one. ``repeats``: for the median run of repeated runs,
-    the keys of :func:`~.repeats.repeats_metrics` (added to ``metrics.json`` and the report)."""
+    """Write every output of one harness run into ``out_dir``, each file atomically; returns the
+    metrics dictionary. ``folder``: the run folder (inside which ``out_dir`` lies) that records
+    the files for its manifest; None writes without one. ``repeats``: for the median run of
+    repeated runs, the keys of :func:`~.repeats.repeats_metrics` (added to ``metrics.json`` and
+    the report)."""
     out = Path(out_dir)
     folder = folder or RunFolder(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -229,35 +232,26 @@ def write_run(
         data.update(repeats)
     if settings is not None:
         data["settings"] = settings
-    folder.write_text(
-        out / "metrics.json", json.dumps(data, indent=2, default=_json_default) + "\n"
-    )
     with folder.writing(out / "map.ply") as tmp:
         write_ply(tmp, result.cloud)
     if result.octomap is not None:
         with folder.writing(out / "octomap.ot") as tmp:
             result.octomap.write(tmp)
-    title = Path(result.sequence).name
-    names = _plots(out, evaluation, title)
-    for name in names:
-        folder.record(out / name)
-    folder.write_text(out / "report.md", _report_md(result, evaluation, data, names))
+    write_report(
+        folder,
+        out,
+        data,
+        evaluation,
+        heading=f"uss-slam run: {Path(result.sequence).name}",
+        summary=_summary_md(result),
+        sections=_sections_md(result, data),
+    )
     return data
 
 
-def _json_default(value: Any) -> Any:
-    if isinstance(value, np.generic):
-        return value.item()
-    raise TypeError(f"not JSON serialisable: {type(value).__name__}")
-
-
-def _report_md(
-    result: RunResult, evaluation: Evaluation, data: dict[str, Any], plots: list[str]
-) -> str:
+def _summary_md(result: RunResult) -> list[str]:
     filters = ", ".join(result.filters) or "none (baseline)"
-    lines = [
-        f"# uss-slam run: {Path(result.sequence).name}",
-        "",
+    return [
         f"- sequence: `{result.sequence}`",
         f"- camera: {result.camera}",
         f"- segmenter: {result.segmenter}; filters: {filters}",
@@ -267,44 +261,13 @@ def _report_md(
         f"- keyframes: {result.keyframes}; map points: {result.map_points} "
         f"({result.culled_points} culled); relocalisations: {result.relocalisations} "
         f"after {result.lost_events} tracking losses",
-        "",
-        "## Trajectory error",
-        "",
     ]
-    if evaluation.ate is None:
-        lines += [f"Not evaluated: {evaluation.error}", ""]
-    else:
-        ate = evaluation.ate.stats
-        lines += [
-            "| | RMSE | Mean | Median | S.D. | Min | Max | pairs |",
-            "|---|---|---|---|---|---|---|---|",
-            "| ATE [m] | "
-            + " | ".join(_fmt(getattr(ate, k)) for k in STAT_KEYS)
-            + f" | {ate.pairs} |",
-        ]
-        for key, label in (("rpe", "RPE"), ("rpe_1s", "RPE")):
-            rpe = data.get(key)
-            if rpe is None:
-                continue
-            unit = f"{rpe['delta']:g} {rpe['unit']}"
-            lines.append(
-                f"| {label} trans [m] / {unit} | "
-                + " | ".join(_fmt(rpe["trans"][k]) for k in STAT_KEYS)
-                + f" | {rpe['trans']['pairs']} |"
-            )
-            lines.append(
-                f"| {label} rot [deg] / {unit} | "
-                + " | ".join(_fmt(rpe["rot_deg"][k], 3) for k in STAT_KEYS)
-                + f" | {rpe['rot_deg']['pairs']} |"
-            )
-        lines.append("")
-        lines.append(
-            f"Alignment: {data['evaluation']['align']}; association max difference "
-            f"{data['evaluation']['max_diff']} s."
-        )
-        lines.append("")
+
+
+def _sections_md(result: RunResult, data: dict[str, Any]) -> list[str]:
+    """The harness's sections of ``report.md``: keypoints, time, maps, back end."""
     kp = result.keypoints
-    lines += [
+    lines = [
         "## Keypoints",
         "",
         f"{kp['extracted']} extracted ({kp['per_frame']:.0f} per frame), {kp['kept']} kept.",
@@ -337,11 +300,11 @@ def _report_md(
     schedule = "every frame" if seg["schedule"] == "every_frame" else "keyframes only"
     lines += [
         "",
-        f"{result.fps:.1f} frames/s end to end; pipeline / ORB extraction time = {_fmt(ratio, 2)}.",
+        f"{result.fps:.1f} frames/s end to end; pipeline / ORB extraction time = {fmt(ratio, 2)}.",
         "",
         f"Segmentation ({result.segmenter}, {schedule}, {where}): {seg['frames_segmented']} of "
-        f"{result.frames} frames segmented, {_fmt(seg['wall_ms'], 2)} ms wall / "
-        f"{_fmt(seg['cpu_ms'], 2)} ms CPU per segmented frame; ORB extraction "
+        f"{result.frames} frames segmented, {fmt(seg['wall_ms'], 2)} ms wall / "
+        f"{fmt(seg['cpu_ms'], 2)} ms CPU per segmented frame; ORB extraction "
         f"{seg['orb_wall_ms']:.2f} ms wall / {seg['orb_cpu_ms']:.2f} ms CPU per frame.",
         "",
         f"Semantic map: `map.ply`, {len(result.cloud)} points.",
@@ -359,9 +322,7 @@ def _report_md(
         ]
     lines += repeats_md(data)
     lines += _backend_md(result)
-    for plot in plots:
-        lines += [f"![{plot}]({plot})", ""]
-    return "\n".join(lines)
+    return lines
 
 
 def _backend_md(result: RunResult) -> list[str]:
@@ -449,7 +410,7 @@ def write_comparison(
             **{f"{n} improvement %": g for n, g in zip(names[1:], gains, strict=True)},
         }
         digits = 3 if "deg" in label else 4
-        cells = [_fmt(v, digits) for v in values] + [
+        cells = [fmt(v, digits) for v in values] + [
             "—" if g is None else f"{g:.1f}%" for g in gains
         ]
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
@@ -459,7 +420,7 @@ def write_comparison(
     ):
         values = [runs[n][key] for n in names]
         table[label] = dict(zip(names, values, strict=True))
-        cells = [label, *(_fmt(v, digits) for v in values), *([""] * (len(names) - 1))]
+        cells = [label, *(fmt(v, digits) for v in values), *([""] * (len(names) - 1))]
         lines.append("| " + " | ".join(cells) + " |")
     lines.append("")
     lines.append(

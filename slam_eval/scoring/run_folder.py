@@ -19,12 +19,11 @@ from __future__ import annotations
 import json
 import time
 from collections.abc import Iterator
-from contextlib import AbstractContextManager, contextmanager
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from uss_slam.core import files
-from uss_slam.core.files import file_sha256
+from uss_slam.core.files import atomic_path, file_sha256
 from uss_slam.core.tum_io import StrPath
 
 MANIFEST = "run.json"
@@ -42,12 +41,6 @@ OUTPUT_NAMES = (
 )
 """Files a run writes into its folder (and into each sub-folder of a comparison)."""
 HYDRA_FILES = (".hydra/config.yaml", ".hydra/hydra.yaml", ".hydra/overrides.yaml")
-
-
-def atomic_path(path: StrPath) -> AbstractContextManager[Path]:
-    """:func:`uss_slam.core.files.atomic_path` with this folder's temporary prefix (what
-    :func:`clear_outputs` removes after a killed run)."""
-    return files.atomic_path(path, prefix=TMP_PREFIX)
 
 
 class RunFolder:
@@ -79,11 +72,12 @@ class RunFolder:
 
     @contextmanager
     def writing(self, path: StrPath) -> Iterator[Path]:
-        """:func:`atomic_path` for an output (``path`` relative to the folder or inside it),
-        recorded for the manifest."""
+        """:func:`~uss_slam.core.files.atomic_path` (temporary prefix :data:`TMP_PREFIX`, what
+        :func:`clear_outputs` removes after a killed run) for an output (``path`` relative to
+        the folder or inside it), recorded for the manifest."""
         relative = self._relative(path)
         (self.root / relative).parent.mkdir(parents=True, exist_ok=True)
-        with atomic_path(self.root / relative) as tmp:
+        with atomic_path(self.root / relative, prefix=TMP_PREFIX) as tmp:
             yield tmp
         if relative not in self.files:
             self.files.append(relative)
@@ -107,7 +101,7 @@ class RunFolder:
             **info,
             "files": {name: file_sha256(self.root / name) for name in sorted(self.files)},
         }
-        with atomic_path(self.root / MANIFEST) as tmp:
+        with atomic_path(self.root / MANIFEST, prefix=TMP_PREFIX) as tmp:
             tmp.write_text(json.dumps(manifest, indent=2) + "\n")
         return self.root / MANIFEST
 

@@ -1,5 +1,5 @@
-"""Helpers of the export tests: the config tree, data-path overrides for a uss-train run, a tiny
-uss-train run folder."""
+"""Helpers of the export tests: the config tree, a tiny segmenter and a uss-train run folder
+holding it."""
 
 from __future__ import annotations
 
@@ -15,16 +15,6 @@ from uss_slam.models import DeepLabV2
 
 CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
 NET_YAML = CONFIG_DIR / "model" / "net" / "deeplab_small.yaml"
-
-
-def data_overrides(data: dict[str, Path]) -> list[str]:
-    """``uss-train`` overrides pointing at the synthetic data of the ``uda_data`` fixture."""
-    return [
-        f"data.source.root={data['voc']}",
-        f"data.target.roots=[{data['target']}]",
-        f"data.val.roots=[{data['val']}]",
-        "data.val.stride=1",
-    ]
 
 
 def tiny_net(seed: int = 0) -> DeepLabV2:

@@ -17,9 +17,10 @@ import pytest
 import torch
 import torch.nn.functional as F
 import yaml
-from export_helpers import NET_YAML, data_overrides
+from export_helpers import NET_YAML
 from export_helpers import fake_run as _fake_run
 from export_helpers import tiny_net as _tiny_net
+from shared_helpers import data_overrides
 
 import uss_slam.export as export
 from uss_slam.core.classes import CLASS_NAMES

@@ -1,21 +1,15 @@
-"""Helpers of the pipeline tests: composing the real training config, data-path overrides, a
-tiny ``uss-train`` run folder and a tiny ONNX segmenter with known output."""
+"""Helpers of the pipeline tests: a tiny ``uss-train`` run folder and a tiny ONNX segmenter of
+the project's contract with known output."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from pathlib import Path
 
-import numpy as np
-import onnx
+import shared_helpers
 import torch
 import yaml
-from hydra import compose, initialize_config_dir
-from hydra.core.global_hydra import GlobalHydra
-from hydra.core.hydra_config import HydraConfig
 from hydra.utils import instantiate
-from omegaconf import DictConfig, OmegaConf, open_dict
-from onnx import TensorProto, helper
+from omegaconf import OmegaConf
 
 from uss_slam.core.classes import CLASS_NAMES
 from uss_slam.core.onnx_contract import SegmenterMetadata
@@ -23,29 +17,6 @@ from uss_slam.models import DeepLabV2
 
 CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
 NET_YAML = CONFIG_DIR / "model" / "net" / "deeplab_small.yaml"
-
-
-def data_overrides(data: dict[str, Path]) -> list[str]:
-    """``uss-train`` overrides pointing at the synthetic data of the ``uda_data`` fixture."""
-    return [
-        f"data.source.root={data['voc']}",
-        f"data.target.roots=[{data['target']}]",
-        f"data.val.roots=[{data['val']}]",
-        "data.val.stride=1",
-    ]
-
-
-def compose_train(overrides: Sequence[str], output_dir: Path) -> DictConfig:
-    """The real ``train.yaml`` composed with ``overrides``; outputs go to ``output_dir``."""
-    GlobalHydra.instance().clear()
-    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
-        cfg = compose("train", overrides=list(overrides), return_hydra_config=True)
-    with open_dict(cfg):
-        cfg.hydra.runtime.output_dir = str(output_dir)
-        cfg.hydra.job.num = 0
-        cfg.paths.log_dir = str(output_dir.parent / "logs")
-    HydraConfig().set_config(cfg)
-    return cfg
 
 
 def tiny_run(root: Path, seed: int = 0) -> Path:
@@ -76,31 +47,7 @@ def tiny_run(root: Path, seed: int = 0) -> Path:
 
 def colour_model(path: Path, bias: float = 128.0) -> Path:
     """An ONNX segmenter of the project's contract whose label is the argmax of
-    ``(bias, R, G, B)`` per pixel (:func:`colour_labels`)."""
-    nodes = [
-        helper.make_node("Cast", ["image"], ["x"], to=TensorProto.FLOAT),
-        helper.make_node("Transpose", ["x"], ["nchw"], perm=[0, 3, 1, 2]),
-        helper.make_node("Conv", ["nchw", "w", "b"], ["logits"]),
-        helper.make_node("ArgMax", ["logits"], ["idx"], axis=1, keepdims=0),
-        helper.make_node("Cast", ["idx"], ["labels"], to=TensorProto.UINT8),
-    ]
-    weight = np.zeros((4, 3, 1, 1), np.float32)
-    weight[1, 0] = weight[2, 1] = weight[3, 2] = 1.0
-    graph = helper.make_graph(
-        nodes,
-        "colour",
-        [helper.make_tensor_value_info("image", TensorProto.UINT8, ["N", "H", "W", 3])],
-        [
-            helper.make_tensor_value_info("logits", TensorProto.FLOAT, ["N", 4, "H", "W"]),
-            helper.make_tensor_value_info("labels", TensorProto.UINT8, ["N", "H", "W"]),
-        ],
-        initializer=[
-            helper.make_tensor("w", TensorProto.FLOAT, weight.shape, weight.ravel()),
-            helper.make_tensor("b", TensorProto.FLOAT, [4], [bias, 0.0, 0.0, 0.0]),
-        ],
-    )
-    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
-    model.ir_version = 9
+    ``(bias, R, G, B)`` per pixel (:func:`shared_helpers.colour_labels`)."""
     metadata = SegmenterMetadata(
         class_names=CLASS_NAMES,
         dynamic_classes=("person",),
@@ -111,13 +58,4 @@ def colour_model(path: Path, bias: float = 128.0) -> Path:
         checkpoint_sha256="0" * 64,
         version="0.1.0",
     )
-    helper.set_model_props(model, metadata.to_props())
-    onnx.checker.check_model(model)
-    onnx.save(model, str(path))
-    return path
-
-
-def colour_labels(rgb: np.ndarray, bias: float = 128.0) -> np.ndarray:
-    """What :func:`colour_model` predicts for ``rgb`` (first maximum wins, as ArgMax)."""
-    logits = np.concatenate([np.full(rgb.shape[:2] + (1,), bias), rgb.astype(np.float64)], axis=2)
-    return np.argmax(logits, axis=2).astype(np.uint8)
+    return shared_helpers.colour_model(path, metadata.to_props(), bias=bias)

@@ -13,6 +13,7 @@ import pytest
 from uss_slam.core.classes import CLASS_NAMES
 from uss_slam.core.onnx_contract import SegmenterMetadata
 from uss_slam.pipelines import demo, demo_report
+from uss_slam.pipelines.runs import select_checkpoint
 from uss_slam.pipelines.stages import STAMP
 from uss_slam.slam_eval.segmenters.onnx import OnnxSegmenter
 
@@ -82,7 +83,7 @@ def test_demo_ci_end_to_end_then_reused(tmp_path: Path, capsys: pytest.CaptureFi
         seg = OnnxSegmenter(model)
         meta: SegmenterMetadata = seg.metadata
         assert meta.experiment == f"ci_{name}" and meta.class_names == CLASS_NAMES
-        ckpt = demo.best_checkpoint(out / "train" / name)
+        ckpt = select_checkpoint(out / "train" / name)
         assert (
             ckpt.name.startswith("best_")
             and meta.checkpoint_sha256 == hashlib.sha256(ckpt.read_bytes()).hexdigest()

@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 import torch
 import torch.nn.functional as F
-from pipeline_helpers import colour_labels, colour_model, tiny_run
+from pipeline_helpers import colour_model, tiny_run
+from shared_helpers import colour_labels
 
 from uss_slam.core.classes import CLASS_NAMES
 from uss_slam.core.normalization import IMAGENET_MEAN, IMAGENET_STD

@@ -14,8 +14,9 @@ import pytest
 from hydra import compose, initialize_config_dir
 
 from uss_slam.core.errors import DataFormatError, UssSlamError
+from uss_slam.core.files import write_json_atomic
 from uss_slam.pipelines.experiments import data, experiment, jobs, launch, plan
-from uss_slam.pipelines.stages import write_json_atomic
+from uss_slam.pipelines.runs import SlamJob
 
 CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
 PROG = [sys.executable, "-m", "uss_slam.pipelines.experiments.cli"]
@@ -31,7 +32,7 @@ def slam_plan(tmp_path: Path, sequence: Path, cells: dict[str, str]) -> Path:
     specs = {
         cell: {
             "kind": "slam",
-            "overrides": [f"sequence.path={path}", "segmenter=none", "filters=[]"],
+            "job": SlamJob(Path(path)).to_json(),
             "key": {"sequence": str(path)},
             "outputs": ["metrics.json"],
         }

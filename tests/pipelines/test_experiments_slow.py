@@ -15,6 +15,7 @@ from pathlib import Path
 
 import pytest
 
+from uss_slam.pipelines.runs import SlamJob
 from uss_slam.synthetic import render_sequence
 
 pytestmark = pytest.mark.slow
@@ -357,7 +358,7 @@ def test_orbslam3_runs_next_to_the_harness(tmp_path: Path) -> None:
     assert all(rows[i]["status"] == "ok" and rows[i]["ate_rmse"] for i in orb)
     vocabulary = out / "data" / "orbslam3_vocabulary" / "vocabulary.txt"
     plan = json.loads((out / "jobs" / "slam.json").read_text())["cells"]
-    overrides = plan["slam/orbslam3/walking_xyz/oracle"]["overrides"]
+    overrides = SlamJob.from_json(plan["slam/orbslam3/walking_xyz/oracle"]["job"]).overrides()
     assert overrides[-4:] == [
         "filters=[]",
         "system=orbslam3",

@@ -19,7 +19,7 @@ from uss_slam.slam_eval.config import filter_defaults
 from uss_slam.slam_eval.frontend.orb import OrbConfig
 from uss_slam.slam_eval.mapping.semantic_map import MapConfig, read_ply
 from uss_slam.slam_eval.run import run
-from uss_slam.slam_eval.scoring.report import EvalConfig
+from uss_slam.slam_eval.scoring.evaluation import EvalConfig
 from uss_slam.slam_eval.scoring.run_folder import verify_run
 from uss_slam.slam_eval.tracking.tracker import TrackerConfig
 

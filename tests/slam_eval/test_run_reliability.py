@@ -26,7 +26,6 @@ from uss_slam.slam_eval.scoring.run_folder import (
     MANIFEST,
     TMP_PREFIX,
     RunFolder,
-    atomic_path,
     clear_outputs,
     verify_run,
 )
@@ -247,17 +246,20 @@ def test_successful_rerun_replaces_every_output(earlier, tmp_path: Path, monkeyp
 # ------------------------------------------------------------------------ folder mechanics
 
 
-def test_atomic_path_leaves_nothing_on_failure(tmp_path: Path) -> None:
+def test_folder_writes_leave_nothing_on_failure(tmp_path: Path) -> None:
     target = tmp_path / "metrics.json"
     target.write_text("old")
-    with pytest.raises(RuntimeError), atomic_path(target) as tmp:
+    folder = RunFolder(tmp_path)
+    with pytest.raises(RuntimeError), folder.writing(target) as tmp:
         tmp.write_text("half")
         raise RuntimeError("killed")
     assert target.read_text() == "old" and [p.name for p in tmp_path.iterdir()] == [target.name]
-    with atomic_path(target) as tmp:
+    assert folder.files == []  # a failed write is not recorded for the manifest
+    with folder.writing(target) as tmp:
         assert tmp.parent == tmp_path and tmp.name.startswith(TMP_PREFIX)
         tmp.write_text("new")
     assert target.read_text() == "new" and len(list(tmp_path.iterdir())) == 1
+    assert folder.files == ["metrics.json"]
 
 
 def test_verify_run_detects_changes_and_leftovers(tmp_path: Path) -> None:

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 import torch
 from omegaconf import open_dict
-from train_helpers import compose_train, data_overrides
+from shared_helpers import compose_train, data_overrides
 
 from uss_slam.train.train import train
 

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 import torch
 import yaml
-from train_helpers import data_overrides
+from shared_helpers import data_overrides
 
 
 def _uss_train(*args: str, cwd: Path) -> subprocess.CompletedProcess:

@@ -10,19 +10,18 @@ from typing import Any
 
 import pytest
 import torch
+import train_step as bench
 from lightning.pytorch import LightningModule, Trainer
 from lightning.pytorch.loggers import TensorBoardLogger
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 from torch.utils.data import Dataset
 from torchvision import tv_tensors
-from train_helpers import train_step_benchmark
 
 from uss_slam.core.errors import UssSlamError
 from uss_slam.datasets.datamodule import UDADataModule
 from uss_slam.datasets.transforms import RandomScale
 
 REPO = Path(__file__).resolve().parents[2]
-bench = train_step_benchmark()
 
 # ----------------------------------------------------------------------------- no private APIs
 

@@ -4,23 +4,16 @@ against the independent plain-PyTorch reference of benchmarks/train_step.py."""
 from __future__ import annotations
 
 import copy
-import importlib.util
-import sys
 from pathlib import Path
 from typing import Any
 
 import pytest
 import torch
+import train_step as bench
 from lightning.pytorch import Callback, LightningModule, Trainer
 
 from uss_slam.train.methods import SourceOnly
 from uss_slam.train.module import AdversarialSegmentation
-
-_PATH = Path(__file__).resolve().parents[2] / "benchmarks" / "train_step.py"
-_spec = importlib.util.spec_from_file_location("train_step_benchmark", _PATH)
-bench = importlib.util.module_from_spec(_spec)
-sys.modules[_spec.name] = bench
-_spec.loader.exec_module(bench)
 
 
 def _module(

@@ -7,25 +7,18 @@ before stepping)."""
 from __future__ import annotations
 
 import copy
-import importlib.util
-import sys
 from pathlib import Path
 from typing import Any
 
 import pytest
 import torch
+import train_step as bench
 from lightning.pytorch import Callback, LightningModule, Trainer
 from lightning.pytorch.loggers import CSVLogger
 from lightning.pytorch.plugins import MixedPrecision
 
 from uss_slam.core.errors import UssSlamError
 from uss_slam.train.losses import domain_loss, upsample
-
-_PATH = Path(__file__).resolve().parents[2] / "benchmarks" / "train_step.py"
-_spec = importlib.util.spec_from_file_location("train_step_benchmark", _PATH)
-bench = importlib.util.module_from_spec(_spec)
-sys.modules[_spec.name] = bench
-_spec.loader.exec_module(bench)
 
 
 def _module(**settings: Any):  # -> AdversarialSegmentation

@@ -5,11 +5,10 @@ run's own config check and with the model they would train; the Trainer itself i
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from pathlib import Path
 
 import pytest
+import train_step as bench
 from hydra import compose, initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
 from hydra.utils import instantiate
@@ -22,12 +21,6 @@ from uss_slam.train.module import AdversarialSegmentation
 from uss_slam.train.train import TYPED_SECTIONS
 
 REPO = Path(__file__).resolve().parents[2]
-_spec = importlib.util.spec_from_file_location(
-    "train_step_benchmark", REPO / "benchmarks" / "train_step.py"
-)
-bench = importlib.util.module_from_spec(_spec)
-sys.modules[_spec.name] = bench
-_spec.loader.exec_module(bench)
 
 
 def _compose(*overrides: str, tmp_path: Path) -> DictConfig:

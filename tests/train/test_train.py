@@ -13,8 +13,8 @@ import torch
 from hydra.utils import instantiate
 from lightning.pytorch import Trainer
 from lightning.pytorch.callbacks import ModelCheckpoint
+from shared_helpers import compose_train, data_overrides
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
-from train_helpers import compose_train, data_overrides
 
 from uss_slam.datasets.datamodule import UDADataModule
 from uss_slam.models import DeepLabV2, PatchDiscriminator

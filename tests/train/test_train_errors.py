@@ -12,7 +12,7 @@ import pytest
 import torch
 import yaml
 from hydra.utils import instantiate
-from train_helpers import compose_train, data_overrides
+from shared_helpers import compose_train, data_overrides
 
 from uss_slam.train import train as train_cli
 
@@ -150,8 +150,8 @@ def test_unwritable_output_folder_is_one_line(
         )
     else:
         assert (
-            err[0]
-            == f"uss-train: error: {key}: cannot write to {target}: {blocker} is not a folder"
+            err[0] == f"uss-train: error: {key}={target}: cannot create the output folder "
+            f"({blocker} is a file)"
         )
         assert _left_behind(tmp_path / "run") == set()
     assert blocker.read_text() == "not a folder\n"

@@ -1,58 +1,16 @@
-"""Helpers of the training tests: data-path overrides, composing the real config, a callback
-that makes a run diverge."""
+"""Helpers of the training tests: callbacks that make a run diverge or score as scripted
+(composing the config and the data overrides are in ``tests/shared_helpers.py``)."""
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from collections.abc import Sequence
 from pathlib import Path
-from types import ModuleType
 from typing import Any
 
 import torch
-from hydra import compose, initialize_config_dir
-from hydra.core.global_hydra import GlobalHydra
-from hydra.core.hydra_config import HydraConfig
 from lightning.pytorch import Callback, LightningModule, Trainer
-from omegaconf import DictConfig, open_dict
 
 CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
-BENCHMARK = Path(__file__).resolve().parents[2] / "benchmarks" / "train_step.py"
-
-
-def train_step_benchmark() -> ModuleType:
-    """``benchmarks/train_step.py`` (the plain-PyTorch reference and module builders), loaded
-    once per session under the name ``train_step_benchmark``."""
-    name = "train_step_benchmark"
-    if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(name, BENCHMARK)
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[name] = module
-        spec.loader.exec_module(module)
-    return sys.modules[name]
-
-
-def data_overrides(data: dict[str, Path]) -> list[str]:
-    return [
-        f"data.source.root={data['voc']}",
-        f"data.target.roots=[{data['target']}]",
-        f"data.val.roots=[{data['val']}]",
-        "data.val.stride=1",
-    ]
-
-
-def compose_train(overrides: Sequence[str], output_dir: Path) -> DictConfig:
-    """The real ``train.yaml`` composed with ``overrides``; outputs go to ``output_dir``."""
-    GlobalHydra.instance().clear()
-    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
-        cfg = compose("train", overrides=list(overrides), return_hydra_config=True)
-    with open_dict(cfg):
-        cfg.hydra.runtime.output_dir = str(output_dir)
-        cfg.hydra.job.num = 0
-        cfg.paths.log_dir = str(output_dir.parent / "logs")
-    HydraConfig().set_config(cfg)
-    return cfg
 
 
 class PoisonAt(Callback):

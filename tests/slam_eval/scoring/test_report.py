@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from uss_slam.core.tum_io import Trajectory
-from uss_slam.slam_eval.scoring.report import EvalConfig, evaluate, improvement
+from uss_slam.slam_eval.scoring.evaluation import EvalConfig, evaluate
+from uss_slam.slam_eval.scoring.report import improvement
 
 
 def _trajectory(stamps: np.ndarray, offset: float = 0.0) -> Trajectory:

@@ -16,7 +16,9 @@ import numpy as np
 import onnx
 import pytest
 from hydra import compose, initialize_config_dir
-from onnx import TensorProto, helper
+from onnx import TensorProto
+from shared_helpers import colour_labels as expected_labels
+from shared_helpers import colour_model as tiny_model
 
 from uss_slam.core.classes import CLASS_NAMES
 from uss_slam.core.errors import DataFormatError, UssSlamError
@@ -38,51 +40,6 @@ def _metadata(class_names=CLASS_NAMES) -> dict[str, str]:
         checkpoint_sha256="0" * 64,
         version="0.1.0",
     ).to_props()
-
-
-def tiny_model(
-    path: Path,
-    metadata: dict[str, str] | None = None,
-    *,
-    input_type: int = TensorProto.UINT8,
-    input_shape: tuple = ("N", "H", "W", 3),
-    bias: float = 128.0,
-) -> Path:
-    """Write the (128, R, G, B)-logits model to ``path`` with ``metadata`` as metadata_props."""
-    nodes = [
-        helper.make_node("Cast", ["image"], ["x"], to=TensorProto.FLOAT),
-        helper.make_node("Transpose", ["x"], ["nchw"], perm=[0, 3, 1, 2]),
-        helper.make_node("Conv", ["nchw", "w", "b"], ["logits"]),
-        helper.make_node("ArgMax", ["logits"], ["idx"], axis=1, keepdims=0),
-        helper.make_node("Cast", ["idx"], ["labels"], to=TensorProto.UINT8),
-    ]
-    weight = np.zeros((4, 3, 1, 1), np.float32)
-    weight[1, 0] = weight[2, 1] = weight[3, 2] = 1.0
-    graph = helper.make_graph(
-        nodes,
-        "tiny",
-        [helper.make_tensor_value_info("image", input_type, list(input_shape))],
-        [
-            helper.make_tensor_value_info("logits", TensorProto.FLOAT, ["N", 4, "H", "W"]),
-            helper.make_tensor_value_info("labels", TensorProto.UINT8, ["N", "H", "W"]),
-        ],
-        initializer=[
-            helper.make_tensor("w", TensorProto.FLOAT, weight.shape, weight.ravel()),
-            helper.make_tensor("b", TensorProto.FLOAT, [4], [bias, 0.0, 0.0, 0.0]),
-        ],
-    )
-    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
-    model.ir_version = 9
-    if metadata:
-        helper.set_model_props(model, metadata)
-    onnx.checker.check_model(model)
-    onnx.save(model, str(path))
-    return path
-
-
-def expected_labels(rgb: np.ndarray, bias: float = 128.0) -> np.ndarray:
-    logits = np.concatenate([np.full(rgb.shape[:2] + (1,), bias), rgb.astype(np.float64)], axis=2)
-    return np.argmax(logits, axis=2).astype(np.uint8)
 
 
 def _random_rgb(h: int, w: int, seed: int = 0) -> np.ndarray:

@@ -15,9 +15,13 @@ import pytest
 from uss_slam.core.errors import DataFormatError, UssSlamError
 from uss_slam.core.tum_io import TUM_CAMERAS, read_trajectory
 from uss_slam.slam_eval.filters.dynamic import SemanticFilter
-from uss_slam.slam_eval.scoring.report import EvalConfig
+from uss_slam.slam_eval.scoring.evaluation import EvalConfig
+from uss_slam.slam_eval.scoring.repeats import median_index
 from uss_slam.slam_eval.segmenters.base import LabelsSegmenter, NoSegmenter
-from uss_slam.slam_eval.systems.orbslam3 import system as o3
+from uss_slam.slam_eval.systems.orbslam3.config import OrbSlam3Config, check_vocabulary
+from uss_slam.slam_eval.systems.orbslam3.masking import blank_dynamic, dynamic_mask
+from uss_slam.slam_eval.systems.orbslam3.settings import check_settings, frame_rate, settings_yaml
+from uss_slam.slam_eval.systems.orbslam3.system import SequenceSpec, run_orbslam3
 from uss_slam.slam_eval.systems.orbslam3.vocabulary import build_from_sequences, read_vocabulary
 
 
@@ -28,9 +32,9 @@ def _node(storage: cv2.FileStorage, key: str) -> float:
 def test_settings_file_holds_the_camera_and_orb_settings(tmp_path: Path) -> None:
     cam = TUM_CAMERAS["fr1"]  # with distortion
     path = tmp_path / "s.yaml"
-    path.write_text(o3.settings_yaml(cam, o3.OrbSlam3Config(), fps=30))
+    path.write_text(settings_yaml(cam, OrbSlam3Config(), fps=30))
     assert path.read_text().startswith("%YAML:1.0\n")
-    info = o3.check_settings(path, (640, 480))
+    info = check_settings(path, (640, 480))
     assert (info.width, info.height, info.depth_factor, info.rgb) == (640, 480, 1.0, True)
     fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
     assert fs.getNode("File.version").string() == "1.0"
@@ -53,12 +57,12 @@ def test_settings_file_holds_the_camera_and_orb_settings(tmp_path: Path) -> None
     assert _node(fs, "RGBD.DepthMapFactor") == 1.0
     fs.release()
     # fr3 has no distortion: k1..p2 are 0 and k3 is written too (5 coefficients)
-    text = o3.settings_yaml(TUM_CAMERAS["fr3"], o3.OrbSlam3Config(), fps=30)
+    text = settings_yaml(TUM_CAMERAS["fr3"], OrbSlam3Config(), fps=30)
     assert "Camera1.k1: 0.0\n" in text and "Camera1.k3: 0.0\n" in text
 
 
 def _settings_without(tmp_path: Path, key: str, replacement: str | None = None) -> Path:
-    text = o3.settings_yaml(TUM_CAMERAS["fr3"], o3.OrbSlam3Config(), fps=30)
+    text = settings_yaml(TUM_CAMERAS["fr3"], OrbSlam3Config(), fps=30)
     lines = [
         (replacement if replacement is not None else None) if line.startswith(key + ":") else line
         for line in text.splitlines()
@@ -82,7 +86,7 @@ def _settings_without(tmp_path: Path, key: str, replacement: str | None = None) 
 def test_bad_settings_are_one_line(tmp_path: Path, key: str, replacement, message: str) -> None:
     path = _settings_without(tmp_path, key, replacement)
     with pytest.raises(DataFormatError) as info:
-        o3.check_settings(path, (640, 480))
+        check_settings(path, (640, 480))
     assert message in str(info.value) and str(path) in str(info.value)
     assert "\n" not in str(info.value)
 
@@ -90,32 +94,32 @@ def test_bad_settings_are_one_line(tmp_path: Path, key: str, replacement, messag
 def test_unreadable_settings_and_bad_config_values(tmp_path: Path) -> None:
     (tmp_path / "x.yaml").write_text("%YAML:1.0\n: : [\n")
     with pytest.raises(DataFormatError, match="not an OpenCV YAML file"):
-        o3.check_settings(tmp_path / "x.yaml")
+        check_settings(tmp_path / "x.yaml")
     with pytest.raises(DataFormatError, match="file not found"):
-        o3.check_settings(tmp_path / "none.yaml")
+        check_settings(tmp_path / "none.yaml")
     with pytest.raises(UssSlamError, match=r"system.repeats=0: expected an integer >= 1"):
-        o3.OrbSlam3Config(repeats=0)
+        OrbSlam3Config(repeats=0)
     with pytest.raises(UssSlamError, match=r"system.blank_value=300"):
-        o3.OrbSlam3Config(blank_value=300)
+        OrbSlam3Config(blank_value=300)
     with pytest.raises(UssSlamError, match="4 or 5 distortion coefficients"):
         cam = TUM_CAMERAS["fr3"]
         eight = type(cam)(cam.fx, cam.fy, cam.cx, cam.cy, 640, 480, (0.0,) * 8)
-        o3.settings_yaml(eight, o3.OrbSlam3Config(), fps=30)
+        settings_yaml(eight, OrbSlam3Config(), fps=30)
 
 
 def test_missing_vocabulary_names_the_key_and_the_builder(tmp_path: Path) -> None:
     for value, expected in ((None, "system.vocabulary is not set"), ("", "is not set")):
         with pytest.raises(UssSlamError) as info:
-            o3.check_vocabulary(value)
+            check_vocabulary(value)
         assert expected in str(info.value) and "uss-vocab build" in str(info.value)
     with pytest.raises(UssSlamError) as info:
-        o3.check_vocabulary(str(tmp_path / "voc.txt"))
+        check_vocabulary(str(tmp_path / "voc.txt"))
     message = str(info.value)
     assert message.startswith(f"system.vocabulary={tmp_path / 'voc.txt'}: file not found")
     assert "uss-vocab build" in message and "\n" not in message
     (tmp_path / "bin.txt").write_text("not a vocabulary\n")
     with pytest.raises(UssSlamError, match=r"system.vocabulary=.*'k L scoring weighting'"):
-        o3.check_vocabulary(str(tmp_path / "bin.txt"))
+        check_vocabulary(str(tmp_path / "bin.txt"))
 
 
 def test_blanked_pixels_are_exactly_the_dilated_mask() -> None:
@@ -124,7 +128,7 @@ def test_blanked_pixels_are_exactly_the_dilated_mask() -> None:
     labels[20, 25] = 1  # person: dynamic
     labels[5, 5] = 2  # chair: static, left alone
     semantic = SemanticFilter(dynamic_classes=["person"], dilation=3)
-    mask = o3.dynamic_mask(labels, semantic)
+    mask = dynamic_mask(labels, semantic)
     # the dilation is the harness's: an elliptic 7x7 structuring element centred on the pixel
     expected = np.zeros((h, w), bool)
     disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (7, 7)).astype(bool)
@@ -133,23 +137,23 @@ def test_blanked_pixels_are_exactly_the_dilated_mask() -> None:
     rng = np.random.default_rng(0)
     rgb = rng.integers(0, 256, (h, w, 3), dtype=np.uint8)
     depth = rng.uniform(0.5, 3.0, (h, w)).astype(np.float32)
-    out_rgb, out_depth = o3.blank_dynamic(rgb, depth, mask, 128)
+    out_rgb, out_depth = blank_dynamic(rgb, depth, mask, 128)
     assert np.all(out_rgb[mask] == 128) and np.all(out_depth[mask] == 0.0)
     assert np.array_equal(out_rgb[~mask], rgb[~mask])
     assert np.array_equal(out_depth[~mask], depth[~mask])
     assert out_rgb is not rgb and out_depth is not depth  # the frame is not modified
-    same_rgb, same_depth = o3.blank_dynamic(rgb, depth, np.zeros((h, w), bool))
+    same_rgb, same_depth = blank_dynamic(rgb, depth, np.zeros((h, w), bool))
     assert same_rgb is rgb and same_depth is depth
 
 
 def test_median_run_and_frame_rate() -> None:
-    assert o3.median_index([0.3, 0.1, 0.2]) == 2
-    assert o3.median_index([0.3, 0.1]) == 1  # an even count: the lower middle run
-    assert o3.median_index([None, 0.5, 0.1]) == 1  # a run without ATE counts as the worst
-    assert o3.median_index([None]) == 0
-    assert o3.frame_rate(np.arange(10) / 30.0) == 30
-    assert o3.frame_rate(np.arange(10) / 15.0) == 15
-    assert o3.frame_rate(np.array([1.0])) == 30
+    assert median_index([0.3, 0.1, 0.2]) == 2
+    assert median_index([0.3, 0.1]) == 1  # an even count: the lower middle run
+    assert median_index([None, 0.5, 0.1]) == 1  # a run without ATE counts as the worst
+    assert median_index([None]) == 0
+    assert frame_rate(np.arange(10) / 30.0) == 30
+    assert frame_rate(np.arange(10) / 15.0) == 15
+    assert frame_rate(np.array([1.0])) == 30
 
 
 # ------------------------------------------------------------------ the real ORB-SLAM3
@@ -165,11 +169,11 @@ def test_orbslam3_tracks_with_a_vocabulary_built_from_frames(
     built = build_from_sequences([seq], vocab, k=8, levels=3, stride=3)
     assert read_vocabulary(vocab).n_nodes == built.nodes
     out = tmp_path / "run"
-    data = o3.run_orbslam3(
-        o3.SequenceSpec(str(seq)),
+    data = run_orbslam3(
+        SequenceSpec(str(seq)),
         LabelsSegmenter(),
         SemanticFilter(["person"], 5),
-        o3.OrbSlam3Config(vocabulary=str(vocab), repeats=2, realtime=False),
+        OrbSlam3Config(vocabulary=str(vocab), repeats=2, realtime=False),
         EvalConfig(),
         out,
         progress=False,
@@ -201,11 +205,11 @@ def test_orbslam3_tracks_with_a_vocabulary_built_from_frames(
     # Without a segmenter nothing is blanked; a settings file of the user's is used as given.
     own = tmp_path / "own.yaml"
     own.write_text((out / "orbslam3_settings.yaml").read_text())
-    data = o3.run_orbslam3(
-        o3.SequenceSpec(str(seq), max_frames=10),
+    data = run_orbslam3(
+        SequenceSpec(str(seq), max_frames=10),
         NoSegmenter(),
         SemanticFilter(),
-        o3.OrbSlam3Config(vocabulary=str(vocab), repeats=1, settings_file=str(own)),
+        OrbSlam3Config(vocabulary=str(vocab), repeats=1, settings_file=str(own)),
         EvalConfig(),
         tmp_path / "plain",
         progress=False,
@@ -215,11 +219,11 @@ def test_orbslam3_tracks_with_a_vocabulary_built_from_frames(
 
     # Everything blanked: ORB-SLAM3 finds no corner and never initialises; every frame is
     # counted as untracked, the repeat's (empty) trajectory is kept and ATE says why it is absent.
-    data = o3.run_orbslam3(
-        o3.SequenceSpec(str(seq), max_frames=6),
+    data = run_orbslam3(
+        SequenceSpec(str(seq), max_frames=6),
         LabelsSegmenter(),
         SemanticFilter(["background", "person", "chair", "monitor"], 0),
-        o3.OrbSlam3Config(vocabulary=str(vocab), repeats=1, realtime=False),
+        OrbSlam3Config(vocabulary=str(vocab), repeats=1, realtime=False),
         EvalConfig(),
         tmp_path / "blank",
         progress=False,
@@ -251,7 +255,7 @@ def test_system_group_composes() -> None:
     system = cfg.system
     assert system.name == "orbslam3" and system.vocabulary is None and system.repeats == 3
     values = {k: v for k, v in system.items() if k != "name"}
-    assert o3.OrbSlam3Config(**values) == o3.OrbSlam3Config()  # the YAML holds the defaults
+    assert OrbSlam3Config(**values) == OrbSlam3Config()  # the YAML holds the defaults
 
 
 def test_uss_slam_orbslam3_bad_inputs_are_one_line(synthetic_sequence, tmp_path: Path) -> None:

@@ -1,0 +1,320 @@
+"""What every driver (``uss-demo``, ``uss-experiments``) does with a training run and a SLAM run:
+choose a run's checkpoint by a named policy, compose and run a training, describe a SLAM run as
+one typed value (:class:`SlamJob`, with its :class:`Segmenter`) and compose and run it.
+
+The drivers are siblings that never import each other; both import this module::
+
+    metrics = run_training(run_dir, ["experiment=demo", "model/method=adaptsegnet"])
+    ckpt = select_checkpoint(run_dir)                      # policy "best_target_val"
+    job = SlamJob(sequence, Segmenter.onnx(model), filters=("semantic",))
+    data = run_slam(job, out_dir / "slam" / "adapted", progress=False)
+
+A :class:`SlamJob` turns into ``uss-slam`` overrides in one place (:meth:`SlamJob.overrides`);
+the experiments' job plans carry it as JSON (:meth:`SlamJob.to_json` / :meth:`SlamJob.from_json`)
+because their jobs run in other processes.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from uss_slam.core.errors import UssSlamError
+
+if TYPE_CHECKING:
+    from omegaconf import DictConfig
+
+CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"
+"""The package's Hydra config tree (``configs/``)."""
+
+
+# ------------------------------------------------------------------------- checkpoints
+
+CheckpointPolicy = Callable[[Path], Path]
+"""A checkpoint selection policy: a training run's folder -> the checkpoint to export."""
+
+
+def best_target_val(run_dir: Path) -> Path:
+    """The checkpoint with the best target-validation ``val/mIoU`` (``best_*.ckpt``, written by
+    the checkpoint callback; ``last.ckpt`` if there is none). Uses target labels."""
+    folder = run_dir / "checkpoints"
+    best = sorted(folder.glob("best_*.ckpt"))
+    if best:
+        return best[-1]
+    last = folder / "last.ckpt"
+    if last.is_file():
+        return last
+    raise UssSlamError(f"{folder}: no checkpoint (best_*.ckpt or last.ckpt) after training")
+
+
+CHECKPOINT_POLICIES: dict[str, CheckpointPolicy] = {
+    "best_target_val": best_target_val,
+}
+"""Policies by name. A new policy is one function ``(run_dir) -> checkpoint`` added here."""
+
+DEFAULT_POLICY = "best_target_val"
+"""The policy of ``uss-demo`` and ``uss-experiments``."""
+
+
+def select_checkpoint(run_dir: Path, policy: str = DEFAULT_POLICY) -> Path:
+    """The checkpoint of training run ``run_dir`` that ``policy`` (a name in
+    :data:`CHECKPOINT_POLICIES`) chooses."""
+    chosen = CHECKPOINT_POLICIES.get(policy)
+    if chosen is None:
+        raise UssSlamError(
+            f"checkpoint policy {policy!r}: unknown; accepted: {', '.join(CHECKPOINT_POLICIES)}"
+        )
+    return chosen(Path(run_dir))
+
+
+def checkpoint_miou(ckpt: Path) -> float | None:
+    """``val/mIoU`` recorded in a best checkpoint's name (``best_iter..._miou0.1234.ckpt``;
+    None for another name, e.g. ``last.ckpt``)."""
+    match = re.search(r"_miou(\d+\.\d+)\.ckpt$", ckpt.name)
+    return float(match.group(1)) if match else None
+
+
+# ------------------------------------------------------------------------- configs
+
+
+def compose_config(config_name: str, overrides: Sequence[str]) -> DictConfig:
+    """Compose one of the package's configs: inside a running Hydra app with its config tree,
+    else by initialising Hydra on :data:`CONFIG_DIR` for this one call."""
+    from hydra import compose, initialize_config_dir
+    from hydra.core.global_hydra import GlobalHydra
+
+    if GlobalHydra.instance().is_initialized():
+        return compose(config_name, overrides=list(overrides))
+    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
+        return compose(config_name, overrides=list(overrides))
+
+
+# ------------------------------------------------------------------------- training
+
+
+def run_training(run_dir: Path, overrides: Sequence[str]) -> dict[str, Any]:
+    """``uss-train`` with ``overrides`` into ``run_dir`` (``checkpoints/``, the loggers' folders,
+    and ``.hydra/config.yaml`` / ``overrides.yaml`` as ``uss-train`` writes them: ``uss-export``
+    reads the net's config there); returns the run's final metrics (``val/mIoU``, ...)."""
+    from omegaconf import OmegaConf
+
+    from uss_slam.train.train import train
+
+    every = [*overrides, f"paths.output_dir={run_dir}"]
+    cfg = compose_config("train", every)
+    hydra_dir = run_dir / ".hydra"
+    hydra_dir.mkdir(parents=True, exist_ok=True)
+    OmegaConf.save(
+        OmegaConf.create(OmegaConf.to_container(cfg, resolve=True)), hydra_dir / "config.yaml"
+    )
+    OmegaConf.save(OmegaConf.create(every), hydra_dir / "overrides.yaml")
+    return train(cfg)
+
+
+# ------------------------------------------------------------------------- SLAM
+
+
+@dataclass(frozen=True)
+class Variant:
+    """One dynamic-point treatment of a driver's SLAM runs.
+
+    ``segmenter``: ``none``, ``labels`` (the sequence's ground-truth labels) or ``model`` (an
+    exported segmenter; ``model`` names which one when a driver compares several, as the demo
+    does); ``crf``: the dense CRF on the model's output (``uss-slam segmenter.crf=true``).
+    """
+
+    name: str
+    label: str
+    segmenter: str
+    filters: tuple[str, ...] = ()
+    crf: bool = False
+    model: str | None = None
+
+    def __post_init__(self) -> None:
+        if self.segmenter not in SEGMENTER_KINDS:
+            raise UssSlamError(
+                f"variant {self.name}: segmenter {self.segmenter!r}; expected one of "
+                f"{', '.join(SEGMENTER_KINDS)}"
+            )
+        if self.crf and self.segmenter != "model":
+            raise UssSlamError(f"variant {self.name}: the dense CRF needs segmenter 'model'")
+
+
+SEGMENTER_KINDS = ("none", "labels", "model")
+"""A :class:`Variant`'s segmenter kinds."""
+
+
+@dataclass(frozen=True)
+class Segmenter:
+    """What segments a SLAM run's frames: nothing, the sequence's labels, or an exported ONNX
+    model ``path`` (optionally refined by the dense CRF with ``crf_params``; unset parameters keep
+    the CRF's defaults)."""
+
+    kind: str  # none | labels | onnx (uss-slam's segmenter group)
+    path: Path | None = None
+    crf: bool = False
+    crf_params: tuple[tuple[str, Any], ...] = ()
+
+    def __post_init__(self) -> None:
+        if self.kind not in ("none", "labels", "onnx"):
+            raise UssSlamError(f"segmenter {self.kind!r}: expected none, labels or onnx")
+        if (self.path is None) == (self.kind == "onnx"):
+            raise UssSlamError(f"segmenter {self.kind}: a path is for (and only for) onnx")
+        if (self.crf or self.crf_params) and self.kind != "onnx":
+            raise UssSlamError(f"segmenter {self.kind}: the dense CRF refines an onnx model only")
+
+    @classmethod
+    def onnx(
+        cls, path: Path, crf: bool = False, crf_params: Mapping[str, Any] | None = None
+    ) -> Segmenter:
+        """An exported model (``crf_params`` only with ``crf``)."""
+        params = tuple((crf_params or {}).items()) if crf else ()
+        return cls("onnx", Path(path), crf, params)
+
+    @classmethod
+    def of(
+        cls,
+        variant: Variant,
+        model: Path | None = None,
+        crf_params: Mapping[str, Any] | None = None,
+    ) -> Segmenter:
+        """The segmenter of ``variant``; ``model``: the ONNX file of a ``model`` variant."""
+        if variant.segmenter != "model":
+            return cls(variant.segmenter)
+        if model is None:
+            raise UssSlamError(f"variant {variant.name}: needs an exported model")
+        return cls.onnx(model, variant.crf, crf_params)
+
+    def choice(self) -> list[str]:
+        """The overrides choosing the segmenter."""
+        if self.path is None:
+            return [f"segmenter={self.kind}"]
+        return ["segmenter=onnx", f"segmenter.path={self.path}"]
+
+    def refinement(self) -> list[str]:
+        """The overrides of the dense CRF (none without it)."""
+        if not self.crf:
+            return []
+        return [
+            "segmenter.crf=true",
+            *(f"segmenter.crf_params.{k}={v}" for k, v in self.crf_params),
+        ]
+
+
+@dataclass(frozen=True)
+class OrbSlam3:
+    """The real ORB-SLAM3 instead of the harness: it gets the dynamic mask blanked out of its
+    input (the harness's filters do not apply). ``repeats``: runs whose median it reports."""
+
+    vocabulary: Path
+    repeats: int
+    overrides: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class SlamJob:
+    """One ``uss-slam`` run: a TUM RGB-D ``sequence`` folder, its :class:`Segmenter`, the
+    harness's ``filters`` (in uss-slam's order), ``extra`` ``uss-slam`` overrides, optionally
+    ORB-SLAM3 as the system, and ``max_frames`` (None = every frame)."""
+
+    sequence: Path
+    segmenter: Segmenter = field(default_factory=lambda: Segmenter("none"))
+    filters: tuple[str, ...] = ()
+    extra: tuple[str, ...] = ()
+    orbslam3: OrbSlam3 | None = None
+    max_frames: int | None = None
+
+    def overrides(self) -> list[str]:
+        """The ``uss-slam`` overrides of this run (without ``out_dir`` / ``progress``)."""
+        out = [f"sequence.path={self.sequence}", *self.segmenter.choice()]
+        if self.orbslam3 is None:
+            out.append(f"filters=[{','.join(self.filters)}]")
+        out += self.segmenter.refinement()
+        out += self.extra
+        if self.orbslam3 is not None:
+            orb = self.orbslam3
+            out += [
+                "filters=[]",
+                "system=orbslam3",
+                f"system.vocabulary={orb.vocabulary}",
+                f"system.repeats={orb.repeats}",
+                *orb.overrides,
+            ]
+        if self.max_frames is not None:
+            out.append(f"sequence.max_frames={self.max_frames}")
+        return out
+
+    def to_json(self) -> dict[str, Any]:
+        """A JSON-able dict that :meth:`from_json` reads back."""
+        seg = self.segmenter
+        orb = self.orbslam3
+        return {
+            "sequence": str(self.sequence),
+            "segmenter": {
+                "kind": seg.kind,
+                "path": None if seg.path is None else str(seg.path),
+                "crf": seg.crf,
+                "crf_params": dict(seg.crf_params),
+            },
+            "filters": list(self.filters),
+            "extra": list(self.extra),
+            "orbslam3": None
+            if orb is None
+            else {
+                "vocabulary": str(orb.vocabulary),
+                "repeats": orb.repeats,
+                "overrides": list(orb.overrides),
+            },
+            "max_frames": self.max_frames,
+        }
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any], where: str = "SLAM job") -> SlamJob:
+        """The job :meth:`to_json` wrote; ``where`` names the source in the error line."""
+        try:
+            seg = data["segmenter"]
+            orb = data.get("orbslam3")
+            return cls(
+                sequence=Path(data["sequence"]),
+                segmenter=Segmenter(
+                    seg["kind"],
+                    None if seg.get("path") is None else Path(seg["path"]),
+                    bool(seg.get("crf", False)),
+                    tuple(dict(seg.get("crf_params") or {}).items()),
+                ),
+                filters=tuple(data.get("filters") or ()),
+                extra=tuple(data.get("extra") or ()),
+                orbslam3=None
+                if orb is None
+                else OrbSlam3(
+                    Path(orb["vocabulary"]), int(orb["repeats"]), tuple(orb.get("overrides") or ())
+                ),
+                max_frames=None if data.get("max_frames") is None else int(data["max_frames"]),
+            )
+        except (KeyError, TypeError, ValueError, AttributeError) as error:
+            raise UssSlamError(
+                f"{where}: not a SLAM job ({type(error).__name__}: {error})"
+            ) from None
+
+
+def compose_slam(job: SlamJob, out_dir: Path, *, progress: bool = False) -> DictConfig:
+    """The ``uss-slam`` config of ``job`` writing into ``out_dir``."""
+    from uss_slam.slam_eval.config import register_configs
+
+    # The typed slam / eval defaults, every time: a launcher's worker process (joblib, submitit)
+    # gets Hydra's ConfigStore as it was when the jobs were launched, not as this module left it.
+    register_configs()
+    return compose_config(
+        "slam_eval", [*job.overrides(), f"out_dir={out_dir}", f"progress={str(progress).lower()}"]
+    )
+
+
+def run_slam(job: SlamJob, out_dir: Path, *, progress: bool = False) -> dict[str, Any]:
+    """Run ``job`` into ``out_dir``; returns ``uss-slam``'s metrics of the run (``ate``,
+    ``tracked_fraction``, ``fps`` in frames/s, ...)."""
+    from uss_slam.slam_eval.run import run
+
+    return run(compose_slam(job, out_dir, progress=progress))

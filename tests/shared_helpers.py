@@ -1,0 +1,94 @@
+"""Helpers several test areas use: the real training config composed for a test, the overrides
+that point it at the ``uda_data`` fixture, and a tiny ONNX segmenter built with ``onnx.helper``
+(no torch) whose output is known for every pixel.
+
+The tiny model's logits are ``(bias, R, G, B)`` per pixel, so a pixel's label is 0 where every
+channel is below ``bias`` (ties go to the first index, as ArgMax), else the index of its largest
+channel among R, G, B (+1): :func:`colour_labels`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+import onnx
+from hydra import compose, initialize_config_dir
+from hydra.core.global_hydra import GlobalHydra
+from hydra.core.hydra_config import HydraConfig
+from omegaconf import DictConfig, open_dict
+from onnx import TensorProto, helper
+
+CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"
+
+
+def data_overrides(data: dict[str, Path]) -> list[str]:
+    """``uss-train`` overrides pointing at the synthetic data of the ``uda_data`` fixture."""
+    return [
+        f"data.source.root={data['voc']}",
+        f"data.target.roots=[{data['target']}]",
+        f"data.val.roots=[{data['val']}]",
+        "data.val.stride=1",
+    ]
+
+
+def compose_train(overrides: Sequence[str], output_dir: Path) -> DictConfig:
+    """The real ``train.yaml`` composed with ``overrides``; outputs go to ``output_dir`` (set as
+    Hydra's runtime output folder, as in a ``uss-train`` run)."""
+    GlobalHydra.instance().clear()
+    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
+        cfg = compose("train", overrides=list(overrides), return_hydra_config=True)
+    with open_dict(cfg):
+        cfg.hydra.runtime.output_dir = str(output_dir)
+        cfg.hydra.job.num = 0
+        cfg.paths.log_dir = str(output_dir.parent / "logs")
+    HydraConfig().set_config(cfg)
+    return cfg
+
+
+def colour_model(
+    path: Path,
+    props: Mapping[str, str] | None,
+    *,
+    bias: float = 128.0,
+    input_type: int = TensorProto.UINT8,
+    input_shape: Sequence[int | str] = ("N", "H", "W", 3),
+) -> Path:
+    """Write the ``(bias, R, G, B)``-logits model to ``path`` with ``props`` as its
+    metadata_props (None: none); ``input_type`` / ``input_shape`` make contract violations."""
+    nodes = [
+        helper.make_node("Cast", ["image"], ["x"], to=TensorProto.FLOAT),
+        helper.make_node("Transpose", ["x"], ["nchw"], perm=[0, 3, 1, 2]),
+        helper.make_node("Conv", ["nchw", "w", "b"], ["logits"]),
+        helper.make_node("ArgMax", ["logits"], ["idx"], axis=1, keepdims=0),
+        helper.make_node("Cast", ["idx"], ["labels"], to=TensorProto.UINT8),
+    ]
+    weight = np.zeros((4, 3, 1, 1), np.float32)
+    weight[1, 0] = weight[2, 1] = weight[3, 2] = 1.0
+    graph = helper.make_graph(
+        nodes,
+        "colour",
+        [helper.make_tensor_value_info("image", input_type, list(input_shape))],
+        [
+            helper.make_tensor_value_info("logits", TensorProto.FLOAT, ["N", 4, "H", "W"]),
+            helper.make_tensor_value_info("labels", TensorProto.UINT8, ["N", "H", "W"]),
+        ],
+        initializer=[
+            helper.make_tensor("w", TensorProto.FLOAT, weight.shape, weight.ravel()),
+            helper.make_tensor("b", TensorProto.FLOAT, [4], [bias, 0.0, 0.0, 0.0]),
+        ],
+    )
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+    model.ir_version = 9
+    if props:
+        helper.set_model_props(model, dict(props))
+    onnx.checker.check_model(model)
+    onnx.save(model, str(path))
+    return path
+
+
+def colour_labels(rgb: np.ndarray, bias: float = 128.0) -> np.ndarray:
+    """What :func:`colour_model` predicts for ``rgb`` (H, W, 3) uint8 (first maximum wins)."""
+    logits = np.concatenate([np.full(rgb.shape[:2] + (1,), bias), rgb.astype(np.float64)], axis=2)
+    return np.argmax(logits, axis=2).astype(np.uint8)
