@@ -21,9 +21,9 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 from uss_slam.core.classes import CLASS_NAMES
+from uss_slam.core.progress import progress_bar
 from uss_slam.core.seg_metrics import confusion_matrix, iou_per_class
 from uss_slam.synthetic.sequence import SequenceRenderer
 from uss_slam.synthetic.textures import TextureBank, texture_bank, with_people
@@ -56,7 +56,7 @@ def main(argv: list[str] | None = None) -> int:
     seq = SequenceRenderer(args.preset, args.frames * 5, (w, h), args.seed, "target")
     banks = {"target outfits": seq.bank, "source outfits": swapped_bank(0, args.source_variant)}
     conf = {(m, k): np.zeros((len(CLASS_NAMES),) * 2, np.int64) for m in models for k in banks}
-    for i in tqdm(range(0, seq.frames, 5), desc="frames", unit="frame"):
+    for i in progress_bar(range(0, seq.frames, 5), desc="frames", unit="frame"):
         for kind, bank in banks.items():
             seq.bank = bank
             fr = seq.frame(i)

@@ -139,8 +139,8 @@ def plain_state_from(module: AdversarialSegmentation) -> PlainState:
         d_main,
         opt_seg,
         opt_d,
-        PolyLR(opt_seg, module.max_iters, module.poly_power),
-        PolyLR(opt_d, module.max_iters, module.poly_power),
+        PolyLR(opt_seg, module.poly_total_iters, module.poly_power),
+        PolyLR(opt_d, module.poly_total_iters, module.poly_power),
     )
 
 

@@ -39,14 +39,29 @@ def atomic_path(path: str | PathLike[str], prefix: str = ".") -> Iterator[Path]:
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, name = tempfile.mkstemp(prefix=f"{prefix}{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    tmp = Path(name)
+    tmp = _create_sibling(path, prefix)
     try:
         yield tmp
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
+
+
+def _create_sibling(path: Path, prefix: str) -> Path:
+    """Create an empty ``<prefix><name>.<random>.tmp`` next to ``path`` and return it.
+
+    Created with mode 0666 for the kernel to apply the umask to, as a plain ``open()`` does
+    (``tempfile.mkstemp`` would make every output 0600, readable by its owner only).
+    """
+    for _ in range(100):
+        tmp = path.with_name(f"{prefix}{path.name}.{uuid.uuid4().hex[:12]}.tmp")
+        try:
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+        except FileExistsError:
+            continue
+        os.close(fd)
+        return tmp
+    raise FileExistsError(f"{path.parent}: no free temporary name for {path.name}")
 
 
 def write_bytes_atomic(path: str | PathLike[str], data: bytes) -> None:

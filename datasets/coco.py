@@ -37,11 +37,11 @@ from typing import Any
 import cv2
 import numpy as np
 from pycocotools import mask as mask_utils
-from tqdm.auto import tqdm
 
 from uss_slam.core.classes import CLASS_NAMES, IGNORE_INDEX, NUM_CLASSES
 from uss_slam.core.errors import DataFormatError
 from uss_slam.core.files import file_sha256, write_bytes_atomic
+from uss_slam.core.progress import progress_bar
 from uss_slam.datasets.base import (
     ImageItem,
     LabelStats,
@@ -499,7 +499,7 @@ class COCOSegmentation(SegmentationDataset):
         if not todo or self.cache is None:
             return
         parsed = self._parsed()
-        for i in tqdm(
+        for i in progress_bar(
             todo, desc=f"COCO masks {self.annotation_file.name}", disable=self._quiet(len(todo))
         ):
             image_id = self.meta[i]["id"]

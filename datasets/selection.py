@@ -32,11 +32,11 @@ from typing import Any, Literal
 
 import numpy as np
 from torch.utils.data import Dataset
-from tqdm.auto import tqdm
 
 from uss_slam.core.classes import CLASS_NAMES, NUM_CLASSES
 from uss_slam.core.errors import DataFormatError, UssSlamError
 from uss_slam.core.files import write_bytes_atomic
+from uss_slam.core.progress import progress_bar
 from uss_slam.datasets.base import (
     LabelStats,
     OnError,
@@ -398,7 +398,9 @@ class SelectedSources(Dataset):
         )
         stats: dict[int, LabelStats] = {}
         try:
-            for i in tqdm(indices, desc=f"labels of {name}", disable=self._quiet(len(indices))):
+            for i in progress_bar(
+                indices, desc=f"labels of {name}", disable=self._quiet(len(indices))
+            ):
                 item = dataset.items[i]
                 try:
                     found = cache.get(item.label) if item.label is not None else None

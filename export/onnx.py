@@ -136,6 +136,12 @@ def check_opset(opset: int) -> int:
     return opset
 
 
+MIN_VERIFY_SIDE = 32
+"""Smallest height and width (pixels) of the verification images: at output stride 8 that is
+4 x 4 logit cells upsampled to the image, the least where per-pixel logits and labels of the
+ONNX model and the checkpoint can disagree in more than one value."""
+
+
 def check_size(key: str, value: Sequence[int]) -> tuple[int, int]:
     """``(H, W)`` of two positive integers, else a one-line error naming ``key``."""
     items = list(value) if isinstance(value, (list, tuple)) else None
@@ -161,6 +167,12 @@ def check_options(
     check_output_path(out)
     trace = check_size("trace_size", trace_size)
     verify = check_size("verify_size", verify_size)
+    if min(verify) < MIN_VERIFY_SIDE:
+        raise UssSlamError(
+            f"verify_size must be at least [{MIN_VERIFY_SIDE}, {MIN_VERIFY_SIDE}], got "
+            f"{list(verify)}: the segmenters' output stride is 8, so a smaller image gives "
+            "fewer than 4x4 logit cells and the comparison would prove almost nothing"
+        )
     if trace == verify:
         raise UssSlamError(f"verify_size must differ from trace_size ({trace})")
     check_opset(opset)

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
+from typing import Literal
 
 import torchvision
 from torch import Tensor, nn
@@ -145,3 +146,29 @@ def freeze_batchnorm(module: nn.Module) -> None:
             child.eval()
             for param in child.parameters():
                 param.requires_grad_(False)
+
+
+FreezeBatchNorm = bool | Literal["auto"]
+"""``model.net.freeze_bn``: ``True``, ``False`` or ``"auto"`` (frozen iff weights are loaded)."""
+
+
+def resolve_freeze_bn(freeze_bn: FreezeBatchNorm, pretrained: bool) -> bool:
+    """Whether to freeze BatchNorm: ``"auto"`` freezes exactly when pretrained weights are
+    loaded (``pretrained``: ``backbone_weights`` or ``weights_path`` set). Frozen BatchNorm keeps
+    the loaded statistics (the paper's setting at batch size 1); without loaded weights those are
+    the initial mean 0 / variance 1 / scale 1 / shift 0, and every BatchNorm layer would stay the
+    identity for the whole run, so ``"auto"`` trains them then (batch statistics).
+
+    Raises:
+        UssSlamError: ``freeze_bn`` is none of ``True``, ``False``, ``"auto"``.
+    """
+    if freeze_bn == "auto":
+        return pretrained
+    if not isinstance(freeze_bn, bool):
+        raise UssSlamError(f"model.net.freeze_bn must be true, false or auto, got {freeze_bn!r}")
+    if freeze_bn and not pretrained:
+        log.warning(
+            "model.net.freeze_bn=true without pretrained weights (backbone_weights / "
+            "weights_path): every BatchNorm stays the identity of its initialisation"
+        )
+    return freeze_bn

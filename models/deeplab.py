@@ -9,7 +9,12 @@ from typing import Any, NamedTuple
 
 from torch import Tensor, nn
 
-from uss_slam.models.backbone import build_backbone, freeze_batchnorm
+from uss_slam.models.backbone import (
+    FreezeBatchNorm,
+    build_backbone,
+    freeze_batchnorm,
+    resolve_freeze_bn,
+)
 
 
 class SegmenterOutput(NamedTuple):
@@ -55,8 +60,11 @@ class DeepLabV2(nn.Module):
         num_classes: number of output classes (the project's 4 by default).
         backbone: ``resnet101`` (paper), ``resnet50`` or ``resnet_small`` (CI / CPU demo).
         aspp_rates: dilation rates of the ASPP branches of both heads.
-        freeze_bn: keep every BatchNorm in eval mode with frozen affine terms (batch size 1 in
-            the paper makes batch statistics useless); ``False`` trains them normally.
+        freeze_bn: ``True`` keeps every backbone BatchNorm in eval mode with frozen affine
+            terms (batch size 1 in the paper makes batch statistics useless); ``False`` trains
+            them normally; ``"auto"`` (default) freezes them exactly when pretrained weights are
+            loaded (``backbone_weights`` or ``weights_path``): a randomly initialised frozen
+            BatchNorm would stay the identity. The resolved choice is ``self.freeze_bn``.
         backbone_weights: torchvision weight enum member (``"IMAGENET1K_V1"``, ``"DEFAULT"``)
             for the backbone; downloads unless cached. ``None``: random initialisation.
         weights_path: local file to initialise from (a DeepLabV2 state dict, a training
@@ -72,19 +80,21 @@ class DeepLabV2(nn.Module):
         backbone: str = "resnet101",
         *,
         aspp_rates: Sequence[int] = (6, 12, 18, 24),
-        freeze_bn: bool = True,
+        freeze_bn: FreezeBatchNorm = "auto",
         backbone_weights: str | None = None,
         weights_path: str | Path | None = None,
     ) -> None:
         super().__init__()
         self.num_classes = num_classes
         self.backbone_name = backbone
-        self.freeze_bn = freeze_bn
+        self.freeze_bn = resolve_freeze_bn(
+            freeze_bn, pretrained=backbone_weights is not None or weights_path is not None
+        )
         self.backbone = build_backbone(backbone, backbone_weights)
         low, high = self.backbone.out_channels
         self.aux = ASPPClassifier(low, num_classes, aspp_rates)
         self.main = ASPPClassifier(high, num_classes, aspp_rates)
-        if freeze_bn:
+        if self.freeze_bn:
             freeze_batchnorm(self.backbone)
         if weights_path is not None:
             from uss_slam.models.weights import load_segmenter_weights

@@ -19,7 +19,12 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from uss_slam.core.errors import UssSlamError
-from uss_slam.models.backbone import build_backbone, freeze_batchnorm
+from uss_slam.models.backbone import (
+    FreezeBatchNorm,
+    build_backbone,
+    freeze_batchnorm,
+    resolve_freeze_bn,
+)
 from uss_slam.models.deeplab import SegmenterOutput
 
 
@@ -109,9 +114,11 @@ class PSPNet(nn.Module):
         backbone: ``resnet101`` (the paper's), ``resnet50`` or ``resnet_small`` (CI / CPU).
         bins: pyramid pooling bin sizes (the paper's 1, 2, 3, 6).
         dropout: dropout rate before both classifiers (the paper's 0.1).
-        freeze_bn: every BatchNorm in eval mode with frozen affine terms, the heads' too (their
-            1×1 pyramid level has one value per channel and image: no batch statistics at batch
-            size 1, the paper's setting); ``False`` trains them (needs batch size ≥ 2).
+        freeze_bn: ``True``: every BatchNorm in eval mode with frozen affine terms, the heads'
+            too (their 1×1 pyramid level has one value per channel and image: no batch
+            statistics at batch size 1, the paper's setting); ``False`` trains them (needs batch
+            size ≥ 2); ``"auto"`` (default) freezes them exactly when pretrained weights are
+            loaded (a randomly initialised frozen BatchNorm stays the identity).
         backbone_weights: torchvision weight enum member for the backbone (downloads unless
             cached); ``None``: random initialisation.
         weights_path: local file to initialise from (a PSPNet state dict or ``uss-train``
@@ -131,7 +138,7 @@ class PSPNet(nn.Module):
         *,
         bins: Sequence[int] = (1, 2, 3, 6),
         dropout: float = 0.1,
-        freeze_bn: bool = True,
+        freeze_bn: FreezeBatchNorm = "auto",
         backbone_weights: str | None = None,
         weights_path: str | Path | None = None,
     ) -> None:
@@ -144,12 +151,14 @@ class PSPNet(nn.Module):
             raise UssSlamError(f"model.net.dropout must be a number in [0, 1), got {dropout!r}")
         self.num_classes = num_classes
         self.backbone_name = backbone
-        self.freeze_bn = freeze_bn
+        self.freeze_bn = resolve_freeze_bn(
+            freeze_bn, pretrained=backbone_weights is not None or weights_path is not None
+        )
         self.backbone = build_backbone(backbone, backbone_weights)
         low, high = self.backbone.out_channels
         self.aux = PSPHead(low, num_classes, low // 4, dropout)
         self.main = PSPHead(high, num_classes, high // 4, dropout, bins=tuple(bins))
-        if freeze_bn:
+        if self.freeze_bn:
             freeze_batchnorm(self)
         if weights_path is not None:
             from uss_slam.models.weights import load_segmenter_weights

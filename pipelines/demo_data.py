@@ -42,10 +42,10 @@ import cv2
 import numpy as np
 import yaml
 from PIL import Image
-from tqdm import tqdm
 
 from uss_slam.core.classes import CLASS_NAMES, voc_lut
 from uss_slam.core.errors import UssSlamError
+from uss_slam.core.progress import progress_bar
 from uss_slam.core.tum_io import read_file_list
 from uss_slam.synthetic import render_sequence, render_voc
 from uss_slam.synthetic.output import check_size, staged_output
@@ -265,7 +265,9 @@ def render_demo_data(
             with ProcessPoolExecutor(max_workers=workers) as pool:
                 futures = [pool.submit(fn, **kwargs) for _, fn, kwargs in tasks]
                 names = {f: name for f, (name, _, _) in zip(futures, tasks, strict=True)}
-                bar = tqdm(total=len(futures), desc="demo parts", unit="part", disable=not progress)
+                bar = progress_bar(
+                    total=len(futures), desc="demo parts", unit="part", disable=not progress
+                )
                 for future in as_completed(futures):
                     future.result()
                     bar.set_postfix_str(names[future])

@@ -8,6 +8,7 @@ write the report (one run, or the baseline plus each filter set of ``compare``; 
 from __future__ import annotations
 
 import logging
+import sys
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -83,6 +84,7 @@ def run(cfg: DictConfig) -> dict[str, Any]:
         stride=int(seq_cfg.stride),
         max_frames=None if seq_cfg.max_frames is None else int(seq_cfg.max_frames),
     )
+    warn_if_groundtruth_misses(sequence)
     slam = cfg.slam
     settings = OmegaConf.to_container(cfg, resolve=True)
 
@@ -139,6 +141,24 @@ def run(cfg: DictConfig) -> dict[str, Any]:
         print(table)
         return {**data, "comparison": results}
     return data
+
+
+def warn_if_groundtruth_misses(sequence: TumSequence) -> None:
+    """One warning line on stderr, before any work, when the sequence's ground truth shares no
+    time span with its selected frames (no pose to score against: ATE and RPE will be n/a).
+    Not an error: the trajectory and map are still worth having."""
+    gt = sequence.groundtruth
+    frames = sequence.stamps
+    if gt is None or not len(gt) or not len(frames):
+        return
+    if gt.stamps.min() <= frames.max() and frames.min() <= gt.stamps.max():
+        return
+    print(
+        f"{PROG}: warning: {gt.path}: the ground truth spans {gt.stamps.min():.3f}-"
+        f"{gt.stamps.max():.3f} s, the frames {frames.min():.3f}-{frames.max():.3f} s: no time "
+        "in common, so ATE and RPE are n/a",
+        file=sys.stderr,
+    )
 
 
 def _summary(data: dict[str, Any]) -> str:

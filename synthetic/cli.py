@@ -43,7 +43,18 @@ def _size(text: str) -> tuple[int, int]:
         raise argparse.ArgumentTypeError(str(err)) from None
 
 
-def _positive(minimum: int):
+MAX_FRAMES = 18_000
+"""Largest ``--frames``: 10 minutes at 30 Hz, longer than any TUM RGB-D sequence (a few
+minutes at most); at 640x480 a frame takes about 1.1 MB on disk (RGB, depth, labels), so
+this is already about 20 GB."""
+MAX_IMAGES = 100_000
+"""Largest ``--images``: more than VOC, SBD and COCO's person / chair / monitor images
+together; at 320x240 an image with its label takes about 32 KB on disk (3 GB in all)."""
+
+
+def _positive(minimum: int, maximum: int | None = None, why: str = ""):
+    """An argparse type: an integer in ``minimum..maximum``; ``why`` explains the maximum."""
+
     def parse(text: str) -> int:
         try:
             value = int(text)
@@ -51,6 +62,8 @@ def _positive(minimum: int):
             raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
         if value < minimum:
             raise argparse.ArgumentTypeError(f"must be >= {minimum}, got {value}")
+        if maximum is not None and value > maximum:
+            raise argparse.ArgumentTypeError(f"must be <= {maximum}, got {value} ({why})")
         return value
 
     return parse
@@ -119,9 +132,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     seq.add_argument(
         "--frames",
-        type=_positive(2),
+        type=_positive(
+            2, MAX_FRAMES, "10 minutes at 30 Hz; about 1.1 MB per 640x480 frame on disk: 20 GB"
+        ),
         default=120,
-        help="number of frames at 30 Hz (>= 2, default: 120)",
+        help=f"number of frames at 30 Hz (2..{MAX_FRAMES}, default: 120)",
     )
     seq.add_argument(
         "--size",
@@ -150,7 +165,10 @@ def build_parser() -> argparse.ArgumentParser:
         ),
     )
     voc.add_argument(
-        "--images", type=_positive(1), default=200, help="number of images (default: 200)"
+        "--images",
+        type=_positive(1, MAX_IMAGES, "about 32 KB per 320x240 image on disk: 3 GB"),
+        default=200,
+        help=f"number of images (1..{MAX_IMAGES}, default: 200)",
     )
     voc.add_argument(
         "--size",

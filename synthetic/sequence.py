@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 import yaml
-from tqdm import tqdm
 
+from uss_slam.core.progress import progress_bar
 from uss_slam.core.tum_io import (
     TUM_CAMERAS,
     CameraIntrinsics,
@@ -195,7 +195,7 @@ def render_sequence(
         for sub in ("rgb", "depth", "labels"):
             (tmp / sub).mkdir()
         rgb_files, depth_files = [], []
-        bar = tqdm(
+        bar = progress_bar(
             range(seq.frames), desc=f"{preset} ({style})", unit="frame", disable=not progress
         )
         for i in bar:

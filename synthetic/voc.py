@@ -19,9 +19,9 @@ import cv2
 import numpy as np
 import yaml
 from PIL import Image
-from tqdm import tqdm
 
 from uss_slam.core.classes import IGNORE_INDEX, PROJECT_TO_VOC, voc_palette
+from uss_slam.core.progress import progress_bar
 from uss_slam.core.tum_io import TUM_CAMERAS
 
 from .motion import look_at
@@ -204,7 +204,7 @@ def render_voc(
         for folder in (jpeg, seg, sets):
             folder.mkdir(parents=True)
         names = []
-        for i in tqdm(range(images), desc="VOC images", unit="img", disable=not progress):
+        for i in progress_bar(range(images), desc="VOC images", unit="img", disable=not progress):
             sample = render_voc_sample(seed, i, size, outfits)
             write_jpeg(jpeg / f"{sample.name}.jpg", sample.rgb)
             png = Image.fromarray(voc_indices(sample.labels, band), mode="P")

@@ -22,6 +22,7 @@ from __future__ import annotations
 import importlib
 import importlib.util
 import json
+import logging
 import os
 import shutil
 import signal
@@ -199,6 +200,12 @@ def truncated(name: str, keep: float = 0.5) -> Callable[[dict[str, Path]], bytes
     return data
 
 
+def flat_rgb(seq: Path) -> None:
+    """Every RGB frame of ``seq`` one flat grey (no corners for ORB)."""
+    for path in (seq / "rgb").iterdir():
+        cv2.imwrite(str(path), np.full((120, 160, 3), 128, np.uint8))
+
+
 def png_bytes(p: dict[str, Path]) -> bytes:
     return nth("rgb", 0)(p["seq"]).read_bytes()
 
@@ -250,6 +257,11 @@ CASES = [
          "{afile}: exists and is not a folder", setup=(afile,)),
     case("synth-seed-not-a-number", "uss-synth",
          "voc --images 1 --seed one --out {tmp}/voc", 2, "--seed", "invalid int value: 'one'"),
+    case("synth-frames-above-the-bound", "uss-synth",
+         "sequence --preset walking_xyz --frames 18001 --out {tmp}/seq", 2,
+         "argument --frames", "must be <= 18000, got 18001", "20 GB"),
+    case("synth-images-above-the-bound", "uss-synth", "voc --images 100001 --out {tmp}/voc", 2,
+         "argument --images", "must be <= 100000, got 100001", "3 GB"),
     case("synth-missing-preset", "uss-synth", "sequence --out {tmp}/seq", 2,
          "the following arguments are required: --preset"),
     case("synth-ctrl-c-while-rendering", "uss-synth",
@@ -292,6 +304,14 @@ CASES = [
     case("vocab-build-missing-frame", "uss-vocab", "build {s} --out {tmp}/v.txt --stride 1",
          1, "{s}/rgb/", "not a readable image",
          setup=(seq_copy(corrupt("rgb", 0, b"")),)),
+    case("vocab-build-overwrite-a-non-vocabulary", "uss-vocab",
+         "build {seq} --out {png} --overwrite -k 3 -L 2", 1,
+         "--out {png}: not a DBoW2 text vocabulary; --overwrite replaces only a vocabulary",
+         setup=(write("png", png_bytes, ".png"),)),
+    case("vocab-build-texture-less-frames", "uss-vocab",
+         "build {s} --out {tmp}/v.txt -k 3 -L 2 --max-frames 2", 1,
+         "{s}: no ORB descriptors in the 2 training frames (the frames have no texture)",
+         setup=(seq_copy(flat_rgb),)),
     case("vocab-info-truncated", "uss-vocab", "info {v}", 1,
          "{v}:3: expected 'parent is_leaf' + 32 descriptor bytes + 'weight' (35 fields)",
          setup=(write("v", vocabulary_text(3)[:120]),)),
@@ -425,6 +445,10 @@ CASES = [
          "callbacks.model_checkpoint.dirpath={tmp}/run/checkpoints: holds checkpoints of an "
          "earlier run (last.ckpt, 1 in all); resume it with "
          "ckpt_path={tmp}/run/checkpoints/last.ckpt", setup=(earlier_checkpoint,)),
+    case("train-num-threads-negative", "uss-train", f"{TRAIN} num_threads=-1", 1,
+         "num_threads must be an integer >= 1 or null (torch's default), got -1"),
+    case("train-num-threads-zero", "uss-train", f"{TRAIN} num_threads=0", 1,
+         "num_threads must be an integer >= 1 or null (torch's default), got 0"),
     # ---------------------------------------------------------------- uss-export (Hydra)
     case("export-unknown-key", "uss-export", f"{EXPORT} opsett=17", 1,
          "Key 'opsett' is not in struct"),
@@ -435,6 +459,11 @@ CASES = [
          "cannot create the output folder {afile}/hydra ({afile} is a file)", setup=(afile,)),
     case("export-label-agreement-above-one", "uss-export", f"{EXPORT} min_label_agreement=2",
          1, "min_label_agreement must be in (0, 1] or null, got 2"),
+    case("export-one-pixel-verification", "uss-export", f"{EXPORT} verify_size=[1,1]", 1,
+         "verify_size must be at least [32, 32], got [1, 1]", "output stride is 8",
+         setup=(earlier_export,)),
+    case("export-thin-verification", "uss-export", f"{EXPORT} verify_size=[120,31]", 1,
+         "verify_size must be at least [32, 32], got [120, 31]"),
     case("export-logit-diff-zero", "uss-export", f"{EXPORT} max_logit_diff=0", 1,
          "max_logit_diff must be > 0 or null, got 0"),
     case("export-onnx-as-checkpoint", "uss-export",
@@ -595,6 +624,119 @@ def test_eval_rerun_into_the_same_out_holds_one_runs_files(
         present = sorted(p.relative_to(out).as_posix() for p in out.glob("overlays/*"))
         assert len(listed) == expected and present == listed
     assert sorted(p.name for p in out.iterdir()) == ["eval.json", "eval.md"]
+
+
+# ------------------------------------------------------------------------------ Ctrl-C of uss-train
+
+
+def test_train_ctrl_c_exits_130_and_keeps_the_checkpoints(
+    world: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    """Ctrl-C of ``uss-train`` in its third iteration (after the first epoch's checkpoints):
+    exit code 130 and the line ``uss-train: interrupted`` (not Lightning's shutdown notice and
+    exit 1); the checkpoints saved before it stay whole (the first epoch's iteration)."""
+    from uss_slam.models.checkpoint import read_checkpoint
+
+    paths = {**world, "tmp": tmp_path}
+    argv = [arg.format(**paths) for arg in TRAIN.split()]
+    interrupt_after(monkeypatch, "uss_slam.train.module:AdversarialSegmentation.training_step", 2)
+    # An earlier in-process app call may leave a log handler on a capture stream pytest has
+    # closed since; its "--- Logging error ---" report is this process's, not uss-train's.
+    monkeypatch.setattr(logging, "raiseExceptions", False)
+    monkeypatch.chdir(tmp_path)
+    try:
+        code, _, err = run_console_script("uss-train", argv, monkeypatch, capsys)
+    finally:
+        HydraConfig.instance().cfg = None
+        GlobalHydra.instance().clear()
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # Ctrl-C works again
+    # Lightning's own start-up notices (GPU available, ...) go to stderr in every run; after
+    # them, the one line of an interrupt and nothing of Lightning's shutdown.
+    assert code == 130 and err.strip().splitlines()[-1] == "uss-train: interrupted", err
+    assert "Traceback" not in err and "KeyboardInterrupt" not in err, err
+    saved = sorted((tmp_path / "run" / "checkpoints").iterdir())
+    assert [p.name for p in saved if p.name == "last.ckpt"] == ["last.ckpt"]
+    assert len(saved) == 2 and not [p for p in saved if p.name.endswith(".tmp")]
+    for path in saved:  # whole and readable, of the first epoch
+        assert read_checkpoint(path).iteration == 2, path
+
+
+def test_slam_groundtruth_without_common_time_span_warns(
+    world: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    """``uss-slam`` on a sequence whose ground truth lies 1000 s after its frames: the run
+    succeeds (exit 0, ATE null in metrics.json) and stderr holds one warning line naming
+    groundtruth.txt and both time spans."""
+    seq = tmp_path / "s"
+    shutil.copytree(world["seq"], seq)
+    gt = seq / "groundtruth.txt"
+    rows = [line.split() for line in gt.read_text().splitlines() if not line.startswith("#")]
+    gt.write_text("".join(f"{float(r[0]) + 1000:.6f} {' '.join(r[1:])}\n" for r in rows))
+    out = tmp_path / "out"
+    argv = [f"sequence.path={seq}", f"out_dir={out}", "progress=false"]
+    try:
+        code, _, err = run_console_script("uss-slam", argv, monkeypatch, capsys)
+    finally:
+        HydraConfig.instance().cfg = None
+        GlobalHydra.instance().clear()
+    assert code == 0, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"uss-slam: warning: {gt}: the ground truth "
+                                                  "spans "), err  # fmt: skip
+    first, last = float(rows[0][0]), float(rows[-1][0])
+    assert f"{first + 1000:.3f}-{last + 1000:.3f} s, the frames " in lines[0]
+    assert lines[0].endswith("no time in common, so ATE and RPE are n/a")
+    assert json.loads((out / "metrics.json").read_text())["ate"] is None
+
+
+def test_vocab_of_one_frame_warns_that_every_weight_is_zero(
+    world: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    """``uss-vocab build`` from one frame: every word's idf weight is ln(1/1) = 0; the file is
+    written (exit 0) and stderr holds one warning line naming the sequence folder."""
+    out = tmp_path / "v.txt"
+    argv = ["build", str(world["seq"]), "--out", str(out), "-k", "3", "-L", "2",
+            "--max-frames", "1"]  # fmt: skip
+    code, _, err = run_console_script("uss-vocab", argv, monkeypatch, capsys)
+    assert code == 0 and out.is_file(), err
+    assert err.strip().splitlines() == [
+        f"uss-vocab: warning: {world['seq']}: every word of the vocabulary has weight 0 (each "
+        "occurs in all 1 training frames); use more, and more varied, frames (--stride, "
+        "--max-frames, more sequences)"
+    ]
+
+
+# ------------------------------------------------------------------------------ file modes
+
+
+@pytest.mark.parametrize("umask", [0o022, 0o002])
+def test_outputs_follow_the_umask(
+    umask: int, world: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    """Every file ``uss-slam`` and ``uss-vocab`` write (atomically, through a temporary
+    sibling) gets mode 0666 minus the umask, as a plain ``open()`` would give it: 0644 under
+    umask 022, 0664 under 002 (never 0600 whatever the umask)."""
+    out = tmp_path / "out"
+    previous = os.umask(umask)
+    try:
+        code, _, err = run_console_script(
+            "uss-slam", [f"sequence.path={world['seq']}", f"out_dir={out}", "progress=false"],
+            monkeypatch, capsys,
+        )  # fmt: skip
+        assert code == 0, err
+        code, _, err = run_console_script(
+            "uss-vocab", ["build", str(world["seq"]), "--out", str(out / "v.txt"), "-k", "10",
+                          "-L", "2", "--stride", "1"],
+            monkeypatch, capsys,
+        )  # fmt: skip
+        assert code == 0, err
+    finally:
+        os.umask(previous)
+        HydraConfig.instance().cfg = None
+        GlobalHydra.instance().clear()
+    modes = {p.name: p.stat().st_mode & 0o777 for p in out.rglob("*") if p.is_file()}
+    assert {"run.json", "trajectory.txt", "v.txt"} <= set(modes)
+    assert modes == dict.fromkeys(modes, 0o666 & ~umask)
 
 
 # ------------------------------------------------------------------------------ kill -9

@@ -25,7 +25,7 @@ README = REPO / "README.md"
 # fmt: off
 # package:     (floor, the uss_slam packages it may import, torch-free)
 FLOORS: dict[str, tuple[int, tuple[str, ...], bool]] = {
-    "core":      (0, (), True),  # third-party: numpy, scipy, cv2, yaml, hydra/omegaconf
+    "core":      (0, (), True),  # third-party: numpy, scipy, cv2, yaml, hydra/omegaconf, tqdm
     "datasets":  (1, ("core",), False),
     "synthetic": (1, ("core",), True),
     "models":    (1, ("core",), False),
@@ -38,7 +38,7 @@ FLOORS: dict[str, tuple[int, tuple[str, ...], bool]] = {
 # fmt: on
 # All torch-free and used by every runtime package already: scipy for rotations (core.tum_io),
 # hydra / omegaconf for the console scripts' error and multirun handling (core.cli).
-CORE_THIRD_PARTY = frozenset({"numpy", "scipy", "cv2", "yaml", "hydra", "omegaconf"})
+CORE_THIRD_PARTY = frozenset({"numpy", "scipy", "cv2", "yaml", "hydra", "omegaconf", "tqdm"})
 # Importing any of these loads torch.
 TORCH_FAMILY = frozenset(
     {"torch", "torchvision", "torchmetrics", "lightning", "pytorch_lightning", "lightning_fabric"}
@@ -204,7 +204,7 @@ def _check(package: str, source: str, name: str = "mod.py") -> list[str]:
         (
             "core",
             "import matplotlib.pyplot\n",
-            "core imports only the standard library, cv2, hydra, numpy, omegaconf, scipy, yaml",
+            "core imports only the standard library, cv2, hydra, numpy, omegaconf, scipy, tqdm, yaml",
         ),
         ("core", "import PIL.Image\n", "core imports only the standard library"),
         ("synthetic", "def f():\n    import torchvision\n", "synthetic is torch-free"),

@@ -1,11 +1,13 @@
-"""Training callbacks: TensorBoard prediction images, a DDP replica consistency check, and a
-ModelCheckpoint that keeps its best score across resumes."""
+"""Training callbacks: TensorBoard prediction images, a DDP replica consistency check, a
+ModelCheckpoint that keeps its best score across resumes, and a progress bar that writes whole
+lines to a file or log."""
 
 from __future__ import annotations
 
 import hashlib
 import json
 import logging
+import sys
 import warnings
 from collections.abc import Sequence
 from pathlib import Path
@@ -14,11 +16,13 @@ from typing import Any
 import numpy as np
 import torch
 from lightning.pytorch import Callback, LightningModule, Trainer
-from lightning.pytorch.callbacks import ModelCheckpoint
+from lightning.pytorch.callbacks import ModelCheckpoint, TQDMProgressBar
+from lightning.pytorch.callbacks.progress.tqdm_progress import Tqdm
 from lightning.pytorch.loggers import TensorBoardLogger
 
 from uss_slam.core.classes import colorize
 from uss_slam.core.errors import UssSlamError
+from uss_slam.core.progress import LineProgress, is_terminal
 from uss_slam.datasets.transforms import IMAGENET_MEAN, IMAGENET_STD, denormalize
 from uss_slam.train.losses import upsample
 
@@ -202,3 +206,37 @@ class ResumableModelCheckpoint(ModelCheckpoint):
         self.best_model_score = kept[self.best_model_path]
         self.kth_best_model_path = worse(kept, key=lambda p: float(kept[p]))
         self.kth_value = kept[self.kth_best_model_path]
+
+
+class LogProgressBar(TQDMProgressBar):
+    """Lightning's TQDM bars in a terminal; written to a file or a CI log (stdout is not a TTY)
+    the bars of :mod:`uss_slam.core.progress` instead, which write whole lines (the first state,
+    at most one every :data:`~uss_slam.core.progress.LOG_INTERVAL` seconds, the last) instead of
+    one redraw per batch. ``uss-train`` uses it whenever ``trainer.enable_progress_bar`` is on."""
+
+    def _lines(self) -> bool:
+        return not is_terminal(sys.stdout)
+
+    def init_sanity_tqdm(self) -> Tqdm:
+        if not self._lines():
+            return super().init_sanity_tqdm()
+        return _LogTqdm(desc=self.sanity_check_description, disable=self.is_disabled,
+                        leave=False, file=sys.stdout, bar_format=self.BAR_FORMAT)  # fmt: skip
+
+    def init_train_tqdm(self) -> Tqdm:
+        if not self._lines():
+            return super().init_train_tqdm()
+        return _LogTqdm(desc=self.train_description, disable=self.is_disabled, leave=True,
+                        file=sys.stdout, smoothing=0, bar_format=self.BAR_FORMAT)  # fmt: skip
+
+    def init_validation_tqdm(self) -> Tqdm:
+        if not self._lines():
+            return super().init_validation_tqdm()
+        # (as Lightning's: a validation inside training is not left behind)
+        leave = self.trainer.state.fn == "validate"
+        return _LogTqdm(desc=self.validation_description, disable=self.is_disabled,
+                        leave=leave, file=sys.stdout, bar_format=self.BAR_FORMAT)  # fmt: skip
+
+
+class _LogTqdm(LineProgress, Tqdm):
+    """Lightning's bar (its number format) writing whole lines."""

@@ -1,12 +1,22 @@
 """``AdversarialSegmentation``: the LightningModule that trains a segmenter with an adaptation
 method.
 
-The segmenter (a plain :class:`~uss_slam.models.DeepLabV2`) never sees domains. This module owns
-it, the two discriminators ``d_aux`` / ``d_main``, the two optimisers (segmenter SGD,
-discriminators Adam) with their poly schedules, the own iteration counter, logging, validation
-and checkpoints (manual optimisation). What one training iteration computes is the *method*'s
-(config group ``model/method``, :mod:`uss_slam.train.methods`): ``adaptsegnet``, the paper's
-Algorithm 1 (the default), or ``source_only``, the "without ATL" baseline.
+The segmenter (a plain :class:`~uss_slam.models.DeepLabV2` or :class:`~uss_slam.models.PSPNet`)
+never sees domains. This module owns it, its SGD optimiser with its poly schedule, the own
+iteration counter, logging, validation and checkpoints (manual optimisation). What one training
+iteration computes is the *method*'s (config group ``model/method``,
+:mod:`uss_slam.train.methods`):
+
+- ``adaptsegnet``: the paper's Algorithm 1, adversarial output-space adaptation (the default);
+- ``advent``: the same with the discriminators on entropy maps (ADVENT);
+- ``minent``: direct entropy minimisation on the target (ADVENT's MinEnt);
+- ``self_training``: mean-teacher pseudo-labels with ClassMix (DACS / DAFormer);
+- ``source_only``: the "without ATL" baseline.
+
+The method says what it trains: the two PatchGAN discriminators ``d_aux`` / ``d_main`` and their
+Adam optimiser (with its own poly schedule) exist only for the methods that train them
+(``adaptsegnet``, ``advent``). Checkpoints of runs whose method has none but that were written
+with discriminators load all the same (the unused networks and optimiser state are dropped).
 
 Speed options that leave the computation unchanged (tested against the eager step):
 ``compile`` (``torch.compile`` of the segmenter and both discriminators), ``channels_last``,
@@ -38,7 +48,7 @@ from uss_slam.models.deeplab import DeepLabV2, SegmenterOutput
 from uss_slam.train.losses import LossWeights, upsample
 from uss_slam.train.methods import AdaptSegNet, Method, StepValues, TrainBatch, frozen
 from uss_slam.train.methods.base import NonFiniteLossError
-from uss_slam.train.schedules import PolyLR
+from uss_slam.train.schedules import PolyLR, poly_horizon
 
 log = logging.getLogger(__name__)
 
@@ -48,25 +58,33 @@ OptimizerKernels = Literal["default", "foreach", "fused"]
 COMPILE_MODES = ("default", "reduce-overhead", "max-autotune", "max-autotune-no-cudagraphs")
 """``torch.compile`` modes of the inductor backend."""
 
+DISCRIMINATOR_PREFIXES = ("d_aux.", "d_main.")
+"""State-dict key prefixes of the discriminators."""
+
 __all__ = ["AdversarialSegmentation", "NonFiniteLossError"]
 
 
 class AdversarialSegmentation(LightningModule):
-    """A two-head segmenter, two PatchGAN discriminators and an adaptation method, trained with
-    manual optimisation.
+    """A two-head segmenter and an adaptation method (with the two PatchGAN discriminators of the
+    methods that train them), trained with manual optimisation.
 
     Args:
         net: the segmenter; ``net(images)`` returns ``(aux, main)`` logits and
             ``net.param_groups(lr, head_lr_mult)`` its optimiser groups.
-        discriminator: factory called twice (``d_aux``, ``d_main``), e.g. a Hydra ``_partial_``
-            :class:`~uss_slam.models.PatchDiscriminator` with ``in_channels = num_classes``.
+        discriminator: factory called twice (``d_aux``, ``d_main``) when the method trains
+            discriminators, e.g. a Hydra ``_partial_`` :class:`~uss_slam.models.PatchDiscriminator`
+            with ``in_channels = num_classes``; unused (may be ``None``) otherwise.
         optimizer: segmenter optimiser factory taking ``params`` (SGD, with ``lr``).
-        d_optimizer: discriminator optimiser factory taking ``params`` (Adam).
+        d_optimizer: discriminator optimiser factory taking ``params`` (Adam); unused (may be
+            ``None``) when the method trains no discriminators.
         method: what one iteration computes (default :class:`~uss_slam.train.methods.AdaptSegNet`).
         loss: the four loss weights.
         max_iters: training iterations (own counter: ``global_step`` counts optimiser steps);
-            the poly schedules decay to 0 there and training stops.
+            training stops there.
         poly_power: exponent of the poly schedules.
+        poly_total_iters: horizon of the poly schedules (where the rate would reach 0); ``None``
+            = ``max_iters × 250/150``, the reference code's 250k schedule stopped at 150k (the
+            rate ends at 0.44× its base); ``max_iters`` decays to 0 at the last iteration.
         head_lr_mult: learning-rate multiplier of the segmenter heads.
         class_names: names for ``val/IoU/<class>``; their count is the number of classes.
         batch_domains: run source and target through one segmenter forward and one
@@ -74,7 +92,7 @@ class AdversarialSegmentation(LightningModule):
             crops have one size. Identical losses and gradients; peak activation memory holds
             both domains at once (set ``False`` on a tight GPU).
         channels_last: NHWC memory layout for the networks and inputs (same results).
-        compile: ``torch.compile`` the segmenter and both discriminators in place (parameter
+        compile: ``torch.compile`` the segmenter and the discriminators in place (parameter
             names, checkpoints and exports stay those of the eager networks). Compilation runs
             in the first iteration (and again at the first validation batch, eval mode); its
             cost is logged once as ``train/compile_s``.
@@ -93,13 +111,14 @@ class AdversarialSegmentation(LightningModule):
     def __init__(
         self,
         net: DeepLabV2,
-        discriminator: Callable[[], nn.Module],
+        discriminator: Callable[[], nn.Module] | None,
         optimizer: OptimizerFactory,
-        d_optimizer: OptimizerFactory,
+        d_optimizer: OptimizerFactory | None,
         method: Method | None = None,
         loss: LossWeights | None = None,
         max_iters: int = 250_000,
         poly_power: float = 0.9,
+        poly_total_iters: int | None = None,
         head_lr_mult: float = 10.0,
         class_names: Sequence[str] = CLASS_NAMES,
         batch_domains: bool = True,
@@ -121,14 +140,23 @@ class AdversarialSegmentation(LightningModule):
             )
         self.automatic_optimization = False
         self.segmenter = net
-        self.d_aux = discriminator()
-        self.d_main = discriminator()
         self.method = self._check_method(method if method is not None else AdaptSegNet())
+        self.d_aux: nn.Module | None = None
+        self.d_main: nn.Module | None = None
+        if self.method.trains_discriminators:
+            if discriminator is None or d_optimizer is None:
+                raise UssSlamError(
+                    f"model/method={self.method.name} trains discriminators: model.discriminator "
+                    "and model.d_optimizer must be set"
+                )
+            self.d_aux = discriminator()
+            self.d_main = discriminator()
         self.optimizer_factory = optimizer
         self.d_optimizer_factory = d_optimizer
         self.loss_weights = loss if loss is not None else LossWeights()
         self.max_iters = max_iters
         self.poly_power = poly_power
+        self.poly_total_iters = poly_horizon(max_iters, poly_total_iters)
         self.head_lr_mult = head_lr_mult
         self.class_names = tuple(class_names)
         self.batch_domains = batch_domains
@@ -164,6 +192,7 @@ class AdversarialSegmentation(LightningModule):
                 "loss": asdict(self.loss_weights),
                 "max_iters": max_iters,
                 "poly_power": poly_power,
+                "poly_total_iters": self.poly_total_iters,
                 "head_lr_mult": head_lr_mult,
                 "method": self.method.name,
                 "adaptation": self.method.adapts,
@@ -207,19 +236,48 @@ class AdversarialSegmentation(LightningModule):
 
     # ------------------------------------------------------------------ optimisers
 
+    @property
+    def discriminators(self) -> tuple[nn.Module, nn.Module] | None:
+        """``(d_aux, d_main)``, or ``None`` when the method trains no discriminators."""
+        if self.d_aux is None or self.d_main is None:
+            return None
+        return self.d_aux, self.d_main
+
     def configure_optimizers(self) -> tuple[list[Optimizer], list[PolyLR]]:
+        """The segmenter's optimiser and, with discriminators, theirs; one poly schedule each."""
         lr = getattr(self.optimizer_factory, "keywords", {}).get("lr")
         if lr is None:
             raise UssSlamError("model.optimizer must set lr (the backbone learning rate)")
-        opt_seg = self._optimizer(
-            self.optimizer_factory, self.segmenter.param_groups(lr, self.head_lr_mult)
-        )
-        opt_d = self._optimizer(
-            self.d_optimizer_factory,
-            list(itertools.chain(self.d_aux.parameters(), self.d_main.parameters())),
-        )
-        schedules = [PolyLR(opt, self.max_iters, self.poly_power) for opt in (opt_seg, opt_d)]
-        return [opt_seg, opt_d], schedules
+        optimizers = [
+            self._optimizer(
+                self.optimizer_factory, self.segmenter.param_groups(lr, self.head_lr_mult)
+            )
+        ]
+        if self.discriminators is not None:
+            if self.d_optimizer_factory is None:
+                raise UssSlamError("model.d_optimizer must be set to train the discriminators")
+            params = list(itertools.chain(*(d.parameters() for d in self.discriminators)))
+            optimizers.append(self._optimizer(self.d_optimizer_factory, params))
+        schedules = [PolyLR(opt, self.poly_total_iters, self.poly_power) for opt in optimizers]
+        return optimizers, schedules
+
+    def _optimizers(self) -> list[Any]:
+        found = self.optimizers()
+        return found if isinstance(found, list) else [found]
+
+    def segmenter_optimizer(self) -> Any:
+        """The segmenter's (Lightning-wrapped) optimiser."""
+        return self._optimizers()[0]
+
+    def discriminator_optimizer(self) -> Any:
+        """The discriminators' (Lightning-wrapped) optimiser."""
+        optimizers = self._optimizers()
+        if len(optimizers) < 2:
+            raise UssSlamError(
+                f"model/method={self.method.name}: this module was built without discriminators "
+                "(its method at construction trains none)"
+            )
+        return optimizers[1]
 
     def _optimizer(self, factory: OptimizerFactory, params: list[Any]) -> Optimizer:
         """``factory(params)`` with the kernels of ``optimizer_kernels``."""
@@ -238,14 +296,14 @@ class AdversarialSegmentation(LightningModule):
         """``requires_grad=False`` on the discriminators' parameters while the segmenter trains
         (restored afterwards, also on errors). Lightning's ``toggle_optimizer`` does the same
         over every parameter of every optimiser at each call; the discriminator step needs no
-        freezing at all since its inputs are detached."""
-        return frozen(self.d_aux, self.d_main)
+        freezing at all since its inputs are detached. A no-op without discriminators."""
+        return frozen(*(self.discriminators or ()))
 
     def forward(self, images: Tensor) -> SegmenterOutput:
         return self.segmenter(images)
 
     def setup(self, stage: str) -> None:
-        nets = (self.segmenter, self.d_aux, self.d_main)
+        nets = (self.segmenter, *(self.discriminators or ()))
         if self.channels_last:
             for net in nets:
                 net.to(memory_format=torch.channels_last)
@@ -269,9 +327,11 @@ class AdversarialSegmentation(LightningModule):
         # Detached values for the train/* scalars; turned into the logged numbers only on
         # logging steps (see on_train_batch_end).
         step = self.method.training_step(self, prepared)
-        sched_seg, sched_d = self.lr_schedulers()
+        schedules = self.lr_schedulers()
+        sched_seg, *sched_d = schedules if isinstance(schedules, list) else [schedules]
         if self.method.trains_discriminators:
-            sched_d.step()
+            for schedule in sched_d:
+                schedule.step()
         sched_seg.step()
         self.iteration += 1
         self._step_values = (step, batch["source"]["image"].shape[0])
@@ -363,3 +423,32 @@ class AdversarialSegmentation(LightningModule):
         if "iteration" not in checkpoint:
             raise UssSlamError("checkpoint has no 'iteration': not written by uss-train")
         self.iteration = int(checkpoint["iteration"])
+        if "state_dict" in checkpoint:
+            checkpoint["state_dict"] = self.loadable_state(
+                checkpoint["state_dict"], checkpoint.get("hyper_parameters", {}).get("method")
+            )
+        if self.discriminators is None:
+            # Written when every method built discriminators: their optimiser and schedule were
+            # saved second, after the segmenter's; this module has only the segmenter's.
+            for entry in ("optimizer_states", "lr_schedulers"):
+                if entry in checkpoint:
+                    checkpoint[entry] = checkpoint[entry][:1]
+
+    def loadable_state(self, state: dict[str, Any], method: str | None = None) -> dict[str, Any]:
+        """A checkpoint's ``state_dict`` as this module loads it: without the discriminators'
+        entries when the method trains none (earlier versions built them for every method).
+
+        Raises:
+            UssSlamError: the method trains discriminators and the checkpoint (of ``method``,
+                from its hyper-parameters) has none.
+        """
+        has_discriminators = any(key.startswith(DISCRIMINATOR_PREFIXES) for key in state)
+        if self.discriminators is None:
+            return {k: v for k, v in state.items() if not k.startswith(DISCRIMINATOR_PREFIXES)}
+        if state and not has_discriminators:
+            raise UssSlamError(
+                f"checkpoint of model/method={method or 'unknown'} has no discriminators, which "
+                f"model/method={self.method.name} trains: start a new run from its segmenter "
+                "with model.net.weights_path=<checkpoint> instead of resuming it"
+            )
+        return state

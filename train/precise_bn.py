@@ -11,10 +11,13 @@ running averages are poor for two reasons, both measured on the demo (README, Tr
 
 Before each validation (hence in every checkpoint and export) this callback replaces them by the
 exact mean / variance over a fixed, evenly spaced set of full training images (``momentum=None``
-= cumulative average; Wu & Johnson 2021, "precise BN") of the domain the model has seen and is
-deployed on: the target frames for an adapted run (as AdaBN, Li et al. 2016: unlabelled target
-images, no labels), the source images for a source-only run, which never sees the target.
-Weights are untouched; no random numbers are drawn (training is reproducible with or without it).
+= cumulative average; Wu & Johnson 2021, "precise BN") of one domain, ``source`` by default and
+for every method alike: then a method's gain over source-only is the method's, not that of the
+statistics. Target statistics are AdaBN (Li et al. 2016: unlabelled target images, no labels), a
+baseline of its own: :func:`adabn` applies it to any segmenter as an evaluation variant, and
+``domain: target`` (every method) or ``domain: auto`` (target for the methods that train on
+target frames, source for source-only) put them in the checkpoints instead. Weights are
+untouched; no random numbers are drawn (training is reproducible with or without it).
 """
 
 from __future__ import annotations
@@ -81,6 +84,21 @@ def recompute_batchnorm(
     return len(indices)
 
 
+def adabn(net: nn.Module, target: Dataset, images: int = 48, batch_size: int = 4) -> int:
+    """AdaBN (Li et al. 2016), the evaluation variant: ``net``'s BatchNorm statistics replaced
+    by those of ``images`` evenly spaced unlabelled ``target`` samples (``"image"`` entries), as
+    :class:`PreciseBatchNorm` computes them. Returns the number of images used.
+
+    Raises:
+        UssSlamError: ``target`` is empty, or ``images`` / ``batch_size`` < 1.
+    """
+    if images < 1 or batch_size < 1:
+        raise UssSlamError(f"AdaBN: images and batch_size must be >= 1, got {images}, {batch_size}")
+    if not isinstance(target, Sized) or len(target) == 0:
+        raise UssSlamError("AdaBN: the target dataset is empty")
+    return recompute_batchnorm(net, target, evenly_spaced(images, len(target)), batch_size)
+
+
 class PreciseBatchNorm(Callback):
     """Recompute the segmenter's BatchNorm statistics before every validation (see module doc).
 
@@ -89,8 +107,9 @@ class PreciseBatchNorm(Callback):
         target: target frames (same).
         images: how many images (evenly spaced over the dataset) to average over.
         batch_size: images per forward pass (batch statistics per pass, averaged).
-        domain: ``auto`` = ``target`` when the module adapts (``pl_module.adaptation``), else
-            ``source``; or force one.
+        domain: whose statistics: ``source`` (default, every method alike), ``target`` (AdaBN,
+            every method alike) or ``auto`` = ``target`` when the module adapts
+            (``pl_module.adaptation``), else ``source`` (unequal across methods).
     """
 
     def __init__(
@@ -99,7 +118,7 @@ class PreciseBatchNorm(Callback):
         target: Dataset,
         images: int = 48,
         batch_size: int = 4,
-        domain: Domain = "auto",
+        domain: Domain = "source",
     ) -> None:
         if images < 1 or batch_size < 1:
             raise UssSlamError(

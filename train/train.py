@@ -12,6 +12,7 @@ Returns the value of ``optimized_metric`` (``val/mIoU``) so Hydra sweepers can o
 from __future__ import annotations
 
 import logging
+import signal
 from pathlib import Path
 from typing import Any
 
@@ -21,8 +22,9 @@ import torch
 from hydra.errors import InstantiationException
 from hydra.utils import instantiate
 from lightning.pytorch import Callback, LightningDataModule, LightningModule, Trainer
-from lightning.pytorch.callbacks import LearningRateMonitor
+from lightning.pytorch.callbacks import LearningRateMonitor, ProgressBar
 from lightning.pytorch.loggers import Logger
+from lightning_utilities.core import rank_zero
 from omegaconf import DictConfig, OmegaConf, open_dict
 from omegaconf.errors import OmegaConfBaseException
 
@@ -30,7 +32,9 @@ from uss_slam.core.cli import JobFailed, exit_on_user_error, run_hydra_app
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.files import check_writable
 from uss_slam.models.checkpoint import CheckpointInfo, read_checkpoint
+from uss_slam.train.callbacks import LogProgressBar
 from uss_slam.train.config_check import check_config_types
+from uss_slam.train.module import AdversarialSegmentation
 from uss_slam.train.speed import resolve_precision
 
 log = logging.getLogger(__name__)
@@ -120,6 +124,10 @@ def check_architecture(model: LightningModule, info: CheckpointInfo) -> None:
     Lightning's restore cannot fail after the run started."""
     mine = model.state_dict()
     theirs = info.state_dict
+    if isinstance(model, AdversarialSegmentation):
+        # What the module's own checkpoint hook keeps (e.g. no unused discriminators).
+        method = info.hyper_parameters.get("method")
+        theirs = model.loadable_state(theirs, method if isinstance(method, str) else None)
     for key, value in mine.items():
         if key not in theirs:
             raise UssSlamError(
@@ -170,6 +178,53 @@ def build(cfg: DictConfig, key: str) -> Any:
         raise
 
 
+def check_num_threads(cfg: DictConfig) -> int | None:
+    """``num_threads``: an integer >= 1 (torch's intra-op threads) or null (torch's default).
+    Anything else is one line naming the key before any work: ``-1`` would end in torch's
+    traceback, and ``0`` would silently mean the default."""
+    value = cfg.get("num_threads")
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise UssSlamError(
+            f"num_threads must be an integer >= 1 or null (torch's default), got {value!r}"
+        )
+    return value
+
+
+def fit(
+    trainer: Trainer,
+    model: LightningModule,
+    datamodule: LightningDataModule,
+    ckpt_path: str | None,
+) -> None:
+    """``trainer.fit``, with Ctrl-C raised again as :class:`KeyboardInterrupt`.
+
+    Lightning ends a fit interrupted by Ctrl-C with its own shutdown and ``sys.exit(1)``, and
+    leaves SIGINT ignored; the console script's exit code 130 and its one line
+    ``uss-train: interrupted`` need the interrupt back. The checkpoints saved before it stay as
+    they were (each is written whole before the next iteration runs).
+    """
+    handler = signal.getsignal(signal.SIGINT)
+    announcer = logging.getLogger(rank_zero.log.name)  # where Lightning logs its shutdown
+    announcer.addFilter(_drop_shutdown_notice)
+    try:
+        trainer.fit(model, datamodule=datamodule, ckpt_path=ckpt_path)
+    except SystemExit:
+        if not trainer.interrupted:
+            raise
+        signal.signal(signal.SIGINT, handler)
+        raise KeyboardInterrupt from None
+    finally:
+        announcer.removeFilter(_drop_shutdown_notice)
+
+
+def _drop_shutdown_notice(record: logging.LogRecord) -> bool:
+    """Logging filter: drop Lightning's "Detected KeyboardInterrupt" notice (stderr then holds
+    the one line every console script prints after Ctrl-C)."""
+    return "Detected KeyboardInterrupt" not in str(record.msg)
+
+
 def train(cfg: DictConfig) -> dict[str, float]:
     """Fit the configured model; returns the final callback metrics as floats.
 
@@ -179,8 +234,9 @@ def train(cfg: DictConfig) -> dict[str, float]:
     """
     check_config_types(cfg, TYPED_SECTIONS)
     check_optimizers(cfg)
-    if cfg.get("num_threads"):
-        torch.set_num_threads(int(cfg.num_threads))
+    num_threads = check_num_threads(cfg)
+    if num_threads is not None:
+        torch.set_num_threads(num_threads)
     if cfg.get("seed") is not None:
         L.seed_everything(int(cfg.seed), workers=True, verbose=False)
     ckpt_path = resolve_ckpt_path(cfg)
@@ -195,6 +251,11 @@ def train(cfg: DictConfig) -> dict[str, float]:
         check_architecture(model, checkpoint)
         del checkpoint  # Lightning reads the file again; do not hold two copies
     callbacks: list[Callback] = _instantiate_all(cfg.get("callbacks"))
+    if cfg.trainer.get("enable_progress_bar", True) and not any(
+        isinstance(c, ProgressBar) for c in callbacks
+    ):
+        # Lightning's own bar would write one line per batch into a file or CI log
+        callbacks.append(LogProgressBar())
     loggers: list[Logger] = _instantiate_all(cfg.get("logger"))
     if not loggers:  # `logger=none`: nothing to monitor learning rates into
         callbacks = [c for c in callbacks if not isinstance(c, LearningRateMonitor)]
@@ -211,7 +272,7 @@ def train(cfg: DictConfig) -> dict[str, float]:
     for logger in loggers:
         logger.log_hyperparams(hparams)  # type: ignore[arg-type]
 
-    trainer.fit(model, datamodule=datamodule, ckpt_path=ckpt_path)
+    fit(trainer, model, datamodule, ckpt_path)
 
     metrics = {k: float(v) for k, v in trainer.callback_metrics.items()}
     best = getattr(trainer.checkpoint_callback, "best_model_path", "")

@@ -57,9 +57,9 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import numpy as np
-from tqdm import tqdm
 
 from uss_slam.core.errors import UssSlamError
+from uss_slam.core.progress import progress_bar
 from uss_slam.core.tum_io import Trajectory
 
 from ..filters.dynamic import DynamicFilter, FilterContext
@@ -315,7 +315,7 @@ class SlamPipeline:
         poses: list[np.ndarray] = []
         log: list[FrameLog] = []
         previous: Frame | None = None
-        bar = tqdm(
+        bar = progress_bar(
             total=len(self.sequence),
             desc=self.description,
             unit="frame",

@@ -4,7 +4,9 @@ adjustment and loop closing, is :mod:`..mapping.local_mapping` and :mod:`..mappi
 Per frame:
 
 1. **Prediction**: constant velocity, ``T_cw(t) = V · T_cw(t-1)`` with ``V`` the last inter-frame
-   motion.
+   motion. Without one (the second frame, the first after a relocalisation) the frame is first
+   matched to its reference keyframe by descriptor, as ORB-SLAM2's ``TrackReferenceKeyFrame``
+   (``reference_keyframe``), then goes on with step 4.
 2. **Guided matching** of the local map (points of the keyframes that share the most points with
    the previous frame, plus the latest keyframe) projected with the predicted pose, in a window of
    ``search_radius`` × the predicted level's scale (doubled once when too few matches are found).
@@ -79,6 +81,10 @@ class TrackerConfig:
     error only (``cv2.solvePnPRefineLM``)."""
     virtual_baseline: float = 0.075
     """Baseline of the virtual stereo pair, metres (ORB-SLAM2's TUM ``bf`` = 40 = 535.4 × 0.075)."""
+    reference_keyframe: bool = True
+    """Without a motion model (the second frame, the first after a relocalisation) match the
+    reference keyframe by descriptor, as ORB-SLAM2 (``TrackReferenceKeyFrame``); False = project
+    the local map with the last pose, as the harness did before."""
     local_keyframes: int = 10
     keyframe_ratio: float = 0.75
     """New keyframe when inliers < this × the reference keyframe's tracked points (ORB-SLAM2 RGB-D)."""
@@ -420,6 +426,10 @@ class Tracker:
 
     def _track_motion(self, features: Features, static: np.ndarray):
         cfg = self.config
+        if self.velocity is None and cfg.reference_keyframe and self.reference is not None:
+            tracked = self._track_reference(features, static)
+            if tracked[0] is not None:
+                return tracked
         velocity = self.velocity if self.velocity is not None else np.eye(4)
         predicted = velocity @ self.last_pose_cw
         local = self._local_points()
@@ -438,6 +448,28 @@ class Tracker:
         if pose_cw is None:
             return None, None
         return self._track_local_map(local, pose_cw, features, static)
+
+    def _track_reference(self, features: Features, static: np.ndarray):
+        """ORB-SLAM2's ``TrackReferenceKeyFrame``, for a frame without a motion model (the
+        second frame, the first after a relocalisation): the static keypoints matched to the
+        reference keyframe's map points by descriptor (ratio 0.7, no projection window), at
+        least 15 matches, PnP-RANSAC seeded with the last pose, then local-map tracking.
+        Projecting with the last pose instead misses the matches of a camera that already
+        moves fast when tracking starts (a hand-held Kinect turning at 1.5 rad/s moves the
+        image ~25 px per frame, beyond twice the 7 px window)."""
+        assert self.reference is not None
+        found = self.match_keyframe(
+            features, np.flatnonzero(static), self.reference, 0.7, self.config.max_hamming, 15
+        )
+        if found is None or len(found[0]) < 15:
+            return None, None
+        kp, pid, distance = found
+        pose_cw = self._pnp(
+            self.map.points.position.view[pid], features, kp, self.last_pose_cw, distance
+        )
+        if pose_cw is None:
+            return None, None
+        return self._track_local_map(self._local_points(), pose_cw, features, static)
 
     def _track_local_map(
         self, local: np.ndarray, pose_cw: np.ndarray, features: Features, static: np.ndarray

@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import logging
+from pathlib import Path
+
 import pytest
 import torch
 from torch import nn
 
 from uss_slam.core.errors import UssSlamError
-from uss_slam.models import ASPPClassifier, DeepLabV2, SegmenterOutput, output_size
+from uss_slam.models import ASPPClassifier, DeepLabV2, PSPNet, SegmenterOutput, output_size
 
 torch.set_num_threads(1)
 
@@ -15,13 +18,13 @@ torch.set_num_threads(1)
 @pytest.fixture(scope="module")
 def small() -> DeepLabV2:
     torch.manual_seed(0)
-    return DeepLabV2(num_classes=4, backbone="resnet_small")
+    return DeepLabV2(num_classes=4, backbone="resnet_small", freeze_bn=True)
 
 
 @pytest.fixture(scope="module")
 def resnet101() -> DeepLabV2:
     torch.manual_seed(0)
-    return DeepLabV2(num_classes=4, backbone="resnet101")
+    return DeepLabV2(num_classes=4, backbone="resnet101", freeze_bn=True)
 
 
 def test_aspp_output_is_the_sum_of_all_four_branches() -> None:
@@ -124,3 +127,27 @@ def test_unknown_backbone_and_weights_are_clear_errors() -> None:
         DeepLabV2(backbone="resnet50", backbone_weights="NOPE")  # fails before any download
     with pytest.raises(UssSlamError, match="no ImageNet weights"):
         DeepLabV2(backbone="resnet_small", backbone_weights="IMAGENET1K_V1")
+
+
+@pytest.mark.parametrize("segmenter", [DeepLabV2, PSPNet])
+def test_batchnorm_is_frozen_by_default_only_with_loaded_weights(
+    segmenter: type, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A randomly initialised frozen BatchNorm is the identity for the whole run: by default
+    (``freeze_bn="auto"``) it trains without weights and is frozen with them (the paper's)."""
+    torch.manual_seed(0)
+    scratch = segmenter(backbone="resnet_small").train()
+    assert scratch.freeze_bn is False
+    assert scratch.backbone.bn1.training and scratch.backbone.bn1.weight.requires_grad
+    path = tmp_path / "weights.pt"
+    torch.save(scratch.state_dict(), path)
+    loaded = segmenter(backbone="resnet_small", weights_path=path).train()
+    assert loaded.freeze_bn is True
+    assert not loaded.backbone.bn1.training and not loaded.backbone.bn1.weight.requires_grad
+    # An explicit choice stays, with a warning where it freezes the identity.
+    with caplog.at_level(logging.WARNING, logger="uss_slam.models.backbone"):
+        assert segmenter(backbone="resnet_small", freeze_bn=True).freeze_bn is True
+    assert "stays the identity" in caplog.text
+    assert segmenter(backbone="resnet_small", weights_path=path, freeze_bn=False).freeze_bn is False
+    with pytest.raises(UssSlamError, match="model.net.freeze_bn must be true, false or auto"):
+        segmenter(backbone="resnet_small", freeze_bn="yes")

@@ -13,7 +13,12 @@ from shared_helpers import compose_train, data_overrides
 from torch import nn
 
 from uss_slam.core.errors import UssSlamError
-from uss_slam.train.precise_bn import PreciseBatchNorm, evenly_spaced, recompute_batchnorm
+from uss_slam.train.precise_bn import (
+    PreciseBatchNorm,
+    adabn,
+    evenly_spaced,
+    recompute_batchnorm,
+)
 
 
 class Images(torch.utils.data.Dataset):
@@ -86,10 +91,22 @@ def test_mixed_sizes_in_a_batch_are_an_error_and_leave_momenta() -> None:
     assert recompute_batchnorm(net, Images(images), [0, 1, 2, 3], batch_size=1) == 4
 
 
-@pytest.mark.parametrize(("adaptation", "domain"), [(True, "target"), (False, "source")])
-def test_callback_uses_the_domain_the_model_is_deployed_on(adaptation: bool, domain: str) -> None:
+@pytest.mark.parametrize(
+    ("setting", "adaptation", "domain"),
+    [
+        (None, True, "source"),  # the default: the same statistics for every method
+        (None, False, "source"),
+        ("target", False, "target"),
+        ("auto", True, "target"),  # auto: the domain an adapted model is deployed on
+        ("auto", False, "source"),
+    ],
+)
+def test_callback_uses_the_configured_domain(
+    setting: str | None, adaptation: bool, domain: str
+) -> None:
     source, target = _images(4, offset=-2.0), _images(4, offset=3.0)
-    callback = PreciseBatchNorm(Images(source), Images(target), images=4, batch_size=4)
+    kwargs = {} if setting is None else {"domain": setting}
+    callback = PreciseBatchNorm(Images(source), Images(target), images=4, batch_size=4, **kwargs)
     module = SimpleNamespace(adaptation=adaptation, segmenter=_net())
     callback.on_validation_start(SimpleNamespace(sanity_checking=False), module)  # type: ignore[arg-type]
     chosen = source if domain == "source" else target
@@ -97,6 +114,17 @@ def test_callback_uses_the_domain_the_model_is_deployed_on(adaptation: bool, dom
         mean = module.segmenter[0](torch.stack(chosen)).mean(dim=(0, 2, 3))
     torch.testing.assert_close(module.segmenter[1].running_mean, mean, rtol=1e-5, atol=1e-5)
     assert callback.chosen_domain(module) == domain  # type: ignore[arg-type]
+
+
+def test_adabn_is_the_target_statistics() -> None:
+    target = _images(4, offset=3.0)
+    net = _net()
+    assert adabn(net, Images(target), images=4, batch_size=2) == 4
+    with torch.no_grad():
+        mean = net[0](torch.stack(target)).mean(dim=(0, 2, 3))
+    torch.testing.assert_close(net[1].running_mean, mean, rtol=1e-5, atol=1e-5)
+    with pytest.raises(UssSlamError, match="AdaBN: the target dataset is empty"):
+        adabn(net, Images([]))
 
 
 def test_callback_skips_the_sanity_check_and_checks_arguments() -> None:
@@ -118,7 +146,8 @@ def test_demo_experiment_reads_the_training_images_of_both_domains(
 ) -> None:
     cfg = compose_train(["experiment=demo", *data_overrides(uda_data)], tmp_path)
     callback = instantiate(cfg.callbacks.precise_bn)
-    assert isinstance(callback, PreciseBatchNorm) and callback.domain == "auto"
+    # Source statistics for every method: no method's row gains from target statistics alone.
+    assert isinstance(callback, PreciseBatchNorm) and callback.domain == "source"
     datamodule = instantiate(cfg.data)
     source, target = callback.datasets["source"], callback.datasets["target"]
     assert len(source) == len(datamodule.source) and len(target) == len(datamodule.target)

@@ -4,12 +4,14 @@ two-domain pass, and a new method added in one class + one yaml file."""
 from __future__ import annotations
 
 import copy
+import functools
 from pathlib import Path
 from typing import ClassVar
 
 import pytest
 import torch
 import torch.nn.functional as F
+import train_step as bench
 from hydra.errors import ConfigCompositionException
 from hydra.utils import instantiate
 from lightning.pytorch import Trainer
@@ -17,6 +19,7 @@ from shared_helpers import compose_train, data_overrides
 from torch import Tensor, nn
 
 from uss_slam.core.errors import UssSlamError
+from uss_slam.models.checkpoint import read_checkpoint
 from uss_slam.train.losses import upsample
 from uss_slam.train.methods import (
     AdaptSegNet,
@@ -29,7 +32,7 @@ from uss_slam.train.methods import (
     can_batch_domains,
 )
 from uss_slam.train.module import AdversarialSegmentation
-from uss_slam.train.train import train
+from uss_slam.train.train import check_architecture, train
 
 
 class TargetEntropy(Method):
@@ -45,7 +48,7 @@ class TargetEntropy(Method):
         self.weight = weight
 
     def training_step(self, module: AdversarialSegmentation, batch: TrainBatch) -> StepValues:
-        opt_seg, _ = module.optimizers()
+        opt_seg = module.segmenter_optimizer()
         opt_seg.zero_grad()
         src_img, trg_img = batch["source"]["image"], batch["target"]["image"]
         batched = can_batch_domains(module, src_img, trg_img)
@@ -81,12 +84,24 @@ def test_method_config_group(overrides: list[str], kind: type, tmp_path: Path) -
     assert model.hparams["method"] == kind.name and model.hparams["adaptation"] is kind.adapts
 
 
-def test_checkpoint_keys_are_the_networks_only(tmp_path: Path) -> None:
-    # Checkpoints of earlier versions resume: the methods add no parameters or buffers.
-    for method in ("adaptsegnet", "source_only"):
-        model = instantiate(_compose(tmp_path, f"model/method={method}").model)
-        prefixes = {key.split(".")[0] for key in model.state_dict()}
-        assert prefixes == {"segmenter", "d_aux", "d_main"}
+@pytest.mark.parametrize(
+    ("method", "networks"),
+    [
+        ("adaptsegnet", {"segmenter", "d_aux", "d_main"}),
+        ("advent", {"segmenter", "d_aux", "d_main"}),
+        ("source_only", {"segmenter"}),
+        ("minent", {"segmenter"}),
+        ("self_training", {"segmenter", "method"}),  # the teacher and its counts
+    ],
+)
+def test_a_method_owns_what_it_trains(method: str, networks: set[str], tmp_path: Path) -> None:
+    """Discriminators and their optimiser exist only for the methods that train them."""
+    model = instantiate(_compose(tmp_path, f"model/method={method}").model)
+    assert {key.split(".")[0] for key in model.state_dict()} == networks
+    optimizers, schedules = model.configure_optimizers()
+    trains = model.method.trains_discriminators
+    assert len(optimizers) == len(schedules) == (2 if trains else 1)
+    assert (model.discriminators is not None) is trains
 
 
 def test_the_method_is_chosen_by_its_config_group_only(tmp_path: Path) -> None:
@@ -103,6 +118,81 @@ def test_method_must_be_a_method(tmp_path: Path) -> None:
         instantiate(cfg.model)
     assert isinstance(info.value.__cause__ or info.value, UssSlamError)
     assert "model.method must be an adaptation method" in str(info.value)
+
+
+# --------------------------------------------------------------------------- checkpoints
+
+
+def _resume(module: AdversarialSegmentation, batch: dict, ckpt: Path | None, root: Path) -> None:
+    """Two iterations (one epoch) of ``module`` on ``batch``, resumed from ``ckpt`` if given."""
+    loader = torch.utils.data.DataLoader(bench._Repeat(batch, 2), batch_size=None)
+    Trainer(
+        accelerator="cpu",
+        max_epochs=2 if ckpt else 1,
+        logger=False,
+        enable_checkpointing=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        default_root_dir=root,
+    ).fit(module, train_dataloaders=loader, ckpt_path=ckpt)
+
+
+def _source_only_module() -> AdversarialSegmentation:
+    """A source-only module as the config builds it now: no discriminators."""
+    net = bench.build_module("resnet_small", max_iters=4).segmenter
+    return AdversarialSegmentation(
+        net=net,
+        discriminator=None,
+        optimizer=functools.partial(torch.optim.SGD, lr=2.5e-4, momentum=0.9, nesterov=True),
+        d_optimizer=None,
+        method=SourceOnly(),
+        max_iters=4,
+    )
+
+
+def test_checkpoints_with_unused_discriminators_still_resume(tmp_path: Path) -> None:
+    """Source-only runs used to build (and save) two discriminators and their optimiser: their
+    checkpoints resume into a module without them and continue exactly."""
+    torch.manual_seed(0)
+    old = bench.build_module("resnet_small", max_iters=4, n_layers=4, ndf=8)
+    old.optimizer_factory = functools.partial(
+        torch.optim.SGD, lr=2.5e-4, momentum=0.9, nesterov=True
+    )
+    old.method = SourceOnly()  # the earlier layout: discriminators built for every method
+    batch = bench.random_batch(33, 2)
+    _resume(old, batch, None, tmp_path)
+    ckpt = tmp_path / "old.ckpt"
+    old.trainer.save_checkpoint(ckpt)
+    saved = torch.load(ckpt, weights_only=True)
+    assert any(k.startswith("d_main.") for k in saved["state_dict"])
+    assert len(saved["optimizer_states"]) == len(saved["lr_schedulers"]) == 2
+
+    new = _source_only_module()
+    assert new.discriminators is None
+    check_architecture(new, read_checkpoint(ckpt))  # uss-train's check before resuming
+    _resume(new, batch, ckpt, tmp_path)
+    _resume(old, batch, ckpt, tmp_path)  # the reference: the old layout resumed
+    assert new.iteration == old.iteration == 4
+    for key, value in new.segmenter.state_dict().items():
+        # Equal only if the weights and the SGD momentum were restored.
+        torch.testing.assert_close(value, old.segmenter.state_dict()[key], rtol=0, atol=0)
+    assert new.lr_schedulers().last_epoch == 4
+
+
+def test_a_checkpoint_without_discriminators_does_not_resume_an_adversarial_run(
+    tmp_path: Path,
+) -> None:
+    torch.manual_seed(0)
+    batch = bench.random_batch(33, 2)
+    source_only = _source_only_module()
+    _resume(source_only, batch, None, tmp_path)
+    ckpt = tmp_path / "source_only.ckpt"
+    source_only.trainer.save_checkpoint(ckpt)
+    adversarial = bench.build_module("resnet_small", max_iters=4, n_layers=4, ndf=8)
+    with pytest.raises(UssSlamError, match="model/method=source_only has no discriminators"):
+        check_architecture(adversarial, read_checkpoint(ckpt))
+    with pytest.raises(UssSlamError, match="model/method=source_only has no discriminators"):
+        _resume(adversarial, batch, ckpt, tmp_path)
 
 
 # --------------------------------------------------------------------------- DomainPass
@@ -187,9 +277,9 @@ def test_a_new_method_plugs_in_by_config(uda_data: dict[str, Path], tmp_path: Pa
     model = instantiate(cfg.model)
     assert isinstance(model.method, TargetEntropy) and model.method.weight == 0.5
 
-    # Two iterations through the module: the segmenter learns, the discriminators and their
-    # optimiser / schedule stay untouched, the toy's own value is what gets logged.
-    d_before = copy.deepcopy(model.d_main.state_dict())
+    # Two iterations through the module: the segmenter learns (no discriminators are built),
+    # the toy's own value is what gets logged.
+    assert model.discriminators is None
     seg_before = copy.deepcopy(model.segmenter.state_dict())
     datamodule = instantiate(cfg.data)
     trainer = Trainer(
@@ -203,12 +293,11 @@ def test_a_new_method_plugs_in_by_config(uda_data: dict[str, Path], tmp_path: Pa
     )
     trainer.fit(model, datamodule=datamodule)
     assert model.iteration == cfg.data.iterations_per_epoch == 2
-    assert all(torch.equal(v, d_before[k]) for k, v in model.d_main.state_dict().items())
     assert not all(torch.equal(v, seg_before[k]) for k, v in model.segmenter.state_dict().items())
-    opt_seg, opt_d = trainer.optimizers
-    assert len(opt_d.state) == 0 and len(opt_seg.state) > 0
-    sched_seg, sched_d = (c.scheduler for c in trainer.lr_scheduler_configs)
-    assert (sched_seg.last_epoch, sched_d.last_epoch) == (2, 0)
+    (opt_seg,) = trainer.optimizers
+    assert len(opt_seg.state) > 0
+    (sched_seg,) = (c.scheduler for c in trainer.lr_scheduler_configs)
+    assert sched_seg.last_epoch == 2
 
     # The same through uss-train's glue, logged keys included.
     metrics = train(_compose(tmp_path, *overrides, "+trainer.fast_dev_run=true"))

@@ -19,6 +19,7 @@ from torch import Tensor
 
 from uss_slam.train.losses import LossWeights
 from uss_slam.train.methods import AdvEnt
+from uss_slam.train.methods import advent as advent_module
 from uss_slam.train.methods.advent import self_information
 
 ADVENT_WEIGHTS = LossWeights(lambda_adv_aux=0.0002, lambda_adv_main=0.001)
@@ -190,3 +191,25 @@ def test_advent_logs_adaptsegnets_keys_and_trains_the_discriminators() -> None:
     ]
     sched_seg, sched_d = module.lr_schedulers()
     assert (sched_seg.last_epoch, sched_d.last_epoch) == (1, 1)
+
+
+# AdaptSegNet's multi-level code (train_gta2cityscapes_multi.py): LAMBDA_ADV_TARGET1 (aux) and
+# LAMBDA_ADV_TARGET2 (main).
+ADAPTSEGNET_MULTI_LEVEL = (0.0002, 0.001)
+CONFIGS = Path(__file__).resolve().parents[2] / "configs"
+
+
+def test_advent_weights_are_documented_as_adaptsegnets(tmp_path: Path) -> None:
+    """ADVENT's adversarial weights equal AdaptSegNet's multi-level ones; the project's
+    adaptsegnet defaults (the USS-SLAM paper's) are ten times both."""
+    advent = instantiate(compose_train(["experiment=ci", "model/method=advent"], tmp_path).model)
+    paper = instantiate(compose_train(["experiment=ci"], tmp_path).model)
+    advent_weights = (advent.loss_weights.lambda_adv_aux, advent.loss_weights.lambda_adv_main)
+    paper_weights = (paper.loss_weights.lambda_adv_aux, paper.loss_weights.lambda_adv_main)
+    assert advent_weights == ADAPTSEGNET_MULTI_LEVEL
+    assert paper_weights == pytest.approx(tuple(10 * w for w in ADAPTSEGNET_MULTI_LEVEL))
+    doc = " ".join((advent_module.__doc__ or "").split())
+    assert "equal to AdaptSegNet's multi-level ones" in doc and "ten times both" in doc
+    assert "below AdaptSegNet" not in doc
+    yaml = " ".join((CONFIGS / "model/method/advent.yaml").read_text().split())
+    assert "below AdaptSegNet" not in yaml and "equal to # AdaptSegNet's multi-level" in yaml

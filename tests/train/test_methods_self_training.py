@@ -18,7 +18,7 @@ from shared_helpers import compose_train
 from torch import Tensor
 
 from uss_slam.core.errors import UssSlamError
-from uss_slam.models import DeepLabV2
+from uss_slam.models import DeepLabV2, PSPNet
 from uss_slam.models.checkpoint import read_checkpoint
 from uss_slam.train.losses import LossWeights
 from uss_slam.train.methods import SelfTraining
@@ -148,6 +148,37 @@ def test_self_training_matches_plain_pytorch_reference(batch_domains: bool) -> N
     # The source pixels counted for rare-class mixing: 3 iterations x the labelled pixels.
     labelled = (batch["source"]["label"] != 255).sum()
     assert float(module.method.class_pixels.sum()) == 3 * float(labelled)
+
+
+def test_teacher_labels_in_train_mode_with_target_batch_statistics() -> None:
+    """DACS / DAFormer: the teacher's BatchNorm normalises with the target batch's statistics and
+    dropout is off; only its parameters are averaged."""
+    torch.manual_seed(0)
+    student = PSPNet(4, "resnet_small", freeze_bn=False)  # trained BatchNorm, dropout 0.1
+    with torch.no_grad():  # running statistics far from any batch's
+        for m in student.modules():
+            if isinstance(m, torch.nn.BatchNorm2d):
+                m.running_mean.fill_(0.5)
+                m.running_var.fill_(9.0)
+    method = SelfTraining(PSPNet(4, "resnet_small", freeze_bn=False), augment=False)
+    method.update_teacher(student)
+    method.eval()  # Lightning's validation mode must not leak into the pseudo-labels
+    images = torch.randn(2, 3, 33, 33)
+    reference = copy.deepcopy(student).train()
+    for m in reference.modules():
+        if isinstance(m, torch.nn.modules.dropout._DropoutNd):
+            m.eval()
+    with torch.no_grad():
+        expected = _up(reference(images).main, images.shape[-2:])
+        eval_mode = _up(copy.deepcopy(student).eval()(images).main, images.shape[-2:])
+    logits = method.teacher_logits(images)
+    torch.testing.assert_close(logits, expected, rtol=0, atol=1e-6)
+    torch.testing.assert_close(method.teacher_logits(images), expected, rtol=0, atol=1e-6)
+    assert float((eval_mode - expected).abs().max()) > 1e-3  # the running statistics differ
+    # The buffers follow the student (what a frozen BatchNorm would use), not an average.
+    method.update_teacher(student)
+    for mine, theirs in zip(method.teacher.module.buffers(), student.buffers(), strict=True):
+        assert torch.equal(mine, theirs)
 
 
 def test_class_mix_masks_paste_half_of_the_labelled_classes() -> None:

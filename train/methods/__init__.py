@@ -2,9 +2,10 @@
 
 A method computes the losses of one training iteration and steps the optimisers of the
 LightningModule (:class:`~uss_slam.train.module.AdversarialSegmentation`), which owns the
-segmenter, the discriminators, the schedules, logging and checkpoints. To add one: subclass
-:class:`Method` in ``train/methods/<name>.py`` (using :class:`DomainPass`,
-:class:`SourceSegmentation` and :func:`discriminator_step`) and add
+segmenter, the discriminators (built only for a method that trains them), the schedules, logging
+and checkpoints. To add one: subclass :class:`Method` in ``train/methods/<name>.py``; its
+``training_step`` usually calls :func:`segmenter_step` with its :class:`TargetLoss` (and
+:func:`discriminator_step` when it trains discriminators); add
 ``configs/model/method/<name>.yaml`` with its ``_target_``.
 """
 
@@ -14,15 +15,19 @@ from uss_slam.train.methods.base import (
     DomainPass,
     Method,
     NonFiniteLossError,
+    SegmenterStep,
     SourceSegmentation,
     StepValues,
+    TargetLoss,
     TrainBatch,
     can_batch_domains,
     check_finite,
     discriminator_scalars,
     discriminator_step,
     frozen,
+    segmenter_step,
     uses_batch_statistics,
+    weighted_heads,
 )
 from uss_slam.train.methods.minent import MinEnt
 from uss_slam.train.methods.self_training import SelfTraining
@@ -35,15 +40,19 @@ __all__ = [
     "Method",
     "MinEnt",
     "NonFiniteLossError",
+    "SegmenterStep",
     "SelfTraining",
     "SourceOnly",
     "SourceSegmentation",
     "StepValues",
+    "TargetLoss",
     "TrainBatch",
     "can_batch_domains",
     "check_finite",
     "discriminator_scalars",
     "discriminator_step",
     "frozen",
+    "segmenter_step",
     "uses_batch_statistics",
+    "weighted_heads",
 ]

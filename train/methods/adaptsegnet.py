@@ -14,22 +14,21 @@ One iteration:
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, ClassVar
+from typing import TYPE_CHECKING, ClassVar, cast
 
 import torch.nn.functional as F
 from torch import Tensor
 
+from uss_slam.models.deeplab import SegmenterOutput
 from uss_slam.train.losses import SOURCE_LABEL, domain_loss, upsample
 from uss_slam.train.methods.base import (
-    DomainPass,
     Method,
-    SourceSegmentation,
     StepValues,
+    TargetLoss,
     TrainBatch,
-    can_batch_domains,
-    check_finite,
     discriminator_scalars,
     discriminator_step,
+    segmenter_step,
 )
 
 if TYPE_CHECKING:
@@ -55,48 +54,35 @@ class AdaptSegNet(Method):
 
     def training_step(self, module: AdversarialSegmentation, batch: TrainBatch) -> StepValues:
         w = module.loss_weights
-        opt_seg, _ = module.optimizers()
-        images_src, images_trg = batch["source"]["image"], batch["target"]["image"]
-        batched = can_batch_domains(module, images_src, images_trg)
+        images_trg = batch["target"]["image"]
+        size = images_trg.shape[-2:]
 
+        def adversarial(pred_trg: SegmenterOutput) -> TargetLoss:
+            # (2) the target maps through the frozen discriminators, labelled "source".
+            maps = (
+                self.target_map(upsample(pred_trg.aux, size)),
+                self.target_map(upsample(pred_trg.main, size)),
+            )
+            return TargetLoss(
+                "loss_adv_trg",
+                "loss_adv",
+                domain_loss(module.d_aux(maps[0]), SOURCE_LABEL),
+                domain_loss(module.d_main(maps[1]), SOURCE_LABEL),
+                (w.lambda_adv_aux, w.lambda_adv_main),
+                keep=maps,
+            )
+
+        # (1) + (2): one segmenter step on the source loss and the adversarial loss.
         with module.discriminators_frozen():
-            opt_seg.zero_grad()
-            with DomainPass(
-                module.segmenter, images_src, images_trg, module.manual_backward, batched
-            ) as seg:
-                # (1) segmentation loss on the source images, both heads.
-                src = SourceSegmentation(
-                    seg.source(), batch["source"]["label"], w, module.iteration
-                )
-                seg.backward(src.loss)
-                # (2) adversarial loss on the target images through the frozen discriminators.
-                pred_trg = seg.target()
-                size = images_trg.shape[-2:]
-                prob_trg = (
-                    self.target_map(upsample(pred_trg.aux, size)),
-                    self.target_map(upsample(pred_trg.main, size)),
-                )
-                adv_aux = domain_loss(module.d_aux(prob_trg[0]), SOURCE_LABEL)
-                adv_main = domain_loss(module.d_main(prob_trg[1]), SOURCE_LABEL)
-                loss_adv = w.lambda_adv_aux * adv_aux + w.lambda_adv_main * adv_main
-                check_finite(
-                    module.iteration,
-                    loss_adv_trg_aux=adv_aux,
-                    loss_adv_trg_main=adv_main,
-                    loss_adv=loss_adv,
-                )
-                seg.backward(loss_adv)
-            opt_seg.step()
-
+            seg = segmenter_step(module, batch["source"], images_trg, adversarial)
         # (3) + (4): the source maps come from the log-softmax the loss already computed.
-        step = dict(src.values)
-        step["loss_adv_trg_aux"] = adv_aux.detach()
-        step["loss_adv_trg_main"] = adv_main.detach()
+        term = cast(TargetLoss, seg.target)
         source_maps = (
-            self.source_map(src.log_probs[0].detach()),
-            self.source_map(src.log_probs[1].detach()),
+            self.source_map(seg.source.log_probs[0].detach()),
+            self.source_map(seg.source.log_probs[1].detach()),
         )
-        step.update(discriminator_step(module, source_maps, prob_trg, batched))
+        step = seg.values
+        step.update(discriminator_step(module, source_maps, term.keep, seg.batched))
         return step
 
     def train_scalars(self, step: StepValues) -> dict[str, Tensor]:

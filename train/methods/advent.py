@@ -14,11 +14,12 @@ One iteration:
    with the discriminators frozen; one SGD step of the segmenter;
 3. + 4. discriminators on the detached source (label 0) and target (label 1) maps ``I``.
 
-ADVENT's weights (``configs/model/method/advent.yaml`` sets them as ``model.loss``):
-``λ_adv_main 0.001, λ_adv_aux 0.0002`` (its ``LAMBDA_ADV_MAIN`` / ``LAMBDA_ADV_AUX``), ten times
-below AdaptSegNet's. Unlike ADVENT's code the discriminator losses are not halved (Adam is
-invariant to that scale) and the optimisers are the project's (ADVENT: SGD without Nesterov,
-weight decay 5e-4).
+ADVENT's weights (``configs/model/method/advent.yaml`` sets them as ``model.loss``): ``λ_adv_main
+0.001, λ_adv_aux 0.0002`` (its ``LAMBDA_ADV_MAIN`` / ``LAMBDA_ADV_AUX``), equal to AdaptSegNet's
+multi-level ones (its code's ``LAMBDA_ADV_TARGET2`` / ``LAMBDA_ADV_TARGET1``). The USS-SLAM paper's
+weights, this project's ``model.loss`` defaults for ``adaptsegnet`` (``0.01`` / ``0.002``), are ten
+times both. Unlike ADVENT's code the discriminator losses are not halved (Adam is invariant to that
+scale) and the optimisers are the project's (ADVENT: SGD without Nesterov, weight decay 5e-4).
 """
 
 from __future__ import annotations

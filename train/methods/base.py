@@ -1,5 +1,6 @@
 """What every adaptation method shares: the :class:`Method` interface, the two-domain forward /
-backward (:class:`DomainPass`), the source segmentation loss and the discriminator update.
+backward (:class:`DomainPass`), the segmenter's step on the source loss plus a method's target
+term (:func:`segmenter_step`) and the discriminator update (:func:`discriminator_step`).
 
 A method computes the losses of one training iteration and steps the optimisers of the
 :class:`~uss_slam.train.module.AdversarialSegmentation` it is given (Lightning manual
@@ -12,6 +13,7 @@ from __future__ import annotations
 import contextlib
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, ClassVar, Generic, TypeVar
 
 import torch
@@ -177,6 +179,19 @@ class DomainPass(Generic[In, Out]):
             self._pending = loss if self._pending is None else self._pending + loss
 
 
+def weighted_heads(
+    iteration: int,
+    names: tuple[str, str, str],
+    losses: tuple[Tensor, Tensor],
+    weights: tuple[float, float],
+) -> Tensor:
+    """``weights[0]·losses[0] + weights[1]·losses[1]`` (aux, main), checked finite with the
+    names ``(aux, main, total)`` in :class:`NonFiniteLossError`'s message."""
+    total = weights[0] * losses[0] + weights[1] * losses[1]
+    check_finite(iteration, **{names[0]: losses[0], names[1]: losses[1], names[2]: total})
+    return total
+
+
 class SourceSegmentation:
     """``L_seg = λ_seg_aux·CE(aux) + λ_seg_main·CE(main)`` of source logits (upsampled to the
     label size), with the log-probabilities kept for the discriminators.
@@ -195,15 +210,113 @@ class SourceSegmentation:
         logp_main = F.log_softmax(upsample(pred.main, size), dim=1)
         loss_aux = segmentation_loss(logp_aux, labels)
         loss_main = segmentation_loss(logp_main, labels)
-        self.loss = weights.lambda_seg_aux * loss_aux + weights.lambda_seg_main * loss_main
-        check_finite(
-            iteration, loss_seg_src_aux=loss_aux, loss_seg_src_main=loss_main, loss_seg=self.loss
+        self.loss = weighted_heads(
+            iteration,
+            ("loss_seg_src_aux", "loss_seg_src_main", "loss_seg"),
+            (loss_aux, loss_main),
+            (weights.lambda_seg_aux, weights.lambda_seg_main),
         )
         self.log_probs = (logp_aux, logp_main)
         self.values: StepValues = {
             "loss_seg_src_aux": loss_aux.detach(),
             "loss_seg_src_main": loss_main.detach(),
         }
+
+
+@dataclass
+class TargetLoss:
+    """A method's per-head loss on the second input of the segmenter step (target or mixed
+    crops): ``L = weights[0]·aux + weights[1]·main``.
+
+    Attributes:
+        prefix: logged name without the head, e.g. ``loss_adv_trg`` (values
+            ``loss_adv_trg_aux`` / ``loss_adv_trg_main``).
+        total: name of the weighted sum in error messages, e.g. ``loss_adv``.
+        aux: the aux head's loss (0-d).
+        main: the main head's loss (0-d).
+        weights: ``(λ_aux, λ_main)``.
+        keep: whatever the method needs after the segmenter step (AdaptSegNet: the target maps
+            its discriminators then learn from).
+    """
+
+    prefix: str
+    total: str
+    aux: Tensor
+    main: Tensor
+    weights: tuple[float, float]
+    keep: Any = None
+
+    def weighted(self, iteration: int) -> Tensor:
+        """The weighted sum, checked finite (:class:`NonFiniteLossError` names the term)."""
+        return weighted_heads(
+            iteration,
+            (f"{self.prefix}_aux", f"{self.prefix}_main", self.total),
+            (self.aux, self.main),
+            self.weights,
+        )
+
+    @property
+    def values(self) -> StepValues:
+        """Detached ``<prefix>_aux`` / ``<prefix>_main``."""
+        return {f"{self.prefix}_aux": self.aux.detach(), f"{self.prefix}_main": self.main.detach()}
+
+
+@dataclass
+class SegmenterStep:
+    """What :func:`segmenter_step` computed.
+
+    Attributes:
+        source: the source segmentation loss and log-probabilities.
+        target: the method's target loss, or ``None`` without a second input.
+        batched: both inputs went through one forward (the discriminator step may batch too).
+    """
+
+    source: SourceSegmentation
+    target: TargetLoss | None
+    batched: bool
+
+    @property
+    def values(self) -> StepValues:
+        """The detached losses of both terms, named like the logged keys."""
+        return {**self.source.values, **(self.target.values if self.target else {})}
+
+
+def segmenter_step(
+    module: AdversarialSegmentation,
+    source: dict[str, Tensor],
+    target: Tensor | None = None,
+    target_loss: Callable[[SegmenterOutput], TargetLoss] | None = None,
+) -> SegmenterStep:
+    """One optimiser step of the segmenter on ``L_seg`` of the source batch plus, when given,
+    ``target_loss`` of its output on ``target`` images: the tail every method shares (zero the
+    gradients, the two-domain pass of :class:`DomainPass`, loss weighting, finiteness checks,
+    backward, the SGD step).
+
+    Args:
+        module: the LightningModule (segmenter, optimiser, loss weights, iteration).
+        source: ``{"image" (N, 3, H, W), "label" (N, H, W) int64}``.
+        target: ``(M, 3, H', W')`` images of the second term (target or mixed crops), or
+            ``None`` (source only).
+        target_loss: the method's loss of the segmenter's output on ``target`` (required with
+            ``target``); called inside the pass, so its graph is back-propagated.
+    """
+    if (target is None) != (target_loss is None):
+        raise ValueError("segmenter_step: give both target and target_loss, or neither")
+    opt_seg = module.segmenter_optimizer()
+    images = source["image"]
+    batched = target is not None and can_batch_domains(module, images, target)
+    opt_seg.zero_grad()
+    term = None
+    with DomainPass(module.segmenter, images, target, module.manual_backward, batched) as seg:
+        src = SourceSegmentation(
+            seg.source(), source["label"], module.loss_weights, module.iteration
+        )
+        seg.backward(src.loss)
+        if target_loss is not None:
+            term = target_loss(seg.target())
+            seg.backward(term.weighted(module.iteration))
+    opt_seg.step()
+    return SegmenterStep(src, term, batched)
 
 
 def discriminator_step(
@@ -219,7 +332,7 @@ def discriminator_step(
     segmenter needs no freezing). Returns the detached losses and discriminator logits
     (``loss_d_src_aux``, ``d_trg_main``, ...) for :func:`discriminator_scalars`.
     """
-    _, opt_d = module.optimizers()
+    opt_d = module.discriminator_optimizer()
     opt_d.zero_grad()
 
     def both(maps: tuple[Tensor, Tensor]) -> tuple[Tensor, Tensor]:
@@ -276,8 +389,8 @@ class Method(nn.Module, ABC):
         name: the option of the config group ``model/method`` (stored in checkpoints).
         adapts: the method trains on target frames (callbacks that pick a domain, such as
             ``PreciseBatchNorm(domain="auto")``, then pick the target).
-        trains_discriminators: the method steps the discriminator optimiser (its poly schedule
-            advances only then).
+        trains_discriminators: the method trains the two discriminators: the module builds
+            ``d_aux`` / ``d_main``, their optimiser and its poly schedule only then.
     """
 
     name: ClassVar[str]
@@ -286,10 +399,10 @@ class Method(nn.Module, ABC):
 
     @abstractmethod
     def training_step(self, module: AdversarialSegmentation, batch: TrainBatch) -> StepValues:
-        """Compute the losses of one iteration, back-propagate them with
-        ``module.manual_backward`` and step ``module.optimizers()`` (segmenter first, then the
-        discriminators when :attr:`trains_discriminators`). The images are already on the
-        module's device and memory format. Returns detached values for :meth:`train_scalars`."""
+        """Compute the losses of one iteration, back-propagate them and step the optimisers
+        (:func:`segmenter_step` first, then :func:`discriminator_step` when
+        :attr:`trains_discriminators`). The images are already on the module's device and memory
+        format. Returns detached values for :meth:`train_scalars`."""
 
     def train_scalars(self, step: StepValues) -> dict[str, Tensor]:
         """The logged ``train/*`` scalars of one iteration (only computed on logging steps);

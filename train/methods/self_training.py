@@ -4,14 +4,18 @@ transformer, multi-resolution and masking parts).
 
 One iteration (DAFormer's ``DACS.forward_train``):
 
-1. teacher update: the teacher is an exponential moving average of the student (the segmenter),
-   ``θ_t ← a·θ_t + (1 − a)·θ_s`` with ``a = min(1 − 1/(i + 1), alpha)`` at iteration ``i``
-   (a copy of the student at iteration 0, DAFormer's warm-up), over parameters and BatchNorm
-   statistics;
+1. teacher update: the teacher's parameters are an exponential moving average of the student's
+   (the segmenter), ``θ_t ← a·θ_t + (1 − a)·θ_s`` with ``a = min(1 − 1/(i + 1), alpha)`` at
+   iteration ``i`` (a copy of the student at iteration 0, DAFormer's warm-up); as in DACS and
+   DAFormer only the parameters are averaged (the BatchNorm buffers are copied from the student,
+   see step 3);
 2. source forward, ``L_seg = λ_seg_aux·CE(aux) + λ_seg_main·CE(main)`` (``model.loss``);
-3. pseudo-labels: the teacher (eval mode, no gradients) labels the target crops with the argmax of
-   its main head; their weight is the fraction of the batch's pixels whose top probability
-   exceeds ``pseudo_threshold`` (one number per batch, as DAFormer);
+3. pseudo-labels: the teacher (no gradients) labels the target crops with the argmax of its main
+   head, in train mode as DACS (``ema_model.train()``) and DAFormer (only dropout / drop-path
+   switched off): a trained BatchNorm normalises with the target batch's own statistics, a
+   frozen one (``model.net.freeze_bn``) with the student's running statistics; dropout is off.
+   Their weight is the fraction of the batch's pixels whose top probability exceeds
+   ``pseudo_threshold`` (one number per batch, as DAFormer);
 4. ClassMix: per pair ``i``, half of the classes present in source label ``i`` (``ceil(n/2)`` of
    ``n``, ignore label excluded) are pasted with their pixels onto target crop ``i``; labels
    mixed likewise (source labels inside the mask, pseudo-labels outside), pixel weights 1 inside
@@ -20,7 +24,7 @@ One iteration (DAFormer's ``DACS.forward_train``):
 5. mixed forward, ``L_mix = λ_seg_aux·wCE(aux) + λ_seg_main·wCE(main)`` (pixel-weighted
    cross-entropy, mean over labelled pixels); one SGD step of the student on ``L_seg + L_mix``.
 
-No discriminator (the discriminator optimiser never steps). The student is the segmenter that is
+No discriminators are built. The student is the segmenter that is
 exported; the teacher lives in the method (``method.teacher.*`` in checkpoints, with its update
 count) so that a resumed run continues exactly; it is never exported. The random choices of an
 iteration (classes, augmentation) come from a generator seeded by ``(seed, rank, iteration)``:
@@ -49,15 +53,14 @@ from torchvision.transforms import v2
 from uss_slam.core.classes import IGNORE_INDEX
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.normalization import IMAGENET_MEAN, IMAGENET_STD
+from uss_slam.models.deeplab import SegmenterOutput
 from uss_slam.train.losses import upsample
 from uss_slam.train.methods.base import (
-    DomainPass,
     Method,
-    SourceSegmentation,
     StepValues,
+    TargetLoss,
     TrainBatch,
-    can_batch_domains,
-    check_finite,
+    segmenter_step,
 )
 
 if TYPE_CHECKING:
@@ -71,18 +74,14 @@ def ema_decay(updates: int, alpha: float) -> float:
 
 
 class _EmaUpdate:
-    """``multi_avg_fn`` of :class:`~torch.optim.swa_utils.AveragedModel`: the EMA with DAFormer's
-    warm-up on floating-point tensors; integer buffers (``num_batches_tracked``) are copied."""
+    """``multi_avg_fn`` of :class:`~torch.optim.swa_utils.AveragedModel`: the EMA of the
+    parameters with DAFormer's warm-up."""
 
     def __init__(self, alpha: float) -> None:
         self.alpha = alpha
 
     @torch.no_grad()
     def __call__(self, averaged: list[Tensor], current: list[Tensor], updates: Tensor) -> None:
-        if not averaged or not averaged[0].is_floating_point():
-            for a, c in zip(averaged, current, strict=True):
-                a.copy_(c)
-            return
         decay = ema_decay(int(updates), self.alpha)
         for a, c in zip(averaged, current, strict=True):
             a.mul_(decay).add_(c, alpha=1.0 - decay)
@@ -251,28 +250,46 @@ class SelfTraining(Method):
         self.augmentation = (
             StrongAugmentation(jitter_strength, jitter_probability, blur) if augment else None
         )
-        self.teacher = AveragedModel(teacher, multi_avg_fn=_EmaUpdate(self.alpha), use_buffers=True)
+        self.teacher = AveragedModel(
+            teacher, multi_avg_fn=_EmaUpdate(self.alpha), use_buffers=False
+        )
         self.teacher.requires_grad_(False)
         self.register_buffer("class_pixels", torch.zeros(num_classes, dtype=torch.float64))
 
+    @torch.no_grad()
     def update_teacher(self, student: nn.Module) -> None:
-        """One EMA step of the teacher towards ``student`` (a copy at the first call)."""
+        """One EMA step of the teacher's parameters towards ``student``'s (a copy at the first
+        call); its buffers (BatchNorm running statistics) become the student's: unused by a
+        trained BatchNorm in train mode, they are what a frozen one normalises with."""
         self.teacher.update_parameters(student)
+        for mine, theirs in zip(self.teacher.module.buffers(), student.buffers(), strict=True):
+            mine.copy_(theirs)
+
+    @torch.no_grad()
+    def teacher_logits(self, images: Tensor) -> Tensor:
+        """The teacher's main-head logits of ``(N, 3, H, W)`` ``images``, upsampled to ``(N, C, H,
+        W)``: in train mode (BatchNorm on the batch's statistics unless frozen), dropout off,
+        as DACS and DAFormer. (The running statistics this forward moves are reset to the
+        student's at the next :meth:`update_teacher`.)"""
+        teacher = self.teacher.module
+        teacher.train()
+        for m in teacher.modules():
+            if isinstance(m, nn.modules.dropout._DropoutNd):
+                m.eval()
+        return upsample(teacher(images).main, images.shape[-2:])
 
     @torch.no_grad()
     def pseudo_labels(self, images: Tensor) -> tuple[Tensor, Tensor]:
         """The teacher's ``(N, H, W)`` int64 labels of ``images`` (main head, upsampled to image
-        size) and their weight: the fraction of pixels whose top probability exceeds
-        ``pseudo_threshold`` (a 0-d tensor)."""
-        self.teacher.eval()
-        logits = upsample(self.teacher(images).main, images.shape[-2:])
+        size; :meth:`teacher_logits`) and their weight: the fraction of pixels whose top
+        probability exceeds ``pseudo_threshold`` (a 0-d tensor)."""
+        logits = self.teacher_logits(images)
         confidence, labels = torch.softmax(logits, dim=1).max(dim=1)
         weight = (confidence > self.pseudo_threshold).float().mean()
         return labels, weight
 
     def training_step(self, module: AdversarialSegmentation, batch: TrainBatch) -> StepValues:
         w = module.loss_weights
-        opt_seg, _ = module.optimizers()
         images_src, labels_src = batch["source"]["image"], batch["source"]["label"]
         images_trg = batch["target"]["image"]
         if images_src.shape != images_trg.shape:
@@ -306,38 +323,26 @@ class SelfTraining(Method):
         labels_mix = torch.where(mask, labels_src, pseudo)
         weights_mix = torch.where(mask, torch.ones_like(pseudo_weight), pseudo_weight)
 
-        opt_seg.zero_grad()
-        batched = can_batch_domains(module, images_src, mixed)
-        with DomainPass(
-            module.segmenter, images_src, mixed, module.manual_backward, batched
-        ) as seg:
-            # (2) segmentation loss on the source images, both heads.
-            src = SourceSegmentation(seg.source(), labels_src, w, module.iteration)
-            seg.backward(src.loss)
+        size = labels_mix.shape[-2:]
+
+        def mixed_loss(pred_mix: SegmenterOutput) -> TargetLoss:
             # (5) pixel-weighted loss on the mixed crops, both heads.
-            pred_mix = seg.target()
-            size = labels_mix.shape[-2:]
-            mix_aux = weighted_segmentation_loss(
-                F.log_softmax(upsample(pred_mix.aux, size), dim=1), labels_mix, weights_mix
+            return TargetLoss(
+                "loss_seg_mix",
+                "loss_mix",
+                weighted_segmentation_loss(
+                    F.log_softmax(upsample(pred_mix.aux, size), dim=1), labels_mix, weights_mix
+                ),
+                weighted_segmentation_loss(
+                    F.log_softmax(upsample(pred_mix.main, size), dim=1), labels_mix, weights_mix
+                ),
+                (w.lambda_seg_aux, w.lambda_seg_main),
             )
-            mix_main = weighted_segmentation_loss(
-                F.log_softmax(upsample(pred_mix.main, size), dim=1), labels_mix, weights_mix
-            )
-            loss_mix = w.lambda_seg_aux * mix_aux + w.lambda_seg_main * mix_main
-            check_finite(
-                module.iteration,
-                loss_seg_mix_aux=mix_aux,
-                loss_seg_mix_main=mix_main,
-                loss_mix=loss_mix,
-            )
-            seg.backward(loss_mix)
-        opt_seg.step()
-        return {
-            **src.values,
-            "loss_seg_mix_aux": mix_aux.detach(),
-            "loss_seg_mix_main": mix_main.detach(),
-            "pseudo_weight": pseudo_weight,
-        }
+
+        # (2) + (5): one student step on the source loss and the mixed loss.
+        step = segmenter_step(module, batch["source"], mixed, mixed_loss).values
+        step["pseudo_weight"] = pseudo_weight
+        return step
 
     def extra_repr(self) -> str:
         return (

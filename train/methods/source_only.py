@@ -5,13 +5,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, ClassVar
 
-from uss_slam.train.methods.base import (
-    DomainPass,
-    Method,
-    SourceSegmentation,
-    StepValues,
-    TrainBatch,
-)
+from uss_slam.train.methods.base import Method, StepValues, TrainBatch, segmenter_step
 
 if TYPE_CHECKING:
     from uss_slam.train.module import AdversarialSegmentation
@@ -25,13 +19,4 @@ class SourceOnly(Method):
     trains_discriminators: ClassVar[bool] = False
 
     def training_step(self, module: AdversarialSegmentation, batch: TrainBatch) -> StepValues:
-        opt_seg, _ = module.optimizers()
-        opt_seg.zero_grad()
-        images = batch["source"]["image"]
-        with DomainPass(module.segmenter, images, None, module.manual_backward, False) as seg:
-            src = SourceSegmentation(
-                seg.source(), batch["source"]["label"], module.loss_weights, module.iteration
-            )
-            seg.backward(src.loss)
-        opt_seg.step()
-        return src.values
+        return segmenter_step(module, batch["source"]).values

@@ -9,9 +9,9 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-from tqdm import tqdm
 
 from uss_slam.core.errors import UssSlamError
+from uss_slam.core.progress import progress_bar
 
 from ...filters.dynamic import SemanticFilter
 from ...segmenters.base import Segmenter
@@ -61,7 +61,7 @@ def compute_masks(
     blanked = 0
     frames = sequence.frames()
     try:
-        for frame in tqdm(
+        for frame in progress_bar(
             frames,
             total=len(sequence),
             desc=f"{sequence.path.name} [segmentation]",

@@ -16,7 +16,13 @@ from uss_slam.core.cli import INTERRUPTED
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.files import check_writable
 
-from .vocabulary import MAX_BRANCHING, MAX_LEVELS, build_from_sequences, read_vocabulary
+from .vocabulary import (
+    MAX_BRANCHING,
+    MAX_LEVELS,
+    build_from_sequences,
+    read_header,
+    read_vocabulary,
+)
 
 PROG = "uss-vocab"
 
@@ -121,6 +127,14 @@ def main(argv: Sequence[str] | None = None) -> int:
                 raise UssSlamError(f"--out {args.out}: is a folder; expected a vocabulary file")
             if args.out.exists() and not args.overwrite:
                 raise UssSlamError(f"{args.out}: exists; pass --overwrite to replace it")
+            if args.out.exists():  # --overwrite replaces a vocabulary, never another file
+                try:
+                    read_header(args.out)
+                except UssSlamError:
+                    raise UssSlamError(
+                        f"--out {args.out}: not a DBoW2 text vocabulary; --overwrite replaces "
+                        "only a vocabulary file"
+                    ) from None
             check_writable(args.out.parent, create=False)  # before the clustering, not after
             report = build_from_sequences(
                 args.sequences,
@@ -139,6 +153,16 @@ def main(argv: Sequence[str] | None = None) -> int:
                 f"{report.descriptors} descriptors of {report.images} frames "
                 f"(extraction {report.extract_s:.1f} s, clustering {report.cluster_s:.1f} s)"
             )
+            if report.zero_weight_words == report.words:
+                # idf = ln(N / N_i) is 0 for a word in every training frame: such a vocabulary
+                # scores every pair of frames alike (no place recognition, no relocalisation).
+                where = ", ".join(str(folder) for folder in args.sequences)
+                print(
+                    f"{PROG}: warning: {where}: every word of the vocabulary has weight 0 (each "
+                    f"occurs in all {report.images} training frames); use more, and more "
+                    "varied, frames (--stride, --max-frames, more sequences)",
+                    file=sys.stderr,
+                )
         else:
             vocab = read_vocabulary(args.vocabulary)
             print(

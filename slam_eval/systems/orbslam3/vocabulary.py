@@ -503,6 +503,12 @@ def build_from_sequences(
     start = time.perf_counter()
     sets = orb_descriptors(images, n_features)
     extracted = time.perf_counter()
+    where = ", ".join(str(folder) for folder in folders)
+    if not any(len(s) for s in sets):
+        raise UssSlamError(
+            f"{where}: no ORB descriptors in the {len(images)} training frames (the frames "
+            "have no texture); expected frames with corners to cluster"
+        )
     vocab = build_vocabulary(sets, k=k, levels=levels, seed=seed, max_iterations=max_iterations)
     path = write_vocabulary(out, vocab)
     done = time.perf_counter()

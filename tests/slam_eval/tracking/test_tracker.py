@@ -68,6 +68,34 @@ def test_relocalises_after_losing_track(synthetic_sequence) -> None:
     assert step(tracker, 23, feats[23]).state is TrackingState.OK
 
 
+def test_second_frame_is_matched_to_the_reference_keyframe(synthetic_sequence) -> None:
+    # A camera already moving when tracking starts: the second frame has no motion model, and
+    # projecting with the first pose misses most matches once the view moved beyond the window.
+    seq = TumSequence(synthetic_sequence(preset="static_xyz", frames=30))
+    ex = OrbExtractor(OrbConfig(), seq.camera)
+    first, later = seq.load(0), seq.load(24)
+    f0, f1 = ex(first.gray, first.depth), ex(later.gray, later.depth)
+
+    def second_frame(config: TrackerConfig):
+        tracker = Tracker(config, ex)
+        for i, (frame, feats) in enumerate(((first, f0), (later, f1))):
+            dyn = np.zeros(len(feats), bool)
+            r = tracker.track(i, frame.stamp, feats, dyn)
+            tracker.finish_frame(i, frame.stamp, r, feats, dyn)
+        return r
+
+    by_reference = second_frame(TrackerConfig())
+    by_projection = second_frame(TrackerConfig(reference_keyframe=False))
+    assert by_reference.state is TrackingState.OK
+    assert by_reference.inliers > by_projection.inliers
+    truth = seq.groundtruth
+    near = [int(np.argmin(np.abs(truth.stamps - f.stamp))) for f in (first, later)]
+    poses = truth.matrices()
+    moved = np.linalg.inv(poses[near[0]]) @ poses[near[1]]  # the first frame is the origin
+    assert np.linalg.norm(moved[:3, 3]) > 0.02  # the view did move
+    assert np.linalg.norm(by_reference.pose_wc[:3, 3] - moved[:3, 3]) < 0.02  # of 12 cm
+
+
 def test_relocalises_against_the_best_matching_keyframe_not_the_latest(synthetic_sequence) -> None:
     # As when a walker comes close (walking_xyz seed 1): while the left of the view is hidden,
     # several keyframes are made that hold points on the right only; after an occlusion only the

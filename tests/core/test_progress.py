@@ -1,0 +1,68 @@
+"""Progress bars: redrawn in a terminal, whole lines (first, at most one per interval, last) in a
+file or a log; the Lightning bar of uss-train the same way."""
+
+from __future__ import annotations
+
+import io
+
+import pytest
+from tqdm import tqdm
+
+from uss_slam.core import progress as progress_module
+from uss_slam.core.progress import LineProgress, is_terminal, progress_bar
+
+
+class _Terminal(io.StringIO):
+    def isatty(self) -> bool:
+        return True
+
+
+def test_a_terminal_gets_tqdms_bar_and_a_file_gets_lines() -> None:
+    assert is_terminal(_Terminal()) and not is_terminal(io.StringIO())
+    bar = progress_bar(range(3), file=_Terminal())
+    assert type(bar) is tqdm
+    bar.close()
+    assert isinstance(progress_bar(range(3), file=io.StringIO()), LineProgress)
+
+
+def test_a_log_gets_a_first_and_a_last_line_not_one_per_update() -> None:
+    log = io.StringIO()
+    with progress_bar(total=2000, desc="frames", unit="frame", file=log, mininterval=0) as bar:
+        for _ in range(2000):
+            bar.update()
+    lines = log.getvalue().splitlines()
+    assert "\r" not in log.getvalue() and log.getvalue().endswith("\n")
+    assert len(lines) == 2, lines
+    assert lines[0].startswith("frames:   0%") and "0/2000" in lines[0]
+    assert lines[1].startswith("frames: 100%") and "2000/2000" in lines[1]
+
+
+def test_a_line_every_interval(monkeypatch: pytest.MonkeyPatch) -> None:
+    now = [100.0]
+    monkeypatch.setattr(progress_module.time, "monotonic", lambda: now[0])
+    log = io.StringIO()
+    bar = progress_bar(total=10, desc="parts", file=log, interval=30.0)
+    for seconds in (10.0, 10.0, 15.0, 5.0):  # at 110, 120, 135, 140 s
+        now[0] += seconds
+        bar.update()
+        bar.refresh()  # a redraw request, as Lightning's bar makes one per batch
+    bar.close()
+    lines = log.getvalue().splitlines()
+    # start (100 s), the first redraw 30 s after it (135 s), the end
+    assert [line.split("|")[0].strip() for line in lines] == [
+        "parts:   0%",
+        "parts:  30%",
+        "parts:  40%",
+    ]
+
+
+def test_a_disabled_or_unfinished_bar() -> None:
+    log = io.StringIO()
+    for _ in progress_bar(range(5), file=log, disable=True):
+        pass
+    assert log.getvalue() == ""
+    log = io.StringIO()
+    bar = progress_bar(total=4, desc="x", file=log, leave=False)
+    bar.update(2)
+    bar.close()
+    assert len(log.getvalue().splitlines()) == 1  # not left behind: only its first line
