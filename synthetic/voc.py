@@ -254,7 +254,7 @@ def render_voc_frames(
         (tmp / "rgb").mkdir()
         (tmp / "labels").mkdir()
         stamps, files = [], []
-        for i in tqdm(range(images), desc=f"VOC-layout frames ({style})", unit="img",
+        for i in progress_bar(range(images), desc=f"VOC-layout frames ({style})", unit="img",
                       disable=not progress):  # fmt: skip
             sample = render_voc_sample(seed, i, size, outfits, style)
             stamp = round(1.0 + i / FRAMES_RATE, 6)
