@@ -8,6 +8,23 @@ Layout of ``OUT/data`` (what ``configs/data/synthetic.yaml`` reads from ``paths.
     slam/{walking_xyz,static_xyz}/     target style at SLAM size: the SLAM evaluation
     demo.yaml                          what made it (:meth:`DemoData.record`)
 
+What source and target differ in is the *shift* (:data:`SHIFTS`):
+
+- ``tum_like`` (default), the stand-in for VOC / SBD / COCO -> TUM: the source people wear the
+  ``all`` wardrobe (every garment family of the world, in rooms of both material families), as
+  real photos show every kind of clothing; the target differs by lighting, sensor, viewpoint
+  and distance, layout and class priors; each target sequence's walkers wear outfits drawn for
+  that sequence from the same distribution (``outfits="drawn"``), so the evaluation
+  sequences' outfits were never rendered for training or validation.
+- ``appearance``: the target is the *same* content generator as the source (VOC layouts,
+  materials, wardrobe, class frequencies) rendered with the target lighting and sensor; its
+  frames are labelled image folders ``target_train/images_<k>/`` and ``target_val/images/``
+  (:func:`~uss_slam.synthetic.voc.render_voc_frames`). The shift output-space adaptation is
+  designed for: the methods' sanity check. Its SLAM sequences are the ``tum_like`` ones.
+- ``full``: disjoint material families (the source's saturated prints against the target's
+  office and its two outfit families, the same in every target sequence): the hard case, and
+  what data sets made before shifts existed are.
+
 The folder appears only when complete (rendered into a hidden sibling, then renamed); its
 ``demo.yaml`` is the completion record.
 """
@@ -33,6 +50,27 @@ from uss_slam.core.tum_io import read_file_list
 from uss_slam.synthetic import render_sequence, render_voc
 from uss_slam.synthetic.output import check_size, staged_output
 from uss_slam.synthetic.textures import WARDROBES
+from uss_slam.synthetic.voc import render_voc_frames
+
+SHIFTS = ("tum_like", "appearance", "full")
+"""The domain shifts of the synthetic world (module docstring); ``tum_like`` is the default."""
+DEFAULT_SHIFT = "tum_like"
+SHIFT_WARDROBE = {"tum_like": "all", "appearance": "classic", "full": "classic"}
+"""The VOC set's wardrobe of each shift (``full`` can take another: ``source_outfits``)."""
+SHIFT_OUTFITS = {"tum_like": "drawn", "appearance": "drawn", "full": "office"}
+"""What the people of the target *sequences* wear under each shift
+(:data:`~uss_slam.synthetic.sequence.SEQUENCE_OUTFITS`)."""
+APPEARANCE_FOLDERS = 4
+"""Target training image folders of the ``appearance`` shift (one seed each, as the four
+training sequences of the others)."""
+
+
+def check_shift(shift: str, key: str = "shift") -> str:
+    """``shift`` if it is one of :data:`SHIFTS`, else a one-line error naming ``key``."""
+    if shift not in SHIFTS:
+        raise UssSlamError(f"{key}: unknown shift {shift!r}; expected one of {', '.join(SHIFTS)}")
+    return shift
+
 
 TRAIN_PRESETS = ("walking_xyz", "walking_rpy", "walking_halfsphere", "sitting_static")
 """Target training sequences (one seed each: ``seed + 1 + k``)."""
@@ -58,12 +96,21 @@ class DemoData:
     train_size: tuple[int, int] = (320, 240)
     slam_frames: int = 300
     slam_size: tuple[int, int] = (640, 480)
-    source_outfits: str = "classic"  # the VOC set's people's clothing (synthetic.WARDROBES)
+    # the VOC set's people's clothing (synthetic.WARDROBES); None: the shift's (SHIFT_WARDROBE)
+    source_outfits: str | None = None
+    shift: str = DEFAULT_SHIFT  # what source and target differ in (SHIFTS)
 
     def __post_init__(self) -> None:
-        if self.source_outfits not in WARDROBES:
+        check_shift(self.shift)
+        if self.source_outfits is not None and self.source_outfits not in WARDROBES:
             raise UssSlamError(
                 f"source_outfits must be one of {', '.join(WARDROBES)}, got {self.source_outfits!r}"
+            )
+        if self.source_outfits not in (None, SHIFT_WARDROBE[self.shift]) and self.shift != "full":
+            raise UssSlamError(
+                f"source_outfits={self.source_outfits} is the shift's to choose: shift "
+                f"{self.shift} dresses the source in {SHIFT_WARDROBE[self.shift]!r} (use shift "
+                "full for another wardrobe)"
             )
         if self.voc_images < 0:
             raise UssSlamError(f"voc_images must be >= 0 (0 skips), got {self.voc_images}")
@@ -74,9 +121,41 @@ class DemoData:
         for name in ("voc_size", "train_size", "slam_size"):
             check_size(getattr(self, name))
 
+    @property
+    def wardrobe(self) -> str:
+        """The VOC set's wardrobe."""
+        return self.source_outfits or SHIFT_WARDROBE[self.shift]
+
+    @property
+    def sequence_outfits(self) -> str:
+        """What the people of the target sequences wear."""
+        return SHIFT_OUTFITS[self.shift]
+
+    def target_folders(self) -> list[str]:
+        """The target training folders, relative to the data set (unlabelled for training)."""
+        if self.shift == "appearance":
+            return [f"target_train/images_{k}" for k in range(APPEARANCE_FOLDERS)]
+        return [f"target_train/{preset}" for preset in TRAIN_PRESETS]
+
+    def val_folders(self) -> list[str]:
+        """The labelled target validation folders, relative to the data set."""
+        if self.shift == "appearance":
+            return ["target_val/images"]
+        return [f"target_val/{VAL_PRESET}"]
+
+    def train_overrides(self, root: Path) -> list[str]:
+        """``uss-train`` overrides that point ``data=synthetic`` at this data set in ``root``
+        (besides ``paths.data_dir``: the folders of shifts whose layout is not the shipped
+        config's)."""
+        if self.shift != "appearance":
+            return []
+        target = ",".join(str(Path(root) / f) for f in self.target_folders())
+        val = ",".join(str(Path(root) / f) for f in self.val_folders())
+        return [f"data.target.roots=[{target}]", f"data.val.roots=[{val}]"]
+
     def record(self) -> dict[str, Any]:
         """The content of ``demo.yaml`` (same keys and order as ever: old data sets match;
-        ``source_outfits`` only when not ``classic``)."""
+        ``source_outfits`` only when not ``classic``, ``shift`` only when not ``full``)."""
         record = {
             "generator": GENERATOR,
             "seed": self.seed,
@@ -88,8 +167,10 @@ class DemoData:
             "slam_frames": self.slam_frames,
             "slam_size": list(self.slam_size),
         }
-        if self.source_outfits != "classic":
-            record["source_outfits"] = self.source_outfits
+        if self.wardrobe != "classic":
+            record["source_outfits"] = self.wardrobe
+        if self.shift != "full":
+            record["shift"] = self.shift
         return record
 
 
@@ -109,21 +190,43 @@ def _tasks(root: Path, spec: DemoData) -> list[Task]:
     if spec.voc_images:
         tasks.append(("voc", render_voc, dict(out_dir=root / "voc", images=spec.voc_images,
                                               size=spec.voc_size, seed=spec.seed,
-                                              outfits=spec.source_outfits)))  # fmt: skip
-    if spec.train_frames:
-        for k, preset in enumerate(TRAIN_PRESETS):
-            tasks.append((f"target_train/{preset}", render_sequence, dict(
-                out_dir=root / "target_train" / preset, preset=preset, frames=spec.train_frames,
-                size=spec.train_size, seed=spec.seed + 1 + k, style="target")))  # fmt: skip
-    if spec.val_frames:
-        tasks.append((f"target_val/{VAL_PRESET}", render_sequence, dict(
-            out_dir=root / "target_val" / VAL_PRESET, preset=VAL_PRESET, frames=spec.val_frames,
-            size=spec.train_size, seed=spec.seed + VAL_SEED_OFFSET, style="target")))  # fmt: skip
+                                              outfits=spec.wardrobe)))  # fmt: skip
+    outfits = spec.sequence_outfits
+    if spec.shift == "appearance":
+        # the source's content generator in the target's lighting and sensor (other seeds)
+        frames = dict(size=spec.train_size, outfits=spec.wardrobe, style="target")
+        if spec.train_frames:
+            for k, folder in enumerate(spec.target_folders()):
+                tasks.append((folder, render_voc_frames, dict(
+                    out_dir=root / folder, images=spec.train_frames, seed=spec.seed + 1 + k,
+                    **frames)))  # fmt: skip
+        if spec.val_frames:
+            tasks.append((spec.val_folders()[0], render_voc_frames, dict(
+                out_dir=root / spec.val_folders()[0], images=spec.val_frames,
+                seed=spec.seed + VAL_SEED_OFFSET, **frames)))  # fmt: skip
+    else:
+        tasks += _sequence_tasks(root, spec, outfits)
     if spec.slam_frames:
         for preset in SLAM_PRESETS:
             tasks.append((f"slam/{preset}", render_sequence, dict(
                 out_dir=root / "slam" / preset, preset=preset, frames=spec.slam_frames,
-                size=spec.slam_size, seed=spec.seed, style="target")))  # fmt: skip
+                size=spec.slam_size, seed=spec.seed, style="target", outfits=outfits)))  # fmt: skip
+    return tasks
+
+
+def _sequence_tasks(root: Path, spec: DemoData, outfits: str) -> list[Task]:
+    tasks: list[Task] = []
+    if spec.train_frames:
+        for k, preset in enumerate(TRAIN_PRESETS):
+            tasks.append((f"target_train/{preset}", render_sequence, dict(
+                out_dir=root / "target_train" / preset, preset=preset, frames=spec.train_frames,
+                size=spec.train_size, seed=spec.seed + 1 + k, style="target",
+                outfits=outfits)))  # fmt: skip
+    if spec.val_frames:
+        tasks.append((f"target_val/{VAL_PRESET}", render_sequence, dict(
+            out_dir=root / "target_val" / VAL_PRESET, preset=VAL_PRESET, frames=spec.val_frames,
+            size=spec.train_size, seed=spec.seed + VAL_SEED_OFFSET, style="target",
+            outfits=outfits)))  # fmt: skip
     return tasks
 
 

@@ -34,7 +34,7 @@ import numpy as np
 
 from uss_slam.core.classes import CLASS_NAMES, DYNAMIC_CLASSES, colorize
 from uss_slam.core.cli import exit_on_user_error, hydra_error_line
-from uss_slam.core.errors import UssSlamError
+from uss_slam.core.errors import DataFormatError, UssSlamError
 from uss_slam.core.files import (
     atomic_path,
     check_writable,
@@ -210,25 +210,69 @@ class FrameSource:
 
 
 def sequence_frames(roots: Sequence[Path], stride: int) -> FrameSource:
-    """Every ``stride``-th associated frame of TUM RGB-D folders with ``labels/`` (all checked
-    before any inference)."""
-    from uss_slam.slam_eval.sequence import TumSequence
+    """Every ``stride``-th colour frame of labelled frame folders: TUM RGB-D sequences with
+    ``labels/``, or image folders with only ``rgb.txt``, ``rgb/`` and ``labels/`` (depth and
+    ground truth are not needed). Lists and files are checked before any inference; a folder
+    given twice is an error (its frames would count twice)."""
+    from uss_slam.core.tum_io import read_tum_folder
 
-    sequences = []
+    if stride < 1:
+        raise UssSlamError(f"--stride: expected an integer >= 1, got {stride}")
+    seen: dict[Path, Path] = {}
+    folders = []
     for root in roots:
         if not root.is_dir():
             raise UssSlamError(f"--sequence {root}: not a folder")
-        sequences.append(TumSequence(root, load_labels=True, stride=stride))
+        resolved = root.resolve()
+        if resolved in seen:
+            raise UssSlamError(
+                f"--sequence {root}: given twice (as {seen[resolved]}); its frames would count twice"
+            )
+        seen[resolved] = root
+        folder = read_tum_folder(root, depth=False, labels=True)
+        frames = folder.frames[::stride]
+        for frame in frames:
+            missing = folder.missing(frame)
+            if missing is not None:
+                raise missing
+            if frame.labels is not None and not frame.labels.is_file():
+                raise DataFormatError(
+                    frame.labels, f"no labels for colour frame {frame.rgb.name} (expected a "
+                    "uint8 class-id PNG of the same name in labels/)"
+                )  # fmt: skip
+        folders.append((root, frames))
 
     def frames() -> Iterator[LabelledFrame]:
-        for root, seq in zip(roots, sequences, strict=True):
-            for k in range(len(seq)):
-                frame = seq.load(k)
-                assert frame.labels is not None  # load_labels=True
-                yield LabelledFrame(f"{root.name}/{frame.stamp:.6f}", frame.rgb, frame.labels)
+        for root, files in folders:
+            for frame in files:
+                assert frame.labels is not None  # read with labels=True
+                yield LabelledFrame(f"{root.name}/{frame.stamp:.6f}", *_read_pair(frame))
 
     description = {"source": "sequence", "roots": [str(r) for r in roots], "stride": stride}
-    return FrameSource(description, sum(len(s) for s in sequences), frames)
+    return FrameSource(description, sum(len(f) for _, f in folders), frames)
+
+
+def _read_pair(frame: Any) -> tuple[np.ndarray, np.ndarray]:
+    """The colour image (RGB) and the labels of ``frame``, checked (errors name the file)."""
+    bgr = cv2.imread(str(frame.rgb), cv2.IMREAD_COLOR)
+    if bgr is None:
+        raise DataFormatError(frame.rgb, "not a readable image")
+    labels = cv2.imread(str(frame.labels), cv2.IMREAD_UNCHANGED)
+    if labels is None:
+        raise DataFormatError(frame.labels, "not a readable image")
+    if labels.dtype != np.uint8 or labels.ndim != 2:
+        raise DataFormatError(
+            frame.labels,
+            f"expected a single-channel uint8 class-id PNG, got {labels.dtype} with shape "
+            f"{labels.shape}",
+        )
+    if labels.shape != bgr.shape[:2]:
+        raise DataFormatError(
+            frame.labels,
+            f"labels are {labels.shape[1]}x{labels.shape[0]} but the colour image "
+            f"{frame.rgb.name} is {bgr.shape[1]}x{bgr.shape[0]}",
+        )
+    return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), labels
 
 
 def config_val_frames(overrides: Sequence[str]) -> FrameSource:

@@ -5,7 +5,7 @@ one typed value (:class:`SlamJob`, with its :class:`Segmenter`) and compose and 
 The drivers are siblings that never import each other; both import this module::
 
     metrics = run_training(run_dir, ["experiment=demo", "model/method=adaptsegnet"])
-    ckpt = select_checkpoint(run_dir)                      # policy "best_target_val"
+    ckpt = select_checkpoint(run_dir)                      # policy "last"
     job = SlamJob(sequence, Segmenter.onnx(model), filters=("semantic",))
     data = run_slam(job, out_dir / "slam" / "adapted", progress=False)
 
@@ -50,13 +50,34 @@ def best_target_val(run_dir: Path) -> Path:
     raise UssSlamError(f"{folder}: no checkpoint (best_*.ckpt or last.ckpt) after training")
 
 
+def last(run_dir: Path) -> Path:
+    """The last checkpoint (``last.ckpt``): the model at the run's fixed budget. Uses no
+    target labels, as an unsupervised method must not."""
+    path = run_dir / "checkpoints" / "last.ckpt"
+    if not path.is_file():
+        raise UssSlamError(f"{path.parent}: no last.ckpt after training")
+    return path
+
+
 CHECKPOINT_POLICIES: dict[str, CheckpointPolicy] = {
+    "last": last,
     "best_target_val": best_target_val,
 }
-"""Policies by name. A new policy is one function ``(run_dir) -> checkpoint`` added here."""
+"""Policies by name. A new policy is one function ``(run_dir) -> checkpoint`` added here (and
+to :data:`USES_TARGET_LABELS` when it reads target labels)."""
 
-DEFAULT_POLICY = "best_target_val"
-"""The policy of ``uss-demo`` and ``uss-experiments``."""
+USES_TARGET_LABELS = frozenset({"best_target_val"})
+"""Policies that choose with target labels: tables mark their rows as such."""
+
+DEFAULT_POLICY = "last"
+"""The policy of ``uss-demo`` and ``uss-experiments``: no target labels in the protocol."""
+
+
+def policy_note(policy: str) -> str:
+    """How a table says which checkpoints it shows."""
+    if policy in USES_TARGET_LABELS:
+        return f"checkpoints: {policy} (selected with target labels)"
+    return f"checkpoints: {policy} (no target labels used)"
 
 
 def select_checkpoint(run_dir: Path, policy: str = DEFAULT_POLICY) -> Path:

@@ -23,10 +23,10 @@ from .output import (
     clean_stale_partials,
     parse_size,
 )
-from .sequence import render_sequence
+from .sequence import SEQUENCE_OUTFITS, render_sequence
 from .styles import STYLES
 from .textures import WARDROBES
-from .voc import render_voc
+from .voc import render_voc, render_voc_frames
 
 
 class _Parser(argparse.ArgumentParser):
@@ -148,11 +148,15 @@ def build_parser() -> argparse.ArgumentParser:
     seq.add_argument("--style", choices=STYLES, default="target",
                      help="source: clean and evenly lit; target: Kinect-like blur, noise, colour "
                           "cast, depth noise and holes (default: target)")  # fmt: skip
+    seq.add_argument("--outfits", choices=SEQUENCE_OUTFITS, default="office",
+                     help="what the people wear: office = the style's outfits (the same in every "
+                          "sequence of the style); drawn = outfits drawn for this sequence (seed, "
+                          "preset) from the voc 'all' wardrobe's distribution (default: office)")  # fmt: skip
     common(seq)
 
     voc = sub.add_parser(
         "voc",
-        help="a PASCAL VOC 2012-layout segmentation set (source style)",
+        help="a PASCAL VOC 2012-layout segmentation set (or its content in the target style)",
         description=_wrap(
             "Render OUT/VOCdevkit/VOC2012 with JPEGImages/ (JPEG quality 90), SegmentationClass/ "
             "(palette PNGs: person 15, chair 9, tvmonitor 20, 255 void band along outlines) and "
@@ -178,8 +182,18 @@ def build_parser() -> argparse.ArgumentParser:
         choices=WARDROBES,
         default="classic",
         help="the people's clothing: classic = saturated stripes, checks and prints (12 outfits); "
-        "varied = every kind of fabric and colour, a new wardrobe of 4 outfits every 20 images "
-        "(default: classic)",
+        "varied = every kind of fabric and colour, a new wardrobe of 4 outfits every 20 images; "
+        "all = every garment family of the world (the classic prints, the varied fabrics and "
+        "the target's cloths) in rooms of both material families, a new wardrobe every 20 "
+        "images (default: classic)",
+    )
+    voc.add_argument(
+        "--style",
+        choices=STYLES,
+        default="source",
+        help="source: the VOC tree; target: the same content in the recordings' lighting and "
+        "sensor, written as a labelled image folder (rgb/, labels/ with the void band, "
+        "rgb.txt; no depth), as the appearance shift's target frames (default: source)",
     )
     common(voc)
 
@@ -198,10 +212,16 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"uss-synth: removed {folder} (left by a killed run)", file=sys.stderr)
         if args.command == "sequence":
             out = render_sequence(args.out, preset=args.preset, frames=args.frames, size=args.size,
-                                  seed=args.seed, style=args.style, overwrite=args.overwrite,
-                                  progress=not args.quiet)  # fmt: skip
+                                  seed=args.seed, style=args.style, outfits=args.outfits,
+                                  overwrite=args.overwrite, progress=not args.quiet)  # fmt: skip
             print(f"wrote {args.frames} frames ({args.preset}, {args.style}, "
                   f"{args.size[0]}x{args.size[1]}) to {out}")  # fmt: skip
+        elif args.style == "target":
+            out = render_voc_frames(args.out, images=args.images, size=args.size, seed=args.seed,
+                                    outfits=args.outfits, style="target", overwrite=args.overwrite,
+                                    progress=not args.quiet)  # fmt: skip
+            print(f"wrote {args.images} labelled target-style images "
+                  f"({args.size[0]}x{args.size[1]}) to {out}")  # fmt: skip
         else:
             out = render_voc(args.out, images=args.images, size=args.size, seed=args.seed,
                              outfits=args.outfits, overwrite=args.overwrite,

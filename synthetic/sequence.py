@@ -39,7 +39,12 @@ from .styles import (
     target_rgb,
     to_uint8,
 )
-from .textures import texture_bank
+from .textures import texture_bank, walker_bank
+
+SEQUENCE_OUTFITS = ("office", "drawn")
+"""What a sequence's people wear: ``office`` = the outfits of the style's bank (slot ``k`` for
+person ``k``: every sequence of a style shows the same ones); ``drawn`` = outfits drawn for this
+sequence (its seed and preset) from the ``all`` wardrobe's distribution (:func:`walker_bank`)."""
 
 FPS = 30.0
 GT_RATE = 100.0
@@ -66,7 +71,13 @@ class Frame:
     pose: np.ndarray
 
 
-def check_arguments(preset: str, frames: int, size: tuple[int, int], style: str) -> Preset:
+def check_arguments(
+    preset: str, frames: int, size: tuple[int, int], style: str, outfits: str = "office"
+) -> Preset:
+    if outfits not in SEQUENCE_OUTFITS:
+        raise SynthArgumentError(
+            f"unknown outfits {outfits!r}; choose one of {', '.join(SEQUENCE_OUTFITS)}"
+        )
     if preset not in PRESETS:
         raise SynthArgumentError(f"unknown preset {preset!r}; choose one of {', '.join(PRESETS)}")
     if isinstance(frames, bool) or not isinstance(frames, (int, np.integer)) or frames < 2:
@@ -87,8 +98,10 @@ class SequenceRenderer:
         size: tuple[int, int] = (640, 480),
         seed: int = 0,
         style: str = "target",
+        outfits: str = "office",
     ) -> None:
-        self.preset = check_arguments(preset, frames, size, style)
+        self.preset = check_arguments(preset, frames, size, style, outfits)
+        self.outfits = outfits
         self.frames = int(frames)
         self.size = check_size(size)
         self.seed = int(seed)
@@ -98,7 +111,12 @@ class SequenceRenderer:
         duration = self.frames / FPS + 1.0
         self.scene = office_scene(self.seed, self.preset.people, duration, self.preset.motion)
         self.motion = CameraMotion(self.preset.motion, self.scene.eye, self.scene.target, self.seed)
-        self.bank = texture_bank(style)  # one set of materials per style, like one real office
+        # one set of room materials per style, like one real office; the people's per sequence
+        # with outfits="drawn"
+        if outfits == "drawn":
+            self.bank = walker_bank(style, self.seed, preset)
+        else:
+            self.bank = texture_bank(style)
         self.lighting = self.scene.lighting(style)
 
         rng = stream(self.seed, "stamps")
@@ -159,6 +177,7 @@ def render_sequence(
     size: tuple[int, int] = (640, 480),
     seed: int = 0,
     style: str = "target",
+    outfits: str = "office",
     overwrite: bool = False,
     progress: bool = False,
 ) -> Path:
@@ -168,9 +187,10 @@ def render_sequence(
     (uint8 class-id PNG, same names as ``rgb/``), ``rgb.txt``, ``depth.txt``, ``groundtruth.txt``
     (100 Hz, camera-to-world, optical frame), ``intrinsics.yaml`` (fr3 scaled to ``size``) and
     ``synthetic.yaml`` (the arguments). The folder appears only when complete; an existing
-    non-empty ``out_dir`` is an error unless ``overwrite``.
+    non-empty ``out_dir`` is an error unless ``overwrite``. ``outfits``: what the people wear
+    (:data:`SEQUENCE_OUTFITS`).
     """
-    seq = SequenceRenderer(preset, frames, size, seed, style)
+    seq = SequenceRenderer(preset, frames, size, seed, style, outfits)
     with staged_output(out_dir, overwrite) as tmp:
         for sub in ("rgb", "depth", "labels"):
             (tmp / sub).mkdir()
@@ -203,6 +223,7 @@ def render_sequence(
             "size": list(seq.size),
             "seed": seq.seed,
             "style": style,
+            **({"outfits": outfits} if outfits != "office" else {}),
             "fps": FPS,
             "groundtruth_rate": GT_RATE,
         }

@@ -786,12 +786,62 @@ def texture_bank(family: str, variant: int = 0) -> TextureBank:
     return TextureBank(images, [r.texel for r in ROLES])
 
 
-WARDROBES = ("classic", "varied")
+WARDROBES = ("classic", "varied", "all")
 """People's clothing in the VOC-style source set: ``classic`` = the outfits of the source banks
 (saturated stripes, checks and prints: 3 banks x 4 slots); ``varied`` = a new wardrobe every
-:data:`WARDROBE_IMAGES` images, drawn from every kind of fabric and colour."""
+:data:`WARDROBE_IMAGES` images, drawn from every kind of fabric and colour; ``all`` = a new
+wardrobe every :data:`WARDROBE_IMAGES` images whose garments come from every family the world
+has (the source prints, the varied fabrics and the target's plaids, blotches and muted cloths),
+in rooms of both material families: real photos show people in every kind of clothing, a
+superset of what a recording's walkers wear (see :func:`any_garment`)."""
 WARDROBE_IMAGES = 20
 """Consecutive VOC images that share one wardrobe of the ``varied`` kind (4 outfits)."""
+
+
+def any_garment(role: Role, rng: np.random.Generator) -> np.ndarray:
+    """A texture for people's role ``role`` drawn from every family of the world.
+
+    Shirts and trousers: the source prints, the varied fabrics or the target's cloths, one
+    third each; skin and hair: the source or the target kind, half each. This is the
+    distribution of the ``all`` wardrobe *and* of the walkers of ``tum_like`` sequences
+    (:func:`walker_bank`), so a source set rendered with it covers what the walkers wear.
+    """
+    kind = role.name.rsplit("_", 1)[0]
+    if kind in ("shirt", "trousers"):
+        family = int(rng.integers(0, 3))
+        if family == 1:
+            return _wardrobe_image(role, rng)
+        return _generate(role, "source" if family == 0 else "target", rng)
+    return _generate(role, "source" if rng.random() < 0.5 else "target", rng)
+
+
+ALL_ROOM_BANKS = (("source", 0), ("source", 1), ("source", 2), ("target", 1), ("target", 2),
+                  ("target", 3))  # fmt: skip
+"""Room materials of the ``all`` wardrobe's images (wardrobe ``w``: ``ALL_ROOM_BANKS[w % 6]``):
+the three source banks and three target banks other than the recordings' office (bank 0)."""
+
+
+@functools.lru_cache(maxsize=8)
+def all_wardrobe_bank(room: int, wardrobe: int) -> TextureBank:
+    """Room bank ``ALL_ROOM_BANKS[room]`` with the people's materials of ``all``-wardrobe
+    ``wardrobe`` (4 outfits drawn by :func:`any_garment`)."""
+    family, variant = ALL_ROOM_BANKS[room % len(ALL_ROOM_BANKS)]
+    return with_people(
+        texture_bank(family, variant),
+        lambda _, role: any_garment(role, stream(wardrobe, f"texture/all/{role.name}")),
+    )
+
+
+@functools.lru_cache(maxsize=4)
+def walker_bank(family: str, seed: int, preset: str) -> TextureBank:
+    """The office's bank of ``family`` (bank 0, the recordings' office for ``target``) with
+    people dressed by :func:`any_garment` from a stream of the sequence's own ``seed`` and
+    ``preset``: walkers of a sequence wear outfits of the ``all`` wardrobe's distribution that
+    no other sequence (and no source image) shows."""
+    return with_people(
+        texture_bank(family, 0),
+        lambda _, role: any_garment(role, stream(seed, f"texture/walkers/{preset}/{role.name}")),
+    )
 
 
 def _wardrobe_image(role: Role, rng: np.random.Generator) -> np.ndarray:

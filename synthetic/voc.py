@@ -1,4 +1,5 @@
-"""A PASCAL VOC 2012-layout segmentation set rendered in the ``source`` style.
+"""A PASCAL VOC 2012-layout segmentation set, rendered in the ``source`` style (or, for the
+``appearance`` shift's target, the same content in the ``target`` style: :func:`render_voc_frames`).
 
 Each image is a new random room layout (desks, monitors, chairs, shelves, 1-3 people standing,
 walking or seated) seen from a random viewpoint aimed at a person, chair or monitor. Labels are
@@ -8,6 +9,7 @@ palette PNGs with VOC indices (person 15, chair 9, tvmonitor 20, background 0) a
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from os import PathLike
@@ -15,6 +17,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import yaml
 from PIL import Image
 
 from uss_slam.core.classes import IGNORE_INDEX, PROJECT_TO_VOC, voc_palette
@@ -27,8 +30,14 @@ from .primitives import PrimArrays
 from .renderer import Renderer
 from .scene import Scene, random_scene
 from .seeding import stream
-from .styles import to_uint8
-from .textures import WARDROBE_IMAGES, WARDROBES, texture_bank, wardrobe_bank
+from .styles import EXPOSURE_TIME, STYLES, NoisePool, target_rgb, to_uint8
+from .textures import (
+    WARDROBE_IMAGES,
+    WARDROBES,
+    all_wardrobe_bank,
+    texture_bank,
+    wardrobe_bank,
+)
 
 VOC_VARIANTS = 3
 """Texture banks the set draws from (image ``i`` uses bank ``i % VOC_VARIANTS``)."""
@@ -58,14 +67,19 @@ def voc_indices(labels: np.ndarray, band: int) -> np.ndarray:
     for ours, voc in PROJECT_TO_VOC.items():
         lut[ours] = voc
     out = lut[labels]
+    out[_void_band(labels, band)] = IGNORE_INDEX
+    return out
+
+
+def _void_band(labels: np.ndarray, band: int) -> np.ndarray:
+    """(H, W) bool: the ``band``-pixel band along the outlines of ``labels``."""
     kernel = np.ones((3, 3), np.uint8)
     edge = cv2.dilate(labels, kernel) != cv2.erode(labels, kernel)  # 2 px across the outline
     if band > 2:
         edge = cv2.dilate(edge.astype(np.uint8), np.ones((band - 1, band - 1), np.uint8)) > 0
     elif band == 1:
         edge = labels != cv2.erode(labels, np.ones((2, 2), np.uint8))
-    out[edge] = IGNORE_INDEX
-    return out
+    return edge
 
 
 def _inside_something(point: np.ndarray, prims: PrimArrays, margin: float = 0.15) -> bool:
@@ -83,20 +97,34 @@ def check_outfits(outfits: str) -> None:
         )
 
 
+@functools.lru_cache(maxsize=2)
+def _noise_pool(seed: int, size: tuple[int, int]) -> NoisePool:
+    w, h = size
+    return NoisePool(seed, 2 * w * h * 3 + 4096)
+
+
 def render_voc_sample(
-    seed: int, index: int, size: tuple[int, int], outfits: str = "classic"
+    seed: int, index: int, size: tuple[int, int], outfits: str = "classic", style: str = "source"
 ) -> VocSample:
     """Render image ``index`` of the set with ``seed`` (deterministic, independent of the others).
 
-    ``outfits``: the people's clothing, one of :data:`~.textures.WARDROBES`.
+    ``outfits``: the people's clothing, one of :data:`~.textures.WARDROBES`. ``style``:
+    ``source`` (clean, even light) or ``target`` (the recordings' lighting and the Kinect-like
+    sensor of :func:`~.styles.target_rgb`, with the blur of a camera moving during the
+    exposure); the content (layout, viewpoint, materials, labels) does not depend on it.
     """
     check_outfits(outfits)
+    if style not in STYLES:
+        raise SynthArgumentError(f"unknown style {style!r}; choose one of {', '.join(STYLES)}")
     rng = stream(seed, "voc/view", index)
     w, h = size
     if outfits == "classic":
         bank = texture_bank("source", index % VOC_VARIANTS)
-    else:
+    elif outfits == "varied":
         bank = wardrobe_bank(index % VOC_VARIANTS, index // WARDROBE_IMAGES)
+    else:
+        # one room bank per wardrobe: a bank is built once for its 20 images
+        bank = all_wardrobe_bank(index // WARDROBE_IMAGES, index // WARDROBE_IMAGES)
     for attempt in range(200):
         scene: Scene = random_scene(seed, index * 1000 + attempt // 20)
         prims = scene.prims_at(0.0)
@@ -122,10 +150,23 @@ def render_voc_sample(
         zoom = rng.uniform(0.8, 1.3)
         base = TUM_CAMERAS["fr3"].scaled(w, h)
         cam = type(base)(base.fx * zoom, base.fy * zoom, base.cx, base.cy, w, h)
-        res = Renderer(cam).render(pose, scene.room, prims, bank, scene.lighting("source"))
+        renderer = Renderer(cam)
+        res = renderer.render(pose, scene.room, prims, bank, scene.lighting(style))
         if (res.labels > 0).mean() < MIN_OBJECT_SHARE:
             continue
-        return VocSample(f"{seed:04d}_{index:06d}", to_uint8(res.rgb), res.labels)
+        if style == "source":
+            rgb = to_uint8(res.rgb)
+        else:
+            # a hand-held camera turning at up to ~30 deg/s during the exposure
+            sensor = stream(seed, "voc/sensor", index)
+            axis = sensor.normal(size=3)
+            angle = sensor.uniform(0, math.radians(30)) * EXPOSURE_TIME / 2
+            before = pose.copy()
+            before[:3, :3] = pose[:3, :3] @ cv2.Rodrigues(axis / np.linalg.norm(axis) * angle)[0]
+            flow = renderer.flow(res.depth, pose, before)
+            gain = float(sensor.uniform(0.85, 1.15))
+            rgb = target_rgb(res.rgb, flow, gain, sensor, _noise_pool(seed, size))
+        return VocSample(f"{seed:04d}_{index:06d}", rgb, res.labels)
     raise RuntimeError(f"no usable view for VOC image {index} (seed {seed})")  # pragma: no cover
 
 
@@ -175,3 +216,63 @@ def render_voc(
         for split, items in (("train", train), ("val", val), ("trainval", names)):
             (sets / f"{split}.txt").write_text("".join(f"{n}\n" for n in items))
     return Path(out_dir) / "VOCdevkit" / "VOC2012"
+
+
+FRAMES_RATE = 30.0
+"""Stamps of :func:`render_voc_frames`' images are 1/30 s apart (they are not a video)."""
+
+
+def render_voc_frames(
+    out_dir: str | PathLike[str],
+    *,
+    images: int,
+    size: tuple[int, int] = (320, 240),
+    seed: int = 0,
+    outfits: str = "classic",
+    style: str = "target",
+    overwrite: bool = False,
+    progress: bool = False,
+) -> Path:
+    """The VOC-layout images of ``seed`` as a labelled *image folder* in the TUM layout: ``rgb/``
+    (PNG), ``labels/`` (uint8 project class ids, void band 255 as in the VOC set), ``rgb.txt``
+    (stamps 1/30 s apart) and ``synthetic.yaml``; no depth. This is how the ``appearance``
+    shift's target frames are stored, so that the target loader (``TUMFrames``) and
+    ``uss-eval --sequence`` read them like a recording's frames. Returns ``out_dir``.
+    """
+    check_outfits(outfits)
+    if isinstance(images, bool) or not isinstance(images, (int, np.integer)) or images < 1:
+        raise SynthArgumentError(f"images must be an integer >= 1, got {images!r}")
+    if style not in STYLES:
+        raise SynthArgumentError(f"unknown style {style!r}; choose one of {', '.join(STYLES)}")
+    size = check_size(size)
+    band = void_width(size)
+    from uss_slam.core.tum_io import write_file_list
+
+    from .output import write_png
+
+    with staged_output(out_dir, overwrite) as tmp:
+        (tmp / "rgb").mkdir()
+        (tmp / "labels").mkdir()
+        stamps, files = [], []
+        for i in progress_bar(range(images), desc=f"VOC-layout frames ({style})", unit="img",
+                      disable=not progress):  # fmt: skip
+            sample = render_voc_sample(seed, i, size, outfits, style)
+            stamp = round(1.0 + i / FRAMES_RATE, 6)
+            name = f"{stamp:.6f}.png"
+            labels = sample.labels.copy()
+            labels[_void_band(sample.labels, band)] = IGNORE_INDEX
+            write_png(tmp / "rgb" / name, sample.rgb)
+            write_png(tmp / "labels" / name, labels)
+            stamps.append(stamp)
+            files.append(f"rgb/{name}")
+        write_file_list(tmp / "rgb.txt", np.array(stamps), files, "color images")
+        meta = {
+            "generator": "uss-synth voc-frames",
+            "images": int(images),
+            "size": list(size),
+            "seed": int(seed),
+            "style": style,
+            "outfits": outfits,
+        }
+        (tmp / "synthetic.yaml").write_text(yaml.safe_dump(meta, sort_keys=False))
+    return Path(out_dir)

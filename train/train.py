@@ -25,7 +25,7 @@ from lightning.pytorch import Callback, LightningDataModule, LightningModule, Tr
 from lightning.pytorch.callbacks import LearningRateMonitor, ProgressBar
 from lightning.pytorch.loggers import Logger
 from lightning_utilities.core import rank_zero
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig, OmegaConf, open_dict
 from omegaconf.errors import OmegaConfBaseException
 
 from uss_slam.core.cli import JobFailed, exit_on_user_error, run_hydra_app
@@ -35,6 +35,7 @@ from uss_slam.models.checkpoint import CheckpointInfo, read_checkpoint
 from uss_slam.train.callbacks import LogProgressBar
 from uss_slam.train.config_check import check_config_types
 from uss_slam.train.module import AdversarialSegmentation
+from uss_slam.train.speed import resolve_precision
 
 log = logging.getLogger(__name__)
 PROG = "uss-train"
@@ -258,6 +259,13 @@ def train(cfg: DictConfig) -> dict[str, float]:
     loggers: list[Logger] = _instantiate_all(cfg.get("logger"))
     if not loggers:  # `logger=none`: nothing to monitor learning rates into
         callbacks = [c for c in callbacks if not isinstance(c, LearningRateMonitor)]
+    precision, reason = resolve_precision(
+        cfg.trainer.get("precision"), cfg.trainer.get("accelerator", "auto")
+    )
+    if reason is not None:
+        print(f"uss-train: {reason}", flush=True)
+        with open_dict(cfg):
+            cfg.trainer.precision = precision
     trainer: Trainer = instantiate(cfg.trainer, callbacks=callbacks, logger=loggers or False)
 
     hparams = OmegaConf.to_container(cfg, resolve=True)

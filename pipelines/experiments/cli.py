@@ -29,6 +29,7 @@ from omegaconf import DictConfig
 from omegaconf.errors import OmegaConfBaseException
 
 from uss_slam.core.cli import JobFailed, exit_on_user_error, run_hydra_app
+from uss_slam.pipelines.runs import policy_note
 from uss_slam.pipelines.stages import Progress
 
 from . import tables as tbl
@@ -39,6 +40,7 @@ from .jobs import reason_of, stage_of
 from .launch import NOT_RUN, Launch, describe_plan, launch, result_rows, status_of
 from .plan import (
     blocked_jobs,
+    checkpoint_policy,
     existing_exports,
     export_stage,
     model_path,
@@ -170,7 +172,10 @@ def stage_exports(exp: Experiment, failures: dict[str, str], rows: list[dict[str
         stage.start()
         try:
             export_checkpoint(
-                select_checkpoint(stage_of(exp.out, exp.train_specs[cell.id], cell.id).folder),
+                select_checkpoint(
+                    stage_of(exp.out, exp.train_specs[cell.id], cell.id).folder,
+                    checkpoint_policy(exp),
+                ),
                 model_path(exp, cell),
             )
         except Exception as error:  # recorded, like a failed job, so that the others go on
@@ -214,6 +219,12 @@ def _header(exp: Experiment, data: Data) -> list[str]:
         f"- segmentation metrics on 1 labelled frame in {cfg['segeval']['stride']} of "
         + (", ".join(data.labelled) if data.labelled else "no sequence (none has labels/)"),
         "- each cell: mean ± sample s.d. over seeds (n = successful jobs); runs.csv has every job",
+        f"- {policy_note(checkpoint_policy(exp))}"
+        + (
+            f"; synthetic shift {cfg['data']['synthetic'].get('shift', 'tum_like')}"
+            if exp.synthetic
+            else ""
+        ),
         "",
     ]
     return lines

@@ -46,13 +46,17 @@ def demo_data_spec(exp: Experiment) -> Any:
         val_frames=int(syn["val_frames"]),
         train_size=parse_size(str(syn["train_size"])),
         slam_frames=0,
-        source_outfits=str(syn.get("source_outfits", "classic")),
+        source_outfits=None if syn.get("source_outfits") is None else str(syn["source_outfits"]),
+        shift=str(syn.get("shift", "tum_like")),
     )
 
 
 def sequence_stage(exp: Experiment, name: str) -> Stage:
+    from uss_slam.pipelines.demo_data import SHIFT_OUTFITS
+
     syn = exp.cfg["data"]["synthetic"]
-    key = {
+    shift = str(syn.get("shift", "tum_like"))
+    key: dict[str, Any] = {
         "preset": name,
         "frames": int(syn["eval_frames"]),
         "size": str(syn["eval_size"]),
@@ -60,14 +64,26 @@ def sequence_stage(exp: Experiment, name: str) -> Stage:
         "style": "target",
     }
     folder = exp.out / "data" / "eval" / name
+    if shift == "appearance":
+        # the source's content in the target style: labelled images, no recording to track
+        key |= {"images": True, "outfits": demo_data_spec(exp).wardrobe}
+        return Stage(folder, key, outputs=(Path("rgb.txt"), Path("labels")))
+    if SHIFT_OUTFITS[shift] != "office":  # keys of sequences rendered before shifts existed
+        key["outfits"] = SHIFT_OUTFITS[shift]
     return Stage(folder, key, outputs=(Path("rgb.txt"), Path("groundtruth.txt"), Path("labels")))
 
 
 def render_eval_sequence(folder: Path, key: dict[str, Any]) -> Path:
-    """Render an evaluation sequence from its stage key (in a worker process)."""
+    """Render an evaluation sequence (or, for the appearance shift, image folder) from its stage
+    key (in a worker process)."""
     from uss_slam.synthetic.output import parse_size
     from uss_slam.synthetic.sequence import render_sequence
+    from uss_slam.synthetic.voc import render_voc_frames
 
+    if key.get("images"):
+        return render_voc_frames(folder, images=key["frames"], size=parse_size(key["size"]),
+                                 seed=key["seed"], outfits=key["outfits"], style=key["style"],
+                                 overwrite=True)  # fmt: skip
     return render_sequence(
         folder,
         preset=key["preset"],
@@ -75,6 +91,7 @@ def render_eval_sequence(folder: Path, key: dict[str, Any]) -> Path:
         size=parse_size(key["size"]),
         seed=key["seed"],
         style=key["style"],
+        outfits=key.get("outfits", "office"),
         overwrite=True,
     )
 
@@ -141,7 +158,7 @@ def _synthetic_data(exp: Experiment, run: bool, dry: bool) -> tuple[Data, str]:
             "missing or records other settings); run the data stage (stages=[data,...])",
         )
     data.train_key = record.read_text() if record.is_file() else None
-    data.target = [data.train_dir / "target_train" / p for p in demo_data.TRAIN_PRESETS]
+    data.target = [data.train_dir / f for f in spec.target_folders()]
     missing = []
     for name in exp.grid.sequences:
         stage = sequence_stage(exp, name)

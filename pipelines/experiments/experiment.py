@@ -133,6 +133,9 @@ def check(cfg: DictConfig) -> Experiment:
     synthetic = kind == "synthetic"
     experiments = sorted(p.stem for p in (CONFIG_DIR / "experiment").glob("*.yaml"))
     choose("train.experiment", plain["train"].get("experiment"), experiments)
+    from uss_slam.pipelines.runs import CHECKPOINT_POLICIES
+
+    choose("train.checkpoint", plain["train"].get("checkpoint", "last"), CHECKPOINT_POLICIES)
     grid = expand(plain, SYNTHETIC_SEQUENCES if synthetic else TUM_SEQUENCES)
     check_crf(plain, grid)
     launcher = plain.get("launcher") or {}
@@ -143,9 +146,19 @@ def check(cfg: DictConfig) -> Experiment:
         syn = plain["data"]["synthetic"]
         for key in ("voc_size", "train_size", "eval_size"):
             _size(f"data.synthetic.{key}", syn[key])
+        from uss_slam.pipelines.demo_data import SHIFT_WARDROBE, SHIFTS
         from uss_slam.synthetic.textures import WARDROBES
 
-        choose("data.synthetic.source_outfits", syn.get("source_outfits", "classic"), WARDROBES)
+        shift = choose("data.synthetic.shift", syn.get("shift", "tum_like"), SHIFTS)
+        outfits = syn.get("source_outfits")
+        if outfits is not None:
+            choose("data.synthetic.source_outfits", outfits, WARDROBES)
+            if shift != "full" and outfits != SHIFT_WARDROBE[shift]:
+                raise UssSlamError(
+                    f"data.synthetic.source_outfits: {outfits} is shift {shift}'s to choose (it "
+                    f"dresses the source in {SHIFT_WARDROBE[shift]}); set it to null, or use "
+                    "data.synthetic.shift=full"
+                )
         used = training_seeds(int(syn["seed"]))
         for name in grid.sequences:
             if eval_seed(plain, name) in used:

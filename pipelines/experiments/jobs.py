@@ -73,7 +73,7 @@ def run_train(folder: Path, spec: Mapping[str, Any]) -> dict[str, Any]:
     """``uss-train`` with the cell's overrides into ``folder`` (checkpoints/, .hydra/config.yaml
     as uss-train writes it, for uss-export); the checkpoint the export will take."""
     metrics = run_training(folder, spec["overrides"])
-    ckpt = select_checkpoint(folder)
+    ckpt = select_checkpoint(folder, spec.get("checkpoint", "last"))
     val = checkpoint_miou(ckpt)
     return {
         "checkpoint": str(ckpt.relative_to(folder)),

@@ -53,7 +53,12 @@ def train_overrides(exp: Experiment, data: Data, cell: TrainCell) -> tuple[list[
     cfg = exp.cfg
     base = [f"experiment={cfg['train']['experiment']}", f"paths.log_dir={exp.out}"]
     if exp.synthetic:
+        from .data import demo_data_spec
+
+        assert data.train_dir is not None
         base.append(f"paths.data_dir={data.train_dir}")
+        # the appearance shift's target folders are not the shipped data config's
+        base += demo_data_spec(exp).train_overrides(data.train_dir)
     else:
         real = cfg["data"]["real"]
         key = data.train_key
@@ -80,6 +85,7 @@ def plan_train(exp: Experiment, data: Data) -> list[Job]:
             "overrides": [*overrides, *runtime],
             "key": {"overrides": _portable(overrides, exp.out), "data": data.train_key},
             "outputs": ["checkpoints/*.ckpt"],
+            "checkpoint": checkpoint_policy(exp),  # which one is reported (not in the key)
         }
         jobs.append(Job(cell.id, spec, {"kind": "train", **cell.describe()}))
     return jobs
@@ -90,7 +96,7 @@ def export_stage(exp: Experiment, cell: TrainCell) -> Stage | None:
     train_job = stage_of(exp.out, exp.train_specs[cell.id], cell.id)
     if not train_job.complete():
         return None
-    ckpt = select_checkpoint(train_job.folder)
+    ckpt = select_checkpoint(train_job.folder, checkpoint_policy(exp))
     stat = ckpt.stat()
     # The checkpoint's name, size and time rather than its hash: a ResNet-101 checkpoint with
     # its optimiser states is ~0.5 GB, hashed 15 times at every run otherwise.
@@ -101,6 +107,17 @@ def export_stage(exp: Experiment, cell: TrainCell) -> Stage | None:
         "train": train_job.key,
     }
     return Stage(exp.out / "exports" / cell.model, key, outputs=(Path(f"{cell.model}.onnx"),))
+
+
+def images_only(exp: Experiment) -> bool:
+    """True when the evaluation data are labelled images, not recordings (the synthetic
+    ``appearance`` shift): segmentation is evaluated, SLAM is not run."""
+    return exp.synthetic and exp.cfg["data"]["synthetic"].get("shift") == "appearance"
+
+
+def checkpoint_policy(exp: Experiment) -> str:
+    """The configured checkpoint policy (``train.checkpoint``, checked before any work)."""
+    return str(exp.cfg["train"].get("checkpoint") or "last")
 
 
 def model_path(exp: Experiment, cell: TrainCell) -> Path:
@@ -155,7 +172,7 @@ def plan_slam(exp: Experiment, data: Data, exports: Mapping[str, str]) -> list[J
                 key["crf"] = spec["crf"] = given(exp.cfg.get("crf_params"))
             row = {"kind": "segeval", **seg.model.describe(), "crf": int(seg.crf)}
             jobs.append(Job(seg.id, spec, row, needs=seg.model.model))
-    for cell in exp.grid.slams:
+    for cell in [] if images_only(exp) else exp.grid.slams:
         job = slam_job(exp, data, cell)
         overrides = job.overrides()
         model = cell.model.model if cell.model is not None else None

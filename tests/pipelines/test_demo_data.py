@@ -37,8 +37,14 @@ slam_size:
 
 
 def test_record_is_unchanged_for_existing_data_sets() -> None:
-    assert yaml.safe_dump(demo.PLANS["ci"].data.record(), sort_keys=False) == CI_RECORD
+    """Data sets rendered before shifts existed are the ``full`` shift: the same record, so they
+    are still recognised and reused; the default (``tum_like``) is another data set."""
+    ci = demo.PLANS["ci"].data
+    full = DemoData(**{**ci.__dict__, "shift": "full"})
+    assert yaml.safe_dump(full.record(), sort_keys=False) == CI_RECORD
+    assert ci.record() == full.record() | {"source_outfits": "all", "shift": "tum_like"}
     assert demo.PLANS["demo"].data == DemoData()  # 400 images, 4 x 100, 100, 2 x 300 frames
+    assert DemoData().shift == "tum_like"
 
 
 @pytest.mark.parametrize(
@@ -47,7 +53,18 @@ def test_record_is_unchanged_for_existing_data_sets() -> None:
         ({"voc_images": -1}, "voc_images must be >= 0"),
         ({"slam_frames": 1}, "slam_frames must be 0 (skip) or >= 2, got 1"),
         ({"train_size": (8, 8)}, "between 16x16"),
-        ({"source_outfits": "bogus"}, "source_outfits must be one of classic, varied, got 'bogus'"),
+        (
+            {"source_outfits": "bogus"},
+            "source_outfits must be one of classic, varied, all, got 'bogus'",
+        ),
+        (
+            {"shift": "style"},
+            "shift: unknown shift 'style'; expected one of tum_like, appearance, full",
+        ),
+        (
+            {"source_outfits": "varied"},
+            "source_outfits=varied is the shift's to choose: shift tum_like",
+        ),
     ],
 )
 def test_bad_spec(kwargs: dict, message: str) -> None:
@@ -57,9 +74,43 @@ def test_bad_spec(kwargs: dict, message: str) -> None:
 
 def test_source_outfits_record() -> None:
     """Classic data sets keep the record they always had (so they are reused); varied ones say so."""
-    assert "source_outfits" not in DemoData().record()
-    assert DemoData(source_outfits="varied").record()["source_outfits"] == "varied"
-    assert DemoData(source_outfits="varied").record() != DemoData().record()
+    full = DemoData(shift="full")
+    assert "source_outfits" not in full.record()
+    varied = DemoData(shift="full", source_outfits="varied")
+    assert varied.record()["source_outfits"] == "varied"
+    assert varied.record() != full.record()
+
+
+def test_shift_layouts(tmp_path: Path) -> None:
+    """Each shift's target folders, and the overrides that point uss-train at them."""
+    tum_like = DemoData()
+    assert tum_like.target_folders() == [f"target_train/{p}" for p in demo_data.TRAIN_PRESETS]
+    assert tum_like.val_folders() == ["target_val/walking_xyz"]
+    assert tum_like.train_overrides(tmp_path) == []  # the shipped data=synthetic layout
+    assert (tum_like.wardrobe, tum_like.sequence_outfits) == ("all", "drawn")
+    assert (DemoData(shift="full").wardrobe, DemoData(shift="full").sequence_outfits) == (
+        "classic", "office")  # fmt: skip
+    appearance = DemoData(shift="appearance")
+    assert appearance.target_folders() == [f"target_train/images_{k}" for k in range(4)]
+    target, val = appearance.train_overrides(tmp_path)
+    assert target == "data.target.roots=[" + ",".join(
+        str(tmp_path / f"target_train/images_{k}") for k in range(4)) + "]"  # fmt: skip
+    assert val == f"data.val.roots=[{tmp_path / 'target_val' / 'images'}]"
+
+
+def test_appearance_data_set_is_the_source_content_in_target_style(tmp_path: Path) -> None:
+    spec = DemoData(voc_images=3, voc_size=(64, 48), train_frames=2, val_frames=2,
+                    train_size=(64, 48), slam_frames=0, shift="appearance")  # fmt: skip
+    out = demo_data.render_demo_data(tmp_path / "data", spec, progress=False, workers=1)
+    from uss_slam.datasets.tum import TUMFrames
+
+    for folder in spec.target_folders() + spec.val_folders():
+        assert not (out / folder / "depth.txt").exists()  # images, not a recording
+        frames = TUMFrames([out / folder], labels=True)
+        assert len(frames) == 2 and frames.labelled
+    meta = yaml.safe_load((out / "target_val/images/synthetic.yaml").read_text())
+    assert meta["style"] == "target" and meta["outfits"] == "classic"
+    assert demo_data.is_complete(out, spec)
 
 
 def test_small_data_set(tmp_path: Path) -> None:

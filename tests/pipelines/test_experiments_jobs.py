@@ -167,6 +167,18 @@ def test_launcher_overrides_merge_the_stage_section() -> None:
             "data.synthetic.source_outfits: unknown value 'plain'; accepted: classic, varied",
         ),
         (
+            ["data.synthetic.shift=style"],
+            "data.synthetic.shift: unknown value 'style'; accepted: tum_like, appearance, full",
+        ),
+        (
+            ["data.synthetic.source_outfits=varied"],
+            "data.synthetic.source_outfits: varied is shift tum_like's to choose",
+        ),
+        (
+            ["train.checkpoint=best"],
+            "train.checkpoint: unknown value 'best'; accepted: last, best_target_val",
+        ),
+        (
             ["scale=paper"],
             "data.real.voc: missing; data.kind=real needs the VOC folder (data.real.voc=PATH)",
         ),
@@ -386,3 +398,30 @@ def test_segeval_with_the_crf_uses_the_slam_runtime_crf(
     expected = iou_report(evaluate_frames(runtime.infer, frames, CLASS_NAMES).matrix, CLASS_NAMES)
     assert crf["sequences"]["walking_xyz"]["mIoU"] == expected["mIoU"]
     assert crf["sequences"]["walking_xyz"]["mIoU"] != plain["sequences"]["walking_xyz"]["mIoU"]
+
+
+def test_appearance_shift_trains_on_image_folders_and_plans_no_slam(tmp_path: Path) -> None:
+    """The appearance shift's target is labelled images: the trainings point data=synthetic at
+    its image folders, the evaluation renders image folders, and no SLAM job is planned."""
+    exp = experiment.check(
+        compose_experiments(f"out_dir={tmp_path}", "data.synthetic.shift=appearance")
+    )
+    train_dir = tmp_path / "data" / "train"
+    found = data.Data(train_dir=train_dir)
+    overrides, _ = plan.train_overrides(exp, found, exp.grid.trainings[0])
+    roots = [o for o in overrides if o.startswith("data.target.roots=")]
+    assert roots == [
+        "data.target.roots=[" + ",".join(
+            str(train_dir / f"target_train/images_{k}") for k in range(4)) + "]"
+    ]  # fmt: skip
+    stage = data.sequence_stage(exp, exp.grid.sequences[0])
+    assert stage.key["images"] is True and stage.key["outfits"] == "classic"
+    for name in exp.grid.sequences:
+        found.sequences[name] = tmp_path / name
+        found.sequence_keys[name] = {"preset": name}
+        found.labelled.append(name)
+    kinds = {job.spec["kind"] for job in plan.plan_slam(exp, found, {})}
+    assert kinds == {"segeval"}
+    tum_like = experiment.check(compose_experiments(f"out_dir={tmp_path}"))
+    assert data.sequence_stage(tum_like, "walking_xyz").key["outfits"] == "drawn"
+    assert {job.spec["kind"] for job in plan.plan_slam(tum_like, found, {})} == {"segeval", "slam"}

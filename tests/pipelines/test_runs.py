@@ -21,7 +21,7 @@ def _checkpoints(run_dir: Path, *names: str) -> None:
 
 def test_best_target_val_takes_the_best_checkpoint_else_last(tmp_path: Path) -> None:
     _checkpoints(tmp_path / "a", "last.ckpt", "best_iter000004_miou0.2500.ckpt")
-    chosen = runs.select_checkpoint(tmp_path / "a")
+    chosen = runs.select_checkpoint(tmp_path / "a", "best_target_val")
     assert chosen.name == "best_iter000004_miou0.2500.ckpt"
     assert runs.checkpoint_miou(chosen) == 0.25
     _checkpoints(tmp_path / "b", "last.ckpt")
@@ -29,15 +29,31 @@ def test_best_target_val_takes_the_best_checkpoint_else_last(tmp_path: Path) -> 
     assert last.name == "last.ckpt" and runs.checkpoint_miou(last) is None
     _checkpoints(tmp_path / "c")
     with pytest.raises(UssSlamError, match=r"checkpoints: no checkpoint"):
-        runs.select_checkpoint(tmp_path / "c")
+        runs.select_checkpoint(tmp_path / "c", "best_target_val")
+
+
+def test_the_default_policy_uses_no_target_labels(tmp_path: Path) -> None:
+    """The protocol's default is the last checkpoint at the fixed budget, whatever the best
+    target-validation one is; the policy that reads target labels is marked as such."""
+    _checkpoints(tmp_path / "a", "last.ckpt", "best_iter000004_miou0.2500.ckpt")
+    assert runs.DEFAULT_POLICY == "last"
+    assert runs.select_checkpoint(tmp_path / "a").name == "last.ckpt"
+    assert runs.DEFAULT_POLICY not in runs.USES_TARGET_LABELS
+    assert "selected with target labels" in runs.policy_note("best_target_val")
+    assert "no target labels" in runs.policy_note("last")
+    _checkpoints(tmp_path / "b", "best_iter000004_miou0.2500.ckpt")
+    with pytest.raises(UssSlamError, match=r"checkpoints: no last.ckpt after training"):
+        runs.select_checkpoint(tmp_path / "b")
 
 
 def test_a_policy_is_one_function(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     _checkpoints(tmp_path, "last.ckpt", "best_iter000002_miou0.1000.ckpt")
-    policies = {**runs.CHECKPOINT_POLICIES, "last": lambda d: d / "checkpoints" / "last.ckpt"}
+    policies = {**runs.CHECKPOINT_POLICIES, "first": lambda d: d / "checkpoints" / "last.ckpt"}
     monkeypatch.setattr(runs, "CHECKPOINT_POLICIES", policies)
-    assert runs.select_checkpoint(tmp_path, "last").name == "last.ckpt"
-    with pytest.raises(UssSlamError, match=r"policy 'oldest': unknown; accepted: best_target_val"):
+    assert runs.select_checkpoint(tmp_path, "first").name == "last.ckpt"
+    with pytest.raises(
+        UssSlamError, match=r"policy 'oldest': unknown; accepted: last, best_target_val"
+    ):
         runs.select_checkpoint(tmp_path, "oldest")
 
 

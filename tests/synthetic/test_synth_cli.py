@@ -150,9 +150,10 @@ def test_help_documents_everything(capsys) -> None:
         text = capsys.readouterr().out
         if command == ["sequence"]:
             for word in ("--preset", "--frames", "--size", "--seed", "--style", "--out",
-                         "--overwrite", "walking_halfsphere", "static_xyz", "5000"):  # fmt: skip
+                         "--overwrite", "walking_halfsphere", "static_xyz", "5000", "--outfits"):  # fmt: skip
                 assert word in text, word
         if command == ["voc"]:
-            assert "--outfits {classic,varied}" in text and "varied = every kind of" in text
+            assert "--outfits {classic,varied,all}" in text and "varied = every kind of" in text
+            assert "--style {source,target}" in text and "labelled" in text
         if command == []:
             assert "{sequence,voc}" in text and "killed" in text and OUTPUT_MARKER in text

@@ -47,6 +47,6 @@ def test_varied_outfits_are_deterministic_and_change_every_wardrobe() -> None:
 
 def test_unknown_outfits_named() -> None:
     with pytest.raises(
-        SynthArgumentError, match="unknown outfits 'plain'; choose one of classic, varied"
+        SynthArgumentError, match="unknown outfits .plain.; choose one of classic, varied, all"
     ):
         render_voc_sample(0, 0, (160, 120), "plain")
