@@ -143,6 +143,8 @@ def check_node(node: Any, key: str) -> None:
             if isinstance(raw, DictConfig) and "_target_" in raw:
                 continue  # built by its own target, checked below
             value = _plain(raw)
+            if where == "trainer.precision" and value == "auto":
+                continue  # resolved for the CPU or GPU when the run starts (train/speed.py)
             if accepts(hints.get(name, params[name].annotation), value) is False:
                 raise UssSlamError(f"{where}: expected {describe(hints[name])}, got {value!r}")
     for name in node:
