@@ -264,6 +264,10 @@ def test_option_instantiates(case: Case, tmp_path: Path) -> None:
         pytest.skip(f"{group}={option} needs values only a user can give: {missing}")
     cfg = prepared(case, tmp_path)
     node = OmegaConf.select(cfg, path)
+    if group == "trainer" and node.get("precision") == "auto":  # what uss-train resolves first
+        from uss_slam.train.speed import resolve_precision
+
+        node.precision = resolve_precision("auto", node.accelerator)[0]
     if group == "trainer" and node.accelerator in ("gpu", "cuda") and not torch.cuda.is_available():
         pytest.skip(f"trainer={option} needs a GPU")
     if "model" in cfg and "net" in cfg.model and "backbone_weights" in cfg.model.net:

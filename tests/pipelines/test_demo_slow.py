@@ -85,7 +85,7 @@ def test_demo_ci_end_to_end_then_reused(tmp_path: Path, capsys: pytest.CaptureFi
         assert meta.experiment == f"ci_{name}" and meta.class_names == CLASS_NAMES
         ckpt = select_checkpoint(out / "train" / name)
         assert (
-            ckpt.name.startswith("best_")
+            ckpt.name == "last.ckpt"  # the protocol's default: no target labels choose it
             and meta.checkpoint_sha256 == hashlib.sha256(ckpt.read_bytes()).hexdigest()
         )
         assert (out / "train" / name / ".hydra" / "config.yaml").is_file()
