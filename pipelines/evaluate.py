@@ -254,24 +254,12 @@ def sequence_frames(roots: Sequence[Path], stride: int) -> FrameSource:
 
 def _read_pair(frame: Any) -> tuple[np.ndarray, np.ndarray]:
     """The colour image (RGB) and the labels of ``frame``, checked (errors name the file)."""
+    from uss_slam.slam_eval.sequence import read_labels
+
     bgr = cv2.imread(str(frame.rgb), cv2.IMREAD_COLOR)
     if bgr is None:
         raise DataFormatError(frame.rgb, "not a readable image")
-    labels = cv2.imread(str(frame.labels), cv2.IMREAD_UNCHANGED)
-    if labels is None:
-        raise DataFormatError(frame.labels, "not a readable image")
-    if labels.dtype != np.uint8 or labels.ndim != 2:
-        raise DataFormatError(
-            frame.labels,
-            f"expected a single-channel uint8 class-id PNG, got {labels.dtype} with shape "
-            f"{labels.shape}",
-        )
-    if labels.shape != bgr.shape[:2]:
-        raise DataFormatError(
-            frame.labels,
-            f"labels are {labels.shape[1]}x{labels.shape[0]} but the colour image "
-            f"{frame.rgb.name} is {bgr.shape[1]}x{bgr.shape[0]}",
-        )
+    labels = read_labels(frame.labels, bgr.shape[:2], frame.rgb.name)
     return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), labels
 
 

@@ -159,21 +159,7 @@ class TumSequence:
         depth = raw.astype(np.float32) * np.float32(1.0 / self.camera.depth_scale)
         labels = None
         if record.labels_path is not None:
-            labels = cv2.imread(str(record.labels_path), cv2.IMREAD_UNCHANGED)
-            if labels is None:
-                raise DataFormatError(record.labels_path, "not a readable image")
-            if labels.dtype != np.uint8 or labels.ndim != 2:
-                raise DataFormatError(
-                    record.labels_path,
-                    f"expected a single-channel uint8 class-id PNG, got {labels.dtype} "
-                    f"with shape {labels.shape}",
-                )
-            if labels.shape != bgr.shape[:2]:
-                raise DataFormatError(
-                    record.labels_path,
-                    f"labels are {labels.shape[1]}x{labels.shape[0]} but the colour image "
-                    f"{record.rgb_path.name} is {bgr.shape[1]}x{bgr.shape[0]}",
-                )
+            labels = read_labels(record.labels_path, bgr.shape[:2], record.rgb_path.name)
         if (bgr.shape[1], bgr.shape[0]) != self.image_size:
             raise DataFormatError(
                 record.rgb_path,
@@ -232,3 +218,24 @@ class TumSequence:
 
 def _identity(frame: Frame) -> Frame:
     return frame
+
+
+def read_labels(path: Path, shape: tuple[int, ...], image_name: str) -> np.ndarray:
+    """The uint8 class-id PNG ``path`` of colour image ``image_name`` of ``(H, W)`` ``shape``,
+    checked (errors name the file and what was expected)."""
+    labels = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if labels is None:
+        raise DataFormatError(path, "not a readable image")
+    if labels.dtype != np.uint8 or labels.ndim != 2:
+        raise DataFormatError(
+            path,
+            f"expected a single-channel uint8 class-id PNG, got {labels.dtype} "
+            f"with shape {labels.shape}",
+        )
+    if labels.shape != tuple(shape):
+        raise DataFormatError(
+            path,
+            f"labels are {labels.shape[1]}x{labels.shape[0]} but the colour image "
+            f"{image_name} is {shape[1]}x{shape[0]}",
+        )
+    return labels
