@@ -198,3 +198,27 @@ def test_evenly_spaced() -> None:
     assert evaluate.evenly_spaced(3, 10) == [0, 4, 9]  # 0, 4.5 -> 4 (round half to even), 9
     assert evaluate.evenly_spaced(5, 3) == [0, 1, 2]
     assert evaluate.evenly_spaced(0, 3) == [] and evaluate.evenly_spaced(1, 4) == [0]
+
+
+def test_image_folders_need_no_depth_and_bad_labels_are_named(tmp_path) -> None:
+    """A labelled image folder (rgb.txt, rgb/, labels/; no depth) is scored; labels of another
+    size, and a folder given twice, are one-line errors naming the file or folder."""
+    import cv2
+    import numpy as np
+
+    from uss_slam.core.errors import DataFormatError, UssSlamError
+    from uss_slam.pipelines.evaluate import sequence_frames
+    from uss_slam.synthetic.voc import render_voc_frames
+
+    folder = render_voc_frames(tmp_path / "imgs", images=3, size=(64, 48), seed=1, style="target")
+    assert not (folder / "depth.txt").exists()
+    source = sequence_frames([folder], stride=1)
+    frames = list(source.frames())
+    assert source.count == 3 and frames[0].rgb.shape == (48, 64, 3)
+    assert frames[0].labels.shape == (48, 64) and frames[0].labels.dtype == np.uint8
+    with pytest.raises(UssSlamError, match="given twice"):
+        sequence_frames([folder, tmp_path / "imgs"], stride=1)
+    bad = sorted((folder / "labels").glob("*.png"))[1]
+    cv2.imwrite(str(bad), np.zeros((10, 10), np.uint8))
+    with pytest.raises(DataFormatError, match=r"labels are 10x10 but the colour image"):
+        list(sequence_frames([folder], stride=1).frames())
