@@ -21,7 +21,7 @@ import io
 import logging
 import time
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
@@ -339,14 +339,19 @@ def export_checkpoint(
     min_label_agreement: float | None = None,
     calibration: CalibrationSet | None = None,
     threads: int | None = None,
+    prepare: Callable[[nn.Module], object] | None = None,
 ) -> ExportResult:
     """Export the segmenter of a ``uss-train`` checkpoint to ``out`` (see
     :func:`~uss_slam.export.checkpoint.load_checkpoint` and :func:`export_segmenter`);
-    ``experiment`` defaults to the training run's ``run_name``."""
+    ``experiment`` defaults to the training run's ``run_name``. ``prepare`` is applied to the
+    loaded segmenter before the trace (e.g. :func:`uss_slam.train.precise_bn.adabn`: target
+    BatchNorm statistics); the metadata's checkpoint hash stays the checkpoint's."""
     if head not in HEADS:
         raise UssSlamError(f"head must be one of {HEADS}, got {head!r}")
     check_options(out, opset, trace_size, verify_size, int8=calibration is not None)
     loaded = load_checkpoint(ckpt_path, net_cfg)
+    if prepare is not None:
+        prepare(loaded.segmenter)
     unknown = [c for c in dynamic_classes if c not in loaded.class_names]
     if unknown:
         raise UssSlamError(f"dynamic_classes {unknown} are not among {loaded.class_names}")

@@ -5,17 +5,21 @@ Stages, in order, each printed with its time (``stages=[...]`` runs a subset):
 1. ``data``: synthetic data rendered into ``out_dir/data`` (``uss-synth demo`` for training;
    each evaluation sequence with a held-out seed), or the real folders of ``data.real`` checked.
 2. ``train``: the training grid (source-only; adapted with each discriminator depth; each loss
-   weight combination; each seed) as one Hydra multirun through ``launcher``.
-3. ``export``: each complete training's best checkpoint to ``out_dir/exports/<model>/``.
+   weight combination; each seed; T0's target oracle) as one Hydra multirun through
+   ``launcher``.
+3. ``export``: each complete training's checkpoint to ``out_dir/exports/<model>/``, and each
+   source-only one with target BatchNorm statistics (T0's AdaBN) to ``exports/adabn_s<seed>/``.
 4. ``slam``: a Hydra multirun of the segmentation evaluations (each model on every labelled
-   evaluation sequence) and the SLAM runs (each system, sequence and variant; each model).
+   evaluation sequence; T0's rows also on the source validation split) and the SLAM runs (each
+   system, sequence and variant; each model).
 5. ``tables``: ``runs.csv`` (one row per job), ``tables.md``, ``tables.json`` and ``plots/``.
 
 Every job is cached (a stamp with the key of its inputs, written after its result): a rerun
 launches only the jobs that are missing, failed or whose inputs changed. A failed job never
 stops the others; the tables mark it and list why. Bad keys (scale, launcher, training
-experiment, method, depth sweep, sequence, variant, system, stage, CRF parameters) and missing or incomplete data folders are one error line before any
-work starts.
+experiment, method, depth sweep, sequence, variant, system, stage, CRF parameters, T0's
+``grid.adabn`` / ``grid.oracle``) and missing or incomplete data folders are one error line
+before any work starts.
 """
 
 from __future__ import annotations
@@ -35,17 +39,20 @@ from uss_slam.pipelines.stages import Progress
 from . import tables as tbl
 from .data import Data, stage_data
 from .experiment import Experiment, check, check_choices, eval_seed
-from .grid import given
+from .grid import AdaBNCell, given
 from .jobs import reason_of, stage_of
 from .launch import NOT_RUN, Launch, describe_plan, launch, result_rows, status_of
 from .plan import (
+    ADABN_BATCH_SIZE,
+    ADABN_IMAGES,
     blocked_jobs,
     checkpoint_policy,
     existing_exports,
-    export_stage,
     model_path,
+    model_stage,
     plan_slam,
     plan_train,
+    source_val_held_out,
 )
 
 PROG = "uss-experiments"
@@ -77,7 +84,8 @@ def run_experiments(cfg: DictConfig) -> dict[str, Any]:
     launches: dict[str, Launch] = {}
     if dry:
         print(describe_plan(exp, "train", train_jobs, set()))
-        exports = existing_exports(exp)
+        print(describe_exports(exp, data))
+        exports = existing_exports(exp, data)
         slam_jobs = plan_slam(exp, data, exports)
         blocked = {j.id for j in slam_jobs if j.needs is not None and j.needs not in exports}
         print(describe_plan(exp, "slam", slam_jobs, blocked))
@@ -94,9 +102,9 @@ def run_experiments(cfg: DictConfig) -> dict[str, Any]:
         progress.run(
             "export",
             "export: best checkpoints -> ONNX",
-            lambda: stage_exports(exp, export_failures, export_rows),
+            lambda: stage_exports(exp, data, export_failures, export_rows),
         )
-    exports = existing_exports(exp)
+    exports = existing_exports(exp, data)
     slam_jobs = plan_slam(exp, data, exports)
     blocked = blocked_jobs(exp, slam_jobs, exports, export_failures)
     if "slam" in exp.stages:
@@ -121,7 +129,11 @@ def run_experiments(cfg: DictConfig) -> dict[str, Any]:
             read = tbl.read_runs(out / "runs.csv")
             tables.update(
                 tbl.write_tables(
-                    out, read, exp.cfg["tables"]["n_layers"], header=_header(exp, data)
+                    out,
+                    read,
+                    exp.cfg["tables"]["n_layers"],
+                    header=_header(exp, data),
+                    policy=checkpoint_policy(exp),
                 )
             )
             return (
@@ -147,21 +159,20 @@ def _launch_status(launches: dict[str, Launch], stage: str, result: Launch) -> s
     return f"ran {n} job{'' if n == 1 else 's'} (multirun exit code {result.returncode})"
 
 
-def stage_exports(exp: Experiment, failures: dict[str, str], rows: list[dict[str, Any]]) -> str:
-    """Export every complete training not exported yet (in this process); a failure is
-    recorded for the tables and blocks that model's jobs."""
+def stage_exports(
+    exp: Experiment, data: Data, failures: dict[str, str], rows: list[dict[str, Any]]
+) -> str:
+    """Export every complete training not exported yet, and each AdaBN model of a complete
+    source-only training (in this process); a failure is recorded for the tables and blocks
+    that model's jobs."""
     from uss_slam.export import export_checkpoint
     from uss_slam.pipelines.runs import select_checkpoint
 
     done = reused = 0
-    for cell in exp.grid.trainings:
-        row = {
-            "kind": "export",
-            "id": f"exports/{cell.model}",
-            "folder": f"exports/{cell.model}",
-            **cell.describe(),
-        }
-        stage = export_stage(exp, cell)
+    for cell in exp.grid.models:
+        row = {"kind": "export", "id": f"exports/{cell.model}", "folder": f"exports/{cell.model}"}
+        row |= cell.describe()
+        stage = model_stage(exp, data, cell)
         if stage is None:
             continue  # training not complete: its own row says why
         if stage.complete():
@@ -170,13 +181,15 @@ def stage_exports(exp: Experiment, failures: dict[str, str], rows: list[dict[str
             continue
         t0 = time.perf_counter()
         stage.start()
+        training = exp.grid.training(cell.model)
         try:
             export_checkpoint(
                 select_checkpoint(
-                    stage_of(exp.out, exp.train_specs[cell.id], cell.id).folder,
+                    stage_of(exp.out, exp.train_specs[training.id], training.id).folder,
                     checkpoint_policy(exp),
                 ),
                 model_path(exp, cell),
+                **(_adabn_options(data, cell) if isinstance(cell, AdaBNCell) else {}),
             )
         except Exception as error:  # recorded, like a failed job, so that the others go on
             failures[cell.model] = reason_of(error)
@@ -187,6 +200,42 @@ def stage_exports(exp: Experiment, failures: dict[str, str], rows: list[dict[str
         done += 1
         rows.append({**row, "status": "ok", "seconds": time.perf_counter() - t0})
     return f"{done} exported, {reused} reused"
+
+
+def _adabn_options(data: Data, cell: AdaBNCell) -> dict[str, Any]:
+    """``export_checkpoint`` options of an AdaBN model: its own name, and BatchNorm statistics
+    recomputed on evenly spaced unlabelled target training frames before the trace."""
+    from uss_slam.datasets.transforms import eval_transform
+    from uss_slam.datasets.tum import TUMFrames
+    from uss_slam.train.precise_bn import adabn
+
+    def prepare(net: Any) -> None:
+        target = TUMFrames(data.target, labels=False, transform=eval_transform())
+        adabn(net, target, images=ADABN_IMAGES, batch_size=ADABN_BATCH_SIZE)
+
+    return {"experiment": cell.model, "prepare": prepare}
+
+
+def describe_exports(exp: Experiment, data: Data) -> str:
+    """The export stage's plan (dry run): every model not exported yet."""
+    pending = []
+    for cell in exp.grid.models:
+        stage = model_stage(exp, data, cell)
+        if stage is None or not stage.complete():
+            pending.append(cell)
+    lines = [
+        f"export: {len(exp.grid.models)} models, {len(exp.grid.models) - len(pending)} "
+        f"complete, {len(pending)} to export (each once its training is complete)"
+    ]
+    for cell in pending:
+        note = ""
+        if isinstance(cell, AdaBNCell):
+            note = (
+                f" (AdaBN: {cell.source.id}'s checkpoint, BatchNorm statistics of "
+                f"{ADABN_IMAGES} target training frames)"
+            )
+        lines.append(f"  to export: exports/{cell.model}{note}")
+    return "\n".join(lines)
 
 
 def _header(exp: Experiment, data: Data) -> list[str]:
@@ -218,7 +267,9 @@ def _header(exp: Experiment, data: Data) -> list[str]:
         ),
         f"- segmentation metrics on 1 labelled frame in {cfg['segeval']['stride']} of "
         + (", ".join(data.labelled) if data.labelled else "no sequence (none has labels/)"),
-        "- each cell: mean ± sample s.d. over seeds (n = successful jobs); runs.csv has every job",
+        "- each cell: mean ± sample s.d. over seeds (n = successful jobs; T0: mean ± s.e.); "
+        "runs.csv has every job",
+        *_t0_header(exp, data),
         f"- {policy_note(checkpoint_policy(exp))}"
         + (
             f"; synthetic shift {cfg['data']['synthetic'].get('shift', 'tum_like')}"
@@ -228,6 +279,29 @@ def _header(exp: Experiment, data: Data) -> list[str]:
         "",
     ]
     return lines
+
+
+def _t0_header(exp: Experiment, data: Data) -> list[str]:
+    """What T0's reference rows and in-domain column are in this run."""
+    grid = exp.cfg["grid"]
+    parts = [
+        f"AdaBN on {ADABN_IMAGES} evenly spaced target training frames"
+        if grid.get("adabn")
+        else "no AdaBN (grid.adabn=false)",
+        "oracle trained on the labelled target training frames"
+        if grid.get("oracle")
+        else "no oracle (grid.oracle=false: no closure)",
+    ]
+    stride = exp.cfg["segeval"].get("source_val_stride")
+    if stride is None:
+        parts.append("no in-domain column (segeval.source_val_stride=null)")
+    else:
+        held_out = source_val_held_out(exp, data)
+        parts.append(
+            f"in domain: the source VOC tree's val split (1 image in {stride}), "
+            + ("held out from training" if held_out else "NOT held out: the trainings read it")
+        )
+    return [f"- T0: {'; '.join(parts)}"]
 
 
 @hydra.main(version_base="1.3", config_path="../../configs", config_name="experiments")

@@ -28,6 +28,8 @@ class Data:
     sequence_keys: dict[str, Any] = field(default_factory=dict)
     labelled: list[str] = field(default_factory=list)  # sequences with labels/
     target: list[Path] = field(default_factory=list)  # the training target sequences
+    source_val: Path | None = None  # the source's VOC tree (its val split: T0's in-domain column)
+    source_val_key: Any = None
     vocabulary: Path | None = None  # ORB-SLAM3's vocabulary (systems with orbslam3)
     vocabulary_key: Any = None
 
@@ -159,6 +161,8 @@ def _synthetic_data(exp: Experiment, run: bool, dry: bool) -> tuple[Data, str]:
         )
     data.train_key = record.read_text() if record.is_file() else None
     data.target = [data.train_dir / f for f in spec.target_folders()]
+    data.source_val = data.train_dir / "voc"
+    data.source_val_key = data.train_key  # the VOC tree is part of the training data
     missing = []
     for name in exp.grid.sequences:
         stage = sequence_stage(exp, name)
@@ -198,7 +202,13 @@ def _real_data(exp: Experiment) -> tuple[Data, str]:
     from uss_slam.datasets.voc import find_voc_root
 
     real = exp.cfg["data"]["real"]
-    find_voc_root(real["voc"])
+    voc = find_voc_root(real["voc"])
+    val_list = voc / "ImageSets" / "Segmentation" / "val.txt"
+    if any(s.source_val for s in exp.grid.segevals) and not val_list.is_file():
+        raise DataFormatError(
+            val_list, "missing: T0's in-domain column scores the VOC val split "
+            "(segeval.source_val_stride=null leaves it out)"
+        )  # fmt: skip
     find_sbd_root(real["sbd"])
     coco = Path(str(real["coco"])).expanduser()
     for needed in (coco / "annotations" / "instances_train2017.json", coco / "train2017"):
@@ -216,6 +226,8 @@ def _real_data(exp: Experiment) -> tuple[Data, str]:
         train_key={k: str(real[k]) for k in ("voc", "sbd", "coco")}
         | {"target": [str(t) for t in targets]},
         target=targets,
+        source_val=Path(str(real["voc"])).expanduser(),
+        source_val_key=str(real["voc"]),
     )
     for name in exp.grid.sequences:
         folder = tum / f"{TUM_PREFIX}{name}"

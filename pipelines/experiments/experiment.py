@@ -107,6 +107,31 @@ def check_crf(cfg: Mapping[str, Any], grid: Grid) -> None:
         raise UssSlamError(f"variants: {wanted[0]} needs pydensecrf ({INSTALL_HINT})")
 
 
+def check_t0(plain: dict[str, Any], synthetic: bool) -> None:
+    """T0's keys: ``grid.adabn``, and ``grid.oracle`` resolved in ``plain`` (null = true for
+    synthetic data, false for real); the oracle of real data needs labelled target training
+    sequences (``labels/`` in each of ``data.real.target``; TUM has none)."""
+    grid = plain["grid"]
+    for key in ("adabn", "oracle"):
+        if grid.get(key) is not None and not isinstance(grid[key], bool):
+            raise UssSlamError(f"grid.{key}: expected true or false, got {grid[key]!r}")
+    if grid.get("oracle") is None:
+        grid["oracle"] = synthetic
+    real = plain["data"].get("real") or {}
+    if synthetic or not grid["oracle"] or real.get("tum") in (None, "???"):
+        return  # (a missing data.real.tum is the data checks' error)
+    from .data import TUM_PREFIX
+
+    for name in real.get("target") or []:
+        labels = Path(str(real["tum"])).expanduser() / f"{TUM_PREFIX}{name}" / "labels"
+        if not labels.is_dir():
+            raise UssSlamError(
+                f"grid.oracle: the target oracle trains on labelled target frames, but "
+                f"data.real.target sequence {name} has no labels/ ({labels}); set "
+                "grid.oracle=false"
+            )
+
+
 def eval_seed(cfg: Mapping[str, Any], name: str) -> int:
     """The held-out seed of synthetic evaluation sequence ``name``."""
     return int(cfg["data"]["synthetic"]["eval_seed"]) + SYNTHETIC_SEQUENCES.index(name)
@@ -136,6 +161,7 @@ def check(cfg: DictConfig) -> Experiment:
     from uss_slam.pipelines.runs import CHECKPOINT_POLICIES
 
     choose("train.checkpoint", plain["train"].get("checkpoint", "last"), CHECKPOINT_POLICIES)
+    check_t0(plain, synthetic)
     grid = expand(plain, SYNTHETIC_SEQUENCES if synthetic else TUM_SEQUENCES)
     check_crf(plain, grid)
     launcher = plain.get("launcher") or {}

@@ -9,8 +9,12 @@ Ids (= folders under ``out_dir``)::
 
     train/<config>_s<seed>                         one training (config = method [+ _n<n>] [+ loss])
                                                    (_n<n>: methods with discriminators)
-    segeval/<config>_s<seed>                       its segmentation metrics on every sequence
-    segeval/crf/<config>_s<seed>                   the same with the dense CRF (the *_crf variants)
+    train/oracle_s<seed>                           T0's target oracle (labelled target frames)
+    exports/adabn[<loss>]_s<seed>                  source-only's checkpoint with target BatchNorm
+                                                   statistics (AdaBN; an export, not a training)
+    segeval/<model>                                a model's segmentation metrics on every sequence
+    segeval/crf/<model>                            the same with the dense CRF (the *_crf variants)
+    segeval/source_val/<model>                     T0's in-domain column: the source val split
     slam/<system>/<sequence>/<variant>             a model-free SLAM run (no filter, geometry, oracle)
     slam/<system>/<sequence>/<variant>/<model>     a SLAM run with an exported model
 """
@@ -34,6 +38,15 @@ METHODS: dict[str, tuple[str, ...]] = {
     "minent": ("model/method=minent",),
     "self_training": ("model/method=self_training",),
 }
+ORACLE = "oracle"
+"""T0's target oracle: source-only trained on the *labelled* target training frames (the same
+net, budget and crops; ``grid.oracle``). Not a method of ``grid.methods``: its data overrides are
+the plan's (:func:`uss_slam.pipelines.experiments.plan.oracle_overrides`)."""
+ADABN = "adabn"
+"""T0's AdaBN row: each source-only checkpoint with BatchNorm statistics of target training
+frames (``grid.adabn``), exported and scored as a model of its own."""
+REFERENCE_METHODS: dict[str, tuple[str, ...]] = {ORACLE: ("model/method=source_only",)}
+"""The ``uss-train`` overrides of T0's reference trainings (besides the plan's data ones)."""
 ADAPTED = "adaptsegnet"
 """The paper's adapted model: the "with ATL" side of T2 / T3 and the downstream ratio."""
 DISCRIMINATOR_METHODS = ("adaptsegnet", "advent")
@@ -158,7 +171,8 @@ class TrainCell:
 
     def overrides(self) -> list[str]:
         """The cell's own ``uss-train`` overrides (after the scale's)."""
-        out = [*METHODS[self.method], f"seed={self.seed}", f"run_name={self.model}"]
+        method = METHODS.get(self.method) or REFERENCE_METHODS[self.method]
+        out = [*method, f"seed={self.seed}", f"run_name={self.model}"]
         if self.n_layers is not None:
             out.append(f"model.discriminator.n_layers={self.n_layers}")
         out += [f"model.loss.{k}={_short(v)}" for k, v in self.loss]
@@ -175,13 +189,44 @@ class TrainCell:
 
 
 @dataclass(frozen=True)
+class AdaBNCell:
+    """AdaBN (Li et al. 2016): the export of source-only training ``source`` with its BatchNorm
+    statistics recomputed on unlabelled target training frames; a model, not a training."""
+
+    source: TrainCell
+
+    @property
+    def config(self) -> str:
+        return ADABN + self.source.config.removeprefix(self.source.method)
+
+    @property
+    def seed(self) -> int:
+        return self.source.seed
+
+    @property
+    def model(self) -> str:
+        return f"{self.config}_s{self.seed}"
+
+    @property
+    def id(self) -> str:
+        return f"exports/{self.model}"
+
+    def describe(self) -> dict[str, Any]:
+        return {**self.source.describe(), "method": ADABN, "config": self.config}
+
+
+Model = TrainCell | AdaBNCell
+"""Something exported and scored: a training's checkpoint, or an AdaBN export of one."""
+
+
+@dataclass(frozen=True)
 class SlamCell:
     """One SLAM run: a system on a sequence with a variant (and a model when it needs one)."""
 
     system: str
     sequence: str
     variant: str
-    model: TrainCell | None = None
+    model: Model | None = None
 
     @property
     def id(self) -> str:
@@ -191,14 +236,18 @@ class SlamCell:
 
 @dataclass(frozen=True)
 class SegEvalCell:
-    """The segmentation metrics of one trained model on every evaluation sequence (with the
-    dense CRF of the ``*_crf`` variants when ``crf``)."""
+    """The segmentation metrics of one model on every evaluation sequence (with the dense CRF
+    of the ``*_crf`` variants when ``crf``), or with ``source_val`` on the source validation
+    split (T0's in-domain column)."""
 
-    model: TrainCell
+    model: Model
     crf: bool = False
+    source_val: bool = False
 
     @property
     def id(self) -> str:
+        if self.source_val:
+            return f"segeval/source_val/{self.model.model}"
         return f"segeval/{'crf/' if self.crf else ''}{self.model.model}"
 
 
@@ -212,12 +261,24 @@ class Grid:
     variants: tuple[str, ...]
     table_configs: tuple[str, ...] = field(default=())
     """Configs of T2 / T3 / the downstream ratio: source-only and the adapted one of ``n``."""
+    adabn: tuple[AdaBNCell, ...] = ()
+    """T0's AdaBN exports (``grid.adabn``): one per source-only training."""
+
+    @property
+    def models(self) -> tuple[Model, ...]:
+        """Everything exported and scored: the trainings, then the AdaBN exports."""
+        return (*self.trainings, *self.adabn)
+
+    def model(self, name: str) -> Model:
+        for cell in self.models:
+            if cell.model == name:
+                return cell
+        raise KeyError(name)
 
     def training(self, model: str) -> TrainCell:
-        for cell in self.trainings:
-            if cell.model == model:
-                return cell
-        raise KeyError(model)
+        """The training a model comes from (an AdaBN export's: its source-only training)."""
+        cell = self.model(model)
+        return cell.source if isinstance(cell, AdaBNCell) else cell
 
 
 def given(values: Mapping[str, Any] | None) -> dict[str, Any]:
@@ -316,6 +377,28 @@ def training_cells(grid: Mapping[str, Any], n_table: Any = None) -> list[TrainCe
     return cells
 
 
+def flag(key: str, value: Any) -> bool:
+    """A true / false option (absent = false); anything else is the one-line error."""
+    if value is None:
+        return False
+    if not isinstance(value, bool):
+        raise UssSlamError(f"{key}: expected true or false, got {value!r}")
+    return value
+
+
+def source_val_stride(cfg: Mapping[str, Any]) -> int | None:
+    """``segeval.source_val_stride`` (T0's in-domain column: every n-th source validation
+    image); None = not scored."""
+    stride = (cfg.get("segeval") or {}).get("source_val_stride")
+    if stride is None:
+        return None
+    if isinstance(stride, bool) or not isinstance(stride, int) or stride < 1:
+        raise UssSlamError(
+            f"segeval.source_val_stride: expected an integer >= 1 or null, got {stride!r}"
+        )
+    return stride
+
+
 def check_sequences(sequences: Any, accepted: Sequence[str]) -> list[str]:
     names = [str(s) for s in _non_empty_list("sequences", sequences)]
     for s in names:
@@ -328,6 +411,16 @@ def expand(cfg: Mapping[str, Any], accepted_sequences: Sequence[str]) -> Grid:
     """The whole grid of a (resolved, plain-container) ``uss-experiments`` config."""
     n_table = (cfg.get("tables") or {}).get("n_layers")
     trainings = training_cells(cfg["grid"], n_table)
+    # T0's reference rows: the target oracle (one more training per seed) and AdaBN (an export
+    # of each source-only training); absent keys = off (configs/experiments.yaml turns them on)
+    if flag("grid.oracle", cfg["grid"].get("oracle")):
+        trainings += [TrainCell(ORACLE, int(s)) for s in cfg["grid"]["seeds"]]
+    adabn = [
+        AdaBNCell(t)
+        for t in trainings
+        if t.method == "source_only" and flag("grid.adabn", cfg["grid"].get("adabn"))
+    ]
+    models: list[Model] = [*trainings, *adabn]
     sequences = check_sequences(cfg.get("sequences"), accepted_sequences)
     systems = [str(s) for s in _non_empty_list("systems", cfg.get("systems"))]
     for s in systems:
@@ -357,16 +450,23 @@ def expand(cfg: Mapping[str, Any], accepted_sequences: Sequence[str]) -> Grid:
                 if variant.segmenter != "model":
                     slams.append(SlamCell(system, sequence, name))
                     continue
-                for cell in trainings:
-                    # semantic runs for every model (T1); the geometry and CRF variants for the
-                    # models the tables compare (T2, T3), unless slam.every_model.
+                for cell in models:
+                    # semantic runs for every model (T1, T0); the geometry and CRF variants for
+                    # the models the tables compare (T2, T3), unless slam.every_model.
                     if name == "semantic" or every_model or cell.config in table_configs:
                         slams.append(SlamCell(system, sequence, name, cell))
-    segevals = [SegEvalCell(t) for t in trainings]
+    segevals = [SegEvalCell(m) for m in models]
     if any(VARIANTS[v].crf for v in variants):
         # the CRF's segmentation metrics for the models that have CRF runs
         segevals += [
-            SegEvalCell(t, crf=True) for t in trainings if every_model or t.config in table_configs
+            SegEvalCell(m, crf=True) for m in models if every_model or m.config in table_configs
+        ]
+    if source_val_stride(cfg) is not None:
+        # T0's in-domain column, for T0's rows: every model at the tables' depth
+        segevals += [
+            SegEvalCell(m, source_val=True)
+            for m in models
+            if isinstance(m, AdaBNCell) or m.n_layers in (None, n_table)
         ]
     return Grid(
         trainings=tuple(trainings),
@@ -376,4 +476,5 @@ def expand(cfg: Mapping[str, Any], accepted_sequences: Sequence[str]) -> Grid:
         systems=tuple(systems),
         variants=tuple(variants),
         table_configs=tuple(table_configs),
+        adabn=tuple(adabn),
     )

@@ -42,6 +42,8 @@ from uss_slam.pipelines.runs import (
 )
 from uss_slam.pipelines.stages import Stage
 
+from .tables import SOURCE_VAL
+
 log = logging.getLogger(__name__)
 
 RESULT = "result.json"
@@ -86,7 +88,9 @@ def run_segeval(folder: Path, spec: Mapping[str, Any]) -> dict[str, Any]:
     """An exported model's mIoU, per-class IoU and person-mask frame metrics (``uss-eval``'s)
     on the labelled frames of every evaluation sequence (every ``stride``-th), per sequence
     and pooled over all of them (``"all"``); with ``crf`` (parameters), after the dense CRF the
-    ``*_crf`` SLAM runs apply."""
+    ``*_crf`` SLAM runs apply. With ``source_val`` (``root``, ``split``, ``stride``) instead: on
+    every ``stride``-th image of that split of a VOC tree (``"source_val"``: T0's in-domain
+    column)."""
     import numpy as np
 
     from uss_slam.core.classes import CLASS_NAMES
@@ -95,13 +99,20 @@ def run_segeval(folder: Path, spec: Mapping[str, Any]) -> dict[str, Any]:
 
     infer, info = load_segmenter(Path(spec["model"]), spec.get("threads"), spec.get("crf"))
     dynamic = [CLASS_NAMES.index(c) for c in spec.get("dynamic_classes", ["person"])]
+    if "source_val" in spec:
+        source = spec["source_val"]
+        sources = {SOURCE_VAL: voc_frames(Path(source["root"]), source["split"], source["stride"])}
+    else:
+        sources = {
+            name: sequence_frames([Path(path)], int(spec["stride"]))
+            for name, path in spec["sequences"].items()
+        }
     n = len(CLASS_NAMES)
     pooled = np.zeros((n, n), np.int64)
     pooled_masks = []
     scores: dict[str, Any] = {}
-    for name, path in spec["sequences"].items():
-        source = sequence_frames([Path(path)], int(spec["stride"]))
-        result = evaluate_frames(infer, source.frames(), CLASS_NAMES, dynamic)
+    for name, frames in sources.items():
+        result = evaluate_frames(infer, frames.frames(), CLASS_NAMES, dynamic)
         pooled += result.matrix
         pooled_masks += result.mask_counts
         scores[name] = {
@@ -109,12 +120,34 @@ def run_segeval(folder: Path, spec: Mapping[str, Any]) -> dict[str, Any]:
             "person": mask_metrics(result.mask_counts),
             "frames": len(result.names),
         }
-    scores["all"] = {
-        **iou_report(pooled, CLASS_NAMES),
-        "person": mask_metrics(pooled_masks),
-        "frames": len(pooled_masks),
-    }
+    if "source_val" not in spec:
+        scores["all"] = {
+            **iou_report(pooled, CLASS_NAMES),
+            "person": mask_metrics(pooled_masks),
+            "frames": len(pooled_masks),
+        }
     return {"model": info, "sequences": scores}
+
+
+def voc_frames(root: Path, split: str, stride: int) -> Any:
+    """Every ``stride``-th image of split ``split`` of a VOC tree (project classes), as a
+    :class:`~uss_slam.pipelines.evaluate.FrameSource`."""
+    from uss_slam.datasets.voc import VOCSegmentation
+    from uss_slam.pipelines.evaluate import FrameSource, LabelledFrame
+
+    if stride < 1:
+        raise UssSlamError(f"source validation stride: expected an integer >= 1, got {stride}")
+    dataset = VOCSegmentation(root, split=split)
+    indices = range(0, len(dataset), stride)
+
+    def frames() -> Any:
+        for k in indices:
+            sample = dataset.load(k)
+            rgb = sample["image"].permute(1, 2, 0).numpy()
+            yield LabelledFrame(str(sample["name"]), rgb, sample["label"].numpy())
+
+    description = {"source": "voc", "root": str(root), "split": split, "stride": stride}
+    return FrameSource(description, len(indices), frames)
 
 
 def run_slam_job(folder: Path, spec: Mapping[str, Any]) -> dict[str, Any]:

@@ -270,7 +270,9 @@ def result_rows(
         ]
     rows = []
     scores = result.get("sequences") or {}
-    for name in [*sequences, tbl.ALL_SEQUENCES]:
+    # the source validation split's evaluation has one row; the sequences' one each and "all"
+    names = [job.row["sequence"]] if job.row.get("sequence") else [*sequences, tbl.ALL_SEQUENCES]
+    for name in names:
         s = scores.get(name) or {}
         person = (s.get("person") or {}).get("frames") or {}
         iou = s.get("IoU") or {}
@@ -298,6 +300,11 @@ def describe_plan(exp: Experiment, stage: str, jobs: Sequence[Job], blocked: set
         )
     ]
     lines += [f"  to run: {j.id}" for j in pending]
+    waiting: dict[str, list[str]] = {}
+    for j in jobs:
+        if j.id in blocked and j not in complete:
+            waiting.setdefault(str(j.needs), []).append(j.id)
+    lines += [f"  after exports/{m}: {', '.join(ids)}" for m, ids in waiting.items()]
     if pending:
         command = multirun_command(
             exp,

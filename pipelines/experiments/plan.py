@@ -3,19 +3,22 @@ every cell of the grid and the cache key of each job (what its result depends on
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from uss_slam.core.errors import UssSlamError
 from uss_slam.core.files import file_sha256
 from uss_slam.pipelines.runs import OrbSlam3, Segmenter, SlamJob, select_checkpoint
 from uss_slam.pipelines.stages import Stage
 
 from .data import Data
 from .experiment import Experiment
-from .grid import VARIANTS, SlamCell, TrainCell, given
+from .grid import ORACLE, VARIANTS, AdaBNCell, Model, SlamCell, TrainCell, given, source_val_stride
 from .jobs import stage_of
+from .tables import SOURCE_VAL
 
 FAST_TRAIN = (
     "model.max_iters=1",
@@ -29,6 +32,13 @@ FAST_TRAIN = (
 
 FAST_FRAMES = 20
 """``fast_dev_run``: frames per SLAM run."""
+
+ADABN_IMAGES = 48
+ADABN_BATCH_SIZE = 4
+"""AdaBN's BatchNorm statistics: the cumulative average over this many evenly spaced target
+training frames, in batches of this size (as the trainings' precise BatchNorm does)."""
+
+TUM_FRAMES = "uss_slam.datasets.tum.TUMFrames"
 
 
 @dataclass
@@ -50,6 +60,16 @@ def _portable(values: Sequence[str], out: Path) -> list[str]:
 
 def train_overrides(exp: Experiment, data: Data, cell: TrainCell) -> tuple[list[str], list[str]]:
     """``(overrides that define the training, runtime-only overrides)``."""
+    base = common_overrides(exp, data)
+    oracle = oracle_overrides(data, base) if cell.method == ORACLE else []
+    threads = exp.cfg["train"].get("num_threads")
+    return [*base, *cell.overrides(), *oracle], (
+        [] if threads is None else [f"num_threads={int(threads)}"]
+    )
+
+
+def common_overrides(exp: Experiment, data: Data) -> list[str]:
+    """The overrides every training starts with (experiment, data, ``train.overrides``)."""
     cfg = exp.cfg
     base = [f"experiment={cfg['train']['experiment']}", f"paths.log_dir={exp.out}"]
     if exp.synthetic:
@@ -71,9 +91,57 @@ def train_overrides(exp: Experiment, data: Data, cell: TrainCell) -> tuple[list[
     base += [str(o) for o in cfg["train"].get("overrides") or []]
     if exp.fast:
         base += FAST_TRAIN
-    base += cell.overrides()
-    threads = cfg["train"].get("num_threads")
-    return base, ([] if threads is None else [f"num_threads={int(threads)}"])
+    return base
+
+
+@functools.lru_cache(maxsize=8)
+def _composed_source(base: tuple[str, ...]) -> dict[str, Any]:
+    """What the trainings' ``data.source`` is (the ``train`` config composed with ``base``):
+    its ``transform`` and ``on_error`` (resolved) and the VOC ``split`` it reads."""
+    from omegaconf import OmegaConf
+
+    from uss_slam.core.cli import hydra_error_line
+    from uss_slam.pipelines.runs import compose_config
+
+    try:
+        cfg = compose_config("train", list(base))
+        node = cfg.data.source
+        found: dict[str, Any] = {
+            k: OmegaConf.to_container(node[k], resolve=True) if k == "transform" else node[k]
+            for k in ("transform", "on_error")
+            if k in node
+        }
+    except Exception as error:  # a bad train.overrides entry: one line
+        line = hydra_error_line(error)
+        if line is None:
+            raise
+        raise UssSlamError(
+            f"train.overrides: the training config does not compose ({line})"
+        ) from None
+    split = OmegaConf.select(cfg, "data.source.split", default=None)
+    found["split"] = OmegaConf.select(cfg, "data.source.voc.split", default=split)
+    return found
+
+
+def oracle_overrides(data: Data, base: Sequence[str]) -> list[str]:
+    """T0's target oracle: ``data.source`` replaced by the *labelled* target training frames
+    (every frame of ``data.target``, with the source's training transform: the same crops) and
+    no precise BatchNorm callback (its source images are gone; the oracle keeps the statistics
+    of its own training). Network, budget and everything else stay the trainings'."""
+    from .launch import hydra_value
+
+    source = _composed_source(tuple(base))
+    node: dict[str, Any] = {"_target_": TUM_FRAMES, "roots": [str(p) for p in data.target]}
+    node["labels"] = True
+    node |= {k: source[k] for k in ("on_error", "transform") if k in source}
+    return ["~data.source", f"+data.source={hydra_value(node)}", "++callbacks.precise_bn=null"]
+
+
+def source_val_held_out(exp: Experiment, data: Data) -> bool:
+    """False when the trainings' source split holds the VOC val images T0 scores in domain
+    (``trainval``, as the paper's experiment reads VOC)."""
+    split = _composed_source(tuple(common_overrides(exp, data)))["split"]
+    return split not in ("val", "trainval")
 
 
 def plan_train(exp: Experiment, data: Data) -> list[Job]:
@@ -109,6 +177,30 @@ def export_stage(exp: Experiment, cell: TrainCell) -> Stage | None:
     return Stage(exp.out / "exports" / cell.model, key, outputs=(Path(f"{cell.model}.onnx"),))
 
 
+def adabn_stage(exp: Experiment, data: Data, cell: AdaBNCell) -> Stage | None:
+    """The AdaBN export of a complete source-only training (None while it is not complete):
+    its checkpoint's export key plus what the target statistics are computed on."""
+    source = export_stage(exp, cell.source)
+    if source is None:
+        return None
+    key = {
+        "adabn": {
+            "images": ADABN_IMAGES,
+            "batch_size": ADABN_BATCH_SIZE,
+            "target": _portable([str(p) for p in data.target], exp.out),
+        },
+        **source.key,
+    }
+    return Stage(exp.out / "exports" / cell.model, key, outputs=(Path(f"{cell.model}.onnx"),))
+
+
+def model_stage(exp: Experiment, data: Data, cell: Model) -> Stage | None:
+    """The export stage of a model (a training's or an AdaBN one)."""
+    if isinstance(cell, AdaBNCell):
+        return adabn_stage(exp, data, cell)
+    return export_stage(exp, cell)
+
+
 def images_only(exp: Experiment) -> bool:
     """True when the evaluation data are labelled images, not recordings (the synthetic
     ``appearance`` shift): segmentation is evaluated, SLAM is not run."""
@@ -120,7 +212,7 @@ def checkpoint_policy(exp: Experiment) -> str:
     return str(exp.cfg["train"].get("checkpoint") or "last")
 
 
-def model_path(exp: Experiment, cell: TrainCell) -> Path:
+def model_path(exp: Experiment, cell: Model) -> Path:
     return exp.out / "exports" / cell.model / f"{cell.model}.onnx"
 
 
@@ -154,7 +246,7 @@ def plan_slam(exp: Experiment, data: Data, exports: Mapping[str, str]) -> list[J
     labelled = {n: str(data.sequences[n]) for n in exp.grid.sequences if n in data.labelled}
     seg_cfg = exp.cfg["segeval"]
     if labelled:
-        for seg in exp.grid.segevals:
+        for seg in [s for s in exp.grid.segevals if not s.source_val]:
             key = {
                 "model": exports.get(seg.model.model),
                 "sequences": {n: data.sequence_keys[n] for n in labelled},
@@ -172,6 +264,25 @@ def plan_slam(exp: Experiment, data: Data, exports: Mapping[str, str]) -> list[J
                 key["crf"] = spec["crf"] = given(exp.cfg.get("crf_params"))
             row = {"kind": "segeval", **seg.model.describe(), "crf": int(seg.crf)}
             jobs.append(Job(seg.id, spec, row, needs=seg.model.model))
+    # T0's in-domain column: the model on the source validation split
+    stride = source_val_stride(exp.cfg)
+    for seg in exp.grid.segevals:
+        if not seg.source_val:
+            continue
+        source_val = {"root": str(data.source_val), "split": "val", "stride": stride}
+        key = {
+            "model": exports.get(seg.model.model),
+            "source_val": {"data": data.source_val_key, "split": "val", "stride": stride},
+        }
+        spec = {
+            "kind": "segeval",
+            "model": str(model_path(exp, seg.model)),
+            "source_val": source_val,
+            "threads": seg_cfg.get("threads"),
+            "key": key,
+        }
+        row = {"kind": "segeval", **seg.model.describe(), "sequence": SOURCE_VAL, "crf": 0}
+        jobs.append(Job(seg.id, spec, row, needs=seg.model.model))
     for cell in [] if images_only(exp) else exp.grid.slams:
         job = slam_job(exp, data, cell)
         overrides = job.overrides()
@@ -196,11 +307,11 @@ def plan_slam(exp: Experiment, data: Data, exports: Mapping[str, str]) -> list[J
     return jobs
 
 
-def existing_exports(exp: Experiment) -> dict[str, str]:
+def existing_exports(exp: Experiment, data: Data) -> dict[str, str]:
     """Model -> sha256 of its ONNX file, for every complete export."""
     found = {}
-    for cell in exp.grid.trainings:
-        stage = export_stage(exp, cell)
+    for cell in exp.grid.models:
+        stage = model_stage(exp, data, cell)
         if stage is not None and stage.complete():
             found[cell.model] = file_sha256(model_path(exp, cell))
     return found
@@ -217,7 +328,7 @@ def blocked_jobs(
     for job in jobs:
         if job.needs is None or job.needs in exports:
             continue
-        training = f"train/{job.needs}"
+        training = exp.grid.training(job.needs).id
         if job.needs in export_failures:
             blocked[job.id] = f"needs exports/{job.needs}: its export failed"
         elif stage_of(exp.out, exp.train_specs[training], training).complete():

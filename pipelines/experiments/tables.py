@@ -1,5 +1,9 @@
 """The paper's tables from ``runs.csv`` (one row per job of the grid): mean ± s.d. over seeds.
 
+- **T0** the standard UDA table: source-only, AdaBN, each method and the target oracle, each
+  with its source validation mIoU (in domain), target mIoU, person IoU and person-mask frame
+  metrics (means over the evaluation sequences) and its closure ``(row − source-only) /
+  (oracle − source-only)`` paired by seed; mean ± s.e. over seeds and every seed's value;
 - **T1** discriminator depth: target mIoU and per-class IoU of every configuration (source-only,
   adapted with n = 4..7), and its ATE RMSE per sequence (semantic filter);
 - **T2** "ATL" (with / without adversarial transfer learning): per sequence, mIoU, the person-mask
@@ -32,8 +36,9 @@ from typing import Any
 from uss_slam.core.classes import CLASS_NAMES
 from uss_slam.core.errors import DataFormatError
 from uss_slam.core.files import write_text_atomic
+from uss_slam.pipelines.runs import USES_TARGET_LABELS
 
-from .grid import ADAPTED, VARIANTS
+from .grid import ADABN, ADAPTED, ORACLE, VARIANTS
 
 RATES = ("FPR", "FNR", "recall", "precision", "PWC")
 ATE_KEYS = ("ate_rmse", "ate_mean", "ate_median", "ate_std")
@@ -89,6 +94,8 @@ TEXT_COLUMNS = (
 STATUSES = ("ok", "failed", "blocked", "missing")
 ALL_SEQUENCES = "all"
 """``sequence`` of a segeval row pooled over every evaluation sequence."""
+SOURCE_VAL = "source_val"
+"""``sequence`` of a segeval row on the source validation split (T0's in-domain column)."""
 
 LOWER_IS_BETTER = {"person_FPR", "person_FNR", "person_PWC", *ATE_KEYS}
 LABELS = {
@@ -177,7 +184,15 @@ class Stat:
         """Sample standard deviation (``n − 1``); None for fewer than two values."""
         return statistics.stdev(self.values) if len(self.values) > 1 else None
 
-    def text(self, digits: int = 4) -> str:
+    @property
+    def se(self) -> float | None:
+        """Standard error of the mean (``s.d. / √n``); None for fewer than two values."""
+        sd = self.sd
+        return None if sd is None else sd / math.sqrt(self.n)
+
+    def text(self, digits: int = 4, spread: str = "sd") -> str:
+        """``mean ± s.d. (n=k)`` (``spread="se"``: ± the standard error), with how many jobs
+        failed or gave no value."""
         notes = [f"{self.failed} failed"] if self.failed else []
         notes += [f"{self.undefined} n/a"] if self.undefined else []
         if not self.values:
@@ -185,8 +200,9 @@ class Stat:
                 return "failed" + (f" ({self.failed})" if self.failed > 1 else "")
             return "n/a" if self.undefined else "—"
         body = f"{self.mean:.{digits}f}"
-        if self.sd is not None:
-            body += f" ± {self.sd:.{digits}f}"
+        width = self.se if spread == "se" else self.sd
+        if width is not None:
+            body += f" ± {width:.{digits}f}"
         return f"{body} (n={self.n}{''.join(', ' + n for n in notes)})"
 
     def as_json(self) -> dict[str, Any]:
@@ -240,6 +256,225 @@ def _md(header: Sequence[str], body: Iterable[Sequence[str]]) -> list[str]:
     return lines
 
 
+# ---------------------------------------------------------------------------------- T0
+
+
+@dataclass(frozen=True)
+class SeedValues:
+    """One T0 cell: each seed's value, and how many seeds gave none (failed / undefined)."""
+
+    values: Mapping[int, float]
+    failed: int = 0
+    undefined: int = 0
+
+    @property
+    def stat(self) -> Stat:
+        ordered = tuple(self.values[s] for s in sorted(self.values))
+        return Stat(ordered, self.failed, self.undefined)
+
+    def as_json(self) -> dict[str, Any]:
+        s = self.stat
+        return {**s.as_json(), "se": s.se, "per_seed": {str(k): v for k, v in self.values.items()}}
+
+
+def seed_means(
+    rows: Sequence[Mapping[str, Any]], config: str, key: str, sequences: Sequence[str]
+) -> SeedValues:
+    """Per seed, the mean of column ``key`` over the segmentation rows of ``config`` on
+    ``sequences`` (no CRF) where it is defined; a seed whose evaluation has no result counts as
+    failed, one without a defined value as undefined."""
+    by_seed: dict[int, list[Mapping[str, Any]]] = {}
+    for r in _select(rows, kind="segeval", config=config):
+        if r.get("sequence") in sequences and not r.get("crf") and r.get("seed") is not None:
+            by_seed.setdefault(int(r["seed"]), []).append(r)
+    values: dict[int, float] = {}
+    failed = undefined = 0
+    for seed in sorted(by_seed):
+        seed_rows = by_seed[seed]
+        if any(r["status"] != "ok" for r in seed_rows):
+            failed += 1
+            continue
+        defined = [float(r[key]) for r in seed_rows if _defined(r.get(key))]
+        if defined:
+            values[seed] = statistics.fmean(defined)
+        else:
+            undefined += 1
+    return SeedValues(values, failed, undefined)
+
+
+def _defined(value: Any) -> bool:
+    return value is not None and not (isinstance(value, float) and math.isnan(value))
+
+
+def closure(value: float | None, source_only: float | None, oracle: float | None) -> float | None:
+    """``(value − source-only) / (oracle − source-only)``: 0 = no better than source-only, 1 =
+    as good as the target oracle; None when a value is missing or the oracle is no better than
+    source-only (the ratio is then meaningless)."""
+    if value is None or source_only is None or oracle is None or oracle - source_only <= 0:
+        return None
+    return (value - source_only) / (oracle - source_only)
+
+
+def paired_closure(row: SeedValues, source_only: SeedValues, oracle: SeedValues) -> SeedValues:
+    """The closure of each seed of ``row`` against source-only and the oracle of the *same*
+    seed; a seed without all three (or whose oracle is no better) is undefined."""
+    values: dict[int, float] = {}
+    undefined = 0
+    for seed, value in row.values.items():
+        c = closure(value, source_only.values.get(seed), oracle.values.get(seed))
+        if c is None:
+            undefined += 1
+        else:
+            values[seed] = c
+    return SeedValues(values, row.failed, row.undefined + undefined)
+
+
+T0_SEG = ("mIoU", "IoU_person")
+T0_FRAMES = tuple(f"person_{r}" for r in RATES)
+
+
+def t0_rows(layout: Layout) -> list[tuple[str, str]]:
+    """T0's rows in order, ``(config, role)``: source-only, AdaBN, each method at the tables'
+    depth, the target oracle."""
+    if layout.source_only is None:
+        return []
+    rows = [(layout.source_only, "source-only")]
+    rows += [(c, "AdaBN") for c in layout.adabn]
+    rows += [(c, "method") for c in layout.methods if c != layout.source_only]
+    rows += [(layout.oracle, "oracle")] if layout.oracle else []
+    return rows
+
+
+def target_labels(role: str, policy: str) -> str:
+    """What target labels a T0 row used: the oracle's training, and the checkpoint selection
+    of a policy that reads them (``train.checkpoint=best_target_val``)."""
+    used = ["training"] if role == "oracle" else []
+    used += ["checkpoint selection"] if policy in USES_TARGET_LABELS else []
+    return ", ".join(used) or "none"
+
+
+def table_t0(rows, layout: Layout, policy: str = "last") -> tuple[dict[str, Any], list[str]]:
+    """T0, the standard UDA table (module docstring)."""
+    title = "### T0: the UDA table (source-only, AdaBN, methods, target oracle)"
+    order = t0_rows(layout)
+    if not order:
+        return {"rows": []}, [title, "", "Not computed: needs source_only in grid.methods.", ""]
+    sequences = layout.sequences
+    cells: dict[str, dict[str, SeedValues]] = {}
+    for config, _ in order:
+        cells[config] = {
+            "source_val_mIoU": seed_means(rows, config, "mIoU", (SOURCE_VAL,)),
+            **{k: seed_means(rows, config, k, sequences) for k in (*T0_SEG, *T0_FRAMES)},
+        }
+    so = cells[layout.source_only]
+    none = SeedValues({})
+    oracle = cells[layout.oracle] if layout.oracle else None
+    for config, _ in order:
+        for k in T0_SEG:
+            cells[config][f"closure_{k}"] = (
+                paired_closure(cells[config][k], so[k], oracle[k]) if oracle else none
+            )
+    main = ("source_val_mIoU", "mIoU", "IoU_person", "closure_mIoU", "closure_IoU_person")
+    systems = list(layout.systems)
+    data: dict[str, Any] = {
+        "source_only": layout.source_only,
+        "oracle": layout.oracle,
+        "sequences": list(sequences),
+        "policy": policy,
+        "rows": [],
+    }
+    body, per_seed, frames = [], [], []
+    for config, role in order:
+        labels = target_labels(role, policy)
+        name = config + (" †" if labels != "none" else "")
+        c = cells[config]
+        ate = {
+            (system, seq): stat(_slam_rows(rows, system, seq, "semantic", config), "ate_rmse")
+            for system in systems
+            for seq in sequences
+        }
+        data["rows"].append(
+            {
+                "config": config,
+                "role": role,
+                "target_labels": labels,
+                **{k: v.as_json() for k, v in c.items()},
+                "ate_rmse": [
+                    {"system": system, "sequence": seq, **s.as_json(), "se": s.se}
+                    for (system, seq), s in ate.items()
+                ],
+            }
+        )
+        body.append([name, labels, *(c[k].stat.text(3, "se") for k in main)])
+        frames.append(
+            [
+                name,
+                *(c[k].stat.text(3, "se") for k in T0_FRAMES),
+                *(s.text(4, "se") for s in ate.values()),
+            ]
+        )
+        seeds = sorted(
+            {int(r["seed"]) for r in _select(rows, config=config) if r.get("seed") is not None}
+        )
+        for seed in seeds:
+            per_seed.append([config, str(seed), *(_value(c[k].values.get(seed)) for k in main)])
+    header = [
+        "row",
+        "target labels used",
+        "source val mIoU (in domain)",
+        "target mIoU",
+        "person IoU",
+        "closure (mIoU)",
+        "closure (person IoU)",
+    ]
+    lines = [
+        title,
+        "",
+        "source-only: the source-only model (source BatchNorm statistics); adabn: the same "
+        "checkpoint with BatchNorm statistics of unlabelled target training frames (AdaBN, the "
+        "baseline any method must beat); each method at tables.n_layers; oracle: source-only "
+        "trained on the labelled target training frames (the same net, budget and crops). "
+        "Source val mIoU: on the source validation split (in domain for source-only). Target "
+        "mIoU and person IoU: the mean over the evaluation sequences where defined "
+        f"({', '.join(sequences)}). Closure = (row − source-only) / (oracle − source-only), "
+        "per seed against the same seed's source-only and oracle (0 = no gain, 1 = the "
+        "oracle's; n/a when the oracle is no better than source-only)"
+        + ("" if layout.oracle else "; no oracle in this run (grid.oracle=false): no closure")
+        + ". Each cell: mean ± standard error over seeds (n = seeds with a value); the per-seed "
+        "table has every seed's value. † = target labels used (column 2).",
+        "",
+        *_md(header, body),
+        "",
+        "#### T0 per seed",
+        "",
+        *_md(["row", "seed", *header[2:]], per_seed),
+        "",
+        "#### T0 person masks and SLAM",
+        "",
+        "Person-mask frame metrics (as in T2; mean over the evaluation sequences) and ATE RMSE "
+        "[m] with the semantic filter; mean ± standard error over seeds.",
+        "",
+        *_md(
+            [
+                "row",
+                *(LABELS[k] for k in T0_FRAMES),
+                *(
+                    f"ATE {seq}" + (f" ({system})" if len(systems) > 1 else "")
+                    for system in systems
+                    for seq in sequences
+                ),
+            ],
+            frames,
+        ),
+        "",
+    ]
+    return data, lines
+
+
+def _value(value: float | None) -> str:
+    return "—" if value is None else f"{value:.3f}"
+
+
 # ---------------------------------------------------------------------------------- tables
 
 
@@ -255,6 +490,8 @@ class Layout:
     adapted: tuple[str, ...]  # the "with ATL" config(s): adapted with tables.n_layers
     methods: tuple[str, ...] = ()  # one config per method at tables.n_layers (T2 by method)
     crf_configs: tuple[str, ...] = ()  # configs with dense-CRF runs or segmentation metrics
+    adabn: tuple[str, ...] = ()  # T0's AdaBN configs (one per source-only config)
+    oracle: str | None = None  # T0's target oracle
 
 
 def layout_from_rows(rows: Sequence[Mapping[str, Any]], n_layers: int | None) -> Layout:
@@ -269,15 +506,15 @@ def layout_from_rows(rows: Sequence[Mapping[str, Any]], n_layers: int | None) ->
             )
         )
 
-    configs = ordered("config", "train")
-    trains = _select(rows, kind="train")
+    trains = [r for r in _select(rows, kind="train") if r.get("method") != ORACLE]
+    configs = tuple(dict.fromkeys(r["config"] for r in trains if r.get("config") is not None))
     source_only = next((r["config"] for r in trains if r["method"] == "source_only"), None)
     adapted = tuple(
         dict.fromkeys(
             r["config"] for r in trains if r["method"] == ADAPTED and r["n_layers"] == n_layers
         )
     )
-    sequences = tuple(s for s in ordered("sequence") if s != ALL_SEQUENCES)
+    sequences = tuple(s for s in ordered("sequence") if s not in (ALL_SEQUENCES, SOURCE_VAL))
     methods = tuple(
         dict.fromkeys(r["config"] for r in trains if r.get("n_layers") in (None, n_layers))
     )
@@ -288,6 +525,12 @@ def layout_from_rows(rows: Sequence[Mapping[str, Any]], n_layers: int | None) ->
             if r.get("crf") and r.get("config") is not None and r["kind"] in ("segeval", "slam")
         )
     )
+    adabn = tuple(
+        dict.fromkeys(r["config"] for r in rows if r.get("method") == ADABN and r.get("config"))
+    )
+    oracle = next(
+        (r["config"] for r in rows if r["kind"] == "train" and r["method"] == ORACLE), None
+    )
     return Layout(
         configs,
         sequences,
@@ -297,6 +540,8 @@ def layout_from_rows(rows: Sequence[Mapping[str, Any]], n_layers: int | None) ->
         adapted,
         methods,
         crf_configs,
+        adabn,
+        oracle,
     )
 
 
@@ -835,10 +1080,15 @@ def table_failures(rows) -> tuple[list[dict[str, Any]], list[str]]:
 
 
 def compute(
-    rows: Sequence[Mapping[str, Any]], n_layers: int | None, layout: Layout | None = None
+    rows: Sequence[Mapping[str, Any]],
+    n_layers: int | None,
+    layout: Layout | None = None,
+    policy: str = "last",
 ) -> tuple[dict[str, Any], str]:
-    """Every table: ``(tables.json content, tables.md text)``."""
+    """Every table: ``(tables.json content, tables.md text)``; ``policy``: the trainings'
+    checkpoint policy (``train.checkpoint``: T0 marks the rows it selected with target labels)."""
     layout = layout or layout_from_rows(rows, n_layers)
+    t0, t0_md = table_t0(rows, layout, policy)
     t1, t1_md = table_t1(rows, layout)
     t2, t2_md = table_t2(rows, layout)
     methods, methods_md = table_methods(rows, layout)
@@ -859,8 +1109,11 @@ def compute(
             "adapted": list(layout.adapted),
             "methods": list(layout.methods),
             "crf_configs": list(layout.crf_configs),
+            "adabn": list(layout.adabn),
+            "oracle": layout.oracle,
             "n_layers": n_layers,
         },
+        "T0": t0,
         "T1": t1,
         "T2": t2,
         "T3": t3,
@@ -872,6 +1125,7 @@ def compute(
     }
     text = "\n".join(
         [
+            *t0_md,
             *t1_md,
             *t2_md,
             *methods_md,
@@ -993,10 +1247,11 @@ def write_tables(
     header: Sequence[str] = (),
     layout: Layout | None = None,
     plots: bool = True,
+    policy: str = "last",
 ) -> dict[str, Any]:
     """``tables.md``, ``tables.json`` and the plots (under ``plots/``) in ``out``."""
     layout = layout or layout_from_rows(rows, n_layers)
-    data, text = compute(rows, n_layers, layout)
+    data, text = compute(rows, n_layers, layout, policy)
     images = write_plots(out / "plots", rows, layout) if plots else []
     md = [*header, text]
     if images:

@@ -355,10 +355,21 @@ def test_dry_run_prints_the_plan_without_work(tmp_path: Path) -> None:
         cwd=tmp_path,
     )
     assert proc.returncode == 0, proc.stderr
-    assert "train: 5 jobs, 0 complete, 5 to run" in proc.stdout
+    # source-only, AdaptSegNet n = 4..7 and T0's target oracle
+    assert "train: 6 jobs, 0 complete, 6 to run" in proc.stdout
     assert "  to run: train/adaptsegnet_n7_s0" in proc.stdout
-    # 5 segmentation evaluations + 2 sequences x (3 model-free + 5 semantic + 2 x 2 geometry)
-    assert "slam: 29 jobs, 0 complete, 6 to run, 23 blocked until their model exists" in proc.stdout
+    assert "  to run: train/oracle_s0" in proc.stdout
+    # the 6 trainings' exports and the AdaBN one of source-only
+    assert "export: 7 models, 0 complete, 7 to export" in proc.stdout
+    assert "  to export: exports/adabn_s0 (AdaBN: train/source_only_s0's checkpoint" in proc.stdout
+    # 7 segmentation evaluations (6 trainings + AdaBN), 4 on the source val split (T0's rows:
+    # source-only, AdaptSegNet n = 5, oracle, AdaBN) + 2 sequences x (3 model-free + 7 semantic
+    # + 2 x 2 geometry)
+    assert "slam: 39 jobs, 0 complete, 6 to run, 33 blocked until their model exists" in proc.stdout
+    assert (
+        "  after exports/adabn_s0: segeval/adabn_s0, segeval/source_val/adabn_s0, "
+        "slam/harness/walking_xyz/semantic/adabn_s0, slam/harness/static_xyz/semantic/adabn_s0\n"
+    ) in proc.stdout
     assert not (tmp_path / "data").exists() and not (tmp_path / "train").exists()
 
 
