@@ -38,24 +38,32 @@ def pending(out: Path, stage: str) -> list[str]:
     return json.loads((out / "jobs" / f"{stage}.json").read_text())["pending"]
 
 
+NO_T0 = ("grid.adabn=false", "grid.oracle=false", "segeval.source_val_stride=null")
+"""T0's reference jobs off: the tests of other paths keep their grid (and runtime)."""
+
+
 def test_quick_end_to_end_then_reuse_then_resume(tmp_path: Path) -> None:
     out = tmp_path / "quick"
     first = run(out, cwd=tmp_path)
     assert first.returncode == 0, first.stdout[-3000:] + first.stderr[-3000:]
     rows = runs_csv(out)
     kinds = [r["kind"] for r in rows]
-    # 10 trainings (source-only + n = 4..7, 2 seeds), their exports, their segmentation metrics
-    # (2 sequences + pooled), 2 x (3 model-free + 10 semantic + 4 x 2 geometry variants) SLAM runs
+    # 12 trainings (source-only + n = 4..7 + T0's oracle, 2 seeds), their exports and AdaBN's
+    # of source-only, the 14 models' segmentation metrics (2 sequences + pooled) and T0's 4 x 2
+    # on the source val split, 2 x (3 model-free + 14 semantic + 4 x 2 geometry) SLAM runs
     assert (
         kinds.count("train"),
         kinds.count("export"),
         kinds.count("segeval"),
         kinds.count("slam"),
-    ) == (10, 10, 30, 42)
+    ) == (12, 14, 14 * 3 + 8, 50)
     assert {r["status"] for r in rows} == {"ok"}
     assert all(r["ate_rmse"] for r in rows if r["kind"] == "slam")
     md = (out / "tables.md").read_text()
     for title in (
+        "### T0: the UDA table",
+        "#### T0 per seed",
+        "#### T0 person masks and SLAM",
         "### T1a",
         "### T1b",
         "### T2: without ATL (source_only) vs with ATL (adaptsegnet_n5)",
@@ -71,6 +79,13 @@ def test_quick_end_to_end_then_reuse_then_resume(tmp_path: Path) -> None:
     seg = {r["config"]: r["mIoU"] for r in tables["T1"]["segmentation"]}
     assert list(seg) == ["source_only", *(f"adaptsegnet_n{n}" for n in (4, 5, 6, 7))]
     assert all(s["n"] == 2 and s["failed"] == 0 for s in seg.values())
+    t0 = {r["config"]: r for r in tables["T0"]["rows"]}
+    assert list(t0) == ["source_only", "adabn", "adaptsegnet_n5", "oracle"]
+    for row in t0.values():  # every cell holds both seeds
+        assert row["source_val_mIoU"]["n"] == row["mIoU"]["n"] == 2
+        assert set(row["mIoU"]["per_seed"]) == {"0", "1"}
+    assert t0["oracle"]["target_labels"] == "training" and "| oracle † | training |" in md
+    assert "- T0: AdaBN on 48 evenly spaced target training frames; oracle trained" in md
     for name in ("t1_miou.png", "t1_iou_per_class.png", "ate_per_sequence.png"):
         assert (out / "plots" / name).stat().st_size > 0
     for sequence in ("walking_xyz", "static_xyz"):  # held-out seeds 1000 + preset index
@@ -79,7 +94,8 @@ def test_quick_end_to_end_then_reuse_then_resume(tmp_path: Path) -> None:
 
     again = run(out, cwd=tmp_path)
     assert again.returncode == 0, again.stderr[-3000:]
-    assert "train: 10 training jobs: every job complete already (reused)" in again.stdout
+    assert "train: 12 training jobs: every job complete already (reused)" in again.stdout
+    assert "export: best checkpoints -> ONNX: 0 exported, 14 reused" in again.stdout
     assert "every job complete already (reused)" in again.stdout.split("slam:")[-1]
     assert pending(out, "train") == [] and pending(out, "slam") == []
 
@@ -101,13 +117,14 @@ def test_quick_end_to_end_then_reuse_then_resume(tmp_path: Path) -> None:
     # new methods' trainings (at tables.n_layers) and their jobs are to run.
     more = run(out, "dry_run=true", f"grid.methods=[{','.join(ALL_METHODS)}]", cwd=tmp_path)
     assert more.returncode == 0, more.stderr[-3000:]
-    assert "train: 16 jobs, 10 complete, 6 to run" in more.stdout
+    assert "train: 18 jobs, 12 complete, 6 to run" in more.stdout
     planned = [line.split(": ", 1)[1] for line in more.stdout.splitlines() if "  to run: " in line]
     assert {p for p in planned if p.startswith("train/")} == {
         f"train/{c}_s{s}" for c in ("advent_n5", "minent", "self_training") for s in (0, 1)
     }
-    # 6 segmentation evaluations + 2 sequences x 6 semantic runs, blocked until exported
-    assert "slam: 70 jobs, 52 complete, 0 to run, 18 blocked until their model exists" in (
+    # 6 segmentation evaluations (and 6 on the source val split: T0 rows) + 2 sequences x 6
+    # semantic runs, blocked until exported
+    assert "slam: 96 jobs, 72 complete, 0 to run, 24 blocked until their model exists" in (
         more.stdout
     )
 
@@ -123,6 +140,7 @@ def test_more_methods_and_the_crf_reuse_a_finished_run(tmp_path: Path) -> None:
         "grid.n_layers=[4,5]",
         "sequences=[walking_xyz]",
         "data.synthetic.eval_frames=12",
+        *NO_T0,
     ]
     first = run(out, *grid, "variants=[none,semantic,semantic_geometry,oracle]", cwd=tmp_path)
     assert first.returncode == 0, first.stdout[-3000:] + first.stderr[-3000:]
@@ -210,6 +228,7 @@ def test_submitit_local_failed_job_marked_others_go_on(tmp_path: Path) -> None:
         "variants=[none,semantic,oracle]",
         "tables.n_layers=4",
         "data.synthetic.eval_frames=12",
+        *NO_T0,
     ]
     first = run(out, *grid, cwd=tmp_path)
     # n = 8 needs 256-pixel inputs: the training fails, its model's jobs are blocked, exit 1
@@ -254,6 +273,7 @@ def test_joblib_runs_jobs_in_parallel_processes(tmp_path: Path) -> None:
         "sequences=[static_xyz]",
         "variants=[none,semantic]",
         "data.synthetic.eval_frames=12",
+        *NO_T0,
         cwd=tmp_path,
     )
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
@@ -344,6 +364,7 @@ def test_orbslam3_runs_next_to_the_harness(tmp_path: Path) -> None:
         "sequences=[walking_xyz]",
         "variants=[none,semantic,geometry,oracle]",
         "slam.orbslam3.repeats=2",
+        *NO_T0,
         cwd=tmp_path,
     )
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
