@@ -26,6 +26,7 @@ import argparse
 import json
 import math
 import os
+import re
 import subprocess
 import sys
 import time
@@ -69,16 +70,31 @@ def spec_of(data: Path) -> DemoData:
 DIAGNOSTICS = {
     # the adversarial term alone: AdaptSegNet's weights scored with source BatchNorm statistics
     "adaptsegnet+srcbn": ["model/method=adaptsegnet", "callbacks.precise_bn.domain=source"],
-    # ten times the paper's adversarial weights (lambda_adv_aux 0.002, lambda_adv_main 0.01)
-    "adaptsegnet+adv10": [
-        "model/method=adaptsegnet",
-        "model.loss.lambda_adv_aux=0.02",
-        "model.loss.lambda_adv_main=0.1",
-    ],  # fmt: skip
-    # ten times the discriminators' learning rate (Adam 1e-4)
-    "adaptsegnet+dlr10": ["model/method=adaptsegnet", "model.d_optimizer.lr=0.001"],
 }
-"""Rows that vary one knob of AdaptSegNet (``--methods adaptsegnet+adv10,...``)."""
+"""Named rows that vary one knob of a method (``--methods adaptsegnet+srcbn,...``)."""
+
+ADV = (0.002, 0.01)  # the USS-SLAM paper's lambda_adv_aux / lambda_adv_main (model/adversarial)
+D_LR = 1e-4  # the discriminators' Adam rate (model/adversarial)
+ENT = (0.01, 0.05)  # MinEnt's lambda_ent_aux / lambda_ent_main (model/method/minent)
+KNOB = re.compile(r"^(?P<method>[a-z_]+)\+(?P<knob>adv|dlr|ent)(?P<factor>[0-9.]+)$")
+
+
+def knob_overrides(method: str) -> list[str] | None:
+    """``<method>+adv<k>`` / ``+dlr<k>`` / ``+ent<k>``: k times the adversarial weights, the
+    discriminators' learning rate or MinEnt's weights (``adaptsegnet+adv10``); None if
+    ``method`` is not of that form."""
+    match = KNOB.match(method)
+    if match is None:
+        return None
+    base, knob, k = match["method"], match["knob"], float(match["factor"])
+    head = [f"model/method={base}"]
+    if knob == "adv":
+        return [*head, f"model.loss.lambda_adv_aux={ADV[0] * k:g}",
+                f"model.loss.lambda_adv_main={ADV[1] * k:g}"]  # fmt: skip
+    if knob == "dlr":
+        return [*head, f"model.d_optimizer.lr={D_LR * k:g}"]
+    return [*head, f"model.method.lambda_ent_aux={ENT[0] * k:g}",
+            f"model.method.lambda_ent_main={ENT[1] * k:g}"]  # fmt: skip
 
 
 def train_overrides(
@@ -97,6 +113,9 @@ def train_overrides(
     ]
     if method in DIAGNOSTICS:
         return [*common, *DIAGNOSTICS[method]]
+    knob = knob_overrides(method)
+    if knob is not None:
+        return [*common, *knob]
     if method != "oracle":
         return [*common, f"model/method={method}"]
     roots = ",".join(str(data / f) for f in spec.target_folders())
