@@ -21,6 +21,7 @@ import json
 import statistics
 import sys
 import time
+from dataclasses import fields
 from pathlib import Path
 
 from uss_slam.slam_eval.filters.dynamic import build_filters
@@ -28,9 +29,25 @@ from uss_slam.slam_eval.scoring.metrics import ate
 from uss_slam.slam_eval.segmenters.base import LabelsSegmenter
 from uss_slam.slam_eval.sequence import TumSequence
 from uss_slam.slam_eval.systems.harness import SlamPipeline
+from uss_slam.slam_eval.tracking.tracker import TrackerConfig
 from uss_slam.synthetic import render_sequence
 
 WALKING = ("walking_xyz", "walking_rpy", "walking_halfsphere")
+
+
+def tracker_config(items: list[str]) -> TrackerConfig:
+    """``KEY=VALUE`` strings as a :class:`TrackerConfig` (values typed like the field)."""
+    kwargs = {}
+    types = {f.name: type(getattr(TrackerConfig(), f.name)) for f in fields(TrackerConfig)}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or key not in types:
+            raise SystemExit(
+                f"--tracker {item}: expected KEY=VALUE with KEY one of {sorted(types)}"
+            )
+        kind = types[key]
+        kwargs[key] = value.lower() in ("1", "true", "yes") if kind is bool else kind(value)
+    return TrackerConfig(**kwargs)
 
 
 def sequence_path(data: Path, preset: str, frames: int, size: tuple[int, int], seed: int) -> Path:
@@ -41,9 +58,12 @@ def sequence_path(data: Path, preset: str, frames: int, size: tuple[int, int], s
     return path
 
 
-def run(path: Path, filters: list[str]) -> dict:
+def run(path: Path, filters: list[str], tracker: TrackerConfig | None = None) -> dict:
     seq = TumSequence(path, load_labels=True)
-    result = SlamPipeline(seq, LabelsSegmenter(), build_filters(filters), progress=False).run()
+    pipeline = SlamPipeline(
+        seq, LabelsSegmenter(), build_filters(filters), tracker=tracker, progress=False
+    )
+    result = pipeline.run()
     stats = ate(seq.groundtruth, result.trajectory).stats
     return {
         "ate_rmse": stats.rmse,
@@ -61,15 +81,23 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, nargs="+", default=[0])
     parser.add_argument("--presets", nargs="+", default=[*WALKING, "static_xyz"])
     parser.add_argument("--json", type=Path, help="also write the results here")
+    parser.add_argument(
+        "--tracker",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="a TrackerConfig field (repeatable), e.g. --tracker policy=orbslam2",
+    )
     args = parser.parse_args()
+    tracker = tracker_config(args.tracker)
     size = tuple(int(v) for v in args.size.lower().split("x"))
     rows: dict[str, list[dict]] = {}
     start = time.perf_counter()
     for preset in args.presets:
         for seed in args.seeds:
             path = sequence_path(args.data, preset, args.frames, size, seed)
-            base = run(path, [])
-            sem = run(path, ["semantic"])
+            base = run(path, [], tracker)
+            sem = run(path, ["semantic"], tracker)
             ratio = sem["ate_rmse"] / base["ate_rmse"]
             rows.setdefault(preset, []).append(
                 {"seed": seed, "baseline": base, "semantic": sem, "ratio": ratio}

@@ -48,6 +48,8 @@ from ..mapping.slam_map import KeyFrame, SlamMap
 from .pose import CHI2_MONO, CHI2_STEREO, chi2, observations, optimise_pose
 
 SAMPLERS = ("ransac", "prosac")
+POLICIES = ("orbslam2", "harness")
+"""``TrackerConfig.policy``: how frames are tracked and keyframes chosen."""
 """Values of :attr:`TrackerConfig.sampler`."""
 
 
@@ -81,6 +83,25 @@ class TrackerConfig:
     error only (``cv2.solvePnPRefineLM``)."""
     virtual_baseline: float = 0.075
     """Baseline of the virtual stereo pair, metres (ORB-SLAM2's TUM ``bf`` = 40 = 535.4 × 0.075)."""
+    policy: str = "harness"
+    """``orbslam2``: ORB-SLAM2's RGB-D ``Tracking`` (the motion model matches the last frame's
+    map points and its visual-odometry points, back-projected from its depth, and optimises the
+    predicted pose with the robust χ² rounds of ``PoseOptimization``, no RANSAC; a keyframe
+    whenever ``NeedNewKeyFrame``'s ``c2`` holds, with map points from its close keypoints as
+    ``CreateNewKeyFrame``); ``harness``: PnP-RANSAC on the projected local map and the sparser
+    keyframe rule of step 5 (the figures recorded before 2026-12-02)."""
+    th_depth: float = 3.0
+    """``orbslam2``: close / far depth bound, metres (ORB-SLAM2's ``ThDepth`` 40 × the TUM
+    baseline bf / fx = 0.075 m)."""
+    min_new_points: int = 100
+    """``orbslam2``: a keyframe (and the last frame's visual odometry) creates points from all
+    its close keypoints and at least this many of the nearest (ORB-SLAM2: 100)."""
+    keyframe_min_frames: int = 0
+    motion_ransac: bool = False
+    """``orbslam2``: seed the motion model's pose optimisation with PnP-RANSAC on its matches
+    instead of the constant-velocity prediction (not ORB-SLAM2's: a robustness option)."""
+    """``orbslam2``: frames between keyframes at least (ORB-SLAM2's ``mMinFrames``: 0; its local
+    mapping is always idle here, the harness's back end runs between frames)."""
     reference_keyframe: bool = True
     """Without a motion model (the second frame, the first after a relocalisation) match the
     reference keyframe by descriptor, as ORB-SLAM2 (``TrackReferenceKeyFrame``); False = project
@@ -111,6 +132,8 @@ class TrackerConfig:
         # Messages start with the field name: uss-slam prefixes the config section.
         if self.sampler not in SAMPLERS:
             raise ValueError(f"sampler must be one of {', '.join(SAMPLERS)}, got {self.sampler!r}")
+        if self.policy not in POLICIES:
+            raise ValueError(f"policy must be one of {', '.join(POLICIES)}, got {self.policy!r}")
         for item in fields(self):
             value = getattr(self, item.name)
             if isinstance(value, (bool, str)):
@@ -127,6 +150,7 @@ class TrackerConfig:
             "local_keyframes",
             "reloc_keyframes",
             "max_keyframe_interval",
+            "th_depth",
         ):
             if getattr(self, name) <= 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
@@ -187,6 +211,10 @@ class Tracker:
         self.last_relocalisation: int | None = None
         """Frame index of the latest relocalisation."""
         self.lost_events = 0
+        self._current_index = 0
+        self._last_frame: tuple[Features, np.ndarray, np.ndarray] | None = None
+        """``policy=orbslam2``: the last tracked frame's features, its map point per keypoint
+        and the keypoints its visual odometry may use (static, not a keyframe's)."""
 
     # ------------------------------------------------------------------ public
 
@@ -194,6 +222,7 @@ class Tracker:
         self, frame_index: int, stamp: float, features: Features, dynamic: np.ndarray
     ) -> TrackResult:
         """Estimate the pose of a frame; ``dynamic`` (N,) bool marks keypoints to ignore."""
+        self._current_index = frame_index
         n = len(features)
         matched = np.full(n, -1, np.int64)
         static = ~dynamic
@@ -206,6 +235,7 @@ class Tracker:
                 frame_index, stamp, pose_wc, features, matched, dynamic, close
             )
             self._accept(invert(pose_wc), kf.point_ids[close], kf)
+            self._last_frame = (features, kf.point_ids, np.zeros(n, bool))
             self.state = TrackingState.OK
             return TrackResult(
                 self.state, pose_wc, kf.point_ids.copy(), int(close.sum()), False, kf
@@ -289,6 +319,8 @@ class Tracker:
             keyframe = self.wants_keyframe(result, features, dynamic)
         if keyframe:
             create = (~dynamic) & features.has_depth & ~good
+            if self.config.policy == "orbslam2":
+                create = self._new_points(features, good, ~dynamic)
             kf = self.map.add_keyframe(
                 frame_index, stamp, result.pose_wc, features, matched, dynamic, create
             )
@@ -299,6 +331,8 @@ class Tracker:
         else:
             self.frames_since_keyframe += 1
         self._accept(pose_cw, matched[matched >= 0], kf)
+        usable = np.zeros(len(features), bool) if kf is not None else ~dynamic
+        self._last_frame = (features, matched, usable)
         return kf
 
     def _recently_relocalised(self, frame_index: int) -> bool:
@@ -430,6 +464,8 @@ class Tracker:
             tracked = self._track_reference(features, static)
             if tracked[0] is not None:
                 return tracked
+        if cfg.policy == "orbslam2" and self.velocity is not None:
+            return self._track_last_frame(features, static)
         velocity = self.velocity if self.velocity is not None else np.eye(4)
         predicted = velocity @ self.last_pose_cw
         local = self._local_points()
@@ -448,6 +484,141 @@ class Tracker:
         if pose_cw is None:
             return None, None
         return self._track_local_map(local, pose_cw, features, static)
+
+    def _track_last_frame(self, features: Features, static: np.ndarray):
+        """ORB-SLAM2's ``TrackWithMotionModel`` + ``TrackLocalMap`` (``policy=orbslam2``).
+
+        The last frame's map points and its visual-odometry points (``UpdateLastFrame``: its
+        unmatched close keypoints back-projected with its pose, when it is not a keyframe) are
+        projected with the constant-velocity prediction and matched in a window of
+        ``search_radius`` (twice that below ``min_matches``; fewer: the reference keyframe is
+        tried, then relocalisation); the pose is optimised from the prediction with every match
+        an inlier at first (:meth:`optimise_all`), ≥ 10 map-point inliers needed; the local map
+        then adds its matches and the pose is optimised again on all of them. The visual-odometry
+        points steer the pose but are never map points: a walker's keypoints of the last frame
+        are such points, re-created on every frame, which is how walkers fool ORB-SLAM2."""
+        cfg = self.config
+        assert self.velocity is not None and self.last_pose_cw is not None
+        predicted = self.velocity @ self.last_pose_cw
+        world, desc, level, map_ids = self._last_frame_points()
+        found = None
+        for radius in (cfg.search_radius, 2 * cfg.search_radius):
+            found = self._match_points(world, desc, level, predicted, features, static, radius)
+            if len(found[0]) >= cfg.min_matches:
+                break
+        if found is None or len(found[0]) < cfg.min_matches:
+            return self._track_reference_or_lost(features, static)
+        query, kp = found
+        if cfg.motion_ransac:
+            ransac = self._pnp(world[query], features, kp, predicted, np.zeros(len(kp)))
+            if ransac is None:
+                return self._track_reference_or_lost(features, static)
+            predicted = ransac
+        pose_cw, inl = self.optimise_all(world[query], features, kp, predicted)
+        if int((inl & (map_ids[query] >= 0)).sum()) < 10:
+            return self._track_reference_or_lost(features, static)
+        query, kp = query[inl], kp[inl]
+        return self._track_local_map_vo(pose_cw, features, static, world[query], map_ids[query], kp)
+
+    def _track_reference_or_lost(self, features: Features, static: np.ndarray):
+        if self.config.reference_keyframe and self.reference is not None:
+            return self._track_reference(features, static)
+        return None, None
+
+    def _last_frame_points(self):
+        """``(world (M, 3), descriptors (M, 32), level (M,), map id or -1 (M,))`` of the last
+        frame: its good map points, then its visual-odometry points (nearest first, every one
+        closer than ``th_depth`` and ``min_new_points`` at least)."""
+        assert self._last_frame is not None and self.last_pose_cw is not None
+        feats, ids, usable = self._last_frame
+        pts = self.map.points
+        has = ids >= 0
+        has[has] = ~pts.bad.view[ids[has]]
+        own = np.flatnonzero(has)
+        vo = np.flatnonzero(usable & ~has & feats.has_depth)
+        vo = vo[np.argsort(feats.depth[vo], kind="stable")]
+        far = feats.depth[vo] > self.config.th_depth
+        # ORB-SLAM2 counts the frame's existing points towards the minimum too.
+        keep = ~far | (np.arange(len(vo)) + len(own) < self.config.min_new_points)
+        vo = vo[keep]
+        pose_wc = invert(self.last_pose_cw)
+        world = np.concatenate(
+            [pts.position.view[ids[own]], transform(pose_wc, feats.points[vo])], axis=0
+        )
+        desc = np.concatenate([pts.descriptor.view[ids[own]], feats.descriptors[vo]], axis=0)
+        level = np.concatenate([feats.octave[own], feats.octave[vo]])
+        map_ids = np.concatenate([ids[own], np.full(len(vo), -1, np.int64)])
+        return world, desc, level, map_ids
+
+    def _match_points(self, world, desc, level, pose_cw, features, available, radius):
+        """Points ``world`` (with their descriptors and the level they were seen at) projected
+        with ``pose_cw`` and matched to the ``available`` keypoints within ``radius`` × their
+        level's scale (ORB-SLAM2's frame-to-frame ``SearchByProjection``): ``(query, keypoint)``
+        index arrays."""
+        cam = transform(pose_cw, world)
+        w, h = self.size
+        front = cam[:, 2] > 1e-6
+        uv = project(self.k, np.where(front[:, None], cam, 1.0))
+        inside = front & (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h)
+        q = np.flatnonzero(inside)
+        m = guided_match(
+            uv[q],
+            radius * self.extractor.scales[level[q]],
+            level[q],
+            (desc[q],),
+            features.uv,
+            features.octave,
+            features.descriptors,
+            available,
+            self.size,
+            max_distance=self.config.max_hamming,
+            ratio=self.config.ratio,
+        )
+        return q[m.query], m.keypoint
+
+    def _track_local_map_vo(self, pose_cw, features, static, world, map_ids, kp):
+        """``TrackLocalMap`` with the motion model's matches (map and visual-odometry points)
+        kept: the local map's points not matched yet are projected and matched to the free
+        keypoints, and the pose is optimised on all matches; ``min_inliers`` map-point inliers
+        needed. Returns ``(pose_cw, matched map id per keypoint)``."""
+        cfg = self.config
+        mine = np.unique(map_ids[map_ids >= 0])
+        self.map.points.visible.view[mine] += 1  # SearchLocalPoints counts them as visible
+        local = np.setdiff1d(self._local_points(), mine)
+        free = static.copy()
+        free[kp] = False
+        ids, m = self.match_projected(local, pose_cw, features, free, cfg.local_radius, local=True)
+        world = np.concatenate([world, self.map.points.position.view[ids[m.query]]], axis=0)
+        map_ids = np.concatenate([map_ids, ids[m.query]])
+        kp = np.concatenate([kp, m.keypoint])
+        pose_cw, inl = self.optimise_all(world, features, kp, pose_cw)
+        good = inl & (map_ids >= 0)
+        if good.sum() < cfg.min_inliers:
+            return None, None
+        matched = np.full(len(features), -1, np.int64)
+        matched[kp[good]] = map_ids[good]
+        return pose_cw, matched
+
+    def optimise_all(
+        self, world: np.ndarray, features: Features, kp: np.ndarray, pose_cw: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """ORB-SLAM2's ``PoseOptimization``: every match starts as an inlier; four rounds, each
+        optimising from ``pose_cw`` on the current inliers (Huber kernel in the first three)
+        and re-classifying every match by the χ² test. Returns ``(pose_cw, inlier mask)``."""
+        uv = features.uv[kp]
+        inv_sigma2 = 1.0 / self.sigma2[features.octave[kp]]
+        obs, stereo = observations(uv, features.depth[kp], self.bf)
+        inl = np.ones(len(kp), bool)
+        start, pose = pose_cw, pose_cw
+        for round_ in range(4):
+            if inl.sum() < 6:
+                break
+            pose = optimise_pose(
+                self.k, self.bf, start, world[inl], obs[inl], stereo[inl], inv_sigma2[inl],
+                robust=round_ < 3,
+            )  # fmt: skip
+            inl = self._inliers(world, obs, stereo, inv_sigma2, pose)
+        return pose, inl
 
     def _track_reference(self, features: Features, static: np.ndarray):
         """ORB-SLAM2's ``TrackReferenceKeyFrame``, for a frame without a motion model (the
@@ -741,6 +912,8 @@ class Tracker:
         ref = self.reference
         if ref is None:
             return True
+        if cfg.policy == "orbslam2":
+            return self._need_keyframe_orbslam2(features, matched, dynamic)
         inliers = int((matched >= 0).sum())
         if inliers <= 15:
             return False  # too weak to seed a keyframe (ORB-SLAM2's c2 lower bound)
@@ -763,6 +936,65 @@ class Tracker:
         )
         stale = self.frames_since_keyframe + 1 >= cfg.max_keyframe_interval
         return weak or moved or stale
+
+    def _need_keyframe_orbslam2(
+        self, features: Features, matched: np.ndarray, dynamic: np.ndarray
+    ) -> bool:
+        """ORB-SLAM2's ``NeedNewKeyFrame`` (RGB-D): not within ``max_keyframe_interval`` frames
+        of a relocalisation (once the map holds more keyframes than that); otherwise a keyframe
+        when ``(c1a or c1b or c1c) and c2``: c2 = fewer inliers than ``keyframe_ratio`` (0.4
+        with one keyframe) × the reference keyframe's points seen by two keyframes or more (one,
+        while the map holds two keyframes or fewer; ORB-SLAM2 counts an RGB-D observation
+        twice), or too few close points tracked (< ``min_close_tracked``) while many are not
+        (> ``min_close_untracked``), with more than 15 inliers; c1a = ``max_keyframe_interval``
+        frames since the last keyframe, c1b = ``keyframe_min_frames`` frames and local mapping
+        idle (always, here), c1c = inliers below a quarter of the reference's or the close rule."""
+        cfg = self.config
+        ref = self.reference
+        assert ref is not None
+        n_kfs = len(self.map.keyframes)
+        index = self._current_index
+        if (
+            self.last_relocalisation is not None
+            and index < self.last_relocalisation + cfg.max_keyframe_interval
+            and n_kfs > cfg.max_keyframe_interval
+        ):
+            return False
+        min_obs = 2 if n_kfs > 2 else 1
+        ids = ref.point_ids[ref.point_ids >= 0]
+        pts = self.map.points
+        ids = ids[~pts.bad.view[ids]]
+        ref_tracked = int((pts.observations.view[ids] >= min_obs).sum())
+        inliers = int((matched >= 0).sum())
+        close = (features.depth > 0) & (features.depth < cfg.th_depth) & ~dynamic
+        tracked_close = int((close & (matched >= 0)).sum())
+        untracked_close = int((close & (matched < 0)).sum())
+        need_close = (
+            tracked_close < cfg.min_close_tracked and untracked_close > cfg.min_close_untracked
+        )
+        ratio = cfg.keyframe_ratio if n_kfs >= 2 else 0.4
+        since = self.frames_since_keyframe + 1
+        c1a = since >= cfg.max_keyframe_interval
+        c1b = since >= cfg.keyframe_min_frames
+        c1c = inliers < 0.25 * ref_tracked or need_close
+        c2 = (inliers < ratio * ref_tracked or need_close) and inliers > 15
+        return (c1a or c1b or c1c) and c2
+
+    def _new_points(
+        self, features: Features, tracked: np.ndarray, static: np.ndarray
+    ) -> np.ndarray:
+        """ORB-SLAM2's ``CreateNewKeyFrame`` (RGB-D): the static keypoints with depth, nearest
+        first, get a map point unless they are tracked, until past ``th_depth`` with
+        ``min_new_points`` counted (tracked ones included). Returns the boolean mask."""
+        cand = np.flatnonzero(static & features.has_depth)
+        cand = cand[np.argsort(features.depth[cand], kind="stable")]
+        keep = (features.depth[cand] <= self.config.th_depth) | (
+            np.arange(len(cand)) < self.config.min_new_points
+        )
+        create = np.zeros(len(features), bool)
+        chosen = cand[keep]
+        create[chosen[~tracked[chosen]]] = True
+        return create
 
 
 __all__ = ["TrackResult", "Tracker", "TrackerConfig", "TrackingState", "hamming"]
