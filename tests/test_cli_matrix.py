@@ -192,6 +192,31 @@ def plain_onnx(p: dict[str, Path]) -> bytes:
     return onnx.helper.make_model(graph).SerializeToString()
 
 
+def bad_segmenter(**kwargs: Any) -> Callable[[dict[str, Path]], bytes]:
+    """An exported segmenter whose outputs disagree with its metadata
+    (:func:`shared_helpers.colour_model`'s ``label_map`` / ``logits_channels``);
+    ``class_names`` the metadata's class list (default: the project's)."""
+    from shared_helpers import colour_model, segmenter_props
+
+    from uss_slam.core.classes import CLASS_NAMES
+
+    names = kwargs.pop("class_names", CLASS_NAMES)
+
+    def data(p: dict[str, Path]) -> bytes:
+        path = colour_model(p["tmp"] / ".model.onnx", segmenter_props(names), **kwargs)
+        content = path.read_bytes()
+        path.unlink()
+        return content
+
+    return data
+
+
+DARK_IS_7 = {"label_map": (7, 1, 2, 3)}
+"""Pixels darker than 128 in every channel (every frame has them) get label 7: no class."""
+THREE_CLASSES = {"class_names": ("background", "person", "chair"), "logits_channels": "C"}
+"""Metadata of 3 classes, 4 logit channels the graph does not declare."""
+
+
 def truncated(name: str, keep: float = 0.5) -> Callable[[dict[str, Path]], bytes]:
     def data(p: dict[str, Path]) -> bytes:
         content = p[name].read_bytes()
@@ -328,6 +353,13 @@ CASES = [
     case("eval-onnx-without-metadata", "uss-eval", "{m} --sequence {seq} --out {tmp}/eval",
          1, "{m}: not a uss-slam segmenter", "(export it with uss-export)",
          setup=(write("m", plain_onnx, ".onnx"),)),
+    case("eval-onnx-label-not-a-class", "uss-eval", "{m} --sequence {seq} --out {tmp}/eval", 1,
+         "{m}: output 'labels' holds class id 7, but uss_slam.class_names lists 4 classes",
+         setup=(write("m", bad_segmenter(**DARK_IS_7), ".onnx"),)),
+    case("eval-onnx-channels-not-the-classes", "uss-eval",
+         "{m} --sequence {seq} --out {tmp}/eval", 1,
+         "{m}: output 'logits' has 4 channels but uss_slam.class_names lists 3 classes",
+         setup=(write("m", bad_segmenter(**THREE_CLASSES), ".onnx"),)),
     case("eval-garbage-ckpt", "uss-eval", "{m} --sequence {seq} --out {tmp}/eval", 1,
          "{m}: not a readable checkpoint", setup=(write("m", "not a checkpoint\n", ".ckpt"),)),
     case("eval-out-under-a-file", "uss-eval", "{m} --sequence {seq} --out {afile}/eval", 1,
@@ -419,6 +451,14 @@ CASES = [
     case("slam-onnx-without-metadata", "uss-slam",
          f"{SLAM} segmenter=onnx segmenter.path={{m}} filters=[semantic]", 1,
          "{m}: not a uss-slam segmenter", setup=(write("m", plain_onnx, ".onnx"), earlier_slam_run)),
+    case("slam-onnx-label-not-a-class", "uss-slam",
+         f"{SLAM} segmenter=onnx segmenter.path={{m}} filters=[semantic]", 1,
+         "{m}: output 'labels' holds class id 7, but uss_slam.class_names lists 4 classes",
+         setup=(write("m", bad_segmenter(**DARK_IS_7), ".onnx"), earlier_slam_run)),
+    case("slam-onnx-channels-not-the-classes", "uss-slam",
+         f"{SLAM} segmenter=onnx segmenter.path={{m}} filters=[semantic]", 1,
+         "{m}: output 'logits' has 4 channels but uss_slam.class_names lists 3 classes",
+         setup=(write("m", bad_segmenter(**THREE_CLASSES), ".onnx"), earlier_slam_run)),
     case("slam-ctrl-c-mid-run", "uss-slam", SLAM, 130, "uss-slam: interrupted",
          setup=(earlier_slam_run,),
          interrupt=("uss_slam.slam_eval.sequence:TumSequence.load", 3)),
