@@ -39,6 +39,7 @@ from uss_slam.core.files import (
     atomic_path,
     check_writable,
     file_sha256,
+    output_lock,
     write_json_atomic,
     write_text_atomic,
 )
@@ -436,6 +437,20 @@ def evaluate(
     source = sequence_frames(sequences, stride) if sequences else config_val_frames(overrides)
     if source.count == 0:
         raise UssSlamError("no labelled frames to evaluate")
+    with output_lock(out, "--out"):
+        return _evaluate(model, out, source, dynamic, frame_iou, overlays, threads)
+
+
+def _evaluate(
+    model: Path,
+    out: Path,
+    source: FrameSource,
+    dynamic: Sequence[str],
+    frame_iou: float,
+    overlays: int,
+    threads: int | None,
+) -> dict[str, Any]:
+    """:func:`evaluate` once its arguments are checked and ``out`` is locked."""
     infer, info = load_segmenter(model, threads)
     dynamic_ids = [CLASS_NAMES.index(c) for c in dynamic]
     chosen = set(evenly_spaced(overlays, source.count))

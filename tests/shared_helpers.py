@@ -9,7 +9,7 @@ channel among R, G, B (+1): :func:`colour_labels`.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -136,3 +136,41 @@ def colour_labels(rgb: np.ndarray, bias: float = 128.0) -> np.ndarray:
     """What :func:`colour_model` predicts for ``rgb`` (H, W, 3) uint8 (first maximum wins)."""
     logits = np.concatenate([np.full(rgb.shape[:2] + (1,), bias), rgb.astype(np.float64)], axis=2)
     return np.argmax(logits, axis=2).astype(np.uint8)
+
+
+def full_disk(
+    monkeypatch, names: Sequence[str] | Callable[[Path], bool] | None = None
+) -> list[Path]:
+    """Make the disk full for the outputs the project writes through ``core/files.py`` whose
+    final name is in ``names`` (or for which ``names(path)`` is true; None: every output):
+    their writes fail with ``ENOSPC``, as the kernel reports it, because the file being
+    written is ``/dev/full``. Returns the final paths hit, in order (empty if none was hit).
+
+    The temporary sibling of an atomic write (``atomic_path``) becomes a symbolic link to
+    ``/dev/full``; an in-place write (``write_file``) opens ``/dev/full`` instead of its file.
+    """
+    from uss_slam.core import files
+
+    hit: list[Path] = []
+    create_sibling, open_new = files._create_sibling, files._open_new
+
+    def chosen(path: Path) -> bool:
+        return names is None or (names(path) if callable(names) else path.name in names)
+
+    def sibling(path: Path, prefix: str) -> Path:
+        tmp = create_sibling(path, prefix)
+        if chosen(path):
+            hit.append(path)
+            tmp.unlink()
+            tmp.symlink_to("/dev/full")
+        return tmp
+
+    def opened(path: Path):
+        if chosen(path):
+            hit.append(path)
+            return open("/dev/full", "wb")  # noqa: SIM115
+        return open_new(path)
+
+    monkeypatch.setattr(files, "_create_sibling", sibling)
+    monkeypatch.setattr(files, "_open_new", opened)
+    return hit

@@ -120,7 +120,8 @@ def test_every_user_of_a_model_checks_its_outputs_alike(
     """A model whose outputs disagree with its metadata: uss-eval, the demo's mIoU stage and
     the experiments' segmentation evaluation stop with the same error, naming the model, and
     write nothing (uss-slam's is in tests/test_cli_matrix.py)."""
-    from shared_helpers import colour_model as build, segmenter_props
+    from shared_helpers import colour_model as build
+    from shared_helpers import segmenter_props
 
     from uss_slam.core.errors import DataFormatError
     from uss_slam.pipelines.experiments import jobs
