@@ -1,8 +1,11 @@
-"""What every console script does with a user error: one line on stderr, exit code 1.
+"""What every console script does with a user error: one line on stderr, exit code 1 (2 for an
+output another process is writing, :class:`~uss_slam.core.errors.OutputInUseError`).
 
 Unexpected internal errors keep their traceback; only the project's own errors (and the config
-errors an entry point names) count as the user's. Hydra wraps errors raised while instantiating an
-object, so the whole ``__cause__`` / ``__context__`` chain is searched.
+errors an entry point names) count as the user's, and so does a full disk (``ENOSPC`` /
+``EDQUOT`` from any library: ``no space left on device while writing <path>``). Hydra wraps
+errors raised while instantiating an object, so the whole ``__cause__`` / ``__context__`` chain
+is searched.
 
 Hydra apps (``uss-train``, ``uss-slam``) also let the jobs of a multirun fail independently: a
 user error in one job is printed and recorded, the other jobs run, and the failed ones are
@@ -12,17 +15,67 @@ that need them (this module stays importable without them).
 
 from __future__ import annotations
 
+import logging
 import os
+import signal
 import sys
+import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from uss_slam.core.errors import UssSlamError
+from uss_slam.core.errors import NoSpaceError, UssSlamError
+from uss_slam.core.files import no_space_errno
 
 INTERRUPTED = 130
 """Exit code after Ctrl-C (128 + SIGINT, as shells report a process stopped by it)."""
+
+
+_program: str | None = None
+"""The console script running now (set by :func:`exit_on_user_error` / :func:`program`)."""
+
+
+@contextmanager
+def program(prog: str) -> Iterator[None]:
+    """Name the console script for :func:`warning` during the block."""
+    global _program
+    previous, _program = _program, prog
+    try:
+        yield
+    finally:
+        _program = previous
+
+
+def warning(message: str) -> None:
+    """One line ``<prog>: warning: <message>`` on stderr (the README's form of a warning);
+    outside a console script, a logged warning."""
+    if _program is None:
+        logging.getLogger(__name__).warning("%s", message)
+    else:
+        print(f"{_program}: warning: {message}", file=sys.stderr)
+
+
+@contextmanager
+def interrupts_deferred() -> Iterator[None]:
+    """Ctrl-C (SIGINT) during the block takes effect when it ends: for a short step that must
+    not stop half-way (moving a finished run's files into place). Outside the main thread, or
+    when SIGINT is not Python's to handle, the block runs as it is."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.getsignal(signal.SIGINT)
+    if not callable(previous):  # ignored, or handled outside Python: leave it alone
+        yield
+        return
+    caught: list[int] = []
+    signal.signal(signal.SIGINT, lambda signum, frame: caught.append(signum))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    if caught:
+        previous(signal.SIGINT, None)  # Python's default handler raises KeyboardInterrupt
 
 
 def user_error(
@@ -37,6 +90,29 @@ def user_error(
         seen.add(id(error))
         error = error.__cause__ or error.__context__
     return None
+
+
+def no_space_error(error: BaseException) -> NoSpaceError | None:
+    """A :class:`NoSpaceError` for an ``OSError`` of a full disk in ``error``'s cause chain that
+    no writer of the project named (it names the file when the ``OSError`` has one)."""
+    code = no_space_errno(error)
+    if code is None:
+        return None
+    seen: set[int] = set()
+    current: BaseException | None = error
+    while current is not None and id(current) not in seen:
+        seen.add(id(current))
+        if isinstance(current, OSError) and current.errno == code:
+            return NoSpaceError(current.filename, code)
+        current = current.__cause__ or current.__context__
+    return NoSpaceError(None, code)
+
+
+def exit_code(error: BaseException) -> int:
+    """The exit code of a console script stopped by the user error ``error``: its
+    ``exit_code`` (:class:`UssSlamError`'s: 1; an output in use: 2), else 1."""
+    code = getattr(error, "exit_code", 1)
+    return code if isinstance(code, int) and not isinstance(code, bool) else 1
 
 
 def error_line(prog: str, error: BaseException) -> str:
@@ -103,7 +179,8 @@ def _multirun_job() -> tuple[int, tuple[str, ...]] | None:
 
 @contextmanager
 def exit_on_user_error(prog: str, kinds: tuple[type[BaseException], ...] = ()) -> Iterator[None]:
-    """Run the body; a user error anywhere in the cause chain becomes one line and exit code 1.
+    """Run the body; a user error anywhere in the cause chain becomes one line and exit code 1
+    (:func:`exit_code`: 2 for an output in use); so does a full disk (:func:`no_space_error`).
 
     ``kinds`` adds exception types the entry point treats as user errors (Hydra apps pass
     OmegaConf's config errors). Ctrl-C is one line ``<prog>: interrupted`` and exit code
@@ -123,7 +200,8 @@ def exit_on_user_error(prog: str, kinds: tuple[type[BaseException], ...] = ()) -
         if job is not None:
             report.overrides.append(job[1])
     try:
-        yield
+        with program(prog):
+            yield
     except SystemExit:
         raise
     except KeyboardInterrupt:
@@ -131,14 +209,14 @@ def exit_on_user_error(prog: str, kinds: tuple[type[BaseException], ...] = ()) -
         print(f"{prog}: interrupted", file=sys.stderr)
         sys.exit(INTERRUPTED)
     except BaseException as error:
-        cause = user_error(error, kinds)
+        cause = user_error(error, kinds) or no_space_error(error)
         if cause is None:
             raise
         line = error_line(prog, cause)
         print(line, file=sys.stderr)
         job = _multirun_job() if report is not None else None
         if report is None or job is None:
-            sys.exit(1)
+            sys.exit(exit_code(cause))
         report.failures.append(FailedJob(job[0], job[1], line))
         raise JobFailed(line) from None
 

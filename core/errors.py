@@ -1,18 +1,23 @@
-"""The project's exception base and the error for bad input files.
+"""The project's exception base and the errors for bad input files, a full disk and an output
+folder another process is using.
 
 Pure Python: every layer (the SLAM runtime included, which never imports torch) may import it.
 """
 
 from __future__ import annotations
 
+import errno
 from os import PathLike
 
 
 class UssSlamError(Exception):
     """Base of every error this project raises on purpose (bad input, bad config, failed check).
 
-    Console scripts turn it into one line on stderr and a non-zero exit code.
+    Console scripts turn it into one line on stderr and the exit code :attr:`exit_code`.
     """
+
+    exit_code = 1
+    """The exit code of a console script stopped by this error."""
 
 
 class DataFormatError(UssSlamError, ValueError):
@@ -27,3 +32,30 @@ class DataFormatError(UssSlamError, ValueError):
         self.detail = message
         where = self.path if line is None else f"{self.path}:{line}"
         super().__init__(f"{where}: {message}")
+
+
+NO_SPACE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT})
+"""``errno`` values of a full file system (ENOSPC) or an exhausted disk quota (EDQUOT)."""
+
+
+class NoSpaceError(UssSlamError):
+    """An output could not be written: the file system is full (or the user's quota is used).
+
+    ``path`` is the output that was being written (its final name; the temporary file it was
+    written to is already removed), ``errno`` ENOSPC or EDQUOT.
+    """
+
+    def __init__(self, path: str | PathLike[str] | None, code: int = errno.ENOSPC) -> None:
+        self.path = None if path is None else str(path)
+        self.errno = code
+        why = "no space left on device"
+        if code == errno.EDQUOT:
+            why += " (disk quota exceeded)"
+        super().__init__(f"{why} while writing {self.path or 'an output file'}")
+
+
+class OutputInUseError(UssSlamError):
+    """An output (folder or file) is being written by another running process: the second
+    process stops before it writes anything (exit code 2)."""
+
+    exit_code = 2

@@ -1,6 +1,12 @@
 """Small torch-free file helpers shared by every package: hashing, atomic writes (a temporary
-sibling renamed into place: one file, or a set of files committed together), and the check that
-an output folder can be written. Every package writes its outputs through these."""
+sibling renamed into place: one file, or a set of files committed together), the check that
+an output folder can be written, and the lock that keeps a second process out of an output
+another one is writing. Every package writes its outputs through these.
+
+A full disk (``ENOSPC``, or ``EDQUOT`` for an exhausted quota) while an output is written is a
+:class:`~uss_slam.core.errors.NoSpaceError` naming the output's final path; its temporary file
+is removed and the earlier file under that name stays as it was.
+"""
 
 from __future__ import annotations
 
@@ -8,15 +14,18 @@ import hashlib
 import json
 import logging
 import os
+import socket
 import tempfile
+import threading
+import time
 import uuid
 from collections.abc import Iterable, Iterator, Mapping
 from contextlib import contextmanager
 from os import PathLike
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
-from uss_slam.core.errors import UssSlamError
+from uss_slam.core.errors import NO_SPACE_ERRNOS, NoSpaceError, OutputInUseError, UssSlamError
 
 log = logging.getLogger(__name__)
 
@@ -39,12 +48,61 @@ def atomic_path(path: str | PathLike[str], prefix: str = ".") -> Iterator[Path]:
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = _create_sibling(path, prefix)
+    try:
+        tmp = _create_sibling(path, prefix)
+    except OSError as error:
+        _raise_if_no_space(error, path)
+        raise
     try:
         yield tmp
         os.replace(tmp, path)
+    except Exception as error:
+        _raise_if_no_space(error, path)
+        raise
     finally:
         tmp.unlink(missing_ok=True)
+
+
+def no_space_errno(error: BaseException | None) -> int | None:
+    """``ENOSPC`` / ``EDQUOT`` when an ``OSError`` of a full disk is in ``error``'s cause chain
+    (libraries wrap it: ``__cause__`` / ``__context__``), else None."""
+    seen: set[int] = set()
+    while error is not None and id(error) not in seen:
+        seen.add(id(error))
+        if isinstance(error, OSError) and error.errno in NO_SPACE_ERRNOS:
+            return int(error.errno)
+        error = error.__cause__ or error.__context__
+    return None
+
+
+def _raise_if_no_space(error: BaseException, path: str | PathLike[str] | None) -> None:
+    """Raise :class:`NoSpaceError` for ``path`` when ``error`` comes from a full disk (an error
+    that already is one, from a nested write, goes on as it is)."""
+    if isinstance(error, NoSpaceError):
+        return
+    code = no_space_errno(error)
+    if code is not None:
+        raise NoSpaceError(path, code) from error
+
+
+def write_file(path: str | PathLike[str], data: bytes) -> None:
+    """Write ``data`` to ``path`` in place (not atomically: for the files of a folder that
+    appears under its name only when complete). A full disk removes the partial file and raises
+    :class:`NoSpaceError` naming ``path``."""
+    path = Path(path)
+    try:
+        with _open_new(path) as file:
+            file.write(data)
+    except OSError as error:
+        if no_space_errno(error) is not None:
+            path.unlink(missing_ok=True)
+        _raise_if_no_space(error, path)
+        raise
+
+
+def _open_new(path: Path) -> BinaryIO:
+    """``open(path, "wb")``: where :func:`write_file` starts a file."""
+    return open(path, "wb")  # noqa: SIM115 (the caller closes it)
 
 
 def _create_sibling(path: Path, prefix: str) -> Path:
@@ -87,7 +145,8 @@ class StagedFiles:
 
     ``os.replace`` is atomic for one file; a set of files is committed in staging order right
     after each other, once everything was written and checked. Temporary names are
-    ``.<name>.<random>.tmp``, as :func:`atomic_path`'s.
+    ``.<name>.<random>.tmp``, as :func:`atomic_path`'s. A full disk while a staged file is
+    written is a :class:`NoSpaceError` naming its final path (every staged file removed).
     """
 
     def __init__(self) -> None:
@@ -96,21 +155,44 @@ class StagedFiles:
     def __enter__(self) -> StagedFiles:
         return self
 
-    def __exit__(self, *exc_info: object) -> None:
+    def __exit__(self, kind: object, error: BaseException | None, tb: object) -> None:
+        final = self._written_when(error)
         self.discard()
+        if error is not None and isinstance(error, Exception):
+            _raise_if_no_space(error, final)
+
+    def _written_when(self, error: BaseException | None) -> Path | None:
+        """The final path of the staged file an error happened on: the one its ``filename``
+        names, else the one staged last (the file being written)."""
+        if error is None or not self._staged:
+            return None
+        name = getattr(error, "filename", None)
+        for final, tmp in self._staged.items():
+            if name is not None and Path(name) == tmp:
+                return final
+        return next(reversed(self._staged))
 
     def path(self, final: Path) -> Path:
-        """A fresh temporary path (no file yet) in ``final``'s folder, to be renamed to
-        ``final``."""
+        """A fresh temporary file (created empty) in ``final``'s folder, to be written and
+        renamed to ``final``."""
         if final in self._staged:
             raise ValueError(f"{final} is staged already")
-        tmp = final.with_name(f".{final.name}.{uuid.uuid4().hex[:12]}.tmp")
+        try:
+            tmp = _create_sibling(final, ".")
+        except OSError as error:
+            _raise_if_no_space(error, final)
+            raise
         self._staged[final] = tmp
         return tmp
 
     def write_json(self, final: Path, data: Mapping[str, Any]) -> None:
         """Stage indented JSON with a final newline for ``final``."""
-        self.path(final).write_text(json.dumps(data, indent=2) + "\n")
+        tmp = self.path(final)
+        try:
+            tmp.write_text(json.dumps(data, indent=2) + "\n")
+        except OSError as error:
+            _raise_if_no_space(error, final)
+            raise
 
     def commit(self, remove: Iterable[Path] = ()) -> None:
         """Delete ``remove`` (files the new set makes stale), then rename every staged file to
@@ -158,3 +240,135 @@ def check_writable(
         reason = error.strerror or type(error).__name__
         raise UssSlamError(f"{where}: cannot write to the output folder ({reason})") from None
     return path
+
+
+# ------------------------------------------------------------------------------ output locks
+
+_held: dict[Path, int] = {}
+"""Lock files this process holds -> how many :func:`output_lock` blocks hold each."""
+_held_guard = threading.Lock()
+
+
+def lock_path(target: str | PathLike[str]) -> Path:
+    """The lock file of an output (a folder or a file): ``.<name>.lock`` beside it, so that the
+    output's own content never includes it (an output folder that appears only when complete
+    stays absent until then). For an existing folder whose parent cannot be written, ``.lock``
+    inside it."""
+    target = Path(target).absolute()
+    if target.is_dir() and not os.access(target.parent, os.W_OK):
+        return target / ".lock"
+    return target.parent / f".{target.name}.lock"
+
+
+def _lock_info(fd: int) -> dict[str, Any]:
+    """The holder a lock file names (``pid``, ``host``, ``started``); empty when unreadable."""
+    try:
+        raw = os.pread(fd, 4096, 0)
+        info = json.loads(raw.decode()) if raw.strip() else {}
+    except (OSError, ValueError):
+        return {}
+    return info if isinstance(info, dict) else {}
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's process
+        return True
+    return True
+
+
+def _in_use_message(where: str, info: Mapping[str, Any]) -> str:
+    pid, host, started = info.get("pid"), info.get("host"), info.get("started", "?")
+    if not isinstance(pid, int):
+        return f"{where} is in use by another process"
+    if host != socket.gethostname():
+        return f"{where} is in use by pid {pid} on {host} (started {started})"
+    if not _pid_alive(pid):  # a child of that process, still writing, holds the lock
+        return f"{where} is in use by a process that pid {pid} (started {started}, now ended) left running"
+    return f"{where} is in use by pid {pid} (started {started})"
+
+
+@contextmanager
+def output_lock(target: str | PathLike[str], key: str | None = None) -> Iterator[Path]:
+    """Hold the lock of the output ``target`` (a folder or a file) for the ``with`` block, so
+    that two processes never write the same output at once; yields the lock file's path.
+
+    The lock file (:func:`lock_path`) holds the holder's pid, host and start time; it is locked
+    with ``flock``, which the kernel releases when the holder ends in any way (kill -9
+    included), and removed when the block ends. While another process holds it,
+    :class:`OutputInUseError` (exit code 2) says ``<target> is in use by pid N (started ...)``
+    (``key=<target>`` when ``key``, the option that chose it, is given). A lock file left by a
+    killed process is taken over with a warning naming it (:func:`uss_slam.core.cli.warning`). The lock is re-entrant within one
+    process (a driver may lock an output its own stages lock again); it is shared with the
+    processes this one forks, so that a worker still writing keeps it held.
+    """
+    try:
+        import fcntl
+    except ImportError:  # not POSIX: no locking
+        yield lock_path(target)
+        return
+    target = Path(target)
+    where = str(target) if key is None else f"{key}={target}"
+    path = lock_path(target)
+    with _held_guard:
+        if path in _held:
+            _held[path] += 1
+            reentrant = True
+        else:
+            reentrant = False
+    if reentrant:
+        try:
+            yield path
+        finally:
+            with _held_guard:
+                _held[path] -= 1
+        return
+    path.parent.mkdir(parents=True, exist_ok=True)
+    while True:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            info = _lock_info(fd)
+            os.close(fd)
+            raise OutputInUseError(_in_use_message(where, info)) from None
+        try:  # the holder before us may have removed the file between our open and flock
+            same = os.path.samestat(os.fstat(fd), os.stat(path))
+        except FileNotFoundError:
+            same = False
+        if same:
+            break
+        os.close(fd)
+    try:
+        left = _lock_info(fd)  # a released lock's file is removed: content means a killed holder
+        if left:
+            from uss_slam.core.cli import warning  # (core.cli imports this module)
+
+            warning(
+                f"{where}: taking over the lock {path} left by pid {left.get('pid', '?')} "
+                f"(started {left.get('started', '?')}), which ended without releasing it"
+            )
+        me = {
+            "pid": os.getpid(),
+            "host": socket.gethostname(),
+            "started": time.strftime("%Y-%m-%d %H:%M:%S"),
+        }
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, (json.dumps(me) + "\n").encode(), 0)
+        with _held_guard:
+            _held[path] = 1
+        try:
+            yield path
+        finally:
+            with _held_guard:
+                del _held[path]
+            try:
+                if os.getpid() == me["pid"] and os.path.samestat(os.fstat(fd), os.stat(path)):
+                    path.unlink()  # before the lock is released: the next holder makes a new one
+            except FileNotFoundError:
+                pass
+    finally:
+        os.close(fd)

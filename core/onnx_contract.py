@@ -12,14 +12,19 @@ An exported segmenter (``exports/<name>.onnx``) has
   uint8 ``(N, H, W)`` = argmax over ``C``;
 - the metadata below in the model's ``metadata_props`` (string values; lists and numbers
   JSON-encoded).
+
+Where a model is used (``uss-slam``, ``uss-eval``, ``uss-demo``, ``uss-experiments``), its
+outputs are held to the metadata by :func:`check_logit_channels` (one channel per class of
+``uss_slam.class_names``) and :func:`check_label_ids` (every label a class id of that list).
 """
 
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from os import PathLike
+from typing import Any
 
 from .errors import DataFormatError
 
@@ -186,3 +191,41 @@ def _rgb(
         raise DataFormatError(path, f"{key} must be a JSON list of 3 numbers, got {props[key]!r}")
     r, g, b = (float(v) for v in value)  # type: ignore[union-attr]
     return r, g, b
+
+
+def check_logit_channels(
+    path: str | PathLike[str], class_names: Sequence[str], channels: int | None
+) -> None:
+    """Refuse a model whose ``logits`` have another number of channels than ``class_names``
+    (the metadata's class list) has entries; ``channels`` None (not known yet) passes.
+
+    Raises :class:`DataFormatError` naming the model file.
+    """
+    if channels is None or int(channels) == len(class_names):
+        return
+    raise DataFormatError(
+        path,
+        f"output {OUTPUT_LOGITS!r} has {int(channels)} channels but {KEY_CLASS_NAMES} lists "
+        f"{len(class_names)} classes ({', '.join(class_names)}); the model and its metadata "
+        "disagree (re-export it with uss-export)",
+    )
+
+
+def check_label_ids(path: str | PathLike[str], class_names: Sequence[str], labels: Any) -> None:
+    """Refuse a model whose ``labels`` (an array of the model's class indices, any shape) hold
+    an id that is not a class of ``class_names`` (ids ``0 .. len - 1``): one pass for the
+    largest id, cheap enough for every frame.
+
+    Raises :class:`DataFormatError` naming the model file.
+    """
+    if not getattr(labels, "size", 0):
+        return
+    top = int(labels.max())
+    if top < len(class_names):
+        return
+    raise DataFormatError(
+        path,
+        f"output {OUTPUT_LABELS!r} holds class id {top}, but {KEY_CLASS_NAMES} lists "
+        f"{len(class_names)} classes (ids 0..{len(class_names) - 1}: "
+        f"{', '.join(class_names)}); the model and its metadata disagree",
+    )

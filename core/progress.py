@@ -62,8 +62,11 @@ class LineProgress(tqdm):
         self.fp.flush()
 
     def close(self) -> None:
-        """Write the final line (when the bar is left, as tqdm's ``leave``), then close."""
-        if not self.disable and self.leave is not False and hasattr(self, "last_print_t"):
+        """Write the final line (when the bar is left, as tqdm's ``leave``), then close. A bar
+        whose ``__init__`` was interrupted (Ctrl-C) closes quietly, as tqdm's own does."""
+        if getattr(self, "disable", True):
+            return
+        if self.leave is not False and hasattr(self, "last_print_t"):
             self._ema_dt = lambda: None  # the overall rate, as tqdm's own final display
             self._write_line()
         self.leave = False  # tqdm's close would add a newline after its final display

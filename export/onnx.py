@@ -34,7 +34,7 @@ from torch import Tensor, nn
 
 from uss_slam.core.classes import DYNAMIC_CLASSES
 from uss_slam.core.errors import UssSlamError
-from uss_slam.core.files import StagedFiles, check_writable, write_json_atomic
+from uss_slam.core.files import StagedFiles, check_writable, output_lock, write_json_atomic
 from uss_slam.core.normalization import IMAGENET_MEAN, IMAGENET_STD
 from uss_slam.core.onnx_contract import (
     HEADS,
@@ -244,7 +244,9 @@ def export_segmenter(
     removed, so the FP32 and INT8 models next to each other always come from one checkpoint.
     Raises :class:`ExportVerificationError` (after writing ``<name>.verify.failed.json``) when
     ``onnx.checker`` or the comparison with PyTorch fails; ``out`` and its sidecars are then
-    untouched.
+    untouched. ``out`` is locked while it is written (:func:`~uss_slam.core.files.output_lock`:
+    a second export to the same name stops with :class:`~uss_slam.core.errors.OutputInUseError`);
+    a full disk is a :class:`~uss_slam.core.errors.NoSpaceError` that leaves the earlier files.
     """
     out, trace_size, verify_size = check_options(
         out, opset, trace_size, verify_size, int8=calibration is not None
@@ -254,7 +256,7 @@ def export_segmenter(
     verify_path = sidecar(out, VERIFY_SUFFIX)
     int8_out = sidecar(out, INT8_SUFFIX)
     started = time.perf_counter()
-    with StagedFiles() as staged:
+    with output_lock(out), StagedFiles() as staged:
         tmp = staged.path(out)
         write_onnx(wrapper, tmp, metadata, opset, trace_size)
         report: dict[str, Any] = {

@@ -38,7 +38,13 @@ from typing import Any
 from uss_slam.core.classes import CLASS_NAMES
 from uss_slam.core.cli import exit_on_user_error
 from uss_slam.core.errors import UssSlamError
-from uss_slam.core.files import check_writable, file_sha256, write_json_atomic, write_text_atomic
+from uss_slam.core.files import (
+    check_writable,
+    file_sha256,
+    output_lock,
+    write_json_atomic,
+    write_text_atomic,
+)
 
 from . import demo_data, demo_report
 from .demo_data import DemoData
@@ -417,7 +423,8 @@ def run_demo(
     until: str = "report",
 ) -> dict[str, Any] | None:  # fmt: skip
     """Run the stages (see the module doc) up to ``until``; returns the content of
-    ``OUT/summary.json`` (None when stopped before the report)."""
+    ``OUT/summary.json`` (None when stopped before the report). ``out`` is locked while they
+    run: a second demo into it stops at once (:func:`~uss_slam.core.files.output_lock`)."""
     plan = PLANS[experiment]
     out = Path(out)
     if train_threads is not None and train_threads < 1:
@@ -441,6 +448,15 @@ def run_demo(
             f"--sequence {sequence}: not a folder, nor one of the demo's SLAM sequences "
             f"({', '.join(demo_data.SLAM_PRESETS)}, under {data / 'slam'})"
         )
+    with output_lock(out, "--out"):
+        return _run_stages(out, plan, data, seq_path, sequence, force, quiet, train_threads, until)
+
+
+def _run_stages(
+    out: Path, plan: Plan, data: Path, seq_path: Path, sequence: str, force: bool, quiet: bool,
+    train_threads: int | None, until: str,
+) -> dict[str, Any] | None:  # fmt: skip
+    """The stages of :func:`run_demo` once its arguments are checked and ``out`` is locked."""
     progress = Progress(total=_steps(until))
     progress.run("data", f"data: {plan.experiment} data set -> {data}",
                  lambda: stage_data(data, plan.data, force, quiet))  # fmt: skip

@@ -45,6 +45,7 @@ from PIL import Image
 
 from uss_slam.core.classes import CLASS_NAMES, voc_lut
 from uss_slam.core.errors import UssSlamError
+from uss_slam.core.processes import pool_ending_with_parent
 from uss_slam.core.progress import progress_bar
 from uss_slam.core.tum_io import read_file_list
 from uss_slam.synthetic import render_sequence, render_voc
@@ -262,7 +263,7 @@ def render_demo_data(
         else:
             # biggest first, so that the long SLAM sequences do not start last
             tasks.sort(key=lambda task: -_cost(task[2]))
-            with ProcessPoolExecutor(max_workers=workers) as pool:
+            with ProcessPoolExecutor(max_workers=workers, **pool_ending_with_parent()) as pool:
                 futures = [pool.submit(fn, **kwargs) for _, fn, kwargs in tasks]
                 names = {f: name for f, (name, _, _) in zip(futures, tasks, strict=True)}
                 bar = progress_bar(

@@ -39,9 +39,11 @@ from uss_slam.core.files import (
     atomic_path,
     check_writable,
     file_sha256,
+    output_lock,
     write_json_atomic,
     write_text_atomic,
 )
+from uss_slam.core.onnx_contract import check_label_ids, check_logit_channels
 from uss_slam.core.seg_metrics import (
     RATE_NAMES,
     BinaryCounts,
@@ -136,6 +138,8 @@ class CheckpointSegmenter:
         if threads is not None:
             torch.set_num_threads(threads)
         self.model = SegmenterExport(loaded.segmenter, head="main").eval()
+        self.path = path
+        self.class_names = tuple(loaded.class_names)
         self.lut = _project_lut(loaded.class_names, str(path))
         self.info = {
             "path": str(path),
@@ -147,11 +151,16 @@ class CheckpointSegmenter:
         }
 
     def infer(self, rgb: np.ndarray) -> np.ndarray:
+        """``(H, W, 3)`` uint8 RGB -> ``(H, W)`` uint8 project class ids; the outputs held to
+        the checkpoint's class list as an exported model's are (one logit channel per class,
+        every label a class id)."""
         import torch
 
         with torch.inference_mode():
-            _, labels = self.model(torch.from_numpy(np.ascontiguousarray(rgb))[None])
+            logits, labels = self.model(torch.from_numpy(np.ascontiguousarray(rgb))[None])
+        check_logit_channels(self.path, self.class_names, int(logits.shape[1]))
         out = labels[0].numpy()
+        check_label_ids(self.path, self.class_names, out)
         return out if self.lut is None else self.lut[out]
 
 
@@ -428,6 +437,20 @@ def evaluate(
     source = sequence_frames(sequences, stride) if sequences else config_val_frames(overrides)
     if source.count == 0:
         raise UssSlamError("no labelled frames to evaluate")
+    with output_lock(out, "--out"):
+        return _evaluate(model, out, source, dynamic, frame_iou, overlays, threads)
+
+
+def _evaluate(
+    model: Path,
+    out: Path,
+    source: FrameSource,
+    dynamic: Sequence[str],
+    frame_iou: float,
+    overlays: int,
+    threads: int | None,
+) -> dict[str, Any]:
+    """:func:`evaluate` once its arguments are checked and ``out`` is locked."""
     infer, info = load_segmenter(model, threads)
     dynamic_ids = [CLASS_NAMES.index(c) for c in dynamic]
     chosen = set(evenly_spaced(overlays, source.count))

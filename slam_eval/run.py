@@ -19,7 +19,7 @@ from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from uss_slam.core.cli import JobFailed, exit_on_user_error, run_hydra_app
-from uss_slam.core.files import check_writable
+from uss_slam.core.files import check_writable, output_lock
 
 from .config import check, register_configs, run_name
 from .filters.dynamic import build_filters
@@ -64,15 +64,19 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     with ``"comparison"`` holding every run's metrics).
 
     Everything is checked before the first frame is processed (config values, filters, segmenter,
-    sequence, that ``out_dir`` is writable); the outputs replace an earlier run's in ``out_dir``
-    only once the first SLAM run has finished (see :mod:`.scoring.run_folder`).
+    sequence, that ``out_dir`` is writable); ``out_dir`` is then locked against a second process
+    (:func:`~uss_slam.core.files.output_lock`). The outputs replace an earlier run's in
+    ``out_dir`` only once every SLAM run of the call has finished and its files are written (see
+    :mod:`.scoring.run_folder`): a failure, Ctrl-C or a full disk before that, in a comparison
+    too, leaves the earlier run as it was.
     """
     plan = check(cfg)
     out = check_writable(output_dir(cfg), "out_dir")
     if OmegaConf.select(cfg, "system.name") == "orbslam3":  # the real ORB-SLAM3, not the harness
         from .systems.orbslam3.system import run_from_config
 
-        return run_from_config(cfg, out)
+        with output_lock(out, "out_dir"):
+            return run_from_config(cfg, out)
     segmenter: Segmenter = hydra.utils.instantiate(cfg.segmenter)
     seq_cfg = cfg.sequence
     sequence = TumSequence(
@@ -85,6 +89,14 @@ def run(cfg: DictConfig) -> dict[str, Any]:
         max_frames=None if seq_cfg.max_frames is None else int(seq_cfg.max_frames),
     )
     warn_if_groundtruth_misses(sequence)
+    with output_lock(out, "out_dir"):
+        return _run_harness(cfg, plan, segmenter, sequence, out)
+
+
+def _run_harness(
+    cfg: DictConfig, plan: Any, segmenter: Segmenter, sequence: TumSequence, out: Path
+) -> dict[str, Any]:
+    """The harness's runs of :func:`run` (``out`` locked), their outputs committed together."""
     slam = cfg.slam
     settings = OmegaConf.to_container(cfg, resolve=True)
 
@@ -112,31 +124,37 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     ]
     folder: RunFolder | None = None
     results: dict[str, dict[str, Any]] = {}
-    for name, names, repeats in pipelines:
-        done = []
-        for repeat, job in zip(plan.repeats, repeats, strict=True):
-            result = job.run()
-            scores = evaluate(result.trajectory, sequence.groundtruth, plan.evaluation)
-            done.append((result, scores, metrics_dict(result, scores, plan.evaluation)))
+    try:
+        for name, names, repeats in pipelines:
+            done = []
+            for repeat, job in zip(plan.repeats, repeats, strict=True):
+                result = job.run()
+                scores = evaluate(result.trajectory, sequence.groundtruth, plan.evaluation)
+                done.append((result, scores, metrics_dict(result, scores, plan.evaluation)))
+                if len(plan.repeats) > 1:
+                    log.info(
+                        "%s repeat %d: %s", run_name(names), repeat.index, _summary(done[-1][2])
+                    )
+            if folder is None:  # staged: the earlier run's outputs stay until the commit
+                folder = RunFolder.start(out)
+            run_dir = out if name is None else out / name
+            extra = None
+            median = 0
             if len(plan.repeats) > 1:
-                log.info("%s repeat %d: %s", run_name(names), repeat.index, _summary(done[-1][2]))
-        if folder is None:  # the earlier run's outputs go only now
-            folder = RunFolder.start(out)
-        run_dir = out if name is None else out / name
-        extra = None
-        median = 0
-        if len(plan.repeats) > 1:
-            paths = write_repeat_trajectories(run_dir, [d[0] for d in done], folder)
-            extra = repeats_metrics([d[2] for d in done], plan.repeats, paths)
-            median = extra["median_repeat"]
-        result, scores, _ = done[median]
-        data = write_run(run_dir, result, scores, plan.evaluation, settings, folder, extra)
-        results[run_name(names)] = data
-        log.info("%s: %s -> %s", run_name(names), _summary(data), run_dir)
-    assert folder is not None
-    table = write_comparison(out, results, folder) if cfg.compare is not None else None
-    overrides = _write_hydra_files(folder, cfg)
-    folder.commit(sequence=str(sequence.path), runs=list(results), overrides=overrides)
+                paths = write_repeat_trajectories(run_dir, [d[0] for d in done], folder)
+                extra = repeats_metrics([d[2] for d in done], plan.repeats, paths)
+                median = extra["median_repeat"]
+            result, scores, _ = done[median]
+            data = write_run(run_dir, result, scores, plan.evaluation, settings, folder, extra)
+            results[run_name(names)] = data
+            log.info("%s: %s -> %s", run_name(names), _summary(data), run_dir)
+        assert folder is not None
+        table = write_comparison(out, results, folder) if cfg.compare is not None else None
+        overrides = _write_hydra_files(folder, cfg)
+        folder.commit(sequence=str(sequence.path), runs=list(results), overrides=overrides)
+    finally:
+        if folder is not None:
+            folder.discard()  # a run that did not commit: its staged files go
     if table is not None:
         print(table)
         return {**data, "comparison": results}

@@ -12,6 +12,7 @@ from pathlib import Path
 import cv2
 
 from uss_slam.core.classes import CLASS_NAMES
+from uss_slam.core.cli import program
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.files import check_writable
 
@@ -203,6 +204,12 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    with program("uss-synth"):  # its warnings: "uss-synth: warning: ..."
+        return _render(args)
+
+
+def _render(args: argparse.Namespace) -> int:
+    """:func:`main` once the arguments are parsed: render, every error as one line."""
     cv2.setNumThreads(1)
     start = time.perf_counter()
     try:
@@ -235,7 +242,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     except UssSlamError as err:
         print(f"uss-synth: error: {err}", file=sys.stderr)
-        return 1
+        return err.exit_code  # 1; 2 for an --out another process is rendering
     except KeyboardInterrupt:
         print("uss-synth: interrupted; nothing was written", file=sys.stderr)
         return 130

@@ -24,8 +24,8 @@ import cv2
 import numpy as np
 import yaml
 
-from uss_slam.core.errors import UssSlamError
-from uss_slam.core.files import write_text_atomic
+from uss_slam.core.errors import NoSpaceError, UssSlamError
+from uss_slam.core.files import no_space_errno, output_lock, write_file, write_text_atomic
 
 PNG_PARAMS = [cv2.IMWRITE_PNG_COMPRESSION, 3]
 JPEG_PARAMS = [cv2.IMWRITE_JPEG_QUALITY, 90]
@@ -63,16 +63,23 @@ def check_size(size: tuple[int, int]) -> tuple[int, int]:
 
 
 def write_png(path: Path, image: np.ndarray) -> None:
-    """PNG with fixed compression (deterministic bytes); ``image`` RGB (H, W, 3) or one channel."""
+    """PNG with fixed compression (deterministic bytes); ``image`` RGB (H, W, 3) or one channel.
+
+    Encoded in memory and written by Python (the bytes ``cv2.imwrite`` would write), so that a
+    failed write says why (a full disk: :class:`~uss_slam.core.errors.NoSpaceError`)."""
     if image.ndim == 3:
         image = cv2.cvtColor(image, cv2.COLOR_RGB2BGR)
-    if not cv2.imwrite(str(path), image, PNG_PARAMS):
-        raise UssSlamError(f"{path}: could not write PNG")
+    ok, data = cv2.imencode(".png", image, PNG_PARAMS)
+    if not ok:
+        raise UssSlamError(f"{path}: could not encode PNG")
+    write_file(path, data.tobytes())
 
 
 def write_jpeg(path: Path, rgb: np.ndarray) -> None:
-    if not cv2.imwrite(str(path), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), JPEG_PARAMS):
-        raise UssSlamError(f"{path}: could not write JPEG")
+    ok, data = cv2.imencode(".jpg", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), JPEG_PARAMS)
+    if not ok:
+        raise UssSlamError(f"{path}: could not encode JPEG")
+    write_file(path, data.tobytes())
 
 
 def is_synth_output(folder: Path) -> bool:
@@ -158,26 +165,39 @@ def staged_output(out_dir: str | PathLike[str], overwrite: bool) -> Iterator[Pat
     """Yield a temporary sibling folder to write into; move it to ``out_dir`` only on success.
 
     On any error the temporary folder is removed and ``out_dir`` is untouched (a killed process
-    leaves it, marked: the next call for the same ``out_dir`` removes it). With ``overwrite`` an
+    leaves it, marked: the next call for the same ``out_dir`` removes it); a full disk is a
+    :class:`~uss_slam.core.errors.NoSpaceError` naming ``out_dir``. With ``overwrite`` an
     existing ``out_dir`` (a uss-synth output) is replaced only after the new content is complete.
+    ``out_dir`` is locked meanwhile (:func:`~uss_slam.core.files.output_lock`): a second process
+    rendering it stops with :class:`~uss_slam.core.errors.OutputInUseError`.
     """
     out = check_output(out_dir, overwrite).absolute()
     out.parent.mkdir(parents=True, exist_ok=True)
-    clean_stale_partials(out)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out.parent))
-    tmp.chmod(0o755)  # mkdtemp makes it private; the result is an ordinary folder
-    _ACTIVE.add(tmp)
-    try:
-        owner = {"pid": os.getpid(), "host": socket.gethostname(), "out": str(out)}
-        write_text_atomic(tmp / PARTIAL_MARKER, json.dumps(owner) + "\n")
-        yield tmp
-        write_text_atomic(tmp / OUTPUT_MARKER, OUTPUT_MARKER_TEXT)
-        (tmp / PARTIAL_MARKER).unlink()
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    finally:
-        _ACTIVE.discard(tmp)
+    with output_lock(out):
+        check_output(out, overwrite)  # again: another process may have finished it meanwhile
+        clean_stale_partials(out)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out.parent))
+        tmp.chmod(0o755)  # mkdtemp makes it private; the result is an ordinary folder
+        _ACTIVE.add(tmp)
+        try:
+            owner = {"pid": os.getpid(), "host": socket.gethostname(), "out": str(out)}
+            write_text_atomic(tmp / PARTIAL_MARKER, json.dumps(owner) + "\n")
+            yield tmp
+            write_text_atomic(tmp / OUTPUT_MARKER, OUTPUT_MARKER_TEXT)
+            (tmp / PARTIAL_MARKER).unlink()
+        except BaseException as error:
+            shutil.rmtree(tmp, ignore_errors=True)
+            code = no_space_errno(error)  # also behind a NoSpaceError naming a file in tmp
+            if code is not None:  # named by the output: the file being written is gone
+                raise NoSpaceError(out, code) from error
+            raise
+        finally:
+            _ACTIVE.discard(tmp)
+        _replace(tmp, out)
+
+
+def _replace(tmp: Path, out: Path) -> None:
+    """Move the complete folder ``tmp`` to ``out``, replacing an earlier ``out``."""
     old = None
     if out.exists():
         # a name of the partial pattern: if killed while it is deleted, the next call removes it

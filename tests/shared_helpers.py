@@ -9,7 +9,7 @@ channel among R, G, B (+1): :func:`colour_labels`.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -54,30 +54,58 @@ def colour_model(
     bias: float = 128.0,
     input_type: int = TensorProto.UINT8,
     input_shape: Sequence[int | str] = ("N", "H", "W", 3),
+    label_map: Sequence[int] | None = None,
+    logits_channels: int | str = 4,
 ) -> Path:
     """Write the ``(bias, R, G, B)``-logits model to ``path`` with ``props`` as its
-    metadata_props (None: none); ``input_type`` / ``input_shape`` make contract violations."""
+    metadata_props (None: none); ``input_type`` / ``input_shape`` make contract violations.
+
+    Models that break the contract between outputs and metadata: ``label_map`` (the label
+    written for argmax 0, 1, 2, 3; e.g. ``(0, 1, 2, 7)`` labels blue pixels 7, a class id no
+    metadata lists), ``logits_channels`` (the declared channel dimension of ``logits``: a name
+    such as ``"C"`` hides the 4 channels until the model runs: a reshape to a shape computed
+    from the input's, which shape inference cannot follow)."""
+    hidden = isinstance(logits_channels, str)
     nodes = [
         helper.make_node("Cast", ["image"], ["x"], to=TensorProto.FLOAT),
         helper.make_node("Transpose", ["x"], ["nchw"], perm=[0, 3, 1, 2]),
-        helper.make_node("Conv", ["nchw", "w", "b"], ["logits"]),
+        helper.make_node("Conv", ["nchw", "w", "b"], ["conv" if hidden else "logits"]),
         helper.make_node("ArgMax", ["logits"], ["idx"], axis=1, keepdims=0),
-        helper.make_node("Cast", ["idx"], ["labels"], to=TensorProto.UINT8),
     ]
     weight = np.zeros((4, 3, 1, 1), np.float32)
     weight[1, 0] = weight[2, 1] = weight[3, 2] = 1.0
+    initializer = [
+        helper.make_tensor("w", TensorProto.FLOAT, weight.shape, weight.ravel()),
+        helper.make_tensor("b", TensorProto.FLOAT, [4], [bias, 0.0, 0.0, 0.0]),
+    ]
+    if hidden:  # logits = reshape(conv, [N, -1, H, W]) with N, H, W read from the input
+        nodes[3:3] = [
+            helper.make_node("Shape", ["image"], ["in_shape"]),
+            helper.make_node("Slice", ["in_shape", "i0", "i1"], ["n"]),
+            helper.make_node("Slice", ["in_shape", "i1", "i3"], ["hw"]),
+            helper.make_node("Concat", ["n", "minus_one", "hw"], ["out_shape"], axis=0),
+            helper.make_node("Reshape", ["conv", "out_shape"], ["logits"]),
+        ]
+        initializer += [
+            helper.make_tensor(name, TensorProto.INT64, [1], [value])
+            for name, value in (("i0", 0), ("i1", 1), ("i3", 3), ("minus_one", -1))
+        ]
+    if label_map is None:
+        nodes.append(helper.make_node("Cast", ["idx"], ["labels"], to=TensorProto.UINT8))
+    else:
+        initializer.append(helper.make_tensor("map", TensorProto.UINT8, [4], list(label_map)))
+        nodes.append(helper.make_node("Gather", ["map", "idx"], ["labels"], axis=0))
     graph = helper.make_graph(
         nodes,
         "colour",
         [helper.make_tensor_value_info("image", input_type, list(input_shape))],
         [
-            helper.make_tensor_value_info("logits", TensorProto.FLOAT, ["N", 4, "H", "W"]),
+            helper.make_tensor_value_info(
+                "logits", TensorProto.FLOAT, ["N", logits_channels, "H", "W"]
+            ),
             helper.make_tensor_value_info("labels", TensorProto.UINT8, ["N", "H", "W"]),
         ],
-        initializer=[
-            helper.make_tensor("w", TensorProto.FLOAT, weight.shape, weight.ravel()),
-            helper.make_tensor("b", TensorProto.FLOAT, [4], [bias, 0.0, 0.0, 0.0]),
-        ],
+        initializer=initializer,
     )
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
     model.ir_version = 9
@@ -88,7 +116,61 @@ def colour_model(
     return path
 
 
+def segmenter_props(class_names: Sequence[str], dynamic: Sequence[str] = ("person",)) -> dict:
+    """The metadata_props of an exported segmenter with ``class_names`` (test values)."""
+    from uss_slam.core.onnx_contract import SegmenterMetadata
+
+    return SegmenterMetadata(
+        class_names=tuple(class_names),
+        dynamic_classes=tuple(dynamic),
+        mean=(0.485, 0.456, 0.406),
+        std=(0.229, 0.224, 0.225),
+        head="main",
+        experiment="test",
+        checkpoint_sha256="0" * 64,
+        version="0.1.0",
+    ).to_props()
+
+
 def colour_labels(rgb: np.ndarray, bias: float = 128.0) -> np.ndarray:
     """What :func:`colour_model` predicts for ``rgb`` (H, W, 3) uint8 (first maximum wins)."""
     logits = np.concatenate([np.full(rgb.shape[:2] + (1,), bias), rgb.astype(np.float64)], axis=2)
     return np.argmax(logits, axis=2).astype(np.uint8)
+
+
+def full_disk(
+    monkeypatch, names: Sequence[str] | Callable[[Path], bool] | None = None
+) -> list[Path]:
+    """Make the disk full for the outputs the project writes through ``core/files.py`` whose
+    final name is in ``names`` (or for which ``names(path)`` is true; None: every output):
+    their writes fail with ``ENOSPC``, as the kernel reports it, because the file being
+    written is ``/dev/full``. Returns the final paths hit, in order (empty if none was hit).
+
+    The temporary sibling of an atomic write (``atomic_path``) becomes a symbolic link to
+    ``/dev/full``; an in-place write (``write_file``) opens ``/dev/full`` instead of its file.
+    """
+    from uss_slam.core import files
+
+    hit: list[Path] = []
+    create_sibling, open_new = files._create_sibling, files._open_new
+
+    def chosen(path: Path) -> bool:
+        return names is None or (names(path) if callable(names) else path.name in names)
+
+    def sibling(path: Path, prefix: str) -> Path:
+        tmp = create_sibling(path, prefix)
+        if chosen(path):
+            hit.append(path)
+            tmp.unlink()
+            tmp.symlink_to("/dev/full")
+        return tmp
+
+    def opened(path: Path):
+        if chosen(path):
+            hit.append(path)
+            return open("/dev/full", "wb")  # noqa: SIM115
+        return open_new(path)
+
+    monkeypatch.setattr(files, "_create_sibling", sibling)
+    monkeypatch.setattr(files, "_open_new", opened)
+    return hit

@@ -192,6 +192,31 @@ def plain_onnx(p: dict[str, Path]) -> bytes:
     return onnx.helper.make_model(graph).SerializeToString()
 
 
+def bad_segmenter(**kwargs: Any) -> Callable[[dict[str, Path]], bytes]:
+    """An exported segmenter whose outputs disagree with its metadata
+    (:func:`shared_helpers.colour_model`'s ``label_map`` / ``logits_channels``);
+    ``class_names`` the metadata's class list (default: the project's)."""
+    from shared_helpers import colour_model, segmenter_props
+
+    from uss_slam.core.classes import CLASS_NAMES
+
+    names = kwargs.pop("class_names", CLASS_NAMES)
+
+    def data(p: dict[str, Path]) -> bytes:
+        path = colour_model(p["tmp"] / ".model.onnx", segmenter_props(names), **kwargs)
+        content = path.read_bytes()
+        path.unlink()
+        return content
+
+    return data
+
+
+DARK_IS_7 = {"label_map": (7, 1, 2, 3)}
+"""Pixels darker than 128 in every channel (every frame has them) get label 7: no class."""
+THREE_CLASSES = {"class_names": ("background", "person", "chair"), "logits_channels": "C"}
+"""Metadata of 3 classes, 4 logit channels the graph does not declare."""
+
+
 def truncated(name: str, keep: float = 0.5) -> Callable[[dict[str, Path]], bytes]:
     def data(p: dict[str, Path]) -> bytes:
         content = p[name].read_bytes()
@@ -328,6 +353,13 @@ CASES = [
     case("eval-onnx-without-metadata", "uss-eval", "{m} --sequence {seq} --out {tmp}/eval",
          1, "{m}: not a uss-slam segmenter", "(export it with uss-export)",
          setup=(write("m", plain_onnx, ".onnx"),)),
+    case("eval-onnx-label-not-a-class", "uss-eval", "{m} --sequence {seq} --out {tmp}/eval", 1,
+         "{m}: output 'labels' holds class id 7, but uss_slam.class_names lists 4 classes",
+         setup=(write("m", bad_segmenter(**DARK_IS_7), ".onnx"),)),
+    case("eval-onnx-channels-not-the-classes", "uss-eval",
+         "{m} --sequence {seq} --out {tmp}/eval", 1,
+         "{m}: output 'logits' has 4 channels but uss_slam.class_names lists 3 classes",
+         setup=(write("m", bad_segmenter(**THREE_CLASSES), ".onnx"),)),
     case("eval-garbage-ckpt", "uss-eval", "{m} --sequence {seq} --out {tmp}/eval", 1,
          "{m}: not a readable checkpoint", setup=(write("m", "not a checkpoint\n", ".ckpt"),)),
     case("eval-out-under-a-file", "uss-eval", "{m} --sequence {seq} --out {afile}/eval", 1,
@@ -419,9 +451,25 @@ CASES = [
     case("slam-onnx-without-metadata", "uss-slam",
          f"{SLAM} segmenter=onnx segmenter.path={{m}} filters=[semantic]", 1,
          "{m}: not a uss-slam segmenter", setup=(write("m", plain_onnx, ".onnx"), earlier_slam_run)),
+    case("slam-onnx-label-not-a-class", "uss-slam",
+         f"{SLAM} segmenter=onnx segmenter.path={{m}} filters=[semantic]", 1,
+         "{m}: output 'labels' holds class id 7, but uss_slam.class_names lists 4 classes",
+         setup=(write("m", bad_segmenter(**DARK_IS_7), ".onnx"), earlier_slam_run)),
+    case("slam-onnx-channels-not-the-classes", "uss-slam",
+         f"{SLAM} segmenter=onnx segmenter.path={{m}} filters=[semantic]", 1,
+         "{m}: output 'logits' has 4 channels but uss_slam.class_names lists 3 classes",
+         setup=(write("m", bad_segmenter(**THREE_CLASSES), ".onnx"), earlier_slam_run)),
     case("slam-ctrl-c-mid-run", "uss-slam", SLAM, 130, "uss-slam: interrupted",
          setup=(earlier_slam_run,),
          interrupt=("uss_slam.slam_eval.sequence:TumSequence.load", 3)),
+    case("slam-ctrl-c-in-the-second-run-of-a-comparison", "uss-slam",
+         f"{SLAM} segmenter=labels compare=[[semantic],[geometry]]", 130,
+         "uss-slam: interrupted", setup=(earlier_slam_run,),
+         interrupt=("uss_slam.slam_eval.systems.harness:SlamPipeline.run", 1)),
+    case("slam-ctrl-c-in-the-last-run-of-a-comparison", "uss-slam",
+         f"{SLAM} segmenter=labels compare=[[semantic],[geometry]]", 130,
+         "uss-slam: interrupted", setup=(earlier_slam_run,),
+         interrupt=("uss_slam.slam_eval.systems.harness:SlamPipeline.run", 2)),
     # ---------------------------------------------------------------- uss-train (Hydra)
     case("train-negative-learning-rate", "uss-train", f"{TRAIN} model.optimizer.lr=-1", 1,
          "model.optimizer: Invalid learning rate: -1"),
@@ -739,6 +787,251 @@ def test_outputs_follow_the_umask(
     assert modes == dict.fromkeys(modes, 0o666 & ~umask)
 
 
+# ------------------------------------------------------------------------------ two processes
+
+HOLD = """
+import sys
+from uss_slam.core.files import output_lock
+with output_lock(sys.argv[1]):
+    print("held", flush=True)
+    sys.stdin.read()  # until the test closes stdin
+"""
+
+
+class Holder:
+    """Another process holding the lock of ``target`` (as a running console script does)."""
+
+    def __init__(self, target: Path) -> None:
+        self.proc = subprocess.Popen(
+            [sys.executable, "-c", HOLD, str(target)],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+        )  # fmt: skip
+        assert self.proc.stdout is not None and self.proc.stdout.readline() == "held\n"
+
+    def release(self) -> None:
+        assert self.proc.stdin is not None
+        self.proc.stdin.close()
+        assert self.proc.wait(timeout=30) == 0
+
+
+def colour_onnx(p: dict[str, Path]) -> bytes:
+    from shared_helpers import colour_model, segmenter_props
+
+    from uss_slam.core.classes import CLASS_NAMES
+
+    path = colour_model(p["tmp"] / ".colour.onnx", segmenter_props(CLASS_NAMES))
+    content = path.read_bytes()
+    path.unlink()
+    return content
+
+
+# (console script, argv, the output it locks, how the error line names it, setup)
+IN_USE = [
+    ("uss-slam", SLAM, "{out}", "out_dir={out}", (earlier_slam_run,)),
+    ("uss-export", EXPORT.replace("{tmp}/exports", "{exports}"), "{exports}/fake.onnx",
+     "{exports}/fake.onnx", (earlier_export,)),
+    ("uss-synth", "sequence --preset static_xyz --frames 2 --size 32x24 --out {tmp}/seq --quiet",
+     "{tmp}/seq", "{tmp}/seq", ()),
+    ("uss-demo", "--out {tmp}/demo --experiment ci --until data --quiet", "{tmp}/demo",
+     "--out={tmp}/demo", ()),
+    ("uss-experiments", "out_dir={tmp}/exp stages=[data]", "{tmp}/exp", "out_dir={tmp}/exp", ()),
+    ("uss-eval", "{m} --sequence {seq} --out {tmp}/eval", "{tmp}/eval", "--out={tmp}/eval",
+     (write("m", colour_onnx, ".onnx"),)),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("prog", "argv", "target", "named", "setup"), IN_USE, ids=[c[0] for c in IN_USE]
+)
+def test_an_output_in_use_by_another_process_stops_a_second_one(
+    prog: str,
+    argv: str,
+    target: str,
+    named: str,
+    setup: tuple[Setup, ...],
+    world: dict[str, Path],
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys,
+) -> None:
+    """While another process holds an output's lock, a second console script writing it stops
+    before any work: exit code 2, one line naming the output and the holder's pid, nothing
+    written (an earlier run or export intact). Once the holder is gone the lock file is gone
+    too, and the same call succeeds (uss-slam, uss-synth: the cheap ones)."""
+    paths = {**world, "tmp": tmp_path}
+    for step in setup:
+        step(paths)
+    holder = Holder(Path(target.format(**paths)))
+    monkeypatch.chdir(tmp_path)
+    before = snapshot(tmp_path)
+    try:
+        args = [arg.format(**paths) for arg in argv.split()]
+        code, _, err = run_console_script(prog, args, monkeypatch, capsys)
+        lines = err.strip().splitlines()
+        assert code == 2, err
+        assert len(lines) == 1, err
+        assert lines[0].startswith(
+            f"{prog}: error: {named.format(**paths)} is in use by pid {holder.proc.pid} (started "
+        ), lines[0]
+        assert snapshot(tmp_path) == before
+    finally:
+        holder.release()
+        HydraConfig.instance().cfg = None
+        GlobalHydra.instance().clear()
+    assert not list(tmp_path.rglob("*.lock"))
+    if prog in ("uss-slam", "uss-synth"):
+        code, _, err = run_console_script(prog, args, monkeypatch, capsys)
+        HydraConfig.instance().cfg = None
+        GlobalHydra.instance().clear()
+        assert code == 0, err
+        assert not list(tmp_path.rglob("*.lock"))
+
+
+def test_a_lock_left_by_a_killed_run_is_taken_over_with_one_warning(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    """The lock file of a ``uss-synth`` killed with -9 (its pid gone): the next run renders
+    (exit 0) and says once, as a warning line, whose lock it took over."""
+    gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                          capture_output=True, text=True, check=True)  # fmt: skip
+    pid = int(gone.stdout)
+    lock = tmp_path / ".seq.lock"
+    lock.write_text(json.dumps({"pid": pid, "host": "h", "started": "2026-01-02 03:04:05"}))
+    out = tmp_path / "seq"
+    argv = ["sequence", "--preset", "static_xyz", "--frames", "2", "--size", "32x24", "--out",
+            str(out), "--quiet"]  # fmt: skip
+    code, _, err = run_console_script("uss-synth", argv, monkeypatch, capsys)
+    assert code == 0, err
+    assert err.strip().splitlines()[0] == (
+        f"uss-synth: warning: {out}: taking over the lock {lock} left by pid {pid} (started "
+        "2026-01-02 03:04:05), which ended without releasing it"
+    )
+    assert len(err.strip().splitlines()) == 2  # and "done in ... s"
+    assert not lock.exists() and (out / "rgb.txt").is_file()
+
+
+def test_two_slam_runs_into_one_out_dir(
+    world: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    """Two real ``uss-slam`` runs on one ``out_dir``: the second (in this process), started
+    while the first (a subprocess, on a 30-frame sequence) runs, exits with 2 naming the
+    first's pid and writes nothing; the first finishes as if it were alone (a complete,
+    verified run replacing the earlier one)."""
+    from uss_slam.slam_eval.scoring.run_folder import verify_run
+
+    out = tmp_path / "out"
+    shutil.copytree(world["slam_run"], out)
+    args = [f"sequence.path={world['target']}", f"out_dir={out}", "progress=false"]
+    script = Path(sys.executable).parent / "uss-slam"
+    first = subprocess.Popen(
+        [str(script), *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    lock = tmp_path / ".out.lock"
+    deadline = time.monotonic() + 120
+    while not (lock.is_file() and lock.read_text().strip()):
+        assert first.poll() is None, first.communicate()
+        assert time.monotonic() < deadline
+        time.sleep(0.01)
+    before = snapshot(out)
+    try:
+        code, _, err = run_console_script("uss-slam", args, monkeypatch, capsys)
+    finally:
+        HydraConfig.instance().cfg = None
+        GlobalHydra.instance().clear()
+    assert first.poll() is None, "the first run ended before the second reached the lock"
+    assert snapshot(out) == before  # the second wrote nothing
+    lines = err.strip().splitlines()
+    assert code == 2 and len(lines) == 1, err
+    assert lines[0].startswith(
+        f"uss-slam: error: out_dir={out} is in use by pid {first.pid} (started "
+    ), lines[0]
+    _, err = first.communicate(timeout=300)
+    assert first.returncode == 0, err
+    assert verify_run(out) == [] and not lock.exists()
+    manifest = json.loads((out / "run.json").read_text())
+    assert manifest["sequence"] == str(world["target"])
+
+
+# ------------------------------------------------------------------------------ full disk
+
+
+def earlier_synth_output(p: dict[str, Path]) -> None:
+    """``{seq}``: an earlier uss-synth sequence (``--overwrite`` may replace it)."""
+    from uss_slam.synthetic import render_sequence
+
+    p["seq_out"] = render_sequence(
+        p["tmp"] / "seq", preset="static_xyz", frames=2, size=(32, 24), seed=3, progress=False
+    )
+
+
+SYNTH_OVER = (
+    "sequence --preset static_xyz --frames 3 --size 32x24 --out {tmp}/seq --overwrite --quiet"
+)
+NO_SPACE = [
+    # (id, console script, argv, setup, the outputs whose write hits the full disk, the path named)
+    ("slam", "uss-slam", SLAM, (earlier_slam_run,), ["metrics.json"], "{out}/metrics.json"),
+    ("slam-compare-plot", "uss-slam", f"{SLAM} segmenter=labels compare=[[semantic]]",
+     (earlier_slam_run,), ["ate.png"], "{out}/baseline/ate.png"),
+    ("export-model", "uss-export", EXPORT, (earlier_export,), ["fake.onnx"],
+     "{exports}/fake.onnx"),
+    ("export-report", "uss-export", EXPORT, (earlier_export,), ["fake.verify.json"],
+     "{exports}/fake.verify.json"),
+    ("synth-frame", "uss-synth", SYNTH_OVER, (earlier_synth_output,),
+     lambda path: path.parent.name == "labels", "{tmp}/seq"),
+    ("synth-marker", "uss-synth", SYNTH_OVER, (earlier_synth_output,), [".uss-synth"],
+     "{tmp}/seq"),
+    ("eval", "uss-eval", "{m} --sequence {seq} --out {tmp}/eval", (write("m", colour_onnx, ".onnx"),),
+     ["eval.json"], "{tmp}/eval/eval.json"),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("prog", "argv", "setup", "names", "named"),
+    [c[1:] for c in NO_SPACE],
+    ids=[c[0] for c in NO_SPACE],
+)
+def test_a_full_disk_is_one_line_and_keeps_the_earlier_outputs(
+    prog: str,
+    argv: str,
+    setup: tuple[Setup, ...],
+    names: Any,
+    named: str,
+    world: dict[str, Path],
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys,
+) -> None:
+    """ENOSPC while an output is written (the file being written is ``/dev/full``): exit code
+    1, one line ``<prog>: error: no space left on device while writing <path>`` naming the
+    output's final path, every earlier output byte for byte as before, and no temporary file,
+    staging or partial folder left behind."""
+    from shared_helpers import full_disk
+
+    paths = {**world, "tmp": tmp_path}
+    for step in setup:
+        step(paths)
+    monkeypatch.chdir(tmp_path)
+    before = snapshot(tmp_path)
+    hit = full_disk(monkeypatch, names)
+    try:
+        args = [arg.format(**paths) for arg in argv.split()]
+        code, _, err = run_console_script(prog, args, monkeypatch, capsys)
+    finally:
+        HydraConfig.instance().cfg = None
+        GlobalHydra.instance().clear()
+    assert hit, "the full disk was never reached"
+    assert "Traceback" not in err, err
+    lines = err.strip().splitlines()
+    assert code == 1 and len(lines) == 1, err
+    assert lines == [
+        f"{prog}: error: no space left on device while writing {named.format(**paths)}"
+    ]
+    assert snapshot(tmp_path) == before
+    left = [p.name for p in tmp_path.rglob("*") if p.is_symlink() or ".tmp" in p.name
+            or ".partial-" in p.name or p.name.startswith(".uss-slam-new.")]  # fmt: skip
+    assert left == []
+
+
 # ------------------------------------------------------------------------------ kill -9
 
 
@@ -798,9 +1091,13 @@ def test_export_killed_while_writing_keeps_the_earlier_pair(
     assert killed.returncode == -signal.SIGKILL
     assert _pair(exports) == pair  # the earlier pair, byte for byte
     leftovers = {p.name for p in exports.iterdir()} - set(pair)
-    assert leftovers and all(n.startswith(".fake.") and n.endswith(".tmp") for n in leftovers)
+    assert ".fake.onnx.lock" in leftovers  # its lock file, which the kernel unlocked
+    temporaries = leftovers - {".fake.onnx.lock"}
+    assert temporaries and all(n.startswith(".fake.") and n.endswith(".tmp") for n in temporaries)
 
     rerun = export(other, "c")
     _, err = rerun.communicate(timeout=600)
     assert rerun.returncode == 0, err
     assert _checkpoint_of_pair(exports) == {file_sha256(other)}
+    assert "uss-export: warning: exports/fake.onnx: taking over the lock" in err
+    assert not (exports / ".fake.onnx.lock").exists()

@@ -33,6 +33,7 @@ from omegaconf import DictConfig
 from omegaconf.errors import OmegaConfBaseException
 
 from uss_slam.core.cli import JobFailed, exit_on_user_error, run_hydra_app
+from uss_slam.core.files import output_lock
 from uss_slam.pipelines.runs import policy_note
 from uss_slam.pipelines.stages import Progress
 
@@ -62,6 +63,13 @@ def run_experiments(cfg: DictConfig) -> dict[str, Any]:
     """Run the configured stages; returns ``{"rows": runs.csv rows, "tables": tables.json}``
     (``{}`` for a dry run)."""
     exp = check(cfg)
+    if bool(exp.cfg.get("dry_run")):
+        return _run_experiments(exp)
+    with output_lock(exp.out, "out_dir"):  # a second uss-experiments into out_dir stops at once
+        return _run_experiments(exp)
+
+
+def _run_experiments(exp: Experiment) -> dict[str, Any]:
     out = exp.out
     out.mkdir(parents=True, exist_ok=True)
     dry = bool(exp.cfg.get("dry_run"))

@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from uss_slam.core.errors import DataFormatError
+from uss_slam.core.processes import pool_ending_with_parent
 from uss_slam.pipelines.stages import Stage
 
 from .experiment import Experiment, eval_seed
@@ -180,7 +181,8 @@ def _synthetic_data(exp: Experiment, run: bool, dry: bool) -> tuple[Data, str]:
     # The sequences are independent: rendered on two processes (PNG writing costs as much as
     # the rendering at 640x480), each stamped as soon as it is complete.
     if missing:
-        with ProcessPoolExecutor(max_workers=min(2, os.cpu_count() or 1)) as pool:
+        workers = min(2, os.cpu_count() or 1)
+        with ProcessPoolExecutor(max_workers=workers, **pool_ending_with_parent()) as pool:
             for stage in missing:
                 stage.start()
             futures = {pool.submit(render_eval_sequence, s.folder, dict(s.key)): s for s in missing}

@@ -17,6 +17,7 @@ from typing import Any
 
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.files import write_json_atomic
+from uss_slam.core.processes import ends_with_parent
 
 from . import tables as tbl
 from .experiment import Experiment
@@ -152,7 +153,11 @@ def _run_and_watch(
     with log.open("a") as out:
         out.write(f"$ {shlex.join(command)}\n")
         out.flush()
-        proc = subprocess.Popen(command, stdout=out, stderr=subprocess.STDOUT)
+        # the multirun ends with this process, even after a kill -9 of it (no survivor
+        # writes into out_dir while a rerun does)
+        proc = subprocess.Popen(
+            command, stdout=out, stderr=subprocess.STDOUT, preexec_fn=ends_with_parent()
+        )
         try:
             return _watch(exp, stage, proc, pending, every, t0)
         finally:

@@ -141,9 +141,7 @@ def write_repeat_trajectories(
     paths = []
     for index, result in enumerate(results):
         relative = f"repeats/trajectory_{index}.txt"
-        target = Path(out_dir) / relative
-        target.parent.mkdir(parents=True, exist_ok=True)
-        with folder.writing(target) as tmp:
+        with folder.writing(Path(out_dir) / relative) as tmp:
             write_trajectory(
                 tmp,
                 result.trajectory,

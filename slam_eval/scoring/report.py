@@ -120,23 +120,22 @@ def write_plots(
     if evaluation.ate is None:
         return []
     a = evaluation.ate
-    plots.plot_trajectories(
-        out / "trajectory.png",
-        a.gt_positions,
-        [(estimate, a.est_positions)],
-        f"{title}: trajectory ({a.stats.pairs} poses, aligned)",
-    )
-    plots.plot_error_over_time(
-        out / "ate.png", a.stamps, a.errors, f"{title}: absolute trajectory error"
-    )
+    with folder.placing(out / "trajectory.png") as path:
+        plots.plot_trajectories(
+            path,
+            a.gt_positions,
+            [(estimate, a.est_positions)],
+            f"{title}: trajectory ({a.stats.pairs} poses, aligned)",
+        )
+    with folder.placing(out / "ate.png") as path:
+        plots.plot_error_over_time(path, a.stamps, a.errors, f"{title}: absolute trajectory error")
     names = ["trajectory.png", "ate.png"]
     if repeats is not None:
-        plots.plot_trajectories(
-            out / "repeats.png", a.gt_positions, list(repeats), f"{title}: every repeat (aligned)"
-        )
+        with folder.placing(out / "repeats.png") as path:
+            plots.plot_trajectories(
+                path, a.gt_positions, list(repeats), f"{title}: every repeat (aligned)"
+            )
         names.append("repeats.png")
-    for name in names:
-        folder.record(out / name)
     return names
 
 
@@ -190,7 +189,6 @@ def write_report(
     ``report.md``: ``# heading``, the ``summary`` lines, ``## error_heading`` with
     :func:`error_table_md`, the system's ``sections`` (Markdown lines), then the plots.
     """
-    out.mkdir(parents=True, exist_ok=True)
     folder.write_text(
         out / "metrics.json", json.dumps(data, indent=2, default=_json_default) + "\n"
     )
@@ -220,7 +218,6 @@ def write_run(
     the report)."""
     out = Path(out_dir)
     folder = folder or RunFolder(out)
-    out.mkdir(parents=True, exist_ok=True)
     with folder.writing(out / "trajectory.txt") as tmp:
         write_trajectory(
             tmp,

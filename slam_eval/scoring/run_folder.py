@@ -1,33 +1,47 @@
 """The output folder of a ``uss-slam`` run: files written atomically, and a manifest written last.
 
-Rules, so that a folder never mixes two runs unnoticed:
+Rules, so that a folder never mixes two runs unnoticed and a run that does not finish leaves the
+earlier one as it was:
 
-- Nothing is written before the first SLAM run of an invocation has finished (a run that fails
-  earlier, on a bad config or sequence, leaves the earlier run's folder exactly as it was).
-- :meth:`RunFolder.start` then removes the earlier run's outputs, its manifest ``run.json``
-  first: a folder without ``run.json`` is always an unfinished (or killed) run.
-- Every file goes to a temporary sibling (``.uss-slam-<name>.<random>.tmp``) and is renamed onto
-  its name when complete, so no file is ever half-written under its own name.
-- :meth:`RunFolder.commit` writes ``run.json`` last: ``{"status": "complete", "files":
-  {relative path: sha256}, ...}``, ``.hydra/`` included. :func:`verify_run` checks a folder
-  against it (missing manifest, missing / changed / unlisted output files); a rerun into the
-  folder cleans up whatever a killed run left.
+- A run's files are written into a hidden staging folder inside the run folder
+  (``.uss-slam-new.<random>/``, :meth:`RunFolder.start`), each file atomically (a temporary
+  sibling ``.uss-slam-<name>.<random>.tmp`` renamed onto its name when complete). A run that
+  fails, is interrupted (Ctrl-C) or finds the disk full before :meth:`RunFolder.commit` leaves
+  the earlier run's folder exactly as it was (the staging folder is removed; one left by a
+  killed run is removed by the next run into the folder).
+- :meth:`RunFolder.commit` then removes the earlier run's outputs, its manifest ``run.json``
+  first (a folder without ``run.json`` is always an unfinished or killed run), moves the new
+  files into place (renames: no space needed; Ctrl-C waits for them) and writes ``run.json``
+  last: ``{"status": "complete", "files": {relative path: sha256}, ...}``, ``.hydra/``
+  included. :func:`verify_run` checks a folder against it (missing manifest, missing /
+  changed / unlisted output files); a rerun into the folder cleans up whatever a killed run
+  left.
+
+A :class:`RunFolder` made directly (``RunFolder(root)``, no staging) writes each file in place,
+atomically, without a manifest.
 """
 
 from __future__ import annotations
 
 import json
+import os
+import shutil
+import tempfile
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+from uss_slam.core.cli import interrupts_deferred
+from uss_slam.core.errors import NoSpaceError
 from uss_slam.core.files import atomic_path, file_sha256
 from uss_slam.core.tum_io import StrPath
 
 MANIFEST = "run.json"
 TMP_PREFIX = ".uss-slam-"
+STAGING_PREFIX = f"{TMP_PREFIX}new."
+"""Name prefix of a run's staging folder inside the run folder."""
 OUTPUT_NAMES = (
     "trajectory.txt",
     "metrics.json",
@@ -44,20 +58,37 @@ HYDRA_FILES = (".hydra/config.yaml", ".hydra/hydra.yaml", ".hydra/overrides.yaml
 
 
 class RunFolder:
-    """Writes one run's outputs under ``root`` (see the module docstring)."""
+    """Writes one run's outputs under ``root`` (see the module docstring); with ``staging``
+    (:meth:`start`), into that folder until :meth:`commit`."""
 
-    def __init__(self, root: StrPath) -> None:
+    def __init__(self, root: StrPath, staging: StrPath | None = None) -> None:
         # Absolute: the files recorded under it may be named relative to the working directory.
         self.root = Path(root).absolute()
+        self.staging = None if staging is None else Path(staging).absolute()
         self.files: list[str] = []
 
     @classmethod
     def start(cls, root: StrPath) -> RunFolder:
-        """Remove the earlier run's outputs (manifest first) and return a folder to write to."""
-        folder = cls(root)
-        folder.root.mkdir(parents=True, exist_ok=True)
-        clear_outputs(folder.root)
-        return folder
+        """A new run's folder in ``root``: its files go to a fresh staging folder (staging
+        folders left by killed runs are removed) and replace the earlier run's at
+        :meth:`commit`."""
+        root = Path(root).absolute()
+        root.mkdir(parents=True, exist_ok=True)
+        remove_staging(root)
+        return cls(root, tempfile.mkdtemp(prefix=STAGING_PREFIX, dir=root))
+
+    def __enter__(self) -> RunFolder:
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.discard()
+
+    def discard(self) -> None:
+        """Remove the staging folder and what it holds (nothing of the run is committed)."""
+        if self.staging is not None:
+            shutil.rmtree(self.staging, ignore_errors=True)
+            self.staging = None
+            self.files.clear()
 
     def _relative(self, path: StrPath) -> str:
         path = Path(path)
@@ -70,40 +101,71 @@ class RunFolder:
         except ValueError:
             raise ValueError(f"{full} is not inside the run folder {self.root}") from None
 
+    def _target(self, relative: str) -> Path:
+        """Where the output ``relative`` is written now (staging until :meth:`commit`)."""
+        target = (self.staging or self.root) / relative
+        target.parent.mkdir(parents=True, exist_ok=True)
+        return target
+
     @contextmanager
-    def writing(self, path: StrPath) -> Iterator[Path]:
-        """:func:`~uss_slam.core.files.atomic_path` (temporary prefix :data:`TMP_PREFIX`, what
-        :func:`clear_outputs` removes after a killed run) for an output (``path`` relative to
-        the folder or inside it), recorded for the manifest."""
+    def placing(self, path: StrPath) -> Iterator[Path]:
+        """Yield where to write the output ``path`` (relative to the folder or inside it): in
+        the staging folder until :meth:`commit`; its folder exists. For writers that place a
+        file themselves, atomically (a plot); recorded for the manifest when the block ends
+        normally. A full disk meanwhile is a :class:`NoSpaceError` naming ``path``."""
         relative = self._relative(path)
-        (self.root / relative).parent.mkdir(parents=True, exist_ok=True)
-        with atomic_path(self.root / relative, prefix=TMP_PREFIX) as tmp:
-            yield tmp
+        try:
+            yield self._target(relative)
+        except NoSpaceError as error:
+            raise NoSpaceError(self.root / relative, error.errno) from error
         if relative not in self.files:
             self.files.append(relative)
+
+    @contextmanager
+    def writing(self, path: StrPath) -> Iterator[Path]:
+        """:meth:`placing` through :func:`~uss_slam.core.files.atomic_path` (temporary prefix
+        :data:`TMP_PREFIX`, what :func:`clear_outputs` removes after a killed run): yields the
+        temporary file to write."""
+        with self.placing(path) as target, atomic_path(target, prefix=TMP_PREFIX) as tmp:
+            yield tmp
 
     def write_text(self, path: StrPath, text: str) -> Path:
         with self.writing(path) as tmp:
             tmp.write_text(text)
         return self.root / self._relative(path)
 
-    def record(self, path: StrPath) -> None:
-        """Record a file some other writer placed atomically (e.g. a plot)."""
-        relative = self._relative(path)
-        if relative not in self.files:
-            self.files.append(relative)
-
     def commit(self, **info: Any) -> Path:
-        """Write ``run.json`` (every recorded file with its sha256, and ``info``) last."""
-        manifest = {
-            "status": "complete",
-            "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-            **info,
-            "files": {name: file_sha256(self.root / name) for name in sorted(self.files)},
-        }
-        with atomic_path(self.root / MANIFEST, prefix=TMP_PREFIX) as tmp:
-            tmp.write_text(json.dumps(manifest, indent=2) + "\n")
+        """Replace the earlier run's outputs with the staged ones (moved in the order they
+        were written) and write ``run.json`` (every recorded file with its sha256, and
+        ``info``) last. Ctrl-C meanwhile waits until it is done."""
+        with interrupts_deferred():
+            if self.staging is not None:
+                clear_outputs(self.root)
+                for name in self.files:
+                    final = self.root / name
+                    final.parent.mkdir(parents=True, exist_ok=True)
+                    os.replace(self.staging / name, final)
+                shutil.rmtree(self.staging, ignore_errors=True)
+                self.staging = None
+            manifest = {
+                "status": "complete",
+                "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+                **info,
+                "files": {name: file_sha256(self.root / name) for name in sorted(self.files)},
+            }
+            with atomic_path(self.root / MANIFEST, prefix=TMP_PREFIX) as tmp:
+                tmp.write_text(json.dumps(manifest, indent=2) + "\n")
         return self.root / MANIFEST
+
+
+def remove_staging(root: StrPath) -> list[Path]:
+    """Remove the staging folders in ``root`` (left by killed runs: a live run holds the
+    folder's lock); returns them."""
+    root = Path(root)
+    found = sorted(p for p in root.glob(f"{STAGING_PREFIX}*") if p.is_dir())
+    for folder in found:
+        shutil.rmtree(folder, ignore_errors=True)
+    return found
 
 
 def _listed_files(root: Path) -> list[str]:
@@ -160,7 +222,8 @@ def verify_run(root: StrPath) -> list[str]:
     """What is wrong with the run folder ``root`` (empty list: a complete, unchanged run).
 
     Checks: ``run.json`` present and complete; every listed file present with its sha256; no
-    output file (known names, ``.hydra/``, temporaries) that the manifest does not list.
+    output file (known names, ``.hydra/``, temporaries) that the manifest does not list. (The
+    staging folder of a run that did not finish is not part of the run checked.)
     """
     root = Path(root)
     manifest = root / MANIFEST
@@ -186,5 +249,6 @@ def verify_run(root: StrPath) -> list[str]:
         if (root / name).is_file() and name not in files:
             problems.append(f"{root / name}: not listed in {MANIFEST} (left by another run)")
     for leftover in [*root.glob(f"{TMP_PREFIX}*"), *root.glob(f"*/{TMP_PREFIX}*")]:
-        problems.append(f"{leftover}: temporary file of an interrupted write")
+        if not (leftover.is_dir() and leftover.name.startswith(STAGING_PREFIX)):
+            problems.append(f"{leftover}: temporary file of an interrupted write")
     return problems

@@ -18,8 +18,12 @@ CRF (:mod:`.crf`, parameters ``crf_params``) before the labels are taken (argmax
 The model must follow the contract of :mod:`uss_slam.core.onnx_contract` (``exports/README.md``):
 input ``image`` uint8 RGB NHWC with dynamic batch / height / width, output ``labels`` uint8
 ``(N, H, W)``, and our ``metadata_props``. Anything else is refused when the segmenter is built,
-with the file and what is missing. The model's class names are mapped to the project's class ids
-by name, so a model trained with another class order still yields project ids.
+with the file and what is missing. Its outputs are held to its metadata where it runs: the
+``logits`` must have one channel per class of ``uss_slam.class_names`` (checked when the shape
+declares it, and on the first frame), and every label must be one of those classes' ids (the
+largest label of every frame; :func:`~uss_slam.core.onnx_contract.check_label_ids`). The
+model's class names are mapped to the project's class ids by name, so a model trained with
+another class order still yields project ids.
 
 Thread safety: the pipeline calls :meth:`OnnxSegmenter.infer` from its prefetch threads at once
 (``segment=every_frame``, ``slam.workers`` threads). ``onnxruntime.InferenceSession.run`` is
@@ -48,6 +52,8 @@ from uss_slam.core.onnx_contract import (
     OUTPUT_LABELS,
     OUTPUT_LOGITS,
     SegmenterMetadata,
+    check_label_ids,
+    check_logit_channels,
 )
 
 from .base import ImageSegmenter
@@ -157,6 +163,14 @@ class OnnxSegmenter(ImageSegmenter):
         )
         self._check_io(session)
         has_logits = OUTPUT_LOGITS in {o.name for o in session.get_outputs()}
+        # The logits' channels checked against the class list: now when the graph declares
+        # them, else on the first frame (``_first_frame``).
+        self._first_frame = has_logits
+        if has_logits:
+            logits = next(o for o in session.get_outputs() if o.name == OUTPUT_LOGITS)
+            shape = list(logits.shape)
+            channels = shape[1] if len(shape) == 4 and isinstance(shape[1], int) else None
+            check_logit_channels(self.path, self.metadata.class_names, channels)
         for key, used in (("threshold", self.threshold is not None), ("crf", crf)):
             if used and not has_logits:
                 raise DataFormatError(
@@ -228,7 +242,13 @@ class OnnxSegmenter(ImageSegmenter):
                 f"and dtype {rgb.dtype}"
             )
         batch = np.ascontiguousarray(rgb)[None]
-        if self.threshold is None and self.crf is None:
+        if self.threshold is None and self.crf is None and self._first_frame:
+            # once: the logits' channels against the class list (then the labels alone)
+            labels, logits = self.session.run([OUTPUT_LABELS, OUTPUT_LOGITS], {INPUT_NAME: batch})
+            self._checked_logits(logits[0])
+            self._first_frame = False
+            labels = labels[0]
+        elif self.threshold is None and self.crf is None:
             (labels,) = self.session.run([OUTPUT_LABELS], {INPUT_NAME: batch})
             labels = labels[0]
         else:
@@ -248,6 +268,7 @@ class OnnxSegmenter(ImageSegmenter):
                 f"output {OUTPUT_LABELS!r} has shape {labels.shape} for an input of "
                 f"{rgb.shape[:2]}; the contract says labels at the input size",
             )
+        check_label_ids(self.path, self.metadata.class_names, labels)
         if self._lut is not None:
             labels = self._lut[labels]
         return labels
@@ -260,12 +281,13 @@ class OnnxSegmenter(ImageSegmenter):
         return times
 
     def _checked_logits(self, logits: np.ndarray) -> np.ndarray:
-        if logits.ndim != 3 or logits.shape[0] != len(self.metadata.class_names):
+        if logits.ndim != 3:
             raise DataFormatError(
                 self.path,
                 f"output {OUTPUT_LOGITS!r} has shape {logits.shape[:]} per image; expected "
                 f"({len(self.metadata.class_names)}, H, W)",
             )
+        check_logit_channels(self.path, self.metadata.class_names, logits.shape[0])
         return logits
 
     def _thresholded(self, prob: np.ndarray) -> np.ndarray:

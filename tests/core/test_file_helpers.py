@@ -3,11 +3,21 @@
 from __future__ import annotations
 
 import hashlib
+import json
+import logging
+import os
+import signal
+import socket
 import subprocess
 import sys
+import textwrap
+import time
 from pathlib import Path
 
-from uss_slam.core.files import file_sha256
+import pytest
+
+from uss_slam.core.errors import OutputInUseError
+from uss_slam.core.files import file_sha256, output_lock
 
 
 def test_file_sha256_matches_hashlib_across_block_boundaries(tmp_path: Path) -> None:
@@ -24,3 +34,114 @@ def test_files_module_does_not_import_torch() -> None:
     code = "import sys, uss_slam.core.files; print('torch' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
+
+
+# ------------------------------------------------------------------------------ output locks
+
+
+def _hold(target: Path, *, fork_child: bool = False) -> subprocess.Popen:
+    """A process holding ``target``'s lock until its stdin closes (``fork_child``: a forked
+    child that shares the lock, as a pool worker does, is left sleeping after the holder is
+    killed; it prints its pid)."""
+    code = textwrap.dedent(f"""
+        import os, sys, time
+        from uss_slam.core.files import output_lock
+        with output_lock(sys.argv[1]):
+            if {fork_child}:
+                child = os.fork()
+                if child == 0:
+                    time.sleep(60)
+                    os._exit(0)
+                print(child, flush=True)
+            print("held", flush=True)
+            sys.stdin.read()
+    """)
+    proc = subprocess.Popen(
+        [sys.executable, "-c", code, str(target)],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    return proc
+
+
+def _in_use_line(target: Path, key: str | None = None) -> str:
+    with pytest.raises(OutputInUseError) as info, output_lock(target, key):
+        pass
+    assert info.value.exit_code == 2
+    return str(info.value)
+
+
+def test_output_lock_keeps_a_second_process_out(tmp_path: Path) -> None:
+    """The lock file ``.<name>.lock`` beside the output names the holder; a second locker
+    gets one line with the key, the output and that pid; the lock file goes with the holder."""
+    target = tmp_path / "run"
+    holder = _hold(target)
+    assert holder.stdout is not None and holder.stdout.readline() == "held\n"
+    lock = tmp_path / ".run.lock"
+    info = json.loads(lock.read_text())
+    assert info["pid"] == holder.pid and info["host"] == socket.gethostname()
+    line = _in_use_line(target, "out_dir")
+    assert line == f"out_dir={target} is in use by pid {holder.pid} (started {info['started']})"
+    assert not target.exists()  # the output itself is never created by its lock
+    assert holder.stdin is not None
+    holder.stdin.close()
+    assert holder.wait(timeout=30) == 0
+    assert list(tmp_path.iterdir()) == []
+    with output_lock(target) as path:  # free again
+        assert path == lock and lock.is_file()
+    assert not lock.exists()
+
+
+def test_output_lock_is_reentrant_within_a_process(tmp_path: Path) -> None:
+    target = tmp_path / "exports" / "m.onnx"
+    with output_lock(target) as outer:
+        with output_lock(target) as inner:
+            assert inner == outer == tmp_path / "exports" / ".m.onnx.lock"
+        assert outer.is_file()  # still held by the outer block
+    assert not outer.exists()
+
+
+def test_a_lock_left_by_a_killed_process_is_taken_over_with_a_warning(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """kill -9 of the holder: the kernel drops the lock, its file stays; the next locker takes
+    it over and says whose it was."""
+    target = tmp_path / "seq"
+    holder = _hold(target)
+    assert holder.stdout is not None and holder.stdout.readline() == "held\n"
+    started = json.loads((tmp_path / ".seq.lock").read_text())["started"]
+    holder.kill()
+    holder.wait(timeout=30)
+    assert (tmp_path / ".seq.lock").is_file()
+    with caplog.at_level(logging.WARNING), output_lock(target, "--out"):
+        assert json.loads((tmp_path / ".seq.lock").read_text())["pid"] == os.getpid()
+    assert caplog.messages == [
+        f"--out={target}: taking over the lock {tmp_path / '.seq.lock'} left by pid "
+        f"{holder.pid} (started {started}), which ended without releasing it"
+    ]
+    assert not (tmp_path / ".seq.lock").exists()
+
+
+def test_a_forked_worker_that_outlives_its_parent_keeps_the_lock(tmp_path: Path) -> None:
+    """A child forked while the lock is held shares it: after kill -9 of the parent the output
+    stays locked while the child runs (the line says so), and is free once it ends."""
+    target = tmp_path / "demo"
+    holder = _hold(target, fork_child=True)
+    assert holder.stdout is not None
+    child = int(holder.stdout.readline())
+    assert holder.stdout.readline() == "held\n"
+    try:
+        holder.kill()
+        holder.wait(timeout=30)
+        line = _in_use_line(target)
+        assert line.startswith(f"{target} is in use by a process that pid {holder.pid} (started ")
+        assert line.endswith(", now ended) left running")
+    finally:
+        os.kill(child, signal.SIGKILL)
+    deadline = time.monotonic() + 10
+    while True:  # the child is reaped by init, then its lock is released
+        try:
+            with output_lock(target):
+                break
+        except OutputInUseError:
+            assert time.monotonic() < deadline
+            time.sleep(0.05)

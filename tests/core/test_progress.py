@@ -66,3 +66,20 @@ def test_a_disabled_or_unfinished_bar() -> None:
     bar.update(2)
     bar.close()
     assert len(log.getvalue().splitlines()) == 1  # not left behind: only its first line
+
+
+def test_a_bar_whose_creation_was_interrupted_closes_quietly(monkeypatch) -> None:
+    """Ctrl-C inside tqdm's ``__init__`` (before it set ``disable``): the half-made bar's
+    ``__del__`` -> ``close`` must not raise (an "Exception ignored" report after
+    ``<prog>: interrupted``)."""
+
+    def interrupted(self, *args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(tqdm, "__init__", interrupted)
+    log = io.StringIO()
+    with pytest.raises(KeyboardInterrupt):
+        progress_bar(total=3, file=log)
+    half = LineProgress.__new__(LineProgress)
+    half.close()  # what __del__ calls
+    assert log.getvalue() == ""

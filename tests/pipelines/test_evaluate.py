@@ -103,6 +103,60 @@ def test_same_numbers_as_the_demo_miou_stage(tmp_path: Path, synthetic_sequence)
     assert scores["mIoU"] == result["mIoU"] and scores["IoU"] == result["IoU"]
 
 
+@pytest.mark.parametrize(
+    ("model", "says"),
+    [
+        ({"label_map": (7, 1, 2, 3)}, "output 'labels' holds class id 7, but uss_slam.class_names"),
+        (
+            {"class_names": ("background", "person", "chair"), "logits_channels": "C"},
+            "output 'logits' has 4 channels but uss_slam.class_names lists 3 classes",
+        ),
+    ],
+    ids=["label-not-a-class", "channels-not-the-classes"],
+)
+def test_every_user_of_a_model_checks_its_outputs_alike(
+    tmp_path: Path, synthetic_sequence, model: dict, says: str
+) -> None:
+    """A model whose outputs disagree with its metadata: uss-eval, the demo's mIoU stage and
+    the experiments' segmentation evaluation stop with the same error, naming the model, and
+    write nothing (uss-slam's is in tests/test_cli_matrix.py)."""
+    from shared_helpers import colour_model as build
+    from shared_helpers import segmenter_props
+
+    from uss_slam.core.errors import DataFormatError
+    from uss_slam.pipelines.experiments import jobs
+
+    seq = synthetic_sequence(frames=6, size=(64, 48))
+    names = model.pop("class_names", CLASS_NAMES)
+    path = build(tmp_path / "bad.onnx", segmenter_props(names), **model)
+    calls = {
+        "uss-eval": lambda: evaluate.evaluate(path, tmp_path / "eval", sequences=[seq]),
+        "demo": lambda: demo.miou_scores(seq, {"bad": path}, stride=5),
+        "experiments": lambda: jobs.run_segeval(
+            tmp_path / "job", {"model": str(path), "sequences": {"s": str(seq)}, "stride": 2}
+        ),
+    }
+    for who, call in calls.items():
+        with pytest.raises(DataFormatError) as info:
+            call()
+        assert str(info.value).startswith(f"{path}: {says}"), (who, str(info.value))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.onnx"]
+
+
+def test_checkpoint_outputs_are_held_to_its_class_list(tmp_path: Path) -> None:
+    """uss-eval runs a checkpoint through the same checks: a checkpoint whose class list is
+    shorter than its net's classes is refused on the first frame, naming the file."""
+    from uss_slam.core.errors import DataFormatError
+
+    ckpt = tiny_run(tmp_path / "run")
+    model = evaluate.CheckpointSegmenter(ckpt)
+    rgb = np.random.default_rng(0).integers(0, 256, (24, 32, 3), dtype=np.uint8)
+    assert model.infer(rgb).shape == (24, 32)
+    model.class_names = CLASS_NAMES[:3]
+    with pytest.raises(DataFormatError, match=r"has 4 channels but uss_slam.class_names lists 3"):
+        model.infer(rgb)
+
+
 def test_checkpoint_on_a_sequence_and_on_the_data_config_val_set(
     tmp_path: Path, synthetic_sequence
 ) -> None:

@@ -315,11 +315,17 @@ def _check_files_whole(out: Path) -> None:
             assert path.read_bytes().startswith(PNG_MAGIC)
 
 
+def _outside_staging(snapshot: dict[str, str]) -> dict[str, str]:
+    return {k: v for k, v in snapshot.items() if not k.startswith(".uss-slam-new.")}
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("moment", ["clearing", "writing"])
-def test_sigkill_is_detected_and_a_rerun_recovers(earlier, tmp_path: Path, moment: str) -> None:
-    """SIGKILL while the earlier run's outputs are being removed (its manifest is gone), or
-    while the new run's are being written (its first sub-folder exists)."""
+def test_sigkill_while_staging_keeps_the_earlier_run_and_a_rerun_recovers(
+    earlier, tmp_path: Path
+) -> None:
+    """SIGKILL once the first run of a comparison is staged (its files written, the others
+    running): the earlier run is complete and unchanged (the staging folder of the killed run
+    is not part of it); a rerun removes that folder and commits a complete run."""
     seq, done = earlier
     out = tmp_path / "run"
     shutil.copytree(done, out)
@@ -328,38 +334,142 @@ def test_sigkill_is_detected_and_a_rerun_recovers(earlier, tmp_path: Path, momen
             f"out_dir={out}", "progress=false", "sequence.max_frames=12", "segmenter=labels",
             "compare=[[semantic],[semantic,geometry]]"]  # fmt: skip
     proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    marker = (lambda: not (out / MANIFEST).exists()) if moment == "clearing" else (
-        lambda: (out / "baseline").exists())  # fmt: skip
-    killed = False
     deadline = time.monotonic() + 240
-    while proc.poll() is None and time.monotonic() < deadline:
-        if marker():
-            os.kill(proc.pid, signal.SIGKILL)
-            killed = True
-            break
+    while not any(out.glob(".uss-slam-new.*/baseline/report.md")):
+        assert proc.poll() is None, proc.communicate()
+        assert time.monotonic() < deadline
         time.sleep(0.0005)
+    os.kill(proc.pid, signal.SIGKILL)
     proc.wait(timeout=60)
-    assert killed and proc.returncode == -signal.SIGKILL, "the run ended before the kill"
-    # Detectable: no manifest. Consistent: the files present are all the earlier run's (killed
-    # while clearing) or none of them are (killed while writing), never a mix; .hydra/ only
-    # comes with a finished run; every file present is whole.
-    problems = verify_run(out)
-    assert problems and "run.json: missing" in problems[0]
+    assert proc.returncode == -signal.SIGKILL
     now = _snapshot(out)
-    from_old = {name for name in now if old.get(name) == now[name]}
-    assert from_old in (set(), set(now)), sorted(now)
-    if moment == "writing":
-        # The kill may land before the first file is in it: the folder is what marks it.
-        assert from_old == set() and (out / "baseline").is_dir()
-        assert not (out / ".hydra").exists()
-    _check_files_whole(out)
-    # A rerun recovers: complete, verified, no temporaries.
+    assert _outside_staging(now) == old and verify_run(out) == []
+    assert any(k.startswith(".uss-slam-new.") for k in now)  # the killed run's staging
+    # left by the kill; the rerun takes it over
+    started = json.loads((tmp_path / ".run.lock").read_text())["started"]
     rerun = subprocess.run(args, capture_output=True, text=True, timeout=300)
     assert rerun.returncode == 0, rerun.stderr
-    assert verify_run(out) == []
-    assert not list(out.rglob(f"{TMP_PREFIX}*"))
+    assert rerun.stderr.strip().splitlines() == [
+        f"uss-slam: warning: out_dir={out}: taking over the lock {tmp_path / '.run.lock'} left "
+        f"by pid {proc.pid} (started {started}), which ended without releasing it"
+    ]
+    assert verify_run(out) == [] and not list(out.glob(".uss-slam-*"))
+    assert not (tmp_path / ".run.lock").exists()
     runs = json.loads((out / MANIFEST).read_text())["runs"]
     assert runs == ["baseline", "semantic", "semantic+geometry"]
+
+
+class _Killed(BaseException):
+    """Stands for SIGKILL in the middle of a step: nothing after it runs."""
+
+
+@pytest.mark.parametrize("moves", [0, 1, 2])
+def test_a_kill_during_the_swap_is_detected_and_a_rerun_recovers(
+    tmp_path: Path, monkeypatch, moves: int
+) -> None:
+    """Killed after ``moves`` of the new run's files were moved in (the earlier run's files
+    already removed, manifest first): the folder has no ``run.json`` (verify_run says so),
+    holds none of the earlier run's files, every file present is whole, and clear_outputs
+    (what a rerun does) leaves no output behind."""
+    import uss_slam.slam_eval.scoring.run_folder as run_folder
+
+    root = tmp_path / "run"
+    earlier_run = RunFolder.start(root)
+    for name in ("trajectory.txt", "metrics.json", ".hydra/config.yaml"):
+        earlier_run.write_text(name, f"old {name}\n")
+    earlier_run.commit()
+    new = RunFolder.start(root)
+    for name in ("baseline/trajectory.txt", "baseline/metrics.json", "comparison.md",
+                 ".hydra/config.yaml"):  # fmt: skip
+        new.write_text(name, f"new {name}\n")
+    done = []
+    replace = os.replace
+
+    def dying_replace(src, dst):
+        if len(done) == moves:
+            raise _Killed
+        done.append(dst)
+        replace(src, dst)
+
+    monkeypatch.setattr(run_folder.os, "replace", dying_replace)
+    with pytest.raises(_Killed):
+        new.commit(runs=["baseline"])
+    monkeypatch.undo()
+    problems = verify_run(root)
+    assert problems and "run.json: missing" in problems[0]
+    present = {k: (root / k).read_text() for k in _outside_staging(_snapshot(root))}
+    assert all(text.startswith("new ") for text in present.values()), present
+    assert len(present) == moves
+    clear_outputs(root)
+    assert _outside_staging(_snapshot(root)) == {}
+
+
+# ------------------------------------------------------------------------------ Ctrl-C
+
+
+@pytest.mark.parametrize("mode", ["plain", "compare"])
+def test_sigint_keeps_the_earlier_run_in_every_mode(earlier, tmp_path: Path, mode: str) -> None:
+    """A real Ctrl-C (SIGINT) of a ``uss-slam`` process mid-run: exit code 130, the one line
+    ``uss-slam: interrupted``, the earlier complete run exactly as it was. Comparison mode:
+    sent once the baseline run's files are written (staged), while the next filter set runs."""
+    seq, done = earlier
+    out = tmp_path / "run"
+    shutil.copytree(done, out)
+    before = _snapshot(out)
+    args = [sys.executable, "-m", "uss_slam.slam_eval.run", f"sequence.path={seq}",
+            f"out_dir={out}", "progress=false"]  # fmt: skip
+    if mode == "compare":
+        args += ["segmenter=labels", "compare=[[semantic,geometry]]"]
+        ready = lambda: any(out.glob(".uss-slam-new.*/baseline/report.md"))  # noqa: E731
+    else:
+        ready = (tmp_path / ".run.lock").is_file
+    proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 240
+    while not ready():
+        assert proc.poll() is None, proc.communicate()
+        assert time.monotonic() < deadline
+        time.sleep(0.005)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    assert err.strip().splitlines() == ["uss-slam: interrupted"], err
+    assert _snapshot(out) == before and verify_run(out) == []
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]  # no staging, no lock left
+    assert not list(out.glob(".uss-slam-*"))
+
+
+def test_ctrl_c_while_a_finished_run_moves_in_waits_for_it(tmp_path: Path, monkeypatch) -> None:
+    """SIGINT while the new run's files are moved into place: the move finishes (the folder
+    holds the complete new run, never half of each), then KeyboardInterrupt."""
+    import uss_slam.slam_eval.scoring.run_folder as run_folder
+
+    root = tmp_path / "run"
+    old = RunFolder.start(root)
+    old.write_text("metrics.json", "old\n")
+    old.write_text("a/metrics.json", "old\n")
+    old.commit()
+    new = RunFolder.start(root)
+    for name in ("metrics.json", "b/trajectory.txt", "b/metrics.json"):
+        new.write_text(name, "new\n")
+    moves = []
+    replace = os.replace
+
+    def interrupted_replace(src, dst):
+        if not moves:
+            os.kill(os.getpid(), signal.SIGINT)  # Ctrl-C on the first move
+        moves.append(dst)
+        replace(src, dst)
+
+    monkeypatch.setattr(run_folder.os, "replace", interrupted_replace)
+    with pytest.raises(KeyboardInterrupt):
+        new.commit(runs=["b"])
+    monkeypatch.undo()
+    assert verify_run(root) == []
+    assert sorted(json.loads((root / MANIFEST).read_text())["files"]) == [
+        "b/metrics.json", "b/trajectory.txt", "metrics.json"
+    ]  # fmt: skip
+    assert not (root / "a").exists() and not list(root.glob(".uss-slam-new.*"))
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
 
 
 # --------------------------------------------------------------------- filters at work

@@ -64,9 +64,10 @@ def test_kill_9_while_rendering_then_rerun(tmp_path: Path) -> None:
     out = tmp_path / "seq"
     pid = _kill_while_rendering(_command(out, 60), out)
     # what is left: no output, one hidden partial folder carrying the marker of the dead process
+    # and the output's lock file (unlocked by the kernel when the process died)
     assert not out.exists()
     (partial,) = _partials(out)
-    assert sorted(p.name for p in tmp_path.iterdir()) == [partial.name]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".seq.lock", partial.name]
     marker = json.loads((partial / PARTIAL_MARKER).read_text())
     assert marker == {"pid": pid, "host": socket.gethostname(), "out": str(out)}
     assert not (partial / OUTPUT_MARKER).exists() and not (partial / "rgb.txt").exists()
@@ -75,6 +76,9 @@ def test_kill_9_while_rendering_then_rerun(tmp_path: Path) -> None:
     rerun = subprocess.run(_command(out, 60), capture_output=True, text=True, timeout=300)
     assert rerun.returncode == 0, rerun.stderr
     assert f"uss-synth: removed {partial} (left by a killed run)" in rerun.stderr
+    assert (
+        f"uss-synth: warning: {out}: taking over the lock {tmp_path / '.seq.lock'}" in rerun.stderr
+    )
     assert sorted(p.name for p in tmp_path.iterdir()) == ["seq"]
     assert len(list((out / "rgb").glob("*.png"))) == 60 and (out / OUTPUT_MARKER).is_file()
     assert not (out / PARTIAL_MARKER).exists()

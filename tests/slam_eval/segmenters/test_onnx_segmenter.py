@@ -119,6 +119,48 @@ def test_missing_labels_output_is_refused(tmp_path: Path) -> None:
     assert str(path) in str(info.value)
 
 
+def test_logits_channels_must_match_the_class_list(tmp_path: Path) -> None:
+    """Metadata listing 3 classes for a model with 4 logit channels: refused when the graph
+    declares the 4 (at load), else on the first frame, whatever mode reads the outputs."""
+    three = _metadata(CLASS_NAMES[:3])
+    message = (
+        r"output 'logits' has 4 channels but uss_slam.class_names lists 3 classes "
+        r"\(background, person, chair\); the model and its metadata disagree"
+    )
+    declared = tiny_model(tmp_path / "declared.onnx", three)
+    with pytest.raises(DataFormatError, match=message) as info:
+        OnnxSegmenter(declared)
+    assert str(info.value).startswith(f"{declared}: ")
+    hidden = tiny_model(tmp_path / "hidden.onnx", three, logits_channels="C")
+    dark = np.zeros((12, 16, 3), np.uint8)  # every label 0: a valid class id
+    for kwargs in ({}, {"threshold": 0.3}):
+        seg = OnnxSegmenter(hidden, **kwargs)  # the shape does not say: loads
+        with pytest.raises(DataFormatError, match=message) as info:
+            seg.infer(dark)
+        assert str(info.value).startswith(f"{hidden}: ")
+    ok = OnnxSegmenter(tiny_model(tmp_path / "ok.onnx", _metadata(), logits_channels="C"))
+    np.testing.assert_array_equal(ok.infer(dark), 0)
+
+
+def test_label_ids_must_be_classes_of_the_metadata(tmp_path: Path) -> None:
+    """A model whose labels hold class id 7 (blue pixels) while its metadata lists 4 classes:
+    refused on the frame that first holds it, not only on the first frame; also when its
+    class order differs from the project's (where a lookup table would have hidden it)."""
+    dark = np.zeros((12, 16, 3), np.uint8)
+    blue = dark.copy()
+    blue[3:5, 4:9, 2] = 250
+    for order in (CLASS_NAMES, ("background", "monitor", "person", "chair")):
+        path = tiny_model(tmp_path / "m.onnx", _metadata(order), label_map=(0, 1, 2, 7))
+        seg = OnnxSegmenter(path)
+        np.testing.assert_array_equal(seg.infer(dark), 0)  # ids 0 only: fine
+        with pytest.raises(DataFormatError) as info:
+            seg.infer(blue)
+        assert str(info.value) == (
+            f"{path}: output 'labels' holds class id 7, but uss_slam.class_names lists 4 "
+            f"classes (ids 0..3: {', '.join(order)}); the model and its metadata disagree"
+        )
+
+
 def test_threshold_needs_the_logits_output(tmp_path: Path) -> None:
     path = tiny_model(tmp_path / "m.onnx", _metadata())
     model = onnx.load(str(path))

@@ -1,0 +1,116 @@
+"""kill -9 of a driver: the processes it started end with it (Linux: ``PR_SET_PDEATHSIG``).
+
+uss-experiments' multirun child (its job runner) and the worker processes that render the demo's
+and the experiments' data must not keep running, and writing, after their parent was killed:
+a rerun would write the same folders. Each test starts a small driver that runs the real
+launcher / pool with children that only sleep and report their pids, kills the driver with
+SIGKILL and waits for the children to be gone.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pytest
+
+from uss_slam.core.files import output_lock
+
+pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="prctl is Linux's")
+
+
+def _gone(pid: int) -> bool:
+    """True when ``pid`` has ended (a zombie waiting for its new parent to reap it counts)."""
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (FileNotFoundError, ProcessLookupError):
+        return True
+    return state in ("Z", "X")
+
+
+def _pids(path: Path, count: int, driver: subprocess.Popen, timeout: float = 60) -> list[int]:
+    """The ``count`` child pids the children wrote to ``path`` (one per line)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        lines = path.read_text().split() if path.is_file() else []
+        if len(lines) >= count:
+            return [int(line) for line in lines[:count]]
+        assert driver.poll() is None, driver.communicate()
+        assert time.monotonic() < deadline, "the children did not start"
+        time.sleep(0.02)
+
+
+def _kill_and_wait(driver: subprocess.Popen, children: list[int], within: float = 5.0) -> None:
+    try:
+        assert not any(_gone(pid) for pid in children)  # running before the kill
+        os.kill(driver.pid, signal.SIGKILL)
+        driver.wait(timeout=30)
+        deadline = time.monotonic() + within
+        while not all(_gone(pid) for pid in children):
+            assert time.monotonic() < deadline, [p for p in children if not _gone(p)]
+            time.sleep(0.02)
+    finally:
+        for pid in children:  # whatever happens, leave nothing running
+            if not _gone(pid):
+                os.kill(pid, signal.SIGKILL)
+
+
+def test_the_experiments_job_runner_ends_with_a_killed_uss_experiments(tmp_path: Path) -> None:
+    """The launcher's multirun child (here a process that sleeps) ends within seconds of a
+    kill -9 of the process that launched it."""
+    pids = tmp_path / "pids"
+    child = (
+        f"import os, time; open({str(pids)!r}, 'a').write(f'{{os.getpid()}}\\n'); time.sleep(120)"
+    )
+    driver_code = textwrap.dedent(f"""
+        import json, sys, types
+        from pathlib import Path
+        from uss_slam.pipelines.experiments.launch import _run_and_watch
+
+        out = Path({str(tmp_path / "exp")!r})
+        (out / "jobs").mkdir(parents=True)
+        (out / "jobs" / "slam.json").write_text(json.dumps({{"cells": {{}}}}))
+        exp = types.SimpleNamespace(out=out)
+        _run_and_watch(exp, "slam", [sys.executable, "-c", {child!r}], out / "log", [], every=0.2)
+    """)
+    driver = subprocess.Popen([sys.executable, "-c", driver_code], stderr=subprocess.PIPE)
+    _kill_and_wait(driver, _pids(pids, 1, driver))
+
+
+def test_the_demo_data_workers_end_with_a_killed_uss_demo(tmp_path: Path) -> None:
+    """The two worker processes rendering the demo data set end within seconds of a kill -9 of
+    the demo; the data folder's lock is free once they are gone (a rerun is never raced)."""
+    pids = tmp_path / "pids"
+    out = tmp_path / "demo" / "data"
+    driver_code = textwrap.dedent(f"""
+        import os, time
+        from pathlib import Path
+        from uss_slam.pipelines import demo_data
+
+        def sleeper(out, size, progress=False):
+            with open({str(pids)!r}, "a") as file:
+                file.write(f"{{os.getpid()}}\\n")
+            time.sleep(120)
+
+        def tasks(tmp, spec):
+            return [(name, sleeper, {{"out": tmp / name, "size": (8, 8)}}) for name in "ab"]
+
+        demo_data._tasks = tasks  # forked workers see it too
+        demo_data.render_demo_data(Path({str(out)!r}), demo_data.DemoData(), workers=2,
+                                   progress=False)
+    """)
+    driver = subprocess.Popen([sys.executable, "-c", driver_code], stderr=subprocess.PIPE)
+    _kill_and_wait(driver, _pids(pids, 2, driver))
+    deadline = time.monotonic() + 5
+    while True:
+        try:
+            with output_lock(out):
+                break
+        except Exception:
+            assert time.monotonic() < deadline
+            time.sleep(0.05)
