@@ -115,8 +115,12 @@ class SBDSegmentation(SegmentationDataset):
         self.split = split
         list_file = self.root / f"{split}.txt"
         if not list_file.is_file():
-            hint = " (train_noval.txt is not part of SBD; use split=train with the selection's "
-            hint += "exclude_voc_val rule instead)" if split == "train_noval" else ""
+            hint = (
+                " (train_noval.txt is not part of SBD; use split=train with the selection's "
+                "exclude_voc_val rule instead)"
+                if split == "train_noval"
+                else ""
+            )
             raise DataFormatError(list_file, f"split list for split {split!r} not found{hint}")
         self.list_file = list_file
         items, skipped = list_pairs(
