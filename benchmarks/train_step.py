@@ -80,23 +80,32 @@ def _bce(logits: Tensor, label: float) -> Tensor:
     return F.binary_cross_entropy_with_logits(logits, torch.full_like(logits, label))
 
 
+def source_loss(
+    segmenter: nn.Module, batch: dict, weights: LossWeights
+) -> tuple[Tensor, Tensor, Tensor]:
+    """The weighted cross-entropy of both heads on the source images, and the two heads' logits
+    upsampled to the labels (``aux``, ``main``)."""
+    src_img, src_lbl = batch["source"]["image"], batch["source"]["label"]
+    out_src = segmenter(src_img)
+    up_aux, up_main = _up(out_src.aux, src_lbl.shape[-2:]), _up(out_src.main, src_lbl.shape[-2:])
+    loss_seg = weights.lambda_seg_aux * F.cross_entropy(
+        up_aux, src_lbl, ignore_index=255
+    ) + weights.lambda_seg_main * F.cross_entropy(up_main, src_lbl, ignore_index=255)
+    return loss_seg, up_aux, up_main
+
+
 def plain_iteration(
     state: PlainState, batch: dict, weights: LossWeights, adaptation: bool = True
 ) -> None:
     """Algorithm 1 written out in plain PyTorch (independent of the Lightning module)."""
     seg, d_aux, d_main = state.segmenter, state.d_aux, state.d_main
-    src_img, src_lbl = batch["source"]["image"], batch["source"]["label"]
     trg_img = batch["target"]["image"]
 
     # (1) segmentation loss, discriminators frozen.
     for p in _params(d_aux, d_main):
         p.requires_grad_(False)
     state.opt_seg.zero_grad()
-    out_src = seg(src_img)
-    up_aux, up_main = _up(out_src.aux, src_lbl.shape[-2:]), _up(out_src.main, src_lbl.shape[-2:])
-    loss_seg = weights.lambda_seg_aux * F.cross_entropy(
-        up_aux, src_lbl, ignore_index=255
-    ) + weights.lambda_seg_main * F.cross_entropy(up_main, src_lbl, ignore_index=255)
+    loss_seg, up_aux, up_main = source_loss(seg, batch, weights)
     loss_seg.backward()
     if adaptation:
         # (2) adversarial loss: target outputs should look like source (label 0).
