@@ -26,9 +26,10 @@ import argparse
 import json
 import os
 import statistics
-import sys
 import time
 from pathlib import Path
+
+from slam_targets import sequence_path
 
 from uss_slam.slam_eval.filters.dynamic import build_filters
 from uss_slam.slam_eval.mapping.local_mapping import LocalMappingConfig
@@ -37,7 +38,6 @@ from uss_slam.slam_eval.segmenters.base import LabelsSegmenter
 from uss_slam.slam_eval.sequence import TumSequence
 from uss_slam.slam_eval.systems.harness import SlamPipeline
 from uss_slam.slam_eval.tracking.tracker import TrackerConfig
-from uss_slam.synthetic import render_sequence
 
 VARIANTS = {
     "tracker": {},
@@ -54,14 +54,6 @@ VARIANTS = {
 
 PREFETCH_MODULES = ("read", "orb", "segmentation")
 """Modules timed in the prefetch threads (the rest run in the main thread)."""
-
-
-def sequence_path(data: Path, preset: str, frames: int, size: tuple[int, int], seed: int) -> Path:
-    path = data / f"{preset}_{frames}_{size[0]}x{size[1]}_seed{seed}"
-    if not (path / "rgb.txt").is_file():
-        print(f"rendering {path} ...", file=sys.stderr)
-        render_sequence(path, preset=preset, frames=frames, size=size, seed=seed, progress=True)
-    return path
 
 
 def run(path: Path, variant: str, filters: list[str]) -> dict:

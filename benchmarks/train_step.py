@@ -80,23 +80,32 @@ def _bce(logits: Tensor, label: float) -> Tensor:
     return F.binary_cross_entropy_with_logits(logits, torch.full_like(logits, label))
 
 
+def source_loss(
+    segmenter: nn.Module, batch: dict, weights: LossWeights
+) -> tuple[Tensor, Tensor, Tensor]:
+    """The weighted cross-entropy of both heads on the source images, and the two heads' logits
+    upsampled to the labels (``aux``, ``main``)."""
+    src_img, src_lbl = batch["source"]["image"], batch["source"]["label"]
+    out_src = segmenter(src_img)
+    up_aux, up_main = _up(out_src.aux, src_lbl.shape[-2:]), _up(out_src.main, src_lbl.shape[-2:])
+    loss_seg = weights.lambda_seg_aux * F.cross_entropy(
+        up_aux, src_lbl, ignore_index=255
+    ) + weights.lambda_seg_main * F.cross_entropy(up_main, src_lbl, ignore_index=255)
+    return loss_seg, up_aux, up_main
+
+
 def plain_iteration(
     state: PlainState, batch: dict, weights: LossWeights, adaptation: bool = True
 ) -> None:
     """Algorithm 1 written out in plain PyTorch (independent of the Lightning module)."""
     seg, d_aux, d_main = state.segmenter, state.d_aux, state.d_main
-    src_img, src_lbl = batch["source"]["image"], batch["source"]["label"]
     trg_img = batch["target"]["image"]
 
     # (1) segmentation loss, discriminators frozen.
     for p in _params(d_aux, d_main):
         p.requires_grad_(False)
     state.opt_seg.zero_grad()
-    out_src = seg(src_img)
-    up_aux, up_main = _up(out_src.aux, src_lbl.shape[-2:]), _up(out_src.main, src_lbl.shape[-2:])
-    loss_seg = weights.lambda_seg_aux * F.cross_entropy(
-        up_aux, src_lbl, ignore_index=255
-    ) + weights.lambda_seg_main * F.cross_entropy(up_main, src_lbl, ignore_index=255)
+    loss_seg, up_aux, up_main = source_loss(seg, batch, weights)
     loss_seg.backward()
     if adaptation:
         # (2) adversarial loss: target outputs should look like source (label 0).
@@ -282,43 +291,67 @@ VARIANTS = {
 }
 
 
-def benchmark_start(
-    backbone: str, size: int, batch_size: int, ndf: int, freeze_bn: bool
-) -> tuple[AdversarialSegmentation, dict]:
-    """The seeded module and fixed random batch every variant starts from (BatchNorm
-    statistics calibrated on the batch)."""
-    torch.manual_seed(0)
-    module = build_module(backbone, ndf=ndf, freeze_bn=freeze_bn)
-    batch = random_batch(size, batch_size)
-    calibrate_batchnorm(
-        module.segmenter, torch.cat([batch["source"]["image"], batch["target"]["image"]])
-    )
-    return module, batch
+@dataclass(frozen=True)
+class Case:
+    """One benchmarked network and shape: ``repeats`` x ``iters`` timed iterations per variant
+    on ``batch_size`` random ``size`` x ``size`` images, discriminators of width ``ndf``."""
+
+    backbone: str
+    size: int
+    batch_size: int
+    iters: int
+    repeats: int
+    ndf: int
+    freeze_bn: bool = True
+
+    def start(self) -> tuple[AdversarialSegmentation, dict]:
+        """The seeded module and fixed random batch every variant starts from (BatchNorm
+        statistics calibrated on the batch)."""
+        torch.manual_seed(0)
+        module = build_module(self.backbone, ndf=self.ndf, freeze_bn=self.freeze_bn)
+        batch = random_batch(self.size, self.batch_size)
+        calibrate_batchnorm(
+            module.segmenter, torch.cat([batch["source"]["image"], batch["target"]["image"]])
+        )
+        return module, batch
+
+    def heading(self, bn: str) -> str:
+        """The first words of the case's table: network, shape and ``bn`` (the BatchNorm mode)."""
+        return (
+            f"{self.backbone} {self.size}x{self.size} batch {self.batch_size} "
+            f"(D ndf {self.ndf}, {bn})"
+        )
 
 
-def run(
-    backbone: str,
-    size: int,
-    batch_size: int,
-    iters: int,
-    repeats: int,
-    ndf: int,
-    freeze_bn: bool = True,
-    compare: type[AdversarialSegmentation] | None = None,
-) -> None:
-    module, batch = benchmark_start(backbone, size, batch_size, ndf, freeze_bn)
+def cases(args: argparse.Namespace) -> list[Case]:
+    """The ``--models`` of the command line: ``small`` the demo experiment's shapes, ``tiny``
+    the small network at 33x33 and batch 1, the ResNets the paper's."""
+    freeze_bn = not args.train_bn
+    out = []
+    for name in args.models:
+        if name == "small":
+            out.append(Case("resnet_small", 129, 4, args.iters * 4, args.repeats, 16, freeze_bn))
+        elif name == "tiny":
+            out.append(Case("resnet_small", 33, 1, args.iters * 20, args.repeats, 16, freeze_bn))
+        else:
+            out.append(Case(name, 321, 1, args.iters, args.repeats, 64, freeze_bn))
+    return out
+
+
+def run(case: Case, compare: type[AdversarialSegmentation] | None = None) -> None:
+    module, batch = case.start()
     weights = module.loss_weights
     results: dict[str, list[float]] = {"plain": [], **{name: [] for name in VARIANTS}}
     if compare is not None:
         results[COMPARED] = []
     names = list(results)
-    for repeat in range(repeats):
+    for repeat in range(case.repeats):
         # Interleaved, and in a rotated order each repeat: every variant sees the same machine
         # load and none always runs first or last. The first iteration of a run is a warm-up.
         for name in names[repeat % len(names) :] + names[: repeat % len(names)]:
             if name == "plain":
                 state = plain_state_from(module)
-                results["plain"] += time_plain(state, batch, iters, weights)[1:]
+                results["plain"] += time_plain(state, batch, case.iters, weights)[1:]
                 continue
             variant = copy.deepcopy(module)
             if name == COMPARED:  # same weights and settings as `lightning`, other class
@@ -327,7 +360,7 @@ def run(
             else:
                 settings = VARIANTS[name]
             variant.batch_domains, variant.channels_last = settings
-            results[name] += time_lightning(variant, batch, iters)[1:]
+            results[name] += time_lightning(variant, batch, case.iters)[1:]
     # Same computation: from the same start, module and plain loop end with the same weights.
     check_module = copy.deepcopy(module)
     check_module.batch_domains = False
@@ -337,12 +370,12 @@ def run(
         plain_iteration(check_state, batch, weights)
     diff = max_difference(check_module.segmenter, check_state.segmenter)
     if not all(torch.isfinite(p).all() for p in check_state.segmenter.parameters()):
-        raise SystemExit(f"{backbone}: the plain loop produced non-finite weights")
+        raise SystemExit(f"{case.backbone}: the plain loop produced non-finite weights")
     plain = statistics.median(results["plain"])
     base = statistics.median(results["lightning"])
-    bn = "frozen BN" if freeze_bn else "BN trained (batched variants run unbatched)"
+    bn = "frozen BN" if case.freeze_bn else "BN trained (batched variants run unbatched)"
     print(
-        f"{backbone} {size}x{size} batch {batch_size} (D ndf {ndf}, {bn}), median s/iteration over "
+        f"{case.heading(bn)}, median s/iteration over "
         f"{len(results['plain'])} iterations each; segmenter max |difference| module vs plain "
         f"after 2 iterations: {diff:.1e}"
     )
@@ -391,17 +424,8 @@ def _restart(variant: AdversarialSegmentation, start: AdversarialSegmentation) -
     variant.iteration = 0
 
 
-def run_speed(
-    backbone: str,
-    size: int,
-    batch_size: int,
-    iters: int,
-    repeats: int,
-    ndf: int,
-    freeze_bn: bool = True,
-    variants: list[str] | None = None,
-) -> None:
-    module, batch = benchmark_start(backbone, size, batch_size, ndf, freeze_bn)
+def run_speed(case: Case, variants: list[str] | None = None) -> None:
+    module, batch = case.start()
     weights = module.loss_weights
     speeds = {name: SPEED_VARIANTS[name] for name in variants or SPEED_VARIANTS}
     # One instance per variant for the whole run: compiled networks compile in its first fit.
@@ -410,12 +434,12 @@ def run_speed(
     results: dict[str, list[float]] = {"plain": [], **{name: [] for name in speeds}}
     names = list(results)
     state = plain_state_from(module)
-    for repeat in range(repeats):
+    for repeat in range(case.repeats):
         for name in names[repeat % len(names) :] + names[: repeat % len(names)]:
             if name == "plain":
-                results["plain"] += time_plain(state, batch, iters, weights)[1:]
+                results["plain"] += time_plain(state, batch, case.iters, weights)[1:]
                 continue
-            times = time_lightning(instances[name], batch, iters, speeds[name].precision)
+            times = time_lightning(instances[name], batch, case.iters, speeds[name].precision)
             first.setdefault(name, times[0])
             results[name] += times[1:]
     # Same computation: 2 iterations of every variant from the same start, against eager.
@@ -428,10 +452,10 @@ def run_speed(
         finals[name] = {k: v.detach().float().clone() for k, v in variant.state_dict().items()}
     plain = statistics.median(results["plain"])
     eager = statistics.median(results["eager"]) if "eager" in results else plain
-    bn = "frozen BN" if freeze_bn else "BN trained (domains unbatched)"
+    bn = "frozen BN" if case.freeze_bn else "BN trained (domains unbatched)"
     print(
-        f"{backbone} {size}x{size} batch {batch_size} (D ndf {ndf}, {bn}): median s/iteration "
-        f"over {iters - 1} x {repeats} iterations each (the first of each fit excluded)"
+        f"{case.heading(bn)}: median s/iteration "
+        f"over {case.iters - 1} x {case.repeats} iterations each (the first of each fit excluded)"
     )
     print(
         f"  {'variant':14s} {'s/it':>8s} {'vs plain':>9s} {'vs eager':>9s} {'compile s':>10s} "
@@ -535,14 +559,8 @@ def main() -> None:
         compared = importlib.util.module_from_spec(spec)
         spec.loader.exec_module(compared)
         compare = compared.AdversarialSegmentation
-    for name in args.models:
-        settings = (args.repeats, 16, not args.train_bn, compare)
-        if name == "small":  # the demo experiment's shapes
-            run("resnet_small", 129, 4, args.iters * 4, *settings)
-        elif name == "tiny":
-            run("resnet_small", 33, 1, args.iters * 20, *settings)
-        else:  # the paper's shapes
-            run(name, 321, 1, args.iters, args.repeats, 64, not args.train_bn, compare)
+    for case in cases(args):
+        run(case, compare)
 
 
 def main_speed(args: argparse.Namespace) -> None:
@@ -558,32 +576,8 @@ def main_speed(args: argparse.Namespace) -> None:
             f"{'warm' if args.warm_cache else 'cold'} compile cache, load "
             f"{os.getloadavg()[0]:.1f}"
         )
-        for name in args.models:
-            variants = args.variants
-            if name == "small":
-                run_speed(
-                    "resnet_small",
-                    129,
-                    4,
-                    args.iters * 4,
-                    args.repeats,
-                    16,
-                    not args.train_bn,
-                    variants,
-                )
-            elif name == "tiny":
-                run_speed(
-                    "resnet_small",
-                    33,
-                    1,
-                    args.iters * 20,
-                    args.repeats,
-                    16,
-                    not args.train_bn,
-                    variants,
-                )
-            else:
-                run_speed(name, 321, 1, args.iters, args.repeats, 64, not args.train_bn, variants)
+        for case in cases(args):
+            run_speed(case, args.variants)
         print(f"load at the end {os.getloadavg()[0]:.1f}")
 
 

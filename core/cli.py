@@ -24,9 +24,12 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any, TypeVar
 
 from uss_slam.core.errors import NoSpaceError, UssSlamError
 from uss_slam.core.files import no_space_errno
+
+T = TypeVar("T")
 
 INTERRUPTED = 130
 """Exit code after Ctrl-C (128 + SIGINT, as shells report a process stopped by it)."""
@@ -219,6 +222,19 @@ def exit_on_user_error(prog: str, kinds: tuple[type[BaseException], ...] = ()) -
             sys.exit(exit_code(cause))
         report.failures.append(FailedJob(job[0], job[1], line))
         raise JobFailed(line) from None
+
+
+def hydra_task(prog: str, task: Callable[[Any], T], cfg: Any) -> T | None:
+    """``task(cfg)`` as the body of a ``@hydra.main`` app: in :func:`exit_on_user_error`, with
+    OmegaConf's config errors counted as the user's. None when it was a multirun job that failed
+    with a user error (printed and recorded; the other jobs go on)."""
+    from omegaconf.errors import OmegaConfBaseException
+
+    try:
+        with exit_on_user_error(prog, (OmegaConfBaseException,)):
+            return task(cfg)
+    except JobFailed:
+        return None
 
 
 @contextmanager

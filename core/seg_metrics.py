@@ -39,18 +39,24 @@ RATE_NAMES: tuple[str, ...] = ("FPR", "FNR", "recall", "precision", "PWC")
 """The five rates of the paper's Table III, in its order."""
 
 
-def confusion_matrix(truth: np.ndarray, prediction: np.ndarray, num_classes: int) -> np.ndarray:
-    """``(C, C)`` int64 pixel counts of (truth, prediction) over pixels whose truth is not 255.
-
-    ``truth`` values must be class ids ``< num_classes`` or 255, ``prediction`` values class ids;
-    anything else is an error (never silently dropped).
-    """
+def _same_shape(truth: np.ndarray, prediction: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Both label maps as arrays; an error unless they have one shape."""
     truth = np.asarray(truth)
     prediction = np.asarray(prediction)
     if truth.shape != prediction.shape:
         raise UssSlamError(
             f"prediction shape {prediction.shape} differs from the truth's {truth.shape}"
         )
+    return truth, prediction
+
+
+def confusion_matrix(truth: np.ndarray, prediction: np.ndarray, num_classes: int) -> np.ndarray:
+    """``(C, C)`` int64 pixel counts of (truth, prediction) over pixels whose truth is not 255.
+
+    ``truth`` values must be class ids ``< num_classes`` or 255, ``prediction`` values class ids;
+    anything else is an error (never silently dropped).
+    """
+    truth, prediction = _same_shape(truth, prediction)
     n = int(num_classes)
     valid = truth != IGNORE_INDEX
     t = truth[valid].astype(np.int64)
@@ -151,12 +157,7 @@ def mask_counts(
 ) -> BinaryCounts:
     """Pixel counts of the mask of ``class_ids`` in ``prediction`` against ``truth``'s (label
     maps; truth pixels equal to 255 count nowhere)."""
-    truth = np.asarray(truth)
-    prediction = np.asarray(prediction)
-    if truth.shape != prediction.shape:
-        raise UssSlamError(
-            f"prediction shape {prediction.shape} differs from the truth's {truth.shape}"
-        )
+    truth, prediction = _same_shape(truth, prediction)
     ids = list(class_ids)
     valid = truth != IGNORE_INDEX
     t = class_mask(truth, ids) & valid

@@ -22,15 +22,8 @@ import numpy as np
 import scipy.io
 
 from uss_slam.core.errors import DataFormatError
-from uss_slam.datasets.base import (
-    OnError,
-    SegmentationDataset,
-    Transform,
-    check_on_error,
-    map_label,
-    report_skipped,
-)
-from uss_slam.datasets.voc import list_pairs, voc_checked_lut
+from uss_slam.datasets.base import map_label
+from uss_slam.datasets.voc import IdListSegmentation
 
 GTCLS_FIELDS = ("Boundaries", "Segmentation", "CategoriesPresent")
 
@@ -88,7 +81,7 @@ def read_gtcls_segmentation(path: Path) -> np.ndarray:
     return segmentation.astype(np.uint8)
 
 
-class SBDSegmentation(SegmentationDataset):
+class SBDSegmentation(IdListSegmentation):
     """SBD class segmentation with project classes.
 
     Args:
@@ -103,29 +96,21 @@ class SBDSegmentation(SegmentationDataset):
     Samples: ``image (3, H, W)`` float32, ``label (H, W)`` int64, ``name`` = image id.
     """
 
-    def __init__(
-        self,
-        root: str | Path,
-        split: str = "train",
-        transform: Transform | None = None,
-        on_error: OnError = "raise",
-    ) -> None:
-        self.on_error = check_on_error(on_error)
-        self.root = find_sbd_root(root)
-        self.split = split
-        list_file = self.root / f"{split}.txt"
-        if not list_file.is_file():
-            hint = " (train_noval.txt is not part of SBD; use split=train with the selection's "
-            hint += "exclude_voc_val rule instead)" if split == "train_noval" else ""
-            raise DataFormatError(list_file, f"split list for split {split!r} not found{hint}")
-        self.list_file = list_file
-        items, skipped = list_pairs(
-            list_file, self.root / "img", ".jpg", self.root / "cls", ".mat", self.on_error
+    kind = "SBD"
+    image_dir, image_suffix = "img", ".jpg"
+    label_dir, label_suffix = "cls", ".mat"
+    find_root = staticmethod(find_sbd_root)
+
+    def split_list(self, split: str) -> Path:
+        return self.root / f"{split}.txt"
+
+    def missing_hint(self, split: str) -> str:
+        if split != "train_noval":
+            return ""
+        return (
+            " (train_noval.txt is not part of SBD; use split=train with the selection's "
+            "exclude_voc_val rule instead)"
         )
-        if not items and not skipped:
-            raise DataFormatError(list_file, "the split list is empty")
-        report_skipped(f"SBD {split} ({list_file})", skipped)
-        super().__init__(items, lut=voc_checked_lut(), transform=transform, skipped=skipped)
 
     def read_label(self, index: int) -> np.ndarray:
         path = self.items[index].label

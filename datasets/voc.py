@@ -9,6 +9,7 @@ becomes background, 255 stays ignore).
 from __future__ import annotations
 
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 
@@ -118,7 +119,65 @@ def list_pairs(
     return items, skipped
 
 
-class VOCSegmentation(SegmentationDataset):
+class IdListSegmentation(SegmentationDataset):
+    """A segmentation split read from an id list (VOC's and SBD's layout), with project classes.
+
+    Subclasses name the layout: :attr:`kind` (in messages), :meth:`find_root`, the list file of
+    a split (:meth:`split_list`) and the image / label folders and suffixes; labels hold VOC
+    class indices (``classes.voc_lut()``). Every listed id needs both files (see
+    :func:`list_pairs` and ``on_error``).
+    """
+
+    kind: ClassVar[str]
+    image_dir: ClassVar[str]
+    image_suffix: ClassVar[str]
+    label_dir: ClassVar[str]
+    label_suffix: ClassVar[str]
+
+    def __init__(
+        self,
+        root: str | Path,
+        split: str = "train",
+        transform: Transform | None = None,
+        on_error: OnError = "raise",
+    ) -> None:
+        self.on_error = check_on_error(on_error)
+        self.root = self.find_root(root)
+        self.split = split
+        list_file = self.split_list(split)
+        if not list_file.is_file():
+            raise DataFormatError(
+                list_file, f"split list for split {split!r} not found{self.missing_hint(split)}"
+            )
+        self.list_file = list_file
+        items, skipped = list_pairs(
+            list_file,
+            self.root / self.image_dir,
+            self.image_suffix,
+            self.root / self.label_dir,
+            self.label_suffix,
+            self.on_error,
+        )
+        if not items and not skipped:
+            raise DataFormatError(list_file, "the split list is empty")
+        report_skipped(f"{self.kind} {split} ({list_file})", skipped)
+        super().__init__(items, lut=voc_checked_lut(), transform=transform, skipped=skipped)
+
+    @staticmethod
+    def find_root(root: str | Path) -> Path:
+        """The dataset folder for the ``root`` a user gave (an error if it is none)."""
+        raise NotImplementedError
+
+    def split_list(self, split: str) -> Path:
+        """The id list of ``split`` under :attr:`root`."""
+        raise NotImplementedError
+
+    def missing_hint(self, split: str) -> str:
+        """Appended to the error of a missing split list (default: nothing)."""
+        return ""
+
+
+class VOCSegmentation(IdListSegmentation):
     """VOC segmentation split with project classes.
 
     Args:
@@ -132,29 +191,10 @@ class VOCSegmentation(SegmentationDataset):
     Samples: ``image (3, H, W)`` float32, ``label (H, W)`` int64, ``name`` = image id.
     """
 
-    def __init__(
-        self,
-        root: str | Path,
-        split: str = "train",
-        transform: Transform | None = None,
-        on_error: OnError = "raise",
-    ) -> None:
-        self.on_error = check_on_error(on_error)
-        self.root = find_voc_root(root)
-        self.split = split
-        list_file = self.root / "ImageSets" / "Segmentation" / f"{split}.txt"
-        if not list_file.is_file():
-            raise DataFormatError(list_file, f"split list for split {split!r} not found")
-        self.list_file = list_file
-        items, skipped = list_pairs(
-            list_file,
-            self.root / "JPEGImages",
-            ".jpg",
-            self.root / "SegmentationClass",
-            ".png",
-            self.on_error,
-        )
-        if not items and not skipped:
-            raise DataFormatError(list_file, "the split list is empty")
-        report_skipped(f"VOC {split} ({list_file})", skipped)
-        super().__init__(items, lut=voc_checked_lut(), transform=transform, skipped=skipped)
+    kind = "VOC"
+    image_dir, image_suffix = "JPEGImages", ".jpg"
+    label_dir, label_suffix = "SegmentationClass", ".png"
+    find_root = staticmethod(find_voc_root)
+
+    def split_list(self, split: str) -> Path:
+        return self.root / "ImageSets" / "Segmentation" / f"{split}.txt"

@@ -21,9 +21,8 @@ from typing import Any
 import hydra
 import torch
 from omegaconf import DictConfig, OmegaConf
-from omegaconf.errors import OmegaConfBaseException
 
-from uss_slam.core.cli import JobFailed, exit_on_user_error, run_hydra_app
+from uss_slam.core.cli import hydra_task, run_hydra_app
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.onnx_contract import HEADS
 from uss_slam.export.checkpoint import run_name
@@ -184,10 +183,8 @@ def run(cfg: DictConfig) -> ExportResult:
 @hydra.main(version_base="1.3", config_path="../configs", config_name="export")
 def app(cfg: DictConfig) -> None:
     """The Hydra task: export, then print what was written."""
-    try:
-        with exit_on_user_error(PROG, (OmegaConfBaseException,)):
-            result = run(cfg)
-    except JobFailed:  # a multirun job: printed and recorded, the other jobs go on
+    result = hydra_task(PROG, run, cfg)
+    if result is None:  # a multirun job that failed: the other jobs go on
         return
     v = result.verify
     print(

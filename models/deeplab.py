@@ -24,6 +24,73 @@ class SegmenterOutput(NamedTuple):
     main: Tensor
 
 
+class TwoHeadSegmenter(nn.Module):
+    """What both segmenters share: a dilated ResNet backbone (:func:`build_backbone`, returning
+    layer3 / layer4 features) under an ``aux`` and a ``main`` head.
+
+    Subclasses call ``super().__init__(...)`` (which builds the backbone), create ``self.aux``
+    and ``self.main`` from ``self.backbone.out_channels``, then :meth:`finish_init`; they name
+    in :meth:`batchnorm_frozen` what ``freeze_bn`` keeps in eval mode.
+    """
+
+    aux: nn.Module
+    main: nn.Module
+
+    def __init__(
+        self,
+        num_classes: int,
+        backbone: str,
+        freeze_bn: FreezeBatchNorm,
+        backbone_weights: str | None,
+        weights_path: str | Path | None,
+    ) -> None:
+        super().__init__()
+        self.num_classes = num_classes
+        self.backbone_name = backbone
+        self.freeze_bn = resolve_freeze_bn(
+            freeze_bn, pretrained=backbone_weights is not None or weights_path is not None
+        )
+        self.backbone = build_backbone(backbone, backbone_weights)
+
+    def batchnorm_frozen(self) -> nn.Module:
+        """The part whose BatchNorms ``freeze_bn`` keeps frozen."""
+        raise NotImplementedError
+
+    def finish_init(self, weights_path: str | Path | None) -> None:
+        """Freeze the BatchNorms (``freeze_bn``), then load ``weights_path`` (if any)."""
+        if self.freeze_bn:
+            freeze_batchnorm(self.batchnorm_frozen())
+        if weights_path is not None:
+            from uss_slam.models.weights import load_segmenter_weights
+
+            load_segmenter_weights(self, weights_path)
+
+    def forward(self, images: Tensor) -> SegmenterOutput:
+        low, high = self.backbone(images)
+        return SegmenterOutput(aux=self.aux(low), main=self.main(high))
+
+    def train(self, mode: bool = True) -> TwoHeadSegmenter:
+        super().train(mode)
+        if self.freeze_bn:
+            freeze_batchnorm(self.batchnorm_frozen())
+        return self
+
+    def heads(self) -> nn.ModuleDict:
+        """The two heads (what is re-initialised when the class count changes, trained at the
+        head rate)."""
+        return nn.ModuleDict({"aux": self.aux, "main": self.main})
+
+    def param_groups(self, lr: float, head_lr_mult: float = 10.0) -> list[dict[str, Any]]:
+        """Optimiser parameter groups: trainable backbone parameters at ``lr``, both heads at
+        ``head_lr_mult × lr``. Every trainable parameter appears exactly once."""
+        backbone = [p for p in self.backbone.parameters() if p.requires_grad]
+        heads = [p for p in self.heads().parameters() if p.requires_grad]
+        return [
+            {"name": "backbone", "params": backbone, "lr": lr},
+            {"name": "heads", "params": heads, "lr": lr * head_lr_mult},
+        ]
+
+
 class ASPPClassifier(nn.Module):
     """Atrous spatial pyramid pooling classifier of DeepLab-v2: the **sum** of one 3×3 conv per
     rate (all four of them), each mapping features straight to class logits."""
@@ -53,7 +120,7 @@ class ASPPClassifier(nn.Module):
         return out
 
 
-class DeepLabV2(nn.Module):
+class DeepLabV2(TwoHeadSegmenter):
     """DeepLab-v2 segmenter (output stride 8, no CRF, single scale) with ``aux``/``main`` heads.
 
     Args:
@@ -84,46 +151,14 @@ class DeepLabV2(nn.Module):
         backbone_weights: str | None = None,
         weights_path: str | Path | None = None,
     ) -> None:
-        super().__init__()
-        self.num_classes = num_classes
-        self.backbone_name = backbone
-        self.freeze_bn = resolve_freeze_bn(
-            freeze_bn, pretrained=backbone_weights is not None or weights_path is not None
-        )
-        self.backbone = build_backbone(backbone, backbone_weights)
+        super().__init__(num_classes, backbone, freeze_bn, backbone_weights, weights_path)
         low, high = self.backbone.out_channels
         self.aux = ASPPClassifier(low, num_classes, aspp_rates)
         self.main = ASPPClassifier(high, num_classes, aspp_rates)
-        if self.freeze_bn:
-            freeze_batchnorm(self.backbone)
-        if weights_path is not None:
-            from uss_slam.models.weights import load_segmenter_weights
+        self.finish_init(weights_path)
 
-            load_segmenter_weights(self, weights_path)
-
-    def forward(self, images: Tensor) -> SegmenterOutput:
-        low, high = self.backbone(images)
-        return SegmenterOutput(aux=self.aux(low), main=self.main(high))
-
-    def train(self, mode: bool = True) -> DeepLabV2:
-        super().train(mode)
-        if self.freeze_bn:
-            freeze_batchnorm(self.backbone)
-        return self
-
-    def heads(self) -> nn.ModuleDict:
-        """The two classifiers (what is re-initialised when the class count changes)."""
-        return nn.ModuleDict({"aux": self.aux, "main": self.main})
-
-    def param_groups(self, lr: float, head_lr_mult: float = 10.0) -> list[dict[str, Any]]:
-        """Optimiser parameter groups: trainable backbone parameters at ``lr``, both heads at
-        ``head_lr_mult × lr``. Every trainable parameter appears exactly once."""
-        backbone = [p for p in self.backbone.parameters() if p.requires_grad]
-        heads = [p for p in self.heads().parameters() if p.requires_grad]
-        return [
-            {"name": "backbone", "params": backbone, "lr": lr},
-            {"name": "heads", "params": heads, "lr": lr * head_lr_mult},
-        ]
+    def batchnorm_frozen(self) -> nn.Module:
+        return self.backbone
 
 
 def output_size(height: int, width: int) -> tuple[int, int]:

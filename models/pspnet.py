@@ -12,20 +12,14 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
 
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
 from uss_slam.core.errors import UssSlamError
-from uss_slam.models.backbone import (
-    FreezeBatchNorm,
-    build_backbone,
-    freeze_batchnorm,
-    resolve_freeze_bn,
-)
-from uss_slam.models.deeplab import SegmenterOutput
+from uss_slam.models.backbone import FreezeBatchNorm
+from uss_slam.models.deeplab import TwoHeadSegmenter
 
 
 def _pooling_matrix(length: Tensor | int, bins: int, like: Tensor) -> Tensor:
@@ -106,7 +100,7 @@ class PSPHead(nn.Module):
         return self.classifier(self.dropout(self.bottleneck(x)))
 
 
-class PSPNet(nn.Module):
+class PSPNet(TwoHeadSegmenter):
     """PSPNet segmenter (output stride 8) with ``aux`` / ``main`` heads.
 
     Args:
@@ -142,50 +136,17 @@ class PSPNet(nn.Module):
         backbone_weights: str | None = None,
         weights_path: str | Path | None = None,
     ) -> None:
-        super().__init__()
         if (
             isinstance(dropout, bool)
             or not isinstance(dropout, (int, float))
             or not 0 <= dropout < 1
         ):
             raise UssSlamError(f"model.net.dropout must be a number in [0, 1), got {dropout!r}")
-        self.num_classes = num_classes
-        self.backbone_name = backbone
-        self.freeze_bn = resolve_freeze_bn(
-            freeze_bn, pretrained=backbone_weights is not None or weights_path is not None
-        )
-        self.backbone = build_backbone(backbone, backbone_weights)
+        super().__init__(num_classes, backbone, freeze_bn, backbone_weights, weights_path)
         low, high = self.backbone.out_channels
         self.aux = PSPHead(low, num_classes, low // 4, dropout)
         self.main = PSPHead(high, num_classes, high // 4, dropout, bins=tuple(bins))
-        if self.freeze_bn:
-            freeze_batchnorm(self)
-        if weights_path is not None:
-            from uss_slam.models.weights import load_segmenter_weights
+        self.finish_init(weights_path)
 
-            load_segmenter_weights(self, weights_path)
-
-    def forward(self, images: Tensor) -> SegmenterOutput:
-        low, high = self.backbone(images)
-        return SegmenterOutput(aux=self.aux(low), main=self.main(high))
-
-    def train(self, mode: bool = True) -> PSPNet:
-        super().train(mode)
-        if self.freeze_bn:
-            freeze_batchnorm(self)
-        return self
-
-    def heads(self) -> nn.ModuleDict:
-        """The two heads, pyramid pooling included (re-initialised when the class count
-        changes, trained at the head rate)."""
-        return nn.ModuleDict({"aux": self.aux, "main": self.main})
-
-    def param_groups(self, lr: float, head_lr_mult: float = 10.0) -> list[dict[str, Any]]:
-        """Trainable backbone parameters at ``lr``, both heads at ``head_lr_mult × lr``; every
-        trainable parameter exactly once."""
-        backbone = [p for p in self.backbone.parameters() if p.requires_grad]
-        heads = [p for p in self.heads().parameters() if p.requires_grad]
-        return [
-            {"name": "backbone", "params": backbone, "lr": lr},
-            {"name": "heads", "params": heads, "lr": lr * head_lr_mult},
-        ]
+    def batchnorm_frozen(self) -> nn.Module:
+        return self  # the heads' BatchNorms too (see ``freeze_bn``)

@@ -16,9 +16,8 @@ from typing import Any
 import hydra
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
-from omegaconf.errors import OmegaConfBaseException
 
-from uss_slam.core.cli import JobFailed, exit_on_user_error, run_hydra_app
+from uss_slam.core.cli import hydra_task, run_hydra_app
 from uss_slam.core.files import check_writable, output_lock
 
 from .config import check, register_configs, run_name
@@ -198,10 +197,8 @@ def _summary(data: dict[str, Any]) -> str:
 @hydra.main(version_base="1.3", config_path="../configs", config_name="slam_eval")
 def app(cfg: DictConfig) -> float | None:
     """The Hydra task; returns the ATE RMSE (metres) for sweepers, None if not evaluated."""
-    try:
-        with exit_on_user_error(PROG, (OmegaConfBaseException,)):
-            data = run(cfg)
-    except JobFailed:  # a multirun job: printed and recorded, the other jobs go on
+    data = hydra_task(PROG, run, cfg)
+    if data is None:  # a multirun job that failed: the other jobs go on
         return None
     ate = data.get("ate")
     return None if ate is None else float(ate["rmse"])

@@ -26,9 +26,8 @@ from lightning.pytorch.callbacks import LearningRateMonitor, ProgressBar
 from lightning.pytorch.loggers import Logger
 from lightning_utilities.core import rank_zero
 from omegaconf import DictConfig, OmegaConf, open_dict
-from omegaconf.errors import OmegaConfBaseException
 
-from uss_slam.core.cli import JobFailed, exit_on_user_error, run_hydra_app
+from uss_slam.core.cli import hydra_task, run_hydra_app
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.files import check_writable
 from uss_slam.models.checkpoint import CheckpointInfo, read_checkpoint
@@ -285,10 +284,8 @@ def train(cfg: DictConfig) -> dict[str, float]:
 @hydra.main(version_base="1.3", config_path="../configs", config_name="train")
 def app(cfg: DictConfig) -> float | None:
     """The Hydra task; returns ``cfg.optimized_metric`` for sweepers."""
-    try:
-        with exit_on_user_error(PROG, (OmegaConfBaseException,)):
-            metrics = train(cfg)
-    except JobFailed:  # a multirun job: printed and recorded, the other jobs go on
+    metrics = hydra_task(PROG, train, cfg)
+    if metrics is None:  # a multirun job that failed: the other jobs go on
         return None
     metric = cfg.get("optimized_metric")
     return metrics.get(metric) if metric else None

@@ -30,9 +30,8 @@ from typing import Any
 
 import hydra
 from omegaconf import DictConfig
-from omegaconf.errors import OmegaConfBaseException
 
-from uss_slam.core.cli import JobFailed, exit_on_user_error, run_hydra_app
+from uss_slam.core.cli import exit_on_user_error, hydra_task, run_hydra_app
 from uss_slam.core.files import output_lock
 from uss_slam.pipelines.runs import policy_note
 from uss_slam.pipelines.stages import Progress
@@ -314,10 +313,8 @@ def _t0_header(exp: Experiment, data: Data) -> list[str]:
 
 @hydra.main(version_base="1.3", config_path="../../configs", config_name="experiments")
 def _app(cfg: DictConfig) -> None:
-    try:
-        with exit_on_user_error(PROG, (OmegaConfBaseException,)):
-            result = run_experiments(cfg)
-    except JobFailed:  # under -m: printed and recorded, the other sweeps go on
+    result = hydra_task(PROG, run_experiments, cfg)
+    if result is None:  # under -m, a sweep that failed: the other sweeps go on
         return
     if result.get("failed"):
         sys.exit(1)

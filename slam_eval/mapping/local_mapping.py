@@ -51,11 +51,12 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import gtsam
 import numpy as np
 
+from ..checks import check_numbers
 from ..geometry import invert
 from ..tracking.pose import CHI2_MONO, CHI2_STEREO, chi2_per_observation, observations
 from .slam_map import SlamMap
@@ -99,18 +100,11 @@ class LocalMappingConfig:
     redundant_observers: int = 3
 
     def __post_init__(self) -> None:
-        # Messages start with the field name: uss-slam prefixes the config section.
-        for item in fields(self):
-            value = getattr(self, item.name)
-            if isinstance(value, bool):
-                continue
-            if not (math.isfinite(value) and value >= 0):
-                raise ValueError(f"{item.name} must be a finite number >= 0, got {value}")
-        for name in ("covisibility", "first_iterations", "redundant_observers"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
-        if not 0 < self.redundancy <= 1:
-            raise ValueError(f"redundancy must be in (0, 1], got {self.redundancy}")
+        check_numbers(
+            self,
+            at_least_one=("covisibility", "first_iterations", "redundant_observers"),
+            unit=("redundancy",),
+        )
 
 
 @dataclass

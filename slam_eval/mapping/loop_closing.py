@@ -31,13 +31,13 @@ Per new keyframe ``K`` (not within ``min_keyframes`` of the start or of the last
 
 from __future__ import annotations
 
-import math
 import time
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import gtsam
 import numpy as np
 
+from ..checks import check_numbers
 from ..geometry import invert, rotation_angle_deg
 from ..tracking.tracker import Tracker
 from .local_mapping import FIXED_SIGMA, BundleAdjuster, pose_key
@@ -78,18 +78,17 @@ class LoopClosingConfig:
     global_ba_iterations: int = 10
 
     def __post_init__(self) -> None:
-        # Messages start with the field name: uss-slam prefixes the config section.
-        for item in fields(self):
-            value = getattr(self, item.name)
-            if isinstance(value, bool):
-                continue
-            if not (math.isfinite(value) and value >= 0):
-                raise ValueError(f"{item.name} must be a finite number >= 0, got {value}")
-        for name in ("candidates", "min_inliers", "min_projected", "iterations", "min_matches"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
-        if not 0 < self.ratio <= 1:
-            raise ValueError(f"ratio must be in (0, 1], got {self.ratio}")
+        check_numbers(
+            self,
+            at_least_one=(
+                "candidates",
+                "min_inliers",
+                "min_projected",
+                "iterations",
+                "min_matches",
+            ),
+            unit=("ratio",),
+        )
 
 
 @dataclass

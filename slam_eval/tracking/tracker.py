@@ -34,13 +34,13 @@ Keypoints flagged dynamic are never matched and never create map points.
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from enum import Enum
 
 import cv2
 import numpy as np
 
+from ..checks import check_numbers
 from ..frontend.matching import Matches, guided_match, hamming
 from ..frontend.orb import Features, OrbExtractor
 from ..geometry import from_rvec, invert, project, rotation_angle_deg, to_rvec, transform
@@ -134,29 +134,22 @@ class TrackerConfig:
             raise ValueError(f"sampler must be one of {', '.join(SAMPLERS)}, got {self.sampler!r}")
         if self.policy not in POLICIES:
             raise ValueError(f"policy must be one of {', '.join(POLICIES)}, got {self.policy!r}")
-        for item in fields(self):
-            value = getattr(self, item.name)
-            if isinstance(value, (bool, str)):
-                continue
-            if not (math.isfinite(value) and value >= 0):
-                raise ValueError(f"{item.name} must be a finite number >= 0, got {value}")
-        for name in (
-            "search_radius",
-            "local_radius",
-            "ransac_threshold",
-            "virtual_baseline",
-            "ransac_iterations",
-            "refine_rounds",
-            "local_keyframes",
-            "reloc_keyframes",
-            "max_keyframe_interval",
-            "th_depth",
-        ):
-            if getattr(self, name) <= 0:
-                raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
-        for name in ("ratio", "keyframe_ratio", "reloc_ratio", "min_found_ratio"):
-            if not 0 < getattr(self, name) <= 1:
-                raise ValueError(f"{name} must be in (0, 1], got {getattr(self, name)}")
+        check_numbers(
+            self,
+            positive=(
+                "search_radius",
+                "local_radius",
+                "ransac_threshold",
+                "virtual_baseline",
+                "ransac_iterations",
+                "refine_rounds",
+                "local_keyframes",
+                "reloc_keyframes",
+                "max_keyframe_interval",
+                "th_depth",
+            ),
+            unit=("ratio", "keyframe_ratio", "reloc_ratio", "min_found_ratio"),
+        )
 
 
 class TrackingState(str, Enum):

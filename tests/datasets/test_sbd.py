@@ -69,6 +69,9 @@ def test_missing_roots_lists_and_files(sbd: Path, tmp_path: Path) -> None:
         SBDSegmentation(tmp_path / "empty")
     with pytest.raises(DataFormatError, match=r"train_noval\.txt: .* not found \(train_noval"):
         SBDSegmentation(sbd, split="train_noval")
+    with pytest.raises(DataFormatError) as info:
+        SBDSegmentation(sbd, split="test")
+    assert str(info.value).endswith("test.txt: split list for split 'test' not found")
     (sbd / "cls" / "2008_000003.mat").unlink()
     with pytest.raises(
         DataFormatError, match=r"train\.txt:3: .*2008_000003\.mat .*the image 2008_000003\.jpg has"

@@ -1,5 +1,6 @@
 """model/method=advent: ADVENT's iteration (valeoai/ADVENT ``train_advent``) against a plain
-PyTorch loop written out here, its loss weights from the config, and the depth sweep."""
+PyTorch loop written out here (the source loss: ``benchmarks/train_step.py``'s), its loss weights
+from the config, and the depth sweep."""
 
 from __future__ import annotations
 
@@ -55,16 +56,11 @@ def plain_advent_iteration(state, batch: dict, w: LossWeights) -> None:  # noqa:
     """One ADVENT iteration written out (the discriminator losses not halved, as this
     project's shared discriminator step)."""
     seg, d_aux, d_main = state.segmenter, state.d_aux, state.d_main
-    src_img, src_lbl = batch["source"]["image"], batch["source"]["label"]
     trg_img = batch["target"]["image"]
     for p in [*d_aux.parameters(), *d_main.parameters()]:
         p.requires_grad_(False)
     state.opt_seg.zero_grad()
-    out = seg(src_img)
-    src_aux, src_main = _up(out.aux, src_lbl.shape[-2:]), _up(out.main, src_lbl.shape[-2:])
-    loss_seg = w.lambda_seg_aux * F.cross_entropy(
-        src_aux, src_lbl, ignore_index=255
-    ) + w.lambda_seg_main * F.cross_entropy(src_main, src_lbl, ignore_index=255)
+    loss_seg, src_aux, src_main = bench.source_loss(seg, batch, w)  # AdaptSegNet's step (1)
     loss_seg.backward()
     out = seg(trg_img)
     trg_aux, trg_main = _up(out.aux, trg_img.shape[-2:]), _up(out.main, trg_img.shape[-2:])

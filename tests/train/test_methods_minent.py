@@ -1,5 +1,6 @@
 """model/method=minent: ADVENT's ``train_minent`` iteration against a plain PyTorch loop written
-out here; no discriminator step; bad weights are one line."""
+out here (the source loss: ``benchmarks/train_step.py``'s); no discriminator step; bad weights are
+one line."""
 
 from __future__ import annotations
 
@@ -35,16 +36,9 @@ def advent_entropy_loss(v: Tensor) -> Tensor:
 
 def plain_minent_iteration(state, batch: dict, w: LossWeights, ent_aux: float, ent_main: float):  # noqa: ANN001, ANN201
     seg = state.segmenter
-    src_img, src_lbl = batch["source"]["image"], batch["source"]["label"]
     trg_img = batch["target"]["image"]
     state.opt_seg.zero_grad()
-    out = seg(src_img)
-    loss = w.lambda_seg_aux * F.cross_entropy(
-        _up(out.aux, src_lbl.shape[-2:]), src_lbl, ignore_index=255
-    ) + w.lambda_seg_main * F.cross_entropy(
-        _up(out.main, src_lbl.shape[-2:]), src_lbl, ignore_index=255
-    )
-    loss.backward()
+    bench.source_loss(seg, batch, w)[0].backward()
     out = seg(trg_img)
     p_aux = F.softmax(_up(out.aux, trg_img.shape[-2:]), dim=1)
     p_main = F.softmax(_up(out.main, trg_img.shape[-2:]), dim=1)
