@@ -436,11 +436,16 @@ class Tracker:
             # ORB-SLAM2 narrows the local-map window for near-frontal views (RadiusByViewingCos).
             r = r * np.where(cos_view > 0.998, 0.625, 1.0)
         pts = self.map.points
-        matches = guided_match(
+        descriptors = (pts.descriptor.view[ids], pts.latest_descriptor.view[ids])
+        return ids, self._guided(uv, r, level, descriptors, features, available)
+
+    def _guided(self, uv, radius, level, descriptors, features: Features, available) -> Matches:
+        """:func:`guided_match` of projections to ``features`` with this tracker's limits."""
+        return guided_match(
             uv,
-            r,
+            radius,
             level,
-            (pts.descriptor.view[ids], pts.latest_descriptor.view[ids]),
+            descriptors,
             features.uv,
             features.octave,
             features.descriptors,
@@ -449,7 +454,6 @@ class Tracker:
             max_distance=self.config.max_hamming,
             ratio=self.config.ratio,
         )
-        return ids, matches
 
     def _track_motion(self, features: Features, static: np.ndarray):
         cfg = self.config
@@ -554,19 +558,8 @@ class Tracker:
         uv = project(self.k, np.where(front[:, None], cam, 1.0))
         inside = front & (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h)
         q = np.flatnonzero(inside)
-        m = guided_match(
-            uv[q],
-            radius * self.extractor.scales[level[q]],
-            level[q],
-            (desc[q],),
-            features.uv,
-            features.octave,
-            features.descriptors,
-            available,
-            self.size,
-            max_distance=self.config.max_hamming,
-            ratio=self.config.ratio,
-        )
+        radii = radius * self.extractor.scales[level[q]]
+        m = self._guided(uv[q], radii, level[q], (desc[q],), features, available)
         return q[m.query], m.keypoint
 
     def _track_local_map_vo(self, pose_cw, features, static, world, map_ids, kp):
