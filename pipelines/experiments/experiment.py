@@ -132,6 +132,36 @@ def check_t0(plain: dict[str, Any], synthetic: bool) -> None:
             )
 
 
+def _integer(key: str, value: Any, minimum: int, nullable: bool = False) -> None:
+    if nullable and value is None:
+        return
+    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+        hint = " or null" if nullable else ""
+        raise UssSlamError(f"{key}: expected an integer >= {minimum}{hint}, got {value!r}")
+
+
+def check_counts(plain: Mapping[str, Any], synthetic: bool) -> None:
+    """The counts the jobs read late (segmentation evaluation, rendering), checked before any
+    work so that a bad value names its key at once instead of failing every job."""
+    seg = plain.get("segeval") or {}
+    _integer("segeval.stride", seg.get("stride", 5), 1)
+    _integer("segeval.threads", seg.get("threads", 1), 1, nullable=True)
+    _integer("segeval.source_val_stride", seg.get("source_val_stride"), 1, nullable=True)
+    if synthetic:
+        syn = plain["data"]["synthetic"]
+        _integer("data.synthetic.seed", syn.get("seed", 0), 0)
+        _integer("data.synthetic.eval_seed", syn.get("eval_seed", 1000), 0)
+        _integer("data.synthetic.voc_images", syn.get("voc_images"), 1)
+        for key in ("train_frames", "val_frames", "eval_frames"):
+            _integer(f"data.synthetic.{key}", syn.get(key), 2)
+        stride = int(seg.get("stride", 5))
+        if int(syn["eval_frames"]) < stride:
+            raise UssSlamError(
+                f"data.synthetic.eval_frames: {syn['eval_frames']} frames hold no frame for "
+                f"segeval.stride={stride}; expected at least {stride}"
+            )
+
+
 def eval_seed(cfg: Mapping[str, Any], name: str) -> int:
     """The held-out seed of synthetic evaluation sequence ``name``."""
     return int(cfg["data"]["synthetic"]["eval_seed"]) + SYNTHETIC_SEQUENCES.index(name)
@@ -162,6 +192,7 @@ def check(cfg: DictConfig) -> Experiment:
 
     choose("train.checkpoint", plain["train"].get("checkpoint", "last"), CHECKPOINT_POLICIES)
     check_t0(plain, synthetic)
+    check_counts(plain, synthetic)
     grid = expand(plain, SYNTHETIC_SEQUENCES if synthetic else TUM_SEQUENCES)
     check_crf(plain, grid)
     launcher = plain.get("launcher") or {}

@@ -436,3 +436,38 @@ def test_appearance_shift_trains_on_image_folders_and_plans_no_slam(tmp_path: Pa
     tum_like = experiment.check(compose_experiments(f"out_dir={tmp_path}"))
     assert data.sequence_stage(tum_like, "walking_xyz").key["outfits"] == "drawn"
     assert {job.spec["kind"] for job in plan.plan_slam(tum_like, found, {})} == {"segeval", "slam"}
+
+
+@pytest.mark.parametrize(
+    ("override", "message"),
+    [
+        ("segeval.stride=0", "segeval.stride: expected an integer >= 1, got 0"),
+        ("segeval.stride=1.5", "segeval.stride: expected an integer >= 1, got 1.5"),
+        ("segeval.threads=0", "segeval.threads: expected an integer >= 1 or null, got 0"),
+        ("segeval.source_val_stride=-1", "segeval.source_val_stride: expected an integer >= 1"),
+        ("data.synthetic.eval_frames=1", "data.synthetic.eval_frames: expected an integer >= 2"),
+        ("data.synthetic.train_frames=x", "data.synthetic.train_frames: expected an integer"),
+        ("data.synthetic.voc_images=0", "data.synthetic.voc_images: expected an integer >= 1"),
+        (
+            "data.synthetic.eval_frames=4 segeval.stride=5",
+            "eval_frames: 4 frames hold no frame for segeval.stride=5",
+        ),
+    ],
+)
+def test_counts_the_jobs_read_late_are_checked_first(override: str, message: str) -> None:
+    with pytest.raises(UssSlamError, match=message.replace(".", r"\.").replace("(", r"\(")):
+        experiment.check(compose_experiments(*override.split()))
+
+
+def test_a_bad_count_stops_a_dry_run_before_any_output(tmp_path: Path) -> None:
+    out = tmp_path / "exp"
+    done = subprocess.run(
+        [*PROG, f"out_dir={out}", "dry_run=true", "segeval.stride=0"],
+        capture_output=True,
+        text=True,
+    )
+    assert done.returncode == 1
+    assert done.stderr.strip().splitlines() == [
+        "uss-experiments: error: segeval.stride: expected an integer >= 1, got 0"
+    ]
+    assert not (out / "train").exists() and not (out / "data").exists()  # no work started
