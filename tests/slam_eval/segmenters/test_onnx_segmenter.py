@@ -19,10 +19,11 @@ from hydra import compose, initialize_config_dir
 from onnx import TensorProto
 from shared_helpers import colour_labels as expected_labels
 from shared_helpers import colour_model as tiny_model
+from shared_helpers import segmenter_props
 
 from uss_slam.core.classes import CLASS_NAMES
 from uss_slam.core.errors import DataFormatError, UssSlamError
-from uss_slam.core.onnx_contract import KEY_CLASS_NAMES, SegmenterMetadata
+from uss_slam.core.onnx_contract import KEY_CLASS_NAMES
 from uss_slam.slam_eval.run import run
 from uss_slam.slam_eval.segmenters.onnx import OnnxSegmenter, resolve_providers
 
@@ -30,16 +31,7 @@ REPO = Path(__file__).resolve().parents[3]
 
 
 def _metadata(class_names=CLASS_NAMES) -> dict[str, str]:
-    return SegmenterMetadata(
-        class_names=tuple(class_names),
-        dynamic_classes=("person",),
-        mean=(0.485, 0.456, 0.406),
-        std=(0.229, 0.224, 0.225),
-        head="main",
-        experiment="test",
-        checkpoint_sha256="0" * 64,
-        version="0.1.0",
-    ).to_props()
+    return segmenter_props(class_names)
 
 
 def _random_rgb(h: int, w: int, seed: int = 0) -> np.ndarray:
