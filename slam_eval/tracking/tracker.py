@@ -48,9 +48,9 @@ from ..mapping.slam_map import KeyFrame, SlamMap
 from .pose import CHI2_MONO, CHI2_STEREO, chi2, observations, optimise_pose
 
 SAMPLERS = ("ransac", "prosac")
-POLICIES = ("orbslam2", "harness")
-"""``TrackerConfig.policy``: how frames are tracked and keyframes chosen."""
 """Values of :attr:`TrackerConfig.sampler`."""
+POLICIES = ("orbslam2", "harness")
+"""Values of :attr:`TrackerConfig.policy`: how frames are tracked and keyframes chosen."""
 
 
 @dataclass(frozen=True)
@@ -97,11 +97,11 @@ class TrackerConfig:
     """``orbslam2``: a keyframe (and the last frame's visual odometry) creates points from all
     its close keypoints and at least this many of the nearest (ORB-SLAM2: 100)."""
     keyframe_min_frames: int = 0
+    """``orbslam2``: frames between keyframes at least (ORB-SLAM2's ``mMinFrames``: 0; its local
+    mapping is always idle here, the harness's back end runs between frames)."""
     motion_ransac: bool = False
     """``orbslam2``: seed the motion model's pose optimisation with PnP-RANSAC on its matches
     instead of the constant-velocity prediction (not ORB-SLAM2's: a robustness option)."""
-    """``orbslam2``: frames between keyframes at least (ORB-SLAM2's ``mMinFrames``: 0; its local
-    mapping is always idle here, the harness's back end runs between frames)."""
     reference_keyframe: bool = True
     """Without a motion model (the second frame, the first after a relocalisation) match the
     reference keyframe by descriptor, as ORB-SLAM2 (``TrackReferenceKeyFrame``); False = project
@@ -324,8 +324,9 @@ class Tracker:
         else:
             self.frames_since_keyframe += 1
         self._accept(pose_cw, matched[matched >= 0], kf)
-        usable = np.zeros(len(features), bool) if kf is not None else ~dynamic
-        self._last_frame = (features, matched, usable)
+        if self.config.policy == "orbslam2":
+            usable = np.zeros(len(features), bool) if kf is not None else ~dynamic
+            self._last_frame = (features, matched, usable)
         return kf
 
     def _recently_relocalised(self, frame_index: int) -> bool:
@@ -498,14 +499,12 @@ class Tracker:
         assert self.velocity is not None and self.last_pose_cw is not None
         predicted = self.velocity @ self.last_pose_cw
         world, desc, level, map_ids = self._last_frame_points()
-        found = None
         for radius in (cfg.search_radius, 2 * cfg.search_radius):
-            found = self._match_points(world, desc, level, predicted, features, static, radius)
-            if len(found[0]) >= cfg.min_matches:
+            query, kp = self._match_points(world, desc, level, predicted, features, static, radius)
+            if len(query) >= cfg.min_matches:
                 break
-        if found is None or len(found[0]) < cfg.min_matches:
+        else:
             return self._track_reference_or_lost(features, static)
-        query, kp = found
         if cfg.motion_ransac:
             ransac = self._pnp(world[query], features, kp, predicted, np.zeros(len(kp)))
             if ransac is None:
@@ -532,12 +531,8 @@ class Tracker:
         has = ids >= 0
         has[has] = ~pts.bad.view[ids[has]]
         own = np.flatnonzero(has)
-        vo = np.flatnonzero(usable & ~has & feats.has_depth)
-        vo = vo[np.argsort(feats.depth[vo], kind="stable")]
-        far = feats.depth[vo] > self.config.th_depth
         # ORB-SLAM2 counts the frame's existing points towards the minimum too.
-        keep = ~far | (np.arange(len(vo)) + len(own) < self.config.min_new_points)
-        vo = vo[keep]
+        vo = self._nearest_close(feats, np.flatnonzero(usable & ~has & feats.has_depth), len(own))
         pose_wc = invert(self.last_pose_cw)
         world = np.concatenate(
             [pts.position.view[ids[own]], transform(pose_wc, feats.points[vo])], axis=0
@@ -972,15 +967,20 @@ class Tracker:
         """ORB-SLAM2's ``CreateNewKeyFrame`` (RGB-D): the static keypoints with depth, nearest
         first, get a map point unless they are tracked, until past ``th_depth`` with
         ``min_new_points`` counted (tracked ones included). Returns the boolean mask."""
-        cand = np.flatnonzero(static & features.has_depth)
-        cand = cand[np.argsort(features.depth[cand], kind="stable")]
-        keep = (features.depth[cand] <= self.config.th_depth) | (
-            np.arange(len(cand)) < self.config.min_new_points
-        )
+        chosen = self._nearest_close(features, np.flatnonzero(static & features.has_depth), 0)
         create = np.zeros(len(features), bool)
-        chosen = cand[keep]
         create[chosen[~tracked[chosen]]] = True
         return create
+
+    def _nearest_close(self, features: Features, candidates: np.ndarray, counted: int):
+        """ORB-SLAM2's choice of points from depth (``CreateNewKeyFrame``, ``UpdateLastFrame``):
+        the ``candidates`` nearest first, every one within ``th_depth`` and the nearest ones
+        beyond it until ``min_new_points`` are counted (``counted`` already are)."""
+        order = candidates[np.argsort(features.depth[candidates], kind="stable")]
+        keep = (features.depth[order] <= self.config.th_depth) | (
+            np.arange(len(order)) + counted < self.config.min_new_points
+        )
+        return order[keep]
 
 
 __all__ = ["TrackResult", "Tracker", "TrackerConfig", "TrackingState", "hamming"]
