@@ -13,7 +13,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from uss_slam.core.errors import UssSlamError
 
-from .grid import SYNTHETIC_SEQUENCES, TUM_SEQUENCES, VARIANTS, Grid, choose, expand, given
+from .grid import SYNTHETIC_SEQUENCES, TUM_SEQUENCES, VARIANTS, Grid, choose, expand, given, integer
 
 CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
 
@@ -83,9 +83,7 @@ def check_orbslam3(orb: Mapping[str, Any]) -> None:
             f"systems: orbslam3 needs the pyorbslam3 package ({INSTALL_HINT}); without it "
             "accepted: harness"
         )
-    repeats = orb.get("repeats")
-    if isinstance(repeats, bool) or not isinstance(repeats, int) or repeats < 1:
-        raise UssSlamError(f"slam.orbslam3.repeats: expected an integer >= 1, got {repeats!r}")
+    integer("slam.orbslam3.repeats", orb.get("repeats"), 1)
     if orb.get("vocabulary") is not None:
         try:
             check_vocabulary(str(orb["vocabulary"]))
@@ -132,28 +130,19 @@ def check_t0(plain: dict[str, Any], synthetic: bool) -> None:
             )
 
 
-def _integer(key: str, value: Any, minimum: int, nullable: bool = False) -> None:
-    if nullable and value is None:
-        return
-    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-        hint = " or null" if nullable else ""
-        raise UssSlamError(f"{key}: expected an integer >= {minimum}{hint}, got {value!r}")
-
-
 def check_counts(plain: Mapping[str, Any], synthetic: bool) -> None:
     """The counts the jobs read late (segmentation evaluation, rendering), checked before any
     work so that a bad value names its key at once instead of failing every job."""
-    seg = plain.get("segeval") or {}
-    _integer("segeval.stride", seg.get("stride", 5), 1)
-    _integer("segeval.threads", seg.get("threads", 1), 1, nullable=True)
-    _integer("segeval.source_val_stride", seg.get("source_val_stride"), 1, nullable=True)
+    seg = plain.get("segeval") or {}  # (segeval.source_val_stride: checked by the grid)
+    integer("segeval.stride", seg.get("stride", 5), 1)
+    integer("segeval.threads", seg.get("threads", 1), 1, nullable=True)
     if synthetic:
         syn = plain["data"]["synthetic"]
-        _integer("data.synthetic.seed", syn.get("seed", 0), 0)
-        _integer("data.synthetic.eval_seed", syn.get("eval_seed", 1000), 0)
-        _integer("data.synthetic.voc_images", syn.get("voc_images"), 1)
+        integer("data.synthetic.seed", syn.get("seed", 0), 0)
+        integer("data.synthetic.eval_seed", syn.get("eval_seed", 1000), 0)
+        integer("data.synthetic.voc_images", syn.get("voc_images"), 1)
         for key in ("train_frames", "val_frames", "eval_frames"):
-            _integer(f"data.synthetic.{key}", syn.get(key), 2)
+            integer(f"data.synthetic.{key}", syn.get(key), 2)
         stride = int(seg.get("stride", 5))
         if int(syn["eval_frames"]) < stride:
             raise UssSlamError(

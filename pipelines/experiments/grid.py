@@ -386,17 +386,22 @@ def flag(key: str, value: Any) -> bool:
     return value
 
 
+def integer(key: str, value: Any, minimum: int, nullable: bool = False) -> Any:
+    """``value`` if it is an integer >= ``minimum`` (or None, when ``nullable``); else a
+    :class:`UssSlamError` naming ``key``."""
+    if nullable and value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+        hint = " or null" if nullable else ""
+        raise UssSlamError(f"{key}: expected an integer >= {minimum}{hint}, got {value!r}")
+    return value
+
+
 def source_val_stride(cfg: Mapping[str, Any]) -> int | None:
     """``segeval.source_val_stride`` (T0's in-domain column: every n-th source validation
     image); None = not scored."""
     stride = (cfg.get("segeval") or {}).get("source_val_stride")
-    if stride is None:
-        return None
-    if isinstance(stride, bool) or not isinstance(stride, int) or stride < 1:
-        raise UssSlamError(
-            f"segeval.source_val_stride: expected an integer >= 1 or null, got {stride!r}"
-        )
-    return stride
+    return integer("segeval.source_val_stride", stride, 1, nullable=True)
 
 
 def check_sequences(sequences: Any, accepted: Sequence[str]) -> list[str]:
