@@ -98,7 +98,13 @@ def knob_overrides(method: str) -> list[str] | None:
 
 
 def train_overrides(
-    data: Path, spec: DemoData, method: str, seed: int, iters: int, threads: int
+    data: Path,
+    spec: DemoData,
+    method: str,
+    seed: int,
+    iters: int,
+    threads: int,
+    logger: str = "none",
 ) -> list[str]:
     common = [
         "experiment=demo",
@@ -106,7 +112,7 @@ def train_overrides(
         f"paths.data_dir={data}",
         f"seed={seed}",
         f"model.max_iters={iters}",
-        "logger=none",
+        f"logger={logger}",
         "callbacks.image_logger=null",
         "++trainer.enable_progress_bar=false",
         *spec.train_overrides(data),
@@ -191,6 +197,12 @@ def main() -> None:
     parser.add_argument("--iters", type=int, default=1200)
     parser.add_argument("--stride", type=int, default=5, help="every N-th test frame")
     parser.add_argument(
+        "--logger",
+        default="none",
+        help="uss-train's logger of every training (default none; csv keeps train/d_acc_* "
+        "and the losses in <run>/csv/)",
+    )
+    parser.add_argument(
         "--threads",
         type=int,
         default=2,
@@ -213,7 +225,10 @@ def main() -> None:
         for method in methods:
             run = args.runs / f"{method}_s{seed}"
             cpu = train(
-                run, train_overrides(args.data, spec, method, seed, args.iters, args.threads)
+                run,
+                train_overrides(
+                    args.data, spec, method, seed, args.iters, args.threads, args.logger
+                ),
             )
             rows = {method: load_checkpoint(run / "checkpoints" / "last.ckpt").segmenter.eval()}
             if method == "source_only":

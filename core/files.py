@@ -39,6 +39,22 @@ def file_sha256(path: Path) -> str:
     return digest.hexdigest()
 
 
+def folder_fingerprint(folder: str | PathLike[str]) -> str:
+    """Hex SHA-256 of every file under ``folder`` by relative path, size and modification time
+    (nanoseconds), hidden names (``.*``) left out: a cache key that changes when a file is
+    added, removed, replaced or rewritten, without reading the files (cheap for a sequence of
+    thousands of frames)."""
+    root = Path(folder)
+    digest = hashlib.sha256()
+    for path in sorted(root.rglob("*")):
+        rel = path.relative_to(root)
+        if any(part.startswith(".") for part in rel.parts) or not path.is_file():
+            continue
+        info = path.stat()
+        digest.update(f"{rel.as_posix()}\0{info.st_size}\0{info.st_mtime_ns}\n".encode())
+    return digest.hexdigest()
+
+
 @contextmanager
 def atomic_path(path: str | PathLike[str], prefix: str = ".") -> Iterator[Path]:
     """Yield a temporary sibling of ``path`` to write; it is renamed onto ``path`` only when the

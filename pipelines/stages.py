@@ -50,14 +50,24 @@ class Stage:
 
     def complete(self) -> bool:
         """True when the stamp holds this key and every expected output exists."""
+        return self.stale() is None
+
+    def stale(self) -> str | None:
+        """Why the stage must be (re)done, or ``None`` when it is complete: ``"not done yet"``
+        (no readable stamp), ``"<keys> changed"`` (the top-level entries of the key that differ
+        from the stamp's) or ``"<output> missing"``."""
         try:
             recorded = json.loads(self.stamp.read_text())
         except (OSError, json.JSONDecodeError):
-            return False
-        if recorded != json.loads(json.dumps(self.key)):  # compare as JSON (tuples = lists)
-            return False
-        expected = (self.folder / p for p in self.outputs)  # an absolute p stays itself
-        return all(any(p.parent.glob(p.name)) for p in expected)
+            return "not done yet"
+        key = json.loads(json.dumps(self.key))  # compare as JSON (tuples = lists)
+        if recorded != key:
+            return f"{', '.join(_changed(key, recorded))} changed"
+        for p in self.outputs:
+            found = self.folder / p  # an absolute p stays itself
+            if not any(found.parent.glob(found.name)):
+                return f"{found} missing"
+        return None
 
     def start(self) -> None:
         """Invalidate (stamp first), then empty the folder when ``fresh``; the folder exists."""
@@ -71,15 +81,36 @@ class Stage:
         write_json_atomic(self.stamp, dict(self.key))
 
 
+def _changed(new: Any, old: Any, prefix: str = "") -> list[str]:
+    """The dotted names of the entries that differ between two JSON values (mappings are
+    followed down; anything else that differs is named as a whole)."""
+    if not (isinstance(new, dict) and isinstance(old, dict)):
+        return [prefix or "key"]
+    names = []
+    for k in sorted({*new, *old}):
+        if new.get(k) != old.get(k):
+            names += (
+                _changed(new.get(k), old.get(k), f"{prefix}{k}.")
+                if k in new and k in old
+                else [f"{prefix}{k}"]
+            )
+    return [n.rstrip(".") for n in names]
+
+
 def run_stage(stage: Stage, work: Callable[[], str], force: bool = False) -> str:
     """``"reused"`` if ``stage`` is complete (and not ``force``), else start it, run ``work``
-    and mark it complete; returns ``work``'s status text."""
-    if not force and stage.complete():
+    and mark it complete; returns ``work``'s status text, prefixed with why an earlier result
+    was redone (``"redone (sequence changed): ..."``; nothing when there was none)."""
+    why = stage.stale()
+    if not force and why is None:
         return "reused"
+    had_result = stage.stamp.is_file()
     stage.start()
     status = work()
     stage.finish()
-    return status
+    if force and had_result:
+        return f"redone (--force): {status}"
+    return f"redone ({why}): {status}" if had_result and why is not None else status
 
 
 class Progress:

@@ -174,3 +174,9 @@ def full_disk(
     monkeypatch.setattr(files, "_create_sibling", sibling)
     monkeypatch.setattr(files, "_open_new", opened)
     return hit
+
+
+def outside_staging(files: Mapping[str, str]) -> dict[str, str]:
+    """A ``{relative path: digest}`` snapshot of a run folder without the files of its
+    ``uss-slam`` staging folders (``.uss-slam-new.<random>/``), which a running run fills."""
+    return {k: v for k, v in files.items() if not k.startswith(".uss-slam-new.")}

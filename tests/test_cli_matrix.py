@@ -917,6 +917,8 @@ def test_two_slam_runs_into_one_out_dir(
     while the first (a subprocess, on a 30-frame sequence) runs, exits with 2 naming the
     first's pid and writes nothing; the first finishes as if it were alone (a complete,
     verified run replacing the earlier one)."""
+    from shared_helpers import outside_staging
+
     from uss_slam.slam_eval.scoring.run_folder import verify_run
 
     out = tmp_path / "out"
@@ -932,14 +934,17 @@ def test_two_slam_runs_into_one_out_dir(
         assert first.poll() is None, first.communicate()
         assert time.monotonic() < deadline
         time.sleep(0.01)
-    before = snapshot(out)
+    # the first run fills its own staging folder meanwhile: the second's trace is anything else
+    before = outside_staging(snapshot(out))
+    staging = {p.name for p in out.glob(".uss-slam-new.*")}
     try:
         code, _, err = run_console_script("uss-slam", args, monkeypatch, capsys)
     finally:
         HydraConfig.instance().cfg = None
         GlobalHydra.instance().clear()
     assert first.poll() is None, "the first run ended before the second reached the lock"
-    assert snapshot(out) == before  # the second wrote nothing
+    assert outside_staging(snapshot(out)) == before  # the second wrote nothing
+    assert {p.name for p in out.glob(".uss-slam-new.*")} <= staging  # nor staged anything
     lines = err.strip().splitlines()
     assert code == 2 and len(lines) == 1, err
     assert lines[0].startswith(

@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from uss_slam.core.errors import DataFormatError
+from uss_slam.core.files import folder_fingerprint
 from uss_slam.core.processes import pool_ending_with_parent
 from uss_slam.pipelines.stages import Stage
 
@@ -33,6 +34,12 @@ class Data:
     source_val_key: Any = None
     vocabulary: Path | None = None  # ORB-SLAM3's vocabulary (systems with orbslam3)
     vocabulary_key: Any = None
+
+
+def content_key(folder: Path) -> str:
+    """A real-data folder as a cache key: its path and :func:`folder_fingerprint` (every file's
+    name, size and modification time)."""
+    return f"{folder}:{folder_fingerprint(folder)}"
 
 
 def demo_data_spec(exp: Experiment) -> Any:
@@ -224,12 +231,14 @@ def _real_data(exp: Experiment) -> tuple[Data, str]:
     targets = [tum / f"{TUM_PREFIX}{t}" for t in real["target"]]
     for folder in targets:
         read_tum_folder(folder, depth=False)
+    # keys of content, not of names: a changed file under a folder redoes what reads it
+    sources = {k: Path(str(real[k])).expanduser() for k in ("voc", "sbd", "coco")}
     data = Data(
-        train_key={k: str(real[k]) for k in ("voc", "sbd", "coco")}
-        | {"target": [str(t) for t in targets]},
+        train_key={k: content_key(p) for k, p in sources.items()}
+        | {"target": [content_key(t) for t in targets]},
         target=targets,
-        source_val=Path(str(real["voc"])).expanduser(),
-        source_val_key=str(real["voc"]),
+        source_val=sources["voc"],
+        source_val_key=content_key(sources["voc"]),
     )
     for name in exp.grid.sequences:
         folder = tum / f"{TUM_PREFIX}{name}"
@@ -237,7 +246,7 @@ def _real_data(exp: Experiment) -> tuple[Data, str]:
         if lists.groundtruth is None:
             raise DataFormatError(folder / "groundtruth.txt", "missing: the SLAM runs need it")
         data.sequences[name] = folder
-        data.sequence_keys[name] = str(folder)
+        data.sequence_keys[name] = content_key(folder)
         if (folder / "labels").is_dir():
             data.labelled.append(name)
     if "oracle" in exp.grid.variants:

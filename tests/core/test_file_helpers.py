@@ -6,6 +6,7 @@ import hashlib
 import json
 import logging
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -17,7 +18,7 @@ from pathlib import Path
 import pytest
 
 from uss_slam.core.errors import OutputInUseError
-from uss_slam.core.files import file_sha256, output_lock
+from uss_slam.core.files import file_sha256, folder_fingerprint, output_lock
 
 
 def test_file_sha256_matches_hashlib_across_block_boundaries(tmp_path: Path) -> None:
@@ -27,6 +28,30 @@ def test_file_sha256_matches_hashlib_across_block_boundaries(tmp_path: Path) -> 
         path = tmp_path / f"f{size}.bin"
         path.write_bytes(data)
         assert file_sha256(path) == hashlib.sha256(data).hexdigest()
+
+
+def test_folder_fingerprint_sees_added_removed_and_rewritten_files(tmp_path: Path) -> None:
+    seq = tmp_path / "seq"
+    (seq / "rgb").mkdir(parents=True)
+    (seq / "rgb" / "0.png").write_bytes(b"frame")
+    (seq / "rgb.txt").write_text("0 rgb/0.png\n")
+    first = folder_fingerprint(seq)
+    assert folder_fingerprint(seq) == first  # stat only, stable
+    (seq / ".uss-demo.json").write_text("{}")  # hidden files are not content
+    (seq / "rgb" / ".tmp").write_text("x")
+    assert folder_fingerprint(seq) == first
+    stamp = (seq / "rgb" / "0.png").stat().st_mtime_ns
+    (seq / "rgb" / "0.png").write_bytes(b"FRAME")  # same name and size, new content
+    os.utime(seq / "rgb" / "0.png", ns=(stamp + 10**9, stamp + 10**9))
+    rewritten = folder_fingerprint(seq)
+    assert rewritten != first
+    (seq / "rgb" / "1.png").write_bytes(b"frame")
+    added = folder_fingerprint(seq)
+    assert added != rewritten
+    (seq / "rgb" / "1.png").unlink()
+    assert folder_fingerprint(seq) == rewritten
+    shutil.copytree(seq, tmp_path / "copy")  # copy2 keeps sizes and times: same content key
+    assert folder_fingerprint(tmp_path / "copy") == rewritten
 
 
 def test_files_module_does_not_import_torch() -> None:

@@ -35,12 +35,33 @@ def test_reused_only_with_the_same_key_and_outputs(tmp_path: Path) -> None:
     assert run_stage(stage, lambda: _work(folder, calls)) == "done"
     assert json.loads((folder / STAMP).read_text()) == {"overrides": ["a=1"], "n": [1, 2]}
     assert stage.complete() and run_stage(stage, lambda: _work(folder, calls)) == "reused"
-    assert run_stage(stage, lambda: _work(folder, calls, "again"), force=True) == "again"
+    again = run_stage(stage, lambda: _work(folder, calls, "again"), force=True)
+    assert again == "redone (--force): again"
     other = Stage(folder, {"overrides": ["a=2"], "n": (1, 2)}, outputs=stage.outputs)
     assert not other.complete()
     (folder / "checkpoints" / "a.ckpt").unlink()  # an expected output went missing
     assert not stage.complete()
     assert calls == ["done", "again"]
+
+
+def test_a_redone_stage_says_why(tmp_path: Path) -> None:
+    """The status of a stage whose earlier result is not reused names what changed."""
+    folder = tmp_path / "run"
+    key = {"stage": "slam", "inputs": {"sequence": "s:1", "model": "m"}, "n": 3}
+    stage = Stage(folder, key, outputs=(Path("metrics.json"),))
+    assert stage.stale() == "not done yet"
+    work = lambda: (folder / "metrics.json").write_text("{}") and "ok"  # noqa: E731
+    assert run_stage(stage, work) == "ok"  # the first time: nothing to explain
+    assert stage.stale() is None
+    changed = Stage(folder, {**key, "inputs": {"sequence": "s:2", "model": "m"}}, stage.outputs)
+    assert changed.stale() == "inputs.sequence changed"
+    assert run_stage(changed, work) == "redone (inputs.sequence changed): ok"
+    more = Stage(folder, {"stage": "slam", "inputs": {"sequence": "s:3"}, "x": 1}, stage.outputs)
+    assert more.stale() == "inputs.model, inputs.sequence, n, x changed"
+    (folder / "metrics.json").unlink()
+    assert changed.stale() == f"{folder / 'metrics.json'} missing"
+    assert run_stage(changed, work) == f"redone ({folder / 'metrics.json'} missing): ok"
+    assert run_stage(changed, work, force=True) == "redone (--force): ok"
 
 
 def test_fresh_stage_starts_from_an_empty_folder(tmp_path: Path) -> None:

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from shared_helpers import outside_staging
 
 import uss_slam.configs
 from uss_slam.core.files import file_sha256
@@ -315,10 +316,6 @@ def _check_files_whole(out: Path) -> None:
             assert path.read_bytes().startswith(PNG_MAGIC)
 
 
-def _outside_staging(snapshot: dict[str, str]) -> dict[str, str]:
-    return {k: v for k, v in snapshot.items() if not k.startswith(".uss-slam-new.")}
-
-
 @pytest.mark.slow
 def test_sigkill_while_staging_keeps_the_earlier_run_and_a_rerun_recovers(
     earlier, tmp_path: Path
@@ -343,7 +340,7 @@ def test_sigkill_while_staging_keeps_the_earlier_run_and_a_rerun_recovers(
     proc.wait(timeout=60)
     assert proc.returncode == -signal.SIGKILL
     now = _snapshot(out)
-    assert _outside_staging(now) == old and verify_run(out) == []
+    assert outside_staging(now) == old and verify_run(out) == []
     assert any(k.startswith(".uss-slam-new.") for k in now)  # the killed run's staging
     # left by the kill; the rerun takes it over
     started = json.loads((tmp_path / ".run.lock").read_text())["started"]
@@ -397,11 +394,11 @@ def test_a_kill_during_the_swap_is_detected_and_a_rerun_recovers(
     monkeypatch.undo()
     problems = verify_run(root)
     assert problems and "run.json: missing" in problems[0]
-    present = {k: (root / k).read_text() for k in _outside_staging(_snapshot(root))}
+    present = {k: (root / k).read_text() for k in outside_staging(_snapshot(root))}
     assert all(text.startswith("new ") for text in present.values()), present
     assert len(present) == moves
     clear_outputs(root)
-    assert _outside_staging(_snapshot(root)) == {}
+    assert outside_staging(_snapshot(root)) == {}
 
 
 # ------------------------------------------------------------------------------ Ctrl-C
