@@ -837,6 +837,8 @@ IN_USE = [
     ("uss-experiments", "out_dir={tmp}/exp stages=[data]", "{tmp}/exp", "out_dir={tmp}/exp", ()),
     ("uss-eval", "{m} --sequence {seq} --out {tmp}/eval", "{tmp}/eval", "--out={tmp}/eval",
      (write("m", colour_onnx, ".onnx"),)),
+    ("uss-vocab", "build --out {tmp}/vocab.txt {seq}", "{tmp}/vocab.txt",
+     "--out={tmp}/vocab.txt", ()),
 ]  # fmt: skip
 
 

@@ -12,9 +12,9 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from uss_slam.core.cli import INTERRUPTED
+from uss_slam.core.cli import INTERRUPTED, exit_code
 from uss_slam.core.errors import UssSlamError
-from uss_slam.core.files import check_writable
+from uss_slam.core.files import check_writable, output_lock
 
 from .vocabulary import (
     MAX_BRANCHING,
@@ -123,46 +123,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         if args.command == "build":
-            if args.out.is_dir():
-                raise UssSlamError(f"--out {args.out}: is a folder; expected a vocabulary file")
-            if args.out.exists() and not args.overwrite:
-                raise UssSlamError(f"{args.out}: exists; pass --overwrite to replace it")
-            if args.out.exists():  # --overwrite replaces a vocabulary, never another file
-                try:
-                    read_header(args.out)
-                except UssSlamError:
-                    raise UssSlamError(
-                        f"--out {args.out}: not a DBoW2 text vocabulary; --overwrite replaces "
-                        "only a vocabulary file"
-                    ) from None
-            check_writable(args.out.parent, create=False)  # before the clustering, not after
-            report = build_from_sequences(
-                args.sequences,
-                args.out,
-                k=args.branching,
-                levels=args.levels,
-                stride=args.stride,
-                max_frames=args.max_frames,
-                n_features=args.features,
-                seed=args.seed,
-                max_iterations=args.max_iterations,
-            )
-            print(
-                f"wrote {report.path}: k={args.branching} L={args.levels}, {report.nodes} nodes, "
-                f"{report.words} words ({report.zero_weight_words} with weight 0) from "
-                f"{report.descriptors} descriptors of {report.images} frames "
-                f"(extraction {report.extract_s:.1f} s, clustering {report.cluster_s:.1f} s)"
-            )
-            if report.zero_weight_words == report.words:
-                # idf = ln(N / N_i) is 0 for a word in every training frame: such a vocabulary
-                # scores every pair of frames alike (no place recognition, no relocalisation).
-                where = ", ".join(str(folder) for folder in args.sequences)
-                print(
-                    f"{PROG}: warning: {where}: every word of the vocabulary has weight 0 (each "
-                    f"occurs in all {report.images} training frames); use more, and more "
-                    "varied, frames (--stride, --max-frames, more sequences)",
-                    file=sys.stderr,
-                )
+            check_writable(args.out.parent, create=False)  # before the lock and the clustering
+            # a second build into the same file stops at once (exit code 2), naming the first
+            with output_lock(args.out, "--out"):
+                _build(args)
         else:
             vocab = read_vocabulary(args.vocabulary)
             print(
@@ -171,11 +135,54 @@ def main(argv: Sequence[str] | None = None) -> int:
             )
     except UssSlamError as err:
         print(f"{PROG}: error: {err}", file=sys.stderr)
-        return 1
+        return exit_code(err)
     except KeyboardInterrupt:  # --out is written atomically: nothing half-written is left
         print(f"{PROG}: interrupted", file=sys.stderr)
         return INTERRUPTED
     return 0
+
+
+def _build(args: argparse.Namespace) -> None:
+    """``uss-vocab build``: the checks of ``--out``, the clustering, the summary line."""
+    if args.out.is_dir():
+        raise UssSlamError(f"--out {args.out}: is a folder; expected a vocabulary file")
+    if args.out.exists() and not args.overwrite:
+        raise UssSlamError(f"{args.out}: exists; pass --overwrite to replace it")
+    if args.out.exists():  # --overwrite replaces a vocabulary, never another file
+        try:
+            read_header(args.out)
+        except UssSlamError:
+            raise UssSlamError(
+                f"--out {args.out}: not a DBoW2 text vocabulary; --overwrite replaces "
+                "only a vocabulary file"
+            ) from None
+    report = build_from_sequences(
+        args.sequences,
+        args.out,
+        k=args.branching,
+        levels=args.levels,
+        stride=args.stride,
+        max_frames=args.max_frames,
+        n_features=args.features,
+        seed=args.seed,
+        max_iterations=args.max_iterations,
+    )
+    print(
+        f"wrote {report.path}: k={args.branching} L={args.levels}, {report.nodes} nodes, "
+        f"{report.words} words ({report.zero_weight_words} with weight 0) from "
+        f"{report.descriptors} descriptors of {report.images} frames "
+        f"(extraction {report.extract_s:.1f} s, clustering {report.cluster_s:.1f} s)"
+    )
+    if report.zero_weight_words == report.words:
+        # idf = ln(N / N_i) is 0 for a word in every training frame: such a vocabulary
+        # scores every pair of frames alike (no place recognition, no relocalisation).
+        where = ", ".join(str(folder) for folder in args.sequences)
+        print(
+            f"{PROG}: warning: {where}: every word of the vocabulary has weight 0 (each "
+            f"occurs in all {report.images} training frames); use more, and more "
+            "varied, frames (--stride, --max-frames, more sequences)",
+            file=sys.stderr,
+        )
 
 
 if __name__ == "__main__":
