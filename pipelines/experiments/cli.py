@@ -48,6 +48,7 @@ from .plan import (
     blocked_jobs,
     checkpoint_policy,
     existing_exports,
+    harness_repeats,
     model_path,
     model_stage,
     plan_slam,
@@ -267,11 +268,13 @@ def _header(exp: Experiment, data: Data) -> list[str]:
             + ")"
         ),
         f"- systems: {', '.join(exp.grid.systems)}; variants: {', '.join(exp.grid.variants)}"
+        + f" (harness: median of {harness_repeats(cfg)} run(s) per job"
         + (
             ""
             if "orbslam3" not in exp.grid.systems
-            else f" (ORB-SLAM3: median of {cfg['slam']['orbslam3']['repeats']} runs per job)"
-        ),
+            else f"; ORB-SLAM3: median of {cfg['slam']['orbslam3']['repeats']} runs per job"
+        )
+        + ")",
         f"- segmentation metrics on 1 labelled frame in {cfg['segeval']['stride']} of "
         + (", ".join(data.labelled) if data.labelled else "no sequence (none has labels/)"),
         "- each cell: mean ± sample s.d. over seeds (n = successful jobs; T0: mean ± s.e.); "

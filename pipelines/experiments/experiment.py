@@ -136,6 +136,7 @@ def check_counts(plain: Mapping[str, Any], synthetic: bool) -> None:
     seg = plain.get("segeval") or {}  # (segeval.source_val_stride: checked by the grid)
     integer("segeval.stride", seg.get("stride", 5), 1)
     integer("segeval.threads", seg.get("threads", 1), 1, nullable=True)
+    integer("slam.repeats", (plain.get("slam") or {}).get("repeats", 1), 1)
     if synthetic:
         syn = plain["data"]["synthetic"]
         integer("data.synthetic.seed", syn.get("seed", 0), 0)

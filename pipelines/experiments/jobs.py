@@ -159,7 +159,7 @@ def run_slam_job(folder: Path, spec: Mapping[str, Any]) -> dict[str, Any]:
         "tracked_fraction": data.get("tracked_fraction"),
         "fps": data.get("fps"),
     }
-    if "ate_rmse_repeats" in data:  # ORB-SLAM3: the spread of its repeated runs
+    if "ate_rmse_repeats" in data:  # repeated runs (slam.repeats, ORB-SLAM3's): their spread
         result["ate_rmse_repeats"] = data["ate_rmse_repeats"]
     return result
 

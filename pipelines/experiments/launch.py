@@ -261,10 +261,17 @@ def result_rows(
         return [{**base, "val_mIoU": result.get("val_mIoU")}]
     if kind == "slam":
         ate = result.get("ate") or {}
+        repeats = result.get("ate_rmse_repeats")
+        if repeats is None:  # one run
+            repeats = {"evaluated": 0 if ate.get("rmse") is None else 1,
+                       "min": ate.get("rmse"), "max": ate.get("rmse")}  # fmt: skip
         return [
             {
                 **base,
                 **{f"ate_{k}": ate.get(k) for k in ("rmse", "mean", "median", "std")},
+                "ate_runs": repeats.get("evaluated"),
+                "ate_rmse_min": repeats.get("min"),
+                "ate_rmse_max": repeats.get("max"),
                 "tracked_fraction": result.get("tracked_fraction"),
                 "fps": result.get("fps"),
                 **{

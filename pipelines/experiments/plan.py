@@ -216,6 +216,11 @@ def model_path(exp: Experiment, cell: Model) -> Path:
     return exp.out / "exports" / cell.model / f"{cell.model}.onnx"
 
 
+def harness_repeats(cfg: Mapping[str, Any]) -> int:
+    """``slam.repeats``: harness runs per SLAM job (checked before any work: an integer >= 1)."""
+    return int(cfg["slam"].get("repeats") or 1)
+
+
 def slam_job(exp: Experiment, data: Data, cell: SlamCell) -> SlamJob:
     """The SLAM run of a cell: its sequence, its variant's segmenter (the cell's exported model)
     and filters, ``slam.overrides``, ORB-SLAM3 for ``system: orbslam3``."""
@@ -229,11 +234,15 @@ def slam_job(exp: Experiment, data: Data, cell: SlamCell) -> SlamJob:
             int(orb["repeats"]),
             tuple(str(o) for o in orb.get("overrides") or []),
         )
+    extra = tuple(str(o) for o in exp.cfg["slam"].get("overrides") or [])
+    repeats = harness_repeats(exp.cfg)
+    if cell.system == "harness" and repeats > 1:
+        extra = (f"slam.repeats={repeats}", *extra)
     return SlamJob(
         data.sequences[cell.sequence],
         Segmenter.of(variant, model, given(exp.cfg.get("crf_params"))),
         variant.filters,
-        extra=tuple(str(o) for o in exp.cfg["slam"].get("overrides") or []),
+        extra=extra,
         orbslam3=orbslam3,
         max_frames=FAST_FRAMES if exp.fast else None,
     )

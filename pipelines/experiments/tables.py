@@ -42,6 +42,9 @@ from .grid import ADABN, ADAPTED, ORACLE, VARIANTS
 
 RATES = ("FPR", "FNR", "recall", "precision", "PWC")
 ATE_KEYS = ("ate_rmse", "ate_mean", "ate_median", "ate_std")
+REPEAT_COLUMNS = ("ate_runs", "ate_rmse_min", "ate_rmse_max")
+"""A SLAM job's repeated runs (``slam.repeats``, ORB-SLAM3's): how many gave an ATE, and the
+smallest and largest ATE RMSE among them (``ate_rmse`` is the median run's)."""
 COLUMNS: tuple[str, ...] = (
     "kind",
     "id",
@@ -60,6 +63,7 @@ COLUMNS: tuple[str, ...] = (
     *(f"IoU_{c}" for c in CLASS_NAMES),
     *(f"person_{r}" for r in RATES),
     *ATE_KEYS,
+    *REPEAT_COLUMNS,
     "tracked_fraction",
     "fps",
     "segmentation_ms",
@@ -77,7 +81,7 @@ TIMING_COLUMNS = {
 }
 """``runs.csv`` column -> key of a SLAM run's ``timing_ms`` (mean wall ms per processed frame;
 ``segmentation`` includes the CRF's ``segmentation.crf``)."""
-INT_COLUMNS = ("n_layers", "seed", "crf")
+INT_COLUMNS = ("n_layers", "seed", "crf", "ate_runs")
 TEXT_COLUMNS = (
     "kind",
     "id",
