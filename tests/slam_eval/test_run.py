@@ -58,19 +58,16 @@ def test_defaults_compose() -> None:
     assert cfg.slam.filter_params.object.min_points == 20
 
 
-def test_run_writes_every_output(synthetic_sequence, tmp_path: Path) -> None:
+def _labels_run(synthetic_sequence, out: Path, *overrides: str) -> dict:
+    """``run`` into ``out`` on 30 frames of walking_xyz, segmented by the ground-truth labels."""
     seq = synthetic_sequence(preset="walking_xyz", frames=30)
+    base = [f"sequence.path={seq}", "segmenter=labels", f"out_dir={out}", "progress=false"]
+    return run(_cfg([*base, *overrides]))
+
+
+def test_run_writes_every_output(synthetic_sequence, tmp_path: Path) -> None:
     out = tmp_path / "run"
-    cfg = _cfg(
-        [
-            f"sequence.path={seq}",
-            "segmenter=labels",
-            "filters=[semantic,geometry]",
-            f"out_dir={out}",
-            "progress=false",
-        ]
-    )
-    data = run(cfg)
+    data = _labels_run(synthetic_sequence, out, "filters=[semantic,geometry]")
     for name in OUTPUTS:
         assert (out / name).is_file(), name
     metrics = json.loads((out / "metrics.json").read_text())
@@ -102,19 +99,10 @@ def test_run_writes_every_output(synthetic_sequence, tmp_path: Path) -> None:
 
 
 def test_comparison_mode(synthetic_sequence, tmp_path: Path) -> None:
-    seq = synthetic_sequence(preset="walking_xyz", frames=30)
     out = tmp_path / "cmp"
-    cfg = _cfg(
-        [
-            f"sequence.path={seq}",
-            "segmenter=labels",
-            "compare=[[semantic],[semantic,object]]",
-            "sequence.max_frames=12",
-            f"out_dir={out}",
-            "progress=false",
-        ]
+    data = _labels_run(
+        synthetic_sequence, out, "compare=[[semantic],[semantic,object]]", "sequence.max_frames=12"
     )
-    data = run(cfg)
     runs = data["comparison"]
     assert list(runs) == ["baseline", "semantic", "semantic+object"]
     for name in runs:
@@ -129,15 +117,20 @@ def test_comparison_mode(synthetic_sequence, tmp_path: Path) -> None:
     assert "| metric | baseline | semantic | semantic+object | semantic vs baseline |" in text
 
 
-def test_bad_config_values_are_clear(synthetic_sequence, tmp_path: Path) -> None:
+@pytest.mark.parametrize(
+    ("override", "message"),
+    [
+        ("filters=[semantic]", r"filters \['semantic'\] need a segmenter"),
+        ("slam.orb.scale_factor=0.9", r"slam\.orb\.scale_factor must be > 1, got 0\.9"),
+        ("compare=[]", "compare must be a non-empty list"),
+    ],
+)
+def test_bad_config_values_are_clear(
+    synthetic_sequence, tmp_path: Path, override: str, message: str
+) -> None:
     seq = synthetic_sequence(preset="walking_xyz", frames=30)
-    base = [f"sequence.path={seq}", f"out_dir={tmp_path}", "progress=false"]
-    with pytest.raises(UssSlamError, match=r"filters \['semantic'\] need a segmenter"):
-        run(_cfg([*base, "filters=[semantic]"]))
-    with pytest.raises(UssSlamError, match=r"slam\.orb\.scale_factor must be > 1, got 0\.9"):
-        run(_cfg([*base, "slam.orb.scale_factor=0.9"]))
-    with pytest.raises(UssSlamError, match="compare must be a non-empty list"):
-        run(_cfg([*base, "compare=[]"]))
+    with pytest.raises(UssSlamError, match=message):
+        run(_cfg([f"sequence.path={seq}", f"out_dir={tmp_path}", "progress=false", override]))
 
 
 def _cli(args: list[str], cwd: Path) -> subprocess.CompletedProcess:
