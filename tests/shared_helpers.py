@@ -1,8 +1,8 @@
-"""Helpers several test areas use: the real training config composed for a test, the overrides
-that point it at the ``uda_data`` fixture, a tiny segmenter and a ``uss-train`` run folder
-holding it, the metadata of an exported segmenter, and a tiny ONNX segmenter built with
-``onnx.helper`` (no torch) whose output is known for every pixel. Torch is imported only by the
-helpers that build networks, when called.
+"""Helpers several test areas use: the real training and ``uss-slam`` configs composed for a
+test, the overrides that point the training config at the ``uda_data`` fixture, a tiny
+segmenter and a ``uss-train`` run folder holding it, the metadata of an exported segmenter, and
+a tiny ONNX segmenter built with ``onnx.helper`` (no torch) whose output is known for every
+pixel. Torch is imported only by the helpers that build networks, when called.
 
 The tiny model's logits are ``(bias, R, G, B)`` per pixel, so a pixel's label is 0 where every
 channel is below ``bias`` (ties go to the first index, as ArgMax), else the index of its largest
@@ -55,6 +55,20 @@ def compose_train(overrides: Sequence[str], output_dir: Path) -> DictConfig:
         cfg.paths.log_dir = str(output_dir.parent / "logs")
     HydraConfig().set_config(cfg)
     return cfg
+
+
+def compose_slam_eval(overrides: Sequence[str]) -> DictConfig:
+    """The real ``slam_eval.yaml`` (``uss-slam``'s config) composed with ``overrides``."""
+    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
+        return compose("slam_eval", overrides=list(overrides))
+
+
+def slam_run_config(sequence: Path, out: Path, *overrides: str) -> DictConfig:
+    """:func:`compose_slam_eval` of a run on the ``sequence`` folder into ``out``, without
+    progress bars, and ``overrides``."""
+    return compose_slam_eval(
+        [f"sequence.path={sequence}", f"out_dir={out}", "progress=false", *overrides]
+    )
 
 
 def colour_model(
