@@ -1,5 +1,6 @@
 """Helpers of the training tests: a quiet CPU trainer and a fit on one batch repeated, the
-scalars an adversarial iteration logs, and callbacks that make a run diverge or score as scripted
+scalars an adversarial iteration logs, the comparison of trained weights with the plain-PyTorch
+reference's, and callbacks that make a run diverge or score as scripted
 (composing the config and the data overrides are in ``tests/shared_helpers.py``)."""
 
 from __future__ import annotations
@@ -63,6 +64,22 @@ def fit_repeated(
     trainer = quiet_trainer(callbacks=list(callbacks), **options)
     trainer.fit(module, train_dataloaders=repeated_loader(batch, iters), ckpt_path=ckpt_path)
     return trainer
+
+
+def assert_weights_match_reference(module: LightningModule, state: Any) -> None:
+    """The segmenter and discriminators of ``module`` equal those of ``state`` (the plain
+    PyTorch loop's, ``bench.plain_state_from``) to the rounding of the module's kernels, which
+    differ in the last bit (batched / NHWC convolutions, softmax as exp(log_softmax)). Adam
+    divides by the root of tiny second moments and so magnifies last-bit gradient differences:
+    1e-6 for the SGD-trained segmenter, 2e-5 for the Adam-trained discriminators (their
+    weights are ~1e-2)."""
+    for mine, ref, atol in (
+        (module.segmenter, state.segmenter, 1e-6),
+        (module.d_aux, state.d_aux, 2e-5),
+        (module.d_main, state.d_main, 2e-5),
+    ):
+        for key, value in mine.state_dict().items():
+            torch.testing.assert_close(value, ref.state_dict()[key], rtol=0, atol=atol)
 
 
 class PoisonAt(Callback):
