@@ -58,7 +58,11 @@ def compose_train(overrides: Sequence[str], output_dir: Path) -> DictConfig:
 
 
 def compose_slam_eval(overrides: Sequence[str]) -> DictConfig:
-    """The real ``slam_eval.yaml`` (``uss-slam``'s config) composed with ``overrides``."""
+    """The real ``slam_eval.yaml`` (``uss-slam``'s config) composed with ``overrides``, its
+    structured configs registered first (as ``uss_slam.slam_eval.run`` does on import)."""
+    from uss_slam.slam_eval.config import register_configs
+
+    register_configs()
     with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
         return compose("slam_eval", overrides=list(overrides))
 

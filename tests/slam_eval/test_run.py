@@ -9,8 +9,8 @@ from dataclasses import asdict
 from pathlib import Path
 
 import pytest
-from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
+from shared_helpers import compose_slam_eval, slam_run_config
 
 from uss_slam.core.classes import CLASS_NAMES
 from uss_slam.core.errors import UssSlamError
@@ -23,18 +23,12 @@ from uss_slam.slam_eval.scoring.evaluation import EvalConfig
 from uss_slam.slam_eval.scoring.run_folder import verify_run
 from uss_slam.slam_eval.tracking.tracker import TrackerConfig
 
-REPO = Path(__file__).resolve().parents[2]
 OUTPUTS = ("trajectory.txt", "metrics.json", "report.md", "trajectory.png", "ate.png", "map.ply")
 STATS = {"rmse", "mean", "median", "std", "min", "max", "pairs"}
 
 
-def _cfg(overrides: list[str]):
-    with initialize_config_dir(config_dir=str(REPO / "configs"), version_base="1.3"):
-        return compose("slam_eval", overrides=overrides)
-
-
 def test_defaults_come_from_the_dataclasses_and_filters() -> None:
-    cfg = _cfg(["sequence.path=/x"])
+    cfg = compose_slam_eval(["sequence.path=/x"])
     assert OmegaConf.to_container(cfg.slam.orb) == asdict(OrbConfig())
     assert OmegaConf.to_container(cfg.slam.tracker) == asdict(TrackerConfig())
     assert OmegaConf.to_container(cfg.slam.map) == asdict(MapConfig())
@@ -42,12 +36,12 @@ def test_defaults_come_from_the_dataclasses_and_filters() -> None:
     assert OmegaConf.to_container(cfg.slam.filter_params) == filter_defaults()
     assert filter_defaults()["geometry"]["depth_threshold"] == 0.4
     assert filter_defaults()["semantic"]["dynamic_classes"] == ["person"]
-    changed = _cfg(["sequence.path=/x", "slam.orb.n_features=1500", "eval.align=sim3"])
+    changed = compose_slam_eval(["sequence.path=/x", "slam.orb.n_features=1500", "eval.align=sim3"])
     assert changed.slam.orb.n_features == 1500 and changed.eval.align == "sim3"
 
 
 def test_defaults_compose() -> None:
-    cfg = _cfg(["sequence.path=/x"])
+    cfg = compose_slam_eval(["sequence.path=/x"])
     assert list(cfg.filters) == [] and cfg.compare is None
     assert cfg.segmenter._target_.endswith("NoSegmenter")
     assert cfg.slam.orb.n_features == 1000 and cfg.slam.orb.scale_factor == 1.2
@@ -61,8 +55,7 @@ def test_defaults_compose() -> None:
 def _labels_run(synthetic_sequence, out: Path, *overrides: str) -> dict:
     """``run`` into ``out`` on 30 frames of walking_xyz, segmented by the ground-truth labels."""
     seq = synthetic_sequence(preset="walking_xyz", frames=30)
-    base = [f"sequence.path={seq}", "segmenter=labels", f"out_dir={out}", "progress=false"]
-    return run(_cfg([*base, *overrides]))
+    return run(slam_run_config(seq, out, "segmenter=labels", *overrides))
 
 
 def test_run_writes_every_output(synthetic_sequence, tmp_path: Path) -> None:
@@ -130,7 +123,7 @@ def test_bad_config_values_are_clear(
 ) -> None:
     seq = synthetic_sequence(preset="walking_xyz", frames=30)
     with pytest.raises(UssSlamError, match=message):
-        run(_cfg([f"sequence.path={seq}", f"out_dir={tmp_path}", "progress=false", override]))
+        run(slam_run_config(seq, tmp_path, override))
 
 
 def _cli(args: list[str], cwd: Path) -> subprocess.CompletedProcess:
