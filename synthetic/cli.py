@@ -111,6 +111,15 @@ def build_parser() -> argparse.ArgumentParser:
         )
         p.add_argument("--quiet", action="store_true", help="no progress bar")  # fmt: skip
 
+    def size(p: argparse.ArgumentParser, default: tuple[int, int]) -> None:
+        p.add_argument(
+            "--size",
+            type=_size,
+            default=default,
+            metavar="WxH",
+            help=f"image size (default: {default[0]}x{default[1]})",
+        )
+
     seq = sub.add_parser(
         "sequence",
         help="a TUM RGB-D sequence (rgb/, depth/, labels/, rgb.txt, depth.txt, groundtruth.txt)",
@@ -139,13 +148,7 @@ def build_parser() -> argparse.ArgumentParser:
         default=120,
         help=f"number of frames at 30 Hz (2..{MAX_FRAMES}, default: 120)",
     )
-    seq.add_argument(
-        "--size",
-        type=_size,
-        default=(640, 480),
-        metavar="WxH",
-        help="image size (default: 640x480)",
-    )
+    size(seq, (640, 480))
     seq.add_argument("--style", choices=STYLES, default="target",
                      help="source: clean and evenly lit; target: Kinect-like blur, noise, colour "
                           "cast, depth noise and holes (default: target)")  # fmt: skip
@@ -171,13 +174,7 @@ def build_parser() -> argparse.ArgumentParser:
         default=200,
         help=f"number of images (1..{MAX_IMAGES}, default: 200)",
     )
-    voc.add_argument(
-        "--size",
-        type=_size,
-        default=(320, 240),
-        metavar="WxH",
-        help="image size (default: 320x240)",
-    )
+    size(voc, (320, 240))
     voc.add_argument(
         "--outfits",
         choices=WARDROBES,

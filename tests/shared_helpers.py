@@ -1,6 +1,8 @@
-"""Helpers several test areas use: the real training config composed for a test, the overrides
-that point it at the ``uda_data`` fixture, and a tiny ONNX segmenter built with ``onnx.helper``
-(no torch) whose output is known for every pixel.
+"""Helpers several test areas use: the real training and ``uss-slam`` configs composed for a
+test, the overrides that point the training config at the ``uda_data`` fixture, a tiny
+segmenter and a ``uss-train`` run folder holding it, the metadata of an exported segmenter, and
+a tiny ONNX segmenter built with ``onnx.helper`` (no torch) whose output is known for every
+pixel. Torch is imported only by the helpers that build networks, when called.
 
 The tiny model's logits are ``(bias, R, G, B)`` per pixel, so a pixel's label is 0 where every
 channel is below ``bias`` (ties go to the first index, as ArgMax), else the index of its largest
@@ -11,6 +13,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import onnx
@@ -20,7 +23,14 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, open_dict
 from onnx import TensorProto, helper
 
+if TYPE_CHECKING:
+    from torch import nn
+
+    from uss_slam.core.onnx_contract import SegmenterMetadata
+    from uss_slam.models import DeepLabV2
+
 CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"
+NET_YAML = CONFIG_DIR / "model" / "net" / "deeplab_small.yaml"
 
 
 def data_overrides(data: dict[str, Path]) -> list[str]:
@@ -45,6 +55,24 @@ def compose_train(overrides: Sequence[str], output_dir: Path) -> DictConfig:
         cfg.paths.log_dir = str(output_dir.parent / "logs")
     HydraConfig().set_config(cfg)
     return cfg
+
+
+def compose_slam_eval(overrides: Sequence[str]) -> DictConfig:
+    """The real ``slam_eval.yaml`` (``uss-slam``'s config) composed with ``overrides``, its
+    structured configs registered first (as ``uss_slam.slam_eval.run`` does on import)."""
+    from uss_slam.slam_eval.config import register_configs
+
+    register_configs()
+    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
+        return compose("slam_eval", overrides=list(overrides))
+
+
+def slam_run_config(sequence: Path, out: Path, *overrides: str) -> DictConfig:
+    """:func:`compose_slam_eval` of a run on the ``sequence`` folder into ``out``, without
+    progress bars, and ``overrides``."""
+    return compose_slam_eval(
+        [f"sequence.path={sequence}", f"out_dir={out}", "progress=false", *overrides]
+    )
 
 
 def colour_model(
@@ -116,8 +144,15 @@ def colour_model(
     return path
 
 
-def segmenter_props(class_names: Sequence[str], dynamic: Sequence[str] = ("person",)) -> dict:
-    """The metadata_props of an exported segmenter with ``class_names`` (test values)."""
+def segmenter_metadata(
+    class_names: Sequence[str],
+    dynamic: Sequence[str] = ("person",),
+    *,
+    head: str = "main",
+    experiment: str = "test",
+) -> SegmenterMetadata:
+    """The metadata of an exported segmenter with ``class_names`` (ImageNet normalisation, a
+    checkpoint digest of zeros: test values)."""
     from uss_slam.core.onnx_contract import SegmenterMetadata
 
     return SegmenterMetadata(
@@ -125,11 +160,70 @@ def segmenter_props(class_names: Sequence[str], dynamic: Sequence[str] = ("perso
         dynamic_classes=tuple(dynamic),
         mean=(0.485, 0.456, 0.406),
         std=(0.229, 0.224, 0.225),
-        head="main",
-        experiment="test",
+        head=head,
+        experiment=experiment,
         checkpoint_sha256="0" * 64,
         version="0.1.0",
-    ).to_props()
+    )
+
+
+def segmenter_props(class_names: Sequence[str], dynamic: Sequence[str] = ("person",)) -> dict:
+    """The metadata_props of an exported segmenter with ``class_names`` (test values)."""
+    return segmenter_metadata(class_names, dynamic).to_props()
+
+
+def tiny_net(seed: int = 0) -> DeepLabV2:
+    """The CI / demo segmenter as configured (``configs/model/net/deeplab_small.yaml``), with
+    non-trivial BatchNorm statistics (so the exported graph must carry them), in eval mode."""
+    import torch
+    from hydra.utils import instantiate
+    from omegaconf import OmegaConf
+
+    from uss_slam.models import DeepLabV2
+
+    torch.manual_seed(seed)
+    net = instantiate(OmegaConf.load(NET_YAML))
+    assert isinstance(net, DeepLabV2) and net.backbone_name == "resnet_small"
+    with torch.no_grad():
+        for module in net.modules():
+            if isinstance(module, torch.nn.BatchNorm2d):
+                module.running_mean.uniform_(-0.2, 0.2)
+                module.running_var.uniform_(0.5, 2.0)
+    return net.eval()
+
+
+def fake_run(
+    root: Path,
+    net: nn.Module,
+    run_name: str = "fake",
+    *,
+    net_yaml: Path = NET_YAML,
+    iteration: int = 7,
+) -> Path:
+    """A run folder as uss-train writes it: ``.hydra/config.yaml`` (``run_name`` and the net
+    config of ``net_yaml``, the one ``net`` was built from) + ``checkpoints/last.ckpt``
+    (segmenter and discriminator weights, at ``iteration``); returns the checkpoint."""
+    import torch
+    import yaml
+
+    from uss_slam.core.classes import CLASS_NAMES
+
+    (root / ".hydra").mkdir(parents=True)
+    (root / "checkpoints").mkdir()
+    config = {"run_name": run_name, "model": {"net": yaml.safe_load(net_yaml.read_text())}}
+    (root / ".hydra" / "config.yaml").write_text(yaml.safe_dump(config))
+    state = {f"segmenter.{k}": v for k, v in net.state_dict().items()}
+    state["d_main.layers.0.weight"] = torch.ones(2, 4, 4, 4)
+    ckpt = root / "checkpoints" / "last.ckpt"
+    torch.save(
+        {
+            "state_dict": state,
+            "hyper_parameters": {"class_names": list(CLASS_NAMES)},
+            "iteration": iteration,
+        },
+        ckpt,
+    )
+    return ckpt
 
 
 def colour_labels(rgb: np.ndarray, bias: float = 128.0) -> np.ndarray:

@@ -20,7 +20,6 @@ while it writes is at the end.
 from __future__ import annotations
 
 import importlib
-import importlib.util
 import json
 import logging
 import os
@@ -32,7 +31,6 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from types import ModuleType
 from typing import Any
 
 import cv2
@@ -40,6 +38,7 @@ import numpy as np
 import pytest
 from hydra.core.global_hydra import GlobalHydra
 from hydra.core.hydra_config import HydraConfig
+from shared_helpers import fake_run, tiny_net
 
 from uss_slam.core.files import file_sha256
 
@@ -62,17 +61,6 @@ HYDRA_RECORDS = ("hydra/", "run/.hydra/", "exp/.hydra/")
 """Folders (relative to the test's folder) where Hydra records a call before the app runs."""
 
 
-def _export_helpers() -> ModuleType:
-    """``tests/export/export_helpers.py`` (a tiny uss-train run folder), imported by path."""
-    spec = importlib.util.spec_from_file_location(
-        "cli_matrix_export_helpers", TESTS / "export" / "export_helpers.py"
-    )
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
 # ------------------------------------------------------------------------------ the world
 
 
@@ -84,8 +72,7 @@ def world(
     train tests, a uss-train run folder, and a complete earlier uss-slam run."""
     root = tmp_path_factory.mktemp("matrix")
     seq = synthetic_sequence(preset="walking_xyz", frames=8, size=(160, 120), seed=5)
-    helpers = _export_helpers()
-    ckpt = helpers.fake_run(root / "train_run", helpers.tiny_net(seed=3))
+    ckpt = fake_run(root / "train_run", tiny_net(seed=3))
     slam = root / "slam_run"
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(sys, "argv", ["uss-slam", f"sequence.path={seq}", f"out_dir={slam}",
@@ -1068,8 +1055,7 @@ def test_export_killed_while_writing_keeps_the_earlier_pair(
     """kill -9 of ``uss-export`` while it writes the new FP32 / INT8 pair (its files staged
     under temporary names in the output folder): the earlier pair stays, consistent, under
     the final names; a rerun replaces it with a consistent pair of the new checkpoint."""
-    helpers = _export_helpers()
-    other = helpers.fake_run(tmp_path / "run_b", helpers.tiny_net(seed=4))
+    other = fake_run(tmp_path / "run_b", tiny_net(seed=4))
     script = Path(sys.executable).parent / "uss-export"
     exports = tmp_path / "exports"
     common = ["out_dir=exports", "int8=true", f"calibration.root={world['seq']}",

@@ -655,7 +655,22 @@ class Tracker:
             ok, rvec, tvec, inliers = self._prosac(world, features, kp, distance)
             found = self._refined_hypothesis(world, features, kp, ok, rvec, tvec, inliers, 6)
             return None if found is None else found[0]
-        uv = features.uv[kp]
+        ok, rvec, tvec, inliers = self._ransac(
+            world, features.uv[kp], cfg.ransac_iterations, guess_cw
+        )
+        found = self._refined_hypothesis(world, features, kp, ok, rvec, tvec, inliers, 6)
+        return None if found is None else found[0]
+
+    def _ransac(
+        self,
+        world: np.ndarray,
+        uv: np.ndarray,
+        iterations: int,
+        guess_cw: np.ndarray | None = None,
+    ):
+        """OpenCV's PnP-RANSAC of ``world[i] <-> uv[i]``, the matches in
+        :meth:`_sampling_order`: AP3P minimal sets, or EPnP starting from the pose ``guess_cw``
+        when given. Returns ``(ok, rvec, tvec, inliers)``."""
         if guess_cw is not None:
             rvec, tvec = to_rvec(guess_cw)
             use_guess = True
@@ -663,7 +678,7 @@ class Tracker:
             rvec, tvec = np.zeros((3, 1)), np.zeros((3, 1))
             use_guess = False
         order = self._sampling_order(len(world))
-        ok, rvec, tvec, inliers = cv2.solvePnPRansac(
+        return cv2.solvePnPRansac(
             world[order].reshape(-1, 1, 3).astype(np.float64),
             uv[order].reshape(-1, 1, 2).astype(np.float64),
             self.k,
@@ -671,13 +686,11 @@ class Tracker:
             rvec,
             tvec,
             useExtrinsicGuess=use_guess,
-            iterationsCount=cfg.ransac_iterations,
-            reprojectionError=cfg.ransac_threshold,
+            iterationsCount=iterations,
+            reprojectionError=self.config.ransac_threshold,
             confidence=0.999,
             flags=cv2.SOLVEPNP_EPNP if use_guess else cv2.SOLVEPNP_AP3P,
         )
-        found = self._refined_hypothesis(world, features, kp, ok, rvec, tvec, inliers, 6)
-        return None if found is None else found[0]
 
     def _prosac(
         self,
@@ -860,17 +873,8 @@ class Tracker:
             iterations = max(self.config.ransac_iterations, 300)
             ok, rvec, tvec, inl = self._prosac(world, features, kp, distance, iterations)
             return self._refined_hypothesis(world, features, kp, ok, rvec, tvec, inl, 10)
-        uv = features.uv[kp]
-        order = self._sampling_order(len(world))
-        ok, rvec, tvec, inliers = cv2.solvePnPRansac(
-            world[order].reshape(-1, 1, 3).astype(np.float64),
-            uv[order].reshape(-1, 1, 2).astype(np.float64),
-            self.k,
-            None,
-            iterationsCount=max(self.config.ransac_iterations, 300),
-            reprojectionError=self.config.ransac_threshold,
-            confidence=0.999,
-            flags=cv2.SOLVEPNP_AP3P,
+        ok, rvec, tvec, inliers = self._ransac(
+            world, features.uv[kp], max(self.config.ransac_iterations, 300)
         )
         return self._refined_hypothesis(world, features, kp, ok, rvec, tvec, inliers, 10)
 

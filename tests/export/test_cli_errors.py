@@ -17,11 +17,10 @@ import onnx
 import pytest
 import torch
 import yaml
-from export_helpers import NET_YAML, fake_run, tiny_net
+from shared_helpers import NET_YAML, fake_run, segmenter_metadata, tiny_net
 
 from uss_slam.core.classes import CLASS_NAMES
 from uss_slam.core.errors import UssSlamError
-from uss_slam.core.normalization import IMAGENET_MEAN, IMAGENET_STD
 from uss_slam.core.onnx_contract import SegmenterMetadata
 from uss_slam.export import cli as export_cli
 from uss_slam.export import onnx as export_onnx
@@ -85,16 +84,7 @@ def pair_a(
 
 
 def _metadata() -> SegmenterMetadata:
-    return SegmenterMetadata(
-        class_names=CLASS_NAMES,
-        dynamic_classes=("person",),
-        mean=IMAGENET_MEAN,
-        std=IMAGENET_STD,
-        head="main",
-        experiment="unit",
-        checkpoint_sha256="0" * 64,
-        version="0.1.0",
-    )
+    return segmenter_metadata(CLASS_NAMES, experiment="unit")
 
 
 def _files(folder: Path) -> dict[str, bytes]:

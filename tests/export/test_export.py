@@ -17,10 +17,9 @@ import pytest
 import torch
 import torch.nn.functional as F
 import yaml
-from export_helpers import NET_YAML
-from export_helpers import fake_run as _fake_run
-from export_helpers import tiny_net as _tiny_net
-from shared_helpers import data_overrides
+from shared_helpers import NET_YAML, data_overrides, segmenter_metadata
+from shared_helpers import fake_run as _fake_run
+from shared_helpers import tiny_net as _tiny_net
 
 import uss_slam.export as export
 from uss_slam.core.classes import CLASS_NAMES
@@ -46,16 +45,7 @@ from uss_slam.models import DeepLabV2
 
 
 def _metadata(head: str = "main") -> SegmenterMetadata:
-    return SegmenterMetadata(
-        class_names=CLASS_NAMES,
-        dynamic_classes=("person",),
-        mean=(0.485, 0.456, 0.406),
-        std=(0.229, 0.224, 0.225),
-        head=head,
-        experiment="unit",
-        checkpoint_sha256="0" * 64,
-        version="0.1.0",
-    )
+    return segmenter_metadata(CLASS_NAMES, head=head, experiment="unit")
 
 
 def _eager(net: DeepLabV2, images: np.ndarray, head: str = "main") -> tuple[np.ndarray, np.ndarray]:

@@ -10,9 +10,9 @@ import onnxruntime as ort
 import pytest
 import torch
 import torch.nn.functional as F
-import yaml
 from hydra.utils import instantiate
 from omegaconf import OmegaConf
+from shared_helpers import fake_run, segmenter_metadata
 from torch import nn
 
 from uss_slam.core.classes import CLASS_NAMES
@@ -121,16 +121,7 @@ def test_bad_dropout_is_one_line() -> None:
 
 
 def _metadata() -> SegmenterMetadata:
-    return SegmenterMetadata(
-        class_names=CLASS_NAMES,
-        dynamic_classes=("person",),
-        mean=(0.485, 0.456, 0.406),
-        std=(0.229, 0.224, 0.225),
-        head="main",
-        experiment="pspnet",
-        checkpoint_sha256="0" * 64,
-        version="0.1.0",
-    )
+    return segmenter_metadata(CLASS_NAMES, experiment="pspnet")
 
 
 def _eager(net: nn.Module, images: np.ndarray) -> np.ndarray:
@@ -157,30 +148,11 @@ def test_export_follows_the_onnx_contract_at_odd_sizes(tmp_path: Path) -> None:
         assert np.abs(logits - _eager(net, images)).max() <= 1e-4
 
 
-def _fake_run(root: Path, net: PSPNet) -> Path:
-    (root / ".hydra").mkdir(parents=True)
-    (root / "checkpoints").mkdir()
-    net_cfg = yaml.safe_load((CONFIG_DIR / "pspnet_small.yaml").read_text())
-    (root / ".hydra" / "config.yaml").write_text(
-        yaml.safe_dump({"run_name": "psp", "model": {"net": net_cfg}})
-    )
-    state = {f"segmenter.{k}": v for k, v in net.state_dict().items()}
-    state["d_main.layers.0.weight"] = torch.ones(2, 4, 4, 4)
-    ckpt = root / "checkpoints" / "last.ckpt"
-    torch.save(
-        {
-            "state_dict": state,
-            "hyper_parameters": {"class_names": list(CLASS_NAMES)},
-            "iteration": 3,
-        },
-        ckpt,
-    )
-    return ckpt
-
-
 def test_checkpoint_export_and_weights(tmp_path: Path) -> None:
     net = _small(seed=2).eval()
-    ckpt = _fake_run(tmp_path / "run", net)
+    ckpt = fake_run(
+        tmp_path / "run", net, "psp", net_yaml=CONFIG_DIR / "pspnet_small.yaml", iteration=3
+    )
     assert read_checkpoint(ckpt).num_classes == 4
     loaded = load_checkpoint(ckpt)
     assert isinstance(loaded.segmenter, PSPNet) and not loaded.segmenter.training

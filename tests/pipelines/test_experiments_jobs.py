@@ -212,16 +212,21 @@ def test_bad_config_is_one_line(overrides: list[str], message: str) -> None:
     assert str(info.value).startswith(message) and "\n" not in str(info.value)
 
 
-def test_crf_variants_need_pydensecrf(monkeypatch: pytest.MonkeyPatch) -> None:
+def _not_installed(monkeypatch: pytest.MonkeyPatch, package: str) -> None:
+    """``importlib.util.find_spec`` finds no ``package`` (as if it were not installed)."""
     import importlib.util
 
-    cfg = compose_experiments("variants=[none,semantic,semantic_crf]")
     find_spec = importlib.util.find_spec
     monkeypatch.setattr(
         importlib.util,
         "find_spec",
-        lambda name, *a: None if name == "pydensecrf" else find_spec(name, *a),
+        lambda name, *a: None if name == package else find_spec(name, *a),
     )
+
+
+def test_crf_variants_need_pydensecrf(monkeypatch: pytest.MonkeyPatch) -> None:
+    cfg = compose_experiments("variants=[none,semantic,semantic_crf]")
+    _not_installed(monkeypatch, "pydensecrf")
     with pytest.raises(UssSlamError) as info:
         experiment.check(cfg)
     assert str(info.value) == (
@@ -244,12 +249,7 @@ def test_orbslam3_needs_its_bindings_and_a_vocabulary(
         assert str(info.value).startswith(
             f"slam.orbslam3.vocabulary: system.vocabulary={tmp_path / 'missing.txt'}: file not found"
         )
-    find_spec = importlib.util.find_spec
-    monkeypatch.setattr(
-        importlib.util,
-        "find_spec",
-        lambda name, *a: None if name == "pyorbslam3" else find_spec(name, *a),
-    )
+    _not_installed(monkeypatch, "pyorbslam3")
     with pytest.raises(UssSlamError) as info:
         experiment.check(cfg)
     assert str(info.value) == (

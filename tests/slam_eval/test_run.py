@@ -9,8 +9,8 @@ from dataclasses import asdict
 from pathlib import Path
 
 import pytest
-from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
+from shared_helpers import compose_slam_eval, slam_run_config
 
 from uss_slam.core.classes import CLASS_NAMES
 from uss_slam.core.errors import UssSlamError
@@ -23,18 +23,12 @@ from uss_slam.slam_eval.scoring.evaluation import EvalConfig
 from uss_slam.slam_eval.scoring.run_folder import verify_run
 from uss_slam.slam_eval.tracking.tracker import TrackerConfig
 
-REPO = Path(__file__).resolve().parents[2]
 OUTPUTS = ("trajectory.txt", "metrics.json", "report.md", "trajectory.png", "ate.png", "map.ply")
 STATS = {"rmse", "mean", "median", "std", "min", "max", "pairs"}
 
 
-def _cfg(overrides: list[str]):
-    with initialize_config_dir(config_dir=str(REPO / "configs"), version_base="1.3"):
-        return compose("slam_eval", overrides=overrides)
-
-
 def test_defaults_come_from_the_dataclasses_and_filters() -> None:
-    cfg = _cfg(["sequence.path=/x"])
+    cfg = compose_slam_eval(["sequence.path=/x"])
     assert OmegaConf.to_container(cfg.slam.orb) == asdict(OrbConfig())
     assert OmegaConf.to_container(cfg.slam.tracker) == asdict(TrackerConfig())
     assert OmegaConf.to_container(cfg.slam.map) == asdict(MapConfig())
@@ -42,12 +36,12 @@ def test_defaults_come_from_the_dataclasses_and_filters() -> None:
     assert OmegaConf.to_container(cfg.slam.filter_params) == filter_defaults()
     assert filter_defaults()["geometry"]["depth_threshold"] == 0.4
     assert filter_defaults()["semantic"]["dynamic_classes"] == ["person"]
-    changed = _cfg(["sequence.path=/x", "slam.orb.n_features=1500", "eval.align=sim3"])
+    changed = compose_slam_eval(["sequence.path=/x", "slam.orb.n_features=1500", "eval.align=sim3"])
     assert changed.slam.orb.n_features == 1500 and changed.eval.align == "sim3"
 
 
 def test_defaults_compose() -> None:
-    cfg = _cfg(["sequence.path=/x"])
+    cfg = compose_slam_eval(["sequence.path=/x"])
     assert list(cfg.filters) == [] and cfg.compare is None
     assert cfg.segmenter._target_.endswith("NoSegmenter")
     assert cfg.slam.orb.n_features == 1000 and cfg.slam.orb.scale_factor == 1.2
@@ -58,19 +52,15 @@ def test_defaults_compose() -> None:
     assert cfg.slam.filter_params.object.min_points == 20
 
 
-def test_run_writes_every_output(synthetic_sequence, tmp_path: Path) -> None:
+def _labels_run(synthetic_sequence, out: Path, *overrides: str) -> dict:
+    """``run`` into ``out`` on 30 frames of walking_xyz, segmented by the ground-truth labels."""
     seq = synthetic_sequence(preset="walking_xyz", frames=30)
+    return run(slam_run_config(seq, out, "segmenter=labels", *overrides))
+
+
+def test_run_writes_every_output(synthetic_sequence, tmp_path: Path) -> None:
     out = tmp_path / "run"
-    cfg = _cfg(
-        [
-            f"sequence.path={seq}",
-            "segmenter=labels",
-            "filters=[semantic,geometry]",
-            f"out_dir={out}",
-            "progress=false",
-        ]
-    )
-    data = run(cfg)
+    data = _labels_run(synthetic_sequence, out, "filters=[semantic,geometry]")
     for name in OUTPUTS:
         assert (out / name).is_file(), name
     metrics = json.loads((out / "metrics.json").read_text())
@@ -102,19 +92,10 @@ def test_run_writes_every_output(synthetic_sequence, tmp_path: Path) -> None:
 
 
 def test_comparison_mode(synthetic_sequence, tmp_path: Path) -> None:
-    seq = synthetic_sequence(preset="walking_xyz", frames=30)
     out = tmp_path / "cmp"
-    cfg = _cfg(
-        [
-            f"sequence.path={seq}",
-            "segmenter=labels",
-            "compare=[[semantic],[semantic,object]]",
-            "sequence.max_frames=12",
-            f"out_dir={out}",
-            "progress=false",
-        ]
+    data = _labels_run(
+        synthetic_sequence, out, "compare=[[semantic],[semantic,object]]", "sequence.max_frames=12"
     )
-    data = run(cfg)
     runs = data["comparison"]
     assert list(runs) == ["baseline", "semantic", "semantic+object"]
     for name in runs:
@@ -129,15 +110,20 @@ def test_comparison_mode(synthetic_sequence, tmp_path: Path) -> None:
     assert "| metric | baseline | semantic | semantic+object | semantic vs baseline |" in text
 
 
-def test_bad_config_values_are_clear(synthetic_sequence, tmp_path: Path) -> None:
+@pytest.mark.parametrize(
+    ("override", "message"),
+    [
+        ("filters=[semantic]", r"filters \['semantic'\] need a segmenter"),
+        ("slam.orb.scale_factor=0.9", r"slam\.orb\.scale_factor must be > 1, got 0\.9"),
+        ("compare=[]", "compare must be a non-empty list"),
+    ],
+)
+def test_bad_config_values_are_clear(
+    synthetic_sequence, tmp_path: Path, override: str, message: str
+) -> None:
     seq = synthetic_sequence(preset="walking_xyz", frames=30)
-    base = [f"sequence.path={seq}", f"out_dir={tmp_path}", "progress=false"]
-    with pytest.raises(UssSlamError, match=r"filters \['semantic'\] need a segmenter"):
-        run(_cfg([*base, "filters=[semantic]"]))
-    with pytest.raises(UssSlamError, match=r"slam\.orb\.scale_factor must be > 1, got 0\.9"):
-        run(_cfg([*base, "slam.orb.scale_factor=0.9"]))
-    with pytest.raises(UssSlamError, match="compare must be a non-empty list"):
-        run(_cfg([*base, "compare=[]"]))
+    with pytest.raises(UssSlamError, match=message):
+        run(slam_run_config(seq, tmp_path, override))
 
 
 def _cli(args: list[str], cwd: Path) -> subprocess.CompletedProcess:

@@ -184,43 +184,37 @@ def test_out_dir_that_cannot_be_created(earlier, tmp_path: Path, monkeypatch, ca
     assert blocker.read_text() == "a file, not a folder"
 
 
-def test_rerun_failing_on_the_sequence_keeps_the_earlier_run(
-    earlier, tmp_path: Path, monkeypatch, capsys
-) -> None:
-    """A sequence error found while opening it (a depth frame listed but missing)."""
-    source, done = earlier
-    seq, out = tmp_path / "seq", tmp_path / "run"
-    shutil.copytree(source, seq)
-    shutil.copytree(done, out)
-    before = _snapshot(out)
+def _missing_depth(seq: Path) -> str:
+    """Found while opening the sequence: a depth frame listed but missing."""
     victim = sorted((seq / "depth").iterdir())[3]
     victim.unlink()
-    code, _, err = _uss_slam(
-        monkeypatch, capsys, [f"sequence.path={seq}", f"out_dir={out}", "progress=false"]
-    )
-    assert code == 1
-    assert err.strip().splitlines() == [
-        f"uss-slam: error: {seq / 'depth.txt'}:7: listed image depth/{victim.name} not found"
-    ]
-    assert _snapshot(out) == before and verify_run(out) == []
+    return f"{seq / 'depth.txt'}:7: listed image depth/{victim.name} not found"
 
 
-def test_rerun_failing_mid_run_keeps_the_earlier_run(
-    earlier, tmp_path: Path, monkeypatch, capsys
-) -> None:
+def _truncated_rgb(seq: Path) -> str:
     """A frame that only fails when it is decoded, half-way through the SLAM run."""
+    victim = sorted((seq / "rgb").iterdir())[5]
+    victim.write_bytes(b"truncated")
+    return f"{victim}: not a readable image"
+
+
+@pytest.mark.parametrize("damage", [_missing_depth, _truncated_rgb], ids=["opening", "mid_run"])
+def test_rerun_failing_on_the_sequence_keeps_the_earlier_run(
+    earlier, tmp_path: Path, monkeypatch, capsys, damage
+) -> None:
+    """A sequence error (``damage`` makes it and returns its message), found while opening the
+    sequence or half-way through the SLAM run."""
     source, done = earlier
     seq, out = tmp_path / "seq", tmp_path / "run"
     shutil.copytree(source, seq)
     shutil.copytree(done, out)
     before = _snapshot(out)
-    victim = sorted((seq / "rgb").iterdir())[5]
-    victim.write_bytes(b"truncated")
+    message = damage(seq)
     code, _, err = _uss_slam(
         monkeypatch, capsys, [f"sequence.path={seq}", f"out_dir={out}", "progress=false"]
     )
     assert code == 1
-    assert err.strip().splitlines() == [f"uss-slam: error: {victim}: not a readable image"]
+    assert err.strip().splitlines() == [f"uss-slam: error: {message}"]
     assert _snapshot(out) == before and verify_run(out) == []
 
 

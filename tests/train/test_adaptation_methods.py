@@ -14,9 +14,9 @@ import torch.nn.functional as F
 import train_step as bench
 from hydra.errors import ConfigCompositionException
 from hydra.utils import instantiate
-from lightning.pytorch import Trainer
 from shared_helpers import compose_train, data_overrides
 from torch import Tensor, nn
+from train_helpers import fit_repeated, quiet_trainer
 
 from uss_slam.core.errors import UssSlamError
 from uss_slam.models.checkpoint import read_checkpoint
@@ -125,16 +125,9 @@ def test_method_must_be_a_method(tmp_path: Path) -> None:
 
 def _resume(module: AdversarialSegmentation, batch: dict, ckpt: Path | None, root: Path) -> None:
     """Two iterations (one epoch) of ``module`` on ``batch``, resumed from ``ckpt`` if given."""
-    loader = torch.utils.data.DataLoader(bench._Repeat(batch, 2), batch_size=None)
-    Trainer(
-        accelerator="cpu",
-        max_epochs=2 if ckpt else 1,
-        logger=False,
-        enable_checkpointing=False,
-        enable_progress_bar=False,
-        enable_model_summary=False,
-        default_root_dir=root,
-    ).fit(module, train_dataloaders=loader, ckpt_path=ckpt)
+    fit_repeated(
+        module, batch, 2, ckpt_path=ckpt, max_epochs=2 if ckpt else 1, default_root_dir=root
+    )
 
 
 def _source_only_module() -> AdversarialSegmentation:
@@ -282,15 +275,7 @@ def test_a_new_method_plugs_in_by_config(uda_data: dict[str, Path], tmp_path: Pa
     assert model.discriminators is None
     seg_before = copy.deepcopy(model.segmenter.state_dict())
     datamodule = instantiate(cfg.data)
-    trainer = Trainer(
-        accelerator="cpu",
-        max_epochs=1,
-        limit_val_batches=0,
-        logger=False,
-        enable_checkpointing=False,
-        enable_progress_bar=False,
-        enable_model_summary=False,
-    )
+    trainer = quiet_trainer(limit_val_batches=0)
     trainer.fit(model, datamodule=datamodule)
     assert model.iteration == cfg.data.iterations_per_epoch == 2
     assert not all(torch.equal(v, seg_before[k]) for k, v in model.segmenter.state_dict().items())

@@ -17,6 +17,7 @@ from hydra.utils import instantiate
 from lightning.pytorch import Callback, LightningModule, Trainer
 from shared_helpers import compose_train
 from torch import Tensor
+from train_helpers import ADVERSARIAL_SCALARS, assert_weights_match_reference, fit_repeated
 
 from uss_slam.train.losses import LossWeights
 from uss_slam.train.methods import AdvEnt
@@ -24,18 +25,6 @@ from uss_slam.train.methods import advent as advent_module
 from uss_slam.train.methods.advent import self_information
 
 ADVENT_WEIGHTS = LossWeights(lambda_adv_aux=0.0002, lambda_adv_main=0.001)
-
-
-def _fit(module: torch.nn.Module, batch: dict, iters: int) -> None:
-    loader = torch.utils.data.DataLoader(bench._Repeat(batch, iters), batch_size=None)
-    Trainer(
-        accelerator="cpu",
-        max_epochs=1,
-        logger=False,
-        enable_checkpointing=False,
-        enable_progress_bar=False,
-        enable_model_summary=False,
-    ).fit(module, train_dataloaders=loader)
 
 
 def _up(logits: Tensor, size: torch.Size) -> Tensor:
@@ -109,18 +98,12 @@ def test_advent_matches_plain_pytorch_reference(batch_domains: bool) -> None:
     module = _module(batch_domains)
     state = bench.plain_state_from(module)
     batch = bench.random_batch(41, 2)
-    _fit(module, batch, 3)
+    fit_repeated(module, batch, 3)
     for _ in range(3):
         plain_advent_iteration(state, batch, ADVENT_WEIGHTS)
     # Last-bit differences (batched convolutions, log-softmax vs softmax + log2), magnified by
-    # Adam in the discriminators (see test_step.py).
-    for mine, ref, atol in (
-        (module.segmenter, state.segmenter, 1e-6),
-        (module.d_aux, state.d_aux, 2e-5),
-        (module.d_main, state.d_main, 2e-5),
-    ):
-        for key, value in mine.state_dict().items():
-            torch.testing.assert_close(value, ref.state_dict()[key], rtol=0, atol=atol)
+    # Adam in the discriminators.
+    assert_weights_match_reference(module, state)
     assert module.iteration == 3
     # The discriminators saw self-information maps: an AdaptSegNet loop ends elsewhere.
     other = bench.plain_state_from(_module(batch_domains))
@@ -160,31 +143,9 @@ def test_advent_logs_adaptsegnets_keys_and_trains_the_discriminators() -> None:
     module = _module(True)
     d_before = copy.deepcopy(module.d_main.state_dict())
     probe = _Scalars()
-    loader = torch.utils.data.DataLoader(
-        bench._Repeat(bench.random_batch(41, 1), 1), batch_size=None
-    )
-    Trainer(
-        accelerator="cpu",
-        max_epochs=1,
-        logger=False,
-        enable_checkpointing=False,
-        enable_progress_bar=False,
-        enable_model_summary=False,
-        callbacks=[probe],
-    ).fit(module, train_dataloaders=loader)
+    fit_repeated(module, bench.random_batch(41, 1), 1, [probe])
     assert not all(torch.equal(v, d_before[k]) for k, v in module.d_main.state_dict().items())
-    assert probe.keys == [
-        {
-            "train/loss_seg_src_aux",
-            "train/loss_seg_src_main",
-            "train/loss_adv_trg_aux",
-            "train/loss_adv_trg_main",
-            "train/loss_d_aux",
-            "train/loss_d_main",
-            "train/d_acc_aux",
-            "train/d_acc_main",
-        }
-    ]
+    assert probe.keys == [ADVERSARIAL_SCALARS]
     sched_seg, sched_d = module.lr_schedulers()
     assert (sched_seg.last_epoch, sched_d.last_epoch) == (1, 1)
 

@@ -13,9 +13,9 @@ import torch
 import torch.nn.functional as F
 import train_step as bench
 from hydra.utils import instantiate
-from lightning.pytorch import Trainer
 from shared_helpers import compose_train
 from torch import Tensor
+from train_helpers import fit_repeated
 
 from uss_slam.core.errors import UssSlamError
 from uss_slam.models import DeepLabV2
@@ -47,20 +47,6 @@ def plain_minent_iteration(state, batch: dict, w: LossWeights, ent_aux: float, e
     state.sched_seg.step()
 
 
-def _fit(module: torch.nn.Module, batch: dict, iters: int) -> Trainer:
-    loader = torch.utils.data.DataLoader(bench._Repeat(batch, iters), batch_size=None)
-    trainer = Trainer(
-        accelerator="cpu",
-        max_epochs=1,
-        logger=False,
-        enable_checkpointing=False,
-        enable_progress_bar=False,
-        enable_model_summary=False,
-    )
-    trainer.fit(module, train_dataloaders=loader)
-    return trainer
-
-
 def test_entropy_loss_is_advents() -> None:
     logits = torch.randn(2, 4, 6, 5) * 2
     size = (11, 9)
@@ -80,7 +66,7 @@ def test_minent_matches_plain_pytorch_reference(batch_domains: bool) -> None:
     state = bench.plain_state_from(module)
     source_only = bench.plain_state_from(module)
     batch = bench.random_batch(41, 2)
-    trainer = _fit(module, batch, 3)
+    trainer = fit_repeated(module, batch, 3)
     for _ in range(3):
         plain_minent_iteration(state, batch, module.loss_weights, 0.02, 0.1)
     for key, value in module.segmenter.state_dict().items():

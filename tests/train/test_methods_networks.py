@@ -10,8 +10,8 @@ import pytest
 import torch
 import train_step as bench
 from hydra.utils import instantiate
-from lightning.pytorch import Trainer
 from shared_helpers import compose_train
+from train_helpers import fit_repeated
 
 from uss_slam.models import SEGMENTERS
 
@@ -33,17 +33,7 @@ def test_one_iteration_of_every_method_on_every_network(
     discriminators = model.discriminators
     assert (discriminators is not None) is model.method.trains_discriminators
     d_before = copy.deepcopy(discriminators[1].state_dict()) if discriminators else None
-    loader = torch.utils.data.DataLoader(
-        bench._Repeat(bench.random_batch(33, 2), 1), batch_size=None
-    )
-    Trainer(
-        accelerator="cpu",
-        max_epochs=1,
-        logger=False,
-        enable_checkpointing=False,
-        enable_progress_bar=False,
-        enable_model_summary=False,
-    ).fit(model, train_dataloaders=loader)
+    fit_repeated(model, bench.random_batch(33, 2), 1)
     assert model.iteration == 1
     after = model.segmenter.state_dict()
     assert all(torch.isfinite(v).all() for v in after.values() if v.is_floating_point())

@@ -13,9 +13,9 @@ import torch
 import torch.nn.functional as F
 import train_step as bench
 from hydra.utils import instantiate
-from lightning.pytorch import Trainer
 from shared_helpers import compose_train
 from torch import Tensor
+from train_helpers import fit_repeated
 
 from uss_slam.core.errors import UssSlamError
 from uss_slam.models import DeepLabV2, PSPNet
@@ -45,22 +45,6 @@ def _module(batch_domains: bool = True, **kwargs: object):  # noqa: ANN202
     module.method = _method(module.segmenter, **kwargs)
     module.batch_domains = batch_domains
     return module
-
-
-def _trainer(**kwargs: object) -> Trainer:
-    return Trainer(
-        accelerator="cpu",
-        logger=False,
-        enable_checkpointing=False,
-        enable_progress_bar=False,
-        enable_model_summary=False,
-        **kwargs,  # type: ignore[arg-type]
-    )
-
-
-def _fit(module: torch.nn.Module, batch: dict, iters: int) -> None:
-    loader = torch.utils.data.DataLoader(bench._Repeat(batch, iters), batch_size=None)
-    _trainer(max_epochs=1).fit(module, train_dataloaders=loader)
 
 
 def _batch(seed: int = 0) -> dict:
@@ -131,7 +115,7 @@ def test_self_training_matches_plain_pytorch_reference(batch_domains: bool) -> N
     d_before = copy.deepcopy(module.d_main.state_dict())
     state = bench.plain_state_from(module)
     batch = _batch()
-    _fit(module, batch, 3)
+    fit_repeated(module, batch, 3)
     teacher = None
     for i in range(3):
         teacher = plain_self_training(state, teacher, batch, module.loss_weights, i, 0.3)
@@ -230,25 +214,22 @@ def test_mixing_needs_equal_crops() -> None:
     module = _module()
     batch = _batch()
     batch["target"]["image"] = batch["target"]["image"][:, :, :33, :33]
-    loader = torch.utils.data.DataLoader(bench._Repeat(batch, 1), batch_size=None)
     with pytest.raises(UssSlamError, match="crop_size alike"):
-        _trainer(max_epochs=1).fit(module, train_dataloaders=loader)
+        fit_repeated(module, batch, 1)
 
 
 def test_checkpoint_holds_the_teacher_and_resume_is_exact(tmp_path: Path) -> None:
     batch = _batch()
     straight = _module(augment=True)
-    loader = torch.utils.data.DataLoader(bench._Repeat(batch, 2), batch_size=None)
-    _trainer(max_epochs=2).fit(straight, train_dataloaders=loader)
+    fit_repeated(straight, batch, 2, max_epochs=2)
 
     first = _module(augment=True)
-    trainer = _trainer(max_epochs=1)
-    trainer.fit(first, train_dataloaders=loader)
+    trainer = fit_repeated(first, batch, 2)
     ckpt = tmp_path / "half.ckpt"
     trainer.save_checkpoint(ckpt)
     resumed = _module(augment=True)
     torch.manual_seed(123)  # another global random state: the iteration's choices do not use it
-    _trainer(max_epochs=2).fit(resumed, train_dataloaders=loader, ckpt_path=ckpt)
+    fit_repeated(resumed, batch, 2, ckpt_path=ckpt, max_epochs=2)
 
     assert resumed.iteration == straight.iteration == 4
     for key, value in straight.state_dict().items():

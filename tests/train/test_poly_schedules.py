@@ -15,6 +15,7 @@ import train_step as bench
 from hydra.utils import instantiate
 from lightning.pytorch import Callback, LightningModule, Trainer
 from shared_helpers import compose_train
+from train_helpers import fit_repeated
 
 MAX_ITERS = 6
 
@@ -54,20 +55,8 @@ def test_poly_rates_follow_the_closed_form(
     torch.manual_seed(0)
     model = instantiate(cfg.model)
     assert model.poly_total_iters == model.hparams["poly_total_iters"] == horizon
-    loader = torch.utils.data.DataLoader(
-        bench._Repeat(bench.random_batch(33, 1), MAX_ITERS + 2), batch_size=None
-    )
     probe = AppliedRates()
-    trainer = Trainer(
-        accelerator="cpu",
-        max_epochs=1,
-        logger=False,
-        enable_checkpointing=False,
-        enable_progress_bar=False,
-        enable_model_summary=False,
-        callbacks=[probe],
-    )
-    trainer.fit(model, train_dataloaders=loader)
+    trainer = fit_repeated(model, bench.random_batch(33, 1), MAX_ITERS + 2, [probe])
     assert model.iteration == MAX_ITERS  # stops at max_iters, not at the end of the data
 
     # The paper's rates, written out: SGD 2.5e-4 (backbone), heads 10x; Adam 1e-4.

@@ -16,6 +16,7 @@ from lightning.pytorch.loggers import TensorBoardLogger
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 from torch.utils.data import Dataset
 from torchvision import tv_tensors
+from train_helpers import fit_repeated, quiet_trainer
 
 from uss_slam.core.errors import UssSlamError
 from uss_slam.datasets.datamodule import UDADataModule
@@ -77,21 +78,16 @@ def _fit(
     max_epochs: int = 1,
     **trainer_args: Any,
 ) -> Trainer:
-    loader = torch.utils.data.DataLoader(
-        bench._Repeat(bench.random_batch(33, 1), iters), batch_size=None
-    )
-    trainer = Trainer(
-        accelerator="cpu",
+    return fit_repeated(
+        module,
+        bench.random_batch(33, 1),
+        iters,
+        ckpt_path=ckpt_path,
         max_epochs=max_epochs,
         logger=TensorBoardLogger(logdir, name="", version=""),
         log_every_n_steps=every,
-        enable_checkpointing=False,
-        enable_progress_bar=False,
-        enable_model_summary=False,
         **trainer_args,
     )
-    trainer.fit(module, train_dataloaders=loader, ckpt_path=ckpt_path)
-    return trainer
 
 
 def _steps(logdir: Path, key: str = "train/loss_seg_src_main") -> list[int]:
@@ -172,16 +168,7 @@ def test_streams_shard_by_the_distributed_sampler_arguments(
 
 
 def _trainer(**kwargs: Any) -> Trainer:
-    return Trainer(
-        accelerator="cpu",
-        devices=1,
-        max_epochs=1,
-        logger=False,
-        enable_checkpointing=False,
-        enable_progress_bar=False,
-        enable_model_summary=False,
-        **kwargs,
-    )
+    return quiet_trainer(devices=1, **kwargs)
 
 
 def test_ddp_with_lightnings_distributed_sampler_is_refused() -> None:

@@ -11,6 +11,7 @@ import pytest
 import torch
 import train_step as bench
 from lightning.pytorch import Callback, LightningModule, Trainer
+from train_helpers import ADVERSARIAL_SCALARS, assert_weights_match_reference, fit_repeated
 
 from uss_slam.train.methods import SourceOnly
 from uss_slam.train.module import AdversarialSegmentation
@@ -26,20 +27,6 @@ def _module(
     module.batch_domains = batch_domains
     module.channels_last = channels_last
     return module
-
-
-def _fit(module: LightningModule, batch: dict, iters: int, callbacks: list[Callback]) -> None:
-    loader = torch.utils.data.DataLoader(bench._Repeat(batch, iters), batch_size=None)
-    trainer = Trainer(
-        accelerator="cpu",
-        max_epochs=1,
-        logger=False,
-        enable_checkpointing=False,
-        enable_progress_bar=False,
-        enable_model_summary=False,
-        callbacks=callbacks,
-    )
-    trainer.fit(module, train_dataloaders=loader)
 
 
 def _params(module: torch.nn.Module) -> dict[str, torch.Tensor]:
@@ -97,7 +84,7 @@ def test_segmenter_step_leaves_discriminators_without_gradients(batch_domains: b
     before = {"segmenter": _params(module.segmenter), "discriminators": _params(module.d_main)}
     bn_before = module.segmenter.backbone.bn1.running_mean.clone()
     probe = Probe()
-    _fit(module, bench.random_batch(41, 2), 1, [probe])
+    fit_repeated(module, bench.random_batch(41, 2), 1, [probe])
 
     seg_step, d_step = probe.steps
     assert (seg_step["optimizer"], d_step["optimizer"]) == (0, 1)
@@ -126,20 +113,10 @@ def test_module_matches_plain_pytorch_reference(
     module = _module(adaptation, batch_domains, channels_last)
     state = bench.plain_state_from(module)
     batch = bench.random_batch(41, 2)
-    _fit(module, batch, 3, [])
+    fit_repeated(module, batch, 3)
     for _ in range(3):
         bench.plain_iteration(state, batch, module.loss_weights, adaptation=adaptation)
-    # The module's kernels round differently in the last bit (batched / NHWC convolutions,
-    # softmax as exp(log_softmax)); Adam divides by the root of tiny second moments and so
-    # magnifies last-bit gradient differences: 1e-6 for the SGD-trained segmenter, 2e-5 for
-    # the Adam-trained discriminators (their weights are ~1e-2).
-    for mine, ref, atol in (
-        (module.segmenter, state.segmenter, 1e-6),
-        (module.d_aux, state.d_aux, 2e-5),
-        (module.d_main, state.d_main, 2e-5),
-    ):
-        for key, value in mine.state_dict().items():
-            torch.testing.assert_close(value, ref.state_dict()[key], rtol=0, atol=atol)
+    assert_weights_match_reference(module, state)
     lrs = [g["lr"] for g in module.trainer.optimizers[0].param_groups]
     assert lrs == [g["lr"] for g in state.opt_seg.param_groups]
     assert lrs[1] == pytest.approx(10 * lrs[0])
@@ -149,7 +126,7 @@ def test_source_only_never_touches_the_discriminators() -> None:
     module = _module(adaptation=False)
     d_before = copy.deepcopy([module.d_aux.state_dict(), module.d_main.state_dict()])
     probe = Probe()
-    _fit(module, bench.random_batch(41, 2), 2, [probe])
+    fit_repeated(module, bench.random_batch(41, 2), 2, [probe])
     assert [s["optimizer"] for s in probe.steps] == [0, 0]  # only the segmenter steps
     assert probe.segmenter_forwards == 2  # source only, two iterations
     for d, before in zip((module.d_aux, module.d_main), d_before, strict=True):
@@ -168,7 +145,7 @@ def test_non_finite_loss_stops_before_the_step() -> None:
     from uss_slam.train.module import NonFiniteLossError
 
     with pytest.raises(NonFiniteLossError, match="non-finite loss_seg_src_main .* iteration 0"):
-        _fit(module, bench.random_batch(41, 1), 1, [])
+        fit_repeated(module, bench.random_batch(41, 1), 1)
     after = _params(module.segmenter)
     assert all(torch.equal(before[k], after[k]) for k in before if "main.branches.0" not in k)
     # The discriminators were frozen when the error was raised; they are trainable again.
@@ -192,18 +169,6 @@ class StepValues(Callback):
         )
 
 
-TRAIN_KEYS = {
-    "train/loss_seg_src_aux",
-    "train/loss_seg_src_main",
-    "train/loss_adv_trg_aux",
-    "train/loss_adv_trg_main",
-    "train/loss_d_aux",
-    "train/loss_d_main",
-    "train/d_acc_aux",
-    "train/d_acc_main",
-}
-
-
 @pytest.mark.parametrize("adaptation", [True, False])
 def test_scalars_reach_tensorboard_on_logging_steps_only(adaptation: bool, tmp_path: Path) -> None:
     from lightning.pytorch.loggers import TensorBoardLogger
@@ -220,23 +185,17 @@ def test_scalars_reach_tensorboard_on_logging_steps_only(adaptation: bool, tmp_p
         log(name, *args, **kwargs)
 
     module.log = counting_log  # log_dict goes through it too
-    loader = torch.utils.data.DataLoader(
-        bench._Repeat(bench.random_batch(41, 2), 7), batch_size=None
-    )
-    trainer = Trainer(
-        accelerator="cpu",
-        max_epochs=1,
+    trainer = fit_repeated(
+        module,
+        bench.random_batch(41, 2),
+        7,
+        [probe],
         logger=TensorBoardLogger(tmp_path, name="", version=""),
         log_every_n_steps=3,
-        enable_checkpointing=False,
-        enable_progress_bar=False,
-        enable_model_summary=False,
-        callbacks=[probe],
     )
-    trainer.fit(module, train_dataloaders=loader)
     events = EventAccumulator(str(tmp_path), size_guidance={"scalars": 0})
     events.Reload()
-    expected = TRAIN_KEYS if adaptation else {k for k in TRAIN_KEYS if "seg" in k}
+    expected = ADVERSARIAL_SCALARS if adaptation else {k for k in ADVERSARIAL_SCALARS if "seg" in k}
     assert {k for k in events.Tags()["scalars"] if k.startswith("train/")} == expected
     assert len(probe.scalars) == 7
     assert all(probe.d_requires_grad)  # frozen only inside the segmenter step

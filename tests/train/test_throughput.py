@@ -16,6 +16,7 @@ import train_step as bench
 from lightning.pytorch import Callback, LightningModule, Trainer
 from lightning.pytorch.loggers import CSVLogger
 from lightning.pytorch.plugins import MixedPrecision
+from train_helpers import fit_repeated
 
 from uss_slam.core.errors import UssSlamError
 from uss_slam.train.losses import domain_loss, upsample
@@ -45,19 +46,7 @@ class Losses(Callback):
 
 def _fit(module: LightningModule, iters: int, logger: Any = False, **trainer: Any) -> Losses:
     losses = Losses()
-    loader = torch.utils.data.DataLoader(
-        bench._Repeat(bench.random_batch(41, 2), iters), batch_size=None
-    )
-    Trainer(
-        accelerator="cpu",
-        max_epochs=1,
-        logger=logger,
-        enable_checkpointing=False,
-        enable_progress_bar=False,
-        enable_model_summary=False,
-        callbacks=[losses],
-        **trainer,
-    ).fit(module, train_dataloaders=loader)
+    fit_repeated(module, bench.random_batch(41, 2), iters, [losses], logger=logger, **trainer)
     return losses
 
 

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from filter_helpers import CAM, features_at
 
 from uss_slam.core.errors import UssSlamError
-from uss_slam.core.tum_io import TUM_CAMERAS
 from uss_slam.slam_eval.filters.dynamic import (
     FilterContext,
     FlowFilter,
@@ -15,23 +15,9 @@ from uss_slam.slam_eval.filters.dynamic import (
     SemanticFilter,
     build_filters,
 )
-from uss_slam.slam_eval.frontend.orb import Features, OrbConfig, OrbExtractor
+from uss_slam.slam_eval.frontend.orb import OrbConfig, OrbExtractor
 from uss_slam.slam_eval.sequence import Frame
 from uss_slam.slam_eval.tracking.tracker import Tracker, TrackerConfig
-
-CAM = TUM_CAMERAS["fr3"].scaled(320, 240)
-
-
-def _features(ex: OrbExtractor, xy: np.ndarray, depth: np.ndarray) -> Features:
-    n = len(xy)
-    return ex.describe(
-        xy.astype(np.float32),
-        np.zeros(n, np.int32),
-        np.zeros(n, np.float32),
-        np.ones(n, np.float32),
-        np.zeros((n, 32), np.uint8),
-        depth,
-    )
 
 
 def _frame(index: int, gray: np.ndarray, depth: np.ndarray, labels=None) -> Frame:
@@ -55,7 +41,7 @@ def test_semantic_drops_dilated_person_mask_only() -> None:
     xy = np.array([[120, 120], [143, 120], [147, 120], [160, 120], [230, 40], [10, 10]], float)
     ctx = FilterContext(
         _frame(0, np.zeros((240, 320), np.uint8), np.zeros((240, 320), np.float32), labels),
-        _features(ex, xy, np.zeros((240, 320), np.float32)),
+        features_at(ex, xy, np.zeros((240, 320), np.float32)),
         labels,
         ex,
         None,  # type: ignore[arg-type]
@@ -119,7 +105,7 @@ def _geometry_case(ex: OrbExtractor):
     kf_depth = wall.copy()
     kf_depth[150:220, 20:100] = 2.0  # box
     kf_xy = _grid(10, 310, 10, 230, 6)
-    kf = _features(ex, kf_xy, kf_depth)
+    kf = features_at(ex, kf_xy, kf_depth)
     keyframe = tracker.map.add_keyframe(0, 0.0, np.eye(4), kf, np.full(len(kf), -1),
                                         np.zeros(len(kf), bool), kf.has_depth)  # fmt: skip
     keyframe.depth = kf_depth[:: keyframe.depth_stride, :: keyframe.depth_stride]
@@ -131,7 +117,7 @@ def _geometry_case(ex: OrbExtractor):
     depth[150:220, 13:93] = 2.0
     depth[60:180, 150:230] = 1.5  # the person
     xy = _grid(12, 308, 12, 228, 8)
-    features = _features(ex, xy, depth)
+    features = features_at(ex, xy, depth)
     ctx = FilterContext(
         _frame(20, np.zeros((240, 320), np.uint8), depth),
         features,
@@ -180,7 +166,7 @@ def test_geometry_reverse_check_spares_static_occluders() -> None:
     tracker = Tracker(TrackerConfig(), ex)
     kf_depth = np.full((240, 320), 3.0, np.float32)
     kf_depth[:, 100:140] = 1.0  # pillar
-    kf_feats = _features(ex, _grid(10, 310, 10, 230, 6), kf_depth)
+    kf_feats = features_at(ex, _grid(10, 310, 10, 230, 6), kf_depth)
     kf = tracker.map.add_keyframe(0, 0.0, np.eye(4), kf_feats, np.full(len(kf_feats), -1),
                                   np.zeros(len(kf_feats), bool), kf_feats.has_depth)  # fmt: skip
     pose_wc = np.eye(4)
@@ -190,7 +176,7 @@ def test_geometry_reverse_check_spares_static_occluders() -> None:
     xy = _grid(12, 308, 12, 228, 8)
     ctx = FilterContext(
         _frame(20, np.zeros((240, 320), np.uint8), depth),
-        _features(ex, xy, depth),
+        features_at(ex, xy, depth),
         None,
         ex,
         tracker,
@@ -217,7 +203,7 @@ def test_object_rule_spreads_motion_flags_over_the_whole_object() -> None:
     b = _grid(205, 275, 25, 95, 12)[:30]
     bg = _grid(20, 300, 150, 230, 20)[:20]
     xy = np.concatenate([a, b, bg])
-    features = _features(ex, xy, np.zeros((240, 320), np.float32))
+    features = features_at(ex, xy, np.zeros((240, 320), np.float32))
     motion = np.zeros(len(xy), bool)
     motion[:25] = True  # 25 of A's keypoints moved
     motion[30:33] = True  # 3 of B's: noise

@@ -6,28 +6,18 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from filter_helpers import CAM, features_at
 
 from uss_slam.core.errors import UssSlamError
-from uss_slam.core.tum_io import TUM_CAMERAS
 from uss_slam.slam_eval.config import filter_defaults
 from uss_slam.slam_eval.filters.dynamic import FilterContext, ObjectFilter
 from uss_slam.slam_eval.frontend.orb import OrbConfig, OrbExtractor
 from uss_slam.slam_eval.sequence import Frame
 
-CAM = TUM_CAMERAS["fr3"].scaled(320, 240)
-
 
 def _context(xy: np.ndarray, motion: np.ndarray, labels: np.ndarray, depth: np.ndarray):
     ex = OrbExtractor(OrbConfig(), CAM)
-    n = len(xy)
-    features = ex.describe(
-        xy.astype(np.float32),
-        np.zeros(n, np.int32),
-        np.zeros(n, np.float32),
-        np.ones(n, np.float32),
-        np.zeros((n, 32), np.uint8),
-        depth,
-    )
+    features = features_at(ex, xy, depth)
     gray = np.zeros(depth.shape, np.uint8)
     frame = Frame(0, 0.0, np.repeat(gray[:, :, None], 3, axis=2), gray, depth, labels)
     return FilterContext(frame, features, labels, ex, None, motion_flags=motion)  # type: ignore[arg-type]

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hydra import compose, initialize_config_dir
+from shared_helpers import compose_slam_eval, slam_run_config
 
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.tum_io import TUM_CAMERAS, Trajectory, read_trajectory
@@ -28,7 +28,6 @@ from uss_slam.slam_eval.sequence import TumSequence
 from uss_slam.slam_eval.systems.harness import SlamPipeline
 from uss_slam.slam_eval.tracking.tracker import Tracker, TrackerConfig
 
-REPO = Path(__file__).resolve().parents[3]
 CAM = TUM_CAMERAS["fr3"].scaled(640, 480)
 EX = OrbExtractor(OrbConfig(), CAM)
 BF = CAM.fx * TrackerConfig().virtual_baseline
@@ -214,15 +213,9 @@ def test_local_mapping_options_are_checked() -> None:
         LocalMappingConfig(redundancy=1.5)
     with pytest.raises(ValueError, match="depth_noise must be a finite number >= 0"):
         LocalMappingConfig(depth_noise=-1.0)
-    with initialize_config_dir(config_dir=str(REPO / "configs"), version_base="1.3"):
-        cfg = compose(
-            "slam_eval",
-            overrides=[
-                "sequence.path=/x",
-                "slam.local_ba=true",
-                "slam.local_ba_params.redundancy=2",
-            ],
-        )
+    cfg = compose_slam_eval(
+        ["sequence.path=/x", "slam.local_ba=true", "slam.local_ba_params.redundancy=2"]
+    )
     assert cfg.slam.local_ba is True and cfg.slam.loop_closing is False
     with pytest.raises(UssSlamError, match=r"slam\.local_ba_params\.redundancy must be in"):
         run(cfg)
@@ -261,12 +254,7 @@ def test_without_back_end_the_trajectory_is_the_trackers(synthetic_sequence) -> 
 def test_local_ba_runs_after_every_keyframe(synthetic_sequence, tmp_path: Path) -> None:
     path = synthetic_sequence(preset="static_xyz", frames=30)
     out = tmp_path / "run"
-    with initialize_config_dir(config_dir=str(REPO / "configs"), version_base="1.3"):
-        cfg = compose(
-            "slam_eval",
-            overrides=[f"sequence.path={path}", f"out_dir={out}", "progress=false",
-                       "slam.local_ba=true"],
-        )  # fmt: skip
+    cfg = slam_run_config(path, out, "slam.local_ba=true")
     data = run(cfg)
     ba = data["local_ba"]
     assert ba["runs"] == data["keyframes"] - 1 >= 1

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hydra import compose, initialize_config_dir
+from shared_helpers import slam_run_config
 
 from uss_slam.core.classes import CLASS_COLORS
 from uss_slam.core.errors import UssSlamError
@@ -32,7 +32,6 @@ from uss_slam.slam_eval.systems.harness import SlamPipeline
 
 pyoctomap = pytest.importorskip("pyoctomap")
 
-REPO = Path(__file__).resolve().parents[3]
 CAM = TUM_CAMERAS["fr3"].scaled(64, 48)
 RES = 0.05
 
@@ -143,12 +142,9 @@ def test_later_rays_carve_what_left(tmp_path: Path) -> None:
 def test_a_run_writes_the_semantic_octomap(synthetic_sequence, tmp_path: Path) -> None:
     path = synthetic_sequence(preset="static_xyz", frames=30)
     out = tmp_path / "run"
-    with initialize_config_dir(config_dir=str(REPO / "configs"), version_base="1.3"):
-        cfg = compose(
-            "slam_eval",
-            overrides=[f"sequence.path={path}", f"out_dir={out}", "progress=false",
-                       "segmenter=labels", "filters=[semantic]", "slam.map.octomap=true"],
-        )  # fmt: skip
+    cfg = slam_run_config(
+        path, out, "segmenter=labels", "filters=[semantic]", "slam.map.octomap=true"
+    )
     data = run(cfg)
     octo = data["octomap"]
     counts = octo["occupied_per_class"]

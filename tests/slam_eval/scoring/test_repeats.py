@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hydra import compose, initialize_config_dir
+from shared_helpers import compose_slam_eval
 
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.tum_io import TUM_CAMERAS, read_trajectory
@@ -22,13 +22,6 @@ from uss_slam.slam_eval.scoring.repeats import (
 )
 from uss_slam.slam_eval.scoring.run_folder import verify_run
 from uss_slam.slam_eval.tracking.tracker import Tracker, TrackerConfig
-
-REPO = Path(__file__).resolve().parents[3]
-
-
-def _cfg(overrides: list[str]):
-    with initialize_config_dir(config_dir=str(REPO / "configs"), version_base="1.3"):
-        return compose("slam_eval", overrides=overrides)
 
 
 def _poses(path: Path) -> list[str]:
@@ -91,9 +84,9 @@ def test_repeated_run_writes_the_median_run_and_every_trajectory(
 ) -> None:
     seq = synthetic_sequence(preset="static_xyz", frames=30)
     base = [f"sequence.path={seq}", "progress=false", "sequence.max_frames=20"]
-    single = run(_cfg([*base, f"out_dir={tmp_path / 'one'}"]))
+    single = run(compose_slam_eval([*base, f"out_dir={tmp_path / 'one'}"]))
     assert "ate_rmse_repeats" not in single and "repeats" not in single
-    data = run(_cfg([*base, f"out_dir={tmp_path / 'three'}", "slam.repeats=3"]))
+    data = run(compose_slam_eval([*base, f"out_dir={tmp_path / 'three'}", "slam.repeats=3"]))
     out = tmp_path / "three"
     assert verify_run(out) == []
     reps = data["repeats"]
@@ -115,7 +108,7 @@ def test_repeated_run_writes_the_median_run_and_every_trajectory(
     report = (out / "report.md").read_text()
     assert "## Repeats" in report and "| 2 |" in report
     # A rerun with one repeat leaves no trajectory of the earlier repeats behind.
-    run(_cfg([*base, f"out_dir={out}"]))
+    run(compose_slam_eval([*base, f"out_dir={out}"]))
     assert not (out / "repeats").exists() and verify_run(out) == []
 
 
@@ -123,6 +116,6 @@ def test_bad_repeat_settings_are_one_clear_line(synthetic_sequence, tmp_path: Pa
     seq = synthetic_sequence(preset="static_xyz", frames=30)
     base = [f"sequence.path={seq}", f"out_dir={tmp_path}", "progress=false"]
     with pytest.raises(UssSlamError, match=r"slam.repeats must be >= 1, got 0"):
-        run(_cfg([*base, "slam.repeats=0"]))
+        run(compose_slam_eval([*base, "slam.repeats=0"]))
     with pytest.raises(UssSlamError, match=r"slam.repeat_budget must be in \[0, 0.5\)"):
-        run(_cfg([*base, "slam.repeat_budget=0.7"]))
+        run(compose_slam_eval([*base, "slam.repeat_budget=0.7"]))

@@ -11,7 +11,7 @@ import numpy as np
 import onnx
 import onnxruntime as ort
 import pytest
-from hydra import compose, initialize_config_dir
+from shared_helpers import slam_run_config
 from test_onnx_segmenter import _metadata, tiny_model
 
 from uss_slam.core.errors import DataFormatError, UssSlamError
@@ -19,7 +19,6 @@ from uss_slam.slam_eval.run import run
 from uss_slam.slam_eval.segmenters.crf import DenseCrf, softmax
 from uss_slam.slam_eval.segmenters.onnx import OnnxSegmenter
 
-REPO = Path(__file__).resolve().parents[3]
 PERSON = 1
 
 
@@ -124,19 +123,9 @@ def test_crf_refusals(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
 
 
 def _slam(seq: Path, model: Path, out: Path, *extra: str) -> dict:
-    with initialize_config_dir(config_dir=str(REPO / "configs"), version_base="1.3"):
-        cfg = compose(
-            "slam_eval",
-            overrides=[
-                f"sequence.path={seq}",
-                "segmenter=onnx",
-                f"segmenter.path={model}",
-                "filters=[semantic]",
-                f"out_dir={out}",
-                "progress=false",
-                *extra,
-            ],
-        )
+    cfg = slam_run_config(
+        seq, out, "segmenter=onnx", f"segmenter.path={model}", "filters=[semantic]", *extra
+    )
     run(cfg)
     return json.loads((out / "metrics.json").read_text())
 

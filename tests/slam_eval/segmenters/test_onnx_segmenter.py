@@ -15,11 +15,10 @@ from pathlib import Path
 import numpy as np
 import onnx
 import pytest
-from hydra import compose, initialize_config_dir
 from onnx import TensorProto
 from shared_helpers import colour_labels as expected_labels
 from shared_helpers import colour_model as tiny_model
-from shared_helpers import segmenter_props
+from shared_helpers import compose_slam_eval, segmenter_props, slam_run_config
 
 from uss_slam.core.classes import CLASS_NAMES
 from uss_slam.core.errors import DataFormatError, UssSlamError
@@ -290,13 +289,8 @@ def test_concurrent_infer_calls_agree(tmp_path: Path) -> None:
         np.testing.assert_array_equal(results[k], expected_labels(rgb))
 
 
-def _cfg(overrides: list[str]):
-    with initialize_config_dir(config_dir=str(REPO / "configs"), version_base="1.3"):
-        return compose("slam_eval", overrides=overrides)
-
-
 def test_config_composes() -> None:
-    cfg = _cfg(["sequence.path=/x", "segmenter=onnx", "segmenter.path=exports/x.onnx"])
+    cfg = compose_slam_eval(["sequence.path=/x", "segmenter=onnx", "segmenter.path=exports/x.onnx"])
     assert cfg.segmenter._target_ == "uss_slam.slam_eval.segmenters.onnx.OnnxSegmenter"
     assert cfg.segmenter.path == "exports/x.onnx"
     assert cfg.segmenter.threads == 1 and cfg.segmenter.providers == "cpu"
@@ -311,15 +305,8 @@ def test_uss_slam_runs_an_onnx_segmenter(synthetic_sequence, tmp_path: Path) -> 
     seq = synthetic_sequence(preset="walking_xyz", frames=12, size=(160, 120))
     model = tiny_model(tmp_path / "bg.onnx", _metadata(), bias=256.0)
     out = tmp_path / "run"
-    cfg = _cfg(
-        [
-            f"sequence.path={seq}",
-            "segmenter=onnx",
-            f"segmenter.path={model}",
-            "filters=[semantic]",
-            f"out_dir={out}",
-            "progress=false",
-        ]
+    cfg = slam_run_config(
+        seq, out, "segmenter=onnx", f"segmenter.path={model}", "filters=[semantic]"
     )
     data = run(cfg)
     metrics = json.loads((out / "metrics.json").read_text())

@@ -237,16 +237,11 @@ def test_orbslam3_tracks_with_a_vocabulary_built_from_frames(
 
 # ------------------------------------------------------------------ uss-slam system=orbslam3
 
-REPO = Path(__file__).resolve().parents[3]
-
 
 def _cfg(overrides: list[str]):
-    from hydra import compose, initialize_config_dir
+    from shared_helpers import compose_slam_eval
 
-    import uss_slam.slam_eval.run  # noqa: F401  (registers the structured configs it composes)
-
-    with initialize_config_dir(config_dir=str(REPO / "configs"), version_base="1.3"):
-        return compose("slam_eval", overrides=overrides)
+    return compose_slam_eval(overrides)
 
 
 def test_system_group_composes() -> None:

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hydra import compose, initialize_config_dir
+from shared_helpers import slam_run_config
 
 from uss_slam.core.classes import CLASS_NAMES
 from uss_slam.core.errors import UssSlamError
@@ -21,7 +21,6 @@ from uss_slam.slam_eval.segmenters.base import ImageSegmenter, LabelsSegmenter
 from uss_slam.slam_eval.sequence import TumSequence
 from uss_slam.slam_eval.systems.harness import RunResult, SlamPipeline
 
-REPO = Path(__file__).resolve().parents[3]
 PERSON = CLASS_NAMES.index("person")
 
 
@@ -139,19 +138,10 @@ def test_unknown_schedule_and_bad_labels_are_clear(synthetic_sequence) -> None:
 def test_cli_segment_keyframes_reports_both_timings(synthetic_sequence, tmp_path: Path) -> None:
     path = synthetic_sequence(preset="walking_xyz", frames=30)
     out = tmp_path / "kf"
-    with initialize_config_dir(config_dir=str(REPO / "configs"), version_base="1.3"):
-        cfg = compose(
-            "slam_eval",
-            overrides=[
-                f"sequence.path={path}",
-                "sequence.max_frames=15",
-                "segmenter=labels",
-                "filters=[semantic]",
-                "segment=keyframes",
-                f"out_dir={out}",
-                "progress=false",
-            ],
-        )
+    cfg = slam_run_config(
+        path, out, "sequence.max_frames=15", "segmenter=labels", "filters=[semantic]",
+        "segment=keyframes",
+    )  # fmt: skip
     assert cfg.segment == "keyframes"
     data = run(cfg)
     metrics = json.loads((out / "metrics.json").read_text())

@@ -3,12 +3,10 @@ matches in order of descriptor distance, the option's checks, and tracking with 
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import cv2
 import numpy as np
 import pytest
-from hydra import compose, initialize_config_dir
+from shared_helpers import compose_slam_eval
 
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.tum_io import TUM_CAMERAS
@@ -22,7 +20,6 @@ from uss_slam.slam_eval.sequence import TumSequence
 from uss_slam.slam_eval.systems.harness import SlamPipeline
 from uss_slam.slam_eval.tracking.tracker import SAMPLERS, Tracker, TrackerConfig
 
-REPO = Path(__file__).resolve().parents[3]
 CAM = TUM_CAMERAS["fr3"].scaled(640, 480)
 
 
@@ -91,8 +88,7 @@ def test_sampler_option_is_checked() -> None:
     with pytest.raises(ValueError, match="sampler must be one of ransac, prosac, got 'lmeds'"):
         TrackerConfig(sampler="lmeds")
     assert TrackerConfig().sampler == "ransac"
-    with initialize_config_dir(config_dir=str(REPO / "configs"), version_base="1.3"):
-        cfg = compose("slam_eval", overrides=["sequence.path=/x", "slam.tracker.sampler=lmeds"])
+    cfg = compose_slam_eval(["sequence.path=/x", "slam.tracker.sampler=lmeds"])
     with pytest.raises(UssSlamError, match=r"slam\.tracker\.sampler must be one of ransac, prosac"):
         run(cfg)
 
