@@ -8,6 +8,7 @@ anything. Keep sizes and frame counts small (rendering takes tens of millisecond
 
 from __future__ import annotations
 
+import signal
 import sys
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -17,6 +18,12 @@ from hydra.core.global_hydra import GlobalHydra
 from hydra.core.hydra_config import HydraConfig
 
 from uss_slam.synthetic import render_sequence, render_voc
+
+# A shell starts a background job (`make test &`, `nohup ...`) with Ctrl-C ignored, and the
+# console scripts the tests start inherit that: the interrupt tests would then see no
+# interrupt. Python's own handler is reset to the default in every child, as in a terminal.
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 SequenceFactory = Callable[..., Path]
 VocFactory = Callable[..., Path]

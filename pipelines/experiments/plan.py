@@ -81,12 +81,11 @@ def common_overrides(exp: Experiment, data: Data) -> list[str]:
         base += demo_data_spec(exp).train_overrides(data.train_dir)
     else:
         real = cfg["data"]["real"]
-        key = data.train_key
         base += [
             f"data.source.voc.root={real['voc']}",
             f"data.source.sbd.root={real['sbd']}",
             f"data.source.coco.root={real['coco']}",
-            f"data.target.roots=[{','.join(key['target'])}]",
+            f"data.target.roots=[{','.join(str(t) for t in data.target)}]",
         ]
     base += [str(o) for o in cfg["train"].get("overrides") or []]
     if exp.fast:
