@@ -923,9 +923,8 @@ def test_two_slam_runs_into_one_out_dir(
         assert first.poll() is None, first.communicate()
         assert time.monotonic() < deadline
         time.sleep(0.01)
-    # the first run fills its own staging folder meanwhile: the second's trace is anything else
+    # the first run creates and fills its own staging folder meanwhile: leave those out
     before = outside_staging(snapshot(out))
-    staging = {p.name for p in out.glob(".uss-slam-new.*")}
     try:
         code, _, err = run_console_script("uss-slam", args, monkeypatch, capsys)
     finally:
@@ -933,7 +932,6 @@ def test_two_slam_runs_into_one_out_dir(
         GlobalHydra.instance().clear()
     assert first.poll() is None, "the first run ended before the second reached the lock"
     assert outside_staging(snapshot(out)) == before  # the second wrote nothing
-    assert {p.name for p in out.glob(".uss-slam-new.*")} <= staging  # nor staged anything
     lines = err.strip().splitlines()
     assert code == 2 and len(lines) == 1, err
     assert lines[0].startswith(
