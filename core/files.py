@@ -55,6 +55,12 @@ def folder_fingerprint(folder: str | PathLike[str]) -> str:
     return digest.hexdigest()
 
 
+def content_key(folder: str | PathLike[str]) -> str:
+    """A data folder as a cache key: ``<path>:<folder_fingerprint>``, so that files changed
+    under the same names redo what reads them."""
+    return f"{folder}:{folder_fingerprint(folder)}"
+
+
 @contextmanager
 def atomic_path(path: str | PathLike[str], prefix: str = ".") -> Iterator[Path]:
     """Yield a temporary sibling of ``path`` to write; it is renamed onto ``path`` only when the

@@ -40,8 +40,8 @@ from uss_slam.core.cli import exit_on_user_error
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.files import (
     check_writable,
+    content_key,
     file_sha256,
-    folder_fingerprint,
     output_lock,
     write_json_atomic,
     write_text_atomic,
@@ -143,13 +143,6 @@ def stage_data(data: Path, spec: DemoData, force: bool, quiet: bool) -> str:
     return "rendered"
 
 
-def sequence_key(sequence: Path) -> str:
-    """The cache key of a SLAM sequence's content: its path and every file's name, size and
-    modification time (:func:`folder_fingerprint`), so changed frames redo the stages that
-    read them."""
-    return f"{sequence}:{folder_fingerprint(sequence)}"
-
-
 def _data_key(data: Path) -> str:
     record = data / demo_data.RECORD
     if not record.is_file():
@@ -239,7 +232,7 @@ def stage_miou(out: Path, sequence: Path, models: dict[str, Path], stride: int, 
     path = out / "miou.json"
     key = {
         "stage": "miou",
-        "sequence": sequence_key(sequence),
+        "sequence": content_key(sequence),
         "stride": stride,
         "models": {name: file_sha256(p) for name, p in models.items()},
     }
@@ -491,7 +484,7 @@ def _run_stages(
     if until == "miou":
         return _stopped(progress, until, out)
     inputs = {name: file_sha256(model) for name, model in models.items()}
-    inputs["sequence"] = sequence_key(seq_path)
+    inputs["sequence"] = content_key(seq_path)
     for v in VARIANTS:
         job = slam_job(v, seq_path, models)
         used = {k: inputs[k] for k in ("sequence", v.model or v.segmenter) if k in inputs}

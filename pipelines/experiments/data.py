@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from uss_slam.core.errors import DataFormatError
-from uss_slam.core.files import folder_fingerprint
+from uss_slam.core.files import content_key
 from uss_slam.core.processes import pool_ending_with_parent
 from uss_slam.pipelines.stages import Stage
 
@@ -34,12 +34,6 @@ class Data:
     source_val_key: Any = None
     vocabulary: Path | None = None  # ORB-SLAM3's vocabulary (systems with orbslam3)
     vocabulary_key: Any = None
-
-
-def content_key(folder: Path) -> str:
-    """A real-data folder as a cache key: its path and :func:`folder_fingerprint` (every file's
-    name, size and modification time)."""
-    return f"{folder}:{folder_fingerprint(folder)}"
 
 
 def demo_data_spec(exp: Experiment) -> Any:
@@ -233,12 +227,12 @@ def _real_data(exp: Experiment) -> tuple[Data, str]:
         read_tum_folder(folder, depth=False)
     # keys of content, not of names: a changed file under a folder redoes what reads it
     sources = {k: Path(str(real[k])).expanduser() for k in ("voc", "sbd", "coco")}
+    keys = {k: content_key(p) for k, p in sources.items()}
     data = Data(
-        train_key={k: content_key(p) for k, p in sources.items()}
-        | {"target": [content_key(t) for t in targets]},
+        train_key=keys | {"target": [content_key(t) for t in targets]},
         target=targets,
         source_val=sources["voc"],
-        source_val_key=content_key(sources["voc"]),
+        source_val_key=keys["voc"],  # the same tree as the training source: one walk
     )
     for name in exp.grid.sequences:
         folder = tum / f"{TUM_PREFIX}{name}"
