@@ -24,7 +24,7 @@ from __future__ import annotations
 import itertools
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, ClassVar
 
 from uss_slam.core.errors import UssSlamError
 from uss_slam.pipelines.runs import Variant
@@ -145,10 +145,26 @@ def _short(value: float) -> str:
     return f"{value:g}"
 
 
+class _ModelNames:
+    """The names of a model (:data:`Model`): ``<config>_s<seed>``, and its id
+    ``<folder>/<config>_s<seed>`` (``folder``: ``train`` or ``exports``)."""
+
+    folder: ClassVar[str]
+
+    @property
+    def model(self) -> str:
+        return f"{self.config}_s{self.seed}"
+
+    @property
+    def id(self) -> str:
+        return f"{self.folder}/{self.model}"
+
+
 @dataclass(frozen=True)
-class TrainCell:
+class TrainCell(_ModelNames):
     """One training of the grid."""
 
+    folder: ClassVar[str] = "train"
     method: str
     seed: int
     n_layers: int | None = None  # methods with discriminators only
@@ -160,14 +176,6 @@ class TrainCell:
         """The configuration the tables aggregate over seeds: method, depth, loss weights."""
         name = self.method if self.n_layers is None else f"{self.method}_n{self.n_layers}"
         return f"{name}{self.tag}"
-
-    @property
-    def model(self) -> str:
-        return f"{self.config}_s{self.seed}"
-
-    @property
-    def id(self) -> str:
-        return f"train/{self.model}"
 
     def overrides(self) -> list[str]:
         """The cell's own ``uss-train`` overrides (after the scale's)."""
@@ -189,10 +197,11 @@ class TrainCell:
 
 
 @dataclass(frozen=True)
-class AdaBNCell:
+class AdaBNCell(_ModelNames):
     """AdaBN (Li et al. 2016): the export of source-only training ``source`` with its BatchNorm
     statistics recomputed on unlabelled target training frames; a model, not a training."""
 
+    folder: ClassVar[str] = "exports"
     source: TrainCell
 
     @property
@@ -202,14 +211,6 @@ class AdaBNCell:
     @property
     def seed(self) -> int:
         return self.source.seed
-
-    @property
-    def model(self) -> str:
-        return f"{self.config}_s{self.seed}"
-
-    @property
-    def id(self) -> str:
-        return f"exports/{self.model}"
 
     def describe(self) -> dict[str, Any]:
         return {**self.source.describe(), "method": ADABN, "config": self.config}
