@@ -21,18 +21,22 @@ CHI2_STEREO = 7.815
 """95% χ² quantile, 3 degrees of freedom: inlier bound for (u, v, u_r) observations."""
 
 
-def _residuals(
-    k: np.ndarray, bf: float, pose_cw: np.ndarray, world: np.ndarray, obs: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Camera points ``(M, 3)`` and residuals ``(M, 3)`` (predicted − observed; u_r column is
-    meaningful only where the observation has one)."""
-    cam = world @ pose_cw[:3, :3].T + pose_cw[:3, 3]
+def _camera_residuals(k: np.ndarray, bf: float, cam: np.ndarray, obs: np.ndarray) -> np.ndarray:
+    """Residuals ``(M, 3)`` of camera points ``cam`` (M, 3) against ``obs`` (predicted −
+    observed; u_r column is meaningful only where the observation has one)."""
     z = cam[:, 2]
     inv_z = 1.0 / np.where(np.abs(z) < 1e-9, 1e-9, z)
     u = k[0, 0] * cam[:, 0] * inv_z + k[0, 2]
     v = k[1, 1] * cam[:, 1] * inv_z + k[1, 2]
-    res = np.stack([u - obs[:, 0], v - obs[:, 1], (u - bf * inv_z) - obs[:, 2]], axis=1)
-    return cam, res
+    return np.stack([u - obs[:, 0], v - obs[:, 1], (u - bf * inv_z) - obs[:, 2]], axis=1)
+
+
+def _residuals(
+    k: np.ndarray, bf: float, pose_cw: np.ndarray, world: np.ndarray, obs: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Camera points ``(M, 3)`` and residuals ``(M, 3)`` (:func:`_camera_residuals`)."""
+    cam = world @ pose_cw[:3, :3].T + pose_cw[:3, 3]
+    return cam, _camera_residuals(k, bf, cam, obs)
 
 
 def chi2(
@@ -133,12 +137,8 @@ def chi2_per_observation(
     error is ``(e_u² + e_v²) / σ² + (e_u - e_ur)² / disparity_sigma²`` (the Mahalanobis form of
     that covariance); 0 = ORB-SLAM2's independent ``(u, v, u_r)``."""
     cam = np.einsum("mij,mj->mi", poses_cw[:, :3, :3], world) + poses_cw[:, :3, 3]
-    z = cam[:, 2]
-    inv_z = 1.0 / np.where(np.abs(z) < 1e-9, 1e-9, z)
-    u = k[0, 0] * cam[:, 0] * inv_z + k[0, 2]
-    v = k[1, 1] * cam[:, 1] * inv_z + k[1, 2]
-    eu, ev, er = u - obs[:, 0], v - obs[:, 1], (u - bf * inv_z) - obs[:, 2]
+    eu, ev, er = _camera_residuals(k, bf, cam, obs).T
     e2 = (eu**2 + ev**2) * inv_sigma2
     # Correlated model: (e_u - e_ur) is the disparity's error.
     extra = (eu - er) ** 2 / disparity_sigma**2 if disparity_sigma > 0 else er**2 * inv_sigma2
-    return e2 + np.where(stereo, extra, 0.0), z > 0
+    return e2 + np.where(stereo, extra, 0.0), cam[:, 2] > 0
