@@ -170,6 +170,13 @@ def render_voc_sample(
     raise RuntimeError(f"no usable view for VOC image {index} (seed {seed})")  # pragma: no cover
 
 
+def _check_images(images: int, outfits: str) -> None:
+    """The ``outfits`` and the image count of :func:`render_voc` and :func:`render_voc_frames`."""
+    check_outfits(outfits)
+    if isinstance(images, bool) or not isinstance(images, (int, np.integer)) or images < 1:
+        raise SynthArgumentError(f"images must be an integer >= 1, got {images!r}")
+
+
 def render_voc(
     out_dir: str | PathLike[str],
     *,
@@ -188,9 +195,7 @@ def render_voc(
     ``outfits``: the people's clothing (:data:`~.textures.WARDROBES`; ``varied``: every kind of
     fabric and colour, a new wardrobe of 4 outfits every 20 images).
     """
-    check_outfits(outfits)
-    if isinstance(images, bool) or not isinstance(images, (int, np.integer)) or images < 1:
-        raise SynthArgumentError(f"images must be an integer >= 1, got {images!r}")
+    _check_images(images, outfits)
     size = check_size(size)
     palette = voc_palette().reshape(-1).tolist()
     band = void_width(size)
@@ -239,9 +244,7 @@ def render_voc_frames(
     shift's target frames are stored, so that the target loader (``TUMFrames``) and
     ``uss-eval --sequence`` read them like a recording's frames. Returns ``out_dir``.
     """
-    check_outfits(outfits)
-    if isinstance(images, bool) or not isinstance(images, (int, np.integer)) or images < 1:
-        raise SynthArgumentError(f"images must be an integer >= 1, got {images!r}")
+    _check_images(images, outfits)
     if style not in STYLES:
         raise SynthArgumentError(f"unknown style {style!r}; choose one of {', '.join(STYLES)}")
     size = check_size(size)
