@@ -47,6 +47,7 @@ import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import torch
 import torch.nn.functional as F
@@ -81,12 +82,14 @@ def _bce(logits: Tensor, label: float) -> Tensor:
 
 
 def source_loss(
-    segmenter: nn.Module, batch: dict, weights: LossWeights
+    segmenter: nn.Module, batch: dict, weights: LossWeights, out_src: Any = None
 ) -> tuple[Tensor, Tensor, Tensor]:
     """The weighted cross-entropy of both heads on the source images, and the two heads' logits
-    upsampled to the labels (``aux``, ``main``)."""
+    upsampled to the labels (``aux``, ``main``); ``out_src``: the segmenter's output on the
+    source images when already computed."""
     src_img, src_lbl = batch["source"]["image"], batch["source"]["label"]
-    out_src = segmenter(src_img)
+    if out_src is None:
+        out_src = segmenter(src_img)
     up_aux, up_main = _up(out_src.aux, src_lbl.shape[-2:]), _up(out_src.main, src_lbl.shape[-2:])
     loss_seg = weights.lambda_seg_aux * F.cross_entropy(
         up_aux, src_lbl, ignore_index=255
@@ -95,25 +98,50 @@ def source_loss(
 
 
 def plain_iteration(
-    state: PlainState, batch: dict, weights: LossWeights, adaptation: bool = True
+    state: PlainState,
+    batch: dict,
+    weights: LossWeights,
+    adaptation: bool = True,
+    domain_batch_norm: str = "separate",
 ) -> None:
-    """Algorithm 1 written out in plain PyTorch (independent of the Lightning module)."""
+    """Algorithm 1 written out in plain PyTorch (independent of the Lightning module).
+    ``domain_batch_norm`` (BatchNorm in train mode): ``separate`` = one forward per domain,
+    ``joint`` = source and target images through one forward (both batches' statistics),
+    ``running`` = the target forward with BatchNorm in eval mode (running statistics)."""
+    joint_batch_norm = domain_batch_norm == "joint"
     seg, d_aux, d_main = state.segmenter, state.d_aux, state.d_main
-    trg_img = batch["target"]["image"]
+    src_img, trg_img = batch["source"]["image"], batch["target"]["image"]
+    out_src = out_trg = None
+    if adaptation and joint_batch_norm:
+        n = src_img.shape[0]
+        both = seg(torch.cat([src_img, trg_img]))
+        out_src = type(both)(both.aux[:n], both.main[:n])
+        out_trg = type(both)(both.aux[n:], both.main[n:])
 
     # (1) segmentation loss, discriminators frozen.
     for p in _params(d_aux, d_main):
         p.requires_grad_(False)
     state.opt_seg.zero_grad()
-    loss_seg, up_aux, up_main = source_loss(seg, batch, weights)
-    loss_seg.backward()
+    loss_seg, up_aux, up_main = source_loss(seg, batch, weights, out_src)
+    if out_trg is None:
+        loss_seg.backward()  # the source graph is freed before the target forward
     if adaptation:
         # (2) adversarial loss: target outputs should look like source (label 0).
-        out_trg = seg(trg_img)
+        if out_trg is None and domain_batch_norm == "running":
+            bns = [m for m in seg.modules() if isinstance(m, nn.modules.batchnorm._BatchNorm)]
+            for m in bns:
+                m.eval()
+            out_trg = seg(trg_img)
+            for m in bns:
+                m.train()
+        elif out_trg is None:
+            out_trg = seg(trg_img)
         p_aux = F.softmax(_up(out_trg.aux, trg_img.shape[-2:]), dim=1)
         p_main = F.softmax(_up(out_trg.main, trg_img.shape[-2:]), dim=1)
         loss_adv = weights.lambda_adv_aux * _bce(d_aux(p_aux), 0.0)
         loss_adv = loss_adv + weights.lambda_adv_main * _bce(d_main(p_main), 0.0)
+        if joint_batch_norm:
+            loss_adv = loss_adv + loss_seg  # one graph for both domains: one backward
         loss_adv.backward()
     state.opt_seg.step()
     for p in _params(d_aux, d_main):

@@ -54,6 +54,7 @@ log = logging.getLogger(__name__)
 
 OptimizerFactory = Callable[..., Optimizer]
 OptimizerKernels = Literal["default", "foreach", "fused"]
+DomainBatchNorm = Literal["separate", "joint", "running"]
 
 COMPILE_MODES = ("default", "reduce-overhead", "max-autotune", "max-autotune-no-cudagraphs")
 """``torch.compile`` modes of the inductor backend."""
@@ -91,6 +92,14 @@ class AdversarialSegmentation(LightningModule):
             discriminator pass per head when no layer uses batch statistics (frozen BN) and the
             crops have one size. Identical losses and gradients; peak activation memory holds
             both domains at once (set ``False`` on a tight GPU).
+        domain_batch_norm: what BatchNorm layers in train mode (a segmenter trained from
+            scratch) normalise the target batch with: ``separate`` (each domain's batch its own
+            statistics: two forwards; the target maps are then normalised like AdaBN's and a
+            discriminator finds little domain in them, ``benchmarks/d_probe.py``), ``joint``
+            (source and target batch in one forward, statistics of both; needs crops of one
+            size) or ``running`` (the target batch by the running statistics of the source
+            batches, as at evaluation with source statistics; two forwards). Ignored when no
+            layer uses batch statistics.
         channels_last: NHWC memory layout for the networks and inputs (same results).
         compile: ``torch.compile`` the segmenter and the discriminators in place (parameter
             names, checkpoints and exports stay those of the eager networks). Compilation runs
@@ -122,6 +131,7 @@ class AdversarialSegmentation(LightningModule):
         head_lr_mult: float = 10.0,
         class_names: Sequence[str] = CLASS_NAMES,
         batch_domains: bool = True,
+        domain_batch_norm: DomainBatchNorm = "separate",
         channels_last: bool = False,
         compile: bool = False,
         compile_mode: str = "default",
@@ -160,6 +170,12 @@ class AdversarialSegmentation(LightningModule):
         self.head_lr_mult = head_lr_mult
         self.class_names = tuple(class_names)
         self.batch_domains = batch_domains
+        if domain_batch_norm not in ("separate", "joint", "running"):
+            raise UssSlamError(
+                "model.domain_batch_norm must be separate, joint or running, got "
+                f"{domain_batch_norm!r}"
+            )
+        self.domain_batch_norm = domain_batch_norm
         self.channels_last = channels_last
         self.compile_networks = compile
         self.compile_options = self._check_compile_options(

@@ -226,3 +226,64 @@ def test_discriminators_frozen_restores_on_error() -> None:
     assert not module.d_main.layers[0].weight.requires_grad
     rest = [p for d in (module.d_aux, module.d_main) for p in d.parameters()]
     assert sum(not p.requires_grad for p in rest) == 1
+
+
+@pytest.mark.parametrize("mode", ["separate", "joint", "running"])
+def test_trained_batch_norm_matches_plain_reference_in_every_domain_mode(mode: str) -> None:
+    """BatchNorm in train mode: ``separate`` normalises each domain's batch alone (two
+    forwards), ``joint`` both batches together (one forward), ``running`` the target batch by
+    the running statistics: each as its plain reference."""
+    torch.manual_seed(0)
+    module = bench.build_module("resnet_small", max_iters=10, n_layers=5, ndf=8, freeze_bn=False)
+    module.domain_batch_norm = mode
+    state = bench.plain_state_from(module)
+    bn = module.segmenter.backbone.bn1
+    seen: list[tuple[int, bool]] = []
+    bn.register_forward_pre_hook(lambda m, x: seen.append((len(x[0]), m.training)))
+    batch = bench.random_batch(41, 2)
+    fit_repeated(module, batch, 2)
+    for _ in range(2):
+        bench.plain_iteration(state, batch, module.loss_weights, domain_batch_norm=mode)
+    assert_weights_match_reference(module, state)
+    # what the first BatchNorm saw per iteration: (crops, batch statistics?)
+    expected = {
+        "separate": [(2, True), (2, True)],
+        "joint": [(4, True)],
+        "running": [(2, True), (2, False)],
+    }[mode]
+    assert seen == expected * 2
+    assert bn.training  # train mode again after the running-statistics forward
+    assert torch.allclose(bn.running_mean, state.segmenter.backbone.bn1.running_mean, atol=1e-6)
+    assert torch.allclose(bn.running_var, state.segmenter.backbone.bn1.running_var, atol=1e-6)
+
+
+def test_joint_batch_norm_needs_crops_of_one_size() -> None:
+    from uss_slam.core.errors import UssSlamError
+    from uss_slam.train.methods import can_batch_domains
+
+    module = bench.build_module("resnet_small", max_iters=10, n_layers=5, ndf=8, freeze_bn=False)
+    module.domain_batch_norm = "joint"
+    src, trg = torch.zeros(2, 3, 41, 41), torch.zeros(2, 3, 33, 41)
+    with pytest.raises(UssSlamError, match=r"domain_batch_norm=joint .* \(41, 41\) and \(33, 41\)"):
+        can_batch_domains(module, src, trg)
+    module.domain_batch_norm = "separate"
+    assert not can_batch_domains(module, src, trg)
+
+
+def test_domain_batch_norm_rejects_other_values() -> None:
+    import functools
+
+    from uss_slam.core.errors import UssSlamError
+    from uss_slam.models.deeplab import DeepLabV2
+
+    with pytest.raises(
+        UssSlamError, match="domain_batch_norm must be separate, joint or running, got 'x'"
+    ):
+        AdversarialSegmentation(
+            net=DeepLabV2(num_classes=4, backbone="resnet_small", freeze_bn=False),
+            discriminator=None,
+            optimizer=functools.partial(torch.optim.SGD, lr=0.1),
+            d_optimizer=None,
+            method=SourceOnly(),
+            domain_batch_norm="x",
+        )

@@ -114,6 +114,10 @@ def test_bad_checkpoint_is_one_line_before_the_trainer_starts(
         ("model.optimizer.lr=fast", "model.optimizer.lr: expected a number, got 'fast'"),
         ("model.net.num_classes=2.5", "model.net.num_classes: expected an integer, got 2.5"),
         ("model.batch_domains=maybe", "model.batch_domains: expected true or false, got 'maybe'"),
+        (
+            "model.domain_batch_norm=both",
+            "model.domain_batch_norm: expected one of 'separate', 'joint', 'running', got 'both'",
+        ),
     ],
 )
 def test_wrong_value_type_is_one_line_naming_the_key(

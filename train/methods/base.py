@@ -11,6 +11,7 @@ counter, logging and checkpoints. The segmenter stays a plain network that never
 from __future__ import annotations
 
 import contextlib
+import functools
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -77,14 +78,36 @@ def uses_batch_statistics(net: nn.Module) -> bool:
 
 
 def can_batch_domains(module: AdversarialSegmentation, source: Tensor, target: Tensor) -> bool:
-    """Source and target through one forward when the module allows it
-    (``batch_domains``), the crops have one size and every layer treats samples independently:
-    the same numbers, better CPU/GPU use."""
-    return (
-        module.batch_domains
-        and source.shape[1:] == target.shape[1:]
-        and not uses_batch_statistics(module.segmenter)
-    )
+    """Source and target through one forward: when every layer treats samples independently
+    (frozen BN), the module allows it (``batch_domains``) and the crops have one size (the same
+    numbers, better CPU/GPU use); with BatchNorm in train mode only under
+    ``domain_batch_norm="joint"`` (statistics of both batches: other numbers, by choice)."""
+    same_size = source.shape[1:] == target.shape[1:]
+    if uses_batch_statistics(module.segmenter):
+        if module.domain_batch_norm != "joint":
+            return False
+        if not same_size:
+            raise UssSlamError(
+                "model.domain_batch_norm=joint normalises source and target in one batch: their "
+                f"crops must have one size, got {tuple(source.shape[-2:])} and "
+                f"{tuple(target.shape[-2:])} (set data.source/target.transform.crop_size alike)"
+            )
+        return True
+    return module.batch_domains and same_size
+
+
+def with_running_statistics(net: nn.Module, images: Tensor) -> Any:
+    """``net(images)`` with every BatchNorm layer in train mode normalising by its running
+    statistics instead, as at evaluation, and leaving them unchanged (gradients flow as through
+    any affine layer); ``domain_batch_norm="running"``'s target forward."""
+    layers = [m for m in net.modules() if isinstance(m, BATCH_NORM_LAYERS) and m.training]
+    for m in layers:
+        m.eval()
+    try:
+        return net(images)
+    finally:
+        for m in layers:
+            m.train()
 
 
 def _like(template: tuple, items: list[Any]) -> tuple:
@@ -130,6 +153,8 @@ class DomainPass(Generic[In, Out]):
         target: target inputs, or ``None``.
         backward: ``LightningModule.manual_backward``.
         batched: run both domains as one batch (callers decide with :func:`can_batch_domains`).
+        target_net: the network of the unbatched target forward when it differs from ``net``
+            (e.g. :func:`with_running_statistics`).
     """
 
     def __init__(
@@ -139,8 +164,10 @@ class DomainPass(Generic[In, Out]):
         target: In | None,
         backward: Callable[[Tensor], None],
         batched: bool,
+        target_net: Callable[[In], Out] | None = None,
     ) -> None:
         self.net = net
+        self.target_net = net if target_net is None else target_net
         self.inputs = (source, target)
         self.run_backward = backward
         self.batched = batched and target is not None
@@ -170,7 +197,7 @@ class DomainPass(Generic[In, Out]):
             if self._target_output is None:
                 raise ValueError("DomainPass.target() before source() in a batched pass")
             return self._target_output
-        return self.net(target)
+        return self.target_net(target)
 
     def backward(self, loss: Tensor) -> None:
         if not self.batched:
@@ -307,7 +334,12 @@ def segmenter_step(
     batched = target is not None and can_batch_domains(module, images, target)
     opt_seg.zero_grad()
     term = None
-    with DomainPass(module.segmenter, images, target, module.manual_backward, batched) as seg:
+    target_net = None
+    if module.domain_batch_norm == "running" and uses_batch_statistics(module.segmenter):
+        target_net = functools.partial(with_running_statistics, module.segmenter)
+    with DomainPass(
+        module.segmenter, images, target, module.manual_backward, batched, target_net
+    ) as seg:
         src = SourceSegmentation(
             seg.source(), source["label"], module.loss_weights, module.iteration
         )
