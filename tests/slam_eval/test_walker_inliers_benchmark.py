@@ -3,24 +3,14 @@ counting, parsing and table are exact."""
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
+import slam_walker_inliers as bench  # benchmarks/ is on pytest's pythonpath
 
 from uss_slam.core.errors import UssSlamError
 from uss_slam.slam_eval.segmenters.base import NoSegmenter
 from uss_slam.slam_eval.sequence import TumSequence
 from uss_slam.slam_eval.systems.harness import SlamPipeline
-
-_PATH = Path(__file__).resolve().parents[2] / "benchmarks" / "slam_walker_inliers.py"
-_spec = importlib.util.spec_from_file_location("slam_walker_inliers_benchmark", _PATH)
-assert _spec is not None and _spec.loader is not None
-bench = importlib.util.module_from_spec(_spec)
-sys.modules[_spec.name] = bench  # dataclasses look their module up by name
-_spec.loader.exec_module(bench)
 
 
 def test_recording_leaves_the_run_unchanged_and_counts_its_inliers(synthetic_sequence) -> None:
