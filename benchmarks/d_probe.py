@@ -36,6 +36,7 @@ from uss_slam.datasets.voc import VOCSegmentation
 from uss_slam.export import load_checkpoint
 from uss_slam.models.discriminator import PatchDiscriminator
 from uss_slam.train.losses import SOURCE_LABEL, TARGET_LABEL, domain_accuracy, domain_loss
+from uss_slam.train.methods.base import BATCH_NORM_LAYERS
 
 MODES = ("separate", "joint", "running", "eval")
 BATCH = 4  # experiment=demo's batch size per domain
@@ -50,7 +51,7 @@ def crops(dataset, n: int, rng: np.random.Generator) -> torch.Tensor:
 def maps(net: torch.nn.Module, src: torch.Tensor, trg: torch.Tensor, mode: str):
     """Softmax maps of the main head for ``src`` / ``trg`` (batches of BATCH), in ``mode``."""
     net = copy.deepcopy(net)
-    bns = [m for m in net.modules() if isinstance(m, torch.nn.modules.batchnorm._BatchNorm)]
+    bns = [m for m in net.modules() if isinstance(m, BATCH_NORM_LAYERS)]
     for m in bns:
         m.momentum = 0.0  # batch statistics in train mode, running ones left as they are
 

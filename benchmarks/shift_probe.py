@@ -384,9 +384,9 @@ def main() -> None:
                 indices = evenly_spaced(ADABN_IMAGES, len(target))
                 recompute_batchnorm(adabn, target, indices, batch_size=4)
                 rows["adabn" if method == "source_only" else f"{method}+adabn"] = adabn
+            extra = {"train_cpu_s": cpu} | discriminator_accuracy(run)
             for name, net in rows.items():
                 scores = {key: score(net, ds) for key, ds in sets.items()}
-                extra = {"train_cpu_s": cpu} | discriminator_accuracy(run)
                 results.setdefault(name, {})[seed] = scores | extra
                 print(f"seed {seed} {name:12s} " + " | ".join(
                     f"{k} mIoU {v['mIoU']:.3f} person {v['person']:.3f}"

@@ -33,7 +33,7 @@ import logging
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict
-from typing import Any, Literal
+from typing import Any, Literal, get_args
 
 import torch
 from lightning.pytorch import LightningModule
@@ -170,7 +170,7 @@ class AdversarialSegmentation(LightningModule):
         self.head_lr_mult = head_lr_mult
         self.class_names = tuple(class_names)
         self.batch_domains = batch_domains
-        if domain_batch_norm not in ("separate", "joint", "running"):
+        if domain_batch_norm not in get_args(DomainBatchNorm):
             raise UssSlamError(
                 "model.domain_batch_norm must be separate, joint or running, got "
                 f"{domain_batch_norm!r}"
