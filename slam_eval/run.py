@@ -75,7 +75,9 @@ def run(cfg: DictConfig) -> dict[str, Any]:
         from .systems.orbslam3.system import run_from_config
 
         with output_lock(out, "out_dir"):
-            return run_from_config(cfg, out)
+            return run_from_config(
+                cfg, out, before_commit=lambda f: {"overrides": _write_hydra_files(f, cfg)}
+            )
     segmenter: Segmenter = hydra.utils.instantiate(cfg.segmenter)
     seq_cfg = cfg.sequence
     sequence = TumSequence(

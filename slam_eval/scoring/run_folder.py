@@ -107,6 +107,10 @@ class RunFolder:
         target.parent.mkdir(parents=True, exist_ok=True)
         return target
 
+    def current(self, path: StrPath) -> Path:
+        """Where the output ``path`` is now: in the staging folder until :meth:`commit`."""
+        return (self.staging or self.root) / self._relative(path)
+
     @contextmanager
     def placing(self, path: StrPath) -> Iterator[Path]:
         """Yield where to write the output ``path`` (relative to the folder or inside it): in

@@ -27,6 +27,7 @@ from .vocabulary import read_header
 
 
 def write_outputs(
+    folder: RunFolder,
     out: Path,
     sequence: TumSequence,
     segmenter: Segmenter,
@@ -40,15 +41,14 @@ def write_outputs(
     results: list[RepeatResult],
     settings: dict[str, Any] | None,
 ) -> dict[str, Any]:
-    """Write the outputs of ORB-SLAM3's ``results`` (every repeat) into ``out``, each file
-    atomically: ``trajectory.txt`` (the median repeat's), ``metrics.json``, ``report.md`` and
+    """Write the outputs of ORB-SLAM3's ``results`` (every repeat) into ``out`` through
+    ``folder`` (staged until its commit), each file atomically: ``trajectory.txt`` (the median repeat's), ``metrics.json``, ``report.md`` and
     the plots (``repeats.png`` holds every repeat). Returns the metrics dictionary."""
     median = results[median_index([r.ate_rmse for r in results])]
     chosen = median.evaluation or Evaluation(None, None, None, "not evaluated")
     n = len(sequence)
-    folder = RunFolder(out)
     with folder.writing(out / "trajectory.txt") as tmp:
-        tmp.write_bytes(median.trajectory_path.read_bytes())
+        tmp.write_bytes(folder.current(median.trajectory_path).read_bytes())
     rmses = [r.ate_rmse for r in results if r.ate_rmse is not None]
     header = read_header(vocabulary)
     data: dict[str, Any] = {

@@ -42,8 +42,10 @@ from __future__ import annotations
 
 import importlib.util
 import logging
+import shutil
 import tempfile
-from dataclasses import asdict, dataclass
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -55,6 +57,7 @@ from uss_slam.core.tum_io import StrPath
 from ...filters.dynamic import SemanticFilter
 from ...scoring.evaluation import EvalConfig, evaluate
 from ...scoring.report import fmt
+from ...scoring.run_folder import RunFolder
 from ...segmenters.base import Segmenter
 from ...sequence import TumSequence
 from .config import INSTALL_HINT, OrbSlam3Config, check_vocabulary
@@ -103,11 +106,19 @@ def run_orbslam3(
     *,
     settings: dict[str, Any] | None = None,
     progress: bool = True,
+    before_commit: Callable[[RunFolder], dict[str, Any]] | None = None,
 ) -> dict[str, Any]:
     """Run ORB-SLAM3 ``config.repeats`` times on the sequence and write the outputs to
     ``out_dir``: ``trajectory.txt`` (median run), ``repeats/trajectory_<i>.txt`` and
     ``repeats/orbslam3_<i>.log``, ``orbslam3_settings.yaml``, ``metrics.json``, ``report.md``,
-    ``trajectory.png``, ``ate.png`` and ``repeats.png``. Returns the metrics dictionary."""
+    ``trajectory.png``, ``ate.png``, ``repeats.png`` and the manifest ``run.json``. Returns the
+    metrics dictionary.
+
+    As the harness's runs (:mod:`~uss_slam.slam_eval.scoring.run_folder`), every file is staged
+    until the last repeat is scored and replaces an earlier run's only then: a failed repeat,
+    Ctrl-C or a full disk leaves the earlier run in ``out_dir`` as it was (a failed repeat's
+    log is kept as ``orbslam3_failed.log``, which the error names). ``before_commit`` may write
+    more files (Hydra's) into the folder and returns entries for the manifest."""
     if importlib.util.find_spec("pyorbslam3") is None:
         raise UssSlamError(
             f"system=orbslam3 needs the pyorbslam3 package (ORB-SLAM3 bindings, GPL-3): "
@@ -116,44 +127,52 @@ def run_orbslam3(
     vocabulary = check_vocabulary(config.vocabulary)
     needs_labels = bool(getattr(segmenter, "needs_labels", False))
     sequence = spec.open(load_labels=needs_labels)
-    out = Path(out_dir)
-    (out / "repeats").mkdir(parents=True, exist_ok=True)
+    out = Path(out_dir).absolute()
     fps = config.fps or frame_rate(sequence.stamps)
-    if config.settings_file:
-        info = check_settings(Path(config.settings_file).expanduser(), sequence.image_size)
-    else:
-        path = out / "orbslam3_settings.yaml"
-        path.write_text(settings_yaml(sequence.camera, config, fps))
-        info = check_settings(path, sequence.image_size)
-
-    masked = getattr(segmenter, "name", "none") != "none"
-    with tempfile.TemporaryDirectory(prefix="uss-orbslam3-") as tmp:
+    with RunFolder.start(out) as folder, tempfile.TemporaryDirectory(prefix="uss-orbslam3-") as tmp:
+        if config.settings_file:
+            info = check_settings(Path(config.settings_file).expanduser(), sequence.image_size)
+            staged_settings = info.path
+        else:
+            final = out / "orbslam3_settings.yaml"
+            with folder.writing(final) as staged:
+                staged.write_text(settings_yaml(sequence.camera, config, fps))
+            staged_settings = folder.current(final)
+            info = replace(check_settings(staged_settings, sequence.image_size), path=final)
         workdir = Path(tmp)
         masks_file = None
         mask_pass = None
-        if masked:
+        if getattr(segmenter, "name", "none") != "none":
             mask_pass = compute_masks(sequence, segmenter, semantic, progress)
             masks_file = workdir / "masks.npy"
             np.save(masks_file, mask_pass.packed)
         results: list[RepeatResult] = []
         for i in range(config.repeats):
-            trajectory_path = out / "repeats" / f"trajectory_{i}.txt"
-            job = Job(
-                sequence=asdict(spec),
-                vocabulary=str(vocabulary.resolve()),
-                settings=str(info.path.resolve()),
-                depth_factor=info.depth_factor,
-                rgb=info.rgb,
-                masks=None if masks_file is None else str(masks_file),
-                blank_value=config.blank_value,
-                realtime=config.realtime,
-                trajectory=str(trajectory_path.resolve()),
-                result=str(workdir / f"result_{i}.json"),
-            )
-            raw = run_worker(job, out / "repeats" / f"orbslam3_{i}.log", workdir, i)
+            final_trajectory = out / "repeats" / f"trajectory_{i}.txt"
+            with (
+                folder.placing(final_trajectory) as trajectory_path,
+                folder.placing(out / "repeats" / f"orbslam3_{i}.log") as log_path,
+            ):
+                job = Job(
+                    sequence=asdict(spec),
+                    vocabulary=str(vocabulary.resolve()),
+                    settings=str(staged_settings.resolve()),
+                    depth_factor=info.depth_factor,
+                    rgb=info.rgb,
+                    masks=None if masks_file is None else str(masks_file),
+                    blank_value=config.blank_value,
+                    realtime=config.realtime,
+                    trajectory=str(trajectory_path),
+                    result=str(workdir / f"result_{i}.json"),
+                )
+                try:
+                    raw = run_worker(job, log_path, workdir, i)
+                except UssSlamError:
+                    keep_failed_log(log_path, out / FAILED_LOG)
+                    raise
             trajectory = read_estimate(trajectory_path)
             result = RepeatResult(
-                i, trajectory_path, trajectory, raw["states"], raw["track_s"], raw["load_s"]
+                i, final_trajectory, trajectory, raw["states"], raw["track_s"], raw["load_s"]
             )
             result.evaluation = evaluate(trajectory, sequence.groundtruth, evaluation)
             results.append(result)
@@ -166,17 +185,38 @@ def run_orbslam3(
                 len(sequence),
                 len(sequence) / result.track_s if result.track_s > 0 else 0.0,
             )
-    return write_outputs(
-        out, sequence, segmenter, semantic, config, evaluation, info, fps, vocabulary,
-        mask_pass, results, settings,
-    )  # fmt: skip
+        data = write_outputs(
+            folder, out, sequence, segmenter, semantic, config, evaluation, info, fps,
+            vocabulary, mask_pass, results, settings,
+        )  # fmt: skip
+        extra = before_commit(folder) if before_commit is not None else {}
+        folder.commit(system="orbslam3", sequence=str(sequence.path), **extra)
+    (out / FAILED_LOG).unlink(missing_ok=True)  # the run that failed before is redone
+    return data
+
+
+FAILED_LOG = "orbslam3_failed.log"
+"""In ``out_dir``: the log of the repeat that stopped the last run (its outputs are discarded)."""
+
+
+def keep_failed_log(staged: Path, kept: Path) -> None:
+    """Copy a failed repeat's log out of the staging folder that is about to go."""
+    try:
+        shutil.copyfile(staged, kept)
+    except OSError:
+        pass  # the error names the log; a log that could not be kept is no second error
 
 
 # --------------------------------------------------------------------------- Hydra glue
 
 
-def run_from_config(cfg: Any, out_dir: StrPath) -> dict[str, Any]:
-    """``uss-slam system=orbslam3``: build everything from the composed config and run."""
+def run_from_config(
+    cfg: Any,
+    out_dir: StrPath,
+    before_commit: Callable[[RunFolder], dict[str, Any]] | None = None,
+) -> dict[str, Any]:
+    """``uss-slam system=orbslam3``: build everything from the composed config and run
+    (``before_commit``: as :func:`run_orbslam3`'s)."""
     import hydra
     from omegaconf import OmegaConf
 
@@ -231,6 +271,7 @@ def run_from_config(cfg: Any, out_dir: StrPath) -> dict[str, Any]:
         out_dir,
         settings=OmegaConf.to_container(cfg, resolve=True),
         progress=bool(cfg.get("progress", True)),
+        before_commit=before_commit,
     )
     rep = data["ate_rmse_repeats"]
     log.info(

@@ -279,3 +279,63 @@ def test_uss_slam_orbslam3_bad_inputs_are_one_line(synthetic_sequence, tmp_path:
     assert proc.returncode == 1
     assert proc.stderr.startswith("uss-slam: error: system.vocabulary=nope.txt: file not found; ")
     assert proc.stderr.count("\n") == 1 and "uss-vocab build" in proc.stderr
+
+
+def test_orbslam3_outputs_are_staged_until_every_repeat_is_done(
+    synthetic_sequence, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A repeat that fails leaves the earlier run in the folder as it was (its log is kept
+    beside it); a complete run replaces it with a manifest that lists every file."""
+    pytest.importorskip("pyorbslam3")
+    from uss_slam.slam_eval.scoring.run_folder import verify_run
+    from uss_slam.slam_eval.systems.orbslam3 import system
+
+    seq = synthetic_sequence(preset="static_xyz", frames=12, size=(320, 240))
+    vocab = tmp_path / "voc.txt"
+    build_from_sequences([seq], vocab, k=6, levels=2, stride=4)
+    gt = (seq / "groundtruth.txt").read_text()
+    failing: set[int] = set()
+
+    def fake_worker(job, log_path: Path, workdir: Path, index: int) -> dict:
+        # ORB-SLAM3 stood in for: a log, a trajectory (the ground truth), the states
+        log_path.write_text(f"repeat {index}\n")
+        if index in failing:
+            raise UssSlamError(f"ORB-SLAM3 exited with code 1 in repeat {index} (log {log_path})")
+        Path(job.trajectory).write_text(gt)
+        return {"states": ["OK"] * 12, "track_s": 1.0, "load_s": 0.1}
+
+    monkeypatch.setattr(system, "run_worker", fake_worker)
+
+    def run(out: Path, repeats: int) -> dict:
+        return run_orbslam3(
+            SequenceSpec(str(seq)),
+            NoSegmenter(),
+            SemanticFilter(),
+            OrbSlam3Config(vocabulary=str(vocab), repeats=repeats, realtime=False),
+            EvalConfig(),
+            out,
+            progress=False,
+        )
+
+    out = tmp_path / "run"
+    data = run(out, repeats=3)
+    assert verify_run(out) == []
+    listed = set(json.loads((out / "run.json").read_text())["files"])
+    assert {"trajectory.txt", "metrics.json", "orbslam3_settings.yaml",
+            "repeats/trajectory_2.txt", "repeats/orbslam3_2.log"} <= listed  # fmt: skip
+    assert data["orbslam3"]["settings_file"] == str(out.absolute() / "orbslam3_settings.yaml")
+    assert not any(p.name.startswith(".uss-slam-") for p in out.iterdir())
+    before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+
+    failing.add(1)  # the second repeat of the next run fails: nothing of it replaces the first
+    with pytest.raises(UssSlamError, match="in repeat 1"):
+        run(out, repeats=2)
+    after = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    assert after.pop(out / "orbslam3_failed.log") == b"repeat 1\n"
+    assert after == before and verify_run(out) == []
+
+    failing.clear()  # a run of 2 repeats replaces the run of 3: no third repeat's files stay
+    run(out, repeats=2)
+    assert verify_run(out) == []
+    assert not (out / "repeats" / "trajectory_2.txt").exists()
+    assert not (out / "orbslam3_failed.log").exists()
