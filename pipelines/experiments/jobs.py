@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import time
 import traceback
 from collections.abc import Callable, Mapping
@@ -33,6 +34,7 @@ from omegaconf import DictConfig
 
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.files import write_json_atomic
+from uss_slam.core.processes import die_with_parent
 from uss_slam.pipelines.runs import (
     SlamJob,
     checkpoint_miou,
@@ -191,6 +193,10 @@ def run_cell(plan_path: Path, out: Path, cell: str) -> dict[str, Any]:
     spec = plan["cells"].get(cell)
     if spec is None:
         raise UssSlamError(f"{plan_path}: no job {cell!r}")
+    # A launcher that runs jobs in processes of its own (joblib's workers, submitit's local
+    # executor) leaves them running when the multirun is killed: end this one with the process
+    # that started it, so that a job never keeps writing into a folder a rerun writes too.
+    die_with_parent(os.getppid())
     stage = stage_of(out, spec, cell)
     if stage.complete():
         log.info("%s: complete already, reused", cell)

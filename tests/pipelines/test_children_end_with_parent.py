@@ -114,3 +114,42 @@ def test_the_demo_data_workers_end_with_a_killed_uss_demo(tmp_path: Path) -> Non
         except Exception:
             assert time.monotonic() < deadline
             time.sleep(0.05)
+
+
+def test_joblib_workers_end_with_a_killed_job_runner(tmp_path: Path) -> None:
+    """With ``launcher=joblib`` the jobs run in joblib's worker processes, which would finish
+    the job they are on after the job runner was killed; each job ends with it instead."""
+    pytest.importorskip("hydra_plugins.hydra_joblib_launcher")
+    pids = tmp_path / "pids"
+    out = tmp_path / "exp"
+    out.mkdir()
+    plan = out / "plan.json"
+    plan.write_text('{"cells": {"a": {"kind": "sleep", "key": "a"}, "b": {"kind": "sleep", '
+                    '"key": "b"}}}')  # fmt: skip
+    driver_code = textwrap.dedent(f"""
+        import os, sys, time
+        from pathlib import Path
+        import hydra
+        from uss_slam.pipelines.experiments import jobs
+
+        def sleeper(folder, spec):
+            with open({str(pids)!r}, "a") as file:
+                file.write(f"{{os.getpid()}}\\n")
+            time.sleep(120)
+            return {{}}
+
+        @hydra.main(version_base="1.3", config_path=None, config_name=None)
+        def main(cfg):  # defined here, so that joblib sends the workers this code
+            jobs.KINDS["sleep"] = sleeper
+            return jobs.run_cell(Path(cfg.plan), Path(cfg.out), str(cfg.cell))
+
+        sys.argv = [sys.argv[0], "-m", "+plan={plan}", "+out={out}", "+cell=a,b",
+                    "hydra/launcher=joblib", "hydra.launcher.n_jobs=2",
+                    "hydra.sweep.dir={tmp_path / 'multirun'}"]
+        main()
+    """)
+    driver = subprocess.Popen([sys.executable, "-c", driver_code], stderr=subprocess.PIPE)
+    children = _pids(pids, 2, driver)
+    assert driver.pid not in children  # they run in joblib's workers, not in the job runner
+    _kill_and_wait(driver, children)
+    assert not (out / "a" / "result.json").exists() and not (out / "b" / "result.json").exists()
