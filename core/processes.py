@@ -8,6 +8,11 @@ ends a Python process at once. Elsewhere nothing is done (the output locks of
 
     proc = subprocess.Popen(command, preexec_fn=ends_with_parent())
     pool = ProcessPoolExecutor(max_workers=2, **pool_ending_with_parent())
+
+A launcher may put processes of its own between a driver and its jobs (submitit's local
+executor does), which the signal does not reach through: the driver names itself in the
+jobs' environment (:func:`watched_by_children`) and each job ends when that process has ended
+(:func:`end_with_watched`, a thread that looks every half second).
 """
 
 from __future__ import annotations
@@ -16,7 +21,10 @@ import ctypes
 import os
 import signal
 import sys
+import threading
+import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 PR_SET_PDEATHSIG = 1
@@ -69,3 +77,54 @@ def pool_ending_with_parent(sig: int = signal.SIGTERM) -> dict[str, Any]:
     """``initializer`` / ``initargs`` for :class:`concurrent.futures.ProcessPoolExecutor`: each
     worker gets ``sig`` when this process ends (create the pool in the main thread)."""
     return {"initializer": die_with_parent, "initargs": (os.getpid(), sig)}
+
+
+WATCH_ENV = "USS_SLAM_END_WITH"
+"""Environment variable naming the process (``pid:start``) whose end ends a job."""
+KILL_AFTER = 2.0
+"""Seconds a watched job has after its signal before it is killed."""
+_watching: set[str] = set()
+_watching_guard = threading.Lock()
+
+
+def _start_time(pid: int) -> str | None:
+    """The kernel's start time of ``pid`` (field 22 of ``/proc/<pid>/stat``), which tells a
+    reused pid from the process; None when ``pid`` has ended (or is a zombie)."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return None
+    return None if fields[0] in ("Z", "X") else fields[19]
+
+
+def watched_by_children() -> dict[str, str]:
+    """The environment for the children of this process whose jobs must end with it (empty
+    where ``/proc`` is not there)."""
+    start = _start_time(os.getpid())
+    return {} if start is None else {WATCH_ENV: f"{os.getpid()}:{start}"}
+
+
+def end_with_watched(sig: int = signal.SIGTERM, every: float = 0.5) -> bool:
+    """When :data:`WATCH_ENV` names a process, get ``sig`` once it has ended (a daemon thread
+    checks every ``every`` seconds), and SIGKILL :data:`KILL_AFTER` seconds later if still
+    running; True when a watch is on."""
+    value = os.environ.get(WATCH_ENV, "")
+    pid_text, _, start = value.partition(":")
+    if not pid_text.isdigit() or not start:
+        return False
+    pid = int(pid_text)
+    with _watching_guard:
+        if value in _watching:  # a reused worker process: one watch for all its jobs
+            return True
+        _watching.add(value)
+
+    def watch() -> None:
+        while _start_time(pid) == start:
+            time.sleep(every)
+        os.kill(os.getpid(), sig)
+        # a launcher may catch the signal (submitit's jobs take SIGTERM for a preemption)
+        time.sleep(KILL_AFTER)
+        os.kill(os.getpid(), signal.SIGKILL)
+
+    threading.Thread(target=watch, name="end-with-watched", daemon=True).start()
+    return True

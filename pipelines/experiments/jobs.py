@@ -34,7 +34,7 @@ from omegaconf import DictConfig
 
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.files import write_json_atomic
-from uss_slam.core.processes import die_with_parent
+from uss_slam.core.processes import die_with_parent, end_with_watched
 from uss_slam.pipelines.runs import (
     SlamJob,
     checkpoint_miou,
@@ -195,8 +195,10 @@ def run_cell(plan_path: Path, out: Path, cell: str) -> dict[str, Any]:
         raise UssSlamError(f"{plan_path}: no job {cell!r}")
     # A launcher that runs jobs in processes of its own (joblib's workers, submitit's local
     # executor) leaves them running when the multirun is killed: end this one with the process
-    # that started it, so that a job never keeps writing into a folder a rerun writes too.
+    # that started it, and with uss-experiments (which names itself in the environment), so
+    # that a job never keeps writing into a folder a rerun writes too.
     die_with_parent(os.getppid())
+    end_with_watched()
     stage = stage_of(out, spec, cell)
     if stage.complete():
         log.info("%s: complete already, reused", cell)

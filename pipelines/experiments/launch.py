@@ -5,6 +5,7 @@ finish, and reading each job's state back from its folder."""
 from __future__ import annotations
 
 import json
+import os
 import re
 import shlex
 import subprocess
@@ -17,7 +18,7 @@ from typing import Any
 
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.files import write_json_atomic
-from uss_slam.core.processes import ends_with_parent
+from uss_slam.core.processes import ends_with_parent, watched_by_children
 
 from . import tables as tbl
 from .experiment import Experiment
@@ -154,9 +155,14 @@ def _run_and_watch(
         out.write(f"$ {shlex.join(command)}\n")
         out.flush()
         # the multirun ends with this process, even after a kill -9 of it (no survivor
-        # writes into out_dir while a rerun does)
+        # writes into out_dir while a rerun does), and so do its jobs in the launcher's own
+        # worker processes (they watch this process: jobs.run_cell)
         proc = subprocess.Popen(
-            command, stdout=out, stderr=subprocess.STDOUT, preexec_fn=ends_with_parent()
+            command,
+            stdout=out,
+            stderr=subprocess.STDOUT,
+            preexec_fn=ends_with_parent(),
+            env={**os.environ, **watched_by_children()},
         )
         try:
             return _watch(exp, stage, proc, pending, every, t0)

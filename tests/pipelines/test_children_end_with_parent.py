@@ -153,3 +153,49 @@ def test_joblib_workers_end_with_a_killed_job_runner(tmp_path: Path) -> None:
     assert driver.pid not in children  # they run in joblib's workers, not in the job runner
     _kill_and_wait(driver, children)
     assert not (out / "a" / "result.json").exists() and not (out / "b" / "result.json").exists()
+
+
+def test_submitit_local_jobs_end_with_a_killed_uss_experiments(tmp_path: Path) -> None:
+    """submitit's local executor runs each job under a process of its own, which outlives a
+    killed job runner; the jobs watch the process that launched the multirun and end with it."""
+    pytest.importorskip("hydra_plugins.hydra_submitit_launcher")
+    pids = tmp_path / "pids"
+    app = tmp_path / "app.py"
+    app.write_text(textwrap.dedent(f"""
+        import os, time
+        from pathlib import Path
+        import hydra
+        from uss_slam.pipelines.experiments import jobs
+
+        def sleeper(folder, spec):
+            with open({str(pids)!r}, "a") as file:
+                file.write(f"{{os.getpid()}}\\n")
+            time.sleep(120)
+            return {{}}
+
+        @hydra.main(version_base="1.3", config_path=None, config_name=None)
+        def main(cfg):
+            jobs.KINDS["sleep"] = sleeper
+            return jobs.run_cell(Path(cfg.plan), Path(cfg.out), str(cfg.cell))
+
+        if __name__ == "__main__":
+            main()
+    """))
+    out = tmp_path / "exp"
+    out.mkdir()
+    plan = out / "plan.json"
+    plan.write_text('{"cells": {"a": {"kind": "sleep", "key": "a"}}}')
+    command = [sys.executable, str(app), "-m", f"+plan={plan}", f"+out={out}", "+cell=a",
+               "hydra/launcher=submitit_local", f"hydra.sweep.dir={tmp_path / 'multirun'}"]  # fmt: skip
+    # the driver stands in for uss-experiments: the multirun as launch.py starts it
+    driver_code = textwrap.dedent(f"""
+        import os, subprocess
+        from uss_slam.core.processes import ends_with_parent, watched_by_children
+        proc = subprocess.Popen({command!r}, preexec_fn=ends_with_parent(),
+                                env={{**os.environ, **watched_by_children()}})
+        proc.wait()
+    """)
+    driver = subprocess.Popen([sys.executable, "-c", driver_code], stderr=subprocess.PIPE)
+    children = _pids(pids, 1, driver, timeout=120)
+    _kill_and_wait(driver, children)
+    assert not (out / "a" / "result.json").exists()
