@@ -126,6 +126,7 @@ def test_joblib_workers_end_with_a_killed_job_runner(tmp_path: Path) -> None:
     plan = out / "plan.json"
     plan.write_text('{"cells": {"a": {"kind": "sleep", "key": "a"}, "b": {"kind": "sleep", '
                     '"key": "b"}}}')  # fmt: skip
+    sweep = tmp_path / "multirun"
     driver_code = textwrap.dedent(f"""
         import os, sys, time
         from pathlib import Path
@@ -145,7 +146,7 @@ def test_joblib_workers_end_with_a_killed_job_runner(tmp_path: Path) -> None:
 
         sys.argv = [sys.argv[0], "-m", "+plan={plan}", "+out={out}", "+cell=a,b",
                     "hydra/launcher=joblib", "hydra.launcher.n_jobs=2",
-                    "hydra.sweep.dir={tmp_path / 'multirun'}"]
+                    "hydra.sweep.dir={sweep}"]
         main()
     """)
     driver = subprocess.Popen([sys.executable, "-c", driver_code], stderr=subprocess.PIPE)
@@ -161,7 +162,8 @@ def test_submitit_local_jobs_end_with_a_killed_uss_experiments(tmp_path: Path) -
     pytest.importorskip("hydra_plugins.hydra_submitit_launcher")
     pids = tmp_path / "pids"
     app = tmp_path / "app.py"
-    app.write_text(textwrap.dedent(f"""
+    app.write_text(
+        textwrap.dedent(f"""
         import os, time
         from pathlib import Path
         import hydra
@@ -180,13 +182,14 @@ def test_submitit_local_jobs_end_with_a_killed_uss_experiments(tmp_path: Path) -
 
         if __name__ == "__main__":
             main()
-    """))
+    """)
+    )
     out = tmp_path / "exp"
     out.mkdir()
     plan = out / "plan.json"
     plan.write_text('{"cells": {"a": {"kind": "sleep", "key": "a"}}}')
     command = [sys.executable, str(app), "-m", f"+plan={plan}", f"+out={out}", "+cell=a",
-               "hydra/launcher=submitit_local", f"hydra.sweep.dir={tmp_path / 'multirun'}"]  # fmt: skip
+               "hydra/launcher=submitit_local", f"hydra.sweep.dir={sweep}"]  # fmt: skip
     # the driver stands in for uss-experiments: the multirun as launch.py starts it
     driver_code = textwrap.dedent(f"""
         import os, subprocess
