@@ -188,6 +188,7 @@ def test_submitit_local_jobs_end_with_a_killed_uss_experiments(tmp_path: Path) -
     out.mkdir()
     plan = out / "plan.json"
     plan.write_text('{"cells": {"a": {"kind": "sleep", "key": "a"}}}')
+    sweep = tmp_path / "multirun"
     command = [sys.executable, str(app), "-m", f"+plan={plan}", f"+out={out}", "+cell=a",
                "hydra/launcher=submitit_local", f"hydra.sweep.dir={sweep}"]  # fmt: skip
     # the driver stands in for uss-experiments: the multirun as launch.py starts it
