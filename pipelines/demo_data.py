@@ -12,7 +12,9 @@ What source and target differ in is the *shift* (:data:`SHIFTS`):
 
 - ``tum_like`` (default), the stand-in for VOC / SBD / COCO -> TUM: the source people wear the
   ``all`` wardrobe (every garment family of the world, in rooms of both material families), as
-  real photos show every kind of clothing; the target differs by lighting, sensor, viewpoint
+  real photos show every kind of clothing, and 30% of the source images face a person at the
+  walkers' distance (:data:`SHIFT_NEAR`), as real photos show people at every distance; the
+  target differs by lighting, sensor, viewpoint
   and distance, layout and class priors; each target sequence's walkers wear outfits drawn for
   that sequence from the same distribution (``outfits="drawn"``), so the evaluation
   sequences' outfits were never rendered for training or validation.
@@ -61,6 +63,10 @@ SHIFT_WARDROBE = {"tum_like": "all", "appearance": "classic", "full": "classic"}
 SHIFT_OUTFITS = {"tum_like": "drawn", "appearance": "drawn", "full": "office"}
 """What the people of the target *sequences* wear under each shift
 (:data:`~uss_slam.synthetic.sequence.SEQUENCE_OUTFITS`)."""
+SHIFT_NEAR = {"tum_like": 0.3, "appearance": 0.0, "full": 0.0}
+"""The share of the VOC set's images that face a person at walking distance under each shift
+(:func:`~uss_slam.synthetic.voc.near_view`): real photos show people at every distance, the
+TUM walkers' 0.6-1.6 m included; without them no source-trained segmenter finds the walkers."""
 APPEARANCE_FOLDERS = 4
 """Target training image folders of the ``appearance`` shift (one seed each, as the four
 training sequences of the others)."""
@@ -128,6 +134,11 @@ class DemoData:
         return self.source_outfits or SHIFT_WARDROBE[self.shift]
 
     @property
+    def near(self) -> float:
+        """The share of the VOC set's images at walking distance from a person."""
+        return SHIFT_NEAR[self.shift]
+
+    @property
     def sequence_outfits(self) -> str:
         """What the people of the target sequences wear."""
         return SHIFT_OUTFITS[self.shift]
@@ -156,7 +167,8 @@ class DemoData:
 
     def record(self) -> dict[str, Any]:
         """The content of ``demo.yaml`` (same keys and order as ever: old data sets match;
-        ``source_outfits`` only when not ``classic``, ``shift`` only when not ``full``)."""
+        ``source_outfits`` only when not ``classic``, ``shift`` only when not ``full``,
+        ``source_near`` only when not 0)."""
         record = {
             "generator": GENERATOR,
             "seed": self.seed,
@@ -172,6 +184,8 @@ class DemoData:
             record["source_outfits"] = self.wardrobe
         if self.shift != "full":
             record["shift"] = self.shift
+        if self.near:
+            record["source_near"] = self.near
         return record
 
 
@@ -191,7 +205,7 @@ def _tasks(root: Path, spec: DemoData) -> list[Task]:
     if spec.voc_images:
         tasks.append(("voc", render_voc, dict(out_dir=root / "voc", images=spec.voc_images,
                                               size=spec.voc_size, seed=spec.seed,
-                                              outfits=spec.wardrobe)))  # fmt: skip
+                                              outfits=spec.wardrobe, near=spec.near)))  # fmt: skip
     outfits = spec.sequence_outfits
     if spec.shift == "appearance":
         # the source's content generator in the target's lighting and sensor (other seeds)

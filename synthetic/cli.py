@@ -70,6 +70,17 @@ def _positive(minimum: int, maximum: int | None = None, why: str = ""):
     return parse
 
 
+def _share(text: str) -> float:
+    """An argparse type: a number in [0, 1]."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number in [0, 1], got {text!r}") from None
+    if not 0 <= value <= 1:
+        raise argparse.ArgumentTypeError(f"must be in [0, 1], got {value:g}")
+    return value
+
+
 def _preset(text: str) -> str:
     if text not in PRESETS:
         raise argparse.ArgumentTypeError(
@@ -186,6 +197,15 @@ def build_parser() -> argparse.ArgumentParser:
         "images (default: classic)",
     )
     voc.add_argument(
+        "--near",
+        type=_share,
+        default=0.0,
+        metavar="SHARE",
+        help="the share of images (0..1) that face a person at walking distance (0.6-1.6 m, "
+        "camera at chest height), as the tum_like shift's source set (0.3) and real photos "
+        "do; the other images are as with 0 (default: 0)",
+    )
+    voc.add_argument(
         "--style",
         choices=STYLES,
         default="source",
@@ -222,13 +242,13 @@ def _render(args: argparse.Namespace) -> int:
                   f"{args.size[0]}x{args.size[1]}) to {out}")  # fmt: skip
         elif args.style == "target":
             out = render_voc_frames(args.out, images=args.images, size=args.size, seed=args.seed,
-                                    outfits=args.outfits, style="target", overwrite=args.overwrite,
-                                    progress=not args.quiet)  # fmt: skip
+                                    outfits=args.outfits, style="target", near=args.near,
+                                    overwrite=args.overwrite, progress=not args.quiet)  # fmt: skip
             print(f"wrote {args.images} labelled target-style images "
                   f"({args.size[0]}x{args.size[1]}) to {out}")  # fmt: skip
         else:
             out = render_voc(args.out, images=args.images, size=args.size, seed=args.seed,
-                             outfits=args.outfits, overwrite=args.overwrite,
+                             outfits=args.outfits, near=args.near, overwrite=args.overwrite,
                              progress=not args.quiet)  # fmt: skip
             print(f"wrote {args.images} images ({args.size[0]}x{args.size[1]}) to {out}")
     except SynthArgumentError as err:

@@ -2,7 +2,9 @@
 ``appearance`` shift's target, the same content in the ``target`` style: :func:`render_voc_frames`).
 
 Each image is a new random room layout (desks, monitors, chairs, shelves, 1-3 people standing,
-walking or seated) seen from a random viewpoint aimed at a person, chair or monitor. Labels are
+walking or seated) seen from a random viewpoint aimed at a person, chair or monitor, 1-3.8 m
+away; with ``near`` > 0, that share of the images faces a person 0.6-1.6 m away from chest
+height instead (:func:`near_view`). Labels are
 palette PNGs with VOC indices (person 15, chair 9, tvmonitor 20, background 0) and a void band
 (255) along object outlines, about 5 pixels wide at 500 pixels like the real annotations.
 """
@@ -20,7 +22,7 @@ import numpy as np
 import yaml
 from PIL import Image
 
-from uss_slam.core.classes import IGNORE_INDEX, PROJECT_TO_VOC, voc_palette
+from uss_slam.core.classes import CLASS_NAMES, IGNORE_INDEX, PROJECT_TO_VOC, voc_palette
 from uss_slam.core.progress import progress_bar
 from uss_slam.core.tum_io import TUM_CAMERAS
 
@@ -41,6 +43,7 @@ from .textures import (
 
 VOC_VARIANTS = 3
 """Texture banks the set draws from (image ``i`` uses bank ``i % VOC_VARIANTS``)."""
+PERSON = CLASS_NAMES.index("person")
 MIN_OBJECT_SHARE = 0.01
 """Each image shows at least this share of person / chair / monitor pixels."""
 VAL_EVERY = 5
@@ -104,7 +107,12 @@ def _noise_pool(seed: int, size: tuple[int, int]) -> NoisePool:
 
 
 def render_voc_sample(
-    seed: int, index: int, size: tuple[int, int], outfits: str = "classic", style: str = "source"
+    seed: int,
+    index: int,
+    size: tuple[int, int],
+    outfits: str = "classic",
+    style: str = "source",
+    near: float = 0.0,
 ) -> VocSample:
     """Render image ``index`` of the set with ``seed`` (deterministic, independent of the others).
 
@@ -112,8 +120,11 @@ def render_voc_sample(
     ``source`` (clean, even light) or ``target`` (the recordings' lighting and the Kinect-like
     sensor of :func:`~.styles.target_rgb`, with the blur of a camera moving during the
     exposure); the content (layout, viewpoint, materials, labels) does not depend on it.
+    ``near``: the share of images framed as a person facing a camera at walking distance
+    (:func:`near_view`); the others (and every image when 0) are as without it.
     """
     check_outfits(outfits)
+    check_near(near)
     if style not in STYLES:
         raise SynthArgumentError(f"unknown style {style!r}; choose one of {', '.join(STYLES)}")
     rng = stream(seed, "voc/view", index)
@@ -125,23 +136,34 @@ def render_voc_sample(
     else:
         # one room bank per wardrobe: a bank is built once for its 20 images
         bank = all_wardrobe_bank(index // WARDROBE_IMAGES, index // WARDROBE_IMAGES)
+    # a separate stream: a set with near=0 is the set rendered before the option existed
+    close = stream(seed, "voc/near", index)
+    is_near = near > 0 and close.uniform() < near
     for attempt in range(200):
         scene: Scene = random_scene(seed, index * 1000 + attempt // 20)
         prims = scene.prims_at(0.0)
         if not len(prims):
             continue
-        objects = np.flatnonzero(prims.label > 0)
-        if len(objects) == 0:
-            continue
-        focus = prims.center[objects[int(rng.integers(0, len(objects)))]].astype(np.float64)
         lo, hi = np.array(scene.room.lo), np.array(scene.room.hi)
-        dist = rng.uniform(1.0, 3.8)
-        ang = rng.uniform(-math.pi, math.pi)
-        eye = np.array([focus[0] + dist * math.cos(ang), focus[1] + dist * math.sin(ang),
-                        rng.uniform(0.8, 1.9)])  # fmt: skip
+        if is_near:
+            view = near_view(prims, close)
+            if view is None:
+                continue
+            eye, target = view
+        else:
+            objects = np.flatnonzero(prims.label > 0)
+            if len(objects) == 0:
+                continue
+            focus = prims.center[objects[int(rng.integers(0, len(objects)))]].astype(np.float64)
+            dist = rng.uniform(1.0, 3.8)
+            ang = rng.uniform(-math.pi, math.pi)
+            eye = np.array([focus[0] + dist * math.cos(ang), focus[1] + dist * math.sin(ang),
+                            rng.uniform(0.8, 1.9)])  # fmt: skip
+            target = None
         if (eye < lo + 0.25).any() or (eye > hi - 0.25).any() or _inside_something(eye, prims):
             continue
-        target = focus + rng.normal(0, 0.25, 3)
+        if target is None:
+            target = focus + rng.normal(0, 0.25, 3)
         pose = np.eye(4)
         roll = rng.normal(0, 0.05)
         c, s = math.cos(roll), math.sin(roll)
@@ -170,6 +192,36 @@ def render_voc_sample(
     raise RuntimeError(f"no usable view for VOC image {index} (seed {seed})")  # pragma: no cover
 
 
+NEAR_DISTANCE = (0.6, 1.6)
+"""Metres from a near view's camera to the person it faces (the TUM walkers' range)."""
+NEAR_EYE_HEIGHT = (1.0, 1.6)
+"""Height of a near view's camera: a hand-held Kinect at chest height."""
+
+
+def check_near(near: float) -> None:
+    if isinstance(near, bool) or not isinstance(near, (int, float)) or not 0 <= near <= 1:
+        raise SynthArgumentError(f"near must be a share in [0, 1], got {near!r}")
+
+
+def near_view(prims: PrimArrays, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray] | None:
+    """A camera at :data:`NEAR_DISTANCE` from one of the scene's people, at
+    :data:`NEAR_EYE_HEIGHT`, looking about level at the person's torso (as a camera carried
+    past a walker sees them); None when the scene has no person."""
+    people = np.flatnonzero(prims.label == PERSON)
+    if len(people) == 0:
+        return None
+    # the person's parts: the primitives whose centres are within 0.5 m of the picked one's
+    pick = prims.center[people[int(rng.integers(0, len(people)))]].astype(np.float64)
+    parts = people[np.linalg.norm(prims.center[people, :2] - pick[:2], axis=1) < 0.5]
+    torso = prims.center[parts].astype(np.float64).mean(axis=0)
+    dist = rng.uniform(*NEAR_DISTANCE)
+    ang = rng.uniform(-math.pi, math.pi)
+    eye = np.array([torso[0] + dist * math.cos(ang), torso[1] + dist * math.sin(ang),
+                    rng.uniform(*NEAR_EYE_HEIGHT)])  # fmt: skip
+    target = np.array([torso[0], torso[1], torso[2]]) + rng.normal(0, 0.15, 3)
+    return eye, target
+
+
 def _check_images(images: int, outfits: str) -> None:
     """The ``outfits`` and the image count of :func:`render_voc` and :func:`render_voc_frames`."""
     check_outfits(outfits)
@@ -184,6 +236,7 @@ def render_voc(
     size: tuple[int, int] = (320, 240),
     seed: int = 0,
     outfits: str = "classic",
+    near: float = 0.0,
     overwrite: bool = False,
     progress: bool = False,
 ) -> Path:
@@ -193,9 +246,11 @@ def render_voc(
     fifth image) and ``trainval.txt``. Returns the ``.../VOC2012`` path. The folder appears only
     when complete; an existing non-empty ``out_dir`` is an error unless ``overwrite``.
     ``outfits``: the people's clothing (:data:`~.textures.WARDROBES`; ``varied``: every kind of
-    fabric and colour, a new wardrobe of 4 outfits every 20 images).
+    fabric and colour, a new wardrobe of 4 outfits every 20 images). ``near``: the share of
+    images that face a person at walking distance (:func:`near_view`).
     """
     _check_images(images, outfits)
+    check_near(near)
     size = check_size(size)
     palette = voc_palette().reshape(-1).tolist()
     band = void_width(size)
@@ -210,7 +265,7 @@ def render_voc(
             folder.mkdir(parents=True)
         names = []
         for i in progress_bar(range(images), desc="VOC images", unit="img", disable=not progress):
-            sample = render_voc_sample(seed, i, size, outfits)
+            sample = render_voc_sample(seed, i, size, outfits, near=near)
             write_jpeg(jpeg / f"{sample.name}.jpg", sample.rgb)
             png = Image.fromarray(voc_indices(sample.labels, band), mode="P")
             png.putpalette(palette)
@@ -235,6 +290,7 @@ def render_voc_frames(
     seed: int = 0,
     outfits: str = "classic",
     style: str = "target",
+    near: float = 0.0,
     overwrite: bool = False,
     progress: bool = False,
 ) -> Path:
@@ -242,9 +298,11 @@ def render_voc_frames(
     (PNG), ``labels/`` (uint8 project class ids, void band 255 as in the VOC set), ``rgb.txt``
     (stamps 1/30 s apart) and ``synthetic.yaml``; no depth. This is how the ``appearance``
     shift's target frames are stored, so that the target loader (``TUMFrames``) and
-    ``uss-eval --sequence`` read them like a recording's frames. Returns ``out_dir``.
+    ``uss-eval --sequence`` read them like a recording's frames. ``near``: as
+    :func:`render_voc`'s. Returns ``out_dir``.
     """
     _check_images(images, outfits)
+    check_near(near)
     if style not in STYLES:
         raise SynthArgumentError(f"unknown style {style!r}; choose one of {', '.join(STYLES)}")
     size = check_size(size)
@@ -259,7 +317,7 @@ def render_voc_frames(
         stamps, files = [], []
         for i in progress_bar(range(images), desc=f"VOC-layout frames ({style})", unit="img",
                       disable=not progress):  # fmt: skip
-            sample = render_voc_sample(seed, i, size, outfits, style)
+            sample = render_voc_sample(seed, i, size, outfits, style, near)
             stamp = round(1.0 + i / FRAMES_RATE, 6)
             name = f"{stamp:.6f}.png"
             labels = sample.labels.copy()
@@ -277,5 +335,7 @@ def render_voc_frames(
             "style": style,
             "outfits": outfits,
         }
+        if near:
+            meta["near"] = float(near)
         (tmp / "synthetic.yaml").write_text(yaml.safe_dump(meta, sort_keys=False))
     return Path(out_dir)

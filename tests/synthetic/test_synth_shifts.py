@@ -95,3 +95,31 @@ def test_unknown_names_are_one_line_errors() -> None:
         SynthArgumentError, match="unknown style 'night'; choose one of source, target"
     ):
         render_voc_sample(0, 0, SIZE, "classic", "night")
+
+
+def test_near_views_face_a_person_and_leave_the_other_images_as_they_were() -> None:
+    """``near``: that share of the VOC-layout images faces a person at walking distance; the
+    others are the images of ``near=0`` (a separate random stream decides), so sets made
+    without near views do not change."""
+    from uss_slam.synthetic.voc import render_voc_sample
+
+    plain = [render_voc_sample(0, i, SIZE, "all") for i in range(12)]
+    mixed = [render_voc_sample(0, i, SIZE, "all", near=0.5) for i in range(12)]
+    same = [np.array_equal(a.labels, b.labels) and np.array_equal(a.rgb, b.rgb)
+            for a, b in zip(plain, mixed, strict=True)]  # fmt: skip
+    assert 2 <= same.count(False) <= 10  # about half of them are near views
+    near = [m for m, s in zip(mixed, same, strict=True) if not s]
+    share = np.mean([(m.labels == PERSON).mean() for m in near])
+    assert share > 2 * np.mean([(p.labels == PERSON).mean() for p in plain])
+    assert all((m.labels == PERSON).mean() > 0.02 for m in near)  # each shows its person
+    with pytest.raises(SynthArgumentError, match=r"near must be a share in \[0, 1\], got 1.5"):
+        render_voc_sample(0, 0, SIZE, "all", near=1.5)
+
+
+def test_the_tum_like_source_set_has_near_views() -> None:
+    from uss_slam.pipelines.demo_data import DemoData
+
+    assert DemoData(shift="tum_like").near == 0.3
+    assert DemoData(shift="tum_like").record()["source_near"] == 0.3
+    assert "source_near" not in DemoData(shift="appearance").record()
+    assert "source_near" not in DemoData(shift="full").record()
