@@ -42,7 +42,11 @@ def test_record_is_unchanged_for_existing_data_sets() -> None:
     ci = demo.PLANS["ci"].data
     full = DemoData(**{**ci.__dict__, "shift": "full"})
     assert yaml.safe_dump(full.record(), sort_keys=False) == CI_RECORD
-    assert ci.record() == full.record() | {"source_outfits": "all", "shift": "tum_like"}
+    assert ci.record() == full.record() | {
+        "source_outfits": "all",
+        "shift": "tum_like",
+        "source_near": 0.3,
+    }
     assert demo.PLANS["demo"].data == DemoData()  # 400 images, 4 x 100, 100, 2 x 300 frames
     assert DemoData().shift == "tum_like"
 
