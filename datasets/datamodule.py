@@ -14,6 +14,7 @@ writes ``source_manifest.json`` into the run directory (the trainer's ``default_
 
 from __future__ import annotations
 
+import multiprocessing
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -151,6 +152,7 @@ class UDADataModule(LightningDataModule):
             num_workers=self.num_workers,
             persistent_workers=self.num_workers > 0,
             pin_memory=self.pin_memory,
+            multiprocessing_context=worker_context(self.num_workers),
         )
 
     def train_dataloader(self) -> CombinedLoader:
@@ -171,4 +173,19 @@ class UDADataModule(LightningDataModule):
             num_workers=self.num_workers,
             persistent_workers=self.num_workers > 0,
             pin_memory=self.pin_memory,
+            multiprocessing_context=worker_context(self.num_workers),
         )
+
+
+def worker_context(num_workers: int) -> Any:
+    """The multiprocessing context of the loaders' worker processes: None (Python's default)
+    unless the process's default start method is not one of Python's own. A training run
+    inside joblib's worker processes (``uss-experiments launcher=joblib``) finds joblib's
+    ``loky`` method there, whose processes a data loader cannot start; it gets the platform's
+    default method instead."""
+    if num_workers == 0:
+        return None
+    method = multiprocessing.get_start_method(allow_none=True)
+    if method is None or method in multiprocessing.get_all_start_methods():
+        return None
+    return multiprocessing.get_context(multiprocessing.get_all_start_methods()[0])

@@ -70,3 +70,34 @@ def test_streams_are_seeded_and_independent_of_workers(datasets: dict) -> None:
 def test_no_validation_set_gives_no_val_loader(datasets: dict) -> None:
     dm = UDADataModule(datasets["source"], datasets["target"], val=None)
     assert dm.val_dataloader() == []
+
+
+def _load_in_a_worker(context: bool) -> str:
+    """In a joblib worker: a data loader with one worker process, as the training's loaders."""
+    from torch.utils.data import DataLoader
+
+    from uss_slam.datasets.datamodule import worker_context
+
+    extra = {"multiprocessing_context": worker_context(1)} if context else {}
+    try:
+        return str([b.tolist() for b in DataLoader(list(range(4)), batch_size=2, num_workers=1,
+                                                   **extra)])  # fmt: skip
+    except AttributeError as error:
+        return f"failed: {error}"
+
+
+@pytest.mark.filterwarnings("ignore:Got pickle error")
+def test_loaders_start_workers_inside_joblib_workers() -> None:
+    """A training inside joblib's worker processes (``uss-experiments launcher=joblib``) finds
+    joblib's ``loky`` start method as the process's default, whose processes a data loader
+    cannot start (``'Process' object has no attribute 'env'``); the loaders' context is the
+    platform's default method there, and Python's default (None) elsewhere."""
+    joblib = pytest.importorskip("joblib")
+    from uss_slam.datasets.datamodule import worker_context
+
+    assert worker_context(0) is None and worker_context(2) is None  # here: Python's default
+    plain, ours = joblib.Parallel(n_jobs=2)(
+        joblib.delayed(_load_in_a_worker)(c) for c in (False, True)
+    )
+    assert plain.startswith("failed: ")  # what the training jobs ran into
+    assert ours == "[[0, 1], [2, 3]]"
