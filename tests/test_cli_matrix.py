@@ -484,6 +484,12 @@ CASES = [
          "num_threads must be an integer >= 1 or null (torch's default), got -1"),
     case("train-num-threads-zero", "uss-train", f"{TRAIN} num_threads=0", 1,
          "num_threads must be an integer >= 1 or null (torch's default), got 0"),
+    case("train-num-threads-text", "uss-train", f"{TRAIN} num_threads=x", 1,
+         "num_threads: Value 'x' of type 'str' could not be converted to Integer"),
+    case("train-seed-text", "uss-train", f"{TRAIN} seed=abc", 1,
+         "seed: Value 'abc' of type 'str' could not be converted to Integer"),
+    case("train-tags-not-a-list", "uss-train", f"{TRAIN} tags=5", 1,
+         "tags: Invalid value assigned: AnyNode is not a ListConfig, list or tuple."),
     # ---------------------------------------------------------------- uss-export (Hydra)
     case("export-unknown-key", "uss-export", f"{EXPORT} opsett=17", 1,
          "Key 'opsett' is not in struct"),

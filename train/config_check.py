@@ -1,6 +1,10 @@
-"""Config values checked against the signatures of the objects they will build, before any is
-built: ``model.max_iters=abc`` or ``trainer.max_epochs=x`` become one line naming the key,
-instead of a ``TypeError`` deep inside Lightning after the run started.
+"""Config values checked against their types before anything is built: ``model.max_iters=abc``
+or ``num_threads=-1`` become one line naming the key, instead of a ``TypeError`` deep inside
+Lightning after the run started.
+
+The run's own top-level keys (``seed``, ``num_threads``, ``ckpt_path``, ...) are a typed
+structured config, :class:`RunSettings` (types from its annotations, ranges in its
+``__post_init__``), applied to the composed config by :func:`run_settings`.
 
 Every node with a ``_target_`` is compared with its target's parameter annotations. Only what a
 config can express is judged (integers, numbers, booleans, strings, ``null``, literals and lists
@@ -13,10 +17,12 @@ import inspect
 import types
 import typing
 from collections.abc import Mapping, Sequence
-from typing import Any, Literal, Union
+from dataclasses import dataclass, field, fields
+from typing import Any, Literal, Optional, Union
 
 from hydra.utils import get_object
 from omegaconf import DictConfig, ListConfig, OmegaConf
+from omegaconf.errors import OmegaConfBaseException
 from torch import Tensor
 
 from uss_slam.core.errors import UssSlamError
@@ -159,3 +165,43 @@ def check_config_types(cfg: DictConfig, sections: Sequence[str]) -> None:
     for section in sections:
         if section in cfg and not OmegaConf.is_missing(cfg, section):
             check_node(cfg[section], section)
+
+
+@dataclass
+class RunSettings:
+    """The top level of ``uss-train``'s config (``configs/train.yaml``) besides its groups."""
+
+    task_name: str = "train"
+    run_name: str = "default"
+    """Runs land in ``${paths.log_dir}/${task_name}/runs/${run_name}/<time>``."""
+    tags: list[str] = field(default_factory=list)
+    seed: Optional[int] = 0  # noqa: UP045 (OmegaConf reads typing's Optional)
+    ckpt_path: Optional[str] = None  # noqa: UP045
+    """Checkpoint to resume from: null, a ``.ckpt`` file, or ``last``."""
+    num_threads: Optional[int] = None  # noqa: UP045
+    """``torch.set_num_threads``: an integer >= 1, or null for torch's default."""
+    optimized_metric: Optional[str] = "val/mIoU"  # noqa: UP045
+    """Metric returned to Hydra sweepers."""
+
+    def __post_init__(self) -> None:
+        if self.num_threads is not None and self.num_threads < 1:
+            # 0 would silently mean torch's default, -1 end in torch's traceback
+            raise UssSlamError(
+                f"num_threads must be an integer >= 1 or null (torch's default), "
+                f"got {self.num_threads}"
+            )
+
+
+def run_settings(cfg: DictConfig) -> RunSettings:
+    """The top-level keys of ``cfg`` as :class:`RunSettings`: a value of the wrong type or out
+    of range is one line naming its key."""
+    values = {f.name: cfg[f.name] for f in fields(RunSettings) if f.name in cfg}
+    try:
+        typed = OmegaConf.merge(OmegaConf.structured(RunSettings), values)
+        settings = OmegaConf.to_object(typed)
+    except OmegaConfBaseException as error:
+        key = getattr(error, "full_key", None) or "config"
+        message = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+        raise UssSlamError(f"{key}: {message}") from None
+    assert isinstance(settings, RunSettings)
+    return settings

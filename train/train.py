@@ -32,7 +32,7 @@ from uss_slam.core.errors import UssSlamError
 from uss_slam.core.files import check_writable
 from uss_slam.models.checkpoint import CheckpointInfo, read_checkpoint
 from uss_slam.train.callbacks import LogProgressBar
-from uss_slam.train.config_check import check_config_types
+from uss_slam.train.config_check import check_config_types, run_settings
 from uss_slam.train.module import AdversarialSegmentation
 from uss_slam.train.speed import resolve_precision
 
@@ -177,20 +177,6 @@ def build(cfg: DictConfig, key: str) -> Any:
         raise
 
 
-def check_num_threads(cfg: DictConfig) -> int | None:
-    """``num_threads``: an integer >= 1 (torch's intra-op threads) or null (torch's default).
-    Anything else is one line naming the key before any work: ``-1`` would end in torch's
-    traceback, and ``0`` would silently mean the default."""
-    value = cfg.get("num_threads")
-    if value is None:
-        return None
-    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-        raise UssSlamError(
-            f"num_threads must be an integer >= 1 or null (torch's default), got {value!r}"
-        )
-    return value
-
-
 def fit(
     trainer: Trainer,
     model: LightningModule,
@@ -231,13 +217,13 @@ def train(cfg: DictConfig) -> dict[str, float]:
     config, the checkpoint to resume, the output folders), so that a bad run leaves no
     checkpoints or logs behind.
     """
+    settings = run_settings(cfg)
     check_config_types(cfg, TYPED_SECTIONS)
     check_optimizers(cfg)
-    num_threads = check_num_threads(cfg)
-    if num_threads is not None:
-        torch.set_num_threads(num_threads)
-    if cfg.get("seed") is not None:
-        L.seed_everything(int(cfg.seed), workers=True, verbose=False)
+    if settings.num_threads is not None:
+        torch.set_num_threads(settings.num_threads)
+    if settings.seed is not None:
+        L.seed_everything(settings.seed, workers=True, verbose=False)
     ckpt_path = resolve_ckpt_path(cfg)
     checkpoint = check_checkpoint(ckpt_path, cfg) if ckpt_path is not None else None
     for key, folder in _output_folders(cfg):
