@@ -116,18 +116,10 @@ def test_the_demo_data_workers_end_with_a_killed_uss_demo(tmp_path: Path) -> Non
             time.sleep(0.05)
 
 
-def test_joblib_workers_end_with_a_killed_job_runner(tmp_path: Path) -> None:
-    """With ``launcher=joblib`` the jobs run in joblib's worker processes, which would finish
-    the job they are on after the job runner was killed; each job ends with it instead."""
-    pytest.importorskip("hydra_plugins.hydra_joblib_launcher")
-    pids = tmp_path / "pids"
-    out = tmp_path / "exp"
-    out.mkdir()
-    plan = out / "plan.json"
-    plan.write_text('{"cells": {"a": {"kind": "sleep", "key": "a"}, "b": {"kind": "sleep", '
-                    '"key": "b"}}}')  # fmt: skip
-    sweep = tmp_path / "multirun"
-    driver_code = textwrap.dedent(f"""
+def _jobs_app(pids: Path) -> str:
+    """A Hydra app running ``jobs.run_cell`` on jobs of kind ``sleep`` (each writes its pid to
+    ``pids`` and sleeps); ``main`` is defined in the app, so that launchers send its code."""
+    return textwrap.dedent(f"""
         import os, sys, time
         from pathlib import Path
         import hydra
@@ -140,10 +132,24 @@ def test_joblib_workers_end_with_a_killed_job_runner(tmp_path: Path) -> None:
             return {{}}
 
         @hydra.main(version_base="1.3", config_path=None, config_name=None)
-        def main(cfg):  # defined here, so that joblib sends the workers this code
+        def main(cfg):
             jobs.KINDS["sleep"] = sleeper
             return jobs.run_cell(Path(cfg.plan), Path(cfg.out), str(cfg.cell))
+    """)
 
+
+def test_joblib_workers_end_with_a_killed_job_runner(tmp_path: Path) -> None:
+    """With ``launcher=joblib`` the jobs run in joblib's worker processes, which would finish
+    the job they are on after the job runner was killed; each job ends with it instead."""
+    pytest.importorskip("hydra_plugins.hydra_joblib_launcher")
+    pids = tmp_path / "pids"
+    out = tmp_path / "exp"
+    out.mkdir()
+    plan = out / "plan.json"
+    plan.write_text('{"cells": {"a": {"kind": "sleep", "key": "a"}, "b": {"kind": "sleep", '
+                    '"key": "b"}}}')  # fmt: skip
+    sweep = tmp_path / "multirun"
+    driver_code = _jobs_app(pids) + textwrap.dedent(f"""
         sys.argv = [sys.argv[0], "-m", "+plan={plan}", "+out={out}", "+cell=a,b",
                     "hydra/launcher=joblib", "hydra.launcher.n_jobs=2",
                     "hydra.sweep.dir={sweep}"]
@@ -162,28 +168,7 @@ def test_submitit_local_jobs_end_with_a_killed_uss_experiments(tmp_path: Path) -
     pytest.importorskip("hydra_plugins.hydra_submitit_launcher")
     pids = tmp_path / "pids"
     app = tmp_path / "app.py"
-    app.write_text(
-        textwrap.dedent(f"""
-        import os, time
-        from pathlib import Path
-        import hydra
-        from uss_slam.pipelines.experiments import jobs
-
-        def sleeper(folder, spec):
-            with open({str(pids)!r}, "a") as file:
-                file.write(f"{{os.getpid()}}\\n")
-            time.sleep(120)
-            return {{}}
-
-        @hydra.main(version_base="1.3", config_path=None, config_name=None)
-        def main(cfg):
-            jobs.KINDS["sleep"] = sleeper
-            return jobs.run_cell(Path(cfg.plan), Path(cfg.out), str(cfg.cell))
-
-        if __name__ == "__main__":
-            main()
-    """)
-    )
+    app.write_text(_jobs_app(pids) + '\nif __name__ == "__main__":\n    main()\n')
     out = tmp_path / "exp"
     out.mkdir()
     plan = out / "plan.json"
