@@ -24,7 +24,7 @@ from .output import (
     clean_stale_partials,
     parse_size,
 )
-from .sequence import SEQUENCE_OUTFITS, render_sequence
+from .sequence import READOUT, SEQUENCE_OUTFITS, TIMINGS, render_sequence
 from .styles import STYLES
 from .textures import WARDROBES
 from .voc import render_voc, render_voc_frames
@@ -167,6 +167,12 @@ def build_parser() -> argparse.ArgumentParser:
                      help="what the people wear: office = the style's outfits (the same in every "
                           "sequence of the style); drawn = outfits drawn for this sequence (seed, "
                           "preset) from the voc 'all' wardrobe's distribution (default: office)")  # fmt: skip
+    seq.add_argument("--timing", choices=TIMINGS, default=None,
+                     help="the target style's sensor timing: global = colour, labels and depth "
+                          f"at the colour stamp; kinect = a rolling shutter ({READOUT * 1000:.0f} "
+                          "ms readout, the labels skewed with the colour) and the depth image at "
+                          "its own stamp (default: the preset's; handheld_rpy: kinect, the "
+                          "others: global)")  # fmt: skip
     common(seq)
 
     voc = sub.add_parser(
@@ -237,7 +243,8 @@ def _render(args: argparse.Namespace) -> int:
         if args.command == "sequence":
             out = render_sequence(args.out, preset=args.preset, frames=args.frames, size=args.size,
                                   seed=args.seed, style=args.style, outfits=args.outfits,
-                                  overwrite=args.overwrite, progress=not args.quiet)  # fmt: skip
+                                  timing=args.timing, overwrite=args.overwrite,
+                                  progress=not args.quiet)  # fmt: skip
             print(f"wrote {args.frames} frames ({args.preset}, {args.style}, "
                   f"{args.size[0]}x{args.size[1]}) to {out}")  # fmt: skip
         elif args.style == "target":

@@ -30,6 +30,10 @@ class Preset:
     motion: str  # one of MOTIONS
     people: str  # "walking", "sitting", "frozen"
     description: str
+    timing: str = "global"
+    """The target style's sensor timing by default (``uss-synth sequence --timing``):
+    ``global`` (every pixel and the depth at the colour stamp) or ``kinect`` (a rolling
+    shutter, and the depth image at its own stamp: :data:`~.sequence.TIMINGS`)."""
 
 
 PRESETS: dict[str, Preset] = {
@@ -52,8 +56,9 @@ PRESETS: dict[str, Preset] = {
                f"{LOOP_PERIOD:g} s (loop closing; >= {int(LOOP_PERIOD * 30) + 90} frames)"),
         Preset("handheld_rpy", "handheld", "frozen",
                "control with handheld motion (like TUM fr1/fr2 rpy): fast roll, pitch and yaw "
-               "(up to ~60 deg/s, ~40 on average) with hand shake and a few cm of drift; two seated people who "
-               "never move"),
+               "(up to ~60 deg/s, ~40 on average) with hand shake and a few cm of drift, a rolling "
+               "shutter and depth taken at its own instant; two seated people who never move",
+               timing="kinect"),
     )
 }  # fmt: skip
 """The presets by name (``uss-synth sequence --preset NAME``)."""

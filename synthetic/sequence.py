@@ -8,10 +8,12 @@ images with a margin on both sides.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from os import PathLike
 from pathlib import Path
+from typing import Any
 
+import cv2
 import numpy as np
 import yaml
 
@@ -46,6 +48,14 @@ SEQUENCE_OUTFITS = ("office", "drawn")
 person ``k``: every sequence of a style shows the same ones); ``drawn`` = outfits drawn for this
 sequence (its seed and preset) from the ``all`` wardrobe's distribution (:func:`walker_bank`)."""
 
+TIMINGS = ("global", "kinect")
+"""Sensor timings of the target style: ``global`` renders colour, labels and depth at the
+colour stamp; ``kinect`` reads the colour rows out over :data:`READOUT` seconds (row ``r`` at
+the stamp + ``(r / (H - 1) - 0.5) * READOUT``: rolling-shutter skew, the labels with it) and
+takes the depth image at its own stamp of ``depth.txt`` (3-12 ms after the colour one:
+misregistration of colour keypoints and their depth while the camera turns)."""
+READOUT = 0.03
+"""Seconds a ``kinect`` colour frame takes to read out, top row to bottom row."""
 FPS = 30.0
 GT_RATE = 100.0
 START_STAMP = 1341846313.592026
@@ -99,9 +109,15 @@ class SequenceRenderer:
         seed: int = 0,
         style: str = "target",
         outfits: str = "office",
+        timing: str | None = None,
     ) -> None:
         self.preset = check_arguments(preset, frames, size, style, outfits)
         self.outfits = outfits
+        self.timing = self.preset.timing if timing is None else timing
+        if self.timing not in TIMINGS:
+            raise SynthArgumentError(
+                f"unknown timing {self.timing!r}; choose one of {', '.join(TIMINGS)}"
+            )
         self.frames = int(frames)
         self.size = check_size(size)
         self.seed = int(seed)
@@ -155,10 +171,36 @@ class SequenceRenderer:
             before = self.motion.pose(t - EXPOSURE_TIME / 2)
             flow = self.renderer.flow(res.depth, pose, before)
             gain = exposure_gain(t, self.exposure_phase)
-            rgb = target_rgb(res.rgb, flow, gain, rng, self.noise)
-            depth = target_depth(res.depth, rng, self.noise)
+            colour, labels, metres = res.rgb, res.labels, res.depth
+            if self.timing == "kinect":
+                colour, labels, metres = self._kinect_timing(res, pose, t, index)
+            rgb = target_rgb(colour, flow, gain, rng, self.noise)
+            depth = target_depth(metres, rng, self.noise)
+            res = replace(res, labels=labels)
         return Frame(index, stamp, float(self.depth_stamps[index]), rgb, depth, res.labels,
                      res.depth, pose)  # fmt: skip
+
+    def _kinect_timing(
+        self, res: Any, pose: np.ndarray, t: float, index: int
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Colour and labels with rolling-shutter skew, and the depth as seen at the depth
+        stamp (:data:`TIMINGS`), from the render at the colour stamp. Each is a backward warp
+        along the static scene's image motion (first order: what a row saw ``tau`` later is
+        where the render's point moves in ``tau``)."""
+        h, w = res.labels.shape
+        xs, ys = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+        # the bottom row is read READOUT / 2 after the stamp, the top row as long before
+        half = self.renderer.flow(res.depth, pose, self.motion.pose(t + READOUT / 2))
+        rows = (2 * ys / np.float32(max(h - 1, 1)) - 1)[..., None]
+        skew = rows * half
+        mx, my = xs - skew[..., 0], ys - skew[..., 1]
+        colour = cv2.remap(res.rgb, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        labels = cv2.remap(res.labels, mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
+        t_depth = self.time(float(self.depth_stamps[index]))
+        shift = self.renderer.flow(res.depth, pose, self.motion.pose(t_depth))
+        metres = cv2.remap(res.depth, xs - shift[..., 0], ys - shift[..., 1], cv2.INTER_NEAREST,
+                           borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)  # fmt: skip
+        return colour, labels, metres
 
     def groundtruth(self) -> Trajectory:
         """Camera-to-world poses at 100 Hz from before the first to after the last frame."""
@@ -178,6 +220,7 @@ def render_sequence(
     seed: int = 0,
     style: str = "target",
     outfits: str = "office",
+    timing: str | None = None,
     overwrite: bool = False,
     progress: bool = False,
 ) -> Path:
@@ -188,9 +231,10 @@ def render_sequence(
     (100 Hz, camera-to-world, optical frame), ``intrinsics.yaml`` (fr3 scaled to ``size``) and
     ``synthetic.yaml`` (the arguments). The folder appears only when complete; an existing
     non-empty ``out_dir`` is an error unless ``overwrite``. ``outfits``: what the people wear
-    (:data:`SEQUENCE_OUTFITS`).
+    (:data:`SEQUENCE_OUTFITS`). ``timing``: the target style's sensor timing
+    (:data:`TIMINGS`; None = the preset's).
     """
-    seq = SequenceRenderer(preset, frames, size, seed, style, outfits)
+    seq = SequenceRenderer(preset, frames, size, seed, style, outfits, timing)
     with staged_output(out_dir, overwrite) as tmp:
         for sub in ("rgb", "depth", "labels"):
             (tmp / sub).mkdir()
@@ -224,6 +268,7 @@ def render_sequence(
             "seed": seq.seed,
             "style": style,
             **({"outfits": outfits} if outfits != "office" else {}),
+            **({"timing": seq.timing} if seq.timing != "global" and style == "target" else {}),
             "fps": FPS,
             "groundtruth_rate": GT_RATE,
         }

@@ -72,3 +72,35 @@ def test_handheld_frames_blur_more_than_the_control(synthetic_sequence) -> None:
     motion = SequenceRenderer("handheld_rpy", frames=6, size=(96, 72), seed=1)
     np.testing.assert_allclose(gt.positions[10], motion.pose(gt.stamps[10])[:3, 3], atol=1e-4)
     assert "handheld_rpy" in (path / "synthetic.yaml").read_text()
+
+
+def test_kinect_timing_skews_the_rows_and_takes_the_depth_at_its_stamp() -> None:
+    """``timing=kinect`` (handheld_rpy's default): the colour rows are read out over 30 ms, so
+    the top and bottom rows see the scene moved in opposite directions against a global
+    shutter while the middle row does not, the labels with them; the depth image is the
+    scene at its own stamp. ``global`` is what the other presets render."""
+    import pytest
+
+    from uss_slam.synthetic.output import SynthArgumentError
+    from uss_slam.synthetic.sequence import READOUT
+
+    assert PRESETS["handheld_rpy"].timing == "kinect"
+    assert {p.timing for n, p in PRESETS.items() if n != "handheld_rpy"} == {"global"}
+    size = (320, 240)
+    plain = SequenceRenderer("handheld_rpy", 40, size, seed=0, timing="global")
+    kinect = SequenceRenderer("handheld_rpy", 40, size, seed=0)
+    assert kinect.timing == "kinect" and READOUT == 0.03
+    a, b = plain.frame(20), kinect.frame(20)
+    assert np.array_equal(a.clean_depth, b.clean_depth)  # the same instant is rendered
+    # the middle row is read at the stamp: it matches the global shutter; the top and bottom
+    # rows were read 15 ms before and after it, while the camera turned
+    grey_a, grey_b = a.rgb.mean(-1), b.rgb.mean(-1)
+    band = {name: np.abs(grey_a[rows] - grey_b[rows]).mean()
+            for name, rows in (("top", slice(0, 30)), ("middle", slice(105, 135)),
+                               ("bottom", slice(210, 240)))}  # fmt: skip
+    assert band["middle"] < 1.5 and min(band["top"], band["bottom"]) > 2 * band["middle"], band
+    assert (a.labels != b.labels).mean() > 0.005  # the labels are skewed with the colour
+    depth_changed = (a.depth > 0) & (b.depth > 0) & (np.abs(a.depth.astype(int) - b.depth) > 100)
+    assert depth_changed.mean() > 0.005  # edges moved by the 3-12 ms to the depth stamp
+    with pytest.raises(SynthArgumentError, match="unknown timing 'slow'; choose one of global"):
+        SequenceRenderer("handheld_rpy", 4, size, timing="slow")
