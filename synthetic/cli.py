@@ -169,10 +169,10 @@ def build_parser() -> argparse.ArgumentParser:
                           "preset) from the voc 'all' wardrobe's distribution (default: office)")  # fmt: skip
     seq.add_argument("--timing", choices=TIMINGS, default=None,
                      help="the target style's sensor timing: global = colour, labels and depth "
-                          f"at the colour stamp; kinect = a rolling shutter ({READOUT * 1000:.0f} "
-                          "ms readout, the labels skewed with the colour) and the depth image at "
-                          "its own stamp (default: the preset's; handheld_rpy: kinect, the "
-                          "others: global)")  # fmt: skip
+                          f"at the colour stamp; rolling = a rolling shutter ({READOUT * 1000:.0f} "
+                          "ms readout, the labels skewed with the colour); misregistered = the "
+                          "depth image at its own stamp; kinect = both (default: the preset's; "
+                          "handheld_rpy: kinect, the others: global)")  # fmt: skip
     common(seq)
 
     voc = sub.add_parser(

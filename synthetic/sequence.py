@@ -48,12 +48,13 @@ SEQUENCE_OUTFITS = ("office", "drawn")
 person ``k``: every sequence of a style shows the same ones); ``drawn`` = outfits drawn for this
 sequence (its seed and preset) from the ``all`` wardrobe's distribution (:func:`walker_bank`)."""
 
-TIMINGS = ("global", "kinect")
+TIMINGS = ("global", "rolling", "misregistered", "kinect")
 """Sensor timings of the target style: ``global`` renders colour, labels and depth at the
-colour stamp; ``kinect`` reads the colour rows out over :data:`READOUT` seconds (row ``r`` at
-the stamp + ``(r / (H - 1) - 0.5) * READOUT``: rolling-shutter skew, the labels with it) and
-takes the depth image at its own stamp of ``depth.txt`` (3-12 ms after the colour one:
-misregistration of colour keypoints and their depth while the camera turns)."""
+colour stamp; ``rolling`` reads the colour rows out over :data:`READOUT` seconds (row ``r`` at
+the stamp + ``(r / (H - 1) - 0.5) * READOUT``: rolling-shutter skew, the labels with it);
+``misregistered`` takes the depth image at its own stamp of ``depth.txt`` (3-12 ms after the
+colour one: colour keypoints and their depth disagree while the camera turns); ``kinect``
+both."""
 READOUT = 0.03
 """Seconds a ``kinect`` colour frame takes to read out, top row to bottom row."""
 FPS = 30.0
@@ -172,30 +173,34 @@ class SequenceRenderer:
             flow = self.renderer.flow(res.depth, pose, before)
             gain = exposure_gain(t, self.exposure_phase)
             colour, labels, metres = res.rgb, res.labels, res.depth
-            if self.timing == "kinect":
-                colour, labels, metres = self._kinect_timing(res, pose, t, index)
+            if self.timing != "global":
+                colour, labels, metres = self._sensor_timing(res, pose, t, index)
             rgb = target_rgb(colour, flow, gain, rng, self.noise)
             depth = target_depth(metres, rng, self.noise)
             res = replace(res, labels=labels)
         return Frame(index, stamp, float(self.depth_stamps[index]), rgb, depth, res.labels,
                      res.depth, pose)  # fmt: skip
 
-    def _kinect_timing(
+    def _sensor_timing(
         self, res: Any, pose: np.ndarray, t: float, index: int
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Colour and labels with rolling-shutter skew, and the depth as seen at the depth
+        """Colour and labels with rolling-shutter skew and / or the depth as seen at the depth
         stamp (:data:`TIMINGS`), from the render at the colour stamp. Each is a backward warp
         along the static scene's image motion (first order: what a row saw ``tau`` later is
         where the render's point moves in ``tau``)."""
         h, w = res.labels.shape
         xs, ys = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
-        # the bottom row is read READOUT / 2 after the stamp, the top row as long before
-        half = self.renderer.flow(res.depth, pose, self.motion.pose(t + READOUT / 2))
-        rows = (2 * ys / np.float32(max(h - 1, 1)) - 1)[..., None]
-        skew = rows * half
-        mx, my = xs - skew[..., 0], ys - skew[..., 1]
-        colour = cv2.remap(res.rgb, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        labels = cv2.remap(res.labels, mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
+        colour, labels, metres = res.rgb, res.labels, res.depth
+        if self.timing in ("rolling", "kinect"):
+            # the bottom row is read READOUT / 2 after the stamp, the top row as long before
+            half = self.renderer.flow(res.depth, pose, self.motion.pose(t + READOUT / 2))
+            skew = (2 * ys / np.float32(max(h - 1, 1)) - 1)[..., None] * half
+            mx, my = xs - skew[..., 0], ys - skew[..., 1]
+            colour = cv2.remap(colour, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+            labels = cv2.remap(labels, mx, my, cv2.INTER_NEAREST,
+                               borderMode=cv2.BORDER_REPLICATE)  # fmt: skip
+        if self.timing == "rolling":
+            return colour, labels, metres
         t_depth = self.time(float(self.depth_stamps[index]))
         shift = self.renderer.flow(res.depth, pose, self.motion.pose(t_depth))
         metres = cv2.remap(res.depth, xs - shift[..., 0], ys - shift[..., 1], cv2.INTER_NEAREST,

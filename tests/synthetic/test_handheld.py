@@ -102,5 +102,10 @@ def test_kinect_timing_skews_the_rows_and_takes_the_depth_at_its_stamp() -> None
     assert (a.labels != b.labels).mean() > 0.005  # the labels are skewed with the colour
     depth_changed = (a.depth > 0) & (b.depth > 0) & (np.abs(a.depth.astype(int) - b.depth) > 100)
     assert depth_changed.mean() > 0.005  # edges moved by the 3-12 ms to the depth stamp
+    # each half alone: the skew without the depth's own instant, and the other way round
+    rolling = SequenceRenderer("handheld_rpy", 40, size, seed=0, timing="rolling").frame(20)
+    misregistered = SequenceRenderer("handheld_rpy", 40, size, 0, timing="misregistered").frame(20)
+    assert np.array_equal(rolling.rgb, b.rgb) and np.array_equal(rolling.depth, a.depth)
+    assert np.array_equal(misregistered.rgb, a.rgb) and np.array_equal(misregistered.depth, b.depth)
     with pytest.raises(SynthArgumentError, match="unknown timing 'slow'; choose one of global"):
         SequenceRenderer("handheld_rpy", 4, size, timing="slow")
