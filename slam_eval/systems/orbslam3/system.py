@@ -40,6 +40,7 @@ be limited from here.
 
 from __future__ import annotations
 
+import contextlib
 import importlib.util
 import logging
 import shutil
@@ -201,10 +202,9 @@ FAILED_LOG = "orbslam3_failed.log"
 
 def keep_failed_log(staged: Path, kept: Path) -> None:
     """Copy a failed repeat's log out of the staging folder that is about to go."""
-    try:
+    # the error names the log; a log that could not be kept is no second error
+    with contextlib.suppress(OSError):
         shutil.copyfile(staged, kept)
-    except OSError:
-        pass  # the error names the log; a log that could not be kept is no second error
 
 
 # --------------------------------------------------------------------------- Hydra glue
