@@ -10,13 +10,24 @@ cores (the machine this runs on is shared: its load average is printed).
 
     python benchmarks/slam_speed.py --data outputs/bench/slam --frames 300 --repeats 3
     python benchmarks/slam_speed.py --filters --local-ba --loop-closing   # the back end on
+    python benchmarks/slam_speed.py --local-ba --loop-closing --orbslam3 vocab.txt
+
+``--orbslam3 VOCAB`` also runs the real ORB-SLAM3 on the same frames in the same command
+(``uss-slam system=orbslam3 system.repeats=--repeats system.realtime=false``: as fast as it
+tracks, unfiltered, after the harness's repeats)
+and prints its median frames/s (frame reading and tracking, its own local-mapping and
+loop-closing threads beside) and the harness's ratio to it.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import statistics
+import subprocess
+import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -39,7 +50,12 @@ def main() -> None:
     parser.add_argument("--filters", nargs="*", default=["semantic"])
     parser.add_argument("--local-ba", action="store_true", help="slam.local_ba=true")
     parser.add_argument("--loop-closing", action="store_true", help="slam.loop_closing=true")
+    parser.add_argument(
+        "--orbslam3", type=Path, metavar="VOCAB", help="also time ORB-SLAM3 with this vocabulary"
+    )
     args = parser.parse_args()
+    if args.orbslam3 is not None and not args.orbslam3.is_file():
+        raise SystemExit(f"--orbslam3: {args.orbslam3} is not a file (uss-vocab build makes one)")
     size = tuple(int(v) for v in args.size.lower().split("x"))
     path = sequence_path(args.data, args.preset, args.frames, size, 0)
     seq = TumSequence(path, load_labels=True)
@@ -95,7 +111,27 @@ def main() -> None:
     print("median CPU ms per frame: " + ", ".join(
         f"{n} {statistics.median(c.get(n, 0.0) for c in cpus):.2f}" for n in cpus[0]))  # fmt: skip
     print(f"median CPU-bound rate on 2 idle cores: {statistics.median(bounds):.1f} frames/s")
+    if args.orbslam3 is not None:
+        orb3 = orbslam3_fps(path, args.orbslam3, args.repeats)
+        print(f"ORB-SLAM3, same frames, no filter: median {statistics.median(orb3):.1f} frames/s "
+              f"(repeats {', '.join(f'{v:.1f}' for v in orb3)}); harness / ORB-SLAM3 "
+              f"{statistics.median(fps) / statistics.median(orb3):.2f}")  # fmt: skip
     print(f"load average after: {os.getloadavg()[0]:.2f}")
+
+
+def orbslam3_fps(path: Path, vocabulary: Path, repeats: int) -> list[float]:
+    """Frames/s of each ORB-SLAM3 repeat on ``path`` (``uss-slam system=orbslam3``)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        cmd = [
+            sys.executable, "-m", "uss_slam.slam_eval.run", "system=orbslam3",
+            f"sequence.path={path}", f"system.vocabulary={vocabulary.resolve()}",
+            f"system.repeats={repeats}", "system.realtime=false", f"out_dir={tmp}/orbslam3", f"hydra.run.dir={tmp}/hydra",
+        ]  # fmt: skip
+        done = subprocess.run(cmd, capture_output=True, text=True, check=False)
+        if done.returncode != 0:
+            raise SystemExit(f"ORB-SLAM3 failed ({done.returncode}): {done.stderr.strip()[-400:]}")
+        metrics = json.loads(Path(tmp, "orbslam3", "metrics.json").read_text())
+    return [r["fps"] for r in metrics["repeats"]]
 
 
 if __name__ == "__main__":
