@@ -56,6 +56,7 @@ from .runs import (
     run_slam,
     run_training,
     select_checkpoint,
+    slam_defaults_key,
 )
 from .stages import Progress, Stage, run_stage
 
@@ -263,7 +264,12 @@ def stage_slam(
 
     stage = Stage(
         run_dir,
-        key={"stage": "slam", "overrides": job.overrides(), "inputs": inputs},
+        key={
+            "stage": "slam",
+            "overrides": job.overrides(),
+            "defaults": slam_defaults_key(),
+            "inputs": inputs,
+        },
         outputs=(Path("metrics.json"),),
     )
     return run_stage(stage, work, force)

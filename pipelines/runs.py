@@ -16,6 +16,9 @@ because their jobs run in other processes.
 
 from __future__ import annotations
 
+import functools
+import hashlib
+import json
 import re
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -331,6 +334,29 @@ def compose_slam(job: SlamJob, out_dir: Path, *, progress: bool = False) -> Dict
     return compose_config(
         "slam_eval", [*job.overrides(), f"out_dir={out_dir}", f"progress={str(progress).lower()}"]
     )
+
+
+_PATHS = (("sequence", "path"), ("segmenter", "path"), ("system", "vocabulary"))
+"""Entries of the composed config that name files: a cache key holds their content instead."""
+
+
+@functools.lru_cache(maxsize=1)
+def slam_defaults_key() -> str:
+    """SHA-256 of ``uss-slam``'s settings without overrides (the composed config, its
+    output folder and file paths aside). A cache of SLAM runs keyed on a job's overrides
+    alone would keep a run made under other defaults (another tracker policy, say). With this
+    in the key, a changed default redoes the run, as a changed override does."""
+    from omegaconf import OmegaConf
+
+    cfg = OmegaConf.to_container(compose_slam(SlamJob(Path(".")), Path(".")), resolve=True)
+    assert isinstance(cfg, dict)
+    for name in ("out_dir", "progress"):
+        cfg.pop(name, None)
+    for section, name in _PATHS:
+        if isinstance(cfg.get(section), dict):
+            cfg[section].pop(name, None)
+    text = json.dumps(cfg, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()
 
 
 def run_slam(job: SlamJob, out_dir: Path, *, progress: bool = False) -> dict[str, Any]:

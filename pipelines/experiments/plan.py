@@ -11,7 +11,13 @@ from typing import Any
 
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.files import file_sha256
-from uss_slam.pipelines.runs import OrbSlam3, Segmenter, SlamJob, select_checkpoint
+from uss_slam.pipelines.runs import (
+    OrbSlam3,
+    Segmenter,
+    SlamJob,
+    select_checkpoint,
+    slam_defaults_key,
+)
 from uss_slam.pipelines.stages import Stage
 
 from .data import Data
@@ -297,6 +303,7 @@ def plan_slam(exp: Experiment, data: Data, exports: Mapping[str, str]) -> list[J
         model = cell.model.model if cell.model is not None else None
         key = {
             "overrides": _portable(overrides, exp.out),
+            "defaults": slam_defaults_key(),
             "sequence": data.sequence_keys[cell.sequence],
             "model": exports.get(model) if model else None,
         }

@@ -34,7 +34,9 @@ SEGMENTERS = {
 
 
 @pytest.mark.slow
-def test_demo_ci_end_to_end_then_reused(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+def test_demo_ci_end_to_end_then_reused(
+    tmp_path: Path, capsys: pytest.CaptureFixture, monkeypatch: pytest.MonkeyPatch
+) -> None:
     out = tmp_path / "demo"
     assert demo.main(["--out", str(out), "--experiment", "ci", "--quiet"]) == 0
     printed = capsys.readouterr().out
@@ -131,6 +133,15 @@ def test_demo_ci_end_to_end_then_reused(tmp_path: Path, capsys: pytest.CaptureFi
     summary = json.loads((out / "summary.json").read_text())
     assert summary["sequence"] == str(seq)
     assert [r["ate_rmse"] for r in summary["rows"]] != [r["ate_rmse"] for r in rows]
+
+    # A changed uss-slam default (as a release that changes the tracker policy) redoes the
+    # SLAM stages, which were keyed on their overrides only before, and nothing else.
+    monkeypatch.setattr(demo, "slam_defaults_key", lambda: "other defaults")
+    assert demo.main(argv) == 0
+    lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("[")]
+    done = [line for line in lines if " in " in line and " ..." not in line]
+    assert all(": reused in " in line for line in done[:6]), done  # up to mIoU
+    assert all(": redone (defaults changed): " in line for line in done[6:11]), done
 
 
 def test_options_default_to_reuse() -> None:

@@ -225,3 +225,18 @@ def test_more_methods_and_crf_variants_keep_every_job_key(tmp_path: Path) -> Non
 
 
 STANDARD_SEQUENCES = ("walking_xyz", "walking_rpy", "walking_halfsphere", "static_xyz")
+
+
+def test_slam_job_keys_hold_the_uss_slam_defaults(tmp_path: Path, monkeypatch) -> None:
+    # A SLAM job's cache key holds uss-slam's default settings as well as its overrides, so a
+    # rerun after a default changed (another tracker policy, say) redoes the SLAM jobs and
+    # keeps the trainings.
+    from uss_slam.pipelines.experiments import plan
+    from uss_slam.pipelines.runs import slam_defaults_key
+
+    before = _job_keys(tmp_path, "scale=quick")
+    slam_ids = [k for k, key in before.items() if "defaults" in key]
+    assert slam_ids and all(before[k]["defaults"] == slam_defaults_key() for k in slam_ids)
+    monkeypatch.setattr(plan, "slam_defaults_key", lambda: "other defaults")
+    after = _job_keys(tmp_path, "scale=quick")
+    assert {k for k in before if before[k] != after[k]} == set(slam_ids)
