@@ -339,3 +339,32 @@ def test_orbslam3_outputs_are_staged_until_every_repeat_is_done(
     assert verify_run(out) == []
     assert not (out / "repeats" / "trajectory_2.txt").exists()
     assert not (out / "orbslam3_failed.log").exists()
+
+
+def test_rows_orbslam3_repeats_for_untracked_frames_are_removed(tmp_path: Path, caplog) -> None:
+    # ORB-SLAM3 writes a frame it did not track (RECENTLY_LOST) as a copy of the row before,
+    # stamp included (measured on walking_xyz seed 1: 23 copies of 3 rows in 300). They are
+    # removed with a warning and those frames have no pose; a stamp repeated with another pose
+    # is still an error naming the file and line.
+    from uss_slam.slam_eval.systems.orbslam3.repeats import read_estimate
+
+    rows = [
+        "1.000000 0.0 0.0 0.0 0.0 0.0 0.0 1.0",
+        "1.033000 0.1 0.0 0.0 0.0 0.0 0.0 1.0",
+        "1.033000 0.1 0.0 0.0 0.0 0.0 0.0 1.0",
+        "1.033000 0.1 0.0 0.0 0.0 0.0 0.0 1.0",
+        "1.133000 0.2 0.0 0.0 0.0 0.0 0.0 1.0",
+    ]
+    path = tmp_path / "trajectory_0.txt"
+    path.write_text("\n".join(rows) + "\n")
+    with caplog.at_level("WARNING"):
+        trajectory = read_estimate(path)
+    np.testing.assert_allclose(trajectory.stamps, [1.0, 1.033, 1.133])
+    assert "2 rows repeated the row before them" in caplog.text
+    assert path.read_text().startswith("# 2 rows that repeated the row before")
+    assert read_estimate(path).stamps.tolist() == trajectory.stamps.tolist()  # idempotent
+
+    rows[2] = "1.033000 0.5 0.0 0.0 0.0 0.0 0.0 1.0"
+    path.write_text("\n".join(rows) + "\n")
+    with pytest.raises(DataFormatError, match=r"trajectory_0.txt:3: duplicate timestamp"):
+        read_estimate(path)
