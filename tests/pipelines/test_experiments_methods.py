@@ -172,6 +172,8 @@ CRF_VARIANTS = "variants=[none,semantic,geometry,semantic_geometry,semantic_geom
 
 
 def test_more_methods_and_crf_variants_keep_every_job_key(tmp_path: Path) -> None:
+    from uss_slam.pipelines.runs import slam_defaults_key
+
     pytest.importorskip("pydensecrf")
     base = _job_keys(tmp_path, "scale=standard")
     more = _job_keys(tmp_path, "scale=standard", f"grid.methods=[{','.join(ALL)}]", CRF_VARIANTS)
@@ -211,6 +213,7 @@ def test_more_methods_and_crf_variants_keep_every_job_key(tmp_path: Path) -> Non
             "filters=[semantic]",
             "slam.repeats=3",  # the median of three harness runs per job
         ],
+        "defaults": slam_defaults_key(),
         "sequence": {"sequence": "walking_xyz"},
         "model": "sha256-of-adaptsegnet_n5_s0",
     }
