@@ -125,7 +125,7 @@ def orbslam3_fps(path: Path, vocabulary: Path, repeats: int) -> list[float]:
         cmd = [
             sys.executable, "-m", "uss_slam.slam_eval.run", "system=orbslam3",
             f"sequence.path={path}", f"system.vocabulary={vocabulary.resolve()}",
-            f"system.repeats={repeats}", "system.realtime=false", f"out_dir={tmp}/orbslam3", f"hydra.run.dir={tmp}/hydra",
+            f"system.repeats={repeats}", "system.realtime=false", f"out_dir={tmp}/orbslam3",
         ]  # fmt: skip
         done = subprocess.run(cmd, capture_output=True, text=True, check=False)
         if done.returncode != 0:
