@@ -10,7 +10,7 @@ comes first, then the medians:
 - static_xyz: semantic no worse than the baseline by more than 10%, baseline under 2 cm.
 
     python benchmarks/slam_targets.py --data outputs/bench/slam --frames 300 --seeds 0 1 2
-    python benchmarks/slam_targets.py --seeds 0 1 2 --repeats 3 --tracker policy=orbslam2
+    python benchmarks/slam_targets.py --seeds 0 1 2 --repeats 3 --tracker policy=harness --tracker motion_ransac=false
 
 ``--repeats N`` runs every cell N times with the perturbations of ``slam.repeats`` (repeat 0 is
 the single run; the others jitter the feature budget by ``--repeat-budget`` and the RANSAC
@@ -128,7 +128,7 @@ def main() -> None:
         action="append",
         default=[],
         metavar="KEY=VALUE",
-        help="a TrackerConfig field (repeatable), e.g. --tracker policy=orbslam2",
+        help="a TrackerConfig field (repeatable), e.g. --tracker policy=harness (the former default)",
     )
     parser.add_argument("--repeats", type=int, default=1, help="runs per cell (slam.repeats)")
     parser.add_argument("--repeat-seed", type=int, default=0, help="slam.repeat_seed")
