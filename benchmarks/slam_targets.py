@@ -33,7 +33,7 @@ from pathlib import Path
 from uss_slam.slam_eval.filters.dynamic import build_filters
 from uss_slam.slam_eval.frontend.orb import OrbConfig
 from uss_slam.slam_eval.scoring.metrics import ate
-from uss_slam.slam_eval.scoring.repeats import Perturbation, perturbations
+from uss_slam.slam_eval.scoring.repeats import Perturbation, median_index, perturbations
 from uss_slam.slam_eval.segmenters.base import LabelsSegmenter
 from uss_slam.slam_eval.sequence import TumSequence
 from uss_slam.slam_eval.systems.harness import SlamPipeline
@@ -107,12 +107,10 @@ def repeated(
 
 
 def median_run(runs: list[dict]) -> dict:
-    """The median run by ATE RMSE (the lower middle one for an even count), with the
-    spread of the repeats."""
-    order = sorted(range(len(runs)), key=lambda i: runs[i]["ate_rmse"])
-    out = dict(runs[order[(len(runs) - 1) // 2]])
-    out["repeats"] = [r["ate_rmse"] for r in runs]
-    return out
+    """The median run as ``slam.repeats`` chooses it (:func:`median_index`), with the ATE RMSE
+    of every repeat."""
+    rmses = [r["ate_rmse"] for r in runs]
+    return {**runs[median_index(rmses)], "repeats": rmses}
 
 
 def main() -> None:
