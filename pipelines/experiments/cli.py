@@ -39,7 +39,7 @@ from uss_slam.pipelines.stages import Progress
 from . import tables as tbl
 from .data import Data, stage_data
 from .experiment import Experiment, check, check_choices, eval_seed
-from .grid import AdaBNCell, given
+from .grid import AdaBNCell, given, method_overrides
 from .jobs import reason_of, stage_of
 from .launch import NOT_RUN, Launch, describe_plan, launch, result_rows, status_of
 from .plan import (
@@ -258,7 +258,12 @@ def _header(exp: Experiment, data: Data) -> list[str]:
         f"{', '.join(grid.get('depth_sweep') or []) or 'no method'}; the others at "
         f"{cfg['tables']['n_layers']}); seeds "
         f"{', '.join(map(str, grid['seeds']))}"
-        + (f"; loss weights {given(grid['loss'])}" if given(grid.get("loss")) else ""),
+        + (f"; loss weights {given(grid['loss'])}" if given(grid.get("loss")) else "")
+        + "".join(
+            f"; {method}: `{' '.join(settings)}`"
+            for method, settings in method_overrides(grid.get("method_overrides")).items()
+            if settings
+        ),
         f"- evaluation sequences: {', '.join(exp.grid.sequences)}"
         + (
             ""

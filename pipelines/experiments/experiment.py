@@ -13,7 +13,17 @@ from omegaconf import DictConfig, OmegaConf
 
 from uss_slam.core.errors import UssSlamError
 
-from .grid import SYNTHETIC_SEQUENCES, TUM_SEQUENCES, VARIANTS, Grid, choose, expand, given, integer
+from .grid import (
+    PRESET_METHOD_OVERRIDES,
+    SYNTHETIC_SEQUENCES,
+    TUM_SEQUENCES,
+    VARIANTS,
+    Grid,
+    choose,
+    expand,
+    given,
+    integer,
+)
 
 CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
 
@@ -130,6 +140,19 @@ def check_t0(plain: dict[str, Any], synthetic: bool) -> None:
             )
 
 
+def resolve_method_overrides(plain: dict[str, Any], synthetic: bool) -> None:
+    """``grid.method_overrides`` resolved in ``plain``: null = the synthetic shift preset's
+    tuned settings (:data:`~uss_slam.pipelines.experiments.grid.PRESET_METHOD_OVERRIDES`), none
+    for real data; a mapping is used as given (``{}``: the experiment's settings for every
+    method)."""
+    grid = plain["grid"]
+    if grid.get("method_overrides") is not None:
+        return
+    shift = str(plain["data"]["synthetic"].get("shift", "tum_like")) if synthetic else None
+    preset = PRESET_METHOD_OVERRIDES.get(shift, {}) if shift else {}
+    grid["method_overrides"] = {m: list(v) for m, v in preset.items()}
+
+
 def check_counts(plain: Mapping[str, Any], synthetic: bool) -> None:
     """The counts the jobs read late (segmentation evaluation, rendering), checked before any
     work so that a bad value names its key at once instead of failing every job."""
@@ -182,6 +205,7 @@ def check(cfg: DictConfig) -> Experiment:
 
     choose("train.checkpoint", plain["train"].get("checkpoint", "last"), CHECKPOINT_POLICIES)
     check_t0(plain, synthetic)
+    resolve_method_overrides(plain, synthetic)
     check_counts(plain, synthetic)
     grid = expand(plain, SYNTHETIC_SEQUENCES if synthetic else TUM_SEQUENCES)
     check_crf(plain, grid)

@@ -243,3 +243,59 @@ def test_slam_job_keys_hold_the_uss_slam_defaults(tmp_path: Path, monkeypatch) -
     monkeypatch.setattr(plan, "slam_defaults_key", lambda: "other defaults")
     after = _job_keys(tmp_path, "scale=quick")
     assert {k for k in before if before[k] != after[k]} == set(slam_ids)
+
+
+def test_method_overrides_go_into_that_methods_trainings_only() -> None:
+    settings = {"adaptsegnet": ["model.domain_batch_norm=running"], "oracle": ["model.lr=1e-3"]}
+    cells = training_cells(_grid(methods=["source_only", "adaptsegnet"], n_layers=[5],
+                                 method_overrides=settings), 5)  # fmt: skip
+    assert cells[0].overrides() == ["model/method=source_only", "seed=0", "run_name=source_only_s0"]
+    assert cells[1].overrides() == [
+        "model/method=adaptsegnet",
+        "model.domain_batch_norm=running",
+        "seed=0",
+        "run_name=adaptsegnet_n5_s0",
+        "model.discriminator.n_layers=5",
+    ]
+    # the config name (and so the tables' row and the folder) stays the method's
+    assert [c.model for c in cells] == ["source_only_s0", "adaptsegnet_n5_s0"]
+
+
+def test_each_shift_preset_trains_with_its_tuned_settings(tmp_path: Path) -> None:
+    from uss_slam.pipelines.experiments.grid import PRESET_METHOD_OVERRIDES
+
+    tum = _job_keys(tmp_path, "scale=standard")
+    # tum_like (the default) has no tuned settings: its keys are the ones recorded runs have
+    assert "model.domain_batch_norm=running" not in tum["train/adaptsegnet_n5_s0"]["overrides"]
+    app = _job_keys(tmp_path, "scale=standard", "data.synthetic.shift=appearance")
+    tuned = list(PRESET_METHOD_OVERRIDES["appearance"]["adaptsegnet"])
+    assert tuned and all(t in app["train/adaptsegnet_n5_s0"]["overrides"] for t in tuned)
+    assert not set(tuned) & set(app["train/source_only_s0"]["overrides"])
+    # {} turns the preset's settings off; a mapping given replaces them
+    paper = _job_keys(tmp_path, "scale=standard", "data.synthetic.shift=appearance",
+                      "grid.method_overrides={}")  # fmt: skip
+    assert not set(tuned) & set(paper["train/adaptsegnet_n5_s0"]["overrides"])
+    own = _job_keys(tmp_path, "scale=standard", "data.synthetic.shift=appearance",
+                    "grid.method_overrides={adaptsegnet:['model.domain_batch_norm=joint']}")  # fmt: skip
+    assert "model.domain_batch_norm=joint" in own["train/adaptsegnet_n5_s0"]["overrides"]
+    assert not set(tuned) & set(own["train/adaptsegnet_n5_s0"]["overrides"])
+
+
+@pytest.mark.parametrize(
+    ("value", "message"),
+    [
+        (
+            {"mystery": ["a=1"]},
+            "grid.method_overrides: unknown value 'mystery'; accepted: source_only",
+        ),
+        (["a=1"], "grid.method_overrides: expected a mapping of method"),
+        ({"adaptsegnet": "a=1"}, "grid.method_overrides.adaptsegnet: expected a list of key=value"),
+        (
+            {"adaptsegnet": ["novalue"]},
+            "grid.method_overrides.adaptsegnet: expected key=value overrides, got 'novalue'",
+        ),
+    ],
+)
+def test_bad_method_overrides_are_one_line(value: object, message: str) -> None:
+    with pytest.raises(UssSlamError, match="^" + message.replace("(", r"\(").replace("[", r"\[")):
+        training_cells(_grid(method_overrides=value), 5)
