@@ -20,15 +20,32 @@ keypoints inside the predicted person mask dilated the same way. Reported per se
 - ``dyn_share``: share of person keypoints among the kept ones (no filter: the raw share);
 - walker recall (true-mask pixels found) by the walker's share of the frame and median depth,
   walkers = connected components of the true person mask with at least 0.2% of the frame.
+
+For every model of a ``uss-experiments`` output folder, joined with its SLAM runs::
+
+    python benchmarks/adaptation_masks.py --experiment OUT [--sequences walking_xyz,walking_rpy]
+        [--models source_only_s0,...] [--stride 5] [--json out.json]
+
+scores each export (``OUT/exports/<model>/<model>.onnx``) on the labelled evaluation sequences
+(``OUT/data/eval/<sequence>``; each model's result is kept in ``OUT/masks/<model>.json`` and
+reused), and puts beside the mask figures each model's SLAM result from ``OUT/runs.csv``: on a
+sequence with ground-truth-mask runs, the downstream ratio (ATE_none − ATE_model) / (ATE_none −
+ATE_oracle); on ``static_xyz`` (nothing moves) ATE_model / ATE_none. Then, over the trained
+models (not the oracle), the Spearman rank correlation of each SLAM ratio with each mask figure:
+which property of a mask the SLAM gain follows (person IoU, pixel recall, person keypoints
+kept, static keypoints dropped, ...).
 """
 
 from __future__ import annotations
 
 import argparse
+import csv
 import json
+import math
 import sys
 from collections import defaultdict
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -189,16 +206,197 @@ def table(result: dict) -> str:
     return "\n".join(lines)
 
 
+MASK_FIGURES = {
+    "person_iou": "person IoU",
+    "recall": "pixel recall",
+    "precision": "pixel precision",
+    "kp_person_kept": "person kp kept",
+    "kp_static_dropped": "static kp dropped",
+    "dyn_share": "person share of kept kp",
+}
+"""The mask figures of :meth:`Tally.summary` the experiment mode correlates (key -> label)."""
+SLAM_COLUMNS = (("harness", "semantic"), ("harness", "semantic_geometry"), ("orbslam3", "semantic"))
+"""The (system, variant) SLAM runs with a model that the experiment mode joins."""
+STATIC = "static_xyz"
+
+
+def _flat(setting: dict) -> dict[str, float]:
+    return {"person_iou": setting["person_iou"], "recall": setting["pixels"]["recall"],
+            "precision": setting["pixels"]["precision"],
+            **{k: setting[k] for k in ("kp_person_kept", "kp_static_dropped", "dyn_share")}}  # fmt: skip
+
+
+def slam_ratios(runs: list[dict[str, Any]], sequence: str, model: str) -> dict[str, float | None]:
+    """``{"<system>:<variant>": ratio}`` of one model on one sequence from ``runs.csv`` rows:
+    the downstream ratio (ATE_none − ATE_model) / (ATE_none − ATE_oracle), or, on
+    :data:`STATIC` (no walker to remove), ATE_model / ATE_none; None when a run is missing or
+    failed (or the ground-truth masks gain nothing)."""
+
+    def ate(system: str, variant: str, with_model: bool) -> float | None:
+        for r in runs:
+            if (r.get("kind"), r.get("system"), r.get("sequence"), r.get("variant")) != (
+                "slam", system, sequence, variant
+            ) or r.get("status") != "ok" or r.get("ate_rmse") in (None, ""):  # fmt: skip
+                continue
+            if (str(r["id"]).endswith("/" + model)) == with_model:
+                return float(r["ate_rmse"])
+        return None
+
+    out: dict[str, float | None] = {}
+    for system, variant in SLAM_COLUMNS:
+        none, mine = ate(system, "none", False), ate(system, variant, True)
+        ratio = None
+        if none is not None and mine is not None:
+            if sequence == STATIC:
+                ratio = mine / none
+            else:
+                gt = ate(system, "oracle", False)
+                if gt is not None and none - gt > 0:
+                    ratio = (none - mine) / (none - gt)
+        out[f"{system}:{variant}"] = ratio
+    return out
+
+
+def spearman(xs: list[float], ys: list[float]) -> tuple[float, float] | None:
+    """Spearman's rank correlation (average ranks for ties) and its two-sided p-value; None for
+    fewer than 3 pairs or a constant side."""
+    from scipy.stats import spearmanr
+
+    if len(xs) < 3 or len(set(xs)) < 2 or len(set(ys)) < 2:
+        return None
+    result = spearmanr(xs, ys)
+    rho, p = float(result.statistic), float(result.pvalue)
+    return None if math.isnan(rho) else (rho, p)
+
+
+def join(masks: dict[str, dict], runs: list[dict[str, Any]], sequences: list[str]) -> dict:
+    """Per sequence: each model's mask figures and SLAM ratios, and over the trained models
+    (every model but ``oracle_*``) the rank correlation of each ratio with each figure."""
+    out: dict[str, Any] = {}
+    for seq in sequences:
+        rows = []
+        for model, result in masks.items():
+            cell = result["sequences"].get(seq)
+            if cell is None:
+                continue
+            rows.append({"model": model, **_flat(cell["argmax"]), **slam_ratios(runs, seq, model)})
+        trained = [r for r in rows if not r["model"].startswith("oracle")]
+        corr: dict[str, dict[str, Any]] = {}
+        for system, variant in SLAM_COLUMNS:
+            key = f"{system}:{variant}"
+            have = [r for r in trained if r[key] is not None]
+            if have:
+                pairs = {f: spearman([r[f] for r in have], [r[key] for r in have])
+                         for f in MASK_FIGURES}  # fmt: skip
+                corr[key] = {"models": len(have),
+                             "rho": {f: None if v is None else v[0] for f, v in pairs.items()},
+                             "p": {f: None if v is None else v[1] for f, v in pairs.items()}}  # fmt: skip
+        out[seq] = {"models": rows, "spearman": corr}
+    return out
+
+
+def joined_table(joined: dict) -> str:
+    def num(v: float | None, pct: bool = False) -> str:
+        return "—" if v is None else (f"{v:.1%}" if pct else f"{v:.3f}")
+
+    lines = []
+    heads = [*MASK_FIGURES.values(), *(f"{s} {v}" for s, v in SLAM_COLUMNS)]
+    for seq, part in joined.items():
+        what = "ATE / ATE_none" if seq == STATIC else "downstream ratio"
+        lines += [f"\n## {seq} (SLAM columns: {what})", "",
+                  "| model | " + " | ".join(heads) + " |", "|---" * (len(heads) + 1) + "|"]  # fmt: skip
+        for r in part["models"]:
+            cells = [num(r[f], f.startswith("kp_") or f == "dyn_share") for f in MASK_FIGURES]
+            cells += [num(r[f"{s}:{v}"]) for s, v in SLAM_COLUMNS]
+            lines.append(f"| {r['model']} | " + " | ".join(cells) + " |")
+        for key, corr in part["spearman"].items():
+            desc = ", ".join(
+                f"{MASK_FIGURES[f]} "
+                + ("—" if rho is None else f"{rho:+.2f} (p {corr['p'][f]:.2f})")
+                for f, rho in corr["rho"].items()
+            )
+            lines.append(f"\nSpearman over {corr['models']} trained models, {key}: {desc}")
+    return "\n".join(lines)
+
+
+def experiment(out: Path, sequences: list[str] | None, models: list[str] | None,
+               stride: int, dilation: int) -> dict:  # fmt: skip
+    """The experiment mode (module docstring): score, cache, join."""
+    runs_csv = out / "runs.csv"
+    if not runs_csv.is_file():
+        raise SystemExit(f"{runs_csv}: no runs.csv (expected a uss-experiments output folder "
+                         "whose tables stage has run)")  # fmt: skip
+    with runs_csv.open(newline="") as f:
+        runs = list(csv.DictReader(f))
+    found = sorted(p.name for p in (out / "exports").glob("*") if (p / f"{p.name}.onnx").is_file())
+    for m in models or []:
+        if m not in found:
+            raise SystemExit(f"--models: {m} has no export in {out / 'exports'}; found: "
+                             f"{', '.join(found) or 'none'}")  # fmt: skip
+    eval_dir = out / "data" / "eval"
+    labelled = sorted(p.name for p in eval_dir.glob("*") if (p / "labels").is_dir()
+                      and (p / "groundtruth.txt").is_file())  # fmt: skip
+    for seq in sequences or []:
+        if seq not in labelled:
+            raise SystemExit(f"--sequences: {seq} is not a labelled evaluation sequence in "
+                             f"{eval_dir}; found: {', '.join(labelled) or 'none'}")  # fmt: skip
+    sequences = sequences or labelled
+    cache = out / "masks"
+    cache.mkdir(exist_ok=True)
+    masks: dict[str, dict] = {}
+    for m in models or found:
+        path = cache / f"{m}.json"
+        want = {"stride": stride, "dilation": dilation}
+        result = json.loads(path.read_text()) if path.is_file() else None
+        if result is None or any(result.get(k) != v for k, v in want.items()) or any(
+            f"eval/{s}" not in result["sequences"] for s in sequences
+        ):  # fmt: skip
+            print(f"scoring {m} on {', '.join(sequences)} ...", file=sys.stderr, flush=True)
+            result = analyse(out / "exports" / m / f"{m}.onnx", [eval_dir / s for s in sequences],
+                             stride, [None], dilation)  # fmt: skip
+            tmp = path.with_name(path.name + ".tmp")
+            tmp.write_text(json.dumps(result))
+            tmp.replace(path)
+        result = {**result, "sequences": {k.removeprefix("eval/"): v
+                                          for k, v in result["sequences"].items()}}  # fmt: skip
+        masks[m] = result
+    return join(masks, runs, sequences)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("model", type=Path)
-    parser.add_argument("--sequence", type=Path, action="append", required=True)
+    parser.add_argument("model", type=Path, nargs="?")
+    parser.add_argument("--sequence", type=Path, action="append", default=[])
+    parser.add_argument("--experiment", type=Path, default=None,
+                        help="a uss-experiments output folder: score its every export and join "
+                             "the SLAM runs of its runs.csv")  # fmt: skip
+    parser.add_argument("--sequences", default=None,
+                        help="with --experiment: comma-separated evaluation sequences "
+                             "(default: every labelled one)")  # fmt: skip
+    parser.add_argument(
+        "--models",
+        default=None,
+        help="with --experiment: comma-separated models (default: every export)",
+    )
     parser.add_argument("--stride", type=int, default=5)
     parser.add_argument("--threshold", type=float, action="append", default=[],
                         help="person-probability thresholds besides argmax (repeatable)")  # fmt: skip
     parser.add_argument("--dilation", type=int, default=5)
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args(argv)
+    if args.experiment is not None:
+        if args.model is not None or args.sequence:
+            parser.error("--experiment takes its models and sequences from the folder: give "
+                         "no MODEL or --sequence (use --models / --sequences)")  # fmt: skip
+        split = lambda v: None if v is None else [x for x in v.split(",") if x]  # noqa: E731
+        joined = experiment(args.experiment, split(args.sequences), split(args.models),
+                            args.stride, args.dilation)  # fmt: skip
+        print(joined_table(joined))
+        if args.json:
+            args.json.write_text(json.dumps(joined, indent=1))
+        return 0
+    if args.model is None or not args.sequence:
+        parser.error("give MODEL and --sequence (or --experiment OUT)")
     result = analyse(args.model, args.sequence, args.stride, [None, *args.threshold],
                      args.dilation)  # fmt: skip
     print(table(result))
