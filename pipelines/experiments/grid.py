@@ -218,14 +218,18 @@ class TrainCell(_ModelNames):
 
 @dataclass(frozen=True)
 class AdaBNCell(_ModelNames):
-    """AdaBN (Li et al. 2016): the export of source-only training ``source`` with its BatchNorm
-    statistics recomputed on unlabelled target training frames; a model, not a training."""
+    """AdaBN (Li et al. 2016): the export of training ``source`` (source-only, or a method of
+    ``grid.adabn_methods``) with its BatchNorm statistics recomputed on unlabelled target
+    training frames; a model, not a training. Named ``adabn[<loss>]`` for source-only (T0's
+    AdaBN row) and ``<config>_adabn`` for a method's checkpoint."""
 
     folder: ClassVar[str] = "exports"
     source: TrainCell
 
     @property
     def config(self) -> str:
+        if self.source.method != "source_only":
+            return f"{self.source.config}_{ADABN}"
         return ADABN + self.source.config.removeprefix(self.source.method)
 
     @property
@@ -283,7 +287,8 @@ class Grid:
     table_configs: tuple[str, ...] = field(default=())
     """Configs of T2 / T3 / the downstream ratio: source-only and the adapted one of ``n``."""
     adabn: tuple[AdaBNCell, ...] = ()
-    """T0's AdaBN exports (``grid.adabn``): one per source-only training."""
+    """T0's AdaBN exports (``grid.adabn``): one per training of ``grid.adabn_methods``
+    (source-only by default) at the tables' depth."""
 
     @property
     def models(self) -> tuple[Model, ...]:
@@ -356,6 +361,16 @@ def method_overrides(values: Any) -> dict[str, tuple[str, ...]]:
                 raise UssSlamError(f"{key}: expected key=value overrides, got {item!r}")
         out[str(method)] = tuple(listed)
     return out
+
+
+def adabn_method_list(values: Any) -> list[str]:
+    """``grid.adabn_methods``: the methods whose checkpoints (at ``tables.n_layers``) also get
+    an AdaBN export; source-only's is T0's AdaBN row."""
+    methods = [str(m) for m in _non_empty_list("grid.adabn_methods", values)]
+    for m in methods:
+        choose("grid.adabn_methods", m, METHODS)
+    _unique("grid.adabn_methods", methods)
+    return methods
 
 
 def _depth(key: str, n: Any, what: str = "integers") -> int:
@@ -473,10 +488,13 @@ def expand(cfg: Mapping[str, Any], accepted_sequences: Sequence[str]) -> Grid:
         trainings += [
             TrainCell(ORACLE, int(s), settings=oracle_settings) for s in cfg["grid"]["seeds"]
         ]
+    adabn_methods = adabn_method_list(cfg["grid"].get("adabn_methods", ["source_only"]))
     adabn = [
         AdaBNCell(t)
         for t in trainings
-        if t.method == "source_only" and flag("grid.adabn", cfg["grid"].get("adabn"))
+        if t.method in adabn_methods
+        and t.n_layers in (None, n_table)
+        and flag("grid.adabn", cfg["grid"].get("adabn"))
     ]
     models: list[Model] = [*trainings, *adabn]
     sequences = check_sequences(cfg.get("sequences"), accepted_sequences)

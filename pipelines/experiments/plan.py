@@ -183,7 +183,7 @@ def export_stage(exp: Experiment, cell: TrainCell) -> Stage | None:
 
 
 def adabn_stage(exp: Experiment, data: Data, cell: AdaBNCell) -> Stage | None:
-    """The AdaBN export of a complete source-only training (None while it is not complete):
+    """The AdaBN export of a complete training (None while it is not complete):
     its checkpoint's export key plus what the target statistics are computed on."""
     source = export_stage(exp, cell.source)
     if source is None:

@@ -343,8 +343,13 @@ def t0_rows(layout: Layout) -> list[tuple[str, str]]:
     if layout.source_only is None:
         return []
     rows = [(layout.source_only, "source-only")]
-    rows += [(c, "AdaBN") for c in layout.adabn]
-    rows += [(c, "method") for c in layout.methods if c != layout.source_only]
+    own = {c.removesuffix(f"_{ADABN}"): c for c in layout.adabn if c.endswith(f"_{ADABN}")}
+    rows += [(c, "AdaBN") for c in layout.adabn if c not in own.values()]
+    for c in layout.methods:
+        if c != layout.source_only:
+            rows.append((c, "method"))
+            if c in own:  # the method's checkpoint with target statistics, right after it
+                rows.append((own[c], "AdaBN"))
     rows += [(layout.oracle, "oracle")] if layout.oracle else []
     return rows
 
@@ -436,7 +441,8 @@ def table_t0(rows, layout: Layout, policy: str = "last") -> tuple[dict[str, Any]
         "",
         "source-only: the source-only model (source BatchNorm statistics); adabn: the same "
         "checkpoint with BatchNorm statistics of unlabelled target training frames (AdaBN, the "
-        "baseline any method must beat); each method at tables.n_layers; oracle: source-only "
+        "baseline any method must beat); each method at tables.n_layers (<method>_adabn: its "
+        "checkpoint with those target statistics, grid.adabn_methods); oracle: source-only "
         "trained on the labelled target training frames (the same net, budget and crops). "
         "Source val mIoU: on the source validation split (in domain for source-only). Target "
         "mIoU and person IoU: the mean over the evaluation sequences where defined "

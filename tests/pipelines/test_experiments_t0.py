@@ -107,6 +107,25 @@ def test_t0_jobs_are_planned_per_flag(tmp_path: Path) -> None:
     assert checked(tmp_path, "grid.methods=[adaptsegnet]").grid.adabn == ()
 
 
+def test_adabn_of_a_methods_checkpoint_is_its_own_model(tmp_path: Path) -> None:
+    data = synthetic_data(tmp_path)
+    exp = checked(tmp_path, "grid.n_layers=[4,5]", "grid.adabn_methods=[source_only,adaptsegnet]")
+    # at the tables' depth only, named after the method's configuration
+    assert [c.model for c in exp.grid.adabn] == [
+        "adabn_s0", "adabn_s1", "adaptsegnet_n5_adabn_s0", "adaptsegnet_n5_adabn_s1"
+    ]  # fmt: skip
+    cell = exp.grid.adabn[2]
+    assert cell.source.model == "adaptsegnet_n5_s0"
+    assert cell.describe()["method"] == "adabn" and cell.config == "adaptsegnet_n5_adabn"
+    _, slam = planned(exp, data)
+    assert plan.adabn_stage(exp, data, cell) is None  # waits for its training, as source-only's
+    ids = {j.id for j in slam}
+    assert {"segeval/adaptsegnet_n5_adabn_s0", "segeval/source_val/adaptsegnet_n5_adabn_s0",
+            "slam/harness/walking_xyz/semantic/adaptsegnet_n5_adabn_s0"} <= ids  # fmt: skip
+    # the default adds nothing to the grid recorded runs have
+    assert [c.model for c in checked(tmp_path).grid.adabn] == ["adabn_s0", "adabn_s1"]
+
+
 def test_oracle_trains_source_only_on_the_labelled_target_frames(tmp_path: Path) -> None:
     data = synthetic_data(tmp_path)
     exp = checked(tmp_path, "grid.methods=[source_only]")
@@ -389,6 +408,22 @@ def test_t0_closure_is_paired_by_seed_with_standard_errors(tmp_path: Path) -> No
     assert "| adabn | 2 | 0.620 | 0.280 | 0.400 | 0.600 | 0.250 |" in text
 
 
+def test_a_methods_adabn_row_follows_the_method(tmp_path: Path) -> None:
+    rows = _t0_rows()
+    for r in [r for r in rows if r.get("config") == "adabn"]:
+        mine = {**r, "config": "adaptsegnet_n5_adabn",
+                "id": r["id"].replace("adabn_s", "adaptsegnet_n5_adabn_s")}  # fmt: skip
+        rows.append(mine)
+    path = tmp_path / "runs.csv"
+    tbl.write_runs(path, rows)
+    data, text = tbl.compute(tbl.read_runs(path), 5)
+    assert [(r["config"], r["role"]) for r in data["T0"]["rows"]] == [
+        ("source_only", "source-only"), ("adabn", "AdaBN"), ("adaptsegnet_n5", "method"),
+        ("adaptsegnet_n5_adabn", "AdaBN"), ("oracle", "oracle"),
+    ]  # fmt: skip
+    assert "<method>_adabn" in text
+
+
 def test_t0_counts_failed_seeds_and_marks_target_label_selection(tmp_path: Path) -> None:
     path = tmp_path / "runs.csv"
     tbl.write_runs(path, _t0_rows(failed_adapted_seed=1))
@@ -440,6 +475,12 @@ def test_stat_standard_error() -> None:
     [
         (["grid.oracle=maybe"], "grid.oracle: expected true or false, got 'maybe'"),
         (["grid.adabn=1"], "grid.adabn: expected true or false, got 1"),
+        (
+            ["grid.adabn_methods=[mystery]"],
+            "grid.adabn_methods: unknown value 'mystery'; accepted: source_only, adaptsegnet, "
+            "advent, minent, self_training",
+        ),
+        (["grid.adabn_methods=[]"], "grid.adabn_methods: expected a non-empty list, got []"),
         (
             ["segeval.source_val_stride=0"],
             "segeval.source_val_stride: expected an integer >= 1 or null, got 0",
