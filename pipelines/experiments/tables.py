@@ -986,22 +986,34 @@ RATIO_FILTERS = ("semantic", "semantic_geometry")
 """The filters of the downstream ratio tables (each when its SLAM runs were made)."""
 
 
-def table_ratio(rows, layout: Layout) -> tuple[list[dict[str, Any]], list[str]]:
+def table_ratio(
+    rows, layout: Layout
+) -> tuple[list[dict[str, Any]], list[dict[str, Any]], list[str]]:
+    """The downstream ratio of every model filter per seed, the paired differences to
+    source-only, and their markdown."""
     data: list[dict[str, Any]] = []
+    paired_rows: list[dict[str, Any]] = []
     needed = {"none", "oracle", "semantic"}
     if not needed <= set(layout.variants):
-        return data, [
-            "### Downstream ratio",
-            "",
-            "Not computed: needs the variants none, oracle and semantic.",
-            "",
-        ]
+        return (
+            data,
+            paired_rows,
+            [
+                "### Downstream ratio",
+                "",
+                "Not computed: needs the variants none, oracle and semantic.",
+                "",
+            ],
+        )
     lines = [
         "### Downstream ratio (ATE_none − ATE_model) / (ATE_none − ATE_oracle)",
         "",
         "Per sequence and seed, for each model filter: 1 = as good as ground-truth masks, 0 = no "
         "better than no filter; — = a run failed, was not made, or the oracle was no better "
-        "than no filter. Median and mean ± s.d. over the seeds.",
+        "than no filter. Median and mean ± s.d. over the seeds. Each model's row "
+        "\"− source_only\": its ratio minus source-only's, paired by seed (every seed's "
+        "difference, on how many seeds it is positive, and the mean with its 95% Student-t "
+        "interval over the seeds: an interval above 0 excludes no gain).",
         "",
     ]
     configs = list(
@@ -1051,6 +1063,24 @@ def table_ratio(rows, layout: Layout) -> tuple[list[dict[str, Any]], list[str]]:
                 [config, "median", *(f"{statistics.median(v):.3f}" if v else "—" for v in values)]
             )
             body.append([config, "mean ± s.d.", *(Stat(tuple(v)).text(3) for v in values)])
+            so = layout.source_only
+            if (
+                config != so
+                and so is not None
+                and any(
+                    _ratios(data, system, variant, so, sequence) for sequence in layout.sequences
+                )
+            ):
+                cells = [config, f"− {layout.source_only}"]
+                for sequence in layout.sequences:
+                    mine = _ratios(data, system, variant, config, sequence)
+                    base = _ratios(data, system, variant, layout.source_only, sequence)
+                    diffs = [mine[k] - base[k] for k in sorted(mine) if k in base]
+                    paired = paired_interval(diffs)
+                    paired_rows.append({"system": system, "filter": variant, "config": config,
+                                        "sequence": sequence, **paired})  # fmt: skip
+                    cells.append(_paired_text(paired))
+                body.append(cells)
         if not body:  # no model was run with this filter (e.g. ORB-SLAM3 + geometry)
             continue
         lines += [
@@ -1059,7 +1089,46 @@ def table_ratio(rows, layout: Layout) -> tuple[list[dict[str, Any]], list[str]]:
             *_md(["configuration", "seed", *layout.sequences], body),
             "",
         ]
-    return data, lines
+    return data, paired_rows, lines
+
+
+def _ratios(data: list[dict[str, Any]], system: str, variant: str, config: str,
+            sequence: str) -> dict[int, float]:  # fmt: skip
+    """Seed -> downstream ratio of one model filter on one sequence (from ``table_ratio``'s
+    rows so far)."""
+    return {
+        d["seed"]: d["ratio"]
+        for d in data
+        if d.get("ratio") is not None
+        and (d["system"], d["filter"], d["config"], d["sequence"])
+        == (system, variant, config, sequence)
+    }
+
+
+def paired_interval(diffs: Sequence[float], level: float = 0.95) -> dict[str, Any]:
+    """Paired differences: each value, how many are positive, their mean and its Student-t
+    interval at ``level`` (None below two values)."""
+    out: dict[str, Any] = {"values": list(diffs), "positive": sum(d > 0 for d in diffs),
+                           "n": len(diffs), "mean": None, "interval": None}  # fmt: skip
+    if diffs:
+        out["mean"] = statistics.fmean(diffs)
+    if len(diffs) >= 2:
+        from scipy.stats import t
+
+        half = t.ppf(0.5 + level / 2, len(diffs) - 1) * statistics.stdev(diffs) / len(diffs) ** 0.5
+        out["interval"] = [out["mean"] - half, out["mean"] + half]
+    return out
+
+
+def _paired_text(paired: Mapping[str, Any]) -> str:
+    if not paired["n"]:
+        return "—"
+    each = " / ".join(f"{d:+.2f}" for d in paired["values"])
+    text = f"{each} ({paired['positive']}/{paired['n']} > 0)"
+    if paired["interval"] is not None:
+        lo, hi = paired["interval"]
+        text += f", mean {paired['mean']:+.2f} [{lo:+.2f}, {hi:+.2f}]"
+    return text
 
 
 def _one(rows: Sequence[Mapping[str, Any]]) -> float | None:
@@ -1106,7 +1175,7 @@ def compute(
     t3, t3_md = table_t3(rows, layout)
     crf, crf_md = table_crf(rows, layout)
     base, base_md = table_baselines(rows, layout)
-    ratio, ratio_md = table_ratio(rows, layout)
+    ratio, paired, ratio_md = table_ratio(rows, layout)
     timing, timing_md = table_timing(rows, layout)
     failures, failures_md = table_failures(rows)
     data = {
@@ -1130,6 +1199,7 @@ def compute(
         "crf": crf,
         "baselines": base,
         "downstream_ratio": ratio,
+        "downstream_ratio_paired": paired,
         "timing": timing,
         "failures": failures,
     }

@@ -125,6 +125,19 @@ def test_t1_t2_t3_ratio_and_failures(rows: list[dict], tmp_path: Path) -> None:
     assert "| adaptsegnet_n5 | mean ± s.d. | 0.706 ± 0.062 (n=2) |" in text
     assert "| adaptsegnet_n5 | 2 | — |" in text
     assert "| source_only | median | 0.375 |" in text  # of 0.5, 0.25, 0.375
+    # paired by seed: 0.75 - 0.5 and 0.6625 - 0.375 (seed 2 has no adapted run), with the
+    # Student-t interval of their mean (1 degree of freedom)
+    paired = next(r for r in data["downstream_ratio_paired"] if r["filter"] == "semantic")
+    assert paired["values"] == pytest.approx([0.25, 0.2875])
+    assert (paired["positive"], paired["n"]) == (2, 2)
+    half = 12.7062 * math.sqrt(((0.25 - 0.26875) ** 2 + (0.2875 - 0.26875) ** 2) / 1) / math.sqrt(2)
+    assert paired["interval"] == pytest.approx([0.26875 - half, 0.26875 + half], abs=1e-4)
+    assert (
+        f"| adaptsegnet_n5 | − source_only | +0.25 / +0.29 (2/2 > 0), mean +0.27 "
+        f"[{0.26875 - half:+.2f}, {0.26875 + half:+.2f}] |"
+    ) in text
+    assert tbl.paired_interval([0.1])["interval"] is None
+    assert tbl.paired_interval([])["mean"] is None
     assert "| adaptsegnet_n5 | median | 0.706 |" in text  # of two seeds: their mean
     geometry = {
         (r["config"], r["seed"]): r["ratio"]
