@@ -194,6 +194,8 @@ def test_more_methods_and_crf_variants_keep_every_job_key(tmp_path: Path) -> Non
         "callbacks.image_logger=null",
         "++trainer.enable_progress_bar=false",
         "model/method=adaptsegnet",
+        "model.loss.lambda_adv_aux=0.02",  # tum_like's tuned settings (grid.method_overrides)
+        "model.loss.lambda_adv_main=0.1",
         "seed=0",
         "run_name=adaptsegnet_n5_s0",
         "model.discriminator.n_layers=5",
@@ -265,8 +267,12 @@ def test_each_shift_preset_trains_with_its_tuned_settings(tmp_path: Path) -> Non
     from uss_slam.pipelines.experiments.grid import PRESET_METHOD_OVERRIDES
 
     tum = _job_keys(tmp_path, "scale=standard")
-    # tum_like (the default) has no tuned settings: its keys are the ones recorded runs have
+    # tum_like (the default): ten times the adversarial weights, the BatchNorm mode unchanged
     assert "model.domain_batch_norm=running" not in tum["train/adaptsegnet_n5_s0"]["overrides"]
+    assert list(PRESET_METHOD_OVERRIDES["tum_like"]["adaptsegnet"]) == [
+        o for o in tum["train/adaptsegnet_n5_s0"]["overrides"] if o.startswith("model.loss.")
+    ]
+    assert not any(o.startswith("model.loss.") for o in tum["train/source_only_s0"]["overrides"])
     app = _job_keys(tmp_path, "scale=standard", "data.synthetic.shift=appearance")
     tuned = list(PRESET_METHOD_OVERRIDES["appearance"]["adaptsegnet"])
     assert tuned and all(t in app["train/adaptsegnet_n5_s0"]["overrides"] for t in tuned)
