@@ -175,8 +175,10 @@ def test_more_methods_and_crf_variants_keep_every_job_key(tmp_path: Path) -> Non
     from uss_slam.pipelines.runs import slam_defaults_key
 
     pytest.importorskip("pydensecrf")
-    base = _job_keys(tmp_path, "scale=standard")
-    more = _job_keys(tmp_path, "scale=standard", f"grid.methods=[{','.join(ALL)}]", CRF_VARIANTS)
+    base = _job_keys(tmp_path, "scale=standard_full")
+    more = _job_keys(
+        tmp_path, "scale=standard_full", f"grid.methods=[{','.join(ALL)}]", CRF_VARIANTS
+    )
     # every job of the default grid is a job of the bigger one, with the same key: a run of
     # the default grid is reused by a rerun with more methods and the CRF variants
     assert {k: more[k] for k in base} == base
@@ -230,6 +232,28 @@ def test_more_methods_and_crf_variants_keep_every_job_key(tmp_path: Path) -> Non
 
 
 STANDARD_SEQUENCES = ("walking_xyz", "walking_rpy", "walking_halfsphere", "static_xyz")
+
+
+def test_standard_scale_is_the_full_grid_trimmed(tmp_path: Path) -> None:
+    # scale=standard is the grid that fits about 2 h on two cores (the paper's depth only, three
+    # sequences, four filter variants, ORB-SLAM3 beside the harness); its trainings and harness
+    # jobs are jobs of scale=standard_full with the same keys, so either run reuses the other's
+    full = _job_keys(tmp_path, "scale=standard_full")
+    std = _job_keys(tmp_path, "scale=standard")
+    trainings = sorted(k for k in std if k.startswith("train/"))
+    assert trainings == sorted(
+        f"train/{m}_s{s}" for m in ("source_only", "adaptsegnet_n5", "oracle") for s in range(3)
+    )
+    harness = {k: v for k, v in std.items() if k.startswith(("train/", "slam/harness/"))}
+    harness = {k: v for k, v in harness.items() if "_adabn_" not in k}
+    assert {k: full.get(k) for k in harness} == harness
+    slam = [k.split("/") for k in std if k.startswith("slam/")]
+    assert {s[2] for s in slam} == {"walking_xyz", "walking_rpy", "static_xyz"}
+    assert {s[3] for s in slam} == {"none", "semantic", "semantic_geometry", "oracle"}
+    assert {s[1] for s in slam} == {"harness", "orbslam3"}
+    # AdaptSegNet's weights with target statistics are a row of the trimmed grid's T0
+    assert "slam/harness/walking_xyz/semantic/adaptsegnet_n5_adabn_s0" in std
+    assert not any(k.startswith("slam/orbslam3/") for k in full)
 
 
 def test_slam_job_keys_hold_the_uss_slam_defaults(tmp_path: Path, monkeypatch) -> None:
