@@ -10,10 +10,15 @@ Variants (all with the ``--filters`` given, default none):
 - ``tracker``: no back end (the harness as before; reference of every ratio);
 - ``local_ba``: local bundle adjustment + keyframe culling with the default parameters;
 - ``local_ba_orbslam2``: the same with ORB-SLAM2's isotropic stereo noise (``depth_noise=0``);
+- ``local_ba_sensor``: local BA whose stereo factors model the synthetic sensor's depth noise
+  (``depth_noise=0.0019``, the ``k`` of ``σ_z = k·z²`` the renderer's target style draws);
 - ``loop``: local BA and loop closing; ``loop_only``: loop closing without local BA;
 - ``prosac``: the tracker alone with PROSAC sampling (``sampler=prosac``).
 
-Per run: ATE RMSE (SE(3)-aligned), tracked fraction, frames/s, the main thread's CPU ms per
+``--repeats N`` runs each cell N times with the perturbations of ``uss-slam slam.repeats`` (±1%
+feature budget, RANSAC sampling seed) and keeps the median run. Per run: ATE RMSE (SE(3)-aligned),
+that of the keyframes only (their final poses) and of the other frames (composed on their
+reference keyframes), tracked fraction, frames/s, the main thread's CPU ms per
 frame (tracking, filters, mapping and the back end: robust to a busy machine, unlike frames/s),
 the CPU ms per local BA and the loop closures; then per preset and variant the median over seeds
 and its ratio to ``tracker``. The machine's load average is printed with the timings.
@@ -29,11 +34,15 @@ import statistics
 import time
 from pathlib import Path
 
+import numpy as np
 from slam_targets import sequence_path
 
+from uss_slam.core.tum_io import Trajectory
 from uss_slam.slam_eval.filters.dynamic import build_filters
+from uss_slam.slam_eval.frontend.orb import OrbConfig
 from uss_slam.slam_eval.mapping.local_mapping import LocalMappingConfig
 from uss_slam.slam_eval.scoring.metrics import ate
+from uss_slam.slam_eval.scoring.repeats import Perturbation, median_index, perturbations
 from uss_slam.slam_eval.segmenters.base import LabelsSegmenter
 from uss_slam.slam_eval.sequence import TumSequence
 from uss_slam.slam_eval.systems.harness import SlamPipeline
@@ -46,6 +55,10 @@ VARIANTS = {
         "local_ba": True,
         "local_ba_params": LocalMappingConfig(depth_noise=0.0),
     },
+    "local_ba_sensor": {
+        "local_ba": True,
+        "local_ba_params": LocalMappingConfig(depth_noise=0.0019),
+    },
     "loop": {"local_ba": True, "loop_closing": True},
     "loop_only": {"loop_closing": True},
     "prosac": {"tracker": TrackerConfig(sampler="prosac")},
@@ -56,16 +69,40 @@ PREFETCH_MODULES = ("read", "orb", "segmentation")
 """Modules timed in the prefetch threads (the rest run in the main thread)."""
 
 
-def run(path: Path, variant: str, filters: list[str]) -> dict:
+def _split_ate(seq: TumSequence, result) -> tuple[float | None, float | None]:
+    """ATE RMSE of the keyframes' poses alone and of the other frames alone (each aligned on
+    its own)."""
+    keyframes = {e.stamp for e in result.log if e.keyframe}
+    t = result.trajectory
+    out = []
+    for want in (True, False):
+        sel = np.array([(s in keyframes) == want for s in t.stamps])
+        if sel.sum() < 3:
+            out.append(None)
+            continue
+        part = Trajectory(t.stamps[sel], t.positions[sel], t.quaternions[sel])
+        out.append(ate(seq.groundtruth, part).stats.rmse)
+    return out[0], out[1]
+
+
+def run(path: Path, variant: str, filters: list[str], perturbation: Perturbation | None = None
+        ) -> dict:  # fmt: skip
     seq = TumSequence(path, load_labels=True)
+    options = dict(VARIANTS[variant])
+    if perturbation is not None:
+        options["orb"] = OrbConfig(n_features=perturbation.n_features)
+        options["sampling_seed"] = perturbation.sampling_seed
     result = SlamPipeline(
-        seq, LabelsSegmenter(), build_filters(filters), progress=False, **VARIANTS[variant]
+        seq, LabelsSegmenter(), build_filters(filters), progress=False, **options
     ).run()
     stats = ate(seq.groundtruth, result.trajectory).stats
+    kf_ate, other_ate = _split_ate(seq, result)
     ba = result.local_ba or {}
     main_cpu = sum(ms for name, ms in result.cpu_ms.items() if name not in PREFETCH_MODULES)
     return {
         "ate_rmse": stats.rmse,
+        "ate_keyframes": kf_ate,
+        "ate_other_frames": other_ate,
         "tracked_fraction": result.tracked_fraction,
         "fps": result.fps,
         "main_cpu_ms": main_cpu,
@@ -79,6 +116,10 @@ def run(path: Path, variant: str, filters: list[str]) -> dict:
     }
 
 
+def _m(value: float | None) -> str:
+    return "—" if value is None else f"{value:.4f}"
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", type=Path, default=Path("outputs/bench/slam"))
@@ -89,6 +130,8 @@ def main() -> None:
     parser.add_argument("--variants", nargs="+", default=["tracker", "local_ba"])
     parser.add_argument("--filters", nargs="*", default=[], help="e.g. semantic")
     parser.add_argument("--json", type=Path, help="also write the results here")
+    parser.add_argument("--repeats", type=int, default=1,
+                        help="runs per cell, perturbed as slam.repeats (the median run is kept)")  # fmt: skip
     args = parser.parse_args()
     unknown = [v for v in args.variants if v not in VARIANTS]
     if unknown:
@@ -101,7 +144,13 @@ def main() -> None:
         for seed in args.seeds:
             path = sequence_path(args.data, preset, args.frames, size, seed)
             for variant in args.variants:
-                r = run(path, variant, args.filters)
+                if args.repeats > 1:
+                    reps = perturbations(args.repeats, 0, 0.01, OrbConfig().n_features)
+                    runs = [run(path, variant, args.filters, p) for p in reps]
+                    rmses = [x["ate_rmse"] for x in runs]
+                    r = {**runs[median_index(rmses)], "repeats": rmses}
+                else:
+                    r = run(path, variant, args.filters)
                 r["seed"] = seed
                 results.setdefault(preset, {}).setdefault(variant, []).append(r)
                 ba = (
@@ -110,7 +159,9 @@ def main() -> None:
                     else f"  local BA {r['local_ba_cpu_ms']:.0f} ms CPU ({r['local_ba_ms']:.0f} wall)"
                 )
                 print(
-                    f"{preset:14s} seed {seed} {variant:18s} ATE {r['ate_rmse']:.4f} m  tracked "
+                    f"{preset:14s} seed {seed} {variant:18s} ATE {r['ate_rmse']:.4f} m "
+                    f"(keyframes {_m(r['ate_keyframes'])}, other frames {_m(r['ate_other_frames'])})"
+                    "  tracked "
                     f"{r['tracked_fraction']:.2f}  {r['fps']:5.1f} frames/s  main thread "
                     f"{r['main_cpu_ms']:5.1f} ms CPU/frame  kf {r['keyframes']}{ba}  loops "
                     f"{r['loop_closures']}  (load {os.getloadavg()[0]:.1f})",
