@@ -8,10 +8,12 @@ sampler against the tracker alone, ATE RMSE and frames/s on synthetic sequences 
 Variants (all with the ``--filters`` given, default none):
 
 - ``tracker``: no back end (the harness as before; reference of every ratio);
-- ``local_ba``: local bundle adjustment + keyframe culling with the default parameters;
+- ``local_ba``: local bundle adjustment + keyframe culling with the default parameters (the
+  depth noise the sequence's ``intrinsics.yaml`` declares, else ORB-SLAM2's model);
 - ``local_ba_orbslam2``: the same with ORB-SLAM2's isotropic stereo noise (``depth_noise=0``);
 - ``local_ba_sensor``: local BA whose stereo factors model the synthetic sensor's depth noise
-  (``depth_noise=0.0019``, the ``k`` of ``σ_z = k·z²`` the renderer's target style draws);
+  (``depth_noise=0.0019``, the ``k`` of ``σ_z = k·z²`` the renderer's target style draws and
+  declares);
 - ``loop``: local BA and loop closing; ``loop_only``: loop closing without local BA;
 - ``prosac``: the tracker alone with PROSAC sampling (``sampler=prosac``).
 

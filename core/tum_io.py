@@ -308,6 +308,10 @@ class CameraIntrinsics:
     height: int
     distortion: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0)
     depth_scale: float = DEPTH_SCALE
+    depth_noise: float | None = None
+    """The depth sensor's axial noise as ``k`` of ``σ_z = k·z²`` (metres⁻¹), when it is known
+    (a synthetic sensor's); None = unknown, as for a real Kinect, whose depth also suffers from
+    its capture timing (the SLAM back end then uses ORB-SLAM2's noise model)."""
 
     @property
     def matrix(self) -> np.ndarray:
@@ -330,6 +334,7 @@ class CameraIntrinsics:
             height=height,
             distortion=self.distortion,
             depth_scale=self.depth_scale,
+            depth_noise=self.depth_noise,
         )
 
     def to_yaml(self, path: StrPath) -> None:
@@ -343,6 +348,8 @@ class CameraIntrinsics:
             "distortion": [float(d) for d in self.distortion],
             "depth_scale": float(self.depth_scale),
         }
+        if self.depth_noise is not None:
+            data["depth_noise"] = float(self.depth_noise)
         Path(path).write_text(yaml.safe_dump(data, sort_keys=False))
 
     @classmethod
@@ -408,10 +415,17 @@ class CameraIntrinsics:
             )
         distortion = tuple(number(f"distortion[{k}]", d) for k, d in enumerate(coefficients))
         depth_scale = positive("depth_scale") if "depth_scale" in data else DEPTH_SCALE
-        return cls(fx, fy, cx, cy, width, height, distortion, depth_scale)
+        depth_noise = None
+        if data.get("depth_noise") is not None:
+            depth_noise = number("depth_noise", data["depth_noise"])
+            if depth_noise < 0:
+                raise DataFormatError(path, f"depth_noise must be >= 0, got {depth_noise:g}")
+        return cls(fx, fy, cx, cy, width, height, distortion, depth_scale, depth_noise)
 
 
-INTRINSICS_KEYS = ("fx", "fy", "cx", "cy", "width", "height", "distortion", "depth_scale")
+INTRINSICS_KEYS = (
+    "fx", "fy", "cx", "cy", "width", "height", "distortion", "depth_scale", "depth_noise"
+)  # fmt: skip
 """The keys of an ``intrinsics.yaml`` (:meth:`CameraIntrinsics.from_yaml`)."""
 
 TUM_CAMERAS: dict[str, CameraIntrinsics] = {

@@ -20,11 +20,11 @@ def check_numbers(
     unit: Iterable[str] = (),
 ) -> None:
     """Raise :class:`ValueError` unless every number field of the dataclass ``config`` is finite
-    and >= 0 (true / false and strings are no numbers here), the fields ``at_least_one`` are
+    and >= 0 (true / false, strings and None are no numbers here), the fields ``at_least_one`` are
     >= 1, the fields ``positive`` > 0 and the fields ``unit`` in (0, 1]; checked in that order."""
     for item in fields(config):
         value = getattr(config, item.name)
-        if isinstance(value, (bool, str)):
+        if value is None or isinstance(value, (bool, str)):  # None: an optional setting unset
             continue
         if not (math.isfinite(value) and value >= 0):
             raise ValueError(f"{item.name} must be a finite number >= 0, got {value}")

@@ -32,6 +32,7 @@ from .renderer import Renderer
 from .scene import office_scene
 from .seeding import stream
 from .styles import (
+    DEPTH_NOISE_K,
     EXPOSURE_TIME,
     STYLES,
     NoisePool,
@@ -233,7 +234,7 @@ def render_sequence(
 
     Writes ``rgb/`` (uint8 PNG), ``depth/`` (uint16 PNG, 5000 = 1 m, 0 = none), ``labels/``
     (uint8 class-id PNG, same names as ``rgb/``), ``rgb.txt``, ``depth.txt``, ``groundtruth.txt``
-    (100 Hz, camera-to-world, optical frame), ``intrinsics.yaml`` (fr3 scaled to ``size``) and
+    (100 Hz, camera-to-world, optical frame), ``intrinsics.yaml`` (fr3 scaled to ``size``; the target style declares its depth noise) and
     ``synthetic.yaml`` (the arguments). The folder appears only when complete; an existing
     non-empty ``out_dir`` is an error unless ``overwrite``. ``outfits``: what the people wear
     (:data:`SEQUENCE_OUTFITS`). ``timing``: the target style's sensor timing
@@ -263,7 +264,9 @@ def render_sequence(
             seq.groundtruth(),
             comment=f"ground truth trajectory (uss-synth {preset}, seed {seed})",
         )
-        seq.camera.to_yaml(tmp / "intrinsics.yaml")
+        # the target style's depth noise is known exactly: declared for the SLAM back end
+        noise = DEPTH_NOISE_K if style == "target" else None
+        replace(seq.camera, depth_noise=noise).to_yaml(tmp / "intrinsics.yaml")
         meta = {
             "generator": "uss-synth",
             "preset": preset,

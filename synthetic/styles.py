@@ -160,11 +160,17 @@ def target_rgb(
     return np.clip(out, 0, 255).astype(np.uint8)
 
 
+DEPTH_NOISE_K = 0.0019
+"""k of the target style's axial depth noise ``σ_z ≈ k·z²`` (metres⁻¹; exactly
+``0.0012 + k·(z - 0.4)²``), which its sequences declare in ``intrinsics.yaml`` (``depth_noise``)
+for the SLAM back end's noise model."""
+
+
 def target_depth(depth: np.ndarray, rng: np.random.Generator, pool: NoisePool) -> np.ndarray:
     """Kinect-like depth (uint16 PNG units) from exact depth in metres (H, W)."""
     z = depth.astype(np.float32)
     # axial noise grows with the square of the distance (Nguyen et al. 2012)
-    sigma = np.float32(0.0012 / 16) + np.float32(0.0019 / 16) * (z - np.float32(0.4)) ** 2
+    sigma = np.float32(0.0012 / 16) + np.float32(DEPTH_NOISE_K / 16) * (z - np.float32(0.4)) ** 2
     noisy = z + sigma * pool.normal16(rng, z.shape)
     # holes where the depth jumps (shadowing between projector and camera) and a few dropouts
     zf = np.where(np.isfinite(z), z, np.float32(10.0))

@@ -23,7 +23,9 @@ Local bundle adjustment of a new keyframe ``K``:
   after Nguyen et al.), i.e. a disparity to ``σ_d = bf·k`` at every distance, and ``u_r`` shares
   ``u``'s detection noise; with ``depth_noise = k`` > 0 the stereo factors get that covariance
   (``σ² [[1, 1, 0], [1, 1 + σ_d²/σ², 0], [0, 0, 1]]`` over ``(u_L, u_R, v)``), ``depth_noise = 0``
-  is ORB-SLAM2's model, the default. On a real hand-held Kinect the depth agrees with the
+  is ORB-SLAM2's model; by default (None) ``k`` is the camera's declared noise (the
+  synthetic target style declares its 0.0019 in ``intrinsics.yaml``), else 0, as for every real
+  Kinect (:func:`depth_noise_of`). On a real hand-held Kinect the depth agrees with the
   multi-view geometry far less than ``k·z²`` says: after local BA on TUM ``freiburg1_rpy`` the
   disparity residuals have a robust sigma of 0.74 px against the 0.074 px of ``k = 0.0019`` (the
   depth image is taken ~10 ms before the colour image while the camera turns at ~1.5 rad/s, an
@@ -79,10 +81,12 @@ def point_key(point_id: int) -> int:
 class LocalMappingConfig:
     """Local bundle adjustment and keyframe culling (defaults: ORB-SLAM2's)."""
 
-    depth_noise: float = 0.0
+    depth_noise: float | None = None
     """k of the depth noise ``σ_z = k·z²`` the stereo observations model, metres⁻¹ (module
-    docstring); 0 = ORB-SLAM2's independent ``(u, v, u_r)`` of equal sigma (the default: real
-    Kinect depth is far from that model's precision); 0.0019 = the synthetic sensor's noise."""
+    docstring); 0 = ORB-SLAM2's independent ``(u, v, u_r)`` of equal sigma; None (the default)
+    = the camera's: the ``depth_noise`` its ``intrinsics.yaml`` declares (the synthetic target
+    style: 0.0019), else ORB-SLAM2's model (a real Kinect, whose depth is far from ``k·z²``'s
+    precision: :func:`depth_noise_of`)."""
     covisibility: int = 15
     """Keyframes sharing at least this many map points with the new keyframe are optimised."""
     max_keyframes: int = 0
@@ -105,6 +109,16 @@ class LocalMappingConfig:
             at_least_one=("covisibility", "first_iterations", "redundant_observers"),
             unit=("redundancy",),
         )
+
+
+def depth_noise_of(config: LocalMappingConfig, camera_noise: float | None) -> tuple[float, str]:
+    """The ``k`` local BA models and where it came from: the setting when given, else the
+    camera's declared noise, else ORB-SLAM2's model (0)."""
+    if config.depth_noise is not None:
+        return float(config.depth_noise), "slam.local_ba_params.depth_noise"
+    if camera_noise is not None:
+        return float(camera_noise), "the camera's intrinsics.yaml"
+    return 0.0, "ORB-SLAM2's model (the camera declares no depth noise)"
 
 
 @dataclass

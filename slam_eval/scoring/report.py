@@ -18,7 +18,9 @@ and ``segmentation``: ``schedule`` (``every_frame`` | ``keyframes``), ``thread``
 concurrently with ORB extraction; ``main``), ``frames_segmented``, ``wall_ms`` / ``cpu_ms`` per
 segmented frame, next to ``orb_wall_ms`` / ``orb_cpu_ms`` per frame for comparison; the back
 end: ``local_ba`` (null when off, else ``runs``, mean ``wall_ms`` per run, ``keyframes_culled``,
-``observations_erased``, ``mean_free_keyframes``, ``mean_points``), ``loop_closing`` (on/off),
+``observations_erased``, ``mean_free_keyframes``, ``mean_points``, ``depth_noise`` the k of
+``σ_z = k·z²`` its stereo factors model (0 = ORB-SLAM2's model) and ``depth_noise_from``),
+``loop_closing`` (on/off),
 ``loop_closures`` (how many) and ``loop_closure_frames`` (per closure: ``frame``, ``stamp``,
 ``keyframe``, ``loop_frame``, ``loop_keyframe``, ``inliers``, ``correction_m``,
 ``correction_deg``, ``fused`` points, ``wall_ms``), ``loop_candidates_rejected`` (recognised
@@ -337,6 +339,10 @@ def _backend_md(result: RunResult) -> list[str]:
             f"optimised on average); {ba['observations_erased']} outlier observations erased; "
             f"{ba['keyframes_culled']} redundant keyframes culled."
         )
+        if "depth_noise" in ba:
+            k = float(ba["depth_noise"])
+            model = f"σ_z = {k:g}·z²" if k > 0 else "ORB-SLAM2's (u, v, u_r) of equal sigma"
+            lines.append(f"Depth noise model: {model}, from {ba['depth_noise_from']}.")
     lines.append("")
     if not result.loop_closing:
         lines += ["Loop closing: off.", ""]

@@ -65,7 +65,7 @@ from uss_slam.core.tum_io import Trajectory
 from ..filters.dynamic import DynamicFilter, FilterContext
 from ..frontend.orb import Features, OrbConfig, OrbExtractor
 from ..geometry import invert
-from ..mapping.local_mapping import BundleAdjuster, LocalMapping, LocalMappingConfig
+from ..mapping.local_mapping import BundleAdjuster, LocalMapping, LocalMappingConfig, depth_noise_of
 from ..mapping.loop_closing import LoopCloser, LoopClosingConfig
 from ..mapping.octomap import OctoMapBuilder, SemanticOctoMap, load_pyoctomap
 from ..mapping.semantic_map import MapConfig, PointCloud, SemanticMapBuilder, merge_clouds
@@ -158,8 +158,10 @@ class RunResult:
     segmentation_thread: str = "prefetch"
     """Where the segmenter ran: ``"prefetch"`` (worker threads, concurrently with ORB
     extraction) or ``"main"`` (keyframes schedule, or ``parallel`` off)."""
-    local_ba: dict[str, float | int] | None = None
-    """Local mapping totals (:meth:`~.local_mapping.LocalMappingStats.as_dict`); None when off."""
+    local_ba: dict[str, float | int | str] | None = None
+    """Local mapping totals (:meth:`~.local_mapping.LocalMappingStats.as_dict`) with the
+    ``depth_noise`` k its stereo factors model and ``depth_noise_from`` (where it came from);
+    None when off."""
     loop_closing: bool = False
     loop_closures: list[dict[str, float | int]] = field(default_factory=list)
     """One entry per closed loop (:class:`~..mapping.loop_closing.LoopClosure`)."""
@@ -296,9 +298,10 @@ class SlamPipeline:
         tracker = Tracker(self.tracker_config, extractor, self.sampling_seed)
         builder = SemanticMapBuilder(self.map_config, extractor)
         octo = OctoMapBuilder(self.map_config, extractor) if self.map_config.octomap else None
-        adjuster = BundleAdjuster(
-            tracker.k, tracker.bf, extractor.sigma2, self.local_ba_params.depth_noise
+        depth_noise, noise_source = depth_noise_of(
+            self.local_ba_params, self.sequence.camera.depth_noise
         )
+        adjuster = BundleAdjuster(tracker.k, tracker.bf, extractor.sigma2, depth_noise)
         mapper = LocalMapping(self.local_ba_params, adjuster) if self.local_ba else None
         closer = (
             LoopCloser(self.loop_closing_params, tracker, adjuster) if self.loop_closing else None
@@ -488,7 +491,15 @@ class SlamPipeline:
             segmented_frames=segmented,
             segmentation_ms=per_segmented,
             segmentation_thread="prefetch" if self.parallel and not keyframes_only else "main",
-            local_ba=mapper.stats.as_dict() if mapper is not None else None,
+            local_ba=(
+                {
+                    **mapper.stats.as_dict(),
+                    "depth_noise": depth_noise,
+                    "depth_noise_from": noise_source,
+                }
+                if mapper is not None
+                else None
+            ),  # fmt: skip
             loop_closing=closer is not None,
             loop_closures=[c.as_dict() for c in closer.closures] if closer is not None else [],
             loop_candidates_rejected=closer.rejected if closer is not None else 0,

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -152,6 +153,18 @@ def test_intrinsics_yaml_round_trip_and_errors(tmp_path: Path) -> None:
     assert TUM_CAMERAS["fr1"].has_distortion and not TUM_CAMERAS["fr3"].has_distortion
 
 
+def test_intrinsics_declare_an_optional_depth_noise(tmp_path: Path) -> None:
+    # a sensor whose depth noise is known (a synthetic one) declares it; a real Kinect does not
+    assert all(cam.depth_noise is None for cam in TUM_CAMERAS.values())
+    TUM_CAMERAS["fr3"].to_yaml(tmp_path / "a.yaml")
+    assert "depth_noise" not in (tmp_path / "a.yaml").read_text()
+    noisy = replace(TUM_CAMERAS["fr3"], depth_noise=0.0019)
+    noisy.to_yaml(tmp_path / "b.yaml")
+    back = CameraIntrinsics.from_yaml(tmp_path / "b.yaml")
+    assert back == noisy and back.depth_noise == 0.0019
+    assert back.scaled(320, 240).depth_noise == 0.0019
+
+
 GOOD_INTRINSICS = {"fx": 500.0, "fy": 500.0, "cx": 15.5, "cy": 11.5, "width": 32, "height": 24}
 
 
@@ -165,6 +178,8 @@ GOOD_INTRINSICS = {"fx": 500.0, "fy": 500.0, "cx": 15.5, "cy": 11.5, "width": 32
         ("fx", "'abc'", "fx must be a number, got 'abc'"),
         ("depth_scale", 0, "depth_scale must be > 0, got 0"),
         ("depth_scale", ".nan", "depth_scale must be a finite number"),
+        ("depth_noise", -0.001, "depth_noise must be >= 0, got -0.001"),
+        ("depth_noise", "'low'", "depth_noise must be a number, got 'low'"),
         ("cx", 32, "cx must lie inside the image (0 <= cx < width 32), got 32"),
         ("cx", -1, "cx must lie inside the image"),
         ("cy", 30.5, "cy must lie inside the image (0 <= cy < height 24), got 30.5"),

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import re
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -19,6 +20,7 @@ from uss_slam.core.tum_io import (
     read_file_list,
     read_trajectory,
 )
+from uss_slam.synthetic.styles import DEPTH_NOISE_K
 from uss_slam.synthetic.voc import void_width
 
 STAMP = re.compile(r"^\d{10}\.\d{6}$")
@@ -117,9 +119,15 @@ def test_time_line(sequence: Path) -> None:
     assert len(np.intersect1d(np.round(gt, 6), rgb)) == 0
 
 
-def test_intrinsics_are_fr3_scaled(sequence: Path) -> None:
+def test_intrinsics_are_fr3_scaled(sequence: Path, synthetic_sequence) -> None:
     cam = CameraIntrinsics.from_yaml(sequence / "intrinsics.yaml")
-    assert cam == TUM_CAMERAS["fr3"].scaled(160, 120)
+    # the target style declares its depth noise (the SLAM back end's model); the source
+    # style's depth is exact but for its 0.2 mm steps and declares none
+    assert cam == replace(TUM_CAMERAS["fr3"].scaled(160, 120), depth_noise=DEPTH_NOISE_K)
+    source = synthetic_sequence(frames=2, size=(160, 120), style="source")
+    assert CameraIntrinsics.from_yaml(source / "intrinsics.yaml") == TUM_CAMERAS["fr3"].scaled(
+        160, 120
+    )
 
 
 @pytest.fixture(scope="module")

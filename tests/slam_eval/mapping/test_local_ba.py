@@ -19,6 +19,7 @@ from uss_slam.slam_eval.mapping.local_mapping import (
     BundleAdjuster,
     LocalMapping,
     LocalMappingConfig,
+    depth_noise_of,
 )
 from uss_slam.slam_eval.mapping.slam_map import SlamMap
 from uss_slam.slam_eval.run import run
@@ -27,6 +28,7 @@ from uss_slam.slam_eval.segmenters.base import NoSegmenter
 from uss_slam.slam_eval.sequence import TumSequence
 from uss_slam.slam_eval.systems.harness import SlamPipeline
 from uss_slam.slam_eval.tracking.tracker import Tracker, TrackerConfig
+from uss_slam.synthetic.styles import DEPTH_NOISE_K
 
 CAM = TUM_CAMERAS["fr3"].scaled(640, 480)
 EX = OrbExtractor(OrbConfig(), CAM)
@@ -93,7 +95,7 @@ def _errors_mm(slam_map: SlamMap, truth: list[np.ndarray]) -> np.ndarray:
     )
 
 
-def _adjuster(depth_noise: float = LocalMappingConfig().depth_noise) -> BundleAdjuster:
+def _adjuster(depth_noise: float = 0.0) -> BundleAdjuster:  # ORB-SLAM2's model
     return BundleAdjuster(CAM.matrix, BF, EX.sigma2, depth_noise)
 
 
@@ -221,6 +223,33 @@ def test_local_mapping_options_are_checked() -> None:
         run(cfg)
 
 
+def test_depth_noise_is_the_settings_else_the_cameras_else_orbslam2s() -> None:
+    assert depth_noise_of(LocalMappingConfig(depth_noise=0.005), 0.0019) == (
+        0.005, "slam.local_ba_params.depth_noise"
+    )  # fmt: skip
+    assert depth_noise_of(LocalMappingConfig(depth_noise=0.0), 0.0019)[0] == 0.0
+    assert depth_noise_of(LocalMappingConfig(), 0.0019) == (0.0019, "the camera's intrinsics.yaml")
+    k, source = depth_noise_of(LocalMappingConfig(), None)  # a real Kinect: TUM's cameras
+    assert k == 0.0 and source.startswith("ORB-SLAM2's model")
+
+
+@pytest.mark.parametrize(
+    ("overrides", "k", "source"),
+    [
+        # TUM's fr3 calibration, as for a real recording: no declared noise
+        (["sequence.camera=fr3"], 0.0, "ORB-SLAM2's model (the camera declares no depth noise)"),
+        (["slam.local_ba_params.depth_noise=0.004"], 0.004, "slam.local_ba_params.depth_noise"),
+    ],
+)
+def test_local_ba_reports_the_depth_noise_it_models(
+    synthetic_sequence, tmp_path: Path, overrides: list[str], k: float, source: str
+) -> None:
+    path = synthetic_sequence(preset="static_xyz", frames=30)
+    cfg = slam_run_config(path, tmp_path / "run", "slam.local_ba=true", *overrides)
+    ba = run(cfg)["local_ba"]
+    assert (ba["depth_noise"], ba["depth_noise_from"]) == (k, source)
+
+
 def _pipeline(path: Path, **kwargs) -> SlamPipeline:
     return SlamPipeline(
         TumSequence(path), NoSegmenter(), build_filters([]), progress=False, **kwargs
@@ -261,7 +290,11 @@ def test_local_ba_runs_after_every_keyframe(synthetic_sequence, tmp_path: Path) 
     ba = data["local_ba"]
     assert ba["runs"] == data["keyframes"] - 1 >= 1
     assert set(ba) == {"runs", "wall_ms", "keyframes_culled", "observations_erased",
-                       "mean_free_keyframes", "mean_points"}  # fmt: skip
+                       "mean_free_keyframes", "mean_points", "depth_noise",
+                       "depth_noise_from"}  # fmt: skip
+    # the synthetic target style declares its depth noise, and local BA models it
+    assert ba["depth_noise"] == DEPTH_NOISE_K
+    assert ba["depth_noise_from"] == "the camera's intrinsics.yaml"
     assert data["loop_closing"] is False and data["loop_closures"] == 0
     assert data["timing_ms"]["local_ba"] > 0 and data["frames_tracked"] == 30
     assert data["ate"]["rmse"] < 0.02
@@ -271,6 +304,7 @@ def test_local_ba_runs_after_every_keyframe(synthetic_sequence, tmp_path: Path) 
     assert (
         f"Local bundle adjustment: {ba['runs']} runs" in report and "Loop closing: off." in report
     )
+    assert "Depth noise model: σ_z = 0.0019·z², from the camera's intrinsics.yaml." in report
     off = _pipeline(path).run()
     estimate = read_trajectory(out / "trajectory.txt")
     assert len(estimate) == len(off.trajectory) == 30
