@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -16,6 +17,7 @@ from uss_slam.core.tum_io import (
     read_file_list,
     read_trajectory,
 )
+from uss_slam.synthetic.styles import DEPTH_NOISE_K
 
 PERSON = CLASS_NAMES.index("person")
 
@@ -90,8 +92,12 @@ def test_static_points_reproject_onto_the_same_surface(synthetic_sequence) -> No
 def test_style_changes_appearance_only(synthetic_sequence) -> None:
     src = synthetic_sequence(preset="walking_xyz", frames=30, size=(320, 240), style="source")
     tgt = synthetic_sequence(preset="walking_xyz", frames=30, size=(320, 240), style="target")
-    for name in ("rgb.txt", "depth.txt", "groundtruth.txt", "intrinsics.yaml"):
+    for name in ("rgb.txt", "depth.txt", "groundtruth.txt"):
         assert (src / name).read_bytes() == (tgt / name).read_bytes(), name
+    # the same camera; only the target style declares the depth noise it adds
+    cams = [CameraIntrinsics.from_yaml(d / "intrinsics.yaml") for d in (src, tgt)]
+    assert cams[0].depth_noise is None and cams[1].depth_noise == DEPTH_NOISE_K
+    assert replace(cams[1], depth_noise=None) == cams[0]
     for label in sorted((src / "labels").iterdir()):
         assert label.read_bytes() == (tgt / "labels" / label.name).read_bytes()
     for i in (0, 15, 29):
