@@ -37,18 +37,19 @@ import time
 from pathlib import Path
 
 import numpy as np
-from slam_targets import sequence_path
+from slam_targets import median_run, sequence_path
 
 from uss_slam.core.tum_io import Trajectory
 from uss_slam.slam_eval.filters.dynamic import build_filters
 from uss_slam.slam_eval.frontend.orb import OrbConfig
 from uss_slam.slam_eval.mapping.local_mapping import LocalMappingConfig
 from uss_slam.slam_eval.scoring.metrics import ate
-from uss_slam.slam_eval.scoring.repeats import Perturbation, median_index, perturbations
+from uss_slam.slam_eval.scoring.repeats import Perturbation, perturbations
 from uss_slam.slam_eval.segmenters.base import LabelsSegmenter
 from uss_slam.slam_eval.sequence import TumSequence
 from uss_slam.slam_eval.systems.harness import SlamPipeline
 from uss_slam.slam_eval.tracking.tracker import TrackerConfig
+from uss_slam.synthetic.styles import DEPTH_NOISE_K
 
 VARIANTS = {
     "tracker": {},
@@ -59,7 +60,7 @@ VARIANTS = {
     },
     "local_ba_sensor": {
         "local_ba": True,
-        "local_ba_params": LocalMappingConfig(depth_noise=0.0019),
+        "local_ba_params": LocalMappingConfig(depth_noise=DEPTH_NOISE_K),
     },
     "loop": {"local_ba": True, "loop_closing": True},
     "loop_only": {"loop_closing": True},
@@ -135,6 +136,12 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=1,
                         help="runs per cell, perturbed as slam.repeats (the median run is kept)")  # fmt: skip
     args = parser.parse_args()
+    if args.repeats < 1:
+        raise SystemExit(f"--repeats: must be >= 1, got {args.repeats}")
+    # slam.repeats' perturbations (repeat 0 as is), the same for every cell
+    repeats = (
+        perturbations(args.repeats, 0, 0.01, OrbConfig().n_features) if args.repeats > 1 else []
+    )
     unknown = [v for v in args.variants if v not in VARIANTS]
     if unknown:
         parser.error(f"unknown variant(s) {unknown}; choose from {', '.join(VARIANTS)}")
@@ -146,11 +153,8 @@ def main() -> None:
         for seed in args.seeds:
             path = sequence_path(args.data, preset, args.frames, size, seed)
             for variant in args.variants:
-                if args.repeats > 1:
-                    reps = perturbations(args.repeats, 0, 0.01, OrbConfig().n_features)
-                    runs = [run(path, variant, args.filters, p) for p in reps]
-                    rmses = [x["ate_rmse"] for x in runs]
-                    r = {**runs[median_index(rmses)], "repeats": rmses}
+                if repeats:
+                    r = median_run([run(path, variant, args.filters, p) for p in repeats])
                 else:
                     r = run(path, variant, args.filters)
                 r["seed"] = seed
