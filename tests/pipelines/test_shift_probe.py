@@ -29,6 +29,15 @@ def test_knob_rows_scale_the_methods_defaults() -> None:
     ]
 
 
+def test_the_threshold_knob_sets_self_trainings_confidence(tmp_path) -> None:
+    rows = knob_overrides("self_training+thr0.9")
+    assert rows == ["model/method=self_training", "model.method.pseudo_threshold=0.9"]
+    cfg = compose_train(["experiment=demo", *rows], tmp_path / "st")
+    assert cfg.model.method.pseudo_threshold == 0.9
+    with pytest.raises(SystemExit, match="'thr1.5' in 'self_training\\+thr1.5'.*in \\(0, 1\\)"):
+        knob_overrides("self_training+thr1.5")
+
+
 def test_unknown_knob_names_the_row() -> None:
     with pytest.raises(SystemExit, match="unknown knob 'fast' in 'adaptsegnet\\+fast'"):
         knob_overrides("adaptsegnet+fast")
