@@ -75,10 +75,11 @@ class Experiment:
 
 def training_seeds(seed: int) -> set[int]:
     """The seeds of the synthetic training data (VOC set, target training sequences,
-    validation sequence): the evaluation sequences' seeds must differ from all of them."""
-    from uss_slam.pipelines.demo_data import TRAIN_PRESETS, VAL_SEED_OFFSET
+    validation sequences): the evaluation sequences' seeds must differ from all of them."""
+    from uss_slam.pipelines.demo_data import TRAIN_PRESETS, VAL_PRESETS, VAL_SEED_OFFSET
 
-    return {seed, *(seed + 1 + k for k in range(len(TRAIN_PRESETS))), seed + VAL_SEED_OFFSET}
+    train = {seed + 1 + k for k in range(len(TRAIN_PRESETS))}
+    return {seed, *train, *(seed + VAL_SEED_OFFSET + k for k in range(len(VAL_PRESETS)))}
 
 
 def check_orbslam3(orb: Mapping[str, Any]) -> None:

@@ -36,17 +36,25 @@ slam_size:
 """
 
 
-def test_record_is_unchanged_for_existing_data_sets() -> None:
-    """Data sets rendered before shifts existed are the ``full`` shift: the same record, so they
-    are still recognised and reused; the default (``tum_like``) is another data set."""
+def test_record_keeps_the_old_keys_and_names_the_validation_sequences(tmp_path: Path) -> None:
+    """Data sets rendered before shifts existed are the ``full`` shift: the same keys in the same
+    order, plus the validation sequences, which they lack (they had walking_xyz only), so they
+    are rendered again rather than trained on without walking_rpy's validation frames; the
+    default (``tum_like``) is another data set."""
     ci = demo.PLANS["ci"].data
     full = DemoData(**{**ci.__dict__, "shift": "full"})
-    assert yaml.safe_dump(full.record(), sort_keys=False) == CI_RECORD
+    record = full.record()
+    assert record.pop("val_sequences") == ["walking_xyz", "walking_rpy"]
+    assert yaml.safe_dump(record, sort_keys=False) == CI_RECORD
+    (tmp_path / "demo.yaml").write_text(CI_RECORD)
+    assert not demo_data.is_complete(tmp_path, full)
     assert ci.record() == full.record() | {
         "source_outfits": "all",
         "shift": "tum_like",
         "source_near": 0.3,
     }
+    assert "val_sequences" not in DemoData(shift="appearance").record()  # image folders
+    assert "val_sequences" not in DemoData(val_frames=0).record()
     assert demo.PLANS["demo"].data == DemoData()  # 400 images, 4 x 100, 100, 2 x 300 frames
     assert DemoData().shift == "tum_like"
 
@@ -89,7 +97,7 @@ def test_shift_layouts(tmp_path: Path) -> None:
     """Each shift's target folders, and the overrides that point uss-train at them."""
     tum_like = DemoData()
     assert tum_like.target_folders() == [f"target_train/{p}" for p in demo_data.TRAIN_PRESETS]
-    assert tum_like.val_folders() == ["target_val/walking_xyz"]
+    assert tum_like.val_folders() == ["target_val/walking_xyz", "target_val/walking_rpy"]
     assert tum_like.train_overrides(tmp_path) == []  # the shipped data=synthetic layout
     assert (tum_like.wardrobe, tum_like.sequence_outfits) == ("all", "drawn")
     assert (DemoData(shift="full").wardrobe, DemoData(shift="full").sequence_outfits) == (
@@ -127,6 +135,10 @@ def test_small_data_set(tmp_path: Path) -> None:
         assert f"target_train/{name}: 3 frames, 48x32, target style" in text
         assert (out / "target_train" / name / "groundtruth.txt").is_file()
     assert "target_val/walking_xyz: 2 frames, 48x32" in text
+    assert "target_val/walking_rpy: 2 frames, 48x32" in text
+    seeds = [yaml.safe_load((out / f / "synthetic.yaml").read_text())["seed"]
+             for f in SMALL.val_folders()]  # fmt: skip
+    assert seeds == [100, 101]  # seed + 100 + k: none a training sequence's
     assert "slam/walking_xyz: 2 frames, 64x48" in text and "slam/static_xyz: 2 frames" in text
     assert "person" in text and "%" in text
     assert demo_data.is_complete(out, SMALL) and (out / OUTPUT_MARKER).is_file()

@@ -159,7 +159,7 @@ def test_launcher_overrides_merge_the_stage_section() -> None:
         (
             ["data.synthetic.eval_seed=1"],
             "data.synthetic.eval_seed: sequence walking_xyz would be rendered with seed 1, a "
-            "training or validation seed (0, 1, 2, 3, 4, 100); choose another eval_seed",
+            "training or validation seed (0, 1, 2, 3, 4, 100, 101); choose another eval_seed",
         ),
         (["data.synthetic.eval_size=640"], "data.synthetic.eval_size: "),
         (
