@@ -300,8 +300,11 @@ class SlamMap:
 
     def cull_keyframe(self, keyframe_id: int) -> None:
         """Remove a redundant keyframe: its observations are erased, its pose is kept relative to
-        its parent, and its children are handed to that parent (ORB-SLAM2 re-links them among
-        their covisible keyframes; the parent is the simplest valid choice)."""
+        its parent, and its good children are handed to that parent (ORB-SLAM2 re-links them
+        among their covisible keyframes; the parent is the simplest valid choice). Culled
+        children keep it as their parent: their poses are relative to it, and the chain of
+        culled keyframes leads to a good one (ORB-SLAM2's ``SaveTrajectoryTUM`` walks the same
+        chain through ``mTcp``)."""
         kf = self.keyframes[keyframe_id]
         if kf.parent is None or kf.bad:
             raise ValueError(f"keyframe {keyframe_id} cannot be culled")
@@ -310,7 +313,7 @@ class SlamMap:
         kf.bad = True
         self._invalidate(np.flatnonzero((self._obs_keyframe.view == kf.id) & self._obs_valid.view))
         for other in self.keyframes:
-            if other.parent == kf.id:
+            if other.parent == kf.id and not other.bad:
                 other.parent = kf.parent
 
     def update_geometry(self, point_ids: np.ndarray) -> None:
