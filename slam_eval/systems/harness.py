@@ -35,7 +35,8 @@ a thread pool of its own, as onnxruntime does, shows only its calling thread's s
 Stages a segmenter times itself (its ``stage_times()``, e.g. the dense CRF of
 ``segmenter.crf=true``) are the rows ``segmentation.<stage>``, included in ``segmentation``.
 
-Back end (``local_ba``, ``loop_closing``, both off by default): after each new keyframe, local
+Back end (``local_ba``, ``loop_closing``: off in this class's constructor, so that a benchmark
+names what it runs; ``uss-slam``'s configuration turns both on by default): after each new keyframe, local
 bundle adjustment and keyframe culling (:mod:`..mapping.local_mapping`), then loop detection and
 correction (:mod:`..mapping.loop_closing`), in the main thread between frames (timed as ``local_ba`` and
 ``loop_closing``). With the back end on, each frame's pose is kept relative to its reference

@@ -246,8 +246,10 @@ def test_local_mapping_options_are_checked() -> None:
         LocalMappingConfig(redundancy=1.5)
     with pytest.raises(ValueError, match="depth_noise must be a finite number >= 0"):
         LocalMappingConfig(depth_noise=-1.0)
+    defaults = compose_slam_eval(["sequence.path=/x"])
+    assert defaults.slam.local_ba is True and defaults.slam.loop_closing is True  # the back end on
     cfg = compose_slam_eval(
-        ["sequence.path=/x", "slam.local_ba=true", "slam.local_ba_params.redundancy=2"]
+        ["sequence.path=/x", "slam.loop_closing=false", "slam.local_ba_params.redundancy=2"]
     )
     assert cfg.slam.local_ba is True and cfg.slam.loop_closing is False
     with pytest.raises(UssSlamError, match=r"slam\.local_ba_params\.redundancy must be in"):
@@ -316,7 +318,7 @@ def test_local_ba_runs_after_every_keyframe(synthetic_sequence, tmp_path: Path) 
     out = tmp_path / "run"
     # The harness's keyframe rule makes several keyframes in these 30 slow frames (ORB-SLAM2's,
     # the default, makes one: every point is still tracked).
-    cfg = slam_run_config(path, out, "slam.local_ba=true", "slam.tracker.policy=harness")
+    cfg = slam_run_config(path, out, "slam.loop_closing=false", "slam.tracker.policy=harness")
     data = run(cfg)
     ba = data["local_ba"]
     assert ba["runs"] == data["keyframes"] - 1 >= 1

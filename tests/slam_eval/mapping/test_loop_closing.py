@@ -198,10 +198,10 @@ def test_the_loop_preset_is_closed_and_its_error_falls(synthetic_sequence, polic
     if policy == "harness":
         assert closed_ate < 0.5 * tracker_ate
     else:
-        # Under ORB-SLAM2's policy (the default) the same loop is found, but the error does
-        # not fall: 17.1 mm tracker alone, 20.5 mm with local BA and loop closing (docs/slam.md,
-        # "Back end"). Still open; this pins what it does today.
-        assert closed_ate < 1.5 * tracker_ate
+        # Under ORB-SLAM2's policy (the default), with the camera's depth noise in the bundle
+        # adjustments: 17.1 mm tracker alone, 12.5 mm with local BA and loop closing (it was
+        # 20.5 mm with ORB-SLAM2's noise model on these precise synthetic depths).
+        assert closed_ate < 0.85 * tracker_ate
 
 
 @pytest.mark.slow
