@@ -119,6 +119,16 @@ def run(path: Path, variant: str, filters: list[str], perturbation: Perturbation
     }
 
 
+def _local_ba_text(r: dict) -> str:
+    """The local BA part of a run's line: its CPU and wall ms per run, or that it never ran (a
+    sequence with one keyframe, e.g. a still camera), or nothing without local BA."""
+    if r["local_ba_ms"] is None and r["local_ba_cpu_ms"] is None:
+        return ""
+    if r["local_ba_cpu_ms"] is None:
+        return "  local BA never ran (one keyframe)"
+    return f"  local BA {r['local_ba_cpu_ms']:.0f} ms CPU ({r['local_ba_ms']:.0f} wall)"
+
+
 def _m(value: float | None) -> str:
     return "—" if value is None else f"{value:.4f}"
 
@@ -159,11 +169,7 @@ def main() -> None:
                     r = run(path, variant, args.filters)
                 r["seed"] = seed
                 results.setdefault(preset, {}).setdefault(variant, []).append(r)
-                ba = (
-                    ""
-                    if r["local_ba_ms"] is None
-                    else f"  local BA {r['local_ba_cpu_ms']:.0f} ms CPU ({r['local_ba_ms']:.0f} wall)"
-                )
+                ba = _local_ba_text(r)
                 print(
                     f"{preset:14s} seed {seed} {variant:18s} ATE {r['ate_rmse']:.4f} m "
                     f"(keyframes {_m(r['ate_keyframes'])}, other frames {_m(r['ate_other_frames'])})"
