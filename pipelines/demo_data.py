@@ -89,6 +89,16 @@ selection with target labels and the methods' hyper-parameters are chosen on all
 a choice is not fitted to one camera motion (one chosen on walking_xyz alone helped walking_xyz
 and cost walking_rpy 6.5-8.1 mIoU points on every seed, docs/results/shifts.md)."""
 VAL_SEED_OFFSET = 100
+
+
+def sequence_seeds(seed: int) -> dict[str, int]:
+    """The seed of each target training and validation sequence of a data set of ``seed``
+    (``target_train/<preset>`` and ``target_val/<preset>``; the VOC set takes ``seed`` itself)."""
+    train = {f"target_train/{p}": seed + 1 + k for k, p in enumerate(TRAIN_PRESETS)}
+    val = {f"target_val/{p}": seed + VAL_SEED_OFFSET + k for k, p in enumerate(VAL_PRESETS)}
+    return train | val
+
+
 RECORD = "demo.yaml"
 GENERATOR = "uss-synth demo"
 """The record's ``generator`` (kept from when ``uss-synth demo`` rendered it, so data sets
@@ -239,18 +249,13 @@ def _tasks(root: Path, spec: DemoData) -> list[Task]:
 
 def _sequence_tasks(root: Path, spec: DemoData, outfits: str) -> list[Task]:
     tasks: list[Task] = []
-    if spec.train_frames:
-        for k, preset in enumerate(TRAIN_PRESETS):
-            tasks.append((f"target_train/{preset}", render_sequence, dict(
-                out_dir=root / "target_train" / preset, preset=preset, frames=spec.train_frames,
-                size=spec.train_size, seed=spec.seed + 1 + k, style="target",
-                outfits=outfits)))  # fmt: skip
-    if spec.val_frames:
-        for k, preset in enumerate(VAL_PRESETS):
-            tasks.append((f"target_val/{preset}", render_sequence, dict(
-                out_dir=root / "target_val" / preset, preset=preset, frames=spec.val_frames,
-                size=spec.train_size, seed=spec.seed + VAL_SEED_OFFSET + k, style="target",
-                outfits=outfits)))  # fmt: skip
+    frames = {"target_train": spec.train_frames, "target_val": spec.val_frames}
+    for folder, seed in sequence_seeds(spec.seed).items():
+        group, preset = folder.split("/")
+        if frames[group]:
+            tasks.append((folder, render_sequence, dict(
+                out_dir=root / folder, preset=preset, frames=frames[group],
+                size=spec.train_size, seed=seed, style="target", outfits=outfits)))  # fmt: skip
     return tasks
 
 

@@ -76,10 +76,9 @@ class Experiment:
 def training_seeds(seed: int) -> set[int]:
     """The seeds of the synthetic training data (VOC set, target training sequences,
     validation sequences): the evaluation sequences' seeds must differ from all of them."""
-    from uss_slam.pipelines.demo_data import TRAIN_PRESETS, VAL_PRESETS, VAL_SEED_OFFSET
+    from uss_slam.pipelines.demo_data import sequence_seeds
 
-    train = {seed + 1 + k for k in range(len(TRAIN_PRESETS))}
-    return {seed, *train, *(seed + VAL_SEED_OFFSET + k for k in range(len(VAL_PRESETS)))}
+    return {seed, *sequence_seeds(seed).values()}
 
 
 def check_orbslam3(orb: Mapping[str, Any]) -> None:
