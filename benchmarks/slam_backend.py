@@ -15,7 +15,10 @@ Variants (all with the ``--filters`` given, default none):
   (``depth_noise=0.0019``, the ``k`` of ``σ_z = k·z²`` the renderer's target style draws and
   declares);
 - ``loop``: local BA and loop closing; ``loop_only``: loop closing without local BA;
-- ``prosac``: the tracker alone with PROSAC sampling (``sampler=prosac``).
+- ``prosac``: the tracker alone with PROSAC sampling (``sampler=prosac``);
+- ``tracker_global_shutter`` / ``loop_global_shutter``: ``tracker`` / ``loop`` without the
+  rolling-shutter correction (``readout=0``; the others correct for the readout the sequence's
+  ``intrinsics.yaml`` declares: the ``handheld_rpy`` preset's 30 ms).
 
 ``--repeats N`` runs each cell N times with the perturbations of ``uss-slam slam.repeats`` (±1%
 feature budget, RANSAC sampling seed) and keeps the median run. Per run: ATE RMSE (SE(3)-aligned),
@@ -65,6 +68,12 @@ VARIANTS = {
     "loop": {"local_ba": True, "loop_closing": True},
     "loop_only": {"loop_closing": True},
     "prosac": {"tracker": TrackerConfig(sampler="prosac")},
+    "tracker_global_shutter": {"tracker": TrackerConfig(readout=0.0)},
+    "loop_global_shutter": {
+        "local_ba": True,
+        "loop_closing": True,
+        "tracker": TrackerConfig(readout=0.0),
+    },
 }
 
 

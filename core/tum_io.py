@@ -312,6 +312,9 @@ class CameraIntrinsics:
     """The depth sensor's axial noise as ``k`` of ``σ_z = k·z²`` (metres⁻¹), when it is known
     (a synthetic sensor's); None = unknown, as for a real Kinect, whose depth also suffers from
     its capture timing (the SLAM back end then uses ORB-SLAM2's noise model)."""
+    readout: float | None = None
+    """Seconds the colour camera takes to read its rows out, top to bottom (a rolling shutter),
+    when it is known; None = not declared (the SLAM tracker then corrects nothing)."""
 
     @property
     def matrix(self) -> np.ndarray:
@@ -335,6 +338,7 @@ class CameraIntrinsics:
             distortion=self.distortion,
             depth_scale=self.depth_scale,
             depth_noise=self.depth_noise,
+            readout=self.readout,
         )
 
     def to_yaml(self, path: StrPath) -> None:
@@ -350,6 +354,8 @@ class CameraIntrinsics:
         }
         if self.depth_noise is not None:
             data["depth_noise"] = float(self.depth_noise)
+        if self.readout is not None:
+            data["readout"] = float(self.readout)
         Path(path).write_text(yaml.safe_dump(data, sort_keys=False))
 
     @classmethod
@@ -420,24 +426,40 @@ class CameraIntrinsics:
             depth_noise = number("depth_noise", data["depth_noise"])
             if depth_noise < 0:
                 raise DataFormatError(path, f"depth_noise must be >= 0, got {depth_noise:g}")
-        return cls(fx, fy, cx, cy, width, height, distortion, depth_scale, depth_noise)
+        readout = None
+        if data.get("readout") is not None:
+            readout = number("readout", data["readout"])
+            if not 0 <= readout < 1:
+                raise DataFormatError(
+                    path, f"readout must be >= 0 and < 1 (seconds per frame), got {readout:g}"
+                )
+        return cls(fx, fy, cx, cy, width, height, distortion, depth_scale, depth_noise, readout)
 
 
 INTRINSICS_KEYS = (
-    "fx", "fy", "cx", "cy", "width", "height", "distortion", "depth_scale", "depth_noise"
+    "fx", "fy", "cx", "cy", "width", "height", "distortion", "depth_scale", "depth_noise",
+    "readout",
 )  # fmt: skip
 """The keys of an ``intrinsics.yaml`` (:meth:`CameraIntrinsics.from_yaml`)."""
+
+KINECT_READOUT = 0.03
+"""Rolling-shutter readout assumed for the TUM recordings' colour cameras, seconds: their
+sensors read out line by line at 30 frames/s, so a frame's rows span nearly the frame period
+(33 ms less the blanking). Not fitted to any recording; the synthetic ``kinect`` timing uses
+the same value."""
 
 TUM_CAMERAS: dict[str, CameraIntrinsics] = {
     # Published calibrations of the TUM RGB-D Kinects (640×480), with their distortion.
     "fr1": CameraIntrinsics(
-        517.3, 516.5, 318.6, 255.3, 640, 480, (0.2624, -0.9531, -0.0054, 0.0026, 1.1633)
+        517.3, 516.5, 318.6, 255.3, 640, 480, (0.2624, -0.9531, -0.0054, 0.0026, 1.1633),
+        readout=KINECT_READOUT,
     ),
     "fr2": CameraIntrinsics(
-        520.9, 521.0, 325.1, 249.7, 640, 480, (0.2312, -0.7849, -0.0033, -0.0001, 0.9172)
+        520.9, 521.0, 325.1, 249.7, 640, 480, (0.2312, -0.7849, -0.0033, -0.0001, 0.9172),
+        readout=KINECT_READOUT,
     ),
-    "fr3": CameraIntrinsics(535.4, 539.2, 320.1, 247.6, 640, 480),
-}
+    "fr3": CameraIntrinsics(535.4, 539.2, 320.1, 247.6, 640, 480, readout=KINECT_READOUT),
+}  # fmt: skip
 
 
 # --------------------------------------------------------------------------- sequence folders

@@ -266,7 +266,10 @@ def render_sequence(
         )
         # the target style's depth noise is known exactly: declared for the SLAM back end
         noise = DEPTH_NOISE_K if style == "target" else None
-        replace(seq.camera, depth_noise=noise).to_yaml(tmp / "intrinsics.yaml")
+        # and so is the colour camera's readout (none: a global shutter)
+        rolling = style == "target" and seq.timing in ("rolling", "kinect")
+        readout = READOUT if rolling else None
+        replace(seq.camera, depth_noise=noise, readout=readout).to_yaml(tmp / "intrinsics.yaml")
         meta = {
             "generator": "uss-synth",
             "preset": preset,

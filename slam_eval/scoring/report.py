@@ -16,8 +16,9 @@ per filter), ``timing_ms`` (mean wall ms per frame of each module and ``total``)
 ORB-extraction wall time of the same run; below 1 is possible, as extraction runs in parallel),
 and ``segmentation``: ``schedule`` (``every_frame`` | ``keyframes``), ``thread`` (``prefetch``:
 concurrently with ORB extraction; ``main``), ``frames_segmented``, ``wall_ms`` / ``cpu_ms`` per
-segmented frame, next to ``orb_wall_ms`` / ``orb_cpu_ms`` per frame for comparison; the back
-end: ``local_ba`` (null when off, else ``runs``, mean ``wall_ms`` per run, ``keyframes_culled``,
+segmented frame, next to ``orb_wall_ms`` / ``orb_cpu_ms`` per frame for comparison;
+``rolling_shutter``: ``readout`` the seconds the tracker corrected for (0 = none),
+``readout_from`` and ``frames_corrected``; the back end: ``local_ba`` (null when off, else ``runs``, mean ``wall_ms`` per run, ``keyframes_culled``,
 ``observations_erased``, ``mean_free_keyframes``, ``mean_points``, ``depth_noise`` the k of
 ``σ_z = k·z²`` its stereo factors model (0 = ORB-SLAM2's model) and ``depth_noise_from``),
 ``loop_closing`` (on/off),
@@ -86,6 +87,7 @@ def metrics_dict(result: RunResult, evaluation: Evaluation, config: EvalConfig) 
         },
         "semantic_map_points": len(result.cloud),
         "octomap": result.octomap.summary() if result.octomap is not None else None,
+        "rolling_shutter": result.rolling_shutter,
         "local_ba": result.local_ba,
         "loop_closing": result.loop_closing,
         "loop_closures": len(result.loop_closures),
@@ -309,6 +311,16 @@ def _sections_md(result: RunResult, data: dict[str, Any]) -> list[str]:
         f"Semantic map: `map.ply`, {len(result.cloud)} points.",
         "",
     ]
+    shutter = result.rolling_shutter
+    if shutter.get("readout"):
+        lines += [
+            f"Rolling shutter: keypoints of {shutter['frames_corrected']} frames moved to their "
+            f"stamp for a {1000 * float(shutter['readout']):g} ms readout "
+            f"(from {shutter['readout_from']}).",
+            "",
+        ]
+    elif shutter:
+        lines += [f"Rolling shutter: no correction ({shutter['readout_from']}).", ""]
     if data.get("octomap") is not None:
         octo = data["octomap"]
         per_class = ", ".join(f"{k} {v}" for k, v in octo["occupied_per_class"].items())

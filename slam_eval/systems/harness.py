@@ -163,6 +163,9 @@ class RunResult:
     """Local mapping totals (:meth:`~.local_mapping.LocalMappingStats.as_dict`) with the
     ``depth_noise`` k its stereo factors model and ``depth_noise_from`` (where it came from);
     None when off."""
+    rolling_shutter: dict[str, float | int | str] = field(default_factory=dict)
+    """The readout the tracker corrected for (``readout`` s, 0 = none), ``readout_from`` (where
+    it came from) and ``frames_corrected``."""
     loop_closing: bool = False
     loop_closures: list[dict[str, float | int]] = field(default_factory=list)
     """One entry per closed loop (:class:`~..mapping.loop_closing.LoopClosure`)."""
@@ -313,7 +316,7 @@ class SlamPipeline:
         keyframe_clouds: list[tuple[int, PointCloud]] = []
         names = [f.name for f in self.filters]
         counts = {key: dict.fromkeys(names, 0) for key in ("flagged", "dropped", "checked")}
-        extracted = kept = segmented = 0
+        extracted = kept = segmented = corrected = 0
         keyframes_only = self.segment == "keyframes"
         stamps: list[float] = []
         poses: list[np.ndarray] = []
@@ -342,6 +345,11 @@ class SlamPipeline:
                 frame, labels, features = item.frame, item.labels, item.features
                 if keyframes_only and not tracker.initialized:
                     labels = self._segment_now(frame, timer)  # a first-keyframe candidate
+                if tracker.readout > 0:
+                    with timer("tracking"):
+                        unrolled = tracker.unroll(features)
+                    corrected += unrolled is not features
+                    features = unrolled
                 n = len(features)
                 ctx = FilterContext(frame, features, labels, extractor, tracker, previous)
                 ctx.motion_flags = np.zeros(n, bool)
@@ -501,6 +509,11 @@ class SlamPipeline:
                 if mapper is not None
                 else None
             ),  # fmt: skip
+            rolling_shutter={
+                "readout": tracker.readout,
+                "readout_from": tracker.readout_from,
+                "frames_corrected": corrected,
+            },
             loop_closing=closer is not None,
             loop_closures=[c.as_dict() for c in closer.closures] if closer is not None else [],
             loop_candidates_rejected=closer.rejected if closer is not None else 0,

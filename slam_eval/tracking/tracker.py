@@ -59,6 +59,7 @@ from ..frontend.orb import Features, OrbExtractor
 from ..geometry import from_rvec, invert, project, rotation_angle_deg, to_rvec, transform
 from ..mapping.slam_map import KeyFrame, SlamMap
 from .pose import CHI2_MONO, CHI2_STEREO, chi2, observations, optimise_pose
+from .rolling_shutter import readout_of, twist, unroll
 
 SAMPLERS = ("ransac", "prosac")
 """Values of :attr:`TrackerConfig.sampler`."""
@@ -137,6 +138,11 @@ class TrackerConfig:
     reloc_ratio: float = 0.75
     reloc_max_hamming: int = 64
     reloc_min_inliers: int = 50
+    readout: float | None = None
+    """Rolling-shutter readout of the colour camera, seconds from the top row to the bottom row:
+    keypoints are moved to where they would be at the frame's stamp (:mod:`.rolling_shutter`).
+    None = the camera's declared ``readout`` (``intrinsics.yaml``; TUM's fr1 / fr2 / fr3
+    cameras 0.03), and no correction when it declares none; 0 = off."""
     reloc_recent_frames: int = 30
     """For this many frames after a relocalisation, tracking needs ``reloc_min_inliers`` inliers
     instead of ``min_inliers`` (ORB-SLAM2's ``TrackLocalMap``: 50 within ``mMaxFrames`` = the
@@ -148,6 +154,8 @@ class TrackerConfig:
             raise ValueError(f"sampler must be one of {', '.join(SAMPLERS)}, got {self.sampler!r}")
         if self.policy not in POLICIES:
             raise ValueError(f"policy must be one of {', '.join(POLICIES)}, got {self.policy!r}")
+        if self.readout is not None and self.readout >= 1:
+            raise ValueError(f"readout must be < 1 s (a frame's readout), got {self.readout}")
         check_numbers(
             self,
             positive=(
@@ -208,6 +216,10 @@ class Tracker:
         self.map = SlamMap(extractor.config.scale_factor, extractor.config.n_levels)
         self.state = TrackingState.NOT_INITIALIZED
         self.velocity: np.ndarray | None = None
+        self.velocity_dt = 0.0
+        """Seconds between the two frames :attr:`velocity` was measured on."""
+        self.last_stamp: float | None = None
+        self.readout, self.readout_from = readout_of(config.readout, self.camera.readout)
         self.last_pose_cw: np.ndarray | None = None
         self.last_points = np.zeros(0, np.int64)
         self.reference: KeyFrame | None = None
@@ -241,7 +253,7 @@ class Tracker:
             kf = self.map.add_keyframe(
                 frame_index, stamp, pose_wc, features, matched, dynamic, close
             )
-            self._accept(invert(pose_wc), kf.point_ids[close], kf)
+            self._accept(invert(pose_wc), stamp, kf.point_ids[close], kf)
             self._last_frame = (features, kf.point_ids, np.zeros(n, bool))
             self.state = TrackingState.OK
             return TrackResult(
@@ -275,6 +287,19 @@ class Tracker:
         self.state = TrackingState.OK
         inliers = int((matched >= 0).sum())
         return TrackResult(self.state, invert(pose_cw), matched, inliers, relocalised)
+
+    def unroll(self, features: Features) -> Features:
+        """The frame's keypoints corrected for the rolling shutter (:mod:`.rolling_shutter`)
+        with the motion model's velocity; unchanged without a readout or a motion model."""
+        if (
+            self.readout == 0
+            or self.state is not TrackingState.OK
+            or self.velocity is None
+            or not self.velocity_dt > 0
+        ):
+            return features
+        omega, linear = twist(self.velocity, self.velocity_dt)
+        return unroll(features, omega, linear, self.readout, self.k, self.size[1])
 
     def refine_without(
         self, pose_wc: np.ndarray, features: Features, matched: np.ndarray, drop: np.ndarray
@@ -337,7 +362,7 @@ class Tracker:
             matched = kf.point_ids
         else:
             self.frames_since_keyframe += 1
-        self._accept(pose_cw, matched[matched >= 0], kf)
+        self._accept(pose_cw, stamp, matched[matched >= 0], kf)
         if self.config.policy == "orbslam2":
             usable = np.zeros(len(features), bool) if kf is not None else ~dynamic
             self._last_frame = (features, matched, usable)
@@ -361,14 +386,19 @@ class Tracker:
 
     # ------------------------------------------------------------------ tracking
 
-    def _accept(self, pose_cw: np.ndarray, point_ids: np.ndarray, kf: KeyFrame | None) -> None:
+    def _accept(
+        self, pose_cw: np.ndarray, stamp: float, point_ids: np.ndarray, kf: KeyFrame | None
+    ) -> None:
         # The motion model needs two consecutive tracked frames.
         if self._previous_tracked and self.last_pose_cw is not None:
             self.velocity = pose_cw @ invert(self.last_pose_cw)
+            assert self.last_stamp is not None
+            self.velocity_dt = stamp - self.last_stamp
         else:
             self.velocity = None
         self._previous_tracked = True
         self.last_pose_cw = pose_cw
+        self.last_stamp = stamp
         self.last_points = point_ids
         counts = self.map.covisibility(point_ids)
         if kf is not None:
