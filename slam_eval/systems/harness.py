@@ -345,11 +345,10 @@ class SlamPipeline:
                 frame, labels, features = item.frame, item.labels, item.features
                 if keyframes_only and not tracker.initialized:
                     labels = self._segment_now(frame, timer)  # a first-keyframe candidate
+                raw = features
                 if tracker.readout > 0:
                     with timer("tracking"):
-                        unrolled = tracker.unroll(features)
-                    corrected += unrolled is not features
-                    features = unrolled
+                        features = tracker.unroll(raw)
                 n = len(features)
                 ctx = FilterContext(frame, features, labels, extractor, tracker, previous)
                 ctx.motion_flags = np.zeros(n, bool)
@@ -361,6 +360,11 @@ class SlamPipeline:
                         self._apply(f, ctx, state, timer, counts)
                 with timer("tracking"):
                     result = tracker.track(frame.index, frame.stamp, features, state.dynamic)
+                    if tracker.readout > 0:
+                        features = ctx.features = tracker.unroll_tracked(
+                            raw, features, frame.stamp, result
+                        )
+                        corrected += features is not raw
                 post = [f for f in ready if f.stage == "post"]
                 late: list[DynamicFilter] = []
                 keyframe: bool | None = None

@@ -10,9 +10,11 @@ adjustment cannot take it out.
 :func:`unroll` moves each keypoint to where the camera would have seen it at the stamp, from the
 camera's motion during the readout: the keypoint's 3D point (from its depth; without depth its
 ray, rotated only) is taken from the camera at its row's time to the camera at the stamp and
-projected again. The motion is the tracker's constant-velocity model (the last two tracked
-frames' relative pose per second), so the first frame and the first after a lost track are not
-corrected. The positions in the image (``xy``, which the filters read labels at) stay; the
+projected again. Two passes (:meth:`~.tracker.Tracker.unroll` and
+:meth:`~.tracker.Tracker.unroll_tracked`): before tracking with the constant-velocity model (the
+last two tracked frames' relative pose per second), and once the frame is tracked with its own
+velocity over the last frame interval, after which its pose is refined on the same matches. The
+first frame and the first after a lost track are not corrected. The positions in the image (``xy``, which the filters read labels at) stay; the
 undistorted positions, depths and 3D points (``uv``, ``depth``, ``points``, which tracking and
 mapping use) are corrected.
 """

@@ -290,7 +290,8 @@ class Tracker:
 
     def unroll(self, features: Features) -> Features:
         """The frame's keypoints corrected for the rolling shutter (:mod:`.rolling_shutter`)
-        with the motion model's velocity; unchanged without a readout or a motion model."""
+        with the motion model's velocity, for tracking (first pass; :meth:`unroll_tracked` is the
+        second); unchanged without a readout or a motion model."""
         if (
             self.readout == 0
             or self.state is not TrackingState.OK
@@ -300,6 +301,42 @@ class Tracker:
             return features
         omega, linear = twist(self.velocity, self.velocity_dt)
         return unroll(features, omega, linear, self.readout, self.k, self.size[1])
+
+    def unroll_tracked(
+        self, raw: Features, features: Features, stamp: float, result: TrackResult
+    ) -> Features:
+        """Second rolling-shutter pass once the frame is tracked: correct the ``raw`` keypoints
+        with the camera's velocity over the last frame interval (this frame's pose against the
+        previous one's) and refine the pose on the same matches; ``result`` is updated in place.
+        Returns the keypoints the rest of the frame uses: ``features`` (the first pass's) when
+        there is no previous tracked frame, the frame made a keyframe or relocalised, or the
+        refinement would keep fewer than ``min_inliers`` matches."""
+        if (
+            self.readout == 0
+            or result.pose_wc is None
+            or result.new_keyframe is not None
+            or result.relocalised
+            or not self._previous_tracked
+            or self.last_pose_cw is None
+            or self.last_stamp is None
+            or not stamp > self.last_stamp
+        ):
+            return features
+        pose_cw = invert(result.pose_wc)
+        omega, linear = twist(pose_cw @ invert(self.last_pose_cw), stamp - self.last_stamp)
+        again = unroll(raw, omega, linear, self.readout, self.k, self.size[1])
+        keep = np.flatnonzero(result.matched >= 0)
+        if len(keep) < self.config.min_inliers:
+            return features
+        refined, inliers = self.refine_pose(
+            self.map.points.position.view[result.matched[keep]], again, keep, pose_cw
+        )
+        if len(inliers) < self.config.min_inliers:
+            return features
+        matched = np.full(len(result.matched), -1, np.int64)
+        matched[keep[inliers]] = result.matched[keep[inliers]]
+        result.pose_wc, result.matched, result.inliers = invert(refined), matched, len(inliers)
+        return again
 
     def refine_without(
         self, pose_wc: np.ndarray, features: Features, matched: np.ndarray, drop: np.ndarray

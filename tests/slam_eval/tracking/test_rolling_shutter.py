@@ -146,7 +146,7 @@ def test_the_harness_corrects_a_rolling_shutter_sequence(
 ) -> None:
     """``handheld_rpy`` is rendered with a 30 ms readout and declares it; the default run
     corrects for it and tracks markedly closer to the ground truth than without (measured:
-    26.3 → 14.4 mm on these frames)."""
+    26.3 → 12.4 mm on these frames)."""
     seq = synthetic_sequence(preset="handheld_rpy", frames=90, size=(320, 240), seed=3)
     assert CameraIntrinsics.from_yaml(seq / "intrinsics.yaml").readout == 0.03
     on = run(slam_run_config(seq, tmp_path / "on"))
@@ -156,7 +156,7 @@ def test_the_harness_corrects_a_rolling_shutter_sequence(
     assert off["rolling_shutter"] == {
         "readout": 0.0, "readout_from": "slam.tracker.readout", "frames_corrected": 0
     }  # fmt: skip
-    assert on["ate"]["rmse"] < 0.75 * off["ate"]["rmse"]
+    assert on["ate"]["rmse"] < 0.6 * off["ate"]["rmse"]
     assert "Rolling shutter: keypoints of" in (tmp_path / "on" / "report.md").read_text()
     still = synthetic_sequence(preset="static_xyz", frames=4, size=(320, 240))
     assert CameraIntrinsics.from_yaml(still / "intrinsics.yaml").readout is None  # global
