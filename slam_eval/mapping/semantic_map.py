@@ -137,13 +137,25 @@ def merge_clouds(clouds: list[PointCloud], voxel: float) -> PointCloud:
     return _voxelise(merged, voxel)
 
 
+def _voxel_index(keys: np.ndarray) -> np.ndarray:
+    """``(N,)`` index of each row of the ``(N, 3)`` integer voxel ``keys`` among the distinct
+    rows in lexicographic order: ``np.unique(keys, axis=0, return_inverse=True)[1]``, computed
+    on one packed integer per row (a 1-D sort, several times faster than sorting rows)."""
+    low = keys.min(axis=0)
+    span = keys.max(axis=0) - low + 1
+    if float(span[0]) * float(span[1]) * float(span[2]) >= 2.0**62:  # cannot pack: sort rows
+        return np.unique(keys, axis=0, return_inverse=True)[1].reshape(-1)
+    shifted = keys - low
+    packed = (shifted[:, 0] * span[1] + shifted[:, 1]) * span[2] + shifted[:, 2]
+    return np.unique(packed, return_inverse=True)[1].reshape(-1)
+
+
 def _voxelise(cloud: PointCloud, voxel: float) -> PointCloud:
     """One point per occupied voxel: mean position, most frequent label and its mean colour."""
     if len(cloud) == 0:
         return cloud
     keys = np.floor(cloud.points / voxel).astype(np.int64)
-    _, inverse = np.unique(keys, axis=0, return_inverse=True)
-    inverse = inverse.reshape(-1)
+    inverse = _voxel_index(keys)
     n = int(inverse.max()) + 1
     counts = np.bincount(inverse, minlength=n).astype(np.float64)
     points = np.stack(

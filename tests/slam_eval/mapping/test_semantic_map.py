@@ -17,6 +17,7 @@ from uss_slam.slam_eval.mapping.semantic_map import (
     MapConfig,
     PointCloud,
     SemanticMapBuilder,
+    _voxel_index,
     read_ply,
     write_ply,
 )
@@ -121,3 +122,17 @@ def test_ply_layout_is_checked_when_read(tmp_path: Path) -> None:
     path.write_bytes(b"solid stl\n")
     with pytest.raises(DataFormatError, match="not a PLY file"):
         read_ply(path)
+
+
+@pytest.mark.parametrize("far", [False, True])
+def test_voxel_index_is_numpys_row_unique_inverse(far: bool) -> None:
+    """The packed 1-D index equals ``np.unique(keys, axis=0)``'s inverse (the order of the
+    voxels, hence map.ply, is unchanged); keys too far apart to pack fall back to it."""
+    rng = np.random.default_rng(3)
+    keys = np.floor(rng.normal(0.0, 2.0, (5000, 3)) / 0.02).astype(np.int64)
+    keys[1::2] = keys[::2][: len(keys[1::2])]  # every voxel holds several points
+    keys[7] = [-40, 3, 9]
+    if far:
+        keys[11] = [2**40, -(2**40), 2**30]
+    expected = np.unique(keys, axis=0, return_inverse=True)[1].reshape(-1)
+    np.testing.assert_array_equal(_voxel_index(keys), expected)
