@@ -19,6 +19,7 @@ import yaml
 
 from uss_slam.core.progress import progress_bar
 from uss_slam.core.tum_io import (
+    KINECT_READOUT,
     TUM_CAMERAS,
     CameraIntrinsics,
     Trajectory,
@@ -56,8 +57,9 @@ the stamp + ``(r / (H - 1) - 0.5) * READOUT``: rolling-shutter skew, the labels 
 ``misregistered`` takes the depth image at its own stamp of ``depth.txt`` (3-12 ms after the
 colour one: colour keypoints and their depth disagree while the camera turns); ``kinect``
 both."""
-READOUT = 0.03
-"""Seconds a ``kinect`` colour frame takes to read out, top row to bottom row."""
+READOUT = KINECT_READOUT
+"""Seconds a ``kinect`` colour frame takes to read out, top row to bottom row (the readout
+assumed for TUM's Kinects)."""
 FPS = 30.0
 GT_RATE = 100.0
 START_STAMP = 1341846313.592026
@@ -124,7 +126,11 @@ class SequenceRenderer:
         self.size = check_size(size)
         self.seed = int(seed)
         self.style = style
-        self.camera: CameraIntrinsics = TUM_CAMERAS["fr3"].scaled(*self.size)
+        # the camera declares its readout when its rows are read out one after the other
+        rolling = style == "target" and self.timing in ("rolling", "kinect")
+        self.camera: CameraIntrinsics = replace(
+            TUM_CAMERAS["fr3"].scaled(*self.size), readout=READOUT if rolling else None
+        )
         self.renderer = Renderer(self.camera)
         duration = self.frames / FPS + 1.0
         self.scene = office_scene(self.seed, self.preset.people, duration, self.preset.motion)
@@ -192,7 +198,7 @@ class SequenceRenderer:
         h, w = res.labels.shape
         xs, ys = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
         colour, labels, metres = res.rgb, res.labels, res.depth
-        if self.timing in ("rolling", "kinect"):
+        if self.camera.readout:
             # the bottom row is read READOUT / 2 after the stamp, the top row as long before
             half = self.renderer.flow(res.depth, pose, self.motion.pose(t + READOUT / 2))
             skew = (2 * ys / np.float32(max(h - 1, 1)) - 1)[..., None] * half
@@ -266,10 +272,7 @@ def render_sequence(
         )
         # the target style's depth noise is known exactly: declared for the SLAM back end
         noise = DEPTH_NOISE_K if style == "target" else None
-        # and so is the colour camera's readout (none: a global shutter)
-        rolling = style == "target" and seq.timing in ("rolling", "kinect")
-        readout = READOUT if rolling else None
-        replace(seq.camera, depth_noise=noise, readout=readout).to_yaml(tmp / "intrinsics.yaml")
+        replace(seq.camera, depth_noise=noise).to_yaml(tmp / "intrinsics.yaml")
         meta = {
             "generator": "uss-synth",
             "preset": preset,

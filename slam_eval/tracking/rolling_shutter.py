@@ -21,10 +21,14 @@ mapping use) are corrected.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import cv2
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from ..frontend.orb import Features
+from ..geometry import project
 
 
 def readout_of(setting: float | None, camera_readout: float | None) -> tuple[float, str]:
@@ -44,18 +48,6 @@ def twist(velocity: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
         raise ValueError(f"dt must be > 0 s, got {dt}")
     omega = cv2.Rodrigues(np.ascontiguousarray(velocity[:3, :3]))[0].reshape(3) / dt
     return omega, velocity[:3, 3] / dt
-
-
-def _rotate(vectors: np.ndarray, rotvecs: np.ndarray) -> np.ndarray:
-    """Rotate each row of ``vectors`` by its own rotation vector (Rodrigues' formula)."""
-    theta = np.linalg.norm(rotvecs, axis=1, keepdims=True)
-    axis = np.divide(rotvecs, theta, out=np.zeros_like(rotvecs), where=theta > 0)
-    cos, sin = np.cos(theta), np.sin(theta)
-    return (
-        vectors * cos
-        + np.cross(axis, vectors) * sin
-        + axis * np.sum(axis * vectors, axis=1, keepdims=True) * (1.0 - cos)
-    )
 
 
 def row_times(rows: np.ndarray, height: int, readout: float) -> np.ndarray:
@@ -78,38 +70,19 @@ def unroll(
     the image height in pixels. Keypoints whose corrected point falls behind the camera keep
     their position and lose their depth.
     """
-    n = len(features)
-    if n == 0 or readout == 0:
+    if len(features) == 0 or readout == 0:
         return features
     tau = row_times(features.xy[:, 1], height, readout)[:, None]
-    ray = np.empty((n, 3))
-    ray[:, 0] = (features.uv[:, 0] - k[0, 2]) / k[0, 0]
-    ray[:, 1] = (features.uv[:, 1] - k[1, 2]) / k[1, 1]
-    ray[:, 2] = 1.0
     has = features.depth > 0
-    seen = ray * np.where(has, features.depth, 1.0)[:, None]
+    # a keypoint without depth: its ray (a point at unit depth, moved by the rotation only)
+    rays = np.c_[(features.uv - k[:2, 2]) / np.diag(k)[:2], np.ones(len(features))]
+    seen = np.where(has[:, None], features.points, rays)
     # X_c(t) = exp(-τ ξ) X_c(t+τ): first the rotation back, then the translation (rays: none).
-    moved = _rotate(seen, -tau * omega[None, :]) - has[:, None] * (tau * linear[None, :])
+    moved = Rotation.from_rotvec(-tau * omega).apply(seen) - has[:, None] * (tau * linear)
     ahead = moved[:, 2] > 1e-6
     uv = features.uv.copy()
-    depth = features.depth.copy()
-    points = features.points.copy()
-    z = moved[ahead, 2]
-    uv[ahead, 0] = k[0, 0] * moved[ahead, 0] / z + k[0, 2]
-    uv[ahead, 1] = k[1, 1] * moved[ahead, 1] / z + k[1, 2]
-    fix = ahead & has
-    depth[fix] = moved[fix, 2]
-    points[fix] = moved[fix]
-    lost = has & ~ahead
-    depth[lost] = 0.0
-    points[lost] = np.nan
-    return Features(
-        features.xy,
-        uv,
-        features.octave,
-        features.angle,
-        features.response,
-        features.descriptors,
-        depth.astype(features.depth.dtype),
-        points,
-    )
+    uv[ahead] = project(k, moved[ahead])
+    depth = np.where(ahead, moved[:, 2], 0.0).astype(features.depth.dtype)
+    depth[~has] = 0.0
+    points = np.where((has & ahead)[:, None], moved, np.nan)
+    return replace(features, uv=uv, depth=depth, points=points)

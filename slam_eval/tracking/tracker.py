@@ -325,17 +325,14 @@ class Tracker:
         pose_cw = invert(result.pose_wc)
         omega, linear = twist(pose_cw @ invert(self.last_pose_cw), stamp - self.last_stamp)
         again = unroll(raw, omega, linear, self.readout, self.k, self.size[1])
-        keep = np.flatnonzero(result.matched >= 0)
-        if len(keep) < self.config.min_inliers:
+        keep = result.matched >= 0
+        if keep.sum() < self.config.min_inliers:
             return features
-        refined, inliers = self.refine_pose(
-            self.map.points.position.view[result.matched[keep]], again, keep, pose_cw
-        )
-        if len(inliers) < self.config.min_inliers:
+        refined, matched = self._refine_matches(pose_cw, again, result.matched, keep)
+        inliers = int((matched >= 0).sum())
+        if inliers < self.config.min_inliers:
             return features
-        matched = np.full(len(result.matched), -1, np.int64)
-        matched[keep[inliers]] = result.matched[keep[inliers]]
-        result.pose_wc, result.matched, result.inliers = invert(refined), matched, len(inliers)
+        result.pose_wc, result.matched, result.inliers = invert(refined), matched, inliers
         return again
 
     def refine_without(
@@ -350,16 +347,21 @@ class Tracker:
         if not np.any(drop & (matched >= 0)) or keep.sum() < self.config.min_inliers:
             matched = np.where(drop, -1, matched)
             return pose_wc, matched
+        pose_cw, out = self._refine_matches(invert(pose_wc), features, matched, keep)
+        return invert(pose_cw), out
+
+    def _refine_matches(
+        self, pose_cw: np.ndarray, features: Features, matched: np.ndarray, keep: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`refine_pose` on the matches ``keep`` (N,) bool selects: ``(pose_cw, matched)``
+        with only the inliers of the refinement matched."""
+        kp = np.flatnonzero(keep)
         pose_cw, inl = self.refine_pose(
-            self.map.points.position.view[matched[keep]],
-            features,
-            np.flatnonzero(keep),
-            invert(pose_wc),
+            self.map.points.position.view[matched[kp]], features, kp, pose_cw
         )
         out = np.full(len(matched), -1, np.int64)
-        idx = np.flatnonzero(keep)[inl]
-        out[idx] = matched[idx]
-        return invert(pose_cw), out
+        out[kp[inl]] = matched[kp[inl]]
+        return pose_cw, out
 
     def finish_frame(
         self,
