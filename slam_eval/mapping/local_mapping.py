@@ -242,25 +242,30 @@ class BundleAdjuster:
         solvable = stereo_point | (per_point >= 2)
         use = use & solvable[index]
         graph = gtsam.NonlinearFactorGraph()
-        x = [pose_key(k) for k in obs.keyframe]
-        lk = [point_key(p) for p in obs.point]
-        for i in np.flatnonzero(use):
-            m = obs.meas[i]
-            noise = self.noise(bool(obs.stereo[i]), int(obs.level[i]), robust)
-            if obs.stereo[i]:
+        rows = np.flatnonzero(use)
+        for (u, v, ur), k, p, is_stereo, level in zip(
+            obs.meas[rows].tolist(),
+            obs.keyframe[rows].tolist(),
+            obs.point[rows].tolist(),
+            obs.stereo[rows].tolist(),
+            obs.level[rows].tolist(),
+            strict=True,
+        ):
+            noise = self.noise(is_stereo, level, robust)
+            if is_stereo:
                 graph.add(
                     gtsam.GenericStereoFactor3D(
-                        gtsam.StereoPoint2(m[0], m[2], m[1]),
+                        gtsam.StereoPoint2(u, ur, v),
                         noise,
-                        x[i],
-                        lk[i],
+                        pose_key(k),
+                        point_key(p),
                         self.stereo_calibration,
                     )
                 )
             else:
                 graph.add(
                     gtsam.GenericProjectionFactorCal3_S2(
-                        m[:2].copy(), noise, x[i], lk[i], self.mono_calibration
+                        np.array([u, v]), noise, pose_key(k), point_key(p), self.mono_calibration
                     )
                 )
         values = gtsam.Values()

@@ -72,37 +72,54 @@ def optimise_pose(
     iterations: int = 10,
     robust: bool = True,
 ) -> np.ndarray:
-    """Gauss–Newton refinement of ``pose_cw`` (4, 4) on the given observations."""
-    fx, fy = k[0, 0], k[1, 1]
-    delta = np.where(stereo, np.sqrt(CHI2_STEREO), np.sqrt(CHI2_MONO))
+    """Gauss–Newton refinement of ``pose_cw`` (4, 4) on the given observations.
+
+    Each observation contributes the rows of ``u``, ``v`` and (with depth) ``u_r``; the row of
+    a residual ``r`` whose derivative by the camera point ``p = (x, y, z)`` is
+    ``(r_x, r_y, r_z)`` has, for a left perturbation ``xi = (rho, phi)`` (``dp/dxi = [I | -[p]x]``),
+    the Jacobian ``(r_x, r_y, r_z, y r_z - z r_y, z r_x - x r_z, x r_y - y r_x)``, written out
+    per column so that no per-observation matrices are built.
+    """
+    fx, fy, cx, cy = k[0, 0], k[1, 1], k[0, 2], k[1, 2]
+    world = np.asarray(world, dtype=np.float64)
+    wx, wy, wz = world[:, 0], world[:, 1], world[:, 2]
+    ou, ov, our = obs[:, 0], obs[:, 1], obs[:, 2]
+    has = stereo.astype(np.float64)
+    delta2 = np.where(stereo, CHI2_STEREO, CHI2_MONO)
+    m = len(world)
+    jac = np.zeros((3, m, 6))  # rows u, v, u_r; the constant zeros are never written
+    res = np.empty((3, m))
+    weight = np.empty((3, m))
     pose = pose_cw.copy()
     for _ in range(iterations):
-        cam, res = _residuals(k, bf, pose, world, obs)
-        x, y, z = cam[:, 0], cam[:, 1], cam[:, 2]
+        r, t = pose[:3, :3], pose[:3, 3]
+        x = r[0, 0] * wx + r[0, 1] * wy + r[0, 2] * wz + t[0]
+        y = r[1, 0] * wx + r[1, 1] * wy + r[1, 2] * wz + t[1]
+        z = r[2, 0] * wx + r[2, 1] * wy + r[2, 2] * wz + t[2]
         inv_z = 1.0 / z
-        inv_z2 = inv_z * inv_z
-        res[~stereo, 2] = 0.0
-        # d(u, v, u_r)/d(camera point)
-        jp = np.zeros((len(z), 3, 3))
-        jp[:, 0, 0] = fx * inv_z
-        jp[:, 0, 2] = -fx * x * inv_z2
-        jp[:, 1, 1] = fy * inv_z
-        jp[:, 1, 2] = -fy * y * inv_z2
-        jp[:, 2, 0] = jp[:, 0, 0]
-        jp[:, 2, 2] = np.where(stereo, jp[:, 0, 2] + bf * inv_z2, 0.0)
-        # d(camera point)/d(xi) for T <- exp(xi) T, xi = (rho, phi): [I | -[p]x]
-        jx = np.zeros((len(z), 3, 6))
-        jx[:, 0, 0] = jx[:, 1, 1] = jx[:, 2, 2] = 1.0
-        jx[:, 0, 4], jx[:, 0, 5] = z, -y
-        jx[:, 1, 3], jx[:, 1, 5] = -z, x
-        jx[:, 2, 3], jx[:, 2, 4] = y, -x
-        jac = jp @ jx  # (M, 3, 6)
-        w = inv_sigma2.copy()
+        a = fx * inv_z  # du/dx
+        b = -a * x * inv_z  # du/dz
+        c = fy * inv_z  # dv/dy
+        d = -c * y * inv_z  # dv/dz
+        e = b + bf * inv_z * inv_z  # du_r/dz (du_r/dx = a)
+        u = a * x + cx
+        res[0] = u - ou
+        res[1] = c * y + cy - ov
+        res[2] = (u - bf * inv_z - our) * has
+        w = inv_sigma2
         if robust:
-            e = np.sqrt((res**2).sum(axis=1) * inv_sigma2)
-            w = w * np.where(e <= delta, 1.0, delta / np.maximum(e, 1e-12))
+            e2 = (res[0] ** 2 + res[1] ** 2 + res[2] ** 2) * inv_sigma2
+            w = inv_sigma2 * np.where(e2 <= delta2, 1.0, np.sqrt(delta2 / np.maximum(e2, 1e-24)))
+        az, ay = a * z, a * y
+        ju, jv, jr = jac
+        ju[:, 0], ju[:, 2], ju[:, 3], ju[:, 4], ju[:, 5] = a, b, y * b, az - x * b, -ay
+        jv[:, 1], jv[:, 2], jv[:, 3], jv[:, 4], jv[:, 5] = c, d, y * d - z * c, -x * d, x * c
+        jr[:, 0], jr[:, 2], jr[:, 3], jr[:, 4], jr[:, 5] = a, e, y * e, az - x * e, -ay
+        weight[0] = w
+        weight[1] = w
+        weight[2] = w * has
         flat = jac.reshape(-1, 6)
-        weighted = flat * np.repeat(w, 3)[:, None]
+        weighted = flat * weight.reshape(-1, 1)
         h = weighted.T @ flat
         g = weighted.T @ res.reshape(-1)
         try:
