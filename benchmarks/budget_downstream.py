@@ -1,0 +1,174 @@
+"""The SLAM side of ``shift_probe.py`` trainings: export their last checkpoints (and the same
+with target BatchNorm statistics, AdaBN), run the SLAM jobs of ``uss-experiments`` with their
+masks on a finished experiment's evaluation sequences, and print the downstream ratios.
+
+For trainings of another budget than the experiment's (``shift_probe.py --iters N``), so that
+the claim can be checked at a budget where source-only has converged without re-running the
+whole grid. Each row ``R`` of ``--rows`` is ``RUNS/R_s<seed>/checkpoints/last.ckpt``; it is
+exported as ``R`` and as ``R+adabn`` (statistics re-estimated on 48 evenly spaced unlabelled
+target training frames of ``OUT/data/train``, as ``uss-experiments``' AdaBN exports), into
+``RUNS/exports/``. The SLAM jobs are those of ``uss-experiments`` (same overrides, 3 repeats):
+the harness with ``filters=[semantic]`` and ``[semantic,geometry]``, ORB-SLAM3 with the masked
+input; the unfiltered and ground-truth-mask baselines run once per sequence. Then, per system,
+filter and sequence, the downstream ratio (ATE_none − ATE_model) / (ATE_none − ATE_oracle) of
+every model and seed (median ATE over repeats) and each row's difference to ``--base``,
+paired by seed::
+
+    python benchmarks/budget_downstream.py --experiment OUT --runs RUNS --seeds 0,1 \\
+        --rows source_only,adaptsegnet+adv10 [--sequences walking_xyz,walking_rpy] [--json F]
+
+Jobs whose ``metrics.json`` exists are reused (an interrupted run continues).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+ADABN_IMAGES = 48
+ADABN_BATCH_SIZE = 4
+SYSTEMS = {
+    "harness": {"semantic": ["filters=[semantic]"], "semantic_geometry": ["filters=[semantic,geometry]"]},
+    "orbslam3": {"semantic": ["filters=[]"]},
+}  # fmt: skip
+
+
+def export(runs: Path, row: str, seed: int, target: list[Path]) -> dict[str, Path]:
+    """``{name: onnx}`` of one training: its last checkpoint and the same with AdaBN."""
+    from uss_slam.datasets.transforms import eval_transform
+    from uss_slam.datasets.tum import TUMFrames
+    from uss_slam.export import export_checkpoint
+    from uss_slam.train.precise_bn import adabn
+
+    ckpt = runs / f"{row}_s{seed}" / "checkpoints" / "last.ckpt"
+    if not ckpt.is_file():
+        raise SystemExit(f"{ckpt}: no such checkpoint (train it with shift_probe.py)")
+
+    def prepare(net: Any) -> None:
+        frames = TUMFrames(target, labels=False, transform=eval_transform())
+        adabn(net, frames, images=ADABN_IMAGES, batch_size=ADABN_BATCH_SIZE)
+
+    out = {}
+    for name, options in ((row, {}), (f"{row}+adabn", {"prepare": prepare})):
+        path = runs / "exports" / f"{name}_s{seed}.onnx"
+        if not path.is_file():
+            print(f"export {path.name}", file=sys.stderr, flush=True)
+            export_checkpoint(ckpt, path, experiment=f"{name}_s{seed}", **options)
+        out[name] = path
+    return out
+
+
+def slam(folder: Path, overrides: list[str]) -> float:
+    """Median ATE RMSE over the repeats of one ``uss-slam`` job (run unless already done)."""
+    metrics = folder / "metrics.json"
+    if not metrics.is_file():
+        cmd = [sys.executable, "-m", "uss_slam.slam_eval.run", *overrides,
+               f"out_dir={folder}", "progress=false"]  # fmt: skip
+        print(" ".join(cmd[3:]), file=sys.stderr, flush=True)
+        done = subprocess.run(cmd, capture_output=True, text=True, check=False)
+        if done.returncode != 0:
+            raise SystemExit(f"{folder}: uss-slam failed: {done.stderr.strip()[-600:]}")
+    data = json.loads(metrics.read_text())
+    repeats = data.get("ate_rmse_repeats")
+    return float(repeats["median"] if repeats else data["ate"]["rmse"])
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0].replace("\n", " "))
+    parser.add_argument("--experiment", type=Path, required=True, help="uss-experiments output")
+    parser.add_argument("--runs", type=Path, required=True, help="shift_probe.py --runs folder")
+    parser.add_argument("--seeds", default="0")
+    parser.add_argument("--rows", default="source_only,adaptsegnet+adv10")
+    parser.add_argument("--base", default="source_only", help="the row differences are taken to")
+    parser.add_argument("--sequences", default="walking_xyz,walking_rpy")
+    parser.add_argument("--json", type=Path)
+    args = parser.parse_args(argv)
+    out = args.experiment
+    vocabulary = out / "data" / "orbslam3_vocabulary" / "vocabulary.txt"
+    sequences = args.sequences.split(",")
+    for p in [vocabulary, *(out / "data" / "eval" / s for s in sequences)]:
+        if not p.exists():
+            parser.error(f"--experiment: {p} is missing (a finished uss-experiments output?)")
+    target = sorted(p for p in (out / "data" / "train" / "target_train").iterdir() if p.is_dir())
+    seeds = [int(s) for s in args.seeds.split(",")]
+    models = {seed: {} for seed in seeds}
+    for seed in seeds:
+        for row in args.rows.split(","):
+            models[seed].update(export(args.runs, row, seed, target))
+    system_args = {
+        "harness": [],
+        "orbslam3": ["system=orbslam3", f"system.vocabulary={vocabulary}"],
+    }
+    repeats = {"harness": "slam.repeats=3", "orbslam3": "system.repeats=3"}
+    ate: dict[str, Any] = {}
+    root = args.runs / "slam"
+    for sequence in sequences:
+        path = f"sequence.path={out / 'data' / 'eval' / sequence}"
+        for system, variants in SYSTEMS.items():
+            common = [path, *system_args[system], repeats[system]]
+            filters_off = "filters=[]"
+            none = slam(root / system / sequence / "none", [*common, "segmenter=none", filters_off])
+            oracle_filter = "filters=[semantic]" if system == "harness" else filters_off
+            oracle = slam(root / system / sequence / "oracle", [*common, "segmenter=labels", oracle_filter])  # fmt: skip
+            base = {"none": none, "oracle": oracle}
+            ate[f"{system}/{sequence}"] = {"baselines": base}
+            for variant, extra in variants.items():
+                for seed, named in models.items():
+                    for name, onnx in named.items():
+                        job = root / system / sequence / variant / f"{name}_s{seed}"
+                        a = slam(job, [*common, "segmenter=onnx", f"segmenter.path={onnx}", *extra])
+                        ratio = (base["none"] - a) / (base["none"] - base["oracle"])
+                        ate[f"{system}/{sequence}"].setdefault(variant, {}).setdefault(name, {})[seed] = {
+                            "ate": a, "ratio": ratio}  # fmt: skip
+    lines = [
+        "| system, filter, sequence | baselines none / GT masks [mm] | "
+        + " | ".join(models[seeds[0]]) + f" | each row − {args.base}, paired by seed |",
+        "|---" * (len(models[seeds[0]]) + 3) + "|",
+    ]  # fmt: skip
+    for key, cell in ate.items():
+        base = cell["baselines"]
+        for variant in (v for v in cell if v != "baselines"):
+            per = cell[variant]
+            cols = []
+            for name in models[seeds[0]]:
+                rs = [per[name][s]["ratio"] for s in seeds]
+                cols.append(" / ".join(f"{r:.2f}" for r in rs))
+            diffs = []
+            for name in models[seeds[0]]:
+                if name == args.base:
+                    continue
+                d = [per[name][s]["ratio"] - per[args.base][s]["ratio"] for s in seeds]
+                diffs.append(f"{name} " + " / ".join(f"{x:+.2f}" for x in d))
+            system, sequence = key.split("/")
+            lines.append(
+                f"| {system}, {variant}, {sequence} | {1000 * base['none']:.1f} / "
+                f"{1000 * base['oracle']:.1f} | "
+                + " | ".join(cols)
+                + " | "
+                + "; ".join(diffs)
+                + " |"
+            )
+    print(
+        f"Downstream ratio per seed ({', '.join(map(str, seeds))}); median ATE of 3 repeats each."
+    )
+    print("\n".join(lines))
+    medians = {
+        key: {
+            v: {n: statistics.median(x["ratio"] for x in s.values()) for n, s in per.items()}
+            for v, per in cell.items()
+            if v != "baselines"
+        }
+        for key, cell in ate.items()
+    }
+    if args.json:
+        args.json.write_text(json.dumps({"ate": ate, "medians": medians}, default=str))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
