@@ -7,7 +7,7 @@ import json
 from pathlib import Path
 
 import pytest
-from budget_downstream import export, main, slam
+from budget_downstream import downstream_ratio, export, main, slam
 
 
 def test_a_finished_job_is_read_not_run(tmp_path: Path) -> None:
@@ -33,3 +33,11 @@ def test_missing_inputs_are_one_error_each(tmp_path: Path, capsys: pytest.Captur
     assert "vocabulary.txt is missing" in capsys.readouterr().err
     with pytest.raises(SystemExit, match="source_only_s3.*no such checkpoint"):
         export(tmp_path, "source_only", 3, [])
+
+
+def test_static_sequences_report_the_cost_of_filtering() -> None:
+    base = {"none": 0.004, "oracle": 0.0041}
+    assert downstream_ratio("static_xyz", base, 0.0044) == pytest.approx(1.1)
+    walking = {"none": 0.2, "oracle": 0.005}
+    assert downstream_ratio("walking_xyz", walking, 0.005) == pytest.approx(1.0)
+    assert downstream_ratio("walking_xyz", walking, 0.2) == pytest.approx(0.0)
