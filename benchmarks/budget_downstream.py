@@ -12,7 +12,8 @@ the harness with ``filters=[semantic]`` and ``[semantic,geometry]``, ORB-SLAM3 w
 input; the unfiltered and ground-truth-mask baselines run once per sequence. Then, per system,
 filter and sequence, the downstream ratio (ATE_none − ATE_model) / (ATE_none − ATE_oracle) of
 every model and seed (median ATE over repeats; on ``static_*`` sequences ATE_model / ATE_none)
-and each row's difference to ``--base``, paired by seed::
+and each row's difference to ``--base``, paired by seed (with its mean and 95% Student-t
+interval over the seeds)::
 
     python benchmarks/budget_downstream.py --experiment OUT --runs RUNS --seeds 0,1 \\
         --rows source_only,adaptsegnet+adv10 [--sequences walking_xyz,walking_rpy] [--json F]
@@ -87,6 +88,26 @@ def downstream_ratio(sequence: str, base: dict[str, float], ate: float) -> float
     return (base["none"] - ate) / (base["none"] - base["oracle"])
 
 
+def paired_difference(
+    per: dict[str, dict[int, dict[str, float]]], name: str, base: str, seeds: list[int]
+) -> dict[str, Any]:
+    """Row ``name``'s downstream ratio minus ``base``'s, paired by seed: the values, how many
+    are positive, their mean and its 95% Student-t interval (None below two seeds)."""
+    from uss_slam.pipelines.experiments.tables import paired_interval
+
+    return paired_interval([per[name][s]["ratio"] - per[base][s]["ratio"] for s in seeds])
+
+
+def paired_text(paired: dict[str, Any]) -> str:
+    """``+0.12 / +0.30 (2/2 > 0), mean +0.21 [-0.93, +1.35]``."""
+    text = " / ".join(f"{d:+.2f}" for d in paired["values"])
+    text += f" ({paired['positive']}/{paired['n']} > 0)"
+    if paired["interval"] is not None:
+        lo, hi = paired["interval"]
+        text += f", mean {paired['mean']:+.2f} [{lo:+.2f}, {hi:+.2f}]"
+    return text
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0].replace("\n", " "))
     parser.add_argument("--experiment", type=Path, required=True, help="uss-experiments output")
@@ -141,7 +162,7 @@ def main(argv: list[str] | None = None) -> int:
     ]  # fmt: skip
     for key, cell in ate.items():
         base = cell["baselines"]
-        for variant in (v for v in cell if v != "baselines"):
+        for variant in [v for v in cell if v not in ("baselines", "paired")]:
             per = cell[variant]
             cols = []
             for name in models[seeds[0]]:
@@ -151,8 +172,9 @@ def main(argv: list[str] | None = None) -> int:
             for name in models[seeds[0]]:
                 if name == args.base:
                     continue
-                d = [per[name][s]["ratio"] - per[args.base][s]["ratio"] for s in seeds]
-                diffs.append(f"{name} " + " / ".join(f"{x:+.2f}" for x in d))
+                paired = paired_difference(per, name, args.base, seeds)
+                cell.setdefault("paired", {}).setdefault(variant, {})[name] = paired
+                diffs.append(f"{name} {paired_text(paired)}")
             system, sequence = key.split("/")
             lines.append(
                 f"| {system}, {variant}, {sequence} | {1000 * base['none']:.1f} / "
@@ -170,7 +192,7 @@ def main(argv: list[str] | None = None) -> int:
         key: {
             v: {n: statistics.median(x["ratio"] for x in s.values()) for n, s in per.items()}
             for v, per in cell.items()
-            if v != "baselines"
+            if v not in ("baselines", "paired")
         }
         for key, cell in ate.items()
     }

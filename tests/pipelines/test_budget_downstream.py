@@ -7,7 +7,14 @@ import json
 from pathlib import Path
 
 import pytest
-from budget_downstream import downstream_ratio, export, main, slam
+from budget_downstream import (
+    downstream_ratio,
+    export,
+    main,
+    paired_difference,
+    paired_text,
+    slam,
+)
 
 
 def test_a_finished_job_is_read_not_run(tmp_path: Path) -> None:
@@ -41,3 +48,19 @@ def test_static_sequences_report_the_cost_of_filtering() -> None:
     walking = {"none": 0.2, "oracle": 0.005}
     assert downstream_ratio("walking_xyz", walking, 0.005) == pytest.approx(1.0)
     assert downstream_ratio("walking_xyz", walking, 0.2) == pytest.approx(0.0)
+
+
+def test_rows_are_compared_paired_by_seed_with_an_interval() -> None:
+    per = {
+        "source_only": {0: {"ratio": 0.7}, 1: {"ratio": 0.6}, 2: {"ratio": 0.8}},
+        "model": {0: {"ratio": 0.9}, 1: {"ratio": 0.9}, 2: {"ratio": 0.9}},
+    }
+    paired = paired_difference(per, "model", "source_only", [0, 1, 2])
+    assert paired["values"] == pytest.approx([0.2, 0.3, 0.1])
+    assert paired["positive"] == 3 and paired["mean"] == pytest.approx(0.2)
+    # t(0.975, 2) = 4.303, s = 0.1: half-width 4.303 * 0.1 / sqrt(3) = 0.248
+    lo, hi = paired["interval"]
+    assert lo == pytest.approx(0.2 - 0.2484, abs=1e-3) and hi == pytest.approx(0.4484, abs=1e-3)
+    assert paired_text(paired) == "+0.20 / +0.30 / +0.10 (3/3 > 0), mean +0.20 [-0.05, +0.45]"
+    one = paired_difference(per, "model", "source_only", [0])
+    assert one["interval"] is None and paired_text(one) == "+0.20 (1/1 > 0)"
