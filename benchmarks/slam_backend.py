@@ -23,7 +23,9 @@ Variants (all with the ``--filters`` given, default none):
 ``--repeats N`` runs each cell N times with the perturbations of ``uss-slam slam.repeats`` (±1%
 feature budget, RANSAC sampling seed) and keeps the median run. Per run: ATE RMSE (SE(3)-aligned),
 that of the keyframes only (their final poses) and of the other frames (composed on their
-reference keyframes), tracked fraction, frames/s, the main thread's CPU ms per
+reference keyframes), its slow and fast parts (the error averaged over 0.5 s around each pose,
+drift a keyframe back end can correct, and the per-frame jitter left; ``ate_bands`` in
+``slam_eval.scoring.metrics``), tracked fraction, frames/s, the main thread's CPU ms per
 frame (tracking, filters, mapping and the back end: robust to a busy machine, unlike frames/s),
 the CPU ms per local BA and the loop closures; then per preset and variant the median over seeds
 and its ratio to ``tracker``. The machine's load average is printed with the timings.
@@ -46,7 +48,7 @@ from uss_slam.core.tum_io import Trajectory
 from uss_slam.slam_eval.filters.dynamic import build_filters
 from uss_slam.slam_eval.frontend.orb import OrbConfig
 from uss_slam.slam_eval.mapping.local_mapping import LocalMappingConfig
-from uss_slam.slam_eval.scoring.metrics import ate
+from uss_slam.slam_eval.scoring.metrics import ate, ate_bands
 from uss_slam.slam_eval.scoring.repeats import Perturbation, perturbations
 from uss_slam.slam_eval.segmenters.base import LabelsSegmenter
 from uss_slam.slam_eval.sequence import TumSequence
@@ -76,6 +78,9 @@ VARIANTS = {
     },
 }
 
+
+BAND_WINDOW = 0.5
+"""Seconds of the moving average that splits the ATE into its slow and fast parts."""
 
 PREFETCH_MODULES = ("read", "orb", "segmentation")
 """Modules timed in the prefetch threads (the rest run in the main thread)."""
@@ -107,7 +112,8 @@ def run(path: Path, variant: str, filters: list[str], perturbation: Perturbation
     result = SlamPipeline(
         seq, LabelsSegmenter(), build_filters(filters), progress=False, **options
     ).run()
-    stats = ate(seq.groundtruth, result.trajectory).stats
+    whole = ate(seq.groundtruth, result.trajectory)
+    stats, bands = whole.stats, ate_bands(whole, BAND_WINDOW)
     kf_ate, other_ate = _split_ate(seq, result)
     ba = result.local_ba or {}
     main_cpu = sum(ms for name, ms in result.cpu_ms.items() if name not in PREFETCH_MODULES)
@@ -115,6 +121,8 @@ def run(path: Path, variant: str, filters: list[str], perturbation: Perturbation
         "ate_rmse": stats.rmse,
         "ate_keyframes": kf_ate,
         "ate_other_frames": other_ate,
+        "ate_slow": bands.slow,
+        "ate_fast": bands.fast,
         "tracked_fraction": result.tracked_fraction,
         "fps": result.fps,
         "main_cpu_ms": main_cpu,
@@ -181,7 +189,8 @@ def main() -> None:
                 ba = _local_ba_text(r)
                 print(
                     f"{preset:14s} seed {seed} {variant:18s} ATE {r['ate_rmse']:.4f} m "
-                    f"(keyframes {_m(r['ate_keyframes'])}, other frames {_m(r['ate_other_frames'])})"
+                    f"(keyframes {_m(r['ate_keyframes'])}, other frames {_m(r['ate_other_frames'])}; "
+                    f"slow {_m(r['ate_slow'])}, fast {_m(r['ate_fast'])})"
                     "  tracked "
                     f"{r['tracked_fraction']:.2f}  {r['fps']:5.1f} frames/s  main thread "
                     f"{r['main_cpu_ms']:5.1f} ms CPU/frame  kf {r['keyframes']}{ba}  loops "
@@ -199,14 +208,19 @@ def main() -> None:
             ate_m = statistics.median(r["ate_rmse"] for r in rows)
             fps_m = statistics.median(r["fps"] for r in rows)
             cpu_m = statistics.median(r["main_cpu_ms"] for r in rows)
+            slow_m = statistics.median(r["ate_slow"] for r in rows)
+            fast_m = statistics.median(r["ate_fast"] for r in rows)
             summary.setdefault(preset, {})[variant] = {
                 "ate_rmse": ate_m,
+                "ate_slow": slow_m,
+                "ate_fast": fast_m,
                 "fps": fps_m,
                 "main_cpu_ms": cpu_m,
             }
             ratio = f"  ATE x{ate_m / ref_ate:.2f}  main CPU x{cpu_m / ref_cpu:.2f}" if ref else ""
             print(
-                f"  {preset:14s} {variant:18s} ATE {ate_m:.4f} m  {fps_m:5.1f} frames/s  "
+                f"  {preset:14s} {variant:18s} ATE {ate_m:.4f} m (slow {slow_m:.4f}, fast "
+                f"{fast_m:.4f})  {fps_m:5.1f} frames/s  "
                 f"main thread {cpu_m:5.1f} ms CPU/frame{ratio}"
             )
     print(f"load average after: {os.getloadavg()[0]:.1f}; {time.perf_counter() - start:.0f} s")

@@ -333,6 +333,43 @@ def ate(
     )
 
 
+@dataclass(frozen=True)
+class AteBands:
+    """An ATE split by how fast its error changes: ``slow`` the RMSE of the error vectors
+    averaged over ``window`` seconds around each pose (drift and bias that persist across
+    frames: what a keyframe back end can correct), ``fast`` the RMSE of what is left (per-frame
+    jitter of the tracker, which ORB-SLAM2's back end never touches: frames outside keyframes
+    keep their tracked pose relative to their reference keyframe). ``rmse`` is the whole ATE;
+    the two parts' squares add up to about its square. Metres."""
+
+    window: float
+    rmse: float
+    slow: float
+    fast: float
+
+    def as_dict(self) -> dict[str, float]:
+        return {"window_s": self.window, "rmse": self.rmse, "slow": self.slow, "fast": self.fast}
+
+
+def ate_bands(result: AteResult, window: float = 0.5) -> AteBands:
+    """:class:`AteBands` of an :func:`ate` result: each aligned error vector averaged with those
+    of the poses within ``window / 2`` seconds of it (a moving average in time) is its slow
+    part, the rest its fast part."""
+    if not window > 0:
+        raise ValueError(f"window must be > 0 s, got {window}")
+    t = np.asarray(result.stamps, np.float64)
+    e = result.est_positions - result.gt_positions
+    lo = np.searchsorted(t, t - window / 2, side="left")
+    hi = np.searchsorted(t, t + window / 2, side="right")
+    csum = np.vstack([np.zeros((1, 3)), np.cumsum(e, axis=0)])
+    slow = (csum[hi] - csum[lo]) / (hi - lo)[:, None]
+
+    def rms(x: np.ndarray) -> float:
+        return math.sqrt(float(np.mean(np.sum(x**2, axis=1))))
+
+    return AteBands(window, rms(e), rms(slow), rms(e - slow))
+
+
 # --------------------------------------------------------------------------- RPE
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import pytest
 from slam_backend import _local_ba_text
 
 
@@ -12,3 +13,13 @@ def test_local_ba_text_for_every_kind_of_run() -> None:
     assert _local_ba_text(never) == "  local BA never ran (one keyframe)"
     ran = {"local_ba_ms": 310.4, "local_ba_cpu_ms": 69.2}
     assert _local_ba_text(ran) == "  local BA 69 ms CPU (310 wall)"
+
+
+def test_a_run_reports_its_error_split_into_slow_and_fast_parts(synthetic_sequence) -> None:
+    from slam_backend import run
+
+    path = synthetic_sequence(preset="walking_xyz", frames=30)
+    r = run(path, "tracker", ["semantic"])
+    assert r["ate_rmse"] > 0 and r["ate_slow"] >= 0 and r["ate_fast"] >= 0
+    # the two parts are orthogonal up to the moving average's edges
+    assert r["ate_slow"] ** 2 + r["ate_fast"] ** 2 == pytest.approx(r["ate_rmse"] ** 2, rel=0.25)

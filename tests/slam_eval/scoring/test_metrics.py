@@ -19,6 +19,7 @@ from uss_slam.slam_eval.scoring.metrics import (
     align_umeyama,
     associate_trajectories,
     ate,
+    ate_bands,
     matching_time_indices,
     rpe,
 )
@@ -493,3 +494,24 @@ def test_ate_and_rpe_agree_with_evo(noisy: bool) -> None:
                 np.testing.assert_allclose(
                     errors, expected.np_arrays["error_array"], rtol=0, atol=TOL
                 )
+
+
+def test_ate_bands_separate_slow_drift_from_per_frame_jitter() -> None:
+    # 30 Hz for 20 s: a slow swing (period 10 s, 20 mm) plus alternating 5 mm per-frame jitter
+    t = np.arange(600) / 30.0
+    slow = 0.02 * np.sin(2 * np.pi * t / 10.0)
+    jitter = 0.005 * (-1.0) ** np.arange(600)
+    gt = Trajectory(t, np.c_[t, np.zeros((600, 2))], np.tile([0.0, 0.0, 0.0, 1.0], (600, 1)))
+    est = Trajectory(t, gt.positions + np.c_[np.zeros(600), slow + jitter, np.zeros(600)],
+                     gt.quaternions)  # fmt: skip
+    result = ate(gt, est, align="none")
+    bands = ate_bands(result, window=0.5)
+    assert bands.rmse == pytest.approx(result.stats.rmse)
+    # the moving average over 0.5 s keeps the swing (attenuated < 1%) and cancels the jitter
+    # but for one frame in 15 (an odd count of alternating signs: 5 mm x 16/15 left)
+    assert bands.slow == pytest.approx(0.02 / np.sqrt(2), rel=0.01)
+    assert bands.fast == pytest.approx(0.005 * 16 / 15, rel=0.01)
+    assert bands.slow**2 + bands.fast**2 == pytest.approx(bands.rmse**2, rel=0.02)
+    assert ate_bands(ate(gt, gt, align="none")).rmse == 0.0
+    with pytest.raises(ValueError, match="window must be > 0 s"):
+        ate_bands(result, window=0.0)
