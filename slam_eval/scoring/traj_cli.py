@@ -26,6 +26,7 @@ from .metrics import (
     ErrorStats,
     RpeResult,
     ate,
+    ate_bands,
     rpe,
 )
 from .plots import check_plot_path, plot_ate
@@ -105,12 +106,21 @@ def build_parser() -> argparse.ArgumentParser:
         "evo --align --correct_scale) or none (default: %(default)s)",
     )
     p_ate.add_argument(
+        "--bands",
+        type=_finite_float,
+        metavar="S",
+        help="also split the error into its slow part (the aligned error vectors averaged over "
+        "S seconds around each pose: drift and bias a keyframe back end can correct) and its "
+        "fast part (the rest: per-frame jitter), e.g. --bands 0.5",
+    )
+    p_ate.add_argument(
         "--plot",
         type=Path,
         metavar="FILE",
         help="also save a figure: top view of both trajectories and the error over time "
         "(format from the extension: .png, .pdf, .svg, ...)",
     )
+    p_ate.set_defaults(subparser=p_ate)
 
     p_rpe = sub.add_parser(
         "rpe",
@@ -177,6 +187,8 @@ def format_rpe(result: RpeResult, gt: Path, est: Path, max_diff: float, offset: 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    if args.command == "ate" and args.bands is not None and not args.bands > 0:
+        args.subparser.error(f"--bands must be > 0 seconds, got {args.bands:g}")
     if args.command == "rpe":
         if args.delta <= 0:
             args.subparser.error(f"--delta must be > 0, got {args.delta:g}")
@@ -194,11 +206,19 @@ def main(argv: Sequence[str] | None = None) -> int:
         est = read_trajectory(args.est)
         if args.command == "ate":
             result = ate(gt, est, max_diff=args.max_diff, offset=args.offset, align=args.align)
-            out = (
-                json.dumps(result.as_dict())
-                if args.json
-                else format_ate(result, args.gt, args.est, args.max_diff, args.offset)
-            )
+            bands = None if args.bands is None else ate_bands(result, args.bands)
+            if args.json:
+                data = result.as_dict()
+                if bands is not None:
+                    data["bands"] = bands.as_dict()
+                out = json.dumps(data)
+            else:
+                out = format_ate(result, args.gt, args.est, args.max_diff, args.offset)
+                if bands is not None:
+                    out += (
+                        f"\n\n{'slow':>8}  {bands.slow:.6f} m  (RMSE of the error averaged over "
+                        f"{bands.window:g} s)\n{'fast':>8}  {bands.fast:.6f} m  (RMSE of the rest)"
+                    )
             if args.plot is not None:
                 plot_ate(args.plot, result)
         else:

@@ -254,6 +254,8 @@ def test_rpe_delta_too_long_is_a_bad_input(
         ["rpe", "gt.txt", "est.txt", "--delta", "0", "--unit", "seconds"],
         ["rpe", "gt.txt", "est.txt", "--unit", "metres"],
         ["rpe", "gt.txt", "est.txt", "--delta", "inf", "--unit", "seconds"],
+        ["ate", "gt.txt", "est.txt", "--bands", "0"],
+        ["rpe", "gt.txt", "est.txt", "--bands", "0.5"],
         ["plot", "gt.txt", "est.txt"],
         [],
     ],
@@ -277,3 +279,21 @@ def test_plot_with_unknown_extension_fails_before_any_work(
     assert len(lines) == 1 and lines[0].startswith(f"uss-traj: error: {target}: extension '.jpgg'")
     assert ".png" in lines[0] and ".svg" in lines[0]
     assert not target.exists()
+
+
+def test_ate_bands_split_the_error_into_slow_and_fast_parts(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    gt, est = write_pair(tmp_path)
+    code, out, _ = run(capsys, "ate", gt, est, "--json", "--bands", "0.5")
+    assert code == 0
+    data = json.loads(out)
+    bands = data["bands"]
+    assert bands["window_s"] == 0.5 and bands["rmse"] == pytest.approx(data["rmse"])
+    # the estimate's error is white noise per pose: almost all of it is fast
+    assert bands["fast"] > 3 * bands["slow"] > 0
+    code, out, _ = run(capsys, "ate", gt, est, "--bands", "0.5")
+    assert code == 0
+    assert f"slow  {bands['slow']:.6f} m  (RMSE of the error averaged over 0.5 s)" in out
+    assert f"fast  {bands['fast']:.6f} m  (RMSE of the rest)" in out
+    assert "bands" not in json.loads(run(capsys, "ate", gt, est, "--json")[1])
