@@ -16,7 +16,8 @@ and each row's difference to ``--base``, paired by seed (with its mean and 95% S
 interval over the seeds)::
 
     python benchmarks/budget_downstream.py --experiment OUT --runs RUNS --seeds 0,1 \\
-        --rows source_only,adaptsegnet+adv10 [--sequences walking_xyz,walking_rpy] [--json F]
+        --rows source_only,adaptsegnet+adv10 [--sequences walking_xyz,walking_rpy] [--json F] \\
+        [--variants harness:semantic_geometry,orbslam3:semantic]
 
 Jobs whose ``metrics.json`` exists are reused (an interrupted run continues).
 """
@@ -117,7 +118,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--base", default="source_only", help="the row differences are taken to")
     parser.add_argument("--sequences", default="walking_xyz,walking_rpy")
     parser.add_argument("--json", type=Path)
+    every = [f"{system}:{v}" for system, variants in SYSTEMS.items() for v in variants]
+    parser.add_argument("--variants", default=",".join(every),
+                        help=f"system:filter cells to run (default: all, {','.join(every)})")  # fmt: skip
     args = parser.parse_args(argv)
+    chosen = args.variants.split(",")
+    unknown = [v for v in chosen if v not in every]
+    if unknown:
+        parser.error(f"--variants: unknown {','.join(unknown)}; choose from {','.join(every)}")
     out = args.experiment
     vocabulary = out / "data" / "orbslam3_vocabulary" / "vocabulary.txt"
     sequences = args.sequences.split(",")
@@ -140,6 +148,9 @@ def main(argv: list[str] | None = None) -> int:
     for sequence in sequences:
         path = f"sequence.path={out / 'data' / 'eval' / sequence}"
         for system, variants in SYSTEMS.items():
+            variants = {v: o for v, o in variants.items() if f"{system}:{v}" in chosen}
+            if not variants:
+                continue
             common = [path, *system_args[system], repeats[system]]
             filters_off = "filters=[]"
             none = slam(root / system / sequence / "none", [*common, "segmenter=none", filters_off])

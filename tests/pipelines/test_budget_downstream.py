@@ -38,6 +38,10 @@ def test_missing_inputs_are_one_error_each(tmp_path: Path, capsys: pytest.Captur
     with pytest.raises(SystemExit):
         main(["--experiment", str(tmp_path), "--runs", str(tmp_path / "runs")])
     assert "vocabulary.txt is missing" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["--experiment", str(tmp_path), "--runs", str(tmp_path), "--variants", "harness:crf"])
+    err = capsys.readouterr().err
+    assert "--variants: unknown harness:crf; choose from harness:semantic," in err
     with pytest.raises(SystemExit, match="source_only_s3.*no such checkpoint"):
         export(tmp_path, "source_only", 3, [])
 
