@@ -16,6 +16,8 @@ from uss_slam.core.tum_io import Trajectory
 from . import metrics
 
 STAT_KEYS = ("rmse", "mean", "median", "std", "min", "max")
+BANDS_WINDOW = 0.5
+"""Seconds of the moving average that splits the ATE into its slow and fast parts."""
 
 
 @dataclass(frozen=True)
@@ -105,12 +107,16 @@ def _rpe_dict(result: metrics.RpeResult | None, delta: float, unit: str) -> dict
 
 def scores_dict(evaluation: Evaluation, config: EvalConfig) -> dict[str, Any]:
     """The scoring keys of ``metrics.json``, in this order: ``ate`` (statistics in metres),
-    ``rpe`` (over ``rpe_delta`` ``rpe_unit``), ``rpe_1s`` (per second), ``ate_error`` (why
-    there is no score, else null) and ``evaluation`` (``max_diff`` seconds, ``align``)."""
+    ``rpe`` (over ``rpe_delta`` ``rpe_unit``), ``rpe_1s`` (per second), ``ate_bands`` (the ATE's
+    slow and fast parts over ``BANDS_WINDOW`` seconds, :func:`.metrics.ate_bands`), ``ate_error``
+    (why there is no score, else null) and ``evaluation`` (``max_diff`` seconds, ``align``)."""
     return {
         "ate": evaluation.ate.stats.as_dict() if evaluation.ate else None,
         "rpe": _rpe_dict(evaluation.rpe, config.rpe_delta, config.rpe_unit),
         "rpe_1s": _rpe_dict(evaluation.rpe_1s, 1.0, "seconds"),
+        "ate_bands": (
+            metrics.ate_bands(evaluation.ate, BANDS_WINDOW).as_dict() if evaluation.ate else None
+        ),
         "ate_error": evaluation.error,
         "evaluation": {"max_diff": config.max_diff, "align": config.align},
     }

@@ -9,7 +9,8 @@ run; :func:`write_comparison` writes the comparison table of several filter sets
 The harness's ``metrics.json`` keys: ``ate`` (``rmse mean median std min max pairs``, metres, SE(3)-aligned by
 default) and ``rpe`` (``trans`` metres / ``rot_deg`` degrees, each with the same statistics, over
 ``rpe_delta`` frames by default 1) — both null when the sequence has no ground truth or too few
-tracked poses associate (``ate_error`` says why) — plus ``rpe_1s`` (drift per second), ``frames``,
+tracked poses associate (``ate_error`` says why) — plus ``rpe_1s`` (drift per second), ``ate_bands`` (``window_s``, ``rmse``, ``slow``, ``fast``:
+the ATE's part that persists over half a second and the per-frame rest), ``frames``,
 ``frames_tracked``, ``tracked_fraction``, ``keypoints`` (extracted / kept / flagged and dropped
 per filter), ``timing_ms`` (mean wall ms per frame of each module and ``total``), ``cpu_ms``
 (mean CPU ms per frame of each module), ``fps`` and ``pipeline_to_orb_ratio`` (total wall time /
@@ -165,13 +166,22 @@ def error_table_md(data: dict[str, Any]) -> list[str]:
                 + " | ".join(fmt(rpe[part][k], digits) for k in STAT_KEYS)
                 + f" | {rpe[part]['pairs']} |"
             )
-    return [
+    out = [
         *lines,
         "",
         f"Alignment: {data['evaluation']['align']}; association max difference "
         f"{data['evaluation']['max_diff']} s.",
         "",
     ]
+    bands = data.get("ate_bands")
+    if bands:
+        out += [
+            f"Of the ATE RMSE, {fmt(bands['slow'])} m is slow (the error averaged over "
+            f"{bands['window_s']:g} s: drift a back end can correct) and {fmt(bands['fast'])} m "
+            "fast (per-frame jitter).",
+            "",
+        ]
+    return out
 
 
 def write_report(

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from uss_slam.core.tum_io import Trajectory
-from uss_slam.slam_eval.scoring.evaluation import EvalConfig, evaluate
-from uss_slam.slam_eval.scoring.report import improvement
+from uss_slam.slam_eval.scoring.evaluation import EvalConfig, evaluate, scores_dict
+from uss_slam.slam_eval.scoring.report import error_table_md, improvement
 
 
 def _trajectory(stamps: np.ndarray, offset: float = 0.0) -> Trajectory:
@@ -45,3 +45,20 @@ def test_improvement_percent() -> None:
     assert improvement(0.75, 0.0139) == pytest.approx(98.1466666)
     assert improvement(0.01, 0.02) == pytest.approx(-100.0)
     assert improvement(None, 0.1) is None and improvement(0.0, 0.1) is None
+
+
+def test_metrics_and_report_split_the_ate_into_slow_and_fast_parts() -> None:
+    stamps = np.arange(0, 10, 1 / 30)
+    gt = _trajectory(stamps)
+    jitter = _trajectory(stamps)
+    jitter.positions[:, 2] += 0.004 * (-1.0) ** np.arange(len(stamps))  # 4 mm per frame
+    data = scores_dict(evaluate(jitter, gt, EvalConfig()), EvalConfig())
+    bands = data["ate_bands"]
+    assert bands["window_s"] == 0.5 and bands["rmse"] == pytest.approx(data["ate"]["rmse"])
+    assert bands["fast"] > 0.0035 and bands["slow"] < 0.0005
+    lines = "\n".join(error_table_md(data))
+    assert f"{bands['slow']:.4f} m is slow (the error averaged over 0.5 s" in lines
+    assert f"and {bands['fast']:.4f} m fast (per-frame jitter)" in lines
+    missing = scores_dict(evaluate(jitter, None, EvalConfig()), EvalConfig())
+    assert missing["ate_bands"] is None
+    assert "slow" not in "\n".join(error_table_md(missing))
