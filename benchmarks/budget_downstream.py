@@ -32,6 +32,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from uss_slam.pipelines.experiments.tables import paired_interval, paired_text
+
 ADABN_IMAGES = 48
 ADABN_BATCH_SIZE = 4
 SYSTEMS = {
@@ -94,19 +96,7 @@ def paired_difference(
 ) -> dict[str, Any]:
     """Row ``name``'s downstream ratio minus ``base``'s, paired by seed: the values, how many
     are positive, their mean and its 95% Student-t interval (None below two seeds)."""
-    from uss_slam.pipelines.experiments.tables import paired_interval
-
     return paired_interval([per[name][s]["ratio"] - per[base][s]["ratio"] for s in seeds])
-
-
-def paired_text(paired: dict[str, Any]) -> str:
-    """``+0.12 / +0.30 (2/2 > 0), mean +0.21 [-0.93, +1.35]``."""
-    text = " / ".join(f"{d:+.2f}" for d in paired["values"])
-    text += f" ({paired['positive']}/{paired['n']} > 0)"
-    if paired["interval"] is not None:
-        lo, hi = paired["interval"]
-        text += f", mean {paired['mean']:+.2f} [{lo:+.2f}, {hi:+.2f}]"
-    return text
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -171,9 +161,10 @@ def main(argv: list[str] | None = None) -> int:
         + " | ".join(models[seeds[0]]) + f" | each row − {args.base}, paired by seed |",
         "|---" * (len(models[seeds[0]]) + 3) + "|",
     ]  # fmt: skip
+    paired_all: dict[str, Any] = {}
     for key, cell in ate.items():
         base = cell["baselines"]
-        for variant in [v for v in cell if v not in ("baselines", "paired")]:
+        for variant in (v for v in cell if v != "baselines"):
             per = cell[variant]
             cols = []
             for name in models[seeds[0]]:
@@ -184,7 +175,7 @@ def main(argv: list[str] | None = None) -> int:
                 if name == args.base:
                     continue
                 paired = paired_difference(per, name, args.base, seeds)
-                cell.setdefault("paired", {}).setdefault(variant, {})[name] = paired
+                paired_all.setdefault(key, {}).setdefault(variant, {})[name] = paired
                 diffs.append(f"{name} {paired_text(paired)}")
             system, sequence = key.split("/")
             lines.append(
@@ -203,12 +194,13 @@ def main(argv: list[str] | None = None) -> int:
         key: {
             v: {n: statistics.median(x["ratio"] for x in s.values()) for n, s in per.items()}
             for v, per in cell.items()
-            if v not in ("baselines", "paired")
+            if v != "baselines"
         }
         for key, cell in ate.items()
     }
     if args.json:
-        args.json.write_text(json.dumps({"ate": ate, "medians": medians}, default=str))
+        data = {"ate": ate, "paired": paired_all, "medians": medians}
+        args.json.write_text(json.dumps(data, default=str))
     return 0
 
 

@@ -48,6 +48,7 @@ from uss_slam.core.tum_io import Trajectory
 from uss_slam.slam_eval.filters.dynamic import build_filters
 from uss_slam.slam_eval.frontend.orb import OrbConfig
 from uss_slam.slam_eval.mapping.local_mapping import LocalMappingConfig
+from uss_slam.slam_eval.scoring.evaluation import BANDS_WINDOW
 from uss_slam.slam_eval.scoring.metrics import ate, ate_bands
 from uss_slam.slam_eval.scoring.repeats import Perturbation, perturbations
 from uss_slam.slam_eval.segmenters.base import LabelsSegmenter
@@ -78,9 +79,6 @@ VARIANTS = {
     },
 }
 
-
-BAND_WINDOW = 0.5
-"""Seconds of the moving average that splits the ATE into its slow and fast parts."""
 
 PREFETCH_MODULES = ("read", "orb", "segmentation")
 """Modules timed in the prefetch threads (the rest run in the main thread)."""
@@ -113,7 +111,7 @@ def run(path: Path, variant: str, filters: list[str], perturbation: Perturbation
         seq, LabelsSegmenter(), build_filters(filters), progress=False, **options
     ).run()
     whole = ate(seq.groundtruth, result.trajectory)
-    stats, bands = whole.stats, ate_bands(whole, BAND_WINDOW)
+    stats, bands = whole.stats, ate_bands(whole, BANDS_WINDOW)
     kf_ate, other_ate = _split_ate(seq, result)
     ba = result.local_ba or {}
     main_cpu = sum(ms for name, ms in result.cpu_ms.items() if name not in PREFETCH_MODULES)

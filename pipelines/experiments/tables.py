@@ -1079,7 +1079,7 @@ def table_ratio(
                     paired = paired_interval(diffs)
                     paired_rows.append({"system": system, "filter": variant, "config": config,
                                         "sequence": sequence, **paired})  # fmt: skip
-                    cells.append(_paired_text(paired))
+                    cells.append(paired_text(paired))
                 body.append(cells)
         if not body:  # no model was run with this filter (e.g. ORB-SLAM3 + geometry)
             continue
@@ -1120,7 +1120,8 @@ def paired_interval(diffs: Sequence[float], level: float = 0.95) -> dict[str, An
     return out
 
 
-def _paired_text(paired: Mapping[str, Any]) -> str:
+def paired_text(paired: Mapping[str, Any]) -> str:
+    """``+0.12 / +0.30 (2/2 > 0), mean +0.21 [-0.93, +1.35]`` of a :func:`paired_interval`."""
     if not paired["n"]:
         return "—"
     each = " / ".join(f"{d:+.2f}" for d in paired["values"])
