@@ -14,7 +14,8 @@ Variants (all with the ``--filters`` given, default none):
 - ``local_ba_sensor``: local BA whose stereo factors model the synthetic sensor's depth noise
   (``depth_noise=0.0019``, the ``k`` of ``σ_z = k·z²`` the renderer's target style draws and
   declares);
-- ``loop``: local BA and loop closing; ``loop_only``: loop closing without local BA;
+- ``loop``: local BA and loop closing (the defaults); ``loop_orbslam2``: the same with
+  ORB-SLAM2's depth model (``depth_noise=0``); ``loop_only``: loop closing without local BA;
 - ``prosac``: the tracker alone with PROSAC sampling (``sampler=prosac``);
 - ``tracker_global_shutter`` / ``loop_global_shutter``: ``tracker`` / ``loop`` without the
   rolling-shutter correction (``readout=0``; the others correct for the readout the sequence's
@@ -69,6 +70,11 @@ VARIANTS = {
         "local_ba_params": LocalMappingConfig(depth_noise=DEPTH_NOISE_K),
     },
     "loop": {"local_ba": True, "loop_closing": True},
+    "loop_orbslam2": {
+        "local_ba": True,
+        "loop_closing": True,
+        "local_ba_params": LocalMappingConfig(depth_noise=0.0),
+    },
     "loop_only": {"loop_closing": True},
     "prosac": {"tracker": TrackerConfig(sampler="prosac")},
     "tracker_global_shutter": {"tracker": TrackerConfig(readout=0.0)},
