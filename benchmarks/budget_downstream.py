@@ -17,7 +17,12 @@ interval over the seeds)::
 
     python benchmarks/budget_downstream.py --experiment OUT --runs RUNS --seeds 0,1 \\
         --rows source_only,adaptsegnet+adv10 [--sequences walking_xyz,walking_rpy] [--json F] \\
-        [--variants harness:semantic_geometry,orbslam3:semantic]
+        [--variants harness:semantic_geometry,orbslam3:semantic] [--plot downstream.png]
+
+``--plot`` draws one panel per system, filter and sequence: each seed's ratio for every row,
+joined across the rows (the pairing the differences use), the median over seeds as a bar, and
+the reference lines (0 = no filter, 1 = ground-truth masks, 0.5 = the target; on ``static_*``
+1 = no filter and 1.1 = the 10% a filter may cost).
 
 Jobs whose ``metrics.json`` exists are reused (an interrupted run continues).
 """
@@ -99,6 +104,56 @@ def paired_difference(
     return paired_interval([per[name][s]["ratio"] - per[base][s]["ratio"] for s in seeds])
 
 
+def plot_ratios(ate: dict[str, Any], rows: list[str], seeds: list[int], path: Path) -> Path:
+    """The downstream ratios of ``ate`` (``{"system/sequence": {"baselines": ..., variant:
+    {row: {seed: {"ratio": r}}}}}``) as a PNG at ``path``; see the module docstring."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    panels = [(key, v) for key, cell in ate.items() for v in cell if v != "baselines"]
+    if not panels:
+        raise ValueError("no downstream ratios to plot")
+    cols = min(len(panels), 4)
+    n_rows = -(-len(panels) // cols)
+    fig, axes = plt.subplots(n_rows, cols, figsize=(3.2 * cols, 3.2 * n_rows), squeeze=False)
+    x = list(range(len(rows)))
+    colours = plt.get_cmap("tab10")
+    for ax, (key, variant) in zip(axes.flat, panels, strict=False):
+        system, sequence = key.split("/")
+        per = ate[key][variant]
+        for k, seed in enumerate(seeds):
+            ys = [per[r][seed]["ratio"] if seed in per.get(r, {}) else float("nan") for r in rows]
+            ax.plot(x, ys, "o-", color=colours(k % 10), alpha=0.7, lw=1, ms=4, label=f"seed {seed}")
+        for i, r in enumerate(rows):
+            values = [per[r][s]["ratio"] for s in seeds if s in per.get(r, {})]
+            if values:
+                m = statistics.median(values)
+                ax.plot([i - 0.25, i + 0.25], [m, m], color="black", lw=2.5)
+        static = sequence.startswith("static")
+        for y, style in (
+            ((1.0, "-"), (1.1, ":")) if static else ((0.0, "-"), (1.0, "-"), (0.5, ":"))
+        ):
+            ax.axhline(y, color="grey", lw=0.8, ls=style)
+        ax.set_xticks(x, rows, rotation=30, ha="right", fontsize=7)
+        ax.set_title(f"{system}, {variant}\n{sequence}", fontsize=9)
+        ax.set_ylabel("ATE / ATE no filter" if static else "downstream ratio", fontsize=8)
+    for ax in list(axes.flat)[len(panels) :]:
+        ax.set_visible(False)
+    axes.flat[0].legend(fontsize=6, loc="lower right")
+    fig.suptitle(
+        "Downstream ratio per seed (lines: same seed; bars: median over seeds)", fontsize=10
+    )
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp.png")
+    fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+    tmp.replace(path)
+    return path
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0].replace("\n", " "))
     parser.add_argument("--experiment", type=Path, required=True, help="uss-experiments output")
@@ -108,6 +163,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--base", default="source_only", help="the row differences are taken to")
     parser.add_argument("--sequences", default="walking_xyz,walking_rpy")
     parser.add_argument("--json", type=Path)
+    parser.add_argument("--plot", type=Path, help="also draw the ratios per seed into this PNG")
     every = [f"{system}:{v}" for system, variants in SYSTEMS.items() for v in variants]
     parser.add_argument("--variants", default=",".join(every),
                         help=f"system:filter cells to run (default: all, {','.join(every)})")  # fmt: skip
@@ -201,6 +257,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         data = {"ate": ate, "paired": paired_all, "medians": medians}
         args.json.write_text(json.dumps(data, default=str))
+    if args.plot:
+        print(f"plot: {plot_ratios(ate, list(models[seeds[0]]), seeds, args.plot)}")
     return 0
 
 

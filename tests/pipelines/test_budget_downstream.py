@@ -13,6 +13,7 @@ from budget_downstream import (
     main,
     paired_difference,
     paired_text,
+    plot_ratios,
     slam,
 )
 
@@ -68,3 +69,24 @@ def test_rows_are_compared_paired_by_seed_with_an_interval() -> None:
     assert paired_text(paired) == "+0.20 / +0.30 / +0.10 (3/3 > 0), mean +0.20 [-0.05, +0.45]"
     one = paired_difference(per, "model", "source_only", [0])
     assert one["interval"] is None and paired_text(one) == "+0.20 (1/1 > 0)"
+
+
+def test_the_ratios_are_drawn_per_seed(tmp_path: Path) -> None:
+    def cell(values: dict[str, list[float]]) -> dict:
+        return {row: {s: {"ratio": r} for s, r in enumerate(rs)} for row, rs in values.items()}
+
+    ate = {
+        "harness/walking_xyz": {
+            "baselines": {"none": 0.2, "oracle": 0.005},
+            "semantic_geometry": cell({"source_only": [0.6, 0.7], "model": [0.9, 0.95]}),
+        },
+        "orbslam3/static_xyz": {
+            "baselines": {"none": 0.004, "oracle": 0.004},
+            "semantic": cell({"source_only": [1.02, 1.2], "model": [1.0, 1.05]}),
+        },
+    }
+    out = plot_ratios(ate, ["source_only", "model"], [0, 1], tmp_path / "plots" / "d.png")
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert not list(out.parent.glob(".*.tmp.png"))
+    with pytest.raises(ValueError, match="no downstream ratios"):
+        plot_ratios({"harness/walking_xyz": {"baselines": {}}}, ["model"], [0], out)
