@@ -528,7 +528,7 @@ CASES = [
          interrupt=("uss_slam.export.onnx:verify_model", 0)),
     # ---------------------------------------------------------------- uss-experiments (Hydra)
     case("experiments-unknown-scale", "uss-experiments", f"{EXPERIMENTS} scale=huge", 1,
-         "scale: unknown value 'huge'; accepted: paper, quick, standard, standard_full"),
+         "scale: unknown value 'huge'; accepted: converged, paper, quick, standard, standard_full"),
     case("experiments-unknown-launcher", "uss-experiments", f"{EXPERIMENTS} launcher=k8s", 1,
          "launcher: unknown value 'k8s'; accepted: joblib, local, slurm, submitit_local"),
     case("experiments-unknown-stage", "uss-experiments", f"{EXPERIMENTS} stages=[deploy]", 1,

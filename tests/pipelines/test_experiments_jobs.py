@@ -297,7 +297,7 @@ def test_missing_launcher_key_is_named_before_launching(tmp_path: Path) -> None:
     [
         (
             ["scale=huge"],
-            "uss-experiments: error: scale: unknown value 'huge'; accepted: paper, quick, standard, standard_full",
+            "uss-experiments: error: scale: unknown value 'huge'; accepted: converged, paper, quick, standard, standard_full",
         ),
         (
             ["launcher=ray"],

@@ -256,6 +256,23 @@ def test_standard_scale_is_the_full_grid_trimmed(tmp_path: Path) -> None:
     assert not any(k.startswith("slam/orbslam3/") for k in full)
 
 
+def test_converged_scale_is_the_standard_grid_trained_longer(tmp_path: Path) -> None:
+    std = _job_keys(tmp_path, "scale=standard")
+    conv = _job_keys(tmp_path, "scale=converged")
+    # the same jobs (rows, seeds, sequences, filters, systems) ...
+    assert set(conv) == set(std)
+    trainings = [k for k in std if k.startswith("train/")]
+    assert len(trainings) == 9
+    for k in trainings:
+        # ... every training six times the standard budget, its other overrides unchanged
+        assert conv[k]["overrides"] == [*std[k]["overrides"][:6], "model.max_iters=7200",
+                                        *std[k]["overrides"][6:]]  # fmt: skip
+        assert "model.max_iters=7200" not in std[k]["overrides"]
+    # the SLAM jobs run as standard's (keyed by their exported models' hashes: new jobs)
+    job = "slam/harness/walking_xyz/semantic/source_only_s0"
+    assert conv[job]["overrides"] == std[job]["overrides"]
+
+
 def test_slam_job_keys_hold_the_uss_slam_defaults(tmp_path: Path, monkeypatch) -> None:
     # A SLAM job's cache key holds uss-slam's default settings as well as its overrides, so a
     # rerun after a default changed (another tracker policy, say) redoes the SLAM jobs and
