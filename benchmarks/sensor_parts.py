@@ -16,7 +16,8 @@ rolling shutter, stay as they are):
   sequence still declares the style's depth noise, so the back end models it as in ``full``.
 
 Per run: ATE RMSE and its slow / fast parts (``ate_bands`` over 0.5 s, as
-``slam_backend.py``). Sequences are rendered into ``DIR/<preset>_<part>_seed<S>`` and reused.
+``slam_backend.py``). Sequences are rendered into
+``DIR/<preset>_<part>_<frames>_<W>x<H>_seed<S>`` and reused.
 """
 
 from __future__ import annotations
@@ -31,11 +32,8 @@ from pathlib import Path
 from unittest import mock
 
 import numpy as np
-from slam_backend import run
-from slam_targets import median_run
+from slam_backend import run_cell
 
-from uss_slam.slam_eval.frontend.orb import OrbConfig
-from uss_slam.slam_eval.scoring.repeats import perturbations
 from uss_slam.synthetic import sequence as sequence_module
 from uss_slam.synthetic.sequence import render_sequence
 from uss_slam.synthetic.styles import depth_to_png, target_rgb
@@ -109,20 +107,19 @@ def main(argv: list[str] | None = None) -> int:
     if args.repeats < 1:
         parser.error(f"--repeats: must be >= 1, got {args.repeats}")
     size = tuple(int(v) for v in args.size.lower().split("x"))
-    repeats = perturbations(args.repeats, 0, 0.01, OrbConfig().n_features) if args.repeats > 1 else [None]  # fmt: skip
     results: dict[str, dict[str, list[dict]]] = {}
     for seed in args.seeds:
         for part in args.parts:
             path = render(args.data, args.preset, part, args.frames, size, seed)
             for variant in VARIANTS:
-                r = median_run([run(path, variant, [], p) for p in repeats])
+                r = run_cell(path, variant, [], args.repeats)
                 r["seed"] = seed
                 results.setdefault(part, {}).setdefault(variant, []).append(r)
                 print(f"{args.preset} seed {seed} {part:15s} {variant:8s} ATE "
                       f"{1000 * r['ate_rmse']:.1f} mm (slow {1000 * r['ate_slow']:.1f}, fast "
                       f"{1000 * r['ate_fast']:.1f})", flush=True)  # fmt: skip
     print(f"\nmedians over seeds {args.seeds}, ATE [mm] (slow, fast):")
-    print("| part | " + " | ".join(VARIANTS) + " |\n|---" * 1 + "|---" * len(VARIANTS) + "|")
+    print("| part | " + " | ".join(VARIANTS) + " |\n" + "|---" * (len(VARIANTS) + 1) + "|")
     for part, variants in results.items():
         cells = []
         for variant in VARIANTS:

@@ -140,6 +140,15 @@ def run(path: Path, variant: str, filters: list[str], perturbation: Perturbation
     }
 
 
+def run_cell(path: Path, variant: str, filters: list[str], repeats: int) -> dict:
+    """One cell: a single run, or the median of ``repeats`` runs perturbed as ``slam.repeats``
+    (repeat 0 as is, then ±1% feature budget and the RANSAC sampling seed)."""
+    if repeats == 1:
+        return run(path, variant, filters)
+    cases = perturbations(repeats, 0, 0.01, OrbConfig().n_features)
+    return median_run([run(path, variant, filters, p) for p in cases])
+
+
 def _local_ba_text(r: dict) -> str:
     """The local BA part of a run's line: its CPU and wall ms per run, or that it never ran (a
     sequence with one keyframe, e.g. a still camera), or nothing without local BA."""
@@ -169,10 +178,6 @@ def main() -> None:
     args = parser.parse_args()
     if args.repeats < 1:
         raise SystemExit(f"--repeats: must be >= 1, got {args.repeats}")
-    # slam.repeats' perturbations (repeat 0 as is), the same for every cell
-    repeats = (
-        perturbations(args.repeats, 0, 0.01, OrbConfig().n_features) if args.repeats > 1 else []
-    )
     unknown = [v for v in args.variants if v not in VARIANTS]
     if unknown:
         parser.error(f"unknown variant(s) {unknown}; choose from {', '.join(VARIANTS)}")
@@ -184,10 +189,7 @@ def main() -> None:
         for seed in args.seeds:
             path = sequence_path(args.data, preset, args.frames, size, seed)
             for variant in args.variants:
-                if repeats:
-                    r = median_run([run(path, variant, args.filters, p) for p in repeats])
-                else:
-                    r = run(path, variant, args.filters)
+                r = run_cell(path, variant, args.filters, args.repeats)
                 r["seed"] = seed
                 results.setdefault(preset, {}).setdefault(variant, []).append(r)
                 ba = _local_ba_text(r)
