@@ -17,7 +17,18 @@ interval over the seeds)::
 
     python benchmarks/budget_downstream.py --experiment OUT --runs RUNS --seeds 0,1 \\
         --rows source_only,adaptsegnet+adv10 [--sequences walking_xyz,walking_rpy] [--json F] \\
-        [--variants harness:semantic_geometry,orbslam3:semantic] [--plot downstream.png]
+        [--variants harness:semantic_geometry,orbslam3:semantic] [--plot downstream.png] \\
+        [--pool] [--segeval 5]
+
+``--pool`` also pools the walking sequences given, for sequences that are renders of one preset
+with other outfit draws (``uss-synth sequence --preset walking_rpy --seed S``, linked into
+``OUT/data/eval/``): per system, filter and row, the median ratio over seeds × sequences, and
+per seed the mean over the sequences of the row's difference to ``--base``, with its interval
+over the seeds. One render decides little: which of a seed's models find the walkers depends on
+the two outfits that render draws. ``--segeval N`` also scores every model on every sequence
+(``uss-eval``, every N-th frame, into ``RUNS/segeval/<sequence>/<model>/``, reused when its
+``eval.json`` exists): mIoU and person IoU per seed, paired the same way (pooled with
+``--pool``).
 
 ``--plot`` draws one panel per system, filter and sequence: each seed's ratio for every row,
 joined across the rows (the pairing the differences use), the median over seeds as a bar, and
@@ -85,6 +96,52 @@ def slam(folder: Path, overrides: list[str]) -> float:
     data = json.loads(metrics.read_text())
     repeats = data.get("ate_rmse_repeats")
     return float(repeats["median"] if repeats else data["ate"]["rmse"])
+
+
+def segeval(folder: Path, onnx: Path, sequence: Path, stride: int) -> dict[str, float]:
+    """mIoU and person IoU of one model on one labelled sequence (``uss-eval``, every
+    ``stride``-th frame; run unless ``folder/eval.json`` exists)."""
+    result = folder / "eval.json"
+    if not result.is_file():
+        cmd = [str(Path(sys.executable).parent / "uss-eval"), str(onnx), "--sequence",
+               str(sequence), "--stride", str(stride), "--threads", "1", "--out", str(folder)]  # fmt: skip
+        print(" ".join(cmd[1:]), file=sys.stderr, flush=True)
+        done = subprocess.run(cmd, capture_output=True, text=True, check=False)
+        if done.returncode != 0:
+            raise SystemExit(f"{folder}: uss-eval failed: {done.stderr.strip()[-600:]}")
+    data = json.loads(result.read_text())
+    return {"mIoU": float(data["mIoU"]), "person": float(data["IoU"]["person"])}
+
+
+def pooled(
+    per_sequence: dict[str, dict[str, dict[int, float]]], rows: list[str], base: str,
+    seeds: list[int],
+) -> dict[str, Any]:  # fmt: skip
+    """``{sequence: {row: {seed: value}}}`` pooled over the sequences: per row the median over
+    seeds × sequences and, for every row but ``base``, the per-seed mean over the sequences of
+    row − base, with its mean and 95% interval over the seeds (:func:`paired_interval`)."""
+    out: dict[str, Any] = {}
+    sequences = list(per_sequence)
+    for row in rows:
+        values = [per_sequence[q][row][s] for q in sequences for s in seeds]
+        entry: dict[str, Any] = {"median": statistics.median(values), "n": len(values)}
+        if row != base:
+            entry["paired"] = paired_interval([
+                statistics.fmean(per_sequence[q][row][s] - per_sequence[q][base][s]
+                                 for q in sequences)
+                for s in seeds
+            ])  # fmt: skip
+        out[row] = entry
+    return out
+
+
+def pooled_lines(title: str, pool: dict[str, Any], base: str) -> list[str]:
+    lines = [f"| {title} | median over seeds × sequences | − {base}, per seed the mean over the "
+             "sequences |", "|---|---|---|"]  # fmt: skip
+    for row, entry in pool.items():
+        paired = paired_text(entry["paired"]) if "paired" in entry else "—"
+        lines.append(f"| {row} | {entry['median']:.3f} (n = {entry['n']}) | {paired} |")
+    return lines
 
 
 def downstream_ratio(sequence: str, base: dict[str, float], ate: float) -> float:
@@ -167,7 +224,15 @@ def main(argv: list[str] | None = None) -> int:
     every = [f"{system}:{v}" for system, variants in SYSTEMS.items() for v in variants]
     parser.add_argument("--variants", default=",".join(every),
                         help=f"system:filter cells to run (default: all, {','.join(every)})")  # fmt: skip
+    parser.add_argument("--pool", action="store_true",
+                        help="also pool the walking sequences (renders of one preset): medians "
+                             "over seeds x sequences, per-seed differences averaged over them")  # fmt: skip
+    parser.add_argument("--segeval", type=int, metavar="N",
+                        help="also score every model on every sequence (uss-eval, every N-th "
+                             "frame): mIoU and person IoU, paired by seed")  # fmt: skip
     args = parser.parse_args(argv)
+    if args.segeval is not None and args.segeval < 1:
+        parser.error(f"--segeval: a frame stride >= 1, got {args.segeval}")
     chosen = args.variants.split(",")
     unknown = [v for v in chosen if v not in every]
     if unknown:
@@ -254,8 +319,56 @@ def main(argv: list[str] | None = None) -> int:
         }
         for key, cell in ate.items()
     }
+    rows = list(models[seeds[0]])
+    walking = [q for q in sequences if not q.startswith("static")]
+    pools: dict[str, Any] = {}
+    if args.pool and len(walking) > 1:
+        for key_variant in sorted({(k.split("/")[0], v) for k, c in ate.items() for v in c
+                                   if v != "baselines"}):  # fmt: skip
+            system, variant = key_variant
+            per_sequence = {
+                q: {r: {s: x["ratio"] for s, x in ate[f"{system}/{q}"][variant][r].items()}
+                    for r in rows}
+                for q in walking
+                if variant in ate.get(f"{system}/{q}", {})
+            }  # fmt: skip
+            pool = pooled(per_sequence, rows, args.base, seeds)
+            pools[f"{system}/{variant}"] = pool
+            print()
+            print(f"Pooled over {', '.join(per_sequence)}: downstream ratio")
+            print("\n".join(pooled_lines(f"{system}, {variant}", pool, args.base)))
+    seg: dict[str, Any] = {}
+    if args.segeval is not None:
+        for q in sequences:
+            for seed, named in models.items():
+                for name, onnx in named.items():
+                    folder = args.runs / "segeval" / q / f"{name}_s{seed}"
+                    seg.setdefault(q, {}).setdefault(name, {})[seed] = segeval(
+                        folder, onnx, out / "data" / "eval" / q, args.segeval
+                    )
+        for metric in ("person", "mIoU"):
+            print()
+            label = "person IoU" if metric == "person" else "mIoU"
+            print(f"{label} per seed ({', '.join(map(str, seeds))}), every {args.segeval}th frame, "
+                  f"each row − {args.base} paired by seed")  # fmt: skip
+            for q in sequences:
+                cols = []
+                for name in rows:
+                    vs = [seg[q][name][s][metric] for s in seeds]
+                    paired = "" if name == args.base else " " + paired_text(paired_interval(
+                        [seg[q][name][s][metric] - seg[q][args.base][s][metric] for s in seeds]))  # fmt: skip
+                    cols.append(f"{name} " + " / ".join(f"{v:.3f}" for v in vs) + paired)
+                print(f"- {q}: " + "; ".join(cols))
+            if args.pool and len(walking) > 1:
+                per_sequence = {q: {r: {s: seg[q][r][s][metric] for s in seeds} for r in rows}
+                                for q in walking}  # fmt: skip
+                pool = pooled(per_sequence, rows, args.base, seeds)
+                pools[f"segeval/{metric}"] = pool
+                print("\n".join(pooled_lines(f"{metric}, pooled over {', '.join(walking)}",
+                                              pool, args.base)))  # fmt: skip
     if args.json:
-        data = {"ate": ate, "paired": paired_all, "medians": medians}
+        data = {"ate": ate, "paired": paired_all, "medians": medians, "pooled": pools,
+                "segeval": seg}  # fmt: skip
         args.json.write_text(json.dumps(data, default=str))
     if args.plot:
         print(f"plot: {plot_ratios(ate, list(models[seeds[0]]), seeds, args.plot)}")

@@ -84,14 +84,15 @@ FLAGS = {
 
 ADV = (0.002, 0.01)  # the USS-SLAM paper's lambda_adv_aux / lambda_adv_main (model/adversarial)
 D_LR = 1e-4  # the discriminators' Adam rate (model/adversarial)
+LR = 0.01  # the segmenter's SGD rate of experiment=demo (its heads get 10x)
 ENT = (0.01, 0.05)  # MinEnt's lambda_ent_aux / lambda_ent_main (model/method/minent)
-FACTOR = re.compile(r"^(?P<knob>adv|dlr|ent|thr)(?P<factor>[0-9.]+)$")
+FACTOR = re.compile(r"^(?P<knob>adv|dlr|lr|ent|thr)(?P<factor>[0-9.]+)$")
 
 
 def knob_overrides(row: str) -> list[str]:
     """The overrides of a row ``<method>[+<knob>]...``: a knob is a name of :data:`FLAGS` or
-    ``adv<k>`` / ``dlr<k>`` / ``ent<k>`` (k times the adversarial weights, the discriminators'
-    learning rate or MinEnt's weights) or ``thr<p>`` (self-training's pseudo-label confidence
+    ``adv<k>`` / ``dlr<k>`` / ``lr<k>`` / ``ent<k>`` (k times the adversarial weights, the
+    discriminators' learning rate, the segmenter's learning rate or MinEnt's weights) or ``thr<p>`` (self-training's pseudo-label confidence
     threshold p), e.g. ``adaptsegnet+running+adv10``, ``self_training+thr0.9``."""
     method, *knobs = row.split("+")
     out = [f"model/method={method}"]
@@ -102,13 +103,15 @@ def knob_overrides(row: str) -> list[str]:
         match = FACTOR.match(knob)
         if match is None:
             raise SystemExit(f"--methods: unknown knob {knob!r} in {row!r}; expected one of "
-                             f"{', '.join(FLAGS)}, adv<k>, dlr<k>, ent<k>, thr<p>")  # fmt: skip
+                             f"{', '.join(FLAGS)}, adv<k>, dlr<k>, lr<k>, ent<k>, thr<p>")  # fmt: skip
         k = float(match["factor"])
         if match["knob"] == "adv":
             out += [f"model.loss.lambda_adv_aux={ADV[0] * k:g}",
                     f"model.loss.lambda_adv_main={ADV[1] * k:g}"]  # fmt: skip
         elif match["knob"] == "dlr":
             out += [f"model.d_optimizer.lr={D_LR * k:g}"]
+        elif match["knob"] == "lr":
+            out += [f"model.optimizer.lr={LR * k:g}"]
         elif match["knob"] == "thr":
             if not 0 < k < 1:
                 raise SystemExit(f"--methods: {knob!r} in {row!r}: the threshold must be in (0, 1)")
@@ -322,8 +325,9 @@ def main() -> None:
     parser.add_argument("--methods", default="source_only,adaptsegnet,oracle",
                         help="comma-separated rows: a model/method name, oracle, or a method "
                              "with knobs, <method>+<knob>...: " + ", ".join(FLAGS)
-                             + ", adv<k>, dlr<k>, ent<k> (k times the adversarial weights, the "
-                             "discriminators' rate, MinEnt's weights), thr<p> (self-training's "
+                             + ", adv<k>, dlr<k>, lr<k>, ent<k> (k times the adversarial weights, "
+                             "the discriminators' rate, the segmenter's rate, MinEnt's weights), "
+                             "thr<p> (self-training's "
                              "pseudo-label threshold p); default: "
                              "source_only,adaptsegnet,oracle)")  # fmt: skip
     parser.add_argument("--iters", type=int, default=1200,

@@ -14,6 +14,9 @@ from budget_downstream import (
     paired_difference,
     paired_text,
     plot_ratios,
+    pooled,
+    pooled_lines,
+    segeval,
     slam,
 )
 
@@ -90,3 +93,36 @@ def test_the_ratios_are_drawn_per_seed(tmp_path: Path) -> None:
     assert not list(out.parent.glob(".*.tmp.png"))
     with pytest.raises(ValueError, match="no downstream ratios"):
         plot_ratios({"harness/walking_xyz": {"baselines": {}}}, ["model"], [0], out)
+
+
+def test_renders_of_one_preset_are_pooled_paired_by_seed() -> None:
+    # two renders, two seeds: per seed the mean over the renders of row − base
+    per_sequence = {
+        "walking_rpy": {"source_only": {0: 0.6, 1: 0.2}, "model": {0: 0.9, 1: 0.2}},
+        "walking_rpy_2002": {"source_only": {0: 0.4, 1: 0.6}, "model": {0: 0.5, 1: 0.9}},
+    }
+    pool = pooled(per_sequence, ["source_only", "model"], "source_only", [0, 1])
+    assert pool["source_only"] == {"median": pytest.approx(0.5), "n": 4}
+    assert pool["model"]["median"] == pytest.approx(0.7)
+    paired = pool["model"]["paired"]
+    assert paired["values"] == pytest.approx([0.2, 0.15]) and paired["positive"] == 2
+    assert paired["mean"] == pytest.approx(0.175)
+    lines = pooled_lines("harness, semantic_geometry", pool, "source_only")
+    assert lines[2] == "| source_only | 0.500 (n = 4) | — |"
+    assert lines[3].startswith("| model | 0.700 (n = 4) | +0.20 / +0.15 (2/2 > 0), mean +0.18 [")
+
+
+def test_a_finished_segmentation_is_read_not_run(tmp_path: Path) -> None:
+    job = tmp_path / "eval"
+    job.mkdir()
+    (job / "eval.json").write_text(json.dumps({"mIoU": 0.4, "IoU": {"person": 0.6, "chair": 0.1}}))
+    # a model and a sequence that do not exist: reading must not start uss-eval
+    assert segeval(job, tmp_path / "no.onnx", tmp_path / "none", 5) == {"mIoU": 0.4, "person": 0.6}
+    with pytest.raises(SystemExit, match="other.*uss-eval failed"):
+        segeval(tmp_path / "other", tmp_path / "no.onnx", tmp_path / "none", 5)
+
+
+def test_a_bad_segeval_stride_is_one_error(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    with pytest.raises(SystemExit):
+        main(["--experiment", str(tmp_path), "--runs", str(tmp_path), "--segeval", "0"])
+    assert "--segeval: a frame stride >= 1, got 0" in capsys.readouterr().err

@@ -15,6 +15,7 @@ def test_knob_rows_scale_the_methods_defaults() -> None:
         "model.loss.lambda_adv_main=0.3",
     ]
     assert knob_overrides("advent+dlr10") == ["model/method=advent", "model.d_optimizer.lr=0.001"]
+    assert knob_overrides("source_only+lr3") == ["model/method=source_only", "model.optimizer.lr=0.03"]
     assert knob_overrides("minent+ent0.5")[1:] == [
         "model.method.lambda_ent_aux=0.005",
         "model.method.lambda_ent_main=0.025",
@@ -61,6 +62,7 @@ def test_knob_bases_are_the_configs_defaults(tmp_path) -> None:
     assert values["model.method.lambda_ent_aux"] == ent.model.method.lambda_ent_aux
     assert values["model.method.lambda_ent_main"] == ent.model.method.lambda_ent_main
     assert float(knob_overrides("adaptsegnet+dlr1")[1].split("=")[1]) == adv.model.d_optimizer.lr
+    assert float(knob_overrides("source_only+lr1")[1].split("=")[1]) == adv.model.optimizer.lr
 
 
 def test_a_folder_without_a_data_set_is_named(tmp_path, monkeypatch) -> None:
