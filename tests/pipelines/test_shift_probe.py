@@ -15,7 +15,10 @@ def test_knob_rows_scale_the_methods_defaults() -> None:
         "model.loss.lambda_adv_main=0.3",
     ]
     assert knob_overrides("advent+dlr10") == ["model/method=advent", "model.d_optimizer.lr=0.001"]
-    assert knob_overrides("source_only+lr3") == ["model/method=source_only", "model.optimizer.lr=0.03"]
+    assert knob_overrides("source_only+lr3") == [
+        "model/method=source_only",
+        "model.optimizer.lr=0.03",
+    ]
     assert knob_overrides("minent+ent0.5")[1:] == [
         "model.method.lambda_ent_aux=0.005",
         "model.method.lambda_ent_main=0.025",
