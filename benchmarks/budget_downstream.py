@@ -154,11 +154,16 @@ def downstream_ratio(sequence: str, base: dict[str, float], ate: float) -> float
 
 
 def paired_difference(
-    per: dict[str, dict[int, dict[str, float]]], name: str, base: str, seeds: list[int]
+    per: dict[str, dict[int, dict[str, float]]],
+    name: str,
+    base: str,
+    seeds: list[int],
+    key: str = "ratio",
 ) -> dict[str, Any]:
-    """Row ``name``'s downstream ratio minus ``base``'s, paired by seed: the values, how many
-    are positive, their mean and its 95% Student-t interval (None below two seeds)."""
-    return paired_interval([per[name][s]["ratio"] - per[base][s]["ratio"] for s in seeds])
+    """Row ``name``'s ``key`` (the downstream ratio, or a segmentation metric) minus ``base``'s,
+    paired by seed: the values, how many are positive, their mean and its 95% Student-t
+    interval (None below two seeds)."""
+    return paired_interval([per[name][s][key] - per[base][s][key] for s in seeds])
 
 
 def plot_ratios(ate: dict[str, Any], rows: list[str], seeds: list[int], path: Path) -> Path:
@@ -355,8 +360,8 @@ def main(argv: list[str] | None = None) -> int:
                 cols = []
                 for name in rows:
                     vs = [seg[q][name][s][metric] for s in seeds]
-                    paired = "" if name == args.base else " " + paired_text(paired_interval(
-                        [seg[q][name][s][metric] - seg[q][args.base][s][metric] for s in seeds]))  # fmt: skip
+                    paired = "" if name == args.base else " " + paired_text(
+                        paired_difference(seg[q], name, args.base, seeds, metric))  # fmt: skip
                     cols.append(f"{name} " + " / ".join(f"{v:.3f}" for v in vs) + paired)
                 print(f"- {q}: " + "; ".join(cols))
             if args.pool and len(walking) > 1:
@@ -371,7 +376,7 @@ def main(argv: list[str] | None = None) -> int:
                 "segeval": seg}  # fmt: skip
         args.json.write_text(json.dumps(data, default=str))
     if args.plot:
-        print(f"plot: {plot_ratios(ate, list(models[seeds[0]]), seeds, args.plot)}")
+        print(f"plot: {plot_ratios(ate, rows, seeds, args.plot)}")
     return 0
 
 

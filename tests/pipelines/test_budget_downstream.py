@@ -70,6 +70,11 @@ def test_rows_are_compared_paired_by_seed_with_an_interval() -> None:
     lo, hi = paired["interval"]
     assert lo == pytest.approx(0.2 - 0.2484, abs=1e-3) and hi == pytest.approx(0.4484, abs=1e-3)
     assert paired_text(paired) == "+0.20 / +0.30 / +0.10 (3/3 > 0), mean +0.20 [-0.05, +0.45]"
+    # a segmentation metric of the same layout, paired the same way
+    seg = {"source_only": {0: {"person": 0.4}, 1: {"person": 0.5}},
+           "model": {0: {"person": 0.6}, 1: {"person": 0.4}}}  # fmt: skip
+    by_metric = paired_difference(seg, "model", "source_only", [0, 1], "person")
+    assert by_metric["values"] == pytest.approx([0.2, -0.1]) and by_metric["positive"] == 1
     one = paired_difference(per, "model", "source_only", [0])
     assert one["interval"] is None and paired_text(one) == "+0.20 (1/1 > 0)"
 
