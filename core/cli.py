@@ -59,11 +59,52 @@ def warning(message: str) -> None:
         print(f"{_program}: warning: {message}", file=sys.stderr)
 
 
+_dropped_interrupts: list[object] | None = None
+"""Ctrl-C that Python dropped while :func:`interrupts_kept` is active (None outside it)."""
+
+
+@contextmanager
+def interrupts_kept() -> Iterator[None]:
+    """Keep a Ctrl-C that Python would drop, and raise it at the next :func:`raise_dropped_interrupt`.
+
+    A ``KeyboardInterrupt`` raised while Python runs a weakref callback or a ``__del__`` (the
+    import system's module locks use one) cannot propagate: Python prints ``Exception ignored
+    in: ...`` and goes on, so the program would finish as if no one had pressed Ctrl-C. During
+    the block such an interrupt prints nothing and is recorded instead; other unraisable
+    exceptions are reported as before. Console scripts run their body in it
+    (:func:`exit_on_user_error`), and a run checks before it moves its outputs into place
+    (:func:`interrupts_deferred`)."""
+    global _dropped_interrupts
+    previous_hook, previous_list = sys.unraisablehook, _dropped_interrupts
+    dropped: list[object] = []
+
+    def hook(unraisable: Any) -> None:
+        if isinstance(unraisable.exc_value, KeyboardInterrupt):
+            dropped.append(unraisable.object)
+        else:
+            previous_hook(unraisable)
+
+    sys.unraisablehook, _dropped_interrupts = hook, dropped
+    try:
+        yield
+    finally:
+        sys.unraisablehook, _dropped_interrupts = previous_hook, previous_list
+
+
+def raise_dropped_interrupt() -> None:
+    """Raise ``KeyboardInterrupt`` if Python dropped one during :func:`interrupts_kept`."""
+    if _dropped_interrupts:
+        _dropped_interrupts.clear()
+        raise KeyboardInterrupt
+
+
 @contextmanager
 def interrupts_deferred() -> Iterator[None]:
     """Ctrl-C (SIGINT) during the block takes effect when it ends: for a short step that must
-    not stop half-way (moving a finished run's files into place). Outside the main thread, or
-    when SIGINT is not Python's to handle, the block runs as it is."""
+    not stop half-way (moving a finished run's files into place). A Ctrl-C that Python dropped
+    earlier (:func:`interrupts_kept`) is raised before the block starts. Outside the main
+    thread, or when SIGINT is not Python's to handle, the block runs as it is."""
+    raise_dropped_interrupt()
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -187,8 +228,9 @@ def exit_on_user_error(prog: str, kinds: tuple[type[BaseException], ...] = ()) -
 
     ``kinds`` adds exception types the entry point treats as user errors (Hydra apps pass
     OmegaConf's config errors). Ctrl-C is one line ``<prog>: interrupted`` and exit code
-    :data:`INTERRUPTED` (a multirun stops as a whole). Anything else propagates with its
-    traceback.
+    :data:`INTERRUPTED` (a multirun stops as a whole), also when Python dropped it
+    (:func:`interrupts_kept`): then at the next check, at the latest when the body ends.
+    Anything else propagates with its traceback.
 
     Inside a job of a Hydra multirun whose console script runs the app under
     :func:`report_failed_jobs`, the line is printed and recorded and :class:`JobFailed` is
@@ -203,8 +245,9 @@ def exit_on_user_error(prog: str, kinds: tuple[type[BaseException], ...] = ()) -
         if job is not None:
             report.overrides.append(job[1])
     try:
-        with program(prog):
+        with program(prog), interrupts_kept():
             yield
+            raise_dropped_interrupt()
     except SystemExit:
         raise
     except KeyboardInterrupt:

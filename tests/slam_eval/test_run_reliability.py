@@ -509,3 +509,38 @@ def test_relative_out_dir(earlier, tmp_path: Path, monkeypatch) -> None:
     manifest = json.loads((tmp_path / "runs/rel/run.json").read_text())
     assert {"trajectory.txt", "metrics.json", "report.md", "ate.png"} <= set(manifest["files"])
     assert verify_run(tmp_path / "runs/rel") == []
+
+
+def test_a_ctrl_c_python_dropped_stops_the_commit_and_keeps_the_earlier_run(tmp_path: Path):
+    """SIGINT that lands in a weakref callback (an import's module lock) is dropped by Python:
+    the run must still not replace the earlier one, and nothing staged is left."""
+    import gc
+    import weakref
+
+    from uss_slam.core.cli import interrupts_kept
+
+    root = tmp_path / "run"
+    old = RunFolder.start(root)
+    old.write_text("metrics.json", "old\n")
+    old.commit()
+    before = _snapshot(root)
+
+    class Thing:
+        pass
+
+    def callback(_ref: object) -> None:
+        raise KeyboardInterrupt
+
+    new = RunFolder.start(root)
+    new.write_text("metrics.json", "new\n")
+    with interrupts_kept():
+        thing = Thing()
+        ref = weakref.ref(thing, callback)
+        del thing
+        gc.collect()
+        assert ref() is None
+        with pytest.raises(KeyboardInterrupt):
+            new.commit()
+    new.discard()
+    assert _snapshot(root) == before and verify_run(root) == []
+    assert not list(root.glob(".uss-slam-*"))

@@ -1,0 +1,93 @@
+"""Ctrl-C that Python drops (raised inside a weakref callback or ``__del__``) is kept and
+raised later, so a console script never finishes as if no one had pressed it."""
+
+from __future__ import annotations
+
+import gc
+import sys
+import weakref
+
+import pytest
+
+from uss_slam.core.cli import (
+    INTERRUPTED,
+    exit_on_user_error,
+    interrupts_deferred,
+    interrupts_kept,
+    raise_dropped_interrupt,
+)
+
+
+class _Thing:
+    pass
+
+
+def _drop(error: BaseException) -> None:
+    """Make Python drop ``error``: raised in a weakref callback, as SIGINT can land there."""
+
+    def callback(_ref: object) -> None:
+        raise error
+
+    thing = _Thing()
+    ref = weakref.ref(thing, callback)
+    del thing
+    gc.collect()
+    assert ref() is None
+
+
+def test_a_dropped_interrupt_is_silent_and_raised_at_the_next_check(capsys) -> None:
+    with interrupts_kept():
+        _drop(KeyboardInterrupt())
+        assert capsys.readouterr().err == ""  # not "Exception ignored in ..."
+        with pytest.raises(KeyboardInterrupt):
+            raise_dropped_interrupt()
+        raise_dropped_interrupt()  # raised once
+
+
+def _reported(monkeypatch) -> list[BaseException]:
+    """What reaches the unraisable hook that was there before (Python's, or pytest's)."""
+    seen: list[BaseException] = []
+    monkeypatch.setattr(sys, "unraisablehook", lambda u: seen.append(u.exc_value))
+    return seen
+
+
+def test_other_dropped_errors_are_still_reported(monkeypatch) -> None:
+    reported = _reported(monkeypatch)
+    with interrupts_kept():
+        _drop(ValueError("boom"))
+        raise_dropped_interrupt()  # not an interrupt: nothing to raise
+    assert [str(e) for e in reported] == ["boom"]
+
+
+def test_outside_the_block_python_reports_it_as_before(monkeypatch) -> None:
+    reported = _reported(monkeypatch)
+    hook = sys.unraisablehook
+    with interrupts_kept():
+        assert sys.unraisablehook is not hook
+    assert sys.unraisablehook is hook
+    _drop(KeyboardInterrupt())
+    assert [type(e) for e in reported] == [KeyboardInterrupt]
+    raise_dropped_interrupt()  # nothing kept outside the block
+
+
+def test_a_deferred_step_does_not_start_after_a_dropped_interrupt() -> None:
+    started = []
+    with interrupts_kept(), pytest.raises(KeyboardInterrupt):
+        _drop(KeyboardInterrupt())
+        with interrupts_deferred():
+            started.append(True)
+    assert started == []
+
+
+def test_a_console_script_exits_130_when_the_body_ends_after_a_dropped_interrupt(capsys):
+    with pytest.raises(SystemExit) as stop, exit_on_user_error("uss-x"):
+        _drop(KeyboardInterrupt())
+    assert stop.value.code == INTERRUPTED
+    assert capsys.readouterr().err.splitlines() == ["uss-x: interrupted"]
+
+
+def test_a_console_script_without_interrupt_ends_normally(monkeypatch) -> None:
+    reported = _reported(monkeypatch)
+    with exit_on_user_error("uss-x"):
+        _drop(ValueError("elsewhere"))
+    assert [str(e) for e in reported] == ["elsewhere"]
