@@ -8,6 +8,8 @@ from pathlib import Path
 
 import pytest
 from budget_downstream import (
+    baseline_folder,
+    baseline_text,
     downstream_ratio,
     export,
     main,
@@ -18,6 +20,7 @@ from budget_downstream import (
     pooled_lines,
     segeval,
     slam,
+    slam_repeats,
 )
 
 
@@ -31,6 +34,26 @@ def test_a_finished_job_is_read_not_run(tmp_path: Path) -> None:
     assert slam(job, ["no.such.key=1"]) == 0.25
     (job / "metrics.json").write_text(json.dumps({"ate": {"rmse": 0.5}}))
     assert slam(job, ["no.such.key=1"]) == 0.5
+
+
+def test_baselines_give_their_repeats_range_and_keep_a_folder_per_count(tmp_path: Path) -> None:
+    job = tmp_path / "none_r21"
+    job.mkdir()
+    (job / "metrics.json").write_text(
+        json.dumps({"ate": {"rmse": 0.5},
+                    "ate_rmse_repeats": {"median": 0.0037, "min": 0.0033, "max": 0.0047}})
+    )  # fmt: skip
+    assert slam_repeats(job, ["no.such.key=1"]) == (0.0037, 0.0033, 0.0047)
+    # the jobs with 3 repeats keep their folders: earlier outputs are still reused
+    assert baseline_folder("none", 3) == "none" and baseline_folder("oracle", 21) == "oracle_r21"
+    base = {"none": 0.0037, "oracle": 0.0036, "none_range": (0.0033, 0.0047)}
+    assert baseline_text(base) == "3.7 (3.3–4.7) / 3.6"
+
+
+def test_a_bad_baseline_repeat_count_is_one_error(tmp_path: Path, capsys) -> None:
+    with pytest.raises(SystemExit):
+        main(["--experiment", str(tmp_path), "--runs", str(tmp_path), "--baseline-repeats", "0"])
+    assert "--baseline-repeats: a count >= 1, got 0" in capsys.readouterr().err
 
 
 def test_a_failed_job_names_its_folder(tmp_path: Path) -> None:
