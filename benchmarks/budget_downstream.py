@@ -7,10 +7,12 @@ the claim can be checked at a budget where source-only has converged without re-
 whole grid. Each row ``R`` of ``--rows`` is ``RUNS/R_s<seed>/checkpoints/last.ckpt``; it is
 exported as ``R`` and as ``R+adabn`` (statistics re-estimated on 48 evenly spaced unlabelled
 target training frames of ``OUT/data/train``, as ``uss-experiments``' AdaBN exports), into
-``RUNS/exports/``. The SLAM jobs are those of ``uss-experiments`` (same overrides, 3 repeats):
-the harness with ``filters=[semantic]`` and ``[semantic,geometry]``, ORB-SLAM3 with the masked
-input; the unfiltered and ground-truth-mask baselines run once per sequence. Then, per system,
-filter and sequence, the downstream ratio (ATE_none − ATE_model) / (ATE_none − ATE_oracle) of
+``RUNS/exports/`` (``--models`` keeps some of them). The SLAM jobs are those of
+``uss-experiments`` (same overrides, 3 repeats): the harness with ``filters=[semantic]`` and
+``[semantic,geometry]``, ORB-SLAM3 with the masked input (and, asked for with ``--variants
+orbslam3:semantic_inpaint``, the same with ``system.blank_fill=inpaint``, its ratios taken
+against the grey ground-truth-mask baseline); the unfiltered and ground-truth-mask baselines run
+once per sequence. Then, per system, filter and sequence, the downstream ratio (ATE_none − ATE_model) / (ATE_none − ATE_oracle) of
 every model and seed (median ATE over repeats; on ``static_*`` sequences ATE_model / ATE_none)
 and each row's difference to ``--base``, paired by seed (with its mean and 95% Student-t
 interval over the seeds)::
@@ -60,8 +62,9 @@ ADABN_IMAGES = 48
 ADABN_BATCH_SIZE = 4
 SYSTEMS = {
     "harness": {"semantic": ["filters=[semantic]"], "semantic_geometry": ["filters=[semantic,geometry]"]},
-    "orbslam3": {"semantic": ["filters=[]"]},
+    "orbslam3": {"semantic": ["filters=[]"], "semantic_inpaint": ["filters=[]", "system.blank_fill=inpaint"]},
 }  # fmt: skip
+DEFAULT_VARIANTS = ("harness:semantic", "harness:semantic_geometry", "orbslam3:semantic")
 
 
 def export(runs: Path, row: str, seed: int, target: list[Path]) -> dict[str, Path]:
@@ -260,8 +263,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", type=Path)
     parser.add_argument("--plot", type=Path, help="also draw the ratios per seed into this PNG")
     every = [f"{system}:{v}" for system, variants in SYSTEMS.items() for v in variants]
-    parser.add_argument("--variants", default=",".join(every),
-                        help=f"system:filter cells to run (default: all, {','.join(every)})")  # fmt: skip
+    parser.add_argument("--variants", default=",".join(DEFAULT_VARIANTS),
+                        help=f"system:filter cells to run (default: {','.join(DEFAULT_VARIANTS)}; "
+                             f"all: {','.join(every)})")  # fmt: skip
+    parser.add_argument("--models",
+                        help="only these of the exported models (default: every row R of --rows "
+                             "and R+adabn), e.g. source_only,source_only+adabn")  # fmt: skip
     parser.add_argument("--pool", action="store_true",
                         help="also pool the walking sequences (renders of one preset): medians "
                              "over seeds x sequences, per-seed differences averaged over them")  # fmt: skip
@@ -289,9 +296,17 @@ def main(argv: list[str] | None = None) -> int:
     target = sorted(p for p in (out / "data" / "train" / "target_train").iterdir() if p.is_dir())
     seeds = [int(s) for s in args.seeds.split(",")]
     models = {seed: {} for seed in seeds}
+    names = [n for row in args.rows.split(",") for n in (row, f"{row}+adabn")]
+    kept = args.models.split(",") if args.models else names
+    unknown = [m for m in kept if m not in names]
+    if unknown:
+        parser.error(f"--models: unknown {','.join(unknown)}; the rows give {','.join(names)}")
+    if args.base not in kept:
+        parser.error(f"--models: must include --base {args.base}")
     for seed in seeds:
         for row in args.rows.split(","):
-            models[seed].update(export(args.runs, row, seed, target))
+            named = export(args.runs, row, seed, target)
+            models[seed].update({n: named[n] for n in named if n in kept})
     system_args = {
         "harness": [],
         "orbslam3": ["system=orbslam3", f"system.vocabulary={vocabulary}"],

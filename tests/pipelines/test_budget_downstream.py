@@ -154,3 +154,18 @@ def test_a_bad_segeval_stride_is_one_error(tmp_path: Path, capsys: pytest.Captur
     with pytest.raises(SystemExit):
         main(["--experiment", str(tmp_path), "--runs", str(tmp_path), "--segeval", "0"])
     assert "--segeval: a frame stride >= 1, got 0" in capsys.readouterr().err
+
+
+def test_models_outside_the_rows_or_without_the_base_are_one_error(tmp_path: Path, capsys):
+    (tmp_path / "data" / "orbslam3_vocabulary").mkdir(parents=True)
+    (tmp_path / "data" / "orbslam3_vocabulary" / "vocabulary.txt").write_text("")
+    (tmp_path / "data" / "eval" / "walking_xyz").mkdir(parents=True)
+    (tmp_path / "data" / "train" / "target_train").mkdir(parents=True)
+    common = ["--experiment", str(tmp_path), "--runs", str(tmp_path), "--sequences", "walking_xyz"]
+    with pytest.raises(SystemExit):
+        main([*common, "--models", "source_only,advent+adabn"])
+    err = capsys.readouterr().err
+    assert "--models: unknown advent+adabn; the rows give source_only,source_only+adabn," in err
+    with pytest.raises(SystemExit):
+        main([*common, "--models", "source_only+adabn"])
+    assert "--models: must include --base source_only" in capsys.readouterr().err

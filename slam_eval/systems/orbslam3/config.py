@@ -43,6 +43,9 @@ class OrbSlam3Config:
     """Feed frames no faster than their stamps (as ORB-SLAM3's ``rgbd_tum`` example)."""
     blank_value: int = 128
     """Grey level (0-255) of the blanked dynamic pixels in the colour image."""
+    blank_fill: str = "grey"
+    """``grey`` (flat ``blank_value``) or ``inpaint`` (continued from the pixels around the
+    mask: a weaker edge where a mask covers only part of a walker)."""
 
     def __post_init__(self) -> None:
         checks = [
@@ -55,6 +58,7 @@ class OrbSlam3Config:
             (self.th_depth > 0, "th_depth", "a number > 0"),
             (self.fps is None or self.fps >= 1, "fps", "null or an integer >= 1"),
             (0 <= self.blank_value <= 255, "blank_value", "a grey level 0..255"),
+            (self.blank_fill in ("grey", "inpaint"), "blank_fill", "grey or inpaint"),
         ]
         for ok, key, expected in checks:
             if not ok:

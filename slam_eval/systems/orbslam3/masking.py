@@ -1,13 +1,16 @@
 """Dynamic pixels for ORB-SLAM3, which takes no masks: the segmenter's dynamic classes, dilated
-exactly as the harness's semantic filter, are blanked in its input (grey colour, depth 0), and the
-masks of every frame are computed once for all repeats.
+exactly as the harness's semantic filter, are blanked in its input (depth 0; the colour flat grey,
+or filled from the surroundings by inpainting), and the masks of every frame, and the inpainted
+images, are computed once for all repeats.
 """
 
 from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
+import cv2
 import numpy as np
 
 from uss_slam.core.errors import UssSlamError
@@ -24,19 +27,62 @@ def dynamic_mask(labels: np.ndarray, semantic: SemanticFilter) -> np.ndarray:
     return semantic.mask(labels) > 0
 
 
+FILLS = ("grey", "inpaint")
+"""How the colour of blanked pixels is filled (``system.blank_fill``)."""
+
+INPAINT_RADIUS = 5
+"""Pixels around each filled point that ``cv2.inpaint`` (Telea) takes its colour from."""
+
+
+def fill_dynamic(rgb: np.ndarray, mask: np.ndarray, fill: str = "grey", value: int = 128):
+    """A copy of ``rgb`` (H, W, 3) uint8 with the ``mask`` pixels filled: flat grey ``value``
+    (``grey``), or continued from the pixels around the mask (``inpaint``: ``cv2.inpaint``,
+    Telea). A mask that covers only part of a walker leaves an edge across him that moves with
+    him; inpainting leaves a weaker one there than flat grey, so fewer corners on the walker
+    (``benchmarks/orbslam3_partial_masks.py``)."""
+    if fill == "grey":
+        out = rgb.copy()
+        out[mask] = value
+        return out
+    if fill == "inpaint":
+        return cv2.inpaint(rgb, mask.astype(np.uint8), INPAINT_RADIUS, cv2.INPAINT_TELEA)
+    raise UssSlamError(f"system.blank_fill={fill!r}: expected one of {', '.join(FILLS)}")
+
+
 def blank_dynamic(
-    rgb: np.ndarray, depth: np.ndarray, mask: np.ndarray | None, value: int = 128
+    rgb: np.ndarray,
+    depth: np.ndarray,
+    mask: np.ndarray | None,
+    value: int = 128,
+    filled: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Copies of ``rgb`` (H, W, 3) uint8 and ``depth`` (H, W) float32 with the ``mask`` pixels
-    set to grey ``value`` and to depth 0 (no measurement); the inputs themselves when ``mask``
-    is None or empty."""
+    set to grey ``value`` (or, given ``filled``, the colour image replaced by it: the frame as
+    :func:`fill_dynamic` filled it) and to depth 0 (no measurement); the inputs themselves when
+    ``mask`` is None or empty."""
     if mask is None or not mask.any():
         return rgb, depth
-    rgb = rgb.copy()
     depth = depth.copy()
-    rgb[mask] = value
     depth[mask] = 0.0
-    return rgb, depth
+    if filled is not None:
+        return filled, depth
+    return fill_dynamic(rgb, mask, "grey", value), depth
+
+
+def filled_path(folder: str | Path, index: int) -> Path:
+    """Where :func:`compute_masks` keeps frame ``index`` filled (lossless PNG, BGR)."""
+    return Path(folder) / f"{index:06d}.png"
+
+
+def read_filled(folder: str | Path, index: int) -> np.ndarray | None:
+    """Frame ``index`` as :func:`compute_masks` filled it (RGB), or None (nothing blanked)."""
+    path = filled_path(folder, index)
+    if not path.is_file():
+        return None
+    bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if bgr is None:
+        raise UssSlamError(f"{path}: not a readable PNG (the inpainted frame)")
+    return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
 
 
 @dataclass
@@ -49,16 +95,28 @@ class MaskPass:
     """Mean fraction of the image blanked per frame."""
     segmentation_ms: float
     """Mean wall milliseconds of the segmenter per frame."""
+    fill_ms: float = 0.0
+    """Mean wall milliseconds per frame of inpainting (``fill_dir``), 0 for grey."""
 
 
 def compute_masks(
-    sequence: TumSequence, segmenter: Segmenter, semantic: SemanticFilter, progress: bool = True
+    sequence: TumSequence,
+    segmenter: Segmenter,
+    semantic: SemanticFilter,
+    progress: bool = True,
+    fill_dir: Path | None = None,
 ) -> MaskPass:
-    """Segment every frame once (shared by all repeats) and keep its dilated dynamic mask."""
+    """Segment every frame once (shared by all repeats) and keep its dilated dynamic mask; with
+    ``fill_dir``, also write every frame with a masked pixel there inpainted
+    (:func:`fill_dynamic`, :func:`filled_path`), so that the repeats feed ORB-SLAM3 at the
+    same pace as with grey."""
     width, height = sequence.image_size
     packed = np.zeros((len(sequence), (width * height + 7) // 8), np.uint8)
     spent = 0.0
+    filling = 0.0
     blanked = 0
+    if fill_dir is not None:
+        fill_dir.mkdir(parents=True, exist_ok=True)
     frames = sequence.frames()
     try:
         for frame in progress_bar(
@@ -79,7 +137,17 @@ def compute_masks(
             mask = dynamic_mask(labels, semantic)
             blanked += int(mask.sum())
             packed[frame.index] = np.packbits(mask.reshape(-1))
+            if fill_dir is not None and mask.any():
+                start = time.perf_counter()
+                filled = fill_dynamic(frame.rgb, mask, "inpaint")
+                filling += time.perf_counter() - start
+                path = filled_path(fill_dir, frame.index)
+                if not cv2.imwrite(str(path), cv2.cvtColor(filled, cv2.COLOR_RGB2BGR)):
+                    raise UssSlamError(f"{path}: could not be written (the inpainted frame)")
     finally:
         frames.close()
     n = max(len(sequence), 1)
-    return MaskPass(packed, (height, width), blanked / (n * width * height), 1000 * spent / n)
+    return MaskPass(
+        packed, (height, width), blanked / (n * width * height), 1000 * spent / n,
+        1000 * filling / n,
+    )  # fmt: skip

@@ -62,6 +62,8 @@ def write_outputs(
             "dynamic_classes": _class_names(semantic),
             "dilation": semantic.dilation,
             "grey": config.blank_value,
+            "fill": config.blank_fill,
+            "fill_ms": mask_pass.fill_ms,
             "fraction": mask_pass.blanked_fraction,
             "segmentation_ms": mask_pass.segmentation_ms,
         },
@@ -138,13 +140,19 @@ def _package_version(name: str) -> str | None:
         return None
 
 
+def _fill_text(blanked: dict[str, Any]) -> str:
+    if blanked.get("fill", "grey") == "grey":
+        return f"blanked to grey {blanked['grey']}"
+    return f"inpainted ({blanked['fill_ms']:.0f} ms per frame)"
+
+
 def _summary_md(data: dict[str, Any]) -> list[str]:
     blanked = data["blanked"]
     masking = (
         "none (segmenter=none)"
         if blanked is None
         else f"{', '.join(blanked['dynamic_classes'])} from segmenter {data['segmenter']}, dilated "
-        f"{blanked['dilation']} px, blanked to grey {blanked['grey']} and depth 0 "
+        f"{blanked['dilation']} px, {_fill_text(blanked)} and depth 0 "
         f"({100 * blanked['fraction']:.1f}% of the pixels per frame on average; segmentation "
         f"{blanked['segmentation_ms']:.1f} ms per frame)"
     )

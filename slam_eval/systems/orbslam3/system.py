@@ -13,7 +13,8 @@ the numbers are comparable:
 - **Dynamic objects**: ORB-SLAM3 takes no masks, so the segmenter's dynamic classes, dilated
   exactly as the harness's semantic filter (``slam.filter_params.semantic``: ``dynamic_classes``,
   ``dilation``), are *blanked* in its input (:func:`~.masking.blank_dynamic`): the colour image is set to a
-  flat grey (``system.blank_value``, default 128) and the depth to 0 there. A flat region has no
+  flat grey (``system.blank_value``, default 128; ``system.blank_fill=inpaint`` fills it from
+  the pixels around it instead) and the depth to 0 there. A flat region has no
   FAST corners inside; only its border can, where it meets the image. Grey rather than black:
   the border's contrast against a typical scene is smaller, so fewer corners appear on the
   silhouette (walking_xyz: 126 ORB keypoints per frame within 10 px of the mask with grey 128,
@@ -143,8 +144,10 @@ def run_orbslam3(
         workdir = Path(tmp)
         masks_file = None
         mask_pass = None
+        fill_dir = None
         if getattr(segmenter, "name", "none") != "none":
-            mask_pass = compute_masks(sequence, segmenter, semantic, progress)
+            fill_dir = workdir / "filled" if config.blank_fill == "inpaint" else None
+            mask_pass = compute_masks(sequence, segmenter, semantic, progress, fill_dir)
             masks_file = workdir / "masks.npy"
             np.save(masks_file, mask_pass.packed)
         results: list[RepeatResult] = []
@@ -162,6 +165,7 @@ def run_orbslam3(
                     rgb=info.rgb,
                     masks=None if masks_file is None else str(masks_file),
                     blank_value=config.blank_value,
+                    filled=None if fill_dir is None else str(fill_dir),
                     realtime=config.realtime,
                     trajectory=str(trajectory_path),
                     result=str(workdir / f"result_{i}.json"),

@@ -19,7 +19,7 @@ import numpy as np
 from uss_slam.core.errors import UssSlamError
 
 from ...sequence import TumSequence
-from .masking import blank_dynamic
+from .masking import blank_dynamic, read_filled
 
 
 @dataclass(frozen=True)
@@ -33,6 +33,8 @@ class Job:
     rgb: bool
     masks: str | None
     blank_value: int
+    filled: str | None
+    """The folder of the inpainted frames (``system.blank_fill=inpaint``), or None (grey)."""
     realtime: bool
     trajectory: str
     result: str
@@ -91,7 +93,8 @@ def work(job_path: str) -> None:
             if masks is not None:
                 bits = np.unpackbits(masks[frame.index], count=width * height)
                 mask = bits.reshape(height, width).astype(bool)
-            rgb, depth = blank_dynamic(frame.rgb, frame.depth, mask, job.blank_value)
+            filled = None if job.filled is None else read_filled(job.filled, frame.index)
+            rgb, depth = blank_dynamic(frame.rgb, frame.depth, mask, job.blank_value, filled)
             if not job.rgb:
                 rgb = np.ascontiguousarray(rgb[:, :, ::-1])
             if job.depth_factor != 1.0:

@@ -18,8 +18,15 @@ from uss_slam.slam_eval.filters.dynamic import SemanticFilter
 from uss_slam.slam_eval.scoring.evaluation import EvalConfig
 from uss_slam.slam_eval.scoring.repeats import median_index
 from uss_slam.slam_eval.segmenters.base import LabelsSegmenter, NoSegmenter
+from uss_slam.slam_eval.sequence import TumSequence
 from uss_slam.slam_eval.systems.orbslam3.config import OrbSlam3Config, check_vocabulary
-from uss_slam.slam_eval.systems.orbslam3.masking import blank_dynamic, dynamic_mask
+from uss_slam.slam_eval.systems.orbslam3.masking import (
+    blank_dynamic,
+    compute_masks,
+    dynamic_mask,
+    fill_dynamic,
+    read_filled,
+)
 from uss_slam.slam_eval.systems.orbslam3.settings import check_settings, frame_rate, settings_yaml
 from uss_slam.slam_eval.systems.orbslam3.system import SequenceSpec, run_orbslam3
 from uss_slam.slam_eval.systems.orbslam3.vocabulary import build_from_sequences, read_vocabulary
@@ -146,6 +153,54 @@ def test_blanked_pixels_are_exactly_the_dilated_mask() -> None:
     assert same_rgb is rgb and same_depth is depth
 
 
+def test_inpainting_leaves_a_weaker_edge_across_a_partly_masked_walker() -> None:
+    """A mask over the left part of a walker: grey leaves a strong edge across him, inpainting
+    continues his colour; pixels outside the mask are never changed."""
+    h, w = 60, 80
+    rgb = np.full((h, w, 3), 90, np.uint8)
+    rgb[10:50, 20:60] = (200, 60, 60)  # the walker
+    mask = np.zeros((h, w), bool)
+    mask[5:55, 10:40] = True  # covers his left half only
+    depth = np.full((h, w), 2.0, np.float32)
+    grey_rgb, grey_depth = blank_dynamic(rgb, depth, mask, 128)
+    inpainted = fill_dynamic(rgb, mask, "inpaint")
+    for out in (grey_rgb, inpainted):
+        assert np.array_equal(out[~mask], rgb[~mask])
+
+    def edge(img: np.ndarray) -> float:  # across the mask's right edge, on the walker
+        return float(np.abs(img[15:45, 39].astype(int) - img[15:45, 40].astype(int)).mean())
+
+    assert edge(grey_rgb) > 60 and edge(inpainted) < 15
+    rgb_filled, depth_filled = blank_dynamic(rgb, depth, mask, 128, inpainted)
+    assert rgb_filled is inpainted and np.array_equal(depth_filled, grey_depth)
+    assert np.all(depth_filled[mask] == 0.0) and np.all(depth_filled[~mask] == 2.0)
+    with pytest.raises(UssSlamError, match="system.blank_fill='blur': expected one of grey"):
+        fill_dynamic(rgb, mask, "blur")
+    with pytest.raises(UssSlamError, match="system.blank_fill='blur': expected grey or inpaint"):
+        OrbSlam3Config(blank_fill="blur")
+
+
+def test_the_inpainted_frames_are_written_once_losslessly(synthetic_sequence, tmp_path) -> None:
+    seq = TumSequence(synthetic_sequence(preset="walking_xyz", frames=4, size=(160, 120)),
+                      load_labels=True)  # fmt: skip
+    semantic = SemanticFilter(["person"], 5)
+    folder = tmp_path / "filled"
+    masks = compute_masks(seq, LabelsSegmenter(), semantic, progress=False, fill_dir=folder)
+    assert masks.fill_ms > 0
+    written = 0
+    for frame in seq.frames():
+        mask = dynamic_mask(frame.labels, semantic)
+        filled = read_filled(folder, frame.index)
+        if not mask.any():
+            assert filled is None
+            continue
+        written += 1
+        assert np.array_equal(filled, fill_dynamic(frame.rgb, mask, "inpaint"))
+    assert written == len(list(folder.iterdir())) > 0
+    grey = compute_masks(seq, LabelsSegmenter(), semantic, progress=False)
+    assert grey.fill_ms == 0.0 and np.array_equal(grey.packed, masks.packed)
+
+
 def test_median_run_and_frame_rate() -> None:
     assert median_index([0.3, 0.1, 0.2]) == 2
     assert median_index([0.3, 0.1]) == 1  # an even count: the lower middle run
@@ -216,6 +271,20 @@ def test_orbslam3_tracks_with_a_vocabulary_built_from_frames(
     )
     assert data["blanked"] is None and data["orbslam3"]["settings_file"] == str(own)
     assert data["frames"] == 10 and data["tracking_states"] == {"OK": 10}
+
+    # Inpainted instead of grey: the same masks, the frames filled once before the repeats.
+    data = run_orbslam3(
+        SequenceSpec(str(seq), max_frames=10),
+        LabelsSegmenter(),
+        SemanticFilter(["person"], 5),
+        OrbSlam3Config(vocabulary=str(vocab), repeats=1, realtime=False, blank_fill="inpaint"),
+        EvalConfig(),
+        tmp_path / "inpaint",
+        progress=False,
+    )
+    assert data["blanked"]["fill"] == "inpaint" and data["blanked"]["fill_ms"] > 0
+    assert data["tracking_states"] == {"OK": 10}
+    assert "inpainted (" in (tmp_path / "inpaint" / "report.md").read_text()
 
     # Everything blanked: ORB-SLAM3 finds no corner and never initialises; every frame is
     # counted as untracked, the repeat's (empty) trajectory is kept and ATE says why it is absent.
