@@ -38,6 +38,11 @@ run-to-run spread moves all rows together (ORB-SLAM3 unfiltered on static_xyz: 3
 4.7 mm in three repeats), and they are only two jobs per sequence. The table gives each
 baseline's median with the range of its repeats.
 
+When a system runs more than one filter (``--variants orbslam3:semantic,orbslam3:semantic_inpaint``),
+each is also compared with the first, model by model: per row, the median ratio over seeds ×
+walking sequences and, per seed, the mean over the sequences of filter − first filter, with its
+interval over the seeds.
+
 ``--plot`` draws one panel per system, filter and sequence: each seed's ratio for every row,
 joined across the rows (the pairing the differences use), the median over seeds as a bar, and
 the reference lines (0 = no filter, 1 = ground-truth masks, 0.5 = the target; on ``static_*``
@@ -165,6 +170,25 @@ def pooled_lines(title: str, pool: dict[str, Any], base: str) -> list[str]:
         paired = paired_text(entry["paired"]) if "paired" in entry else "—"
         lines.append(f"| {row} | {entry['median']:.3f} (n = {entry['n']}) | {paired} |")
     return lines
+
+
+def filter_comparisons(
+    ate: dict[str, Any], walking: list[str], rows: list[str], seeds: list[int]
+) -> dict[str, tuple[list[str], dict[str, Any]]]:
+    """Per system that ran more than one filter on every walking sequence: (its filters, per
+    row :func:`pooled` over the sequences with the filters as its rows, against the first)."""
+    out = {}
+    for system in SYSTEMS:
+        ran = [v for v in SYSTEMS[system]
+               if walking and all(v in ate.get(f"{system}/{q}", {}) for q in walking)]  # fmt: skip
+        if len(ran) < 2:
+            continue
+        out[system] = (ran, {
+            row: pooled({q: {v: {s: ate[f"{system}/{q}"][v][row][s]["ratio"] for s in seeds}
+                             for v in ran} for q in walking}, ran, ran[0], seeds)
+            for row in rows
+        })  # fmt: skip
+    return out
 
 
 def downstream_ratio(sequence: str, base: dict[str, float], ate: float) -> float:
@@ -401,6 +425,13 @@ def main(argv: list[str] | None = None) -> int:
             print()
             print(f"Pooled over {', '.join(per_sequence)}: downstream ratio")
             print("\n".join(pooled_lines(f"{system}, {variant}", pool, args.base)))
+    for system, (ran, by_row) in filter_comparisons(ate, walking, rows, seeds).items():
+        print()
+        print(f"{system}: each filter against {ran[0]}, same model, seed and sequence; pooled "
+              f"over {', '.join(walking)}: downstream ratio")  # fmt: skip
+        for row, pool in by_row.items():
+            pools[f"{system}/filters/{row}"] = pool
+            print("\n".join(pooled_lines(row, pool, ran[0])))
     seg: dict[str, Any] = {}
     if args.segeval is not None:
         for q in sequences:

@@ -12,6 +12,7 @@ from budget_downstream import (
     baseline_text,
     downstream_ratio,
     export,
+    filter_comparisons,
     main,
     paired_difference,
     paired_text,
@@ -169,3 +170,24 @@ def test_models_outside_the_rows_or_without_the_base_are_one_error(tmp_path: Pat
     with pytest.raises(SystemExit):
         main([*common, "--models", "source_only+adabn"])
     assert "--models: must include --base source_only" in capsys.readouterr().err
+
+
+def test_two_filters_of_one_system_are_compared_model_by_model() -> None:
+    def cell(grey: float, step: float) -> dict:
+        return {
+            "semantic": {"m": {0: {"ratio": grey}, 1: {"ratio": grey + 0.1}}},
+            "semantic_inpaint": {"m": {0: {"ratio": grey + step}, 1: {"ratio": grey + 0.1}}},
+        }
+
+    ate = {"orbslam3/a": cell(0.2, 0.4), "orbslam3/b": cell(0.4, 0.2), "harness/a": {}}
+    out = filter_comparisons(ate, ["a", "b"], ["m"], [0, 1])
+    assert list(out) == ["orbslam3"]  # the harness ran one filter: nothing to compare
+    ran, by_row = out["orbslam3"]
+    assert ran == ["semantic", "semantic_inpaint"]
+    pool = by_row["m"]
+    assert pool["semantic"]["median"] == pytest.approx(0.35) and pool["semantic"]["n"] == 4
+    # seed 0: inpaint − grey is +0.4 and +0.2 on the two sequences (mean +0.3); seed 1: 0
+    assert pool["semantic_inpaint"]["paired"]["values"] == pytest.approx([0.3, 0.0])
+    # a filter missing on one walking sequence is not compared
+    del ate["orbslam3/b"]["semantic_inpaint"]
+    assert filter_comparisons(ate, ["a", "b"], ["m"], [0, 1]) == {}
