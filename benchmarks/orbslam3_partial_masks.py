@@ -7,11 +7,12 @@ FAST fires on that edge. This counts, for every ``--stride``-th frame with peopl
 sequence and for every ``--model`` (an ONNX export; ``labels`` for the ground-truth masks), the
 ORB keypoints (cv2, ORB-SLAM's 1000 features / 1.2 / 8 levels / FAST 20, ranked by FAST
 response) that land on the walkers (ground-truth person pixels) with a depth, i.e. the ones
-ORB-SLAM3 can turn into map points, in the image as it is and as each fill leaves it:
+ORB-SLAM3 can turn into map points, in the image as it is and as each fill leaves it (the
+colour image filled as ``uss-slam`` fills it, then converted to grey as ORB-SLAM3 does):
 
-- ``grey``: the mask set to grey 128 (what ``uss-slam`` does, ``system.blank_value``);
-- ``inpaint``: the mask filled from its surroundings (``cv2.inpaint``, Telea, radius 5), a smooth
-  continuation with a weaker edge;
+- ``grey``: the mask set to grey 128 (``system.blank_fill=grey``, the default);
+- ``inpaint``: the mask filled from its surroundings (``system.blank_fill=inpaint``:
+  ``cv2.inpaint``, Telea, radius 5), a smooth continuation with a weaker edge;
 - ``smooth``: the mask filled with the mean of the unmasked pixels around it, Gaussian-weighted
   (sigma 15 px: a normalised convolution; two blurs, much cheaper than inpainting).
 
@@ -37,31 +38,42 @@ import numpy as np
 from uss_slam.core.classes import CLASS_NAMES
 from uss_slam.slam_eval.filters.dynamic import SemanticFilter
 from uss_slam.slam_eval.sequence import TumSequence
-from uss_slam.slam_eval.systems.orbslam3.masking import dynamic_mask
+from uss_slam.slam_eval.systems.orbslam3.masking import (
+    blank_dynamic,
+    dynamic_mask,
+    fill_dynamic,
+)
 from uss_slam.slam_eval.systems.orbslam3.vocabulary import ORB_SETTINGS
 
 FILLS = ("unblanked", "grey", "inpaint", "smooth")
 PERSON = CLASS_NAMES.index("person")
 
 
-def fill(gray: np.ndarray, mask: np.ndarray, how: str) -> np.ndarray:
-    """``gray`` with the ``mask`` pixels filled ``how`` (one of :data:`FILLS`)."""
-    if how == "unblanked" or not mask.any():
-        return gray
-    if how == "grey":
-        out = gray.copy()
-        out[mask] = 128
-        return out
-    if how == "inpaint":
-        return cv2.inpaint(gray, mask.astype(np.uint8), 5, cv2.INPAINT_TELEA)
-    if how == "smooth":
-        keep = (~mask).astype(np.float32)
-        num = cv2.GaussianBlur(gray.astype(np.float32) * keep, (0, 0), 15)
-        den = cv2.GaussianBlur(keep, (0, 0), 15)
-        out = gray.copy()
-        out[mask] = np.clip(num[mask] / np.maximum(den[mask], 1e-6), 0, 255).astype(np.uint8)
-        return out
-    raise ValueError(f"fill: one of {', '.join(FILLS)}, got {how!r}")
+def smooth_fill(rgb: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """``rgb`` with the ``mask`` pixels set to the Gaussian-weighted mean (sigma 15 px) of the
+    unmasked pixels around them (a normalised convolution)."""
+    keep = (~mask).astype(np.float32)
+    num = cv2.GaussianBlur(rgb.astype(np.float32) * keep[..., None], (0, 0), 15)
+    den = cv2.GaussianBlur(keep, (0, 0), 15)[..., None]
+    out = rgb.copy()
+    out[mask] = np.clip(num / np.maximum(den, 1e-6), 0, 255).astype(np.uint8)[mask]
+    return out
+
+
+def filled(frame: Any, mask: np.ndarray, how: str) -> tuple[np.ndarray, np.ndarray]:
+    """(grey image, depth) of ``frame`` as ORB-SLAM3 gets it with the ``mask`` filled ``how``
+    (one of :data:`FILLS`): the colour image filled as ``uss-slam`` fills it
+    (:func:`blank_dynamic`, :func:`fill_dynamic`), then converted to grey as ORB-SLAM3 does."""
+    if how == "unblanked":
+        return frame.gray, frame.depth
+    if how not in FILLS:
+        raise ValueError(f"fill: one of {', '.join(FILLS)}, got {how!r}")
+    other = {"grey": None, "inpaint": lambda: fill_dynamic(frame.rgb, mask, "inpaint"),
+             "smooth": lambda: smooth_fill(frame.rgb, mask)}[how]  # fmt: skip
+    rgb, depth = blank_dynamic(
+        frame.rgb, frame.depth, mask, 128, None if other is None else other()
+    )
+    return cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY), depth
 
 
 def count(gray: np.ndarray, depth: np.ndarray, walker: np.ndarray, orb: Any) -> tuple[int, int]:
@@ -91,8 +103,8 @@ def measure(seq: TumSequence, masks: dict[int, np.ndarray], orb: Any) -> dict[st
         hit += int((walker & mask).sum())
         people += int(walker.sum())
         for how in FILLS:
-            depth = frame.depth if how == "unblanked" else np.where(mask, 0.0, frame.depth)
-            dyn, total = count(fill(frame.gray, mask, how), depth, walker, orb)
+            gray, depth = filled(frame, mask, how)
+            dyn, total = count(gray, depth, walker, orb)
             sums[how][0] += dyn
             sums[how][1] += total
             sums[how][2] += dyn / max(total, 1)
