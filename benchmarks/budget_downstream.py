@@ -12,8 +12,8 @@ target training frames of ``OUT/data/train``, as ``uss-experiments``' AdaBN expo
 ``[semantic,geometry]``, ORB-SLAM3 with the masked input (and, asked for with ``--variants
 orbslam3:semantic_inpaint``, the same with ``system.blank_fill=inpaint``, its ratios taken
 against the grey ground-truth-mask baseline); the unfiltered and ground-truth-mask baselines run
-once per sequence. Then, per system, filter and sequence, the downstream ratio (ATE_none − ATE_model) / (ATE_none − ATE_oracle) of
-every model and seed (median ATE over repeats; on ``static_*`` sequences ATE_model / ATE_none)
+once per sequence. Then, per system, filter and sequence, the downstream ratio
+(ATE_none − ATE_model) / (ATE_none − ATE_oracle) of every model and seed (median ATE over repeats; on ``static_*`` sequences ATE_model / ATE_none)
 and each row's difference to ``--base``, paired by seed (with its mean and 95% Student-t
 interval over the seeds)::
 
@@ -335,7 +335,7 @@ def main(argv: list[str] | None = None) -> int:
         "harness": [],
         "orbslam3": ["system=orbslam3", f"system.vocabulary={vocabulary}"],
     }
-    repeats = {"harness": "slam.repeats=3", "orbslam3": "system.repeats=3"}
+    repeats_key = {"harness": "slam.repeats", "orbslam3": "system.repeats"}
     ate: dict[str, Any] = {}
     root = args.runs / "slam"
     for sequence in sequences:
@@ -344,9 +344,9 @@ def main(argv: list[str] | None = None) -> int:
             variants = {v: o for v, o in variants.items() if f"{system}:{v}" in chosen}
             if not variants:
                 continue
-            common = [path, *system_args[system], repeats[system]]
+            common = [path, *system_args[system], f"{repeats_key[system]}=3"]
             k = args.baseline_repeats
-            baseline = [path, *system_args[system], f"{repeats[system].split('=')[0]}={k}"]
+            baseline = [path, *system_args[system], f"{repeats_key[system]}={k}"]
             filters_off = "filters=[]"
             folder = root / system / sequence
             none = slam_repeats(folder / baseline_folder("none", k),

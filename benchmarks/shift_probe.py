@@ -93,7 +93,8 @@ def knob_overrides(row: str) -> list[str]:
     """The overrides of a row ``<method>[+<knob>]...``: a knob is a name of :data:`FLAGS` or
     ``adv<k>`` / ``dlr<k>`` / ``lr<k>`` / ``ent<k>`` (k times the adversarial weights, the
     discriminators' learning rate, the segmenter's learning rate or MinEnt's weights) or
-    ``thr<p>`` (self-training's pseudo-label confidence threshold p), e.g. ``adaptsegnet+running+adv10``, ``self_training+thr0.9``."""
+    ``thr<p>`` (self-training's pseudo-label confidence threshold p), e.g.
+    ``adaptsegnet+running+adv10``, ``self_training+thr0.9``."""
     method, *knobs = row.split("+")
     out = [f"model/method={method}"]
     for knob in knobs:

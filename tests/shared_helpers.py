@@ -274,3 +274,22 @@ def outside_staging(files: Mapping[str, str]) -> dict[str, str]:
     """A ``{relative path: digest}`` snapshot of a run folder without the files of its
     ``uss-slam`` staging folders (``.uss-slam-new.<random>/``), which a running run fills."""
     return {k: v for k, v in files.items() if not k.startswith(".uss-slam-new.")}
+
+
+def drop_in_weakref_callback(error: BaseException) -> None:
+    """Make Python drop ``error`` (report it to ``sys.unraisablehook`` and carry on) by raising
+    it in a weakref callback: what a Ctrl-C landing during an import's module lock does."""
+    import gc
+    import weakref
+
+    class Thing:
+        pass
+
+    def callback(_ref: object) -> None:
+        raise error
+
+    thing = Thing()
+    ref = weakref.ref(thing, callback)
+    del thing
+    gc.collect()
+    assert ref() is None

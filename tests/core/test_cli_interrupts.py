@@ -3,11 +3,10 @@ raised later, so a console script never finishes as if no one had pressed it."""
 
 from __future__ import annotations
 
-import gc
 import sys
-import weakref
 
 import pytest
+from shared_helpers import drop_in_weakref_callback
 
 from uss_slam.core.cli import (
     INTERRUPTED,
@@ -18,26 +17,9 @@ from uss_slam.core.cli import (
 )
 
 
-class _Thing:
-    pass
-
-
-def _drop(error: BaseException) -> None:
-    """Make Python drop ``error``: raised in a weakref callback, as SIGINT can land there."""
-
-    def callback(_ref: object) -> None:
-        raise error
-
-    thing = _Thing()
-    ref = weakref.ref(thing, callback)
-    del thing
-    gc.collect()
-    assert ref() is None
-
-
 def test_a_dropped_interrupt_is_silent_and_raised_at_the_next_check(capsys) -> None:
     with interrupts_kept():
-        _drop(KeyboardInterrupt())
+        drop_in_weakref_callback(KeyboardInterrupt())
         assert capsys.readouterr().err == ""  # not "Exception ignored in ..."
         with pytest.raises(KeyboardInterrupt):
             raise_dropped_interrupt()
@@ -54,7 +36,7 @@ def _reported(monkeypatch) -> list[BaseException]:
 def test_other_dropped_errors_are_still_reported(monkeypatch) -> None:
     reported = _reported(monkeypatch)
     with interrupts_kept():
-        _drop(ValueError("boom"))
+        drop_in_weakref_callback(ValueError("boom"))
         raise_dropped_interrupt()  # not an interrupt: nothing to raise
     assert [str(e) for e in reported] == ["boom"]
 
@@ -65,7 +47,7 @@ def test_outside_the_block_python_reports_it_as_before(monkeypatch) -> None:
     with interrupts_kept():
         assert sys.unraisablehook is not hook
     assert sys.unraisablehook is hook
-    _drop(KeyboardInterrupt())
+    drop_in_weakref_callback(KeyboardInterrupt())
     assert [type(e) for e in reported] == [KeyboardInterrupt]
     raise_dropped_interrupt()  # nothing kept outside the block
 
@@ -73,7 +55,7 @@ def test_outside_the_block_python_reports_it_as_before(monkeypatch) -> None:
 def test_a_deferred_step_does_not_start_after_a_dropped_interrupt() -> None:
     started = []
     with interrupts_kept(), pytest.raises(KeyboardInterrupt):
-        _drop(KeyboardInterrupt())
+        drop_in_weakref_callback(KeyboardInterrupt())
         with interrupts_deferred():
             started.append(True)
     assert started == []
@@ -81,7 +63,7 @@ def test_a_deferred_step_does_not_start_after_a_dropped_interrupt() -> None:
 
 def test_a_console_script_exits_130_when_the_body_ends_after_a_dropped_interrupt(capsys):
     with pytest.raises(SystemExit) as stop, exit_on_user_error("uss-x"):
-        _drop(KeyboardInterrupt())
+        drop_in_weakref_callback(KeyboardInterrupt())
     assert stop.value.code == INTERRUPTED
     assert capsys.readouterr().err.splitlines() == ["uss-x: interrupted"]
 
@@ -89,5 +71,5 @@ def test_a_console_script_exits_130_when_the_body_ends_after_a_dropped_interrupt
 def test_a_console_script_without_interrupt_ends_normally(monkeypatch) -> None:
     reported = _reported(monkeypatch)
     with exit_on_user_error("uss-x"):
-        _drop(ValueError("elsewhere"))
+        drop_in_weakref_callback(ValueError("elsewhere"))
     assert [str(e) for e in reported] == ["elsewhere"]

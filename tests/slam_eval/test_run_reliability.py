@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 import yaml
-from shared_helpers import outside_staging
+from shared_helpers import drop_in_weakref_callback, outside_staging
 
 import uss_slam.configs
 from uss_slam.core.files import file_sha256
@@ -514,9 +514,6 @@ def test_relative_out_dir(earlier, tmp_path: Path, monkeypatch) -> None:
 def test_a_ctrl_c_python_dropped_stops_the_commit_and_keeps_the_earlier_run(tmp_path: Path):
     """SIGINT that lands in a weakref callback (an import's module lock) is dropped by Python:
     the run must still not replace the earlier one, and nothing staged is left."""
-    import gc
-    import weakref
-
     from uss_slam.core.cli import interrupts_kept
 
     root = tmp_path / "run"
@@ -525,20 +522,10 @@ def test_a_ctrl_c_python_dropped_stops_the_commit_and_keeps_the_earlier_run(tmp_
     old.commit()
     before = _snapshot(root)
 
-    class Thing:
-        pass
-
-    def callback(_ref: object) -> None:
-        raise KeyboardInterrupt
-
     new = RunFolder.start(root)
     new.write_text("metrics.json", "new\n")
     with interrupts_kept():
-        thing = Thing()
-        ref = weakref.ref(thing, callback)
-        del thing
-        gc.collect()
-        assert ref() is None
+        drop_in_weakref_callback(KeyboardInterrupt())
         with pytest.raises(KeyboardInterrupt):
             new.commit()
     new.discard()

@@ -9,6 +9,7 @@ from pathlib import Path
 
 from uss_slam.core.errors import DataFormatError, UssSlamError
 
+from .masking import FILLS
 from .vocabulary import read_header
 
 INSTALL_HINT = "pip install 'uss-slam[orbslam3]'"
@@ -58,7 +59,7 @@ class OrbSlam3Config:
             (self.th_depth > 0, "th_depth", "a number > 0"),
             (self.fps is None or self.fps >= 1, "fps", "null or an integer >= 1"),
             (0 <= self.blank_value <= 255, "blank_value", "a grey level 0..255"),
-            (self.blank_fill in ("grey", "inpaint"), "blank_fill", "grey or inpaint"),
+            (self.blank_fill in FILLS, "blank_fill", " or ".join(FILLS)),
         ]
         for ok, key, expected in checks:
             if not ok:

@@ -141,7 +141,7 @@ def _package_version(name: str) -> str | None:
 
 
 def _fill_text(blanked: dict[str, Any]) -> str:
-    if blanked.get("fill", "grey") == "grey":
+    if blanked["fill"] == "grey":
         return f"blanked to grey {blanked['grey']}"
     return f"inpainted ({blanked['fill_ms']:.0f} ms per frame)"
 
