@@ -50,6 +50,7 @@ from uss_slam.core.files import (
 from . import demo_data, demo_report
 from .demo_data import DemoData
 from .runs import (
+    RESUME_FROM,
     Segmenter,
     SlamJob,
     Variant,
@@ -166,17 +167,25 @@ def train_overrides(plan: Plan, data: Path, name: str, threads: int | None = Non
 
 
 def _train(run_dir: Path, overrides: list[str]) -> str:
-    metrics = run_training(run_dir, overrides)
+    metrics = run_training(run_dir, overrides, resume=True)
     write_json_atomic(run_dir / "metrics.json", metrics)
     miou = metrics.get("val/mIoU")
-    return "trained" + ("" if miou is None else f", val/mIoU {miou:.3f}")
+    start = metrics.get("resumed_from_iteration")
+    return (
+        "trained"
+        + ("" if start is None else f" (went on from iteration {int(start)})")
+        + ("" if miou is None else f", val/mIoU {miou:.3f}")
+    )
 
 
 def stage_train(run_dir: Path, overrides: list[str], data_key: str, force: bool) -> str:
+    """Train into ``run_dir`` unless done with the same key; an interrupted training of the
+    same key goes on from its ``last.ckpt`` (``--force``: from scratch)."""
     stage = Stage(
         run_dir,
         key={"stage": "train", "overrides": overrides, "data": data_key},
         outputs=(Path("checkpoints/*.ckpt"), Path("metrics.json")),
+        resume_from=RESUME_FROM,
     )
     return run_stage(stage, lambda: _train(run_dir, overrides), force)
 
@@ -403,9 +412,10 @@ def build_parser() -> argparse.ArgumentParser:
                              "groundtruth.txt (default: walking_xyz)")  # fmt: skip
     group = parser.add_mutually_exclusive_group()
     group.add_argument("--reuse", dest="force", action="store_false",
-                       help="reuse stages already complete with the same inputs (default)")  # fmt: skip
+                       help="reuse stages already complete with the same inputs, and go on "
+                            "with a training stopped half-way (default)")  # fmt: skip
     group.add_argument("--force", dest="force", action="store_true",
-                       help="redo every stage")  # fmt: skip
+                       help="redo every stage (trainings from scratch)")  # fmt: skip
     parser.set_defaults(force=False)  # (store_false would make --reuse's default True)
     parser.add_argument("--until", choices=STAGES, default="report", metavar="STAGE",
                         help="stop after this stage: " + ", ".join(STAGES) + " (default: "

@@ -20,6 +20,7 @@ import functools
 import hashlib
 import json
 import re
+import shutil
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -119,15 +120,50 @@ def compose_config(config_name: str, overrides: Sequence[str]) -> DictConfig:
 # ------------------------------------------------------------------------- training
 
 
-def run_training(run_dir: Path, overrides: Sequence[str]) -> dict[str, Any]:
+RESUME_FROM = Path("checkpoints/last.ckpt")
+"""The file an interrupted training goes on from (inside its run folder)."""
+
+
+def resume_point(run_dir: Path) -> int | None:
+    """The iteration an interrupted training in ``run_dir`` goes on from (its ``last.ckpt``), or
+    ``None`` when there is none. A ``last.ckpt`` that cannot be read (the run was killed while
+    writing it) is logged, and the run's checkpoints are removed: it starts again."""
+    import logging
+
+    from uss_slam.models.checkpoint import read_checkpoint
+
+    path = run_dir / RESUME_FROM
+    if not path.is_file():
+        return None
+    try:
+        iteration = read_checkpoint(path).iteration
+    except UssSlamError as error:
+        iteration, why = None, str(error)
+    else:
+        why = f"{path}: no 'iteration' (not a uss-train checkpoint)"
+    if iteration is None:
+        logging.getLogger(__name__).warning("%s; the training starts again", why)
+        shutil.rmtree(path.parent)
+    return iteration
+
+
+def run_training(run_dir: Path, overrides: Sequence[str], resume: bool = False) -> dict[str, Any]:
     """``uss-train`` with ``overrides`` into ``run_dir`` (``checkpoints/``, the loggers' folders,
     and ``.hydra/config.yaml`` / ``overrides.yaml`` as ``uss-train`` writes them: ``uss-export``
-    reads the net's config there); returns the run's final metrics (``val/mIoU``, ...)."""
+    reads the net's config there); returns the run's final metrics (``val/mIoU``, ...).
+
+    ``resume``: go on from ``run_dir``'s ``checkpoints/last.ckpt`` when an interrupted run left
+    one (:func:`resume_point`); the caller makes sure it is a run of the same overrides (a
+    :class:`~uss_slam.pipelines.stages.Stage` with ``resume_from``). The metrics then include
+    ``resumed_from_iteration``."""
     from omegaconf import OmegaConf
 
     from uss_slam.train.train import train
 
     every = [*overrides, f"paths.output_dir={run_dir}"]
+    start = resume_point(run_dir) if resume else None
+    if start is not None:
+        every.append(f"ckpt_path={run_dir / RESUME_FROM}")
     cfg = compose_config("train", every)
     hydra_dir = run_dir / ".hydra"
     hydra_dir.mkdir(parents=True, exist_ok=True)
@@ -135,7 +171,8 @@ def run_training(run_dir: Path, overrides: Sequence[str]) -> dict[str, Any]:
         OmegaConf.create(OmegaConf.to_container(cfg, resolve=True)), hydra_dir / "config.yaml"
     )
     OmegaConf.save(OmegaConf.create(every), hydra_dir / "overrides.yaml")
-    return train(cfg)
+    metrics = train(cfg)
+    return metrics if start is None else {**metrics, "resumed_from_iteration": float(start)}
 
 
 # ------------------------------------------------------------------------- SLAM

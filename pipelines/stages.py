@@ -6,6 +6,12 @@ exist. Before a stage is (re)done its stamp is removed *first*, then its folder 
 is written only after the work returned. So a stage killed at any point (even while its old
 folder is being deleted) has no stamp and is redone on the next run, never reused.
 
+A stage with ``resume_from`` (a training: ``checkpoints/last.ckpt``) keeps the folder of an
+interrupted run of the *same key* instead of emptying it, so its work can go on from that file:
+:meth:`Stage.start` records the key in a start marker, :meth:`Stage.finish` removes it, and
+:meth:`Stage.abandon` (a run that failed rather than was interrupted) removes it too, so that
+the next run starts afresh.
+
     stage = Stage(out / "train" / "adapted", key={"overrides": [...]},
                   outputs=(Path("checkpoints/*.ckpt"),))
     progress = Progress(total=3)
@@ -27,6 +33,10 @@ from uss_slam.core.files import write_json_atomic
 STAMP = ".uss-demo.json"
 """Name of the completion stamp in a stage folder (JSON of the stage's key)."""
 
+STARTED = ".uss-started.json"
+"""Name of the start marker of a stage folder with ``resume_from`` (JSON of the key of the run
+that started there and has neither finished nor failed)."""
+
 
 @dataclass(frozen=True)
 class Stage:
@@ -35,7 +45,8 @@ class Stage:
     ``folder``: the stage's own folder (emptied before the stage is redone when ``fresh``; holds
     the stamp). ``key``: everything its result depends on (JSON-able). ``outputs``: files that
     must exist for it to count as complete; a name may be a glob pattern (``checkpoints/*.ckpt``:
-    at least one match); relative paths are inside ``folder``.
+    at least one match); relative paths are inside ``folder``. ``resume_from``: the file (inside
+    ``folder``) an interrupted run of the same key can go on from; its folder is then kept.
     """
 
     folder: Path
@@ -43,10 +54,27 @@ class Stage:
     outputs: tuple[Path, ...] = ()
     fresh: bool = True
     stamp_name: str = STAMP
+    resume_from: Path | None = None
 
     @property
     def stamp(self) -> Path:
         return self.folder / self.stamp_name
+
+    @property
+    def started(self) -> Path:
+        return self.folder / STARTED
+
+    def resumable(self) -> Path | None:
+        """``folder / resume_from`` when an interrupted run of this same key left it (its start
+        marker holds this key and no stamp says it finished), else ``None``."""
+        if self.resume_from is None or self.stamp.is_file():
+            return None
+        try:
+            recorded = json.loads(self.started.read_text())
+        except (OSError, json.JSONDecodeError):
+            return None
+        path = self.folder / self.resume_from
+        return path if recorded == json.loads(json.dumps(self.key)) and path.is_file() else None
 
     def complete(self) -> bool:
         """True when the stamp holds this key and every expected output exists."""
@@ -69,16 +97,27 @@ class Stage:
                 return f"{found} missing"
         return None
 
-    def start(self) -> None:
-        """Invalidate (stamp first), then empty the folder when ``fresh``; the folder exists."""
+    def start(self, resume: bool = True) -> Path | None:
+        """Invalidate (stamp first), then empty the folder when ``fresh``; the folder exists.
+        With ``resume`` (and ``resume_from``) the folder of an interrupted run of the same key is
+        kept instead: returns the file to go on from, else ``None``."""
+        kept = self.resumable() if resume else None
         self.stamp.unlink(missing_ok=True)
-        if self.fresh and self.folder.exists():
+        if self.fresh and self.folder.exists() and kept is None:
             shutil.rmtree(self.folder)
         self.folder.mkdir(parents=True, exist_ok=True)
+        if self.resume_from is not None:
+            write_json_atomic(self.started, dict(self.key))
+        return kept
 
     def finish(self) -> None:
-        """Mark complete: the stamp, written atomically."""
+        """Mark complete: the stamp, written atomically (then the start marker goes)."""
         write_json_atomic(self.stamp, dict(self.key))
+        self.started.unlink(missing_ok=True)
+
+    def abandon(self) -> None:
+        """A run that failed (not one interrupted): the next run of the stage starts afresh."""
+        self.started.unlink(missing_ok=True)
 
 
 def _changed(new: Any, old: Any, prefix: str = "") -> list[str]:
@@ -105,8 +144,12 @@ def run_stage(stage: Stage, work: Callable[[], str], force: bool = False) -> str
     if not force and why is None:
         return "reused"
     had_result = stage.stamp.is_file()
-    stage.start()
-    status = work()
+    stage.start(resume=not force)  # a stage with resume_from: its work goes on from the file
+    try:
+        status = work()
+    except Exception:
+        stage.abandon()
+        raise
     stage.finish()
     if force and had_result:
         return f"redone (--force): {status}"

@@ -11,9 +11,11 @@ so Hydra's launcher decides where the jobs run: one after another (basic), in pa
 processes (joblib) or as a SLURM job array (submitit). Each job works in ``OUT/<id>/`` (Hydra's
 job directory), logs to ``OUT/logs/<id>.log`` and ends in one of two ways:
 
-- done: ``result.json`` and then the cache stamp (so a job killed half-way is redone next time);
+- done: ``result.json`` and then the cache stamp (so a job killed half-way is redone next time;
+  a training killed half-way goes on from its ``checkpoints/last.ckpt`` when the next run has
+  the same key, and says so in its result as ``resumed_from_iteration``);
 - failed: ``failure.json`` with the reason (one line) and the traceback; the job returns normally,
-  so a failure never stops the other jobs.
+  so a failure never stops the other jobs (a failed training starts afresh next time).
 
 A job also runs alone (to debug one cell): the same command without ``-m`` and with one id.
 """
@@ -36,6 +38,7 @@ from uss_slam.core.errors import UssSlamError
 from uss_slam.core.files import write_json_atomic
 from uss_slam.core.processes import die_with_parent, end_with_watched
 from uss_slam.pipelines.runs import (
+    RESUME_FROM,
     SlamJob,
     checkpoint_miou,
     run_slam,
@@ -58,6 +61,7 @@ def stage_of(out: Path, spec: Mapping[str, Any], cell: str) -> Stage:
         out / cell,
         key=spec["key"],
         outputs=(Path(RESULT), *(Path(p) for p in spec.get("outputs", ()))),
+        resume_from=RESUME_FROM if spec.get("kind") == "train" else None,
     )
 
 
@@ -76,13 +80,15 @@ def reason_of(error: BaseException) -> str:
 def run_train(folder: Path, spec: Mapping[str, Any]) -> dict[str, Any]:
     """``uss-train`` with the cell's overrides into ``folder`` (checkpoints/, .hydra/config.yaml
     as uss-train writes it, for uss-export); the checkpoint the export will take."""
-    metrics = run_training(folder, spec["overrides"])
+    metrics = run_training(folder, spec["overrides"], resume=True)
     ckpt = select_checkpoint(folder, spec.get("checkpoint", "last"))
     val = checkpoint_miou(ckpt)
+    start = metrics.pop("resumed_from_iteration", None)
     return {
         "checkpoint": str(ckpt.relative_to(folder)),
         "val_mIoU": val if val is not None else metrics.get("val/mIoU"),
         "metrics": metrics,
+        **({} if start is None else {"resumed_from_iteration": int(start)}),
     }
 
 
@@ -203,11 +209,12 @@ def run_cell(plan_path: Path, out: Path, cell: str) -> dict[str, Any]:
     if stage.complete():
         log.info("%s: complete already, reused", cell)
         return {"status": "reused"}
-    stage.start()
+    stage.start()  # a training interrupted earlier (same key) is kept, and goes on
     t0 = time.perf_counter()
     try:
         result = KINDS[spec["kind"]](stage.folder, spec)
     except Exception as error:
+        stage.abandon()  # failed, not interrupted: the next run starts it afresh
         seconds = time.perf_counter() - t0
         reason = reason_of(error)
         log.error("%s failed after %.1f s: %s", cell, seconds, reason, exc_info=True)

@@ -19,6 +19,7 @@ from typing import Any
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.files import write_json_atomic
 from uss_slam.core.processes import ends_with_parent, watched_by_children
+from uss_slam.pipelines.runs import RESUME_FROM
 
 from . import tables as tbl
 from .experiment import Experiment
@@ -317,7 +318,15 @@ def describe_plan(exp: Experiment, stage: str, jobs: Sequence[Job], blocked: set
             else ""
         )
     ]
-    lines += [f"  to run: {j.id}" for j in pending]
+    lines += [
+        f"  to run: {j.id}"
+        + (
+            f" (goes on from its interrupted run's {RESUME_FROM})"
+            if stage_of(exp.out, j.spec, j.id).resumable()
+            else ""
+        )
+        for j in pending
+    ]
     waiting: dict[str, list[str]] = {}
     for j in jobs:
         if j.id in blocked and j not in complete:

@@ -23,3 +23,17 @@ def colour_model(path: Path, bias: float = 128.0) -> Path:
     ``(bias, R, G, B)`` per pixel (:func:`shared_helpers.colour_labels`)."""
     metadata = shared_helpers.segmenter_metadata(CLASS_NAMES, experiment="colour")
     return shared_helpers.colour_model(path, metadata.to_props(), bias=bias)
+
+
+def interrupt_at(iteration: int):  # noqa: ANN201 (a Lightning callback; lightning imported late)
+    """A Lightning callback that raises ``KeyboardInterrupt`` before training iteration
+    ``iteration`` (a stand-in for Ctrl-C or a kill once the checkpoints of the iterations before
+    it are written). Named in a training override as ``pipeline_helpers.interrupt_at``."""
+    from lightning.pytorch import Callback
+
+    class InterruptAt(Callback):
+        def on_train_batch_start(self, trainer, pl_module, batch, batch_idx) -> None:  # noqa: ANN001
+            if pl_module.iteration == iteration:
+                raise KeyboardInterrupt
+
+    return InterruptAt()

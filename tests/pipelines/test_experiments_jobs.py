@@ -471,3 +471,76 @@ def test_a_bad_count_stops_a_dry_run_before_any_output(tmp_path: Path) -> None:
         "uss-experiments: error: segeval.stride: expected an integer >= 1, got 0"
     ]
     assert not (out / "train").exists() and not (out / "data").exists()  # no work started
+
+
+def _train_plan(tmp_path: Path, overrides: list[str], key: str = "k") -> Path:
+    """A plan of one training job (``train/a``, cache key ``key``) as uss-experiments writes it."""
+    spec = {"kind": "train", "key": {"k": key}, "overrides": overrides}
+    plan_file = tmp_path / "jobs" / "train.json"
+    write_json_atomic(
+        plan_file, {"stage": "train", "out": str(tmp_path), "cells": {"train/a": spec}}
+    )
+    return plan_file
+
+
+def test_an_interrupted_training_goes_on_from_its_last_checkpoint(
+    uda_data: dict[str, Path], tmp_path: Path
+) -> None:
+    """A training job stopped half-way (Ctrl-C, a kill, a pre-empted SLURM job) keeps its
+    checkpoints; the next run of the same key goes on from ``last.ckpt``, not from scratch. One
+    of another key, or after a run that failed, starts afresh."""
+    import torch
+    from shared_helpers import data_overrides
+
+    def iteration() -> int:
+        return torch.load(folder / "checkpoints" / "last.ckpt", weights_only=True)["iteration"]
+
+    common = [
+        "experiment=ci",
+        *data_overrides(uda_data),
+        "logger=none",
+        "+trainer.limit_val_batches=1",
+    ]
+    # stands in for the interruption (not part of the job's key)
+    stop = ["+callbacks.stop._target_=pipeline_helpers.interrupt_at", "+callbacks.stop.iteration=2"]
+    folder = tmp_path / "train" / "a"
+    with pytest.raises(KeyboardInterrupt):
+        jobs.run_cell(_train_plan(tmp_path, [*common, *stop]), tmp_path, "train/a")
+    assert iteration() == 2 and not (folder / jobs.RESULT).exists()
+
+    plan_file = _train_plan(tmp_path, common)
+    assert jobs.run_cell(plan_file, tmp_path, "train/a")["status"] == "ok"
+    result = json.loads((folder / jobs.RESULT).read_text())
+    assert result["resumed_from_iteration"] == 2 and iteration() == 4
+    assert result["checkpoint"] == "checkpoints/last.ckpt"
+    assert jobs.run_cell(plan_file, tmp_path, "train/a") == {"status": "reused"}
+
+    # interrupted, then a run of another key: from scratch
+    with pytest.raises(KeyboardInterrupt):
+        jobs.run_cell(_train_plan(tmp_path, [*common, *stop], "b"), tmp_path, "train/a")
+    assert jobs.run_cell(_train_plan(tmp_path, common, "c"), tmp_path, "train/a")["status"] == "ok"
+    assert "resumed_from_iteration" not in json.loads((folder / jobs.RESULT).read_text())
+
+    # interrupted, then a run of the same key that fails: the next one starts afresh
+    with pytest.raises(KeyboardInterrupt):
+        jobs.run_cell(_train_plan(tmp_path, [*common, *stop], "d"), tmp_path, "train/a")
+    bad = _train_plan(tmp_path, [*common, "model.optimizer.lr=-1"], "d")
+    assert jobs.run_cell(bad, tmp_path, "train/a")["status"] == "failed"
+    assert iteration() == 2  # a failed run leaves the checkpoints it found
+    assert jobs.run_cell(_train_plan(tmp_path, common, "d"), tmp_path, "train/a")["status"] == "ok"
+    assert "resumed_from_iteration" not in json.loads((folder / jobs.RESULT).read_text())
+    assert iteration() == 4
+
+
+def test_the_plan_names_a_training_that_goes_on(tmp_path: Path) -> None:
+    """The dry run's plan says which trainings go on from an interrupted run's checkpoint."""
+    exp = experiment.check(compose_experiments(f"out_dir={tmp_path}", "grid.seeds=[0]"))
+    jobs_ = plan.plan_train(exp, data.Data(train_dir=tmp_path / "data" / "train"))
+    first = jobs.stage_of(exp.out, jobs_[0].spec, jobs_[0].id)
+    first.start()  # started, then killed after its first checkpoint
+    (first.folder / "checkpoints").mkdir()
+    (first.folder / "checkpoints" / "last.ckpt").write_bytes(b"x")
+    lines = launch.describe_plan(exp, "train", jobs_, set()).splitlines()
+    resumed = f"  to run: {jobs_[0].id} (goes on from its interrupted run's checkpoints/last.ckpt)"
+    assert resumed in lines
+    assert f"  to run: {jobs_[1].id}" in lines  # not started: from scratch

@@ -173,3 +173,92 @@ def test_progress_lines(capsys) -> None:
     lines = capsys.readouterr().out.splitlines()
     assert lines[0] == "[1/2] stage a ..." and lines[1].startswith("[1/2] stage a: ok in ")
     assert lines[3].startswith("[2/2] stage a again: reused in ") and set(progress.times) == {"a"}
+
+
+def test_an_interrupted_stage_with_resume_from_keeps_its_folder(tmp_path: Path) -> None:
+    """A stage with ``resume_from`` (a training) interrupted half-way keeps its folder for the
+    next run of the same key; another key, ``force``, or a run that failed starts afresh."""
+    folder = tmp_path / "run"
+    last = Path("checkpoints/last.ckpt")
+
+    def interrupted() -> str:
+        (folder / "checkpoints").mkdir()
+        (folder / last).write_text("iteration 2")
+        raise KeyboardInterrupt
+
+    def seen() -> str:  # what the work finds when it starts
+        return (folder / last).read_text() if (folder / last).is_file() else "nothing"
+
+    stage = Stage(folder, {"k": 1}, outputs=(last,), resume_from=last)
+    with pytest.raises(KeyboardInterrupt):
+        run_stage(stage, interrupted)
+    assert stage.resumable() == folder / last and not stage.complete()
+    assert Stage(folder, {"k": 2}, resume_from=last).resumable() is None  # another key
+    assert Stage(folder, {"k": 1}).resumable() is None  # a stage that cannot resume
+    assert run_stage(stage, seen) == "iteration 2"
+    assert stage.complete() and stage.resumable() is None  # finished: nothing to go on from
+    assert not stage.started.exists()
+
+    for other in ({"k": 2}, {"k": 1}):  # another key; the same key with force
+        stage.stamp.unlink()
+        with pytest.raises(KeyboardInterrupt):
+            shutil.rmtree(folder)
+            run_stage(stage, interrupted)
+        again = Stage(folder, other, outputs=(last,), resume_from=last)
+        assert run_stage(again, seen, force=other == {"k": 1}).endswith("nothing")
+
+    class Failed(Exception):
+        pass
+
+    def fails() -> str:
+        raise Failed
+
+    shutil.rmtree(folder)
+    with pytest.raises(KeyboardInterrupt):
+        run_stage(stage, interrupted)
+    with pytest.raises(Failed):
+        run_stage(stage, fails)  # it went on from the file, and failed
+    assert (folder / last).is_file() and stage.resumable() is None
+    assert run_stage(stage, seen) == "nothing"
+
+
+def test_an_unreadable_last_checkpoint_starts_the_training_again(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """``last.ckpt`` cut short (the run was killed while writing it) is no place to go on from:
+    the run's checkpoints go, with a warning naming the file, and the training starts again."""
+    from uss_slam.pipelines.runs import RESUME_FROM, resume_point
+
+    assert resume_point(tmp_path) is None
+    path = tmp_path / RESUME_FROM
+    path.parent.mkdir()
+    (path.parent / "best_iter0000002_miou0.1000.ckpt").write_bytes(b"x")
+    path.write_bytes(b"PK\x03\x04 cut short")
+    assert resume_point(tmp_path) is None
+    assert not path.parent.exists()
+    assert str(path) in caplog.text and "the training starts again" in caplog.text
+
+
+def test_a_demo_training_stopped_half_way_goes_on(
+    uda_data: dict[str, Path], tmp_path: Path
+) -> None:
+    """``uss-demo``'s training stage: Ctrl-C half-way keeps the checkpoints, and the next run
+    with the same settings goes on from ``last.ckpt`` and says so; ``--force`` starts over."""
+    from shared_helpers import data_overrides
+
+    from uss_slam.pipelines import demo
+
+    common = ["experiment=ci", *data_overrides(uda_data), "logger=none"]
+    stop = ["+callbacks.stop._target_=pipeline_helpers.interrupt_at", "+callbacks.stop.iteration=2"]
+    run_dir = tmp_path / "train" / "adapted"
+    with pytest.raises(KeyboardInterrupt):
+        demo.stage_train(run_dir, [*common, *stop], "data", force=False)
+    # the same stage key as the interrupted run (the stand-in for Ctrl-C is not a setting)
+    key_of = json.loads((run_dir / ".uss-started.json").read_text())
+    key_of["overrides"] = common
+    write_json_atomic(run_dir / ".uss-started.json", key_of)
+    status = demo.stage_train(run_dir, common, "data", force=False)
+    assert status.startswith("trained (went on from iteration 2), val/mIoU ")
+    assert demo.stage_train(run_dir, common, "data", force=False) == "reused"
+    forced = demo.stage_train(run_dir, common, "data", force=True)
+    assert forced.startswith("redone (--force): trained, val/mIoU ")
