@@ -16,12 +16,14 @@ because their jobs run in other processes.
 
 from __future__ import annotations
 
+import csv
 import functools
 import hashlib
 import json
 import re
 import shutil
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -147,6 +149,66 @@ def resume_point(run_dir: Path) -> int | None:
     return iteration
 
 
+EARLIER_CSV = ".before-resume.csv"
+"""Beside a resumed run's ``metrics.csv``: the rows logged before the resume, until merged."""
+
+
+def _csv_rows(path: Path) -> list[dict[str, str]]:
+    if not path.is_file():
+        return []
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def _step(row: Mapping[str, str]) -> float:
+    try:
+        return float(row.get("step") or "nan")
+    except ValueError:
+        return float("nan")
+
+
+def _joined(earlier: list[dict[str, str]], later: list[dict[str, str]]) -> list[dict[str, str]]:
+    """``earlier``'s rows before ``later``'s first step (those after it were logged by the
+    interrupted run past its last checkpoint and are logged again), then ``later``'s."""
+    first = min((_step(r) for r in later), default=float("inf"))
+    return [r for r in earlier if _step(r) < first] + later
+
+
+def _write_csv(path: Path, rows: list[dict[str, str]]) -> None:
+    from uss_slam.core.files import atomic_path
+
+    fields = sorted({k for r in rows for k in r})
+    with atomic_path(path) as tmp, open(tmp, "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=fields)
+        writer.writeheader()
+        writer.writerows(rows)
+
+
+@contextmanager
+def csv_log_kept(cfg: DictConfig) -> Iterator[None]:
+    """Around a resumed training: keep the rows the CSV logger wrote before the resume.
+
+    Lightning's ``CSVLogger`` deletes the ``metrics.csv`` it finds in its folder; a training
+    resumed into its own run folder would lose the curve of its first part. The earlier rows
+    are set aside first (``.before-resume.csv``, so a kill cannot lose them either) and joined
+    in front of the new ones when the training ends, also when it ends by an exception."""
+    node = (cfg.get("logger") or {}).get("csv")
+    if not node or "_target_" not in node:
+        yield
+        return
+    folder = Path(str(node.save_dir)) / str(node.get("name") or "") / str(node.get("version") or "")
+    log, aside = folder / "metrics.csv", folder / EARLIER_CSV
+    earlier = _joined(_csv_rows(aside), _csv_rows(log))
+    if earlier:
+        _write_csv(aside, earlier)
+    try:
+        yield
+    finally:
+        if earlier:
+            _write_csv(log, _joined(earlier, _csv_rows(log)))
+            aside.unlink()
+
+
 def run_training(run_dir: Path, overrides: Sequence[str], resume: bool = False) -> dict[str, Any]:
     """``uss-train`` with ``overrides`` into ``run_dir`` (``checkpoints/``, the loggers' folders,
     and ``.hydra/config.yaml`` / ``overrides.yaml`` as ``uss-train`` writes them: ``uss-export``
@@ -171,8 +233,11 @@ def run_training(run_dir: Path, overrides: Sequence[str], resume: bool = False) 
         OmegaConf.create(OmegaConf.to_container(cfg, resolve=True)), hydra_dir / "config.yaml"
     )
     OmegaConf.save(OmegaConf.create(every), hydra_dir / "overrides.yaml")
-    metrics = train(cfg)
-    return metrics if start is None else {**metrics, "resumed_from_iteration": float(start)}
+    if start is None:
+        return train(cfg)
+    with csv_log_kept(cfg):
+        metrics = train(cfg)
+    return {**metrics, "resumed_from_iteration": float(start)}
 
 
 # ------------------------------------------------------------------------- SLAM

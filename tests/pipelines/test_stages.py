@@ -3,6 +3,7 @@ last; a stage interrupted at any point (an exception, a failed clean-up, kill -9
 
 from __future__ import annotations
 
+import csv
 import json
 import os
 import shutil
@@ -248,17 +249,23 @@ def test_a_demo_training_stopped_half_way_goes_on(
 
     from uss_slam.pipelines import demo
 
-    common = ["experiment=ci", *data_overrides(uda_data), "logger=none"]
+    common = ["experiment=ci", *data_overrides(uda_data), "logger=csv"]
     stop = ["+callbacks.stop._target_=pipeline_helpers.interrupt_at", "+callbacks.stop.iteration=2"]
     run_dir = tmp_path / "train" / "adapted"
     with pytest.raises(KeyboardInterrupt):
         demo.stage_train(run_dir, [*common, *stop], "data", force=False)
+    before = (run_dir / "csv" / "metrics.csv").read_text().splitlines()
     # the same stage key as the interrupted run (the stand-in for Ctrl-C is not a setting)
     key_of = json.loads((run_dir / ".uss-started.json").read_text())
     key_of["overrides"] = common
     write_json_atomic(run_dir / ".uss-started.json", key_of)
     status = demo.stage_train(run_dir, common, "data", force=False)
     assert status.startswith("trained (went on from iteration 2), val/mIoU ")
+    # the CSV log holds both parts' rows (Lightning's logger alone would drop the first part's)
+    with open(run_dir / "csv" / "metrics.csv", newline="") as f:
+        steps = [int(r["step"]) for r in csv.DictReader(f)]
+    assert len(before) > 1 and steps == sorted(steps) and min(steps) == 0 and max(steps) >= 3
+    assert not list(run_dir.glob("csv/.before-resume*"))
     assert demo.stage_train(run_dir, common, "data", force=False) == "reused"
     forced = demo.stage_train(run_dir, common, "data", force=True)
     assert forced.startswith("redone (--force): trained, val/mIoU ")
