@@ -22,6 +22,7 @@ import hashlib
 import json
 import re
 import shutil
+import warnings
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -235,7 +236,10 @@ def run_training(run_dir: Path, overrides: Sequence[str], resume: bool = False) 
     OmegaConf.save(OmegaConf.create(every), hydra_dir / "overrides.yaml")
     if start is None:
         return train(cfg)
-    with csv_log_kept(cfg):
+    with csv_log_kept(cfg), warnings.catch_warnings():
+        # Lightning's warnings about the folders it finds filled: here they are the run's own
+        for what in ("Checkpoint directory", "Experiment logs directory"):
+            warnings.filterwarnings("ignore", message=f"{what} .* exists and is not empty")
         metrics = train(cfg)
     return {**metrics, "resumed_from_iteration": float(start)}
 

@@ -11,6 +11,7 @@ import signal
 import subprocess
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import pytest
@@ -259,8 +260,12 @@ def test_a_demo_training_stopped_half_way_goes_on(
     key_of = json.loads((run_dir / ".uss-started.json").read_text())
     key_of["overrides"] = common
     write_json_atomic(run_dir / ".uss-started.json", key_of)
-    status = demo.stage_train(run_dir, common, "data", force=False)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        status = demo.stage_train(run_dir, common, "data", force=False)
     assert status.startswith("trained (went on from iteration 2), val/mIoU ")
+    # no warning that the run's own folders are not empty, or that its CSV log will be deleted
+    assert not [w for w in caught if "exists and is not empty" in str(w.message)]
     # the CSV log holds both parts' rows (Lightning's logger alone would drop the first part's)
     with open(run_dir / "csv" / "metrics.csv", newline="") as f:
         steps = [int(r["step"]) for r in csv.DictReader(f)]
