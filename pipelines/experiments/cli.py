@@ -112,6 +112,12 @@ def _run_experiments(exp: Experiment) -> dict[str, Any]:
             "export: best checkpoints -> ONNX",
             lambda: stage_exports(exp, data, export_failures, export_rows),
         )
+    else:  # the models an earlier run exported (runs.csv keeps their rows)
+        export_rows = [
+            {**_export_row(cell), "status": "ok"}
+            for cell in exp.grid.models
+            if (stage := model_stage(exp, data, cell)) is not None and stage.complete()
+        ]
     exports = existing_exports(exp, data)
     slam_jobs = plan_slam(exp, data, exports)
     blocked = blocked_jobs(exp, slam_jobs, exports, export_failures)
@@ -178,8 +184,7 @@ def stage_exports(
 
     done = reused = 0
     for cell in exp.grid.models:
-        row = {"kind": "export", "id": f"exports/{cell.model}", "folder": f"exports/{cell.model}"}
-        row |= cell.describe()
+        row = _export_row(cell)
         stage = model_stage(exp, data, cell)
         if stage is None:
             continue  # training not complete: its own row says why
@@ -208,6 +213,16 @@ def stage_exports(
         done += 1
         rows.append({**row, "status": "ok", "seconds": time.perf_counter() - t0})
     return f"{done} exported, {reused} reused"
+
+
+def _export_row(cell: Any) -> dict[str, Any]:
+    """The runs.csv row of a model's export, without its status."""
+    return {
+        "kind": "export",
+        "id": f"exports/{cell.model}",
+        "folder": f"exports/{cell.model}",
+        **cell.describe(),
+    }
 
 
 def _adabn_options(data: Data, cell: AdaBNCell) -> dict[str, Any]:

@@ -92,6 +92,11 @@ def test_quick_end_to_end_then_reuse_then_resume(tmp_path: Path) -> None:
         record = json.loads((out / "data" / "eval" / sequence / STAMP).read_text())
         assert record["seed"] not in (0, 1, 2, 3, 4, 100)
 
+    # the tables alone, again: runs.csv keeps every row (the exports' too)
+    tables_only = run(out, "stages=[tables]", cwd=tmp_path)
+    assert tables_only.returncode == 0, tables_only.stderr[-3000:]
+    assert sorted(r["id"] for r in runs_csv(out)) == sorted(r["id"] for r in rows)
+
     again = run(out, cwd=tmp_path)
     assert again.returncode == 0, again.stderr[-3000:]
     assert "train: 12 training jobs: every job complete already (reused)" in again.stdout

@@ -557,3 +557,36 @@ def test_t0_header_says_what_its_rows_are(tmp_path: Path) -> None:
     assert "no oracle (grid.oracle=false: no closure)" in line
     assert line.endswith("NOT held out: the trainings read it")
     assert json.dumps(line)  # one line
+
+
+def test_the_downstream_ratio_has_the_adabn_and_oracle_models(tmp_path: Path) -> None:
+    """T0's AdaBN models (no training of their own: their seeds come from their SLAM runs) and
+    the target oracle get downstream ratios and paired differences to source-only, as the
+    trained models do."""
+    rows = _t0_rows()
+    for variant, ate in (("none", 0.1), ("oracle", 0.02)):  # the model-free baselines
+        rows.append({"kind": "slam", "id": f"slam/harness/walking_xyz/{variant}", "status": "ok",
+                     "system": "harness", "sequence": "walking_xyz", "variant": variant,
+                     "ate_rmse": ate})  # fmt: skip
+    for r in rows:  # AdaBN's masks do better than source-only's by 0.01 m on every seed
+        if r["kind"] == "slam" and r.get("config") == "adabn":
+            r["ate_rmse"] -= 0.01
+    path = tmp_path / "runs.csv"
+    tbl.write_runs(path, rows)
+    data, text = tbl.compute(tbl.read_runs(path), 5)
+    ratio = {
+        (r["config"], r["seed"]): r["ratio"]
+        for r in data["downstream_ratio"]
+        if r["sequence"] == "walking_xyz"
+    }
+    for seed in (0, 1, 2):
+        so = (0.1 - 0.01 * (seed + 1)) / 0.08
+        assert ratio[("source_only", seed)] == pytest.approx(so)
+        assert ratio[("adabn", seed)] == pytest.approx(so + 0.125)
+        assert ratio[("oracle", seed)] == pytest.approx(so)
+    paired = {
+        r["config"]: r for r in data["downstream_ratio_paired"] if r["sequence"] == "walking_xyz"
+    }
+    assert set(paired) == {"adabn", "adaptsegnet_n5", "oracle"}
+    assert paired["adabn"]["mean"] == pytest.approx(0.125)
+    assert "| adabn | − source_only | +0.12 / +0.12 / +0.13 (3/3 > 0), mean +0.13" in text
