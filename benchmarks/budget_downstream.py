@@ -13,8 +13,8 @@ target training frames of ``OUT/data/train``, as ``uss-experiments``' AdaBN expo
 orbslam3:semantic_inpaint``, the same with ``system.blank_fill=inpaint``, its ratios taken
 against the grey ground-truth-mask baseline); the unfiltered and ground-truth-mask baselines run
 once per sequence. Then, per system, filter and sequence, the downstream ratio
-(ATE_none − ATE_model) / (ATE_none − ATE_oracle) of every model and seed (median ATE over repeats; on ``static_*`` sequences ATE_model / ATE_none)
-and each row's difference to ``--base``, paired by seed (with its mean and 95% Student-t
+(ATE_none − ATE_model) / (ATE_none − ATE_oracle) of every model and seed (median ATE over
+repeats; on ``static_*`` sequences ATE_model / ATE_none) and each row's difference to ``--base``, paired by seed (with its mean and 95% Student-t
 interval over the seeds)::
 
     python benchmarks/budget_downstream.py --experiment OUT --runs RUNS --seeds 0,1 \\

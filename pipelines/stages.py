@@ -97,18 +97,17 @@ class Stage:
                 return f"{found} missing"
         return None
 
-    def start(self, resume: bool = True) -> Path | None:
+    def start(self, resume: bool = True) -> None:
         """Invalidate (stamp first), then empty the folder when ``fresh``; the folder exists.
         With ``resume`` (and ``resume_from``) the folder of an interrupted run of the same key is
-        kept instead: returns the file to go on from, else ``None``."""
-        kept = self.resumable() if resume else None
+        kept instead, so that the work goes on from its ``resume_from`` file."""
+        keep = resume and self.resumable() is not None
         self.stamp.unlink(missing_ok=True)
-        if self.fresh and self.folder.exists() and kept is None:
+        if self.fresh and self.folder.exists() and not keep:
             shutil.rmtree(self.folder)
         self.folder.mkdir(parents=True, exist_ok=True)
         if self.resume_from is not None:
             write_json_atomic(self.started, dict(self.key))
-        return kept
 
     def finish(self) -> None:
         """Mark complete: the stamp, written atomically (then the start marker goes)."""

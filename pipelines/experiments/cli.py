@@ -112,13 +112,13 @@ def _run_experiments(exp: Experiment) -> dict[str, Any]:
             "export: best checkpoints -> ONNX",
             lambda: stage_exports(exp, data, export_failures, export_rows),
         )
-    else:  # the models an earlier run exported (runs.csv keeps their rows)
+    exports = existing_exports(exp, data)
+    if "export" not in exp.stages:  # the models an earlier run exported (runs.csv keeps them)
         export_rows = [
             {**_export_row(cell), "status": "ok"}
             for cell in exp.grid.models
-            if (stage := model_stage(exp, data, cell)) is not None and stage.complete()
+            if cell.model in exports
         ]
-    exports = existing_exports(exp, data)
     slam_jobs = plan_slam(exp, data, exports)
     blocked = blocked_jobs(exp, slam_jobs, exports, export_failures)
     if "slam" in exp.stages:

@@ -1009,9 +1009,9 @@ def table_ratio(
         "### Downstream ratio (ATE_none − ATE_model) / (ATE_none − ATE_oracle)",
         "",
         "Per sequence and seed, for each model filter (the trained models, T0's AdaBN models "
-        "and the target oracle, which used target labels): 1 = as good as ground-truth masks, 0 = no "
-        "better than no filter; — = a run failed, was not made, or the oracle was no better "
-        "than no filter. Median and mean ± s.d. over the seeds. Each model's row "
+        "and the target oracle, which used target labels): 1 = as good as ground-truth masks, "
+        "0 = no better than no filter; — = a run failed, was not made, or the oracle was no "
+        "better than no filter. Median and mean ± s.d. over the seeds. Each model's row "
         "\"− source_only\": its ratio minus source-only's, paired by seed (every seed's "
         "difference, on how many seeds it is positive, and the mean with its 95% Student-t "
         "interval over the seeds: an interval above 0 excludes no gain).",
