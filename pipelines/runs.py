@@ -445,6 +445,10 @@ def compose_slam(job: SlamJob, out_dir: Path, *, progress: bool = False) -> Dict
 _PATHS = (("sequence", "path"), ("segmenter", "path"), ("system", "vocabulary"))
 """Entries of the composed config that name files: a cache key holds their content instead."""
 
+_TIMING_ONLY = (("slam", "reuse_labels"),)
+"""Entries that change how long a run takes and none of its trajectories (tested): a run made
+with either value stays valid."""
+
 
 @functools.lru_cache(maxsize=1)
 def slam_defaults_key() -> str:
@@ -458,7 +462,7 @@ def slam_defaults_key() -> str:
     assert isinstance(cfg, dict)
     for name in ("out_dir", "progress"):
         cfg.pop(name, None)
-    for section, name in _PATHS:
+    for section, name in (*_PATHS, *_TIMING_ONLY):
         if isinstance(cfg.get(section), dict):
             cfg[section].pop(name, None)
     text = json.dumps(cfg, sort_keys=True, default=str)

@@ -87,6 +87,10 @@ class SlamConfig:
     """Seed of the repeats' perturbations (the same on every sequence: paired comparisons)."""
     repeat_budget: float = 0.01
     """Relative half-width of the repeats' feature-budget jitter (0.01: ``n_features`` ± 1%)."""
+    reuse_labels: bool = True
+    """With ``repeats`` > 1: the segmenter labels each frame once, in repeat 0, and the later
+    repeats of the filter set reuse those labels (a segmenter gives the same labels for the same
+    image); the run's timing figures are then repeat 0's. False: every repeat segments again."""
 
 
 def _editable(cls: type) -> DictConfig:

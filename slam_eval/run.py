@@ -23,10 +23,15 @@ from uss_slam.core.files import check_writable, output_lock
 from .config import check, register_configs, run_name
 from .filters.dynamic import build_filters
 from .scoring.evaluation import evaluate
-from .scoring.repeats import Perturbation, repeats_metrics, write_repeat_trajectories
+from .scoring.repeats import (
+    Perturbation,
+    repeats_metrics,
+    with_timing_of,
+    write_repeat_trajectories,
+)
 from .scoring.report import metrics_dict, write_comparison, write_run
 from .scoring.run_folder import RunFolder
-from .segmenters.base import Segmenter
+from .segmenters.base import LabelsOnce, Segmenter, worth_keeping
 from .sequence import TumSequence
 from .systems.harness import SlamPipeline
 
@@ -101,10 +106,10 @@ def _run_harness(
     slam = cfg.slam
     settings = OmegaConf.to_container(cfg, resolve=True)
 
-    def pipeline(names: list[str], repeat: Perturbation) -> SlamPipeline:
+    def pipeline(names: list[str], repeat: Perturbation, labeller: Segmenter) -> SlamPipeline:
         return SlamPipeline(
             sequence,
-            segmenter,
+            labeller,
             build_filters(names, plan.filter_params),
             orb=replace(plan.orb, n_features=repeat.n_features),
             tracker=plan.tracker,
@@ -120,9 +125,16 @@ def _run_harness(
             sampling_seed=repeat.sampling_seed,
         )
 
-    pipelines = [
-        (name, names, [pipeline(names, r) for r in plan.repeats]) for name, names in plan.runs
-    ]
+    # Repeats of a filter set share one labeller: the segmenter runs once per frame, in repeat 0.
+    reuse = len(plan.repeats) > 1 and bool(slam.reuse_labels) and worth_keeping(segmenter)
+
+    def labeller() -> Segmenter:
+        return LabelsOnce(segmenter) if reuse else segmenter
+
+    pipelines = []
+    for name, names in plan.runs:
+        shared = labeller()
+        pipelines.append((name, names, [pipeline(names, r, shared) for r in plan.repeats]))
     folder: RunFolder | None = None
     results: dict[str, dict[str, Any]] = {}
     try:
@@ -143,9 +155,11 @@ def _run_harness(
             median = 0
             if len(plan.repeats) > 1:
                 paths = write_repeat_trajectories(run_dir, [d[0] for d in done], folder)
-                extra = repeats_metrics([d[2] for d in done], plan.repeats, paths)
+                extra = repeats_metrics([d[2] for d in done], plan.repeats, paths, reuse)
                 median = extra["median_repeat"]
             result, scores, _ = done[median]
+            if reuse:  # the time of the repeat that segmented, as a deployed run would take
+                result = with_timing_of(result, done[0][0])
             data = write_run(run_dir, result, scores, plan.evaluation, settings, folder, extra)
             results[run_name(names)] = data
             log.info("%s: %s -> %s", run_name(names), _summary(data), run_dir)

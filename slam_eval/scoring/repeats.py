@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -94,9 +94,11 @@ def repeats_metrics(
     runs: Sequence[dict[str, Any]],
     plan: Sequence[Perturbation],
     trajectories: Sequence[str],
+    labels_reused: bool = False,
 ) -> dict[str, Any]:
     """The ``metrics.json`` keys of a repeated run, from each repeat's metrics (in repeat
-    order) and the relative paths of their trajectories:
+    order) and the relative paths of their trajectories (``labels_reused``: repeats after the
+    first took repeat 0's labels instead of segmenting, ``slam.reuse_labels``):
 
     - ``ate_rmse_repeats`` / ``rpe_trans_rmse_repeats``: ``median``, ``min``, ``max`` (metres)
       and ``evaluated`` (repeats with a value), over the repeats (the ATE median is the median
@@ -104,7 +106,11 @@ def repeats_metrics(
     - ``median_repeat``: the index of the median run, whose outputs the folder holds;
     - ``repeats``: per repeat ``index``, ``n_features``, ``sampling_seed``, ``trajectory``,
       ``ate_rmse``, ``rpe_trans_rmse``, ``ate_error``, ``tracked_fraction``, ``keyframes``,
-      ``fps``.
+      ``fps``, ``labels_reused`` (this repeat did not segment: its ``fps`` is without the
+      segmenter's cost);
+    - ``timing_repeat``: the repeat whose timing figures (``timing_ms``, ``cpu_ms``, ``fps``,
+      ``wall_time_s``, ``segmentation``) the folder reports: the median run's, or repeat 0's
+      when the others reused its labels.
     """
     ate = [_rmse(m, "ate", "rmse") for m in runs]
     rpe = [_rmse(m, "rpe", "trans", "rmse") for m in runs]
@@ -115,6 +121,7 @@ def repeats_metrics(
         "ate_rmse_repeats": ate_spread,
         "rpe_trans_rmse_repeats": spread(rpe),
         "median_repeat": plan[median].index,
+        "timing_repeat": plan[0].index if labels_reused else plan[median].index,
         "repeats": [
             {
                 "index": p.index,
@@ -127,8 +134,11 @@ def repeats_metrics(
                 "tracked_fraction": m["tracked_fraction"],
                 "keyframes": m["keyframes"],
                 "fps": m["fps"],
+                "labels_reused": labels_reused and i > 0,
             }
-            for p, path, a, r, m in zip(plan, trajectories, ate, rpe, runs, strict=True)
+            for i, (p, path, a, r, m) in enumerate(
+                zip(plan, trajectories, ate, rpe, runs, strict=True)
+            )
         ],
     }
 
@@ -167,7 +177,13 @@ def repeats_md(data: dict[str, Any]) -> list[str]:
         f"{len(data['repeats'])} runs (feature budget and RANSAC sampling perturbed, repeat 0 "
         f"unperturbed); ATE RMSE median {fmt(ate['median'])} m (min {fmt(ate['min'])}, max "
         f"{fmt(ate['max'])}, {ate['evaluated']} evaluated). This report and `trajectory.txt` "
-        f"are those of the median run, repeat {data['median_repeat']}.",
+        f"are those of the median run, repeat {data['median_repeat']}."
+        + (
+            " The time per frame is repeat 0's: the later repeats reused its labels instead of "
+            "segmenting again (`slam.reuse_labels`), so their frames/s leave the segmenter out."
+            if any(r.get("labels_reused") for r in data["repeats"])
+            else ""
+        ),
         "",
         "| repeat | features | sampling seed | ATE RMSE [m] | RPE trans RMSE [m] | tracked "
         "| keyframes | frames/s | trajectory |",
@@ -182,3 +198,16 @@ def repeats_md(data: dict[str, Any]) -> list[str]:
         )
     lines.append("")
     return lines
+
+
+def with_timing_of(result: RunResult, timed: RunResult) -> RunResult:
+    """``result`` with the timing figures of ``timed`` (the repeat that ran the segmenter, when
+    the others reused its labels): wall and CPU ms per module, the run's wall time (its fps) and
+    the segmenter's ms per segmented frame."""
+    return replace(
+        result,
+        timing_ms=timed.timing_ms,
+        cpu_ms=timed.cpu_ms,
+        wall_time_s=timed.wall_time_s,
+        segmentation_ms=timed.segmentation_ms,
+    )

@@ -19,6 +19,7 @@ segmenter's dense CRF: ``segmentation.crf``).
 
 from __future__ import annotations
 
+import threading
 from abc import ABC, abstractmethod
 from typing import Protocol, runtime_checkable
 
@@ -86,6 +87,46 @@ class LabelsSegmenter:
                 "load_labels=True"
             )
         return frame.labels
+
+
+class LabelsOnce:
+    """``segmenter`` with each frame's labels kept after its first call, for the repeats of one
+    run (``slam.reuse_labels``): a later call on the same frame (by ``frame.index``) returns the
+    kept labels instead of segmenting again. The labels are read-only arrays, so that no filter
+    can change what a later repeat gets. ``stage_times()`` is the segmenter's for a call that
+    segmented and empty for one that reused (nothing ran). Thread-safe as the segmenter is: the
+    prefetch threads ask for different frames."""
+
+    def __init__(self, segmenter: Segmenter) -> None:
+        self.segmenter = segmenter
+        self.name = segmenter.name
+        self.needs_labels = segmenter.needs_labels
+        self._kept: dict[int, np.ndarray | None] = {}
+        self._local = threading.local()
+
+    def segment(self, frame: Frame) -> np.ndarray | None:
+        if frame.index in self._kept:
+            self._local.reused = True
+            return self._kept[frame.index]
+        self._local.reused = False
+        labels = self.segmenter.segment(frame)
+        if labels is not None:
+            labels = np.asarray(labels)
+            labels.flags.writeable = False
+        self._kept[frame.index] = labels
+        return labels
+
+    def stage_times(self) -> dict[str, tuple[float, float]]:
+        stage_times = getattr(self.segmenter, "stage_times", None)
+        if getattr(self._local, "reused", False) or stage_times is None:
+            return {}
+        return dict(stage_times())
+
+
+def worth_keeping(segmenter: Segmenter) -> bool:
+    """Whether :class:`LabelsOnce` saves work for ``segmenter``: not for no segmenter or the
+    ground-truth labels, which cost nothing to get again."""
+    return not isinstance(segmenter, NoSegmenter | LabelsSegmenter)
 
 
 def class_ids(names: list[str] | tuple[str, ...]) -> np.ndarray:

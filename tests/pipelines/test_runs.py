@@ -122,3 +122,23 @@ def test_segmenter_of_a_variant() -> None:
 def test_bad_values_are_one_line(build, message: str) -> None:
     with pytest.raises(UssSlamError, match=message):
         build()
+
+
+def test_the_slam_defaults_key_ignores_what_changes_only_the_time(monkeypatch) -> None:
+    """``slam.reuse_labels`` changes no trajectory: SLAM runs made with either value stay
+    valid. A setting that changes the run does change the key."""
+    compose = runs.compose_slam
+
+    def key_with(name: str, value) -> str:
+        def composed(*args, **kwargs):
+            cfg = compose(*args, **kwargs)
+            assert name in cfg.slam  # the key still names a real setting
+            cfg.slam[name] = value
+            return cfg
+
+        monkeypatch.setattr(runs, "compose_slam", composed)
+        return runs.slam_defaults_key.__wrapped__()
+
+    plain = runs.slam_defaults_key.__wrapped__()
+    assert key_with("reuse_labels", False) == plain == key_with("reuse_labels", True)
+    assert key_with("repeat_seed", 5) != plain

@@ -388,3 +388,81 @@ def test_output_equals_the_checkpoints_pytorch_argmax(synthetic_sequence, tmp_pa
     assert labels.shape == (240, 320) and clear.mean() > 0.999
     np.testing.assert_array_equal(labels[clear], expected[clear])
     assert len(np.unique(expected)) >= 2  # the frame exercises more than one class
+
+
+def test_repeats_segment_each_frame_once_and_report_the_time_of_repeat_zero(
+    synthetic_sequence, tmp_path: Path, monkeypatch
+) -> None:
+    """``slam.repeats=3``: the model runs once per frame (repeat 0); the later repeats reuse its
+    labels and give the trajectories they gave when they segmented again; the folder's timing
+    figures are repeat 0's."""
+    seq = synthetic_sequence(preset="walking_xyz", frames=12, size=(160, 120))
+    model = tiny_model(tmp_path / "m.onnx", _metadata())
+    calls: list[int] = []
+    infer = OnnxSegmenter.infer
+
+    def counted(self, rgb):
+        calls.append(1)
+        return infer(self, rgb)
+
+    monkeypatch.setattr(OnnxSegmenter, "infer", counted)
+    args = ("segmenter=onnx", f"segmenter.path={model}", "filters=[semantic]", "slam.repeats=3")
+    data = {}
+    for reuse in ("true", "false"):
+        calls.clear()
+        out = tmp_path / reuse
+        run(slam_run_config(seq, out, *args, f"slam.reuse_labels={reuse}"))
+        data[reuse] = json.loads((out / "metrics.json").read_text())
+        assert len(calls) == (12 if reuse == "true" else 36)
+        assert data[reuse]["segmentation"]["frames_segmented"] == 12
+    kept, again = data["true"], data["false"]
+    assert [r["labels_reused"] for r in kept["repeats"]] == [False, True, True]
+    assert not any(r["labels_reused"] for r in again["repeats"])
+    assert kept["keypoints"]["dropped"]["semantic"] > 0  # the labels did filter
+    for a, b in zip(kept["repeats"], again["repeats"], strict=True):
+        assert a["ate_rmse"] == b["ate_rmse"] and a["keyframes"] == b["keyframes"]
+        assert (tmp_path / "true" / a["trajectory"]).read_text() == (
+            tmp_path / "false" / b["trajectory"]
+        ).read_text()
+    assert kept["timing_repeat"] == 0 and kept["fps"] == kept["repeats"][0]["fps"]
+    assert again["timing_repeat"] == again["median_repeat"]
+    assert again["fps"] == again["repeats"][again["median_repeat"]]["fps"]
+    report = (tmp_path / "true" / "report.md").read_text()
+    assert "The time per frame is repeat 0's" in report
+    assert "repeat 0's" not in (tmp_path / "false" / "report.md").read_text()
+
+
+def test_kept_labels_are_read_only_and_reused_calls_run_no_stage() -> None:
+    from uss_slam.slam_eval.segmenters.base import (
+        LabelsOnce,
+        LabelsSegmenter,
+        NoSegmenter,
+        worth_keeping,
+    )
+    from uss_slam.slam_eval.sequence import Frame
+
+    class Timed:
+        name, needs_labels = "timed", False
+        runs = 0
+
+        def segment(self, frame):
+            self.runs += 1
+            return np.full(frame.gray.shape, frame.index, np.uint8)
+
+        def stage_times(self):
+            return {"crf": (0.5, 0.4)}
+
+    inner = Timed()
+    once = LabelsOnce(inner)
+    rgb = np.zeros((4, 6, 3), np.uint8)
+    frames = [Frame(i, 0.1 * i, rgb, rgb[..., 0], np.zeros((4, 6), np.float32)) for i in (0, 1)]
+    first = once.segment(frames[1])
+    assert once.stage_times() == {"crf": (0.5, 0.4)}
+    again = once.segment(frames[1])
+    assert again is first and inner.runs == 1 and once.stage_times() == {}
+    with pytest.raises(ValueError, match="read-only"):
+        again[0, 0] = 7
+    assert once.segment(frames[0])[0, 0] == 0 and inner.runs == 2
+    assert once.name == "timed" and not once.needs_labels
+    assert worth_keeping(inner)
+    assert not worth_keeping(NoSegmenter()) and not worth_keeping(LabelsSegmenter())
