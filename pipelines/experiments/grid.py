@@ -534,8 +534,15 @@ def expand(cfg: Mapping[str, Any], accepted_sequences: Sequence[str]) -> Grid:
                     continue
                 for cell in models:
                     # semantic runs for every model (T1, T0); the geometry and CRF variants for
-                    # the models the tables compare (T2, T3), unless slam.every_model.
-                    if name == "semantic" or every_model or cell.config in table_configs:
+                    # the models the tables compare (T2, T3), unless slam.every_model; and
+                    # semantic+geometry for T0's AdaBN rows too: the baseline any method must
+                    # beat, in the downstream ratio of both its filters
+                    if (
+                        name == "semantic"
+                        or every_model
+                        or cell.config in table_configs
+                        or (isinstance(cell, AdaBNCell) and name == "semantic_geometry")
+                    ):
                         slams.append(SlamCell(system, sequence, name, cell))
     segevals = [SegEvalCell(m) for m in models]
     if any(VARIANTS[v].crf for v in variants):

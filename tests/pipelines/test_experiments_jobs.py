@@ -364,11 +364,14 @@ def test_dry_run_prints_the_plan_without_work(tmp_path: Path) -> None:
     assert "  to export: exports/adabn_s0 (AdaBN: train/source_only_s0's checkpoint" in proc.stdout
     # 7 segmentation evaluations (6 trainings + AdaBN), 4 on the source val split (T0's rows:
     # source-only, AdaptSegNet n = 5, oracle, AdaBN) + 2 sequences x (3 model-free + 7 semantic
-    # + 2 x 2 geometry)
-    assert "slam: 39 jobs, 0 complete, 6 to run, 33 blocked until their model exists" in proc.stdout
+    # + 2 x 2 geometry + AdaBN's semantic+geometry)
+    assert "slam: 41 jobs, 0 complete, 6 to run, 35 blocked until their model exists" in proc.stdout
     assert (
         "  after exports/adabn_s0: segeval/adabn_s0, segeval/source_val/adabn_s0, "
-        "slam/harness/walking_xyz/semantic/adabn_s0, slam/harness/static_xyz/semantic/adabn_s0\n"
+        "slam/harness/walking_xyz/semantic/adabn_s0, "
+        "slam/harness/walking_xyz/semantic_geometry/adabn_s0, "
+        "slam/harness/static_xyz/semantic/adabn_s0, "
+        "slam/harness/static_xyz/semantic_geometry/adabn_s0\n"
     ) in proc.stdout
     assert not (tmp_path / "data").exists() and not (tmp_path / "train").exists()
 

@@ -84,7 +84,11 @@ def test_t0_jobs_are_planned_per_flag(tmp_path: Path) -> None:
     for model in ("adabn_s1", "oracle_s1"):  # scored like every model: segeval + semantic runs
         assert f"segeval/{model}" in ids
         assert f"slam/harness/walking_xyz/semantic/{model}" in ids
-        assert f"slam/harness/walking_xyz/semantic_geometry/{model}" not in ids
+    # semantic+geometry for AdaBN (the baseline any method must beat, in the downstream ratio
+    # of both its filters), not for the oracle; no other geometry variant
+    assert "slam/harness/walking_xyz/semantic_geometry/adabn_s1" in ids
+    assert "slam/harness/walking_xyz/semantic_geometry/oracle_s1" not in ids
+    assert not any("semantic_geometry_object/adabn" in i for i in ids)
     row = next(j.row for j in slam if j.id == "segeval/source_val/adabn_s0")
     assert (row["method"], row["config"], row["seed"], row["sequence"]) == (
         "adabn",
