@@ -128,17 +128,14 @@ def _run_harness(
     # Repeats of a filter set share one labeller: the segmenter runs once per frame, in repeat 0.
     reuse = len(plan.repeats) > 1 and bool(slam.reuse_labels) and worth_keeping(segmenter)
 
-    def labeller() -> Segmenter:
-        return LabelsOnce(segmenter) if reuse else segmenter
-
     pipelines = []
     for name, names in plan.runs:
-        shared = labeller()
-        pipelines.append((name, names, [pipeline(names, r, shared) for r in plan.repeats]))
+        shared = LabelsOnce(segmenter) if reuse else segmenter
+        pipelines.append((name, names, shared, [pipeline(names, r, shared) for r in plan.repeats]))
     folder: RunFolder | None = None
     results: dict[str, dict[str, Any]] = {}
     try:
-        for name, names, repeats in pipelines:
+        for name, names, shared, repeats in pipelines:
             done = []
             for repeat, job in zip(plan.repeats, repeats, strict=True):
                 result = job.run()
@@ -158,8 +155,9 @@ def _run_harness(
                 extra = repeats_metrics([d[2] for d in done], plan.repeats, paths, reuse)
                 median = extra["median_repeat"]
             result, scores, _ = done[median]
-            if reuse:  # the time of the repeat that segmented, as a deployed run would take
+            if isinstance(shared, LabelsOnce):  # the time of the repeat that segmented
                 result = with_timing_of(result, done[0][0])
+                shared.forget()  # the filter set's repeats are done: its labels can go
             data = write_run(run_dir, result, scores, plan.evaluation, settings, folder, extra)
             results[run_name(names)] = data
             log.info("%s: %s -> %s", run_name(names), _summary(data), run_dir)

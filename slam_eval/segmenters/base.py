@@ -122,6 +122,10 @@ class LabelsOnce:
             return {}
         return dict(stage_times())
 
+    def forget(self) -> None:
+        """Drop the kept labels (their memory); later calls segment again."""
+        self._kept.clear()
+
 
 def worth_keeping(segmenter: Segmenter) -> bool:
     """Whether :class:`LabelsOnce` saves work for ``segmenter``: not for no segmenter or the

@@ -464,5 +464,8 @@ def test_kept_labels_are_read_only_and_reused_calls_run_no_stage() -> None:
         again[0, 0] = 7
     assert once.segment(frames[0])[0, 0] == 0 and inner.runs == 2
     assert once.name == "timed" and not once.needs_labels
+    once.forget()
+    once.segment(frames[1])
+    assert inner.runs == 3  # forgotten: segmented again
     assert worth_keeping(inner)
     assert not worth_keeping(NoSegmenter()) and not worth_keeping(LabelsSegmenter())
