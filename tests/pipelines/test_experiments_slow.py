@@ -50,13 +50,14 @@ def test_quick_end_to_end_then_reuse_then_resume(tmp_path: Path) -> None:
     kinds = [r["kind"] for r in rows]
     # 12 trainings (source-only + n = 4..7 + T0's oracle, 2 seeds), their exports and AdaBN's
     # of source-only, the 14 models' segmentation metrics (2 sequences + pooled) and T0's 4 x 2
-    # on the source val split, 2 x (3 model-free + 14 semantic + 4 x 2 geometry) SLAM runs
+    # on the source val split, 2 x (3 model-free + 14 semantic + 4 x 2 geometry + AdaBN's 2
+    # semantic+geometry) SLAM runs
     assert (
         kinds.count("train"),
         kinds.count("export"),
         kinds.count("segeval"),
         kinds.count("slam"),
-    ) == (12, 14, 14 * 3 + 8, 50)
+    ) == (12, 14, 14 * 3 + 8, 54)
     assert {r["status"] for r in rows} == {"ok"}
     assert all(r["ate_rmse"] for r in rows if r["kind"] == "slam")
     md = (out / "tables.md").read_text()
@@ -129,7 +130,7 @@ def test_quick_end_to_end_then_reuse_then_resume(tmp_path: Path) -> None:
     }
     # 6 segmentation evaluations (and 6 on the source val split: T0 rows) + 2 sequences x 6
     # semantic runs, blocked until exported
-    assert "slam: 96 jobs, 72 complete, 0 to run, 24 blocked until their model exists" in (
+    assert "slam: 100 jobs, 76 complete, 0 to run, 24 blocked until their model exists" in (
         more.stdout
     )
 
