@@ -9,7 +9,7 @@ everything; a stage that was interrupted is redone):
 2. ``train``: the ``--experiment`` (``demo``, or ``ci`` for a seconds-long smoke run) twice: with
    adversarial adaptation and source-only (``model/method=source_only``), into
    ``OUT/train/{adapted,source_only}`` (checkpoints/, tensorboard/, .hydra/config.yaml).
-3. ``export``: the best checkpoint (by target val mIoU) of each run to
+3. ``export``: the last checkpoint (the fixed budget, chosen without target labels) of each run to
    ``OUT/exports/{adapted,source_only}.onnx`` with ``uss-export``'s verification.
 4. ``miou``: each exported model's mIoU (and per-class IoU) on the SLAM sequence's labels
    (target domain; every ``MIOU_STRIDE``-th frame) through :class:`OnnxSegmenter`.
@@ -20,8 +20,8 @@ everything; a stage that was interrupted is redone):
    ``trajectories.png`` (every aligned estimate vs ground truth) and each run's own plots;
    ``OUT/summary.json`` holds the table's numbers.
 
-Example: ``uss-demo --out outputs/demo`` (what ``make demo`` runs; its measured time is in the
-README); ``uss-demo --until data`` renders only the data set.
+Example: ``uss-demo --out outputs/demo`` (what ``make demo`` runs); ``uss-demo --until data``
+renders only the data set.
 """
 
 from __future__ import annotations

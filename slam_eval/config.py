@@ -73,11 +73,9 @@ class SlamConfig:
     """Segment and extract ORB in those threads too (overlaps tracking)."""
     local_ba: bool = True
     """Local bundle adjustment and keyframe culling after each new keyframe (ORB-SLAM2's local
-    mapping, on GTSAM; on by default since 2026-12-04); false = the tracker alone, trajectories
-    as without a back end (what figures recorded before then used)."""
+    mapping, on GTSAM); false = the tracker alone, trajectories as without a back end."""
     loop_closing: bool = True
-    """Loop detection, verification and essential-graph optimisation (ORB-SLAM2's loop closing;
-    on by default since 2026-12-04)."""
+    """Loop detection, verification and essential-graph optimisation (ORB-SLAM2's loop closing)."""
     local_ba_params: LocalMappingConfig = field(default_factory=LocalMappingConfig)
     loop_closing_params: LoopClosingConfig = field(default_factory=LoopClosingConfig)
     repeats: int = 1

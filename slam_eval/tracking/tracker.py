@@ -10,9 +10,8 @@ Two policies (``TrackerConfig.policy``):
   ORB-SLAM2's) seeds that optimisation with PnP-RANSAC on the motion model's matches; without
   it the policy diverges on synthetic static scenes and on the real ``freiburg1_rpy`` frames.
   Unfiltered walkers fool it about as much as they fool ORB-SLAM3.
-- ``harness``: the steps below. Its keyframes are sparser, so walkers fool it far less. The
-  figures recorded before 2026-12-04 use it (``slam.tracker.policy=harness
-  slam.tracker.motion_ransac=false``).
+- ``harness``: the steps below. Its keyframes are sparser, so walkers fool it far less
+  (``slam.tracker.policy=harness slam.tracker.motion_ransac=false``).
 
 Per frame (``harness``; ``orbslam2`` shares steps 1, 4 and 6):
 
@@ -103,7 +102,7 @@ class TrackerConfig:
     predicted pose with the robust χ² rounds of ``PoseOptimization``; a keyframe whenever
     ``NeedNewKeyFrame``'s ``c2`` holds, with map points from its close keypoints as
     ``CreateNewKeyFrame``; the default); ``harness``: PnP-RANSAC on the projected local map and
-    the sparser keyframe rule of step 5 (the figures recorded before 2026-12-04)."""
+    the sparser keyframe rule of step 5."""
     th_depth: float = 3.0
     """``orbslam2``: close / far depth bound, metres (ORB-SLAM2's ``ThDepth`` 40 × the TUM
     baseline bf / fx = 0.075 m)."""
