@@ -6,6 +6,16 @@ ResNet state dict loads into them unchanged:
 
 - ``resnet101`` / ``resnet50``: torchvision's models (optionally with its ImageNet weights);
 - ``resnet_small``: a narrow one-block-per-stage ResNet for CI and the CPU demo.
+
+Two layouts of the same parameters (``layout``): ``torchvision`` puts the stride of a
+downsampling block on its 3×3 convolution (``conv2``); ``caffe`` (DeepLab-v2's Caffe ResNet, the
+network of the COCO-pretrained init that AdaptSegNet and ADVENT start from) puts it on the first
+1×1 convolution (``conv1``) and rounds the max-pool's output size up (``ceil_mode``). Same tensor
+shapes, other functions: weights trained in one layout are only right in that layout, so a
+``caffe`` backbone carries the buffer ``caffe_layout`` in its state dict.
+
+BatchNorm modes (``model.net.batchnorm``, :data:`BATCHNORM_MODES`) are applied by
+:func:`apply_batchnorm_mode`.
 """
 
 from __future__ import annotations
@@ -14,6 +24,7 @@ import logging
 from dataclasses import dataclass
 from typing import Literal
 
+import torch
 import torchvision
 from torch import Tensor, nn
 from torchvision.models.resnet import Bottleneck
@@ -25,6 +36,12 @@ log = logging.getLogger(__name__)
 BACKBONES: tuple[str, ...] = ("resnet101", "resnet50", "resnet_small")
 
 _TORCHVISION_WEIGHTS = {"resnet101": "ResNet101_Weights", "resnet50": "ResNet50_Weights"}
+
+Layout = Literal["torchvision", "caffe"]
+LAYOUTS: tuple[str, ...] = ("torchvision", "caffe")
+CAFFE_LAYOUT_BUFFER = "caffe_layout"
+"""Name of the buffer that marks a ``caffe`` backbone (``backbone.caffe_layout`` in a
+segmenter's state dict)."""
 
 
 @dataclass(frozen=True)
@@ -41,7 +58,9 @@ class ResNetBackbone(nn.Module):
     spatial size ``ceil(H / 8) × ceil(W / 8)``, with ``out_channels`` channels.
     """
 
-    def __init__(self, trunk: torchvision.models.ResNet | _SmallTrunk) -> None:
+    def __init__(
+        self, trunk: torchvision.models.ResNet | _SmallTrunk, layout: Layout = "torchvision"
+    ) -> None:
         super().__init__()
         self.conv1 = trunk.conv1
         self.bn1 = trunk.bn1
@@ -51,6 +70,10 @@ class ResNetBackbone(nn.Module):
         self.layer2 = trunk.layer2
         self.layer3 = trunk.layer3
         self.layer4 = trunk.layer4
+        self.layout = layout
+        if layout == "caffe":
+            _caffe_strides(self)
+            self.register_buffer(CAFFE_LAYOUT_BUFFER, torch.ones((), dtype=torch.uint8))
         _dilate(self.layer3, 2)
         _dilate(self.layer4, 4)
         self.out_channels: tuple[int, int] = (
@@ -71,11 +94,23 @@ def _dilate(stage: nn.Sequential, dilation: int) -> None:
     keeps the first block of each stage at the previous rate, which is a different network).
     """
     for block in stage:
+        block.conv1.stride = (1, 1)  # the caffe layout's stride
         block.conv2.stride = (1, 1)
         block.conv2.dilation = (dilation, dilation)
         block.conv2.padding = (dilation, dilation)
         if block.downsample is not None:
             block.downsample[0].stride = (1, 1)
+
+
+def _caffe_strides(backbone: ResNetBackbone) -> None:
+    """DeepLab-v2's Caffe ResNet: each downsampling block strides in its first 1×1 conv instead
+    of its 3×3 conv, and the stem's max-pool rounds up (``ceil_mode=True``), as in AdaptSegNet's
+    and ADVENT's ``model/deeplab*.py``."""
+    backbone.maxpool.ceil_mode = True
+    for stage in (backbone.layer1, backbone.layer2, backbone.layer3, backbone.layer4):
+        for block in stage:
+            if block.conv2.stride != (1, 1):
+                block.conv1.stride, block.conv2.stride = block.conv2.stride, (1, 1)
 
 
 class _SmallTrunk(nn.Module):
@@ -105,8 +140,10 @@ class _SmallTrunk(nn.Module):
                 nn.init.kaiming_normal_(module.weight, mode="fan_out", nonlinearity="relu")
 
 
-def build_backbone(name: str, imagenet_weights: str | None = None) -> ResNetBackbone:
-    """Build a backbone by name (see :data:`BACKBONES`).
+def build_backbone(
+    name: str, imagenet_weights: str | None = None, layout: Layout = "torchvision"
+) -> ResNetBackbone:
+    """Build a backbone by name (see :data:`BACKBONES`) in ``layout`` (see the module doc).
 
     ``imagenet_weights`` names a torchvision weight enum member of that architecture, e.g.
     ``"IMAGENET1K_V1"`` or ``"DEFAULT"``: torchvision downloads it into ``$TORCH_HOME`` unless
@@ -114,10 +151,12 @@ def build_backbone(name: str, imagenet_weights: str | None = None) -> ResNetBack
     """
     if name not in BACKBONES:
         raise UssSlamError(f"unknown backbone {name!r}; expected one of {', '.join(BACKBONES)}")
+    if layout not in LAYOUTS:
+        raise UssSlamError(f"unknown backbone layout {layout!r}; expected one of {LAYOUTS}")
     if name == "resnet_small":
         if imagenet_weights is not None:
             raise UssSlamError("resnet_small has no ImageNet weights; set backbone_weights=null")
-        return ResNetBackbone(_SmallTrunk(_SmallSpec()))
+        return ResNetBackbone(_SmallTrunk(_SmallSpec()), layout)
     weights = None
     if imagenet_weights is not None:
         enum_name = f"{_TORCHVISION_WEIGHTS[name]}.{imagenet_weights}"
@@ -136,7 +175,24 @@ def build_backbone(name: str, imagenet_weights: str | None = None) -> ResNetBack
         ) from error
     if weights is not None:
         log.info("backbone %s initialised from torchvision %s", name, weights)
-    return ResNetBackbone(trunk)
+    return ResNetBackbone(trunk, layout)
+
+
+BatchNormMode = Literal["auto", "trained", "frozen", "reference"]
+BATCHNORM_MODES: tuple[str, ...] = ("auto", "trained", "frozen", "reference")
+"""``model.net.batchnorm``, what the BatchNorm layers of a segmenter do while it trains:
+
+- ``trained``: train mode, affine terms learnt, running statistics updated by every training
+  forward; each forward is normalised by its own batch (how the target batch is normalised is
+  ``model.domain_batch_norm``: by default its own statistics, one forward per domain);
+- ``frozen``: eval mode, normalised by the loaded running statistics, which never change;
+  affine terms frozen;
+- ``reference``: AdaptSegNet's and ADVENT's: train mode (each forward, source and target
+  apart, normalised by its own batch; the running statistics updated by both and kept in the
+  checkpoint and the export), affine terms frozen (``requires_grad=False``);
+- ``auto``: ``frozen`` when pretrained weights are loaded, else ``trained`` (a randomly
+  initialised frozen BatchNorm is the identity).
+"""
 
 
 def freeze_batchnorm(module: nn.Module) -> None:
@@ -148,27 +204,62 @@ def freeze_batchnorm(module: nn.Module) -> None:
                 param.requires_grad_(False)
 
 
-FreezeBatchNorm = bool | Literal["auto"]
-"""``model.net.freeze_bn``: ``True``, ``False`` or ``"auto"`` (frozen iff weights are loaded)."""
+def freeze_batchnorm_affine(module: nn.Module) -> None:
+    """Stop gradients to the affine terms of every BatchNorm of ``module``; modes stay as they
+    are (``reference``: train mode, batch statistics, running statistics updated)."""
+    for child in module.modules():
+        if isinstance(child, nn.modules.batchnorm._BatchNorm):
+            for param in child.parameters():
+                param.requires_grad_(False)
 
 
-def resolve_freeze_bn(freeze_bn: FreezeBatchNorm, pretrained: bool) -> bool:
-    """Whether to freeze BatchNorm: ``"auto"`` freezes exactly when pretrained weights are
-    loaded (``pretrained``: ``backbone_weights`` or ``weights_path`` set). Frozen BatchNorm keeps
-    the loaded statistics (the paper's setting at batch size 1); without loaded weights those are
-    the initial mean 0 / variance 1 / scale 1 / shift 0, and every BatchNorm layer would stay the
-    identity for the whole run, so ``"auto"`` trains them then (batch statistics).
+def resolve_batchnorm(
+    mode: str, pretrained: bool, supported: tuple[str, ...] = BATCHNORM_MODES
+) -> str:
+    """The BatchNorm mode to apply (``auto`` resolved; ``pretrained``: weights are loaded).
 
     Raises:
-        UssSlamError: ``freeze_bn`` is none of ``True``, ``False``, ``"auto"``.
+        UssSlamError: ``mode`` is no mode, or one that this network does not support.
     """
-    if freeze_bn == "auto":
-        return pretrained
-    if not isinstance(freeze_bn, bool):
-        raise UssSlamError(f"model.net.freeze_bn must be true, false or auto, got {freeze_bn!r}")
-    if freeze_bn and not pretrained:
+    if mode not in BATCHNORM_MODES:
+        raise UssSlamError(
+            f"model.net.batchnorm must be one of {', '.join(BATCHNORM_MODES)}, got {mode!r}"
+        )
+    if mode not in supported:
+        raise UssSlamError(
+            f"model.net.batchnorm={mode} is not supported by this network; supported: "
+            f"{', '.join(supported)}"
+        )
+    if mode == "auto":
+        return "frozen" if pretrained else "trained"
+    if mode == "frozen" and not pretrained:
         log.warning(
-            "model.net.freeze_bn=true without pretrained weights (backbone_weights / "
+            "model.net.batchnorm=frozen without pretrained weights (backbone_weights / "
             "weights_path): every BatchNorm stays the identity of its initialisation"
         )
-    return freeze_bn
+    return mode
+
+
+FreezeBatchNorm = bool | Literal["auto"]
+"""The former ``freeze_bn`` argument: ``True`` = ``batchnorm="frozen"``, ``False`` =
+``"trained"``, ``"auto"`` = ``"auto"``."""
+
+
+def batchnorm_from_freeze_bn(freeze_bn: FreezeBatchNorm | None, batchnorm: str) -> str:
+    """``batchnorm``, or the mode that the former ``freeze_bn`` argument names (Python callers).
+
+    Raises:
+        UssSlamError: ``freeze_bn`` is none of ``True``, ``False``, ``"auto"``, or contradicts
+            an explicit ``batchnorm``.
+    """
+    if freeze_bn is None:
+        return batchnorm
+    if freeze_bn not in (True, False, "auto") or not isinstance(freeze_bn, bool | str):
+        raise UssSlamError(f"freeze_bn must be true, false or auto, got {freeze_bn!r}")
+    mode = {True: "frozen", False: "trained", "auto": "auto"}[freeze_bn]
+    if batchnorm not in ("auto", mode):
+        raise UssSlamError(
+            f"freeze_bn={freeze_bn} contradicts model.net.batchnorm={batchnorm}; set only "
+            "model.net.batchnorm"
+        )
+    return mode

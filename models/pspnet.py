@@ -18,7 +18,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from uss_slam.core.errors import UssSlamError
-from uss_slam.models.backbone import FreezeBatchNorm
+from uss_slam.models.backbone import BatchNormMode, FreezeBatchNorm
 from uss_slam.models.deeplab import TwoHeadSegmenter
 
 
@@ -108,11 +108,14 @@ class PSPNet(TwoHeadSegmenter):
         backbone: ``resnet101`` (the paper's), ``resnet50`` or ``resnet_small`` (CI / CPU).
         bins: pyramid pooling bin sizes (the paper's 1, 2, 3, 6).
         dropout: dropout rate before both classifiers (the paper's 0.1).
-        freeze_bn: ``True``: every BatchNorm in eval mode with frozen affine terms, the heads'
+        batchnorm: ``frozen``: every BatchNorm in eval mode with frozen affine terms, the heads'
             too (their 1×1 pyramid level has one value per channel and image: no batch
-            statistics at batch size 1, the paper's setting); ``False`` trains them (needs batch
-            size ≥ 2); ``"auto"`` (default) freezes them exactly when pretrained weights are
-            loaded (a randomly initialised frozen BatchNorm stays the identity).
+            statistics at batch size 1); ``trained`` trains them (needs batch size ≥ 2);
+            ``auto`` (default) freezes them exactly when pretrained weights are loaded (a
+            randomly initialised frozen BatchNorm stays the identity). ``reference`` (the
+            DeepLab-v2 reference code's) is not supported.
+        allow_random_init: ``False`` refuses a ResNet-50/101 without weights.
+        freeze_bn: the former switch (``True`` = ``frozen``, ``False`` = ``trained``).
         backbone_weights: torchvision weight enum member for the backbone (downloads unless
             cached); ``None``: random initialisation.
         weights_path: local file to initialise from (a PSPNet state dict or ``uss-train``
@@ -125,6 +128,8 @@ class PSPNet(TwoHeadSegmenter):
     0.1 by default, as the adaptation papers).
     """
 
+    BATCHNORM_SUPPORTED = ("auto", "trained", "frozen")
+
     def __init__(
         self,
         num_classes: int = 4,
@@ -132,9 +137,11 @@ class PSPNet(TwoHeadSegmenter):
         *,
         bins: Sequence[int] = (1, 2, 3, 6),
         dropout: float = 0.1,
-        freeze_bn: FreezeBatchNorm = "auto",
+        batchnorm: BatchNormMode = "auto",
         backbone_weights: str | None = None,
         weights_path: str | Path | None = None,
+        allow_random_init: bool = True,
+        freeze_bn: FreezeBatchNorm | None = None,
     ) -> None:
         if (
             isinstance(dropout, bool)
@@ -142,11 +149,19 @@ class PSPNet(TwoHeadSegmenter):
             or not 0 <= dropout < 1
         ):
             raise UssSlamError(f"model.net.dropout must be a number in [0, 1), got {dropout!r}")
-        super().__init__(num_classes, backbone, freeze_bn, backbone_weights, weights_path)
+        super().__init__(
+            num_classes,
+            backbone,
+            batchnorm,
+            backbone_weights,
+            weights_path,
+            allow_random_init,
+            freeze_bn,
+        )
         low, high = self.backbone.out_channels
         self.aux = PSPHead(low, num_classes, low // 4, dropout)
         self.main = PSPHead(high, num_classes, high // 4, dropout, bins=tuple(bins))
-        self.finish_init(weights_path)
+        self.finish_init()
 
     def batchnorm_frozen(self) -> nn.Module:
         return self  # the heads' BatchNorms too (see ``freeze_bn``)

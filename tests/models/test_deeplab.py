@@ -1,4 +1,4 @@
-"""DeepLabV2: ASPP sums all four rates, output stride 8, frozen BN, parameter groups."""
+"""DeepLabV2: ASPP sums all four rates, output stride 8, BatchNorm modes, parameter groups."""
 
 from __future__ import annotations
 
@@ -18,13 +18,13 @@ torch.set_num_threads(1)
 @pytest.fixture(scope="module")
 def small() -> DeepLabV2:
     torch.manual_seed(0)
-    return DeepLabV2(num_classes=4, backbone="resnet_small", freeze_bn=True)
+    return DeepLabV2(num_classes=4, backbone="resnet_small", batchnorm="frozen")
 
 
 @pytest.fixture(scope="module")
 def resnet101() -> DeepLabV2:
     torch.manual_seed(0)
-    return DeepLabV2(num_classes=4, backbone="resnet101", freeze_bn=True)
+    return DeepLabV2(num_classes=4, backbone="resnet101", batchnorm="frozen")
 
 
 def test_aspp_output_is_the_sum_of_all_four_branches() -> None:
@@ -103,21 +103,29 @@ def test_param_groups_cover_every_trainable_parameter_once(
 
 
 def test_unfrozen_bn_params_join_the_backbone_group() -> None:
-    model = DeepLabV2(backbone="resnet_small", freeze_bn=False)
+    model = DeepLabV2(backbone="resnet_small", batchnorm="trained")
     ids = [id(p) for g in model.param_groups(1.0) for p in g["params"]]
     assert sorted(ids) == sorted(id(p) for p in model.parameters())
 
 
-@pytest.mark.parametrize("freeze", [True, False])
-def test_batchnorm_statistics_only_move_when_not_frozen(freeze: bool) -> None:
+@pytest.mark.parametrize("mode", ["trained", "frozen", "reference"])
+def test_batchnorm_modes(mode: str) -> None:
+    """trained: batch statistics, running ones move, affine learnt; frozen: loaded statistics,
+    nothing moves; reference: batch statistics, running ones move, affine frozen."""
     torch.manual_seed(0)
-    model = DeepLabV2(backbone="resnet_small", freeze_bn=freeze).train()
+    model = DeepLabV2(backbone="resnet_small", batchnorm=mode).train()
+    assert model.batchnorm == mode
     before = model.backbone.bn1.running_mean.clone()
     model(torch.randn(2, 3, 40, 40) * 3 + 1)
     moved = not torch.equal(before, model.backbone.bn1.running_mean)
-    assert moved is not freeze
-    assert model.backbone.bn1.training is not freeze
-    assert model.backbone.bn1.weight.requires_grad is not freeze
+    bns = [m for m in model.backbone.modules() if isinstance(m, nn.BatchNorm2d)]
+    assert moved is (mode != "frozen")
+    assert all(m.training is (mode != "frozen") for m in bns)
+    assert all(p.requires_grad is (mode == "trained") for m in bns for p in m.parameters())
+    trainable = {id(p) for g in model.param_groups(1.0) for p in g["params"]}
+    assert any(id(m.weight) in trainable for m in bns) is (mode == "trained")
+    model.eval()  # evaluation and export: running statistics in every mode
+    assert not any(m.training for m in bns)
 
 
 def test_unknown_backbone_and_weights_are_clear_errors() -> None:
@@ -134,20 +142,42 @@ def test_batchnorm_is_frozen_by_default_only_with_loaded_weights(
     segmenter: type, tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
     """A randomly initialised frozen BatchNorm is the identity for the whole run: by default
-    (``freeze_bn="auto"``) it trains without weights and is frozen with them (the paper's)."""
+    (``batchnorm="auto"``) it trains without weights and is frozen with them."""
     torch.manual_seed(0)
     scratch = segmenter(backbone="resnet_small").train()
-    assert scratch.freeze_bn is False
+    assert scratch.batchnorm == "trained" and scratch.freeze_bn is False
     assert scratch.backbone.bn1.training and scratch.backbone.bn1.weight.requires_grad
     path = tmp_path / "weights.pt"
     torch.save(scratch.state_dict(), path)
     loaded = segmenter(backbone="resnet_small", weights_path=path).train()
-    assert loaded.freeze_bn is True
+    assert loaded.batchnorm == "frozen" and loaded.freeze_bn is True
     assert not loaded.backbone.bn1.training and not loaded.backbone.bn1.weight.requires_grad
     # An explicit choice stays, with a warning where it freezes the identity.
     with caplog.at_level(logging.WARNING, logger="uss_slam.models.backbone"):
-        assert segmenter(backbone="resnet_small", freeze_bn=True).freeze_bn is True
+        assert segmenter(backbone="resnet_small", batchnorm="frozen").batchnorm == "frozen"
     assert "stays the identity" in caplog.text
-    assert segmenter(backbone="resnet_small", weights_path=path, freeze_bn=False).freeze_bn is False
-    with pytest.raises(UssSlamError, match="model.net.freeze_bn must be true, false or auto"):
+    kept = segmenter(backbone="resnet_small", weights_path=path, batchnorm="trained")
+    assert kept.batchnorm == "trained"
+    # The former switch still reads, for Python callers.
+    assert segmenter(backbone="resnet_small", freeze_bn=False).batchnorm == "trained"
+    with pytest.raises(UssSlamError, match="^model.net.batchnorm must be one of auto, trained"):
+        segmenter(backbone="resnet_small", batchnorm="yes")
+    with pytest.raises(UssSlamError, match="freeze_bn must be true, false or auto"):
         segmenter(backbone="resnet_small", freeze_bn="yes")
+    with pytest.raises(UssSlamError, match="contradicts model.net.batchnorm=reference"):
+        segmenter(backbone="resnet_small", freeze_bn=True, batchnorm="reference")
+
+
+def test_pspnet_refuses_the_reference_batchnorm_mode_in_one_line() -> None:
+    with pytest.raises(UssSlamError, match="^model.net.batchnorm=reference is not supported") as e:
+        PSPNet(4, "resnet_small", batchnorm="reference")
+    assert "\n" not in str(e.value)
+
+
+def test_resnet_without_weights_warns_or_is_refused(caplog: pytest.LogCaptureFixture) -> None:
+    with pytest.raises(UssSlamError, match="^model.net.weights_path: not set") as e:
+        DeepLabV2(backbone="resnet50", allow_random_init=False)
+    assert "model.net.allow_random_init=true" in str(e.value) and "\n" not in str(e.value)
+    with caplog.at_level(logging.WARNING, logger="uss_slam.models.deeplab"):
+        DeepLabV2(backbone="resnet50")
+    assert "resnet50 starts from random weights" in caplog.text
