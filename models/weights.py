@@ -187,6 +187,13 @@ def load_segmenter_weights(model: nn.Module, weights: str | Path | WeightsFile) 
             f"{getattr(model, 'backbone_name', 'matching')} backbone; expected {ACCEPTED} "
             "of that network",
         )
+    extra = [k for k in state if k.startswith("backbone.") and k not in own]
+    if extra:
+        raise DataFormatError(
+            path,
+            f"{len(extra)} backbone tensors the model lacks (e.g. {extra[0]!r}): the file does "
+            f"not fit model.net.backbone={getattr(model, 'backbone_name', '?')}",
+        )
     wrong = [k for k in backbone_keys if k in state and state[k].shape != own[k].shape]
     if wrong:
         key = wrong[0]
