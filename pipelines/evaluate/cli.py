@@ -1,0 +1,154 @@
+"""``uss-eval``'s command line and :func:`evaluate`: check the arguments, score the model on the
+frames, write ``eval.json``, ``eval.md`` and the overlays."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from uss_slam.core.classes import CLASS_NAMES, DYNAMIC_CLASSES
+from uss_slam.core.cli import exit_on_user_error
+from uss_slam.core.errors import UssSlamError
+from uss_slam.core.files import check_writable, output_lock, write_json_atomic, write_text_atomic
+from uss_slam.core.seg_metrics import iou_report, mask_metrics
+
+from .frames import FrameSource, config_val_frames, sequence_frames
+from .markdown import markdown
+from .metrics import evaluate_frames
+from .models import load_segmenter, model_kind
+from .overlays import evenly_spaced, remove_stale_overlays, write_overlays
+
+PROG = "uss-eval"
+
+
+def evaluate(
+    model: Path,
+    out: Path,
+    *,
+    sequences: Sequence[Path] = (),
+    overrides: Sequence[str] = (),
+    stride: int = 1,
+    dynamic: Sequence[str] = DYNAMIC_CLASSES,
+    frame_iou: float = 0.5,
+    overlays: int = 0,
+    threads: int | None = None,
+) -> dict[str, Any]:
+    """Evaluate ``model`` and write ``out/eval.json``, ``out/eval.md`` (and overlays); returns
+    the content of ``eval.json``. Every argument is checked before the model runs."""
+    model_kind(model)
+    if stride < 1:
+        raise UssSlamError(f"--stride must be >= 1, got {stride}")
+    if overlays < 0:
+        raise UssSlamError(f"--overlays must be >= 0, got {overlays}")
+    if not 0.0 < frame_iou <= 1.0:
+        raise UssSlamError(f"--frame-iou must be in (0, 1], got {frame_iou}")
+    if threads is not None and threads < 1:
+        raise UssSlamError(f"--threads must be >= 1, got {threads}")
+    unknown = [c for c in dynamic if c not in CLASS_NAMES]
+    if unknown or not dynamic:
+        raise UssSlamError(
+            f"--dynamic {','.join(dynamic)}: expected class names of {', '.join(CLASS_NAMES)}"
+        )
+    if sequences and overrides:
+        raise UssSlamError(
+            "give either --sequence folders or data-config overrides (the val set), not both"
+        )
+    if out.exists() and not out.is_dir():
+        raise UssSlamError(f"--out {out}: exists and is not a folder")
+    check_writable(out, "--out", create=False)
+    source = sequence_frames(sequences, stride) if sequences else config_val_frames(overrides)
+    if source.count == 0:
+        raise UssSlamError("no labelled frames to evaluate")
+    with output_lock(out, "--out"):
+        return _evaluate(model, out, source, dynamic, frame_iou, overlays, threads)
+
+
+def _evaluate(
+    model: Path,
+    out: Path,
+    source: FrameSource,
+    dynamic: Sequence[str],
+    frame_iou: float,
+    overlays: int,
+    threads: int | None,
+) -> dict[str, Any]:
+    """:func:`evaluate` once its arguments are checked and ``out`` is locked."""
+    infer, info = load_segmenter(model, threads)
+    dynamic_ids = [CLASS_NAMES.index(c) for c in dynamic]
+    chosen = set(evenly_spaced(overlays, source.count))
+    scores = evaluate_frames(infer, source.frames(), CLASS_NAMES, dynamic_ids, chosen.__contains__)
+    written = write_overlays(out, scores.kept)
+    result = {
+        "model": info,
+        "data": source.description,
+        "frames": len(scores.names),
+        "classes": list(CLASS_NAMES),
+        **iou_report(scores.matrix, CLASS_NAMES),
+        "confusion_matrix": scores.matrix.tolist(),
+        "dynamic_classes": list(dynamic),
+        "mask": mask_metrics(scores.mask_counts, iou_threshold=frame_iou),
+        "ms_per_frame": 1000 * scores.seconds / max(len(scores.names), 1),
+        "overlays": written,
+    }
+    write_json_atomic(out / "eval.json", result)
+    write_text_atomic(out / "eval.md", markdown(result))
+    remove_stale_overlays(out / "overlays", written)
+    return result
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog=PROG,
+        description="Evaluate a segmenter (a uss-train checkpoint or an exported ONNX model) on "
+        "labelled frames: per-class IoU, mIoU and the dynamic-mask frame metrics (FPR, FNR, "
+        "recall, precision, PWC). Frames: --sequence TUM folders with labels/, or the val set "
+        "of the data config (Hydra overrides as in uss-train, e.g. data=real "
+        "paths.data_dir=DIR). Writes OUT/eval.json and OUT/eval.md (printed).",
+    )
+    parser.add_argument("model", type=Path, help="a .ckpt (uss-train) or .onnx (uss-export)")
+    parser.add_argument("overrides", nargs="*", metavar="KEY=VALUE",
+                        help="data-config overrides selecting the val set (default: the "
+                             "shipped data=synthetic under paths.data_dir=outputs/demo/data)")  # fmt: skip
+    parser.add_argument("--sequence", type=Path, action="append", default=[], metavar="DIR",
+                        help="a TUM RGB-D folder with labels/ (repeatable) instead of data.val")  # fmt: skip
+    parser.add_argument("--stride", type=int, default=1,
+                        help="every N-th frame of each --sequence (default: 1)")  # fmt: skip
+    parser.add_argument("--out", type=Path, default=None,
+                        help="output folder (default: outputs/eval/<model file stem>)")  # fmt: skip
+    parser.add_argument("--dynamic", default=",".join(DYNAMIC_CLASSES),
+                        help="comma-separated classes of the dynamic mask (default: "
+                             f"{','.join(DYNAMIC_CLASSES)})")  # fmt: skip
+    parser.add_argument("--frame-iou", type=float, default=0.5,
+                        help="mask IoU from which a frame counts as correctly segmented "
+                             "(default: 0.5)")  # fmt: skip
+    parser.add_argument("--overlays", type=int, default=0, metavar="N",
+                        help="write N PNG overlays of evenly spaced frames (default: 0)")  # fmt: skip
+    parser.add_argument("--threads", type=int, default=None,
+                        help="inference threads (default: the runtime's)")  # fmt: skip
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    from hydra.errors import ConfigCompositionException, OverrideParseException
+    from omegaconf.errors import OmegaConfBaseException
+
+    # Intermixed: data-config overrides may follow the options (MODEL --out DIR data=real).
+    args = build_parser().parse_intermixed_args(argv)
+    out = args.out if args.out is not None else Path("outputs") / "eval" / args.model.stem
+    config_errors = (ConfigCompositionException, OverrideParseException, OmegaConfBaseException)
+    with exit_on_user_error(PROG, config_errors):
+        result = evaluate(
+            args.model, out, sequences=args.sequence, overrides=args.overrides,
+            stride=args.stride, dynamic=[c.strip() for c in args.dynamic.split(",") if c.strip()],
+            frame_iou=args.frame_iou, overlays=args.overlays, threads=args.threads,
+        )  # fmt: skip
+        print(markdown(result))
+        print(f"{PROG}: wrote {out / 'eval.json'} and {out / 'eval.md'}")
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

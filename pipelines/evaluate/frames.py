@@ -1,0 +1,138 @@
+"""The labelled frames ``uss-eval`` scores: TUM RGB-D folders with ``labels/``, or the validation
+set of a data config composed from the shipped configs."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from uss_slam.core.cli import hydra_error_line
+from uss_slam.core.errors import DataFormatError, UssSlamError
+
+CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
+
+
+@dataclass(frozen=True)
+class LabelledFrame:
+    """``rgb`` (H, W, 3) uint8 RGB; ``labels`` (H, W) uint8 project class ids (255 ignore)."""
+
+    name: str
+    rgb: np.ndarray
+    labels: np.ndarray
+
+
+@dataclass
+class FrameSource:
+    """Labelled frames to evaluate: their count, a description and an iterator."""
+
+    description: dict[str, Any]
+    count: int
+    frames: Callable[[], Iterator[LabelledFrame]]
+
+
+def sequence_frames(roots: Sequence[Path], stride: int) -> FrameSource:
+    """Every ``stride``-th colour frame of labelled frame folders: TUM RGB-D sequences with
+    ``labels/``, or image folders with only ``rgb.txt``, ``rgb/`` and ``labels/`` (depth and
+    ground truth are not needed). Lists and files are checked before any inference; a folder
+    given twice is an error (its frames would count twice)."""
+    from uss_slam.core.tum_io import read_tum_folder
+
+    if stride < 1:
+        raise UssSlamError(f"--stride: expected an integer >= 1, got {stride}")
+    seen: dict[Path, Path] = {}
+    folders = []
+    for root in roots:
+        if not root.is_dir():
+            raise UssSlamError(f"--sequence {root}: not a folder")
+        resolved = root.resolve()
+        if resolved in seen:
+            raise UssSlamError(
+                f"--sequence {root}: given twice (as {seen[resolved]}); its frames would count twice"
+            )
+        seen[resolved] = root
+        folder = read_tum_folder(root, depth=False, labels=True)
+        frames = folder.frames[::stride]
+        for frame in frames:
+            missing = folder.missing(frame)
+            if missing is not None:
+                raise missing
+            if frame.labels is not None and not frame.labels.is_file():
+                raise DataFormatError(
+                    frame.labels, f"no labels for colour frame {frame.rgb.name} (expected a "
+                    "uint8 class-id PNG of the same name in labels/)"
+                )  # fmt: skip
+        folders.append((root, frames))
+
+    def frames() -> Iterator[LabelledFrame]:
+        for root, files in folders:
+            for frame in files:
+                assert frame.labels is not None  # read with labels=True
+                yield LabelledFrame(f"{root.name}/{frame.stamp:.6f}", *_read_pair(frame))
+
+    description = {"source": "sequence", "roots": [str(r) for r in roots], "stride": stride}
+    return FrameSource(description, sum(len(f) for _, f in folders), frames)
+
+
+def _read_pair(frame: Any) -> tuple[np.ndarray, np.ndarray]:
+    """The colour image (RGB) and the labels of ``frame``, checked (errors name the file)."""
+    from uss_slam.slam_eval.sequence import read_labels
+
+    bgr = cv2.imread(str(frame.rgb), cv2.IMREAD_COLOR)
+    if bgr is None:
+        raise DataFormatError(frame.rgb, "not a readable image")
+    labels = read_labels(frame.labels, bgr.shape[:2], frame.rgb.name)
+    return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), labels
+
+
+def config_val_frames(overrides: Sequence[str]) -> FrameSource:
+    """The validation set (``data.val``) of the data config composed from the shipped
+    ``train`` config with ``overrides`` (e.g. ``data=real``, ``paths.data_dir=...``)."""
+    from hydra import compose, initialize_config_dir
+    from hydra.core.global_hydra import GlobalHydra
+    from hydra.utils import instantiate
+    from omegaconf import OmegaConf
+
+    from uss_slam.train.config_check import check_config_types
+
+    bad = [o for o in overrides if "=" not in o]
+    if bad:
+        raise UssSlamError(
+            f"{bad[0]!r}: expected a data-config override KEY=VALUE (e.g. data=real, "
+            "paths.data_dir=DIR, data.val.stride=1)"
+        )
+    GlobalHydra.instance().clear()
+    try:
+        with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
+            cfg = compose("train", overrides=list(overrides))
+    except Exception as error:  # an unknown key or option, bad override syntax: one line
+        line = hydra_error_line(error)
+        if line is None:
+            raise
+        raise UssSlamError(line) from None
+    finally:
+        GlobalHydra.instance().clear()
+    node = OmegaConf.select(cfg, "data.val")
+    if node is None:
+        raise UssSlamError("the composed data config has no data.val (the validation set)")
+    check_config_types(cfg, ("data",))  # data.val.stride=abc: one line naming the key
+    dataset = instantiate(node)
+    if not getattr(dataset, "labelled", False):
+        raise UssSlamError("data.val has no labels: nothing to evaluate against")
+
+    def frames() -> Iterator[LabelledFrame]:
+        for k in range(len(dataset)):
+            sample = dataset.load(k)
+            rgb = sample["image"].permute(1, 2, 0).numpy()
+            yield LabelledFrame(str(sample["name"]), rgb, sample["label"].numpy())
+
+    description = {
+        "source": "data.val",
+        "overrides": list(overrides),
+        "config": OmegaConf.to_container(node, resolve=True),
+    }
+    return FrameSource(description, len(dataset), frames)
