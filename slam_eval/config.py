@@ -37,7 +37,8 @@ from .mapping.semantic_map import MapConfig
 from .scoring.evaluation import EvalConfig
 from .scoring.repeats import Perturbation, perturbations
 from .systems.harness import SEGMENT_SCHEDULES
-from .tracking.tracker import TrackerConfig
+from .tracking.config import REMOVED as REMOVED_TRACKER_KEYS
+from .tracking.config import TrackerConfig
 
 SCHEMA_GROUP = "uss_slam_schema"
 """ConfigStore group of the structured configs (not a choice users make)."""
@@ -341,6 +342,18 @@ def check(cfg: DictConfig) -> RunPlan:
     build_filters(list(FILTERS), params)  # the parameters of unused filters are checked too
     _check_segmenter(cfg.segmenter)
     return RunPlan(orb, tracker, semantic_map, evaluation, params, runs, backend, repeats)
+
+
+def removed_override(overrides: Sequence[str]) -> str | None:
+    """One line for the first command-line override of a key that was removed (with what to
+    use instead), or None. Composing such an override would fail with Hydra's bare "key not
+    in" message, which does not say that the key once existed."""
+    for override in overrides:
+        key = override.lstrip("+~").split("=", 1)[0]
+        section, _, name = key.rpartition(".")
+        if section == "slam.tracker" and name in REMOVED_TRACKER_KEYS:
+            return f"{key}: {REMOVED_TRACKER_KEYS[name]}"
+    return None
 
 
 def _check_repeats(slam: DictConfig, n_features: int) -> list[Perturbation]:

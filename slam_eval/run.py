@@ -20,7 +20,7 @@ from omegaconf import DictConfig, OmegaConf
 from uss_slam.core.cli import hydra_task, run_hydra_app
 from uss_slam.core.files import check_writable, output_lock
 
-from .config import check, register_configs, run_name
+from .config import check, register_configs, removed_override, run_name
 from .filters.dynamic import build_filters
 from .scoring.evaluation import evaluate
 from .scoring.repeats import (
@@ -222,6 +222,10 @@ def main() -> None:
     """``uss-slam``: the Hydra app, with the errors Hydra raises while composing the config (a
     wrong type, an unknown key or option, a folder it cannot create) as one line and exit code 1
     instead of Hydra's multi-line report. Internal errors keep their traceback."""
+    removed = removed_override(sys.argv[1:])
+    if removed is not None:  # Hydra would only say the key is unknown
+        print(f"{PROG}: error: {removed}", file=sys.stderr)
+        sys.exit(1)
     run_hydra_app(PROG, app)
 
 

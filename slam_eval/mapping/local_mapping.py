@@ -60,8 +60,8 @@ import numpy as np
 
 from ..checks import check_numbers
 from ..geometry import invert
-from ..tracking.pose import CHI2_MONO, CHI2_STEREO, chi2_per_observation, observations
-from .slam_map import SlamMap
+from ..map.observation import CHI2_MONO, CHI2_STEREO, chi2_per_observation, observations
+from ..map.slam_map import SlamMap
 
 FIXED_SIGMA = 1e-6
 """Prior sigma of fixed keyframes, metres / radians (effectively constant)."""

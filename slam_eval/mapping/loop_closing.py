@@ -33,15 +33,17 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from typing import Protocol
 
 import gtsam
 import numpy as np
 
 from ..checks import check_numbers
+from ..frontend.matching import Matches
+from ..frontend.orb import Features
 from ..geometry import invert, rotation_angle_deg
-from ..tracking.tracker import Tracker
+from ..map.slam_map import KeyFrame, SlamMap
 from .local_mapping import FIXED_SIGMA, BundleAdjuster, pose_key
-from .slam_map import KeyFrame, SlamMap
 
 
 @dataclass(frozen=True)
@@ -122,11 +124,50 @@ class _Match:
     matched: np.ndarray
 
 
+class PlaceMatcher(Protocol):
+    """What loop closing asks of the tracker (:class:`~..tracking.tracker.Tracker`): its map and
+    the matching and pose estimation it tracks with, so that a loop is verified as a frame is
+    tracked. Loop closing depends on this interface, not on the tracking package."""
+
+    @property
+    def map(self) -> SlamMap: ...
+
+    def match_keyframe(
+        self,
+        features: Features,
+        query: np.ndarray,
+        kf: KeyFrame,
+        ratio: float,
+        max_hamming: int,
+        min_points: int,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None: ...
+
+    def pnp_global(
+        self, world: np.ndarray, features: Features, kp: np.ndarray, distance: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray] | None: ...
+
+    def match_projected(
+        self,
+        point_ids: np.ndarray,
+        pose_cw: np.ndarray,
+        features: Features,
+        available: np.ndarray,
+        radius: float,
+        local: bool = False,
+    ) -> tuple[np.ndarray, Matches]: ...
+
+    def refine_pose(
+        self, world: np.ndarray, features: Features, kp: np.ndarray, pose_cw: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]: ...
+
+
 class LoopCloser:
     """Detects and closes loops on the keyframes of a tracker's map (feed :meth:`process` each
     new keyframe after local mapping)."""
 
-    def __init__(self, config: LoopClosingConfig, tracker: Tracker, adjuster: BundleAdjuster):
+    def __init__(
+        self, config: LoopClosingConfig, tracker: PlaceMatcher, adjuster: BundleAdjuster
+    ) -> None:
         self.config = config
         self.tracker = tracker
         self.adjuster = adjuster

@@ -94,6 +94,10 @@ BAD_CONFIGS = [
     (["segmenter=onnx"], "Missing mandatory value: segmenter.path"),
     (["segmenter=onnx", "segmenter.path=missing.onnx"], "segmenter.path missing.onnx: no such"),
     (["slam.orb.bogus=1"], "slam.orb.bogus: Key 'bogus' not in 'OrbConfig'"),
+    (["slam.tracker.policy=harness"], "slam.tracker.policy: the harness tracking policy was "
+                                      "removed (ORB-SLAM2's is the only one); commit 0fea5f3"),
+    (["slam.tracker.keyframe_translation=0.2"], "slam.tracker.keyframe_translation: the harness "
+                                                "policy's keyframe rule was removed; commit 0fea5f3"),
     (["segmenter=deeplab"], "Could not find 'segmenter/deeplab' (Available options in "
                             "'segmenter': labels, none, onnx)"),
 ]  # fmt: skip

@@ -15,13 +15,13 @@ from uss_slam.core.tum_io import TUM_CAMERAS, Trajectory, read_trajectory
 from uss_slam.slam_eval.filters.dynamic import build_filters
 from uss_slam.slam_eval.frontend.orb import Features, OrbConfig, OrbExtractor
 from uss_slam.slam_eval.geometry import from_rvec, invert
+from uss_slam.slam_eval.map.slam_map import SlamMap
 from uss_slam.slam_eval.mapping.local_mapping import (
     BundleAdjuster,
     LocalMapping,
     LocalMappingConfig,
     depth_noise_of,
 )
-from uss_slam.slam_eval.mapping.slam_map import SlamMap
 from uss_slam.slam_eval.run import run
 from uss_slam.slam_eval.scoring.metrics import ate
 from uss_slam.slam_eval.segmenters.base import NoSegmenter
@@ -316,9 +316,12 @@ def test_without_back_end_the_trajectory_is_the_trackers(synthetic_sequence) -> 
 def test_local_ba_runs_after_every_keyframe(synthetic_sequence, tmp_path: Path) -> None:
     path = synthetic_sequence(preset="static_xyz", frames=30)
     out = tmp_path / "run"
-    # The harness's keyframe rule makes several keyframes in these 30 slow frames (ORB-SLAM2's,
-    # the default, makes one: every point is still tracked).
-    cfg = slam_run_config(path, out, "slam.loop_closing=false", "slam.tracker.policy=harness")
+    # ORB-SLAM2's keyframe rule makes one keyframe in these 30 slow frames (every point is still
+    # tracked); asking for more close points than a frame holds makes its close-point rule
+    # (c2: too few close points tracked) hold on most frames: 22 keyframes.
+    cfg = slam_run_config(
+        path, out, "slam.loop_closing=false", "slam.tracker.min_close_tracked=1000"
+    )
     data = run(cfg)
     ba = data["local_ba"]
     assert ba["runs"] == data["keyframes"] - 1 >= 1

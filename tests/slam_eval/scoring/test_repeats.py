@@ -71,10 +71,10 @@ def test_repeats_metrics_reports_the_median_run() -> None:
 def test_sampling_seed_permutes_only_the_ransac_input_order() -> None:
     extractor = OrbExtractor(OrbConfig(), TUM_CAMERAS["fr3"])
     plain = Tracker(TrackerConfig(), extractor)
-    assert plain._sampling_order(7) == slice(None)
-    a = Tracker(TrackerConfig(), extractor, sampling_seed=5)._sampling_order(50)
-    b = Tracker(TrackerConfig(), extractor, sampling_seed=5)._sampling_order(50)
-    c = Tracker(TrackerConfig(), extractor, sampling_seed=6)._sampling_order(50)
+    assert plain.sampler.sampling_order(7) == slice(None)
+    a = Tracker(TrackerConfig(), extractor, sampling_seed=5).sampler.sampling_order(50)
+    b = Tracker(TrackerConfig(), extractor, sampling_seed=5).sampler.sampling_order(50)
+    c = Tracker(TrackerConfig(), extractor, sampling_seed=6).sampler.sampling_order(50)
     assert np.array_equal(np.sort(a), np.arange(50)) and np.array_equal(a, b)
     assert not np.array_equal(a, c)
 

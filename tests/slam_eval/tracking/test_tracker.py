@@ -116,10 +116,10 @@ def test_relocalises_against_the_best_matching_keyframe_not_the_latest(synthetic
     reference = Tracker(TrackerConfig(), ex)
     poses = [step(reference, i, feats[i]).pose_wc for i in range(len(frames))]
 
-    # The harness's keyframe rule makes a keyframe every max_keyframe_interval frames, which
-    # builds the right-only keyframes of the scenario (relocalisation is the same for both
-    # policies).
-    config = TrackerConfig(reloc_keyframes=2, max_keyframe_interval=2, policy="harness")
+    # Asking for more tracked close points than a frame holds (and any untracked one) makes
+    # ORB-SLAM2's close-point rule hold on most frames, which builds the right-only keyframes of
+    # the scenario.
+    config = TrackerConfig(reloc_keyframes=2, min_close_tracked=1000, min_close_untracked=0)
     tracker = Tracker(config, ex)
     for i in range(6):
         assert step(tracker, i, feats[i]).state is TrackingState.OK

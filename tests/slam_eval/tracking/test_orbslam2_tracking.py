@@ -1,4 +1,4 @@
-"""``slam.tracker.policy=orbslam2``: ORB-SLAM2's motion model with visual-odometry points, its
+"""ORB-SLAM2's RGB-D tracking: its motion model with visual-odometry points, its
 pose optimisation and its keyframe rules."""
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from uss_slam.slam_eval.sequence import TumSequence
 from uss_slam.slam_eval.systems.harness import SlamPipeline
 from uss_slam.slam_eval.tracking.tracker import Tracker, TrackerConfig
 
-ORBSLAM2 = TrackerConfig(policy="orbslam2", motion_ransac=True)
+ORBSLAM2 = TrackerConfig(motion_ransac=True)
 
 
 def _run(path, tracker, filters=(), labels=False):
@@ -27,9 +27,9 @@ def _run(path, tracker, filters=(), labels=False):
     return seq, pipeline.run()
 
 
-def test_unknown_policy_is_named() -> None:
-    with pytest.raises(ValueError, match="policy must be one of orbslam2, harness, got 'orb'"):
-        TrackerConfig(policy="orb")
+def test_the_removed_harness_policy_is_named() -> None:
+    with pytest.raises(TypeError, match="policy"):
+        TrackerConfig(policy="harness")  # type: ignore[call-arg]
 
 
 def test_static_scene_is_tracked_within_2cm(synthetic_sequence) -> None:
@@ -46,7 +46,7 @@ def test_last_frame_gives_visual_odometry_points(synthetic_sequence) -> None:
     close unmatched static keypoints back-projected with its pose (never its dynamic ones)."""
     seq = TumSequence(synthetic_sequence(preset="static_xyz", frames=3))
     ex = OrbExtractor(OrbConfig(), seq.camera)
-    tracker = Tracker(TrackerConfig(policy="orbslam2", min_new_points=0), ex)
+    tracker = Tracker(TrackerConfig(min_new_points=0), ex)
     for i in range(2):
         frame = seq.load(i)
         feats = ex(frame.gray, frame.depth)
@@ -83,7 +83,7 @@ def test_pose_optimisation_starts_with_every_match_an_inlier(synthetic_sequence)
     world[bad] += rng.normal(0, 0.3, (len(bad), 3))
     start = np.eye(4)
     start[:3, 3] = [0.05, -0.03, 0.04]
-    pose, inl = tracker.optimise_all(world, feats, kp, start)
+    pose, inl = tracker.sampler.optimise_all(world, feats, kp, start)
     assert np.abs(pose[:3, 3]).max() < 0.005
     assert inl.sum() >= 0.85 * len(kp)
     assert inl[bad].mean() < 0.2

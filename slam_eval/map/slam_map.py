@@ -6,9 +6,9 @@ range over which ORB can re-detect the point (scale invariance), visible / found
 culling, and their keyframe observations (kept as flat ``(point, keyframe, keypoint)`` arrays so
 that covisibility counts are single ``np.bincount`` calls).
 
-The back end (:mod:`.local_mapping`, :mod:`.loop_closing`) edits the map: it moves keyframes and
-points, erases outlier observations (an erased observation stays in the arrays, marked invalid),
-culls redundant keyframes and fuses duplicated points. Keyframes form a spanning tree (each one's
+The back end (:mod:`..mapping.local_mapping`, :mod:`..mapping.loop_closing`) edits the map: it
+moves keyframes and points, erases outlier observations (an erased observation stays in the
+arrays, marked invalid), culls redundant keyframes and fuses duplicated points. Keyframes form a spanning tree (each one's
 ``parent`` shared the most points with it when it was inserted); a culled keyframe keeps its pose
 relative to its parent, as ORB-SLAM2's ``KeyFrame::SetBadFlag``, so the frames tracked against it
 still have a pose once the map moves (:meth:`SlamMap.pose_wc`).

@@ -1,0 +1,113 @@
+"""Tracking settings: :class:`TrackerConfig`, the ``slam.tracker`` config section."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from ..checks import check_numbers
+
+SAMPLERS = ("ransac", "prosac")
+"""Values of :attr:`TrackerConfig.sampler`."""
+REMOVED = {
+    "policy": "the harness tracking policy was removed (ORB-SLAM2's is the only one); "
+    "commit 0fea5f3 reproduces the figures made with slam.tracker.policy=harness",
+    "keyframe_translation": "the harness policy's keyframe rule was removed; "
+    "commit 0fea5f3 reproduces the figures made with it",
+    "keyframe_rotation_deg": "the harness policy's keyframe rule was removed; "
+    "commit 0fea5f3 reproduces the figures made with it",
+}
+"""Keys of ``slam.tracker`` that no longer exist, with why: what an old override is told."""
+
+
+@dataclass(frozen=True)
+class TrackerConfig:
+    """Tracking settings (defaults follow ORB-SLAM2's RGB-D tracking where it has one)."""
+
+    init_min_points: int = 100
+    """Close, static keypoints needed to create the first keyframe."""
+    search_radius: float = 7.0
+    """Window around a prediction for motion-model matching, px at level 0 (ORB-SLAM2: 7)."""
+    local_radius: float = 4.0
+    """Window for local-map matching after the pose is known, px at level 0 (ORB-SLAM2: 4)."""
+    max_hamming: int = 100
+    ratio: float = 0.8
+    min_matches: int = 20
+    """Fewer motion-model matches than this: search again with a doubled window."""
+    min_inliers: int = 30
+    """Fewest inliers after local-map tracking for the frame to count as tracked (ORB-SLAM2: 30)."""
+    ransac_iterations: int = 100
+    ransac_threshold: float = 3.0
+    """PnP-RANSAC reprojection threshold, px (refinement then uses the per-level χ² test)."""
+    sampler: str = "ransac"
+    """How PnP hypotheses are sampled: ``ransac`` (uniformly, ``cv2.solvePnPRansac`` with
+    AP3P / EPnP seeded with the prediction) or ``prosac`` (OpenCV's USAC with PROSAC sampling,
+    ``cv2.UsacParams``: the matches sorted by descriptor distance, the most distinctive tried
+    first)."""
+    refine_rounds: int = 4
+    rgbd_refinement: bool = True
+    """Refine with depth as a virtual stereo coordinate (ORB-SLAM2 RGB-D); False = reprojection
+    error only (``cv2.solvePnPRefineLM``)."""
+    virtual_baseline: float = 0.075
+    """Baseline of the virtual stereo pair, metres (ORB-SLAM2's TUM ``bf`` = 40 = 535.4 × 0.075)."""
+    th_depth: float = 3.0
+    """Close / far depth bound, metres (ORB-SLAM2's ``ThDepth`` 40 × the TUM
+    baseline bf / fx = 0.075 m)."""
+    min_new_points: int = 100
+    """A keyframe (and the last frame's visual odometry) creates points from all
+    its close keypoints and at least this many of the nearest (ORB-SLAM2: 100)."""
+    keyframe_min_frames: int = 0
+    """Frames between keyframes at least (ORB-SLAM2's ``mMinFrames``: 0; its local
+    mapping is always idle here: the back end runs between frames)."""
+    motion_ransac: bool = True
+    """Seed the motion model's pose optimisation with PnP-RANSAC on its matches
+    instead of the constant-velocity prediction (not ORB-SLAM2's; on by default, since without
+    it tracking diverges on synthetic static scenes and on real ``freiburg1_rpy`` frames)."""
+    reference_keyframe: bool = True
+    """Without a motion model (the second frame, the first after a relocalisation) match the
+    reference keyframe by descriptor, as ORB-SLAM2 (``TrackReferenceKeyFrame``); False = project
+    the local map with the last pose."""
+    local_keyframes: int = 10
+    keyframe_ratio: float = 0.75
+    """New keyframe when inliers < this × the reference keyframe's tracked points (ORB-SLAM2 RGB-D)."""
+    min_close_tracked: int = 100
+    min_close_untracked: int = 70
+    max_keyframe_interval: int = 30
+    min_found_ratio: float = 0.25
+    min_observations: int = 2
+    reloc_keyframes: int = 6
+    """Relocalisation tries the keyframes with the most descriptor matches, this many at most."""
+    reloc_ratio: float = 0.75
+    reloc_max_hamming: int = 64
+    reloc_min_inliers: int = 50
+    readout: float | None = None
+    """Rolling-shutter readout of the colour camera, seconds from the top row to the bottom row:
+    keypoints are moved to where they would be at the frame's stamp (:mod:`.rolling_shutter`).
+    None = the camera's declared ``readout`` (``intrinsics.yaml``; TUM's fr1 / fr2 / fr3
+    cameras 0.03), and no correction when it declares none; 0 = off."""
+    reloc_recent_frames: int = 30
+    """For this many frames after a relocalisation, tracking needs ``reloc_min_inliers`` inliers
+    instead of ``min_inliers`` (ORB-SLAM2's ``TrackLocalMap``: 50 within ``mMaxFrames`` = the
+    frame rate after ``mnLastRelocFrameId``); 0 = off."""
+
+    def __post_init__(self) -> None:
+        # Messages start with the field name: uss-slam prefixes the config section.
+        if self.sampler not in SAMPLERS:
+            raise ValueError(f"sampler must be one of {', '.join(SAMPLERS)}, got {self.sampler!r}")
+        if self.readout is not None and self.readout >= 1:
+            raise ValueError(f"readout must be < 1 s (a frame's readout), got {self.readout}")
+        check_numbers(
+            self,
+            positive=(
+                "search_radius",
+                "local_radius",
+                "ransac_threshold",
+                "virtual_baseline",
+                "ransac_iterations",
+                "refine_rounds",
+                "local_keyframes",
+                "reloc_keyframes",
+                "max_keyframe_interval",
+                "th_depth",
+            ),
+            unit=("ratio", "keyframe_ratio", "reloc_ratio", "min_found_ratio"),
+        )
