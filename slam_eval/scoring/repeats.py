@@ -33,8 +33,8 @@ import numpy as np
 
 from uss_slam.core.tum_io import StrPath, write_trajectory
 
-from ..systems.harness import RunResult
 from .run_folder import RunFolder
+from .run_result import RunResult
 
 
 @dataclass(frozen=True)

@@ -46,11 +46,11 @@ import numpy as np
 from uss_slam.core.tum_io import StrPath, write_trajectory
 
 from ..mapping.semantic_map import write_ply
-from ..systems.harness import RunResult
 from . import plots
 from .evaluation import STAT_KEYS, EvalConfig, Evaluation, scores_dict
 from .repeats import repeats_md
 from .run_folder import RunFolder
+from .run_result import RunResult
 
 
 def metrics_dict(result: RunResult, evaluation: Evaluation, config: EvalConfig) -> dict[str, Any]:

@@ -1,0 +1,100 @@
+"""The sub-packages of ``slam_eval`` import each other one way only: no import cycle between
+them, and tracking and mapping never import each other (both sit on the shared map,
+``slam_eval/map/``, as ORB-SLAM2's ``Tracking`` and ``LocalMapping`` on its ``Map``)."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+SLAM_EVAL = Path(__file__).resolve().parents[2] / "slam_eval"
+PACKAGE = "uss_slam.slam_eval"
+
+
+def _module_name(path: Path) -> str:
+    parts = list(path.relative_to(SLAM_EVAL).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts = parts[:-1]
+    return ".".join([PACKAGE, *parts])
+
+
+def _imports(path: Path) -> set[str]:
+    """Absolute names of every module ``path`` imports (``TYPE_CHECKING`` and function-level
+    imports included)."""
+    module = _module_name(path)
+    is_package = path.name == "__init__.py"
+    found: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            found |= {alias.name for alias in node.names}
+        elif isinstance(node, ast.ImportFrom):
+            if node.level == 0:
+                base = node.module or ""
+            else:
+                parts = module.split(".")
+                keep = len(parts) - node.level + (1 if is_package else 0)
+                base = ".".join(parts[:keep] + ([node.module] if node.module else []))
+            found.add(base)
+            found |= {f"{base}.{alias.name}" for alias in node.names}
+    return found
+
+
+def _sub_package(module: str) -> str | None:
+    """``tracking`` for ``uss_slam.slam_eval.tracking.tracker``; None for the root modules
+    (``config``, ``run``, ``geometry``, ...) and anything outside slam_eval."""
+    if not module.startswith(PACKAGE + "."):
+        return None
+    head = module[len(PACKAGE) + 1 :].split(".")[0]
+    return head if (SLAM_EVAL / head).is_dir() else None
+
+
+def sub_package_graph() -> dict[str, set[str]]:
+    """``{sub-package: the other sub-packages its files import}``."""
+    graph: dict[str, set[str]] = {}
+    for path in sorted(SLAM_EVAL.rglob("*.py")):
+        own = _sub_package(_module_name(path))
+        if own is None:
+            continue
+        targets = {_sub_package(m) for m in _imports(path)}
+        graph.setdefault(own, set()).update(t for t in targets if t and t != own)
+    return graph
+
+
+def _cycle(graph: dict[str, set[str]]) -> list[str] | None:
+    state: dict[str, int] = {}  # 1 on the current path, 2 done
+    path: list[str] = []
+
+    def visit(node: str) -> list[str] | None:
+        state[node] = 1
+        path.append(node)
+        for nxt in sorted(graph.get(node, ())):
+            if state.get(nxt) == 1:
+                return path[path.index(nxt) :] + [nxt]
+            if nxt not in state and (found := visit(nxt)):
+                return found
+        path.pop()
+        state[node] = 2
+        return None
+
+    for node in sorted(graph):
+        if node not in state and (found := visit(node)):
+            return found
+    return None
+
+
+def test_the_graph_sees_the_sub_packages_and_their_imports() -> None:
+    graph = sub_package_graph()
+    assert {"tracking", "mapping", "map", "filters", "systems", "scoring"} <= set(graph)
+    assert "map" in graph["tracking"] and "map" in graph["mapping"]
+    assert _cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
+
+
+def test_tracking_and_mapping_do_not_import_each_other() -> None:
+    graph = sub_package_graph()
+    assert "mapping" not in graph["tracking"], "slam_eval/tracking imports slam_eval/mapping"
+    assert "tracking" not in graph["mapping"], "slam_eval/mapping imports slam_eval/tracking"
+
+
+def test_no_import_cycle_between_sub_packages() -> None:
+    cycle = _cycle(sub_package_graph())
+    assert cycle is None, "import cycle between slam_eval sub-packages: " + " -> ".join(cycle)
