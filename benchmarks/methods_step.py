@@ -1,8 +1,8 @@
 """Seconds per training iteration of each adaptation method, relative to adaptsegnet, same run.
 
 Every method trains the same segmenter from the same initial state on the same fixed random batch
-under a Lightning Trainer that logs like ``uss-train`` (``benchmarks/train_step.py``'s
-``time_lightning``); the methods are interleaved and rotated per repeat so that each sees the same
+under a Lightning Trainer that logs like ``uss-train`` (:func:`uss_slam.testing.step_timing.time_lightning`, as
+``benchmarks/train_step.py``); the methods are interleaved and rotated per repeat so that each sees the same
 machine load. Default shapes are the demo experiment's: the small backbone, 129-pixel crops,
 batch 4 per domain, BatchNorm trained, discriminators of width 16.
 
@@ -25,9 +25,10 @@ import time
 from collections.abc import Callable
 
 import torch
-import train_step as bench  # the sibling script: its module builders and timer
 
 from uss_slam.models import DeepLabV2, PatchDiscriminator, PSPNet
+from uss_slam.testing.reference_step import random_batch
+from uss_slam.testing.step_timing import time_lightning
 from uss_slam.train.losses import LossWeights
 from uss_slam.train.methods import AdaptSegNet, AdvEnt, Method, MinEnt, SelfTraining, SourceOnly
 from uss_slam.train.module import AdversarialSegmentation
@@ -65,7 +66,8 @@ def build(net_name: str, method: str, freeze_bn: bool, ndf: int) -> AdversarialS
 
 
 def run(net_name: str, size: int, batch_size: int, iters: int, repeats: int, args) -> None:  # noqa: ANN001
-    batch = bench.random_batch(size, batch_size)
+    clock = time.process_time if args.clock == "cpu" else time.perf_counter
+    batch = random_batch(size, batch_size)
     batch["source"]["label"] = torch.randint(0, 4, batch["source"]["label"].shape)
     results: dict[str, list[float]] = {m: [] for m in METHODS}
     names = list(METHODS)
@@ -73,7 +75,7 @@ def run(net_name: str, size: int, batch_size: int, iters: int, repeats: int, arg
         for name in names[repeat % len(names) :] + names[: repeat % len(names)]:
             module = build(net_name, name, args.freeze_bn, args.ndf)
             # The first iteration of each run is a warm-up.
-            results[name] += bench.time_lightning(module, batch, iters + 1)[1:]
+            results[name] += time_lightning(module, batch, iters + 1, clock=clock)[1:]
     base = statistics.median(results["adaptsegnet"])
     bn = "frozen BN" if args.freeze_bn else "BN trained"
     print(
@@ -97,7 +99,6 @@ def main() -> None:
     parser.add_argument("--freeze-bn", action="store_true", help="frozen BN (the paper's)")
     parser.add_argument("--clock", choices=["cpu", "wall"], default="cpu")
     args = parser.parse_args()
-    bench.clock = time.process_time if args.clock == "cpu" else time.perf_counter
     logging.getLogger("lightning.pytorch").setLevel(logging.WARNING)
     torch.set_num_threads(args.threads)
     print(f"torch {torch.__version__}, {args.threads} thread(s), {args.clock} clock")

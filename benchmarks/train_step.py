@@ -30,269 +30,42 @@ shared machine the wall clock measures the other jobs; with one thread CPU time 
 The Lightning variants run under a Trainer that logs like ``uss-train``: TensorBoard (into a
 temporary folder) every 10 steps; ``--progress-bar`` adds the TQDM bar of an interactive run.
 
-:func:`plain_iteration` is also the independent reference the tests compare the module with.
+The plain loop is :func:`uss_slam.testing.reference_step.plain_iteration`, the independent
+reference the step tests compare the module with.
 """
 
 from __future__ import annotations
 
 import argparse
 import copy
-import functools
 import importlib.util
 import logging
 import os
 import statistics
 import tempfile
 import time
-from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import torch
-import torch.nn.functional as F
-from torch import Tensor, nn
+from torch import Tensor
 
-from uss_slam.models import DeepLabV2, PatchDiscriminator
+from uss_slam.testing.reference_step import (
+    PlainState,
+    build_module,
+    calibrate_batchnorm,
+    max_difference,
+    plain_iteration,
+    plain_state_from,
+    random_batch,
+)
+from uss_slam.testing.step_timing import FAST_CPU, Speed, time_lightning
 from uss_slam.train.losses import LossWeights
-from uss_slam.train.methods import StepValues
 from uss_slam.train.module import AdversarialSegmentation
-from uss_slam.train.schedules import PolyLR
-
-
-@dataclass
-class PlainState:
-    """Everything a plain training loop owns."""
-
-    segmenter: DeepLabV2
-    d_aux: nn.Module
-    d_main: nn.Module
-    opt_seg: torch.optim.Optimizer
-    opt_d: torch.optim.Optimizer
-    sched_seg: PolyLR
-    sched_d: PolyLR
-
-
-def _up(logits: Tensor, size: torch.Size) -> Tensor:
-    return F.interpolate(logits, size=size, mode="bilinear", align_corners=True)
-
-
-def _bce(logits: Tensor, label: float) -> Tensor:
-    return F.binary_cross_entropy_with_logits(logits, torch.full_like(logits, label))
-
-
-def source_loss(
-    segmenter: nn.Module, batch: dict, weights: LossWeights, out_src: Any = None
-) -> tuple[Tensor, Tensor, Tensor]:
-    """The weighted cross-entropy of both heads on the source images, and the two heads' logits
-    upsampled to the labels (``aux``, ``main``); ``out_src``: the segmenter's output on the
-    source images when already computed."""
-    src_img, src_lbl = batch["source"]["image"], batch["source"]["label"]
-    if out_src is None:
-        out_src = segmenter(src_img)
-    up_aux, up_main = _up(out_src.aux, src_lbl.shape[-2:]), _up(out_src.main, src_lbl.shape[-2:])
-    loss_seg = weights.lambda_seg_aux * F.cross_entropy(
-        up_aux, src_lbl, ignore_index=255
-    ) + weights.lambda_seg_main * F.cross_entropy(up_main, src_lbl, ignore_index=255)
-    return loss_seg, up_aux, up_main
-
-
-def plain_iteration(
-    state: PlainState,
-    batch: dict,
-    weights: LossWeights,
-    adaptation: bool = True,
-    domain_batch_norm: str = "separate",
-) -> None:
-    """Algorithm 1 written out in plain PyTorch (independent of the Lightning module).
-    ``domain_batch_norm`` (BatchNorm in train mode): ``separate`` = one forward per domain,
-    ``joint`` = source and target images through one forward (both batches' statistics),
-    ``running`` = the target forward with BatchNorm in eval mode (running statistics)."""
-    joint_batch_norm = domain_batch_norm == "joint"
-    seg, d_aux, d_main = state.segmenter, state.d_aux, state.d_main
-    src_img, trg_img = batch["source"]["image"], batch["target"]["image"]
-    out_src = out_trg = None
-    if adaptation and joint_batch_norm:
-        n = src_img.shape[0]
-        both = seg(torch.cat([src_img, trg_img]))
-        out_src = type(both)(both.aux[:n], both.main[:n])
-        out_trg = type(both)(both.aux[n:], both.main[n:])
-
-    # (1) segmentation loss, discriminators frozen.
-    for p in _params(d_aux, d_main):
-        p.requires_grad_(False)
-    state.opt_seg.zero_grad()
-    loss_seg, up_aux, up_main = source_loss(seg, batch, weights, out_src)
-    if out_trg is None:
-        loss_seg.backward()  # the source graph is freed before the target forward
-    if adaptation:
-        # (2) adversarial loss: target outputs should look like source (label 0).
-        if out_trg is None and domain_batch_norm == "running":
-            bns = [m for m in seg.modules() if isinstance(m, nn.modules.batchnorm._BatchNorm)]
-            for m in bns:
-                m.eval()
-            out_trg = seg(trg_img)
-            for m in bns:
-                m.train()
-        elif out_trg is None:
-            out_trg = seg(trg_img)
-        p_aux = F.softmax(_up(out_trg.aux, trg_img.shape[-2:]), dim=1)
-        p_main = F.softmax(_up(out_trg.main, trg_img.shape[-2:]), dim=1)
-        loss_adv = weights.lambda_adv_aux * _bce(d_aux(p_aux), 0.0)
-        loss_adv = loss_adv + weights.lambda_adv_main * _bce(d_main(p_main), 0.0)
-        if joint_batch_norm:
-            loss_adv = loss_adv + loss_seg  # one graph for both domains: one backward
-        loss_adv.backward()
-    state.opt_seg.step()
-    for p in _params(d_aux, d_main):
-        p.requires_grad_(True)
-
-    if adaptation:
-        # (3) + (4) discriminators: detached source = 0, target = 1.
-        state.opt_d.zero_grad()
-        src_aux, src_main = F.softmax(up_aux.detach(), 1), F.softmax(up_main.detach(), 1)
-        (_bce(d_aux(src_aux), 0.0) + _bce(d_main(src_main), 0.0)).backward()
-        (_bce(d_aux(p_aux.detach()), 1.0) + _bce(d_main(p_main.detach()), 1.0)).backward()
-        state.opt_d.step()
-        state.sched_d.step()
-    state.sched_seg.step()
-
-
-def _params(*modules: nn.Module) -> Iterator[nn.Parameter]:
-    for module in modules:
-        yield from module.parameters()
-
-
-def plain_state_from(module: AdversarialSegmentation) -> PlainState:
-    """Deep copies of the module's networks with freshly built optimisers and schedules."""
-    seg = copy.deepcopy(module.segmenter)
-    d_aux, d_main = copy.deepcopy(module.d_aux), copy.deepcopy(module.d_main)
-    lr = module.optimizer_factory.keywords["lr"]
-    opt_seg = module.optimizer_factory(params=seg.param_groups(lr, module.head_lr_mult))
-    opt_d = module.d_optimizer_factory(params=list(d_aux.parameters()) + list(d_main.parameters()))
-    return PlainState(
-        seg,
-        d_aux,
-        d_main,
-        opt_seg,
-        opt_d,
-        PolyLR(opt_seg, module.poly_total_iters, module.poly_power),
-        PolyLR(opt_d, module.poly_total_iters, module.poly_power),
-    )
-
-
-def build_module(
-    backbone: str, max_iters: int = 1000, n_layers: int = 5, ndf: int = 64, freeze_bn: bool = True
-) -> AdversarialSegmentation:
-    return AdversarialSegmentation(
-        net=DeepLabV2(num_classes=4, backbone=backbone, freeze_bn=freeze_bn),
-        discriminator=functools.partial(PatchDiscriminator, 4, n_layers, ndf),
-        optimizer=functools.partial(
-            torch.optim.SGD, lr=2.5e-4, momentum=0.9, nesterov=True, weight_decay=1e-4
-        ),
-        d_optimizer=functools.partial(torch.optim.Adam, lr=1e-4, betas=(0.9, 0.99)),
-        max_iters=max_iters,
-    )
-
-
-@torch.no_grad()
-def calibrate_batchnorm(net: nn.Module, images: Tensor) -> None:
-    """Set every BatchNorm's running statistics from ``images`` (one cumulative pass), as
-    pretrained weights would have them. A randomly initialised ResNet-101 whose frozen BN keeps
-    the default statistics (mean 0, var 1) normalises nothing and diverges at the first step:
-    the loop would then time NaN arithmetic."""
-    was_training = net.training
-    bns = [m for m in net.modules() if isinstance(m, nn.modules.batchnorm._BatchNorm)]
-    for bn in bns:
-        bn.reset_running_stats()
-        bn.momentum = None  # cumulative average
-        bn.train()
-    net(images)
-    for bn in bns:
-        bn.momentum = 0.1
-    net.train(was_training)  # DeepLabV2.train re-freezes BN when freeze_bn is set
-
-
-def random_batch(size: int, batch: int = 1, seed: int = 0) -> dict:
-    g = torch.Generator().manual_seed(seed)
-    label = torch.randint(0, 4, (batch, size, size), generator=g)
-    label[:, :4] = 255
-    return {
-        "source": {"image": torch.randn(batch, 3, size, size, generator=g), "label": label},
-        "target": {"image": torch.randn(batch, 3, size, size, generator=g)},
-    }
-
-
-class _Repeat(torch.utils.data.Dataset):
-    def __init__(self, batch: dict, n: int) -> None:
-        self.batch, self.n = batch, n
-
-    def __len__(self) -> int:
-        return self.n
-
-    def __getitem__(self, index: int) -> dict:
-        return self.batch
-
 
 CLOCKS = {"wall": time.perf_counter, "cpu": time.process_time}
 clock = time.perf_counter
 progress_bar = False
-
-
-class _Timer:
-    """Lightning callback: wall time between consecutive batch starts (the whole iteration)."""
-
-    def __init__(self) -> None:
-        self.starts: list[float] = []
-
-    def times(self) -> list[float]:
-        return [b - a for a, b in zip(self.starts, self.starts[1:], strict=False)]
-
-
-def time_lightning(
-    module: AdversarialSegmentation,
-    batch: dict,
-    iters: int,
-    precision: str = "32-true",
-    losses: list[dict[str, float]] | None = None,
-) -> list[float]:
-    """Seconds per iteration under a Trainer that logs as ``uss-train`` does (TensorBoard
-    into a temporary folder, ``log_every_n_steps: 10`` of ``configs/trainer/default.yaml``),
-    at ``precision`` (``trainer.precision``). ``losses`` receives each iteration's ``train/*``
-    scalars (a host sync per iteration: pass it only when not timing)."""
-    from lightning.pytorch import Callback, Trainer
-    from lightning.pytorch.loggers import TensorBoardLogger
-
-    timer = _Timer()
-
-    class Hook(Callback):
-        def on_train_batch_start(self, *args: object) -> None:
-            timer.starts.append(clock())
-
-        def on_train_batch_end(self, trainer: object, pl_module: object, *args: object) -> None:
-            if losses is not None:  # before the module's own hook clears its step values
-                step: StepValues = pl_module._step_values[0]  # type: ignore[attr-defined]
-                scalars = pl_module.method.train_scalars(step)  # type: ignore[attr-defined]
-                losses.append({k: float(v) for k, v in scalars.items()})
-
-        def on_train_end(self, *args: object) -> None:
-            timer.starts.append(clock())
-
-    loader = torch.utils.data.DataLoader(_Repeat(batch, iters), batch_size=None)
-    with tempfile.TemporaryDirectory(prefix="train_step_") as logdir:
-        trainer = Trainer(
-            accelerator="cpu",
-            max_epochs=1,
-            precision=precision,
-            logger=TensorBoardLogger(logdir, name="", version=""),
-            log_every_n_steps=10,
-            enable_checkpointing=False,
-            enable_progress_bar=progress_bar,
-            enable_model_summary=False,
-            callbacks=[Hook()],
-        )
-        trainer.fit(module, train_dataloaders=loader)
-    return timer.times()
 
 
 def time_plain(state: PlainState, batch: dict, iters: int, weights: LossWeights) -> list[float]:
@@ -302,11 +75,6 @@ def time_plain(state: PlainState, batch: dict, iters: int, weights: LossWeights)
         plain_iteration(state, batch, weights)
         times.append(clock() - start)
     return times
-
-
-def max_difference(a: nn.Module, b: nn.Module) -> float:
-    sa, sb = a.state_dict(), b.state_dict()
-    return max(float((sa[k].float() - sb[k].float()).abs().max()) for k in sa)
 
 
 COMPARED = "lightning (--compare-module)"
@@ -388,12 +156,14 @@ def run(case: Case, compare: type[AdversarialSegmentation] | None = None) -> Non
             else:
                 settings = VARIANTS[name]
             variant.batch_domains, variant.channels_last = settings
-            results[name] += time_lightning(variant, batch, case.iters)[1:]
+            results[name] += time_lightning(
+                variant, batch, case.iters, clock=clock, progress_bar=progress_bar
+            )[1:]
     # Same computation: from the same start, module and plain loop end with the same weights.
     check_module = copy.deepcopy(module)
     check_module.batch_domains = False
     check_state = plain_state_from(check_module)
-    time_lightning(check_module, batch, 2)
+    time_lightning(check_module, batch, 2, clock=clock, progress_bar=progress_bar)
     for _ in range(2):
         plain_iteration(check_state, batch, weights)
     diff = max_difference(check_module.segmenter, check_state.segmenter)
@@ -414,17 +184,6 @@ def run(case: Case, compare: type[AdversarialSegmentation] | None = None) -> Non
             f"({1000 * (median - plain):+6.1f} ms)   vs lightning {median / base:6.3f}"
         )
 
-
-@dataclass(frozen=True)
-class Speed:
-    """One variant of ``--suite speed``: module attributes and the trainer's precision."""
-
-    settings: dict[str, object] = field(default_factory=dict)
-    precision: str = "32-true"
-
-
-FAST_CPU = Speed({"channels_last": True, "optimizer_kernels": "fused"}, "bf16-mixed")
-"""What ``trainer=fast_cpu`` sets (a test keeps the two equal)."""
 
 SPEED_VARIANTS = {
     "eager": Speed(),  # the shipped defaults: batched domains, NCHW, float32, eager
@@ -467,7 +226,9 @@ def run_speed(case: Case, variants: list[str] | None = None) -> None:
             if name == "plain":
                 results["plain"] += time_plain(state, batch, case.iters, weights)[1:]
                 continue
-            times = time_lightning(instances[name], batch, case.iters, speeds[name].precision)
+            times = time_lightning(
+                instances[name], batch, case.iters, speeds[name].precision, clock=clock
+            )
             first.setdefault(name, times[0])
             results[name] += times[1:]
     # Same computation: 2 iterations of every variant from the same start, against eager.
@@ -476,7 +237,7 @@ def run_speed(case: Case, variants: list[str] | None = None) -> None:
     for name, variant in instances.items():
         _restart(variant, module)
         losses[name] = []
-        time_lightning(variant, batch, 2, speeds[name].precision, losses[name])
+        time_lightning(variant, batch, 2, speeds[name].precision, losses[name], clock=clock)
         finals[name] = {k: v.detach().float().clone() for k, v in variant.state_dict().items()}
     plain = statistics.median(results["plain"])
     eager = statistics.median(results["eager"]) if "eager" in results else plain

@@ -11,7 +11,6 @@ from typing import ClassVar
 import pytest
 import torch
 import torch.nn.functional as F
-import train_step as bench
 from hydra.errors import ConfigCompositionException
 from hydra.utils import instantiate
 from shared_helpers import compose_train, data_overrides
@@ -20,6 +19,7 @@ from train_helpers import fit_repeated, quiet_trainer
 
 from uss_slam.core.errors import UssSlamError
 from uss_slam.models.checkpoint import read_checkpoint
+from uss_slam.testing import reference_step as bench
 from uss_slam.train.losses import upsample
 from uss_slam.train.methods import (
     AdaptSegNet,

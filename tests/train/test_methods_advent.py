@@ -1,6 +1,6 @@
 """model/method=advent: ADVENT's iteration (valeoai/ADVENT ``train_advent``) against a plain
-PyTorch loop written out here (the source loss: ``benchmarks/train_step.py``'s), its loss weights
-from the config, and the depth sweep."""
+PyTorch loop written out here (the source loss: ``uss_slam.testing.reference_step``'s), its loss
+weights from the config, and the depth sweep."""
 
 from __future__ import annotations
 
@@ -12,13 +12,13 @@ import numpy as np
 import pytest
 import torch
 import torch.nn.functional as F
-import train_step as bench
 from hydra.utils import instantiate
 from lightning.pytorch import Callback, LightningModule, Trainer
 from shared_helpers import compose_train
 from torch import Tensor
 from train_helpers import ADVERSARIAL_SCALARS, assert_weights_match_reference, fit_repeated
 
+from uss_slam.testing import reference_step as bench
 from uss_slam.train.losses import LossWeights
 from uss_slam.train.methods import AdvEnt
 from uss_slam.train.methods import advent as advent_module

@@ -1,6 +1,6 @@
 """model/method=minent: ADVENT's ``train_minent`` iteration against a plain PyTorch loop written
-out here (the source loss: ``benchmarks/train_step.py``'s); no discriminator step; bad weights are
-one line."""
+out here (the source loss: ``uss_slam.testing.reference_step``'s); no discriminator step; bad
+weights are one line."""
 
 from __future__ import annotations
 
@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 import torch
 import torch.nn.functional as F
-import train_step as bench
 from hydra.utils import instantiate
 from shared_helpers import compose_train
 from torch import Tensor
@@ -19,6 +18,7 @@ from train_helpers import fit_repeated
 
 from uss_slam.core.errors import UssSlamError
 from uss_slam.models import DeepLabV2
+from uss_slam.testing import reference_step as bench
 from uss_slam.train.losses import LossWeights
 from uss_slam.train.methods import MinEnt
 from uss_slam.train.methods.minent import entropy_loss

@@ -8,12 +8,12 @@ from pathlib import Path
 
 import pytest
 import torch
-import train_step as bench
 from hydra.utils import instantiate
 from shared_helpers import compose_train
 from train_helpers import fit_repeated
 
 from uss_slam.models import SEGMENTERS
+from uss_slam.testing import reference_step as bench
 
 METHODS = ["source_only", "adaptsegnet", "advent", "minent", "self_training"]
 NETS = {"deeplab_small": "DeepLabV2", "pspnet_small": "PSPNet"}

@@ -11,7 +11,6 @@ from pathlib import Path
 import pytest
 import torch
 import torch.nn.functional as F
-import train_step as bench
 from hydra.utils import instantiate
 from shared_helpers import compose_train
 from torch import Tensor
@@ -20,6 +19,7 @@ from train_helpers import fit_repeated
 from uss_slam.core.errors import UssSlamError
 from uss_slam.models import DeepLabV2, PSPNet
 from uss_slam.models.checkpoint import read_checkpoint
+from uss_slam.testing import reference_step as bench
 from uss_slam.train.losses import LossWeights
 from uss_slam.train.methods import SelfTraining
 from uss_slam.train.methods.self_training import (

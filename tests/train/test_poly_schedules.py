@@ -11,11 +11,12 @@ from typing import Any
 
 import pytest
 import torch
-import train_step as bench
 from hydra.utils import instantiate
 from lightning.pytorch import Callback, LightningModule, Trainer
 from shared_helpers import compose_train
 from train_helpers import fit_repeated
+
+from uss_slam.testing import reference_step as bench
 
 MAX_ITERS = 6
 

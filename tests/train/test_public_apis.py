@@ -10,7 +10,6 @@ from typing import Any
 
 import pytest
 import torch
-import train_step as bench
 from lightning.pytorch import LightningModule, Trainer
 from lightning.pytorch.loggers import TensorBoardLogger
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
@@ -21,6 +20,7 @@ from train_helpers import fit_repeated, quiet_trainer
 from uss_slam.core.errors import UssSlamError
 from uss_slam.datasets.datamodule import UDADataModule
 from uss_slam.datasets.transforms import RandomScale
+from uss_slam.testing import reference_step as bench
 
 REPO = Path(__file__).resolve().parents[2]
 

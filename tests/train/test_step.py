@@ -1,5 +1,5 @@
 """One training iteration of AdversarialSegmentation = Algorithm 1, checked structurally and
-against the independent plain-PyTorch reference of benchmarks/train_step.py."""
+against the independent plain-PyTorch reference of uss_slam.testing.reference_step."""
 
 from __future__ import annotations
 
@@ -9,10 +9,10 @@ from typing import Any
 
 import pytest
 import torch
-import train_step as bench
 from lightning.pytorch import Callback, LightningModule, Trainer
 from train_helpers import ADVERSARIAL_SCALARS, assert_weights_match_reference, fit_repeated
 
+from uss_slam.testing import reference_step as bench
 from uss_slam.train.methods import SourceOnly
 from uss_slam.train.module import AdversarialSegmentation
 

@@ -12,13 +12,13 @@ from typing import Any
 
 import pytest
 import torch
-import train_step as bench
 from lightning.pytorch import Callback, LightningModule, Trainer
 from lightning.pytorch.loggers import CSVLogger
 from lightning.pytorch.plugins import MixedPrecision
 from train_helpers import fit_repeated
 
 from uss_slam.core.errors import UssSlamError
+from uss_slam.testing import reference_step as bench
 from uss_slam.train.losses import domain_loss, upsample
 
 

@@ -8,7 +8,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-import train_step as bench
 from hydra import compose, initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
 from hydra.utils import instantiate
@@ -16,6 +15,7 @@ from lightning.pytorch import Trainer
 from lightning.pytorch.strategies import DDPStrategy
 from omegaconf import DictConfig, OmegaConf, open_dict
 
+from uss_slam.testing import step_timing as bench
 from uss_slam.train.config_check import check_config_types
 from uss_slam.train.module import AdversarialSegmentation
 from uss_slam.train.train import TYPED_SECTIONS

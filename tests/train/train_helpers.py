@@ -10,8 +10,9 @@ from pathlib import Path
 from typing import Any
 
 import torch
-import train_step as bench
 from lightning.pytorch import Callback, LightningModule, Trainer
+
+from uss_slam.testing.step_timing import RepeatedBatch
 
 CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
 
@@ -46,7 +47,7 @@ def quiet_trainer(**options: Any) -> Trainer:
 
 def repeated_loader(batch: dict, iters: int) -> torch.utils.data.DataLoader:
     """``batch`` as a loader of ``iters`` batches an epoch (already batched)."""
-    return torch.utils.data.DataLoader(bench._Repeat(batch, iters), batch_size=None)
+    return torch.utils.data.DataLoader(RepeatedBatch(batch, iters), batch_size=None)
 
 
 def fit_repeated(
@@ -68,11 +69,11 @@ def fit_repeated(
 
 def assert_weights_match_reference(module: LightningModule, state: Any) -> None:
     """The segmenter and discriminators of ``module`` equal those of ``state`` (the plain
-    PyTorch loop's, ``bench.plain_state_from``) to the rounding of the module's kernels, which
-    differ in the last bit (batched / NHWC convolutions, softmax as exp(log_softmax)). Adam
-    divides by the root of tiny second moments and so magnifies last-bit gradient differences:
-    1e-6 for the SGD-trained segmenter, 2e-5 for the Adam-trained discriminators (their
-    weights are ~1e-2)."""
+    PyTorch loop's, ``uss_slam.testing.reference_step.plain_state_from``) to the rounding of the
+    module's kernels, which differ in the last bit (batched / NHWC convolutions, softmax as
+    exp(log_softmax)). Adam divides by the root of tiny second moments and so magnifies last-bit
+    gradient differences: 1e-6 for the SGD-trained segmenter, 2e-5 for the Adam-trained
+    discriminators (their weights are ~1e-2)."""
     for mine, ref, atol in (
         (module.segmenter, state.segmenter, 1e-6),
         (module.d_aux, state.d_aux, 2e-5),
