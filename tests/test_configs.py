@@ -272,6 +272,8 @@ def test_option_instantiates(case: Case, tmp_path: Path) -> None:
         pytest.skip(f"trainer={option} needs a GPU")
     if "model" in cfg and "net" in cfg.model and "backbone_weights" in cfg.model.net:
         cfg.model.net.backbone_weights = None  # no downloads in tests
+        if "allow_random_init" in cfg.model.net:
+            cfg.model.net.allow_random_init = True  # no weights files in tests
     for child in _instantiable(node):
         obj = instantiate(child)
         if child.get("_partial_"):  # built later with run-time arguments (none needed here)
@@ -328,6 +330,7 @@ def test_experiment_fast_dev_run(
         "data.source.transform.crop_size=129",
         "data.target.transform.crop_size=129",
         "model.net.backbone_weights=null",
+        "model.net.allow_random_init=true",
     ]
     metrics = train(prepared(case, tmp_path, extra))
     assert metrics["iteration"] == 1

@@ -1,4 +1,5 @@
-"""``uss-train experiment=uss_slam_paper`` on VOC / SBD / COCO / TUM fixture roots.
+"""``uss-train experiment=uss_slam_paper`` on VOC / SBD / COCO / TUM fixture roots; the demo and
+CI experiments with ``data=real`` on VOC-format photos, scored by ``uss-eval`` (``data/val=voc``).
 
 The paper's ResNet-101 takes minutes per step on a CPU and its ImageNet weights would be
 downloaded, so these runs swap in the small CI segmenter (``model/net=deeplab_small``) without
@@ -12,6 +13,7 @@ import json
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -74,6 +76,7 @@ def _overrides(roots: dict[str, Path], log_dir: Path) -> list[str]:
         f"data.target.roots=[{roots['tum']}]",
         "model/net=deeplab_small",  # ResNet-101 is minutes per CPU step (see the docstring)
         "model.net.backbone_weights=null",  # never download in tests
+        "model.net.allow_random_init=true",  # no weights file in tests
         "trainer=cpu",
         "logger=none",
         "data.num_workers=0",
@@ -236,3 +239,84 @@ def test_data_real_composes_any_subset_of_source_sets(
     assert data.source.selection.require == "any"
     # any of person / chair / monitor: 4 of 5 COCO images, 8 of 10 SBD ids
     assert [len(ids) for ids in data.source.chosen.values()] == [4, 8]
+
+
+# ------------------------------------------------- the shipped experiments on real-format photos
+
+
+@pytest.fixture(scope="module")
+def photo_roots(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
+    """A VOC tree of 12 photos in two sizes (a person, and a chair or a monitor, in each) with
+    train / val / test splits, and a TUM sequence of 8 frames."""
+    base = tmp_path_factory.mktemp("photos")
+    labels = {}
+    for k in range(12):
+        shape = (40, 48) if k % 2 == 0 else (44, 36)
+        h, w = shape
+        person = rect(shape, 4 + k % 5, 6, 4 + k % 5 + w // 3, h - 4, 15)
+        other = rect(shape, w // 2, h // 2, w - 2, h - 2, 9 if k % 3 else 20)
+        labels[f"2010_{k:06d}"] = paint_voc(shape, [person, other])
+    names = list(labels)
+    splits = {"train": names[:7], "val": names[7:9], "test": names[9:]}
+    voc = write_voc(base / "voc", labels, splits)
+    tum = write_tum(base / "tum" / "rgbd_dataset_freiburg3_walking_xyz", 8, (48, 64))
+    return {"voc": voc, "tum": tum, "labels": labels, "test": splits["test"]}
+
+
+def _run(command: str, args: list[str], cwd: Path) -> subprocess.CompletedProcess:
+    exe = Path(sys.executable).parent / command
+    result = subprocess.run([str(exe), *args], cwd=cwd, capture_output=True, text=True, timeout=900)
+    assert result.returncode == 0, result.stderr[-3000:]
+    return result
+
+
+@pytest.mark.slow
+def test_demo_and_ci_train_on_real_photos_and_uss_eval_scores_the_test_split(
+    photo_roots: dict[str, Any], tmp_path: Path
+) -> None:
+    """``uss-train experiment=demo data=real`` and ``experiment=ci data=real`` on VOC-format
+    photos and TUM frames (validated on ``data/val=voc``), then ``uss-eval`` with
+    ``data/val=voc`` on the test split."""
+    voc, tum = photo_roots["voc"], photo_roots["tum"]
+    logs = tmp_path / "logs"
+    common = [
+        "data=real",
+        f"data.source.voc.root={voc}",
+        f"data.target.roots=[{tum}]",
+        "data/val=voc",
+        f"data.val.root={voc}",
+        "data.num_workers=0",
+        "logger=none",
+        f"paths.log_dir={logs}",
+    ]
+    # the demo: 2 iterations, one validation (after the precise BatchNorm pass on whole photos)
+    _run("uss-train", ["experiment=demo", *common, "model.max_iters=2",
+                       "data.iterations_per_epoch=2"], tmp_path)  # fmt: skip
+    _run("uss-train", ["experiment=ci", *common], tmp_path)  # 4 iterations, 2 validations
+    for run_name, iterations in (("demo", 2), ("ci", 4)):
+        (run,) = (logs / "train" / "runs" / run_name).iterdir()
+        manifest = json.loads((run / MANIFEST_NAME).read_text())
+        assert manifest["sets"]["voc"]["ids"] == list(photo_roots["labels"])[:7]
+        last = torch.load(run / "checkpoints" / "last.ckpt", map_location="cpu", weights_only=False)
+        assert last["state_dict"] and last["iteration"] == iterations
+        assert len(list((run / "checkpoints").glob("best_*.ckpt"))) == 1  # val/mIoU was logged
+
+    (demo_run,) = (logs / "train" / "runs" / "demo").iterdir()
+    out = tmp_path / "eval"
+    result = _run(
+        "uss-eval",
+        [str(demo_run / "checkpoints" / "last.ckpt"), "data=real", "data/val=voc",
+         f"data.val.root={voc}", "data.val.split=test", "--out", str(out)],
+        tmp_path,
+    )  # fmt: skip
+    assert f"wrote {out / 'eval.json'}" in result.stdout
+    scored = json.loads((out / "eval.json").read_text())
+    assert scored["frames"] == len(photo_roots["test"]) == 3
+    # every labelled pixel of the test photos is counted once, under its project class
+    lut = np.zeros(256, np.int64)
+    lut[[15, 9, 20]] = [1, 2, 3]
+    truth = np.zeros(4, np.int64)
+    for name in photo_roots["test"]:
+        truth += np.bincount(lut[photo_roots["labels"][name]].ravel(), minlength=4)
+    assert np.array(scored["confusion_matrix"]).sum(axis=1).tolist() == truth.tolist()
+    assert truth[1] > 0  # the person class is in the test split

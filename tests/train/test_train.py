@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 import torch
+from hydra.errors import InstantiationException
 from hydra.utils import instantiate
 from lightning.pytorch import Trainer
 from lightning.pytorch.callbacks import ModelCheckpoint
@@ -46,6 +47,7 @@ def test_every_experiment_composes_and_instantiates(
             "data.source.selection.require=any",
             f"data.target.roots=[{uda_data['target']}]",
             "model.net.backbone_weights=null",
+            "model.net.allow_random_init=true",  # no weights file in tests
             "trainer.accelerator=cpu",
         ]
     cfg = compose_train(overrides, tmp_path)
@@ -65,7 +67,7 @@ def test_every_experiment_composes_and_instantiates(
     assert opt_d.defaults["betas"] == (0.9, 0.99)
     if experiment == "uss_slam_paper":
         assert model.segmenter.backbone_name == "resnet101"
-        assert cfg.model.net.freeze_bn and cfg.data.batch_size == 1
+        assert model.segmenter.batchnorm == "reference"
         assert opt_seg.param_groups[0]["lr"] == 2.5e-4 and opt_seg.param_groups[1]["lr"] == 2.5e-3
         assert opt_d.defaults["lr"] == 1e-4
         assert (
@@ -103,7 +105,11 @@ def test_paper_experiment_leaves_real_data_paths_to_fill(tmp_path: Path) -> None
     for name in ("voc", "sbd", "coco"):
         assert OmegaConf.is_missing(cfg.data.source[name], "root")
     assert OmegaConf.is_missing(cfg.data.target, "roots")
-    assert cfg.model.net.backbone_weights == "IMAGENET1K_V1"
+    assert cfg.model.net.weights_path is None and cfg.model.net.batchnorm == "reference"
+    # No weights file given: refused in one line before any training work.
+    with pytest.raises(InstantiationException) as error:
+        instantiate(cfg.model.net)
+    assert str(error.value.__cause__).startswith("model.net.weights_path: not set")
 
 
 def test_ci_fast_dev_run(uda_data: dict[str, Path], tmp_path: Path) -> None:
