@@ -14,8 +14,9 @@ writes ``source_manifest.json`` into the run directory (the trainer's ``default_
 
 from __future__ import annotations
 
+import copy
 import multiprocessing
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -175,6 +176,24 @@ class UDADataModule(LightningDataModule):
             pin_memory=self.pin_memory,
             multiprocessing_context=worker_context(self.num_workers),
         )
+
+
+def with_transform(dataset: Dataset, transform: Callable[[Any], Any]) -> Dataset:
+    """A shallow copy of ``dataset`` that applies ``transform`` to its samples instead of its
+    own (the files, selection and items stay those of ``dataset``).
+
+    What lets a config read the data config's own training sets another way, whatever their
+    layout: e.g. whole images with the evaluation transform for BatchNorm statistics
+    (``dataset: ${data.source}``, ``${data.target}``) instead of random training crops.
+    """
+    if not hasattr(dataset, "transform"):
+        raise UssSlamError(
+            f"with_transform: {type(dataset).__name__} has no transform to replace (expected "
+            "a dataset of uss_slam.datasets: VOC, SBD, COCO, TUM frames or selected sources)"
+        )
+    copied = copy.copy(dataset)
+    copied.transform = transform  # type: ignore[attr-defined]
+    return copied
 
 
 def worker_context(num_workers: int) -> Any:
