@@ -1,6 +1,10 @@
 """What every console script does with a user error: one line on stderr, exit code 1 (2 for an
 output another process is writing, :class:`~uss_slam.core.errors.OutputInUseError`).
 
+SIGTERM (``kill``, ``timeout``, a scheduler's preemption, a container stop) is handled as Ctrl-C
+(:func:`signals_as_interrupts`): the same cleanup runs, and the one line names the signal
+(``<prog>: interrupted (SIGTERM)``, exit code :data:`TERMINATED`).
+
 Unexpected internal errors keep their traceback; only the project's own errors (and the config
 errors an entry point names) count as the user's, and so does a full disk (``ENOSPC`` /
 ``EDQUOT`` from any library: ``no space left on device while writing <path>``). Hydra wraps
@@ -15,6 +19,7 @@ that need them (this module stays importable without them).
 
 from __future__ import annotations
 
+import functools
 import logging
 import os
 import signal
@@ -33,6 +38,101 @@ T = TypeVar("T")
 
 INTERRUPTED = 130
 """Exit code after Ctrl-C (128 + SIGINT, as shells report a process stopped by it)."""
+TERMINATED = 143
+"""Exit code after SIGTERM (128 + SIGTERM)."""
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised as an interrupt: every ``except KeyboardInterrupt`` and ``finally`` that
+    cleans up after Ctrl-C (staging folders, temporary files, locks, child processes) runs."""
+
+    def __init__(self, signum: int = signal.SIGTERM) -> None:
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+_received: int | None = None
+"""The signal that interrupted the console script (SIGINT or SIGTERM; None: none, or a
+``KeyboardInterrupt`` not sent as a signal), kept once the handlers are restored."""
+_handlers_depth = 0
+"""How many :func:`signals_as_interrupts` blocks are active (the outermost one resets
+:data:`_received`)."""
+
+
+def _interrupt_handler(signum: int, frame: object) -> None:
+    """SIGINT / SIGTERM in a console script: end the pool workers this process started (they
+    ignore Ctrl-C, so that none prints a traceback, and a pool would otherwise wait for their
+    tasks), then raise the interrupt in the main thread."""
+    global _received
+    _received = signum
+    from uss_slam.core.processes import end_pool_workers
+
+    end_pool_workers()
+    if signum == signal.SIGINT:
+        raise KeyboardInterrupt
+    raise Terminated(signum)
+
+
+@contextmanager
+def signals_as_interrupts() -> Iterator[None]:
+    """During the block, SIGTERM is handled as Ctrl-C: it raises :class:`Terminated` (a
+    ``KeyboardInterrupt``) in the main thread; Ctrl-C raises ``KeyboardInterrupt`` as before.
+    Either first ends the pool workers of :func:`uss_slam.core.processes.pool_ending_with_parent`.
+
+    A signal Python does not handle (ignored, as a shell's background job ignores Ctrl-C) stays
+    as it is; outside the main thread the block runs as it is. The handlers in place before
+    are restored when the block ends; :func:`interrupt_signal` still names the signal then.
+    """
+    global _handlers_depth, _received
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    if _handlers_depth == 0:
+        _received = None
+    previous = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    for sig, handler in previous.items():
+        if handler is signal.SIG_IGN or (sig == signal.SIGINT and not callable(handler)):
+            continue  # ignored by whoever started us, or Ctrl-C handled outside Python
+        signal.signal(sig, _interrupt_handler)
+    _handlers_depth += 1
+    try:
+        yield
+    finally:
+        _handlers_depth -= 1
+        for sig, handler in previous.items():
+            if handler is not None:
+                signal.signal(sig, handler)
+
+
+def interruptible(main: Callable[..., T]) -> Callable[..., T]:
+    """Decorator of a console script's ``main`` that handles its own ``KeyboardInterrupt``
+    (with :func:`report_interrupt`): the body runs in :func:`signals_as_interrupts`."""
+
+    @functools.wraps(main)
+    def wrapped(*args: Any, **kwargs: Any) -> T:
+        with signals_as_interrupts():
+            return main(*args, **kwargs)
+
+    return wrapped
+
+
+def interrupt_signal(error: BaseException | None = None) -> int:
+    """The signal that interrupted the console script: SIGTERM when a :class:`Terminated` is
+    ``error`` or was raised by :func:`signals_as_interrupts`' handler (a library may re-raise
+    it as a plain ``KeyboardInterrupt``), else SIGINT."""
+    if isinstance(error, Terminated):
+        return error.signum
+    return _received if _received is not None else signal.SIGINT
+
+
+def report_interrupt(prog: str, error: BaseException | None = None, note: str = "") -> int:
+    """Print the one line of an interrupted console script and return its exit code:
+    ``<prog>: interrupted`` and :data:`INTERRUPTED` after Ctrl-C, ``<prog>: interrupted
+    (SIGTERM)`` and :data:`TERMINATED` after SIGTERM; ``note`` is appended after ``; ``."""
+    signum = interrupt_signal(error)
+    named = "" if signum == signal.SIGINT else f" ({signal.Signals(signum).name})"
+    print(f"{prog}: interrupted{named}" + (f"; {note}" if note else ""), file=sys.stderr)
+    return 128 + int(signum)
 
 
 _program: str | None = None
@@ -100,26 +200,28 @@ def raise_dropped_interrupt() -> None:
 
 @contextmanager
 def interrupts_deferred() -> Iterator[None]:
-    """Ctrl-C (SIGINT) during the block takes effect when it ends: for a short step that must
-    not stop half-way (moving a finished run's files into place). A Ctrl-C that Python dropped
-    earlier (:func:`interrupts_kept`) is raised before the block starts. Outside the main
-    thread, or when SIGINT is not Python's to handle, the block runs as it is."""
+    """Ctrl-C (SIGINT) or SIGTERM during the block takes effect when it ends: for a short step
+    that must not stop half-way (moving a finished run's files into place). A Ctrl-C that
+    Python dropped earlier (:func:`interrupts_kept`) is raised before the block starts. Outside
+    the main thread, or for a signal that is not Python's to handle, the block runs as it is."""
     raise_dropped_interrupt()
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    previous = signal.getsignal(signal.SIGINT)
-    if not callable(previous):  # ignored, or handled outside Python: leave it alone
-        yield
-        return
+    previous = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    # ignored, default (SIGTERM ends the process at once) or handled outside Python: left alone
+    deferred = {sig: handler for sig, handler in previous.items() if callable(handler)}
     caught: list[int] = []
-    signal.signal(signal.SIGINT, lambda signum, frame: caught.append(signum))
+    for sig in deferred:
+        signal.signal(sig, lambda signum, frame: caught.append(signum))
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, previous)
+        for sig, handler in deferred.items():
+            signal.signal(sig, handler)
     if caught:
-        previous(signal.SIGINT, None)  # Python's default handler raises KeyboardInterrupt
+        # Python's default SIGINT handler or signals_as_interrupts' raise the interrupt
+        deferred[caught[0]](caught[0], None)
 
 
 def user_error(
@@ -230,6 +332,8 @@ def exit_on_user_error(prog: str, kinds: tuple[type[BaseException], ...] = ()) -
     OmegaConf's config errors). Ctrl-C is one line ``<prog>: interrupted`` and exit code
     :data:`INTERRUPTED` (a multirun stops as a whole), also when Python dropped it
     (:func:`interrupts_kept`): then at the next check, at the latest when the body ends.
+    SIGTERM is handled as Ctrl-C (:func:`signals_as_interrupts`): ``<prog>: interrupted
+    (SIGTERM)`` and exit code :data:`TERMINATED`.
     Anything else propagates with its traceback.
 
     Inside a job of a Hydra multirun whose console script runs the app under
@@ -245,15 +349,14 @@ def exit_on_user_error(prog: str, kinds: tuple[type[BaseException], ...] = ()) -
         if job is not None:
             report.overrides.append(job[1])
     try:
-        with program(prog), interrupts_kept():
+        with program(prog), signals_as_interrupts(), interrupts_kept():
             yield
             raise_dropped_interrupt()
     except SystemExit:
         raise
-    except KeyboardInterrupt:
-        # Ctrl-C: the user's own stop, not a failure to explain with a traceback.
-        print(f"{prog}: interrupted", file=sys.stderr)
-        sys.exit(INTERRUPTED)
+    except KeyboardInterrupt as interrupt:
+        # Ctrl-C or SIGTERM: a stop asked for, not a failure to explain with a traceback.
+        sys.exit(report_interrupt(prog, interrupt))
     except BaseException as error:
         cause = user_error(error, kinds) or no_space_error(error)
         if cause is None:
@@ -360,13 +463,16 @@ def run_hydra_app(prog: str, app: Callable[[], object]) -> None:
     line on stderr and exit code 1 — config composition errors, an output folder Hydra cannot
     create, the app's own errors (:func:`exit_on_user_error` inside it) — and a multirun's
     failed jobs listed at the end (:func:`report_failed_jobs`). Internal errors keep their
-    traceback."""
+    traceback. Ctrl-C and SIGTERM (:func:`signals_as_interrupts`) while Hydra composes the
+    config are the same one line as in the app."""
     previous = os.environ.get("HYDRA_FULL_ERROR")
     os.environ["HYDRA_FULL_ERROR"] = "1"  # Hydra raises instead of printing its own report
     report = JobReport(prog)
     try:
-        with report_failed_jobs(prog) as report:
+        with signals_as_interrupts(), report_failed_jobs(prog) as report:
             app()
+    except KeyboardInterrupt as interrupt:  # before the app's own handling (composition)
+        sys.exit(report_interrupt(prog, interrupt))
     except Exception as error:
         line = hydra_error_line(error)
         if line is None and isinstance(error, OSError) and not report.started:

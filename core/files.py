@@ -14,6 +14,7 @@ import hashlib
 import json
 import logging
 import os
+import re
 import socket
 import tempfile
 import threading
@@ -83,6 +84,22 @@ def atomic_path(path: str | PathLike[str], prefix: str = ".") -> Iterator[Path]:
         raise
     finally:
         tmp.unlink(missing_ok=True)
+
+
+def stale_temporaries(path: str | PathLike[str], prefix: str = ".") -> list[Path]:
+    """The temporary files of ``path`` that a killed writer left (kill -9, a power cut: no
+    ``finally`` ran): :func:`atomic_path`'s and :class:`StagedFiles`'
+    ``<prefix><name>.<random>.tmp`` beside it, and a scratch file staged beside such a file
+    (``.<that name>.<suffix>.<random>.tmp``). Only the writer that holds the output's lock
+    (:func:`output_lock`) may remove them: another process's writes are named the same."""
+    path = Path(path)
+    own = re.compile(rf"{re.escape(prefix + path.name)}\.[0-9a-f]{{12}}\.tmp")
+    scratch = re.compile(rf"\.{own.pattern}\.[^/]+\.[0-9a-f]{{12}}\.tmp")
+    try:
+        names = [entry.name for entry in os.scandir(path.parent) if entry.is_file()]
+    except OSError:  # the folder does not exist (yet): nothing was left
+        return []
+    return sorted(path.parent / n for n in names if own.fullmatch(n) or scratch.fullmatch(n))
 
 
 def no_space_errno(error: BaseException | None) -> int | None:
@@ -311,6 +328,30 @@ def _in_use_message(where: str, info: Mapping[str, Any]) -> str:
     if not _pid_alive(pid):  # a child of that process, still writing, holds the lock
         return f"{where} is in use by a process that pid {pid} (started {started}, now ended) left running"
     return f"{where} is in use by pid {pid} (started {started})"
+
+
+def lock_held(target: str | PathLike[str]) -> bool:
+    """Whether a process (this one included) holds the lock of the output ``target`` now
+    (:func:`output_lock`); False where there is no locking (not POSIX)."""
+    try:
+        import fcntl
+    except ImportError:
+        return False
+    path = lock_path(target)
+    with _held_guard:
+        if path in _held:
+            return True
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:  # no lock file: nobody holds it
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return True
+    finally:
+        os.close(fd)  # releases the test lock
+    return False
 
 
 @contextmanager

@@ -9,6 +9,11 @@ ends a Python process at once. Elsewhere nothing is done (the output locks of
     proc = subprocess.Popen(command, preexec_fn=ends_with_parent())
     pool = ProcessPoolExecutor(max_workers=2, **pool_ending_with_parent())
 
+A console script interrupted by Ctrl-C or SIGTERM (:func:`uss_slam.core.cli.signals_as_interrupts`)
+ends the workers of such a pool at once (:func:`end_pool_workers`): a pool would otherwise wait
+for their tasks before the script's cleanup runs. The workers ignore Ctrl-C themselves (the
+terminal sends it to them too), so that none of them prints a traceback.
+
 A launcher may put processes of its own between a driver and its jobs (submitit's local
 executor does), which the signal does not reach through: the driver names itself in the
 jobs' environment (:func:`watched_by_children`) and each job ends when that process has ended
@@ -17,13 +22,17 @@ jobs' environment (:func:`watched_by_children`) and each job ends when that proc
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
+import multiprocessing
 import os
 import signal
 import sys
 import threading
 import time
+import weakref
 from collections.abc import Callable
+from multiprocessing.connection import wait
 from pathlib import Path
 from typing import Any
 
@@ -74,9 +83,74 @@ def ends_with_parent(sig: int = signal.SIGTERM) -> Callable[[], None] | None:
 
 
 def pool_ending_with_parent(sig: int = signal.SIGTERM) -> dict[str, Any]:
-    """``initializer`` / ``initargs`` for :class:`concurrent.futures.ProcessPoolExecutor`: each
-    worker gets ``sig`` when this process ends (create the pool in the main thread)."""
-    return {"initializer": die_with_parent, "initargs": (os.getpid(), sig)}
+    """``initializer`` / ``initargs`` / ``mp_context`` for
+    :class:`concurrent.futures.ProcessPoolExecutor`: each worker gets ``sig`` when this process
+    ends (create the pool in the main thread), ignores Ctrl-C, and is ended by
+    :func:`end_pool_workers` when this process is interrupted."""
+    return {
+        "initializer": _start_pool_worker,
+        "initargs": (os.getpid(), sig),
+        "mp_context": _TrackedContext(),
+    }
+
+
+def _start_pool_worker(parent: int, sig: int) -> None:
+    """A pool worker's initializer: SIGTERM ends it at once, Ctrl-C is left to the parent
+    (which ends it: :func:`end_pool_workers`), and the parent's end ends it too. A forked worker
+    would otherwise keep the parent's Python handlers and print a traceback on either signal."""
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    die_with_parent(parent, sig)
+
+
+_pool_workers: weakref.WeakSet[Any] = weakref.WeakSet()
+"""The worker processes of the pools made with :func:`pool_ending_with_parent`."""
+
+
+class _TrackedContext:
+    """This process's default multiprocessing context, recording each process it creates in
+    :data:`_pool_workers`."""
+
+    def __init__(self) -> None:
+        self._base = multiprocessing.get_context()
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._base, name)
+
+    def Process(self, *args: Any, **kwargs: Any) -> Any:  # noqa: N802 (multiprocessing's name)
+        process = self._base.Process(*args, **kwargs)
+        _pool_workers.add(process)
+        return process
+
+
+def end_pool_workers(grace: float = 2.0) -> int:
+    """SIGTERM to every running worker of a pool made with :func:`pool_ending_with_parent`,
+    SIGKILL to those still running ``grace`` seconds later; returns how many were signalled.
+
+    The processes are not reaped here (their pool does that); whether one still runs is read
+    from its sentinel."""
+    running: dict[Any, int] = {}
+    for process in list(_pool_workers):
+        try:
+            sentinel, pid = process.sentinel, process.pid
+        except (ValueError, AttributeError):  # not started, or closed
+            continue
+        if pid is None or wait([sentinel], timeout=0):
+            continue
+        try:
+            os.kill(pid, signal.SIGTERM)
+        except ProcessLookupError:
+            continue
+        running[sentinel] = pid
+    signalled = len(running)
+    deadline = time.monotonic() + grace
+    while running and time.monotonic() < deadline:
+        for sentinel in wait(list(running), timeout=max(0.0, deadline - time.monotonic())):
+            running.pop(sentinel, None)
+    for pid in running.values():
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(pid, signal.SIGKILL)
+    return signalled
 
 
 WATCH_ENV = "USS_SLAM_END_WITH"

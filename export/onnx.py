@@ -34,7 +34,14 @@ from torch import Tensor, nn
 
 from uss_slam.core.classes import DYNAMIC_CLASSES
 from uss_slam.core.errors import UssSlamError
-from uss_slam.core.files import StagedFiles, check_writable, output_lock, write_json_atomic
+from uss_slam.core.files import (
+    StagedFiles,
+    check_writable,
+    lock_held,
+    output_lock,
+    stale_temporaries,
+    write_json_atomic,
+)
 from uss_slam.core.normalization import IMAGENET_MEAN, IMAGENET_STD
 from uss_slam.core.onnx_contract import (
     HEADS,
@@ -224,6 +231,22 @@ def write_onnx(
     onnx.save(model, str(path))
 
 
+def remove_stale_temporaries(out: Path) -> list[Path]:
+    """Remove the temporary files an export to ``out`` that was killed (kill -9: no cleanup ran)
+    left beside it: ``.<name>.<random>.tmp`` of the model and each sidecar. Called with ``out``'s
+    lock held, so that no other export is writing them; a sidecar that is itself locked as the
+    output of another export (an ``out`` named ``<name>.int8.onnx``) is left alone."""
+    removed = []
+    for final in (out, *(sidecar(out, s) for s in (VERIFY_SUFFIX, FAILED_SUFFIX, INT8_SUFFIX))):
+        if final != out and lock_held(final):
+            continue
+        for path in stale_temporaries(final):
+            path.unlink(missing_ok=True)
+            log.info("removed %s (left by an export that was killed)", path)
+            removed.append(path)
+    return removed
+
+
 def export_segmenter(
     segmenter: nn.Module,
     out: str | Path,
@@ -257,6 +280,7 @@ def export_segmenter(
     int8_out = sidecar(out, INT8_SUFFIX)
     started = time.perf_counter()
     with output_lock(out), StagedFiles() as staged:
+        remove_stale_temporaries(out)
         tmp = staged.path(out)
         write_onnx(wrapper, tmp, metadata, opset, trace_size)
         report: dict[str, Any] = {

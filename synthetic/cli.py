@@ -12,7 +12,7 @@ from pathlib import Path
 import cv2
 
 from uss_slam.core.classes import CLASS_NAMES
-from uss_slam.core.cli import program
+from uss_slam.core.cli import program, report_interrupt, signals_as_interrupts
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.files import check_writable
 
@@ -213,11 +213,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     voc.add_argument(
         "--style",
-        choices=STYLES,
+        choices=(*STYLES, "mixed"),
         default="source",
         help="source: the VOC tree; target: the same content in the recordings' lighting and "
         "sensor, written as a labelled image folder (rgb/, labels/ with the void band, "
-        "rgb.txt; no depth), as the appearance shift's target frames (default: source)",
+        "rgb.txt; no depth), as the appearance shift's target frames; mixed: the VOC tree with "
+        "each image in the source or the target style (even odds), as a broad photo "
+        "collection such as COCO, the stand-in for a pretraining set (default: source)",
     )
     common(voc)
 
@@ -227,7 +229,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    with program("uss-synth"):  # its warnings: "uss-synth: warning: ..."
+    with program("uss-synth"), signals_as_interrupts():  # warnings: "uss-synth: warning: ..."
         return _render(args)
 
 
@@ -256,6 +258,7 @@ def _render(args: argparse.Namespace) -> int:
         else:
             out = render_voc(args.out, images=args.images, size=args.size, seed=args.seed,
                              outfits=args.outfits, near=args.near, overwrite=args.overwrite,
+                             lighting="mixed" if args.style == "mixed" else "source",
                              progress=not args.quiet)  # fmt: skip
             print(f"wrote {args.images} images ({args.size[0]}x{args.size[1]}) to {out}")
     except SynthArgumentError as err:
@@ -267,9 +270,8 @@ def _render(args: argparse.Namespace) -> int:
     except UssSlamError as err:
         print(f"uss-synth: error: {err}", file=sys.stderr)
         return err.exit_code  # 1; 2 for an --out another process is rendering
-    except KeyboardInterrupt:
-        print("uss-synth: interrupted; nothing was written", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as interrupt:  # Ctrl-C or SIGTERM
+        return report_interrupt("uss-synth", interrupt, "nothing was written")
     print(f"done in {time.perf_counter() - start:.1f} s", file=sys.stderr)
     return 0
 

@@ -13,7 +13,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from uss_slam.core.cli import INTERRUPTED
+from uss_slam.core.cli import interruptible, report_interrupt
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.files import check_writable
 from uss_slam.core.tum_io import read_trajectory
@@ -184,6 +184,7 @@ def format_rpe(result: RpeResult, gt: Path, est: Path, max_diff: float, offset: 
     return "\n".join(lines)
 
 
+@interruptible  # SIGTERM as Ctrl-C
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -234,9 +235,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except UssSlamError as err:
         print(f"{PROG}: error: {err}", file=sys.stderr)
         return 1
-    except KeyboardInterrupt:  # the plot is written atomically: nothing half-written is left
-        print(f"{PROG}: interrupted", file=sys.stderr)
-        return INTERRUPTED
+    except KeyboardInterrupt as interrupt:  # Ctrl-C or SIGTERM
+        # the plot is written atomically: nothing half-written is left
+        return report_interrupt(PROG, interrupt)
     print(out)
     return 0
 

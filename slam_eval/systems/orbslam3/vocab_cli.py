@@ -12,7 +12,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from uss_slam.core.cli import INTERRUPTED, exit_code
+from uss_slam.core.cli import exit_code, interruptible, report_interrupt
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.files import check_writable, output_lock
 
@@ -118,6 +118,7 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+@interruptible  # SIGTERM as Ctrl-C
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -136,9 +137,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except UssSlamError as err:
         print(f"{PROG}: error: {err}", file=sys.stderr)
         return exit_code(err)
-    except KeyboardInterrupt:  # --out is written atomically: nothing half-written is left
-        print(f"{PROG}: interrupted", file=sys.stderr)
-        return INTERRUPTED
+    except KeyboardInterrupt as interrupt:  # Ctrl-C or SIGTERM
+        # --out is written atomically: nothing half-written is left
+        return report_interrupt(PROG, interrupt)
     return 0
 
 
