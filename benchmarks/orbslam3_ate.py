@@ -23,7 +23,8 @@ import sys
 import time
 from pathlib import Path
 
-from uss_slam.slam_eval.filters.dynamic import SemanticFilter, build_filters
+from uss_slam.slam_eval.filters.build import build_filters
+from uss_slam.slam_eval.filters.semantic import SemanticFilter
 from uss_slam.slam_eval.scoring.evaluation import EvalConfig, evaluate
 from uss_slam.slam_eval.segmenters.base import LabelsSegmenter, NoSegmenter
 from uss_slam.slam_eval.sequence import TumSequence

@@ -2,10 +2,11 @@
 SLAM work starts.
 
 Defaults live in the dataclasses (:class:`~.frontend.orb.OrbConfig`,
-:class:`~.tracking.tracker.TrackerConfig`, :class:`~.mapping.semantic_map.MapConfig`,
+:class:`~.tracking.config.TrackerConfig`, :class:`~.mapping.semantic_map.MapConfig`,
 :class:`~.mapping.local_mapping.LocalMappingConfig`,
-:class:`~.mapping.loop_closing.LoopClosingConfig`, :class:`~.scoring.evaluation.EvalConfig`) and in
-the filters' constructors.
+:class:`~.mapping.loop_closing.LoopClosingConfig`, :class:`~.scoring.evaluation.EvalConfig`); the
+filters are the ``slam.filter_params`` nodes of ``configs/slam/orb_rgbd.yaml`` (``_target_`` and
+parameters, built by :mod:`.filters.build`).
 :func:`register_configs` turns them into Hydra structured configs in Hydra's ConfigStore
 (``uss_slam_schema/slam``, ``uss_slam_schema/eval``), which ``configs/slam/orb_rgbd.yaml`` and
 ``configs/slam_eval.yaml`` list in their defaults: ``uss-slam --cfg job`` prints the values,
@@ -29,7 +30,7 @@ from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from uss_slam.core.errors import UssSlamError
 
-from .filters.dynamic import FILTERS, build_filters
+from .filters.build import build_filters, shipped_filter_configs
 from .frontend.orb import OrbConfig
 from .mapping.local_mapping import LocalMappingConfig
 from .mapping.loop_closing import LoopClosingConfig
@@ -44,10 +45,14 @@ SCHEMA_GROUP = "uss_slam_schema"
 """ConfigStore group of the structured configs (not a choice users make)."""
 
 
-def filter_defaults() -> dict[str, dict[str, Any]]:
-    """``{filter name: {parameter: default}}`` from the filters' constructors (their one home)."""
+def filter_defaults(nodes: dict[str, Any] | None = None) -> dict[str, dict[str, Any]]:
+    """``{filter name: {parameter: default}}`` from the constructors of the filter nodes'
+    ``_target_`` classes (``nodes``: the shipped ones of ``configs/slam/orb_rgbd.yaml`` when
+    None); a node whose ``_target_`` cannot be imported fails naming its key."""
+    nodes = shipped_filter_configs() if nodes is None else nodes
     out: dict[str, dict[str, Any]] = {}
-    for name, cls in FILTERS.items():
+    for name, node in nodes.items():
+        cls = _import_target(node, f"slam.filter_params.{name}")
         params = inspect.signature(cls.__init__).parameters
         out[name] = {
             p.name: list(p.default) if isinstance(p.default, tuple) else p.default
@@ -57,6 +62,18 @@ def filter_defaults() -> dict[str, dict[str, Any]]:
     return out
 
 
+def _import_target(node: Any, key: str) -> type:
+    """The class a config node's ``_target_`` names."""
+    target = node.get("_target_") if isinstance(node, dict) else None
+    if not target:
+        raise UssSlamError(f"{key}: expected a mapping with _target_ (the filter class)")
+    module_name, _, class_name = str(target).rpartition(".")
+    try:
+        return getattr(__import__(module_name, fromlist=[class_name]), class_name)
+    except (ImportError, AttributeError, ValueError):
+        raise UssSlamError(f"{key}._target_: cannot import {target!r}") from None
+
+
 @dataclass
 class SlamConfig:
     """The ``slam`` group: front end, tracker, semantic map, filter parameters, threading."""
@@ -64,8 +81,9 @@ class SlamConfig:
     orb: OrbConfig = field(default_factory=OrbConfig)
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
     map: MapConfig = field(default_factory=MapConfig)
-    filter_params: Any = field(default_factory=filter_defaults)
-    """Parameters of each filter by name; which filters run is the top-level ``filters`` list."""
+    filter_params: Any = field(default_factory=dict)
+    """Each filter by name: ``_target_`` (its class) and its parameters (the nodes of
+    ``configs/slam/orb_rgbd.yaml``); which filters run is the top-level ``filters`` list."""
     prefetch: int = 4
     """Frames loaded ahead by background threads."""
     workers: int = 2
@@ -160,7 +178,7 @@ def _raise(message: str) -> Any:
     raise UssSlamError(message)
 
 
-def _filter_names(value: Any, key: str) -> list[str]:
+def _filter_names(value: Any, key: str, known: Sequence[str]) -> list[str]:
     if isinstance(value, str):
         names = [value]
     elif isinstance(value, (list, tuple, ListConfig)):
@@ -168,36 +186,39 @@ def _filter_names(value: Any, key: str) -> list[str]:
     else:
         raise UssSlamError(f"{key}: expected a list of filter names, got {value!r}")
     for name in names:
-        if name not in FILTERS:
-            raise UssSlamError(f"{key}: unknown filter {name!r}; choose from {', '.join(FILTERS)}")
+        if name not in known:
+            raise UssSlamError(f"{key}: unknown filter {name!r}; choose from {', '.join(known)}")
     return names
 
 
-def _compare_sets(compare: Any) -> list[list[str]]:
+def _compare_sets(compare: Any, known: Sequence[str]) -> list[list[str]]:
     if not isinstance(compare, (list, ListConfig)) or not compare:
         raise UssSlamError(
             "compare must be a non-empty list of filter lists, e.g. "
             "compare=[[semantic],[semantic,geometry]]"
         )
-    return [_filter_names(item, f"compare[{k}]") for k, item in enumerate(compare)]
+    return [_filter_names(item, f"compare[{k}]", known) for k, item in enumerate(compare)]
 
 
 def _check_filter_params(params: Any) -> dict[str, dict[str, Any]]:
-    """Filter parameters: known filters and parameter names, the default's type."""
+    """Filter nodes: each a mapping with an importable ``_target_``, parameter names its
+    constructor takes, values of its default's type."""
     if params is None:
         return {}
     if not isinstance(params, dict):
         raise UssSlamError(f"slam.filter_params: expected a mapping, got {params!r}")
-    defaults = filter_defaults()
+    for name, values in params.items():
+        if not isinstance(values, dict):
+            raise UssSlamError(
+                f"slam.filter_params.{name}: expected a mapping with _target_ and parameters, "
+                f"got {values!r}"
+            )
+    defaults = filter_defaults(params)
     for name, values in params.items():
         key = f"slam.filter_params.{name}"
-        if name not in defaults:
-            raise UssSlamError(f"{key}: unknown filter; choose from {', '.join(defaults)}")
-        if values is None:
-            continue
-        if not isinstance(values, dict):
-            raise UssSlamError(f"{key}: expected a mapping of parameters, got {values!r}")
         for param, value in values.items():
+            if param == "_target_":
+                continue
             if param not in defaults[name]:
                 raise UssSlamError(
                     f"{key}.{param}: unknown parameter; expected one of {', '.join(defaults[name])}"
@@ -332,14 +353,17 @@ def check(cfg: DictConfig) -> RunPlan:
     _check_sequence(cfg)
     repeats = _check_repeats(slam, orb.n_features)
     params = _check_filter_params(OmegaConf.to_container(slam.filter_params, resolve=True))
+    known = list(params)
     if cfg.compare is None:
-        runs: list[tuple[str | None, list[str]]] = [(None, _filter_names(cfg.filters, "filters"))]
+        runs: list[tuple[str | None, list[str]]] = [
+            (None, _filter_names(cfg.filters, "filters", known))
+        ]
     else:
-        sets = _compare_sets(cfg.compare)
+        sets = _compare_sets(cfg.compare, known)
         runs = [("baseline", [])] + [(run_name(s), s) for s in sets]
     for _, names in runs:
         build_filters(names, params)
-    build_filters(list(FILTERS), params)  # the parameters of unused filters are checked too
+    build_filters(known, params)  # the parameters of unused filters are checked too
     _check_segmenter(cfg.segmenter)
     return RunPlan(orb, tracker, semantic_map, evaluation, params, runs, backend, repeats)
 

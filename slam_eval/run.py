@@ -21,7 +21,7 @@ from uss_slam.core.cli import hydra_task, run_hydra_app
 from uss_slam.core.files import check_writable, output_lock
 
 from .config import check, register_configs, removed_override, run_name
-from .filters.dynamic import build_filters
+from .filters.build import build_filters
 from .scoring.evaluation import evaluate
 from .scoring.repeats import (
     Perturbation,

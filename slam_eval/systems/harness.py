@@ -63,7 +63,7 @@ from uss_slam.core.errors import UssSlamError
 from uss_slam.core.progress import progress_bar
 from uss_slam.core.tum_io import Trajectory
 
-from ..filters.dynamic import DynamicFilter, FilterContext
+from ..filters.base import DynamicFilter, FilterContext
 from ..frontend.orb import Features, OrbConfig, OrbExtractor
 from ..geometry import invert
 from ..mapping.local_mapping import BundleAdjuster, LocalMapping, LocalMappingConfig, depth_noise_of

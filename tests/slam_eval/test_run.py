@@ -16,6 +16,7 @@ from uss_slam.core.classes import CLASS_NAMES
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.tum_io import read_trajectory
 from uss_slam.slam_eval.config import filter_defaults
+from uss_slam.slam_eval.filters.build import shipped_filter_configs
 from uss_slam.slam_eval.frontend.orb import OrbConfig
 from uss_slam.slam_eval.mapping.semantic_map import MapConfig, read_ply
 from uss_slam.slam_eval.run import run
@@ -33,7 +34,11 @@ def test_defaults_come_from_the_dataclasses_and_filters() -> None:
     assert OmegaConf.to_container(cfg.slam.tracker) == asdict(TrackerConfig())
     assert OmegaConf.to_container(cfg.slam.map) == asdict(MapConfig())
     assert OmegaConf.to_container(cfg.eval) == asdict(EvalConfig())
-    assert OmegaConf.to_container(cfg.slam.filter_params) == filter_defaults()
+    nodes = OmegaConf.to_container(cfg.slam.filter_params)
+    assert nodes == shipped_filter_configs()
+    assert {
+        name: {k: v for k, v in node.items() if k != "_target_"} for name, node in nodes.items()
+    } == filter_defaults()
     assert filter_defaults()["geometry"]["depth_threshold"] == 0.4
     assert filter_defaults()["semantic"]["dynamic_classes"] == ["person"]
     changed = compose_slam_eval(["sequence.path=/x", "slam.orb.n_features=1500", "eval.align=sim3"])

@@ -16,7 +16,7 @@ import numpy as np
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.progress import progress_bar
 
-from ...filters.dynamic import SemanticFilter
+from ...filters.semantic import SemanticFilter
 from ...segmenters.base import Segmenter
 from ...sequence import TumSequence
 

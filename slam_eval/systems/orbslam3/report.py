@@ -12,7 +12,7 @@ import numpy as np
 
 from uss_slam.core.classes import CLASS_NAMES
 
-from ...filters.dynamic import SemanticFilter
+from ...filters.semantic import SemanticFilter
 from ...scoring.evaluation import EvalConfig, Evaluation, scores_dict
 from ...scoring.repeats import median_index
 from ...scoring.report import fmt, write_report

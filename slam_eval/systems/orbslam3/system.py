@@ -56,7 +56,7 @@ import numpy as np
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.tum_io import StrPath
 
-from ...filters.dynamic import SemanticFilter
+from ...filters.semantic import SemanticFilter
 from ...scoring.evaluation import EvalConfig, evaluate
 from ...scoring.report import fmt
 from ...scoring.run_folder import RunFolder

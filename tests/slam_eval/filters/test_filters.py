@@ -7,14 +7,13 @@ import pytest
 from filter_helpers import CAM, features_at
 
 from uss_slam.core.errors import UssSlamError
-from uss_slam.slam_eval.filters.dynamic import (
-    FilterContext,
-    FlowFilter,
-    GeometryFilter,
-    ObjectFilter,
-    SemanticFilter,
-    build_filters,
-)
+from uss_slam.slam_eval.config import filter_defaults
+from uss_slam.slam_eval.filters.base import FilterContext
+from uss_slam.slam_eval.filters.build import build_filters, shipped_filter_configs
+from uss_slam.slam_eval.filters.flow import FlowFilter
+from uss_slam.slam_eval.filters.geometry import GeometryFilter
+from uss_slam.slam_eval.filters.object_rule import ObjectFilter
+from uss_slam.slam_eval.filters.semantic import SemanticFilter
 from uss_slam.slam_eval.frontend.orb import OrbConfig, OrbExtractor
 from uss_slam.slam_eval.sequence import Frame
 from uss_slam.slam_eval.tracking.tracker import Tracker, TrackerConfig
@@ -235,3 +234,22 @@ def test_build_filters_validates_names_and_parameters() -> None:
         build_filters(["flow", "flow"])
     with pytest.raises(UssSlamError, match="unknown class 'dog'"):
         build_filters(["semantic"], {"semantic": {"dynamic_classes": ["dog"]}})
+
+
+def test_each_shipped_filter_node_names_its_class_and_its_constructor_defaults() -> None:
+    nodes = shipped_filter_configs()
+    assert list(nodes) == ["semantic", "flow", "geometry", "object"]  # the documented order
+    classes = [SemanticFilter, FlowFilter, GeometryFilter, ObjectFilter]
+    for (name, node), cls in zip(nodes.items(), classes, strict=True):
+        assert node["_target_"] == f"{cls.__module__}.{cls.__qualname__}" and cls.name == name
+        assert {k: v for k, v in node.items() if k != "_target_"} == filter_defaults()[name]
+    built = build_filters(list(nodes))
+    assert [type(f) for f in built] == classes
+
+
+def test_a_filter_node_with_its_own_target_adds_a_filter() -> None:
+    node = {"_target_": "uss_slam.slam_eval.filters.semantic.SemanticFilter", "dilation": 2}
+    (extra,) = build_filters(["wide"], {"wide": node})
+    assert isinstance(extra, SemanticFilter) and extra.dilation == 2
+    with pytest.raises(UssSlamError, match="slam.filter_params.bare: expected a _target_"):
+        build_filters(["bare"], {"bare": {"dilation": 2}})

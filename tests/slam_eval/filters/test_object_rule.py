@@ -10,7 +10,8 @@ from filter_helpers import CAM, features_at
 
 from uss_slam.core.errors import UssSlamError
 from uss_slam.slam_eval.config import filter_defaults
-from uss_slam.slam_eval.filters.dynamic import FilterContext, ObjectFilter
+from uss_slam.slam_eval.filters.base import FilterContext
+from uss_slam.slam_eval.filters.object_rule import ObjectFilter
 from uss_slam.slam_eval.frontend.orb import OrbConfig, OrbExtractor
 from uss_slam.slam_eval.sequence import Frame
 

@@ -12,7 +12,7 @@ from shared_helpers import compose_slam_eval, slam_run_config
 
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.tum_io import TUM_CAMERAS, Trajectory, read_trajectory
-from uss_slam.slam_eval.filters.dynamic import build_filters
+from uss_slam.slam_eval.filters.build import build_filters
 from uss_slam.slam_eval.frontend.orb import Features, OrbConfig, OrbExtractor
 from uss_slam.slam_eval.geometry import from_rvec, invert
 from uss_slam.slam_eval.map.slam_map import SlamMap

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from uss_slam.core.tum_io import TUM_CAMERAS
-from uss_slam.slam_eval.filters.dynamic import build_filters
+from uss_slam.slam_eval.filters.build import build_filters
 from uss_slam.slam_eval.frontend.orb import Features, OrbConfig, OrbExtractor
 from uss_slam.slam_eval.geometry import from_rvec, invert, rotation_angle_deg
 from uss_slam.slam_eval.mapping.local_mapping import BundleAdjuster

@@ -15,7 +15,7 @@ from shared_helpers import slam_run_config
 from uss_slam.core.classes import CLASS_COLORS
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.tum_io import TUM_CAMERAS
-from uss_slam.slam_eval.filters.dynamic import build_filters
+from uss_slam.slam_eval.filters.build import build_filters
 from uss_slam.slam_eval.frontend.orb import OrbConfig, OrbExtractor
 from uss_slam.slam_eval.geometry import transform
 from uss_slam.slam_eval.mapping.octomap import (

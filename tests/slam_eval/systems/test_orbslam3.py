@@ -14,7 +14,7 @@ import pytest
 
 from uss_slam.core.errors import DataFormatError, UssSlamError
 from uss_slam.core.tum_io import TUM_CAMERAS, read_trajectory
-from uss_slam.slam_eval.filters.dynamic import SemanticFilter
+from uss_slam.slam_eval.filters.semantic import SemanticFilter
 from uss_slam.slam_eval.scoring.evaluation import EvalConfig
 from uss_slam.slam_eval.scoring.repeats import median_index
 from uss_slam.slam_eval.segmenters.base import LabelsSegmenter, NoSegmenter

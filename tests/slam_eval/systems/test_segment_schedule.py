@@ -15,7 +15,7 @@ from shared_helpers import slam_run_config
 
 from uss_slam.core.classes import CLASS_NAMES
 from uss_slam.core.errors import UssSlamError
-from uss_slam.slam_eval.filters.dynamic import build_filters
+from uss_slam.slam_eval.filters.build import build_filters
 from uss_slam.slam_eval.run import run
 from uss_slam.slam_eval.segmenters.base import ImageSegmenter, LabelsSegmenter
 from uss_slam.slam_eval.sequence import TumSequence

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from uss_slam.slam_eval.filters.dynamic import build_filters
+from uss_slam.slam_eval.filters.build import build_filters
 from uss_slam.slam_eval.frontend.orb import OrbConfig, OrbExtractor
 from uss_slam.slam_eval.geometry import project, transform
 from uss_slam.slam_eval.scoring.metrics import ate

@@ -10,7 +10,7 @@ from shared_helpers import compose_slam_eval
 
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.tum_io import TUM_CAMERAS
-from uss_slam.slam_eval.filters.dynamic import build_filters
+from uss_slam.slam_eval.filters.build import build_filters
 from uss_slam.slam_eval.frontend.orb import Features, OrbConfig, OrbExtractor
 from uss_slam.slam_eval.geometry import from_rvec, invert
 from uss_slam.slam_eval.run import run

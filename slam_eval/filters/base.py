@@ -1,0 +1,76 @@
+"""What every dynamic-keypoint filter shares: the per-frame context it reads
+(:class:`FilterContext`), what it returns (:class:`FilterOutput`), the base class
+(:class:`DynamicFilter`) and pixel sampling (:func:`values_at`).
+
+Every filter returns a :class:`FilterOutput`: which keypoints it judges dynamic, optionally the
+dynamic pixel region (kept out of the semantic map), and how many keypoints it could judge.
+Filters of stage ``"pre"`` run before tracking (they need no pose); ``"post"`` filters run once
+the frame's pose is known, and the pose is then re-refined without what they flagged.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Literal
+
+import numpy as np
+
+from ..frontend.orb import Features, OrbExtractor
+from ..sequence import Frame
+
+if TYPE_CHECKING:
+    from ..tracking.tracker import Tracker
+
+
+@dataclass
+class FilterContext:
+    """What a filter may look at for the current frame.
+
+    ``labels`` (H, W) uint8 class ids or None; ``pose_wc`` (4, 4) the current pose estimate
+    (post-pose filters only); ``matched`` (N,) map point per keypoint (-1 none; post only);
+    ``flags`` keypoint flags of the filters that ran before, by name; ``motion_flags`` the union
+    of the flags of motion filters (flow, geometry) so far.
+    """
+
+    frame: Frame
+    features: Features
+    labels: np.ndarray | None
+    extractor: OrbExtractor
+    tracker: Tracker
+    previous: Frame | None = None
+    pose_wc: np.ndarray | None = None
+    matched: np.ndarray | None = None
+    flags: dict[str, np.ndarray] = field(default_factory=dict)
+    motion_flags: np.ndarray | None = None
+
+
+@dataclass
+class FilterOutput:
+    """``dynamic`` (N,) bool; ``region`` (H, W) bool dynamic pixels or None; ``checked`` how many
+    keypoints the filter could judge (e.g. the flow filter needs depth and a previous frame)."""
+
+    dynamic: np.ndarray
+    region: np.ndarray | None = None
+    checked: int = 0
+
+
+class DynamicFilter(ABC):
+    """Base of the filters. ``stage`` says whether it needs the current pose."""
+
+    name: str = "filter"
+    stage: Literal["pre", "post"] = "pre"
+    needs_labels: bool = False
+    motion: bool = False
+    """Its flags come from observed motion (the object rule counts them)."""
+
+    @abstractmethod
+    def __call__(self, ctx: FilterContext) -> FilterOutput: ...
+
+
+def values_at(image: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """Values of a (H, W) image at float pixel positions ``xy`` (nearest pixel, clamped)."""
+    h, w = image.shape[:2]
+    col = np.clip(np.rint(xy[:, 0]).astype(np.int64), 0, w - 1)
+    row = np.clip(np.rint(xy[:, 1]).astype(np.int64), 0, h - 1)
+    return image[row, col]

@@ -1,0 +1,50 @@
+"""The semantic filter: ``semantic`` (USS-SLAM §3.4): keypoints inside the mask of the dynamic
+classes, dilated by ``dilation`` px (a real segmenter's masks are not pixel-exact at object
+borders).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import cv2
+import numpy as np
+
+from uss_slam.core.errors import UssSlamError
+
+from ..segmenters.base import class_ids
+from .base import DynamicFilter, FilterContext, FilterOutput, values_at
+
+
+class SemanticFilter(DynamicFilter):
+    """Drop keypoints inside the dilated mask of the dynamic classes."""
+
+    name = "semantic"
+    stage = "pre"
+    needs_labels = True
+
+    def __init__(self, dynamic_classes: Sequence[str] = ("person",), dilation: int = 5) -> None:
+        if dilation < 0:
+            raise UssSlamError(f"filter semantic: dilation must be >= 0 px, got {dilation}")
+        self.ids = class_ids(list(dynamic_classes))
+        self.dilation = int(dilation)
+        self._lut = np.zeros(256, np.uint8)
+        self._lut[self.ids] = 1
+        size = 2 * self.dilation + 1
+        self._kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
+
+    def mask(self, labels: np.ndarray) -> np.ndarray:
+        """``(H, W)`` uint8 1 where a dynamic class is (after dilation)."""
+        mask = cv2.LUT(labels, self._lut)
+        if self.dilation:
+            mask = cv2.dilate(mask, self._kernel)
+        return mask
+
+    def __call__(self, ctx: FilterContext) -> FilterOutput:
+        if ctx.labels is None:
+            raise UssSlamError(
+                "filter semantic needs a segmenter (segmenter=labels or an ONNX model)"
+            )
+        mask = self.mask(ctx.labels)
+        dynamic = values_at(mask, ctx.features.xy) > 0
+        return FilterOutput(dynamic, mask.astype(bool), len(ctx.features))
