@@ -175,6 +175,12 @@ class AdversarialSegmentation(LightningModule):
                 "model.domain_batch_norm must be separate, joint or running, got "
                 f"{domain_batch_norm!r}"
             )
+        if getattr(net, "batchnorm", None) == "reference" and domain_batch_norm != "separate":
+            raise UssSlamError(
+                f"model.domain_batch_norm={domain_batch_norm} contradicts "
+                "model.net.batchnorm=reference (source and target forwards apart, each "
+                "normalised by its own batch): set model.domain_batch_norm=separate"
+            )
         self.domain_batch_norm = domain_batch_norm
         self.channels_last = channels_last
         self.compile_networks = compile

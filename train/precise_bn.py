@@ -18,6 +18,9 @@ baseline of its own: :func:`adabn` applies it to any segmenter as an evaluation 
 ``domain: target`` (every method) or ``domain: auto`` (target for the methods that train on
 target frames, source for source-only) put them in the checkpoints instead. Weights are
 untouched; no random numbers are drawn (training is reproducible with or without it).
+
+With ``model.net.batchnorm=reference`` (AdaptSegNet's / ADVENT's BatchNorm) the callback leaves
+the statistics alone: that mode keeps the running averages of its source and target forwards.
 """
 
 from __future__ import annotations
@@ -146,6 +149,11 @@ class PreciseBatchNorm(Callback):
         if not isinstance(dataset, Sized) or len(dataset) == 0:
             raise UssSlamError(f"precise BatchNorm: the {domain} dataset is empty")
         net = getattr(pl_module, "segmenter", pl_module)
+        if getattr(net, "batchnorm", None) == "reference":
+            # The reference code's statistics are the running averages of its source and
+            # target forwards; they stay (checkpoint and export keep them).
+            log.debug("BatchNorm statistics kept: model.net.batchnorm=reference")
+            return
         indices = evenly_spaced(self.images, len(dataset))
         count = recompute_batchnorm(net, dataset, indices, self.batch_size)
         log.debug("BatchNorm statistics recomputed on %d %s images", count, domain)

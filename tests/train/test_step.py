@@ -287,3 +287,83 @@ def test_domain_batch_norm_rejects_other_values() -> None:
             method=SourceOnly(),
             domain_batch_norm="x",
         )
+
+
+def test_reference_batch_norm_matches_a_plain_restatement_of_adaptsegnet() -> None:
+    """``model.net.batchnorm=reference`` against AdaptSegNet's / ADVENT's set-up written out in
+    plain PyTorch: ``model.train()``, ``requires_grad=False`` on every BatchNorm's affine terms,
+    source forward then target forward (each normalised by its own batch, both updating the
+    running statistics): after one iteration the same weights and running statistics."""
+    from torch import nn
+
+    from uss_slam.models.deeplab import DeepLabV2
+
+    torch.manual_seed(0)
+    module = bench.build_module("resnet_small", max_iters=10, n_layers=5, ndf=8, freeze_bn=False)
+    plain_module = copy.deepcopy(module)
+    net = DeepLabV2(4, "resnet_small", batchnorm="reference")
+    net.load_state_dict(module.segmenter.state_dict())
+    module.segmenter = net
+    # The reference code's set-up, independent of model.net.batchnorm:
+    plain_module.segmenter.train()
+    for m in plain_module.segmenter.modules():
+        if isinstance(m, nn.BatchNorm2d):
+            for p in m.parameters():
+                p.requires_grad = False
+    state = bench.plain_state_from(plain_module)  # its SGD holds what requires grad
+    start = _params(net)
+    seen: list[tuple[int, bool]] = []
+    net.backbone.bn1.register_forward_pre_hook(lambda m, x: seen.append((len(x[0]), m.training)))
+    batch = bench.random_batch(41, 2)
+    fit_repeated(module, batch, 1)
+    bench.plain_iteration(state, batch, module.loss_weights, domain_batch_norm="separate")
+    assert_weights_match_reference(module, state)  # parameters and running statistics
+    assert seen == [(2, True), (2, True)]  # source, then target: batch statistics each
+    after = _params(net)
+    bn_keys = [k for k in after if ".bn" in k or "downsample.1" in k]
+    for key in bn_keys:
+        if key.endswith(("weight", "bias")):
+            assert torch.equal(after[key], start[key]), key  # affine frozen
+        elif key.endswith("running_mean"):
+            assert not torch.equal(after[key], start[key]), key  # statistics fed
+        elif key.endswith("num_batches_tracked"):
+            assert after[key].item() == 2, key  # by both forwards
+
+
+def test_reference_batch_norm_needs_separate_domain_forwards() -> None:
+    import functools
+
+    from uss_slam.core.errors import UssSlamError
+    from uss_slam.models.deeplab import DeepLabV2
+
+    for mode in ("joint", "running"):
+        with pytest.raises(
+            UssSlamError,
+            match=f"^model.domain_batch_norm={mode} contradicts model.net.batchnorm=reference",
+        ):
+            AdversarialSegmentation(
+                net=DeepLabV2(4, "resnet_small", batchnorm="reference"),
+                discriminator=None,
+                optimizer=functools.partial(torch.optim.SGD, lr=0.1),
+                d_optimizer=None,
+                method=SourceOnly(),
+                domain_batch_norm=mode,
+            )
+
+
+@pytest.mark.parametrize("mode", ["trained", "reference"])
+def test_precise_batch_norm_keeps_the_reference_statistics(mode: str) -> None:
+    from types import SimpleNamespace
+
+    from uss_slam.models.deeplab import DeepLabV2
+    from uss_slam.train.precise_bn import PreciseBatchNorm
+
+    torch.manual_seed(0)
+    images = [{"image": torch.randn(3, 33, 33) * 2 + 1} for _ in range(4)]
+    net = DeepLabV2(4, "resnet_small", batchnorm=mode)
+    before = net.backbone.bn1.running_mean.clone()
+    callback = PreciseBatchNorm(images, images, images=4, batch_size=2)  # type: ignore[arg-type]
+    trainer = SimpleNamespace(sanity_checking=False)
+    callback.on_validation_start(trainer, SimpleNamespace(segmenter=net))  # type: ignore[arg-type]
+    kept = torch.equal(before, net.backbone.bn1.running_mean)
+    assert kept is (mode == "reference")
