@@ -29,6 +29,17 @@ SequenceFactory = Callable[..., Path]
 VocFactory = Callable[..., Path]
 
 
+def pytest_runtest_setup(item: pytest.Item) -> None:
+    """``@pytest.mark.gpu`` tests need CUDA: skipped where ``torch.cuda.is_available()`` is false
+    (torch is imported only for them)."""
+    if item.get_closest_marker("gpu") is None:
+        return
+    import torch
+
+    if not torch.cuda.is_available():
+        pytest.skip("needs a CUDA GPU (torch.cuda.is_available() is false)")
+
+
 @pytest.fixture(scope="session")
 def synthetic_sequence(tmp_path_factory: pytest.TempPathFactory) -> SequenceFactory:
     """``synthetic_sequence(preset="walking_xyz", frames=30, size=(320, 240), style="target",
