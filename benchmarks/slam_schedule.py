@@ -33,13 +33,13 @@ import time
 from pathlib import Path
 
 import numpy as np
-from slam_targets import WALKING, sequence_path
 
-from uss_slam.slam_eval.filters.dynamic import build_filters
+from uss_slam.slam_eval.filters.build import build_filters
 from uss_slam.slam_eval.scoring.metrics import ate
 from uss_slam.slam_eval.segmenters.base import LabelsSegmenter, NoSegmenter
 from uss_slam.slam_eval.sequence import Frame, TumSequence
 from uss_slam.slam_eval.systems.harness import SEGMENT_SCHEDULES, RunResult, SlamPipeline
+from uss_slam.testing.harness_runs import WALKING, sequence_path
 
 
 class FixedCostSegmenter(LabelsSegmenter):

@@ -31,13 +31,12 @@ import tempfile
 import time
 from pathlib import Path
 
-from slam_targets import sequence_path
-
-from uss_slam.slam_eval.filters.dynamic import build_filters
+from uss_slam.slam_eval.filters.build import build_filters
 from uss_slam.slam_eval.frontend.orb import OrbConfig, OrbExtractor
 from uss_slam.slam_eval.segmenters.base import LabelsSegmenter
 from uss_slam.slam_eval.sequence import TumSequence
 from uss_slam.slam_eval.systems.harness import SlamPipeline
+from uss_slam.testing.harness_runs import sequence_path
 
 
 def main() -> None:

@@ -25,22 +25,19 @@ from __future__ import annotations
 import argparse
 import json
 import statistics
-import sys
 import time
 from dataclasses import fields
 from pathlib import Path
 
-from uss_slam.slam_eval.filters.dynamic import build_filters
+from uss_slam.slam_eval.filters.build import build_filters
 from uss_slam.slam_eval.frontend.orb import OrbConfig
 from uss_slam.slam_eval.scoring.metrics import ate
-from uss_slam.slam_eval.scoring.repeats import Perturbation, median_index, perturbations
+from uss_slam.slam_eval.scoring.repeats import Perturbation, perturbations
 from uss_slam.slam_eval.segmenters.base import LabelsSegmenter
 from uss_slam.slam_eval.sequence import TumSequence
 from uss_slam.slam_eval.systems.harness import SlamPipeline
 from uss_slam.slam_eval.tracking.tracker import TrackerConfig
-from uss_slam.synthetic import render_sequence
-
-WALKING = ("walking_xyz", "walking_rpy", "walking_halfsphere")
+from uss_slam.testing.harness_runs import WALKING, median_run, sequence_path
 
 
 def tracker_config(items: list[str]) -> TrackerConfig:
@@ -56,14 +53,6 @@ def tracker_config(items: list[str]) -> TrackerConfig:
         kind = types[key]
         kwargs[key] = value.lower() in ("1", "true", "yes") if kind is bool else kind(value)
     return TrackerConfig(**kwargs)
-
-
-def sequence_path(data: Path, preset: str, frames: int, size: tuple[int, int], seed: int) -> Path:
-    path = data / f"{preset}_{frames}_{size[0]}x{size[1]}_seed{seed}"
-    if not (path / "rgb.txt").is_file():
-        print(f"rendering {path} ...", file=sys.stderr)
-        render_sequence(path, preset=preset, frames=frames, size=size, seed=seed, progress=True)
-    return path
 
 
 def run(
@@ -104,13 +93,6 @@ def repeated(
 ) -> list[dict]:
     """One run per perturbation (repeat 0 first)."""
     return [run(path, filters, tracker, p, back_end) for p in repeats]
-
-
-def median_run(runs: list[dict]) -> dict:
-    """The median run as ``slam.repeats`` chooses it (:func:`median_index`), with the ATE RMSE
-    of every repeat."""
-    rmses = [r["ate_rmse"] for r in runs]
-    return {**runs[median_index(rmses)], "repeats": rmses}
 
 
 def main() -> None:

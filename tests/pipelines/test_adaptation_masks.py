@@ -1,4 +1,4 @@
-"""benchmarks/adaptation_masks.py's experiment mode: every export of a uss-experiments folder
+"""studies/adaptation_masks.py's experiment mode: every export of a uss-experiments folder
 scored on the labelled evaluation sequences, joined with its SLAM runs, and the rank
 correlation of each SLAM ratio with each mask figure."""
 
@@ -9,10 +9,21 @@ import shutil
 from pathlib import Path
 
 import pytest
-from adaptation_masks import experiment, join, joined_table, main, slam_ratios
 from pipeline_helpers import colour_model
 
 from uss_slam.pipelines.experiments.tables import COLUMNS
+from uss_slam.testing.downstream import slam_ratios
+from uss_slam.testing.scripts import load_script
+
+adaptation_masks = load_script(
+    Path(__file__).resolve().parents[2] / "studies" / "adaptation_masks.py"
+)
+experiment, join, joined_table, main = (
+    adaptation_masks.experiment,
+    adaptation_masks.join,
+    adaptation_masks.joined_table,
+    adaptation_masks.main,
+)
 
 
 def _slam(sequence: str, variant: str, ate: float, model: str = "", system: str = "harness",

@@ -1,4 +1,4 @@
-"""benchmarks/budget_downstream.py: finished jobs are read (median over repeats), not re-run, and
+"""studies/budget_downstream.py: finished jobs are read (median over repeats), not re-run, and
 a missing input is one error naming it."""
 
 from __future__ import annotations
@@ -7,7 +7,13 @@ import json
 from pathlib import Path
 
 import pytest
-from budget_downstream import (
+
+from uss_slam.testing.scripts import load_script
+
+budget_downstream = load_script(
+    Path(__file__).resolve().parents[2] / "studies" / "budget_downstream.py"
+)
+(
     baseline_folder,
     baseline_text,
     downstream_ratio,
@@ -22,6 +28,21 @@ from budget_downstream import (
     segeval,
     slam,
     slam_repeats,
+) = (
+    budget_downstream.baseline_folder,
+    budget_downstream.baseline_text,
+    budget_downstream.downstream_ratio,
+    budget_downstream.export,
+    budget_downstream.filter_comparisons,
+    budget_downstream.main,
+    budget_downstream.paired_difference,
+    budget_downstream.paired_text,
+    budget_downstream.plot_ratios,
+    budget_downstream.pooled,
+    budget_downstream.pooled_lines,
+    budget_downstream.segeval,
+    budget_downstream.slam,
+    budget_downstream.slam_repeats,
 )
 
 

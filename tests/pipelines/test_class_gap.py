@@ -1,4 +1,4 @@
-"""benchmarks/class_gap.py: the EM prior of a calibrated model is the target's, and the probe's
+"""studies/class_gap.py: the EM prior of a calibrated model is the target's, and the probe's
 IoU and class fractions on a fake experiment folder are those of its model's known labels."""
 
 from __future__ import annotations
@@ -9,10 +9,19 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from class_gap import confusion, em_prior, iou, main
 from PIL import Image
 from pipeline_helpers import colour_model
 from shared_helpers import colour_labels
+
+from uss_slam.testing.scripts import load_script
+
+class_gap = load_script(Path(__file__).resolve().parents[2] / "studies" / "class_gap.py")
+confusion, em_prior, iou, main = (
+    class_gap.confusion,
+    class_gap.em_prior,
+    class_gap.iou,
+    class_gap.main,
+)
 
 
 def test_em_recovers_the_target_prior_of_calibrated_posteriors() -> None:

@@ -1,13 +1,18 @@
-"""benchmarks/d_probe.py: the softmax maps of each BatchNorm mode are those the training step
+"""studies/d_probe.py: the softmax maps of each BatchNorm mode are those the training step
 computes in that mode, and an offline discriminator separates maps that differ."""
 
 from __future__ import annotations
 
+from pathlib import Path
 from types import SimpleNamespace
 
 import torch
-from d_probe import fit, maps
 from torch import nn
+
+from uss_slam.testing.scripts import load_script
+
+d_probe = load_script(Path(__file__).resolve().parents[2] / "studies" / "d_probe.py")
+fit, maps = d_probe.fit, d_probe.maps
 
 
 class Tiny(nn.Module):

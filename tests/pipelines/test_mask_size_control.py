@@ -1,4 +1,4 @@
-"""benchmarks/mask_size_control.py: the threshold that matches a mask size, the grid's SLAM jobs
+"""studies/mask_size_control.py: the threshold that matches a mask size, the grid's SLAM jobs
 it reruns, and its table."""
 
 from __future__ import annotations
@@ -8,8 +8,20 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from mask_size_control import base_jobs, match_threshold, person_share, table, target_frames
 from pipeline_helpers import colour_model
+
+from uss_slam.testing.scripts import load_script
+
+mask_size_control = load_script(
+    Path(__file__).resolve().parents[2] / "studies" / "mask_size_control.py"
+)
+base_jobs, match_threshold, person_share, table, target_frames = (
+    mask_size_control.base_jobs,
+    mask_size_control.match_threshold,
+    mask_size_control.person_share,
+    mask_size_control.table,
+    mask_size_control.target_frames,
+)
 
 
 def test_match_threshold_finds_the_share_by_bisection() -> None:

@@ -1,11 +1,17 @@
-"""benchmarks/shift_probe.py: the rows that vary one knob of a method compose as uss-train
+"""studies/shift_probe.py: the rows that vary one knob of a method compose as uss-train
 overrides with the intended values."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 from shared_helpers import compose_train
-from shift_probe import knob_overrides
+
+from uss_slam.testing.scripts import load_script
+
+shift_probe = load_script(Path(__file__).resolve().parents[2] / "studies" / "shift_probe.py")
+knob_overrides = shift_probe.knob_overrides
 
 
 def test_knob_rows_scale_the_methods_defaults() -> None:
@@ -69,8 +75,6 @@ def test_knob_bases_are_the_configs_defaults(tmp_path) -> None:
 
 
 def test_a_folder_without_a_data_set_is_named(tmp_path, monkeypatch) -> None:
-    import shift_probe
-
     argv = ["shift_probe.py", "--data", str(tmp_path), "--test", str(tmp_path), "--runs",
             str(tmp_path / "runs")]  # fmt: skip
     monkeypatch.setattr("sys.argv", argv)
@@ -87,8 +91,6 @@ def _scores(miou: float) -> dict:
 
 def test_the_table_pairs_every_row_by_seed(tmp_path, monkeypatch, capsys) -> None:
     import json
-
-    import shift_probe
 
     a = {"source_only": {"0": _scores(0.2), "1": _scores(0.3)},
          "adabn": {"0": _scores(0.4), "1": _scores(0.4)},
@@ -114,8 +116,6 @@ def test_the_table_pairs_every_row_by_seed(tmp_path, monkeypatch, capsys) -> Non
 
 
 def test_a_merge_file_that_is_not_a_probe_is_named(tmp_path, monkeypatch) -> None:
-    import shift_probe
-
     (tmp_path / "bad.json").write_text("[1, 2]")
     monkeypatch.setattr("sys.argv", ["shift_probe.py", "--test", "t", "--runs", str(tmp_path),
                                      "--merge", str(tmp_path / "bad.json")])  # fmt: skip
@@ -124,7 +124,7 @@ def test_a_merge_file_that_is_not_a_probe_is_named(tmp_path, monkeypatch) -> Non
 
 
 def test_discriminator_accuracy_is_the_last_quarter_of_the_log(tmp_path) -> None:
-    from shift_probe import discriminator_accuracy
+    discriminator_accuracy = shift_probe.discriminator_accuracy
 
     (tmp_path / "csv").mkdir()
     lines = ["step,train/d_acc_main,train/d_acc_aux,val/mIoU"]

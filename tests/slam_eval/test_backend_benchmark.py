@@ -1,9 +1,16 @@
-"""benchmarks/slam_backend.py: a run's line says what local BA did, also when it never ran."""
+"""benchmarks/slam_backend.py: a run's line says what local BA did, also when it never ran;
+uss_slam.testing.harness_runs: a run's error splits into slow and fast parts."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
-from slam_backend import _local_ba_text
+
+from uss_slam.testing.scripts import load_script
+
+slam_backend = load_script(Path(__file__).resolve().parents[2] / "benchmarks" / "slam_backend.py")
+_local_ba_text = slam_backend._local_ba_text
 
 
 def test_local_ba_text_for_every_kind_of_run() -> None:
@@ -16,7 +23,7 @@ def test_local_ba_text_for_every_kind_of_run() -> None:
 
 
 def test_a_run_reports_its_error_split_into_slow_and_fast_parts(synthetic_sequence) -> None:
-    from slam_backend import run
+    from uss_slam.testing.harness_runs import run
 
     path = synthetic_sequence(preset="walking_xyz", frames=30)
     r = run(path, "tracker", ["semantic"])

@@ -1,17 +1,30 @@
-"""benchmarks/orbslam3_partial_masks.py: the frames it counts on are the ones ``uss-slam`` feeds
+"""studies/orbslam3_partial_masks.py: the frames it counts on are the ones ``uss-slam`` feeds
 ORB-SLAM3, and ground-truth masks leave no keypoint on the walkers."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import cv2
 import numpy as np
 import pytest
-from orbslam3_partial_masks import FILLS, filled, main, measure, model_masks
 
-from uss_slam.slam_eval.filters.dynamic import SemanticFilter
+from uss_slam.slam_eval.filters.semantic import SemanticFilter
 from uss_slam.slam_eval.sequence import TumSequence
 from uss_slam.slam_eval.systems.orbslam3.masking import blank_dynamic, fill_dynamic
 from uss_slam.slam_eval.systems.orbslam3.vocabulary import ORB_SETTINGS
+from uss_slam.testing.scripts import load_script
+
+orbslam3_partial_masks = load_script(
+    Path(__file__).resolve().parents[2] / "studies" / "orbslam3_partial_masks.py"
+)
+FILLS, filled, main, measure, model_masks = (
+    orbslam3_partial_masks.FILLS,
+    orbslam3_partial_masks.filled,
+    orbslam3_partial_masks.main,
+    orbslam3_partial_masks.measure,
+    orbslam3_partial_masks.model_masks,
+)
 
 
 def test_the_filled_frames_are_uss_slams(synthetic_sequence) -> None:

@@ -1,13 +1,18 @@
-"""benchmarks/sensor_parts.py: each part switches off what it names and nothing else."""
+"""studies/sensor_parts.py: each part switches off what it names and nothing else."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
-from sensor_parts import PARTS, style_without
 
 from uss_slam.synthetic.sequence import SequenceRenderer
 from uss_slam.synthetic.styles import depth_to_png
+from uss_slam.testing.scripts import load_script
+
+sensor_parts = load_script(Path(__file__).resolve().parents[2] / "studies" / "sensor_parts.py")
+PARTS, style_without = sensor_parts.PARTS, sensor_parts.style_without
 
 
 def _frame(part: str):

@@ -1,16 +1,20 @@
-"""``benchmarks/slam_walker_inliers.py``: its recording leaves the harness unchanged, and its
+"""``studies/slam_walker_inliers.py``: its recording leaves the harness unchanged, and its
 counting, parsing and table are exact."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
-import slam_walker_inliers as bench  # benchmarks/ is on pytest's pythonpath
 
 from uss_slam.core.errors import UssSlamError
 from uss_slam.slam_eval.segmenters.base import NoSegmenter
 from uss_slam.slam_eval.sequence import TumSequence
 from uss_slam.slam_eval.systems.harness import SlamPipeline
+from uss_slam.testing.scripts import load_script
+
+bench = load_script(Path(__file__).resolve().parents[2] / "studies" / "slam_walker_inliers.py")
 
 
 def test_recording_leaves_the_run_unchanged_and_counts_its_inliers(synthetic_sequence) -> None:

@@ -55,6 +55,7 @@ from uss_slam.core.seg_metrics import BinaryCounts, mask_counts, mask_metrics
 from uss_slam.slam_eval.frontend.orb import OrbConfig, OrbExtractor
 from uss_slam.slam_eval.segmenters.onnx import OnnxSegmenter
 from uss_slam.slam_eval.sequence import TumSequence
+from uss_slam.testing.downstream import SLAM_COLUMNS, STATIC, slam_ratios
 
 PERSON = CLASS_NAMES.index("person")
 SIZE_BINS = (0.0, 0.02, 0.05, 0.10, 0.20, 1.01)
@@ -215,46 +216,12 @@ MASK_FIGURES = {
     "dyn_share": "person share of kept kp",
 }
 """The mask figures of :meth:`Tally.summary` the experiment mode correlates (key -> label)."""
-SLAM_COLUMNS = (("harness", "semantic"), ("harness", "semantic_geometry"), ("orbslam3", "semantic"))
-"""The (system, variant) SLAM runs with a model that the experiment mode joins."""
-STATIC = "static_xyz"
 
 
 def _flat(setting: dict) -> dict[str, float]:
     return {"person_iou": setting["person_iou"], "recall": setting["pixels"]["recall"],
             "precision": setting["pixels"]["precision"],
             **{k: setting[k] for k in ("kp_person_kept", "kp_static_dropped", "dyn_share")}}  # fmt: skip
-
-
-def slam_ratios(runs: list[dict[str, Any]], sequence: str, model: str) -> dict[str, float | None]:
-    """``{"<system>:<variant>": ratio}`` of one model on one sequence from ``runs.csv`` rows:
-    the downstream ratio (ATE_none − ATE_model) / (ATE_none − ATE_oracle), or, on
-    :data:`STATIC` (no walker to remove), ATE_model / ATE_none; None when a run is missing or
-    failed (or the ground-truth masks gain nothing)."""
-
-    def ate(system: str, variant: str, with_model: bool) -> float | None:
-        for r in runs:
-            if (r.get("kind"), r.get("system"), r.get("sequence"), r.get("variant")) != (
-                "slam", system, sequence, variant
-            ) or r.get("status") != "ok" or r.get("ate_rmse") in (None, ""):  # fmt: skip
-                continue
-            if (str(r["id"]).endswith("/" + model)) == with_model:
-                return float(r["ate_rmse"])
-        return None
-
-    out: dict[str, float | None] = {}
-    for system, variant in SLAM_COLUMNS:
-        none, mine = ate(system, "none", False), ate(system, variant, True)
-        ratio = None
-        if none is not None and mine is not None:
-            if sequence == STATIC:
-                ratio = mine / none
-            else:
-                gt = ate(system, "oracle", False)
-                if gt is not None and none - gt > 0:
-                    ratio = (none - mine) / (none - gt)
-        out[f"{system}:{variant}"] = ratio
-    return out
 
 
 def spearman(xs: list[float], ys: list[float]) -> tuple[float, float] | None:

@@ -32,11 +32,11 @@ from pathlib import Path
 from unittest import mock
 
 import numpy as np
-from slam_backend import run_cell
 
 from uss_slam.synthetic import sequence as sequence_module
 from uss_slam.synthetic.sequence import render_sequence
 from uss_slam.synthetic.styles import depth_to_png, target_rgb
+from uss_slam.testing.harness_runs import run_cell
 
 PARTS = ("full", "no_blur", "no_image_noise", "exact_depth")
 VARIANTS = ("tracker", "loop")  # the tracker alone; the default back end (local BA + loop)

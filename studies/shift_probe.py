@@ -15,7 +15,7 @@ mIoU over the ``--test`` folders paired by seed, the difference to source-only (
 statistics) and to AdaBN (with on how many seeds the row is above) and closure =
 (method - source-only) / (oracle - source-only) (``--extra`` folders are scored, not in these). ``oracle`` = source-only trained on the
 *labelled* target training frames (same network, budget and crops; BatchNorm statistics from
-its own training). Data: a ``DemoData`` folder of any shift (``pipelines/demo_data.py``).
+its own training). Data: a ``DemoData`` folder of any shift (``pipelines/synthetic_data.py``).
 
     .venv/bin/python benchmarks/shift_probe.py --data DATA --test TEST_DIR --runs RUNS \\
         --seeds 0,1 --methods source_only,adaptsegnet,oracle --iters 1200
@@ -40,7 +40,6 @@ from typing import Any
 
 import numpy as np
 import torch
-import yaml
 
 from uss_slam.core.classes import CLASS_NAMES
 from uss_slam.core.seg_metrics import confusion_matrix, iou_report
@@ -48,28 +47,12 @@ from uss_slam.datasets.transforms import eval_transform
 from uss_slam.datasets.tum import TUMFrames
 from uss_slam.datasets.voc import VOCSegmentation
 from uss_slam.export import load_checkpoint
-from uss_slam.pipelines.demo_data import RECORD, SHIFTS, DemoData, render_demo_data
+from uss_slam.pipelines.synthetic_data import RECORD, SHIFTS, DemoData, read_spec, render_demo_data
 from uss_slam.train.losses import upsample
 from uss_slam.train.precise_bn import evenly_spaced, recompute_batchnorm
 
 PERSON = CLASS_NAMES.index("person")
 ADABN_IMAGES = 48
-
-
-def spec_of(data: Path) -> DemoData:
-    record = yaml.safe_load((data / RECORD).read_text())
-    return DemoData(
-        seed=record["seed"],
-        voc_images=record["voc_images"],
-        voc_size=tuple(record["voc_size"]),
-        train_frames=record["train_frames"],
-        val_frames=record["val_frames"],
-        train_size=tuple(record["train_size"]),
-        slam_frames=record["slam_frames"],
-        slam_size=tuple(record["slam_size"]),
-        source_outfits=record.get("source_outfits"),
-        shift=record.get("shift", "full"),
-    )
 
 
 FLAGS = {
@@ -368,7 +351,7 @@ def main() -> None:
     if not (args.data / RECORD).is_file():
         raise SystemExit(f"--data {args.data}: no {RECORD} (not a DemoData folder); render one "
                          "with --render SHIFT")  # fmt: skip
-    spec = spec_of(args.data)
+    spec = read_spec(args.data)
     seeds = [int(s) for s in args.seeds.split(",")]
     methods = args.methods.split(",")
     args.runs.mkdir(parents=True, exist_ok=True)

@@ -36,7 +36,7 @@ import cv2
 import numpy as np
 
 from uss_slam.core.classes import CLASS_NAMES
-from uss_slam.slam_eval.filters.dynamic import SemanticFilter
+from uss_slam.slam_eval.filters.semantic import SemanticFilter
 from uss_slam.slam_eval.sequence import TumSequence
 from uss_slam.slam_eval.systems.orbslam3.masking import (
     blank_dynamic,

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from uss_slam.core.classes import CLASS_NAMES
-from uss_slam.slam_eval.filters.dynamic import build_filters
+from uss_slam.slam_eval.filters.build import build_filters
 from uss_slam.slam_eval.scoring.metrics import ate
 from uss_slam.slam_eval.segmenters.base import LabelsSegmenter
 from uss_slam.slam_eval.sequence import TumSequence

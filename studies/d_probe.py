@@ -28,13 +28,13 @@ from pathlib import Path
 import numpy as np
 import torch
 import torch.nn.functional as F
-from shift_probe import spec_of  # this folder is on the path when run as a script
 
 from uss_slam.datasets.transforms import train_transform
 from uss_slam.datasets.tum import TUMFrames
 from uss_slam.datasets.voc import VOCSegmentation
 from uss_slam.export import load_checkpoint
 from uss_slam.models.discriminator import PatchDiscriminator
+from uss_slam.pipelines.synthetic_data import read_spec
 from uss_slam.train.losses import SOURCE_LABEL, TARGET_LABEL, domain_accuracy, domain_loss
 from uss_slam.train.methods.base import BATCH_NORM_LAYERS
 
@@ -116,7 +116,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, help="write the results as JSON here")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
-    spec = spec_of(args.data)
+    spec = read_spec(args.data)
     transform = train_transform(crop_size=129, scale_range=(0.75, 1.25), hflip=True)
     source = VOCSegmentation(args.data / "voc", split="train", transform=transform)
     target = TUMFrames([args.data / f for f in spec.target_folders()], transform=transform)

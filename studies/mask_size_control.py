@@ -32,10 +32,10 @@ from typing import Any
 
 import cv2
 import numpy as np
-from adaptation_masks import slam_ratios
 
 from uss_slam.core.classes import CLASS_NAMES
 from uss_slam.slam_eval.segmenters.onnx import OnnxSegmenter
+from uss_slam.testing.downstream import slam_ratios
 
 PERSON = CLASS_NAMES.index("person")
 VARIANTS = {"harness": ("semantic", "semantic_geometry"), "orbslam3": ("semantic",)}

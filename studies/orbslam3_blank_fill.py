@@ -18,7 +18,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from uss_slam.slam_eval.filters.dynamic import SemanticFilter
+from uss_slam.slam_eval.filters.semantic import SemanticFilter
 from uss_slam.slam_eval.sequence import TumSequence
 from uss_slam.slam_eval.systems.orbslam3.masking import dynamic_mask
 from uss_slam.slam_eval.systems.orbslam3.vocabulary import ORB_SETTINGS
