@@ -256,6 +256,7 @@ def run_from_config(
         max_frames=None if seq.max_frames is None else int(seq.max_frames),
     )
     params = OmegaConf.to_container(cfg.slam.filter_params.semantic, resolve=True) or {}
+    params.pop("_target_", None)  # ORB-SLAM3's masks are the SemanticFilter's, whatever the node
     try:
         semantic = SemanticFilter(**params)
     except TypeError as err:
