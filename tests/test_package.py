@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import ast
 import re
 import subprocess
 import sys
@@ -11,16 +12,32 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-PACKAGES = {
-    "uss_slam.core": "core",
-    "uss_slam.models": "models",
-    "uss_slam.datasets": "datasets",
-    "uss_slam.synthetic": "synthetic",
-    "uss_slam.train": "train",
-    "uss_slam.export": "export",
-    "uss_slam.slam_eval": "slam_eval",
-    "uss_slam.pipelines": "pipelines",
-}
+# Every top-level folder with an __init__.py (the config tree's too) installs as uss_slam.<folder>.
+PACKAGES = {f"uss_slam.{p.parent.name}": p.parent.name for p in sorted(REPO.glob("*/__init__.py"))}
+SHIPPED_SUFFIXES = (".py", ".yaml")
+
+
+def shipped_files() -> set[str]:
+    """The wheel paths of every .py and .yaml file under the package folders and configs/, in
+    whichever sub-folder (a new sub-package or config group must ship without an edit)."""
+    return {
+        f"uss_slam/{p.relative_to(REPO).as_posix()}"
+        for folder in PACKAGES.values()
+        for p in (REPO / folder).rglob("*")
+        if p.suffix in SHIPPED_SUFFIXES and p.is_file() and "__pycache__" not in p.parts
+    }
+
+
+def test_setup_maps_every_package_folder() -> None:
+    """setup.py's ``FOLDERS`` (read without running setup) are the package folders and configs/."""
+    tree = ast.parse((REPO / "setup.py").read_text(encoding="utf-8"))
+    (folders,) = [
+        ast.literal_eval(node.value)
+        for node in tree.body
+        if isinstance(node, ast.Assign) and ast.unparse(node.targets[0]) == "FOLDERS"
+    ]
+    assert "configs" in PACKAGES.values()
+    assert sorted(folders) == sorted(PACKAGES.values())
 
 
 @pytest.mark.parametrize(("module", "folder"), PACKAGES.items())
@@ -31,8 +48,8 @@ def test_subpackage_resolves_to_repo_folder(module: str, folder: str) -> None:
 
 def test_regular_wheel_maps_folders_into_namespace(tmp_path: Path) -> None:
     """``pip install .`` installs from a wheel: it must hold ``uss_slam/<pkg>/...`` files and
-    every shipped config, and the build must print no setuptools warning (such as a config
-    folder missing from pyproject's ``packages``)."""
+    every .py and .yaml file of every package folder and sub-folder (setup.py finds them), and
+    the build must print no setuptools warning."""
     build = subprocess.run(
         [
             sys.executable,
@@ -62,18 +79,12 @@ def test_regular_wheel_maps_folders_into_namespace(tmp_path: Path) -> None:
     assert not warnings, "\n".join(warnings)
     (wheel,) = tmp_path.glob("uss_slam-*.whl")
     names = set(zipfile.ZipFile(wheel).namelist())
-    for module, folder in PACKAGES.items():
-        prefix = module.replace(".", "/")
-        assert f"{prefix}/__init__.py" in names
-        # sub-packages too: each needs its own entry in pyproject's `packages`
-        expected = {
-            f"{prefix}/{p.relative_to(REPO / folder).as_posix()}"
-            for p in (REPO / folder).rglob("*.py")
-        }
-        assert expected <= names, sorted(expected - names)
-    configs = {
-        f"uss_slam/configs/{p.relative_to(REPO / 'configs').as_posix()}"
-        for p in (REPO / "configs").rglob("*.yaml")
-    }
-    assert configs <= names, sorted(configs - names)
-    assert not any(n.startswith(("models/", "datasets/", "tests/")) for n in names)
+    for module in PACKAGES:
+        assert f"{module.replace('.', '/')}/__init__.py" in names
+    expected = shipped_files()
+    assert any(n.startswith("uss_slam/configs/") for n in expected)
+    assert expected <= names, sorted(expected - names)
+    assert not any(
+        n.startswith(("models/", "datasets/", "tests/", "benchmarks/", "studies/", "testing/"))
+        for n in names
+    )
