@@ -1,3 +1,4 @@
 """End-to-end orchestration across every package: the stage cache (:mod:`.stages`), ``uss-demo``
-(:mod:`.demo`, its data set :mod:`.demo_data`, table and plots :mod:`.demo_report`) and
-``uss-eval`` (:mod:`.evaluate`)."""
+(:mod:`.demo`, table and plots :mod:`.demo_report`), ``uss-experiments`` (:mod:`.experiments`),
+the synthetic data set recipe both render (:mod:`.synthetic_data`) and ``uss-eval``
+(:mod:`.evaluate`)."""

@@ -4,7 +4,7 @@ Stages, each printed with its elapsed time, each reused when already complete wi
 inputs (a ``.uss-demo.json`` stamp written last, see :mod:`.stages`; ``--force`` redoes
 everything; a stage that was interrupted is redone):
 
-1. ``data``: the synthetic data set (:mod:`.demo_data`: source VOC tree, target training,
+1. ``data``: the synthetic data set (:mod:`.synthetic_data`: source VOC tree, target training,
    validation and SLAM sequences) in ``OUT/data``.
 2. ``train``: the ``--experiment`` (``demo``, or ``ci`` for a seconds-long smoke run) twice: with
    adversarial adaptation and source-only (``model/method=source_only``), into
@@ -47,8 +47,7 @@ from uss_slam.core.files import (
     write_text_atomic,
 )
 
-from . import demo_data, demo_report
-from .demo_data import DemoData
+from . import demo_report, synthetic_data
 from .runs import (
     RESUME_FROM,
     Segmenter,
@@ -60,6 +59,7 @@ from .runs import (
     slam_defaults_key,
 )
 from .stages import Progress, Stage, run_stage
+from .synthetic_data import DemoData
 
 MIOU_STRIDE = 10
 """Every 10th frame of the SLAM sequence is scored for mIoU (30 of the demo's 300)."""
@@ -135,18 +135,18 @@ def check_sequence(path: Path, option: str) -> None:
 
 
 def stage_data(data: Path, spec: DemoData, force: bool, quiet: bool) -> str:
-    if not force and demo_data.is_complete(data, spec):
+    if not force and synthetic_data.is_complete(data, spec):
         print(f"reusing the complete demo data set in {data} (same arguments)")
-        print(demo_data.summarize(data))
+        print(synthetic_data.summarize(data))
         return "reused"
     # replaces an earlier (other-sized) data set only once the new one is complete
-    demo_data.render_demo_data(data, spec, overwrite=True, progress=not quiet)
-    print(demo_data.summarize(data))
+    synthetic_data.render_demo_data(data, spec, overwrite=True, progress=not quiet)
+    print(synthetic_data.summarize(data))
     return "rendered"
 
 
 def _data_key(data: Path) -> str:
-    record = data / demo_data.RECORD
+    record = data / synthetic_data.RECORD
     if not record.is_file():
         raise UssSlamError(f"{record}: missing; the data stage did not complete")
     return record.read_text()
@@ -458,12 +458,12 @@ def run_demo(
         seq_path = Path(sequence)
         if until != "data":
             check_sequence(seq_path, f"--sequence {sequence}")
-    elif sequence in demo_data.SLAM_PRESETS:
+    elif sequence in synthetic_data.SLAM_PRESETS:
         seq_path = data / "slam" / sequence
     else:
         raise UssSlamError(
             f"--sequence {sequence}: not a folder, nor one of the demo's SLAM sequences "
-            f"({', '.join(demo_data.SLAM_PRESETS)}, under {data / 'slam'})"
+            f"({', '.join(synthetic_data.SLAM_PRESETS)}, under {data / 'slam'})"
         )
     with output_lock(out, "--out"):
         return _run_stages(out, plan, data, seq_path, sequence, force, quiet, train_threads, until)

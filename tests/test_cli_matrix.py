@@ -386,7 +386,7 @@ CASES = [
          "argument --train-threads: invalid int value: 'two'"),
     case("demo-ctrl-c-in-the-data-stage", "uss-demo",
          "--out {tmp}/demo --experiment ci --until data --quiet", 130, "uss-demo: interrupted",
-         interrupt=("uss_slam.pipelines.demo_data:render_demo_data", 0)),
+         interrupt=("uss_slam.pipelines.synthetic_data:render_demo_data", 0)),
     # ---------------------------------------------------------------- uss-slam (Hydra)
     case("slam-stride-not-a-number", "uss-slam", f"{SLAM} sequence.stride=abc", 1,
          "sequence.stride must be a whole number >= 1, got 'abc'", setup=(earlier_slam_run,)),

@@ -15,9 +15,7 @@ from uss_slam.core.files import content_key
 from uss_slam.core.processes import pool_ending_with_parent
 from uss_slam.pipelines.stages import Stage
 
-from .experiment import Experiment, eval_seed
-
-TUM_PREFIX = "rgbd_dataset_freiburg3_"
+from .experiment import TUM_PREFIX, Experiment, eval_seed
 
 
 @dataclass
@@ -36,9 +34,9 @@ class Data:
     vocabulary_key: Any = None
 
 
-def demo_data_spec(exp: Experiment) -> Any:
+def synthetic_data_spec(exp: Experiment) -> Any:
     """The training part of the synthetic data (the demo data set without SLAM sequences)."""
-    from uss_slam.pipelines.demo_data import DemoData
+    from uss_slam.pipelines.synthetic_data import DemoData
     from uss_slam.synthetic.output import parse_size
 
     syn = exp.cfg["data"]["synthetic"]
@@ -56,7 +54,7 @@ def demo_data_spec(exp: Experiment) -> Any:
 
 
 def sequence_stage(exp: Experiment, name: str) -> Stage:
-    from uss_slam.pipelines.demo_data import SHIFT_OUTFITS
+    from uss_slam.pipelines.synthetic_data import SHIFT_OUTFITS
 
     syn = exp.cfg["data"]["synthetic"]
     shift = str(syn.get("shift", "tum_like"))
@@ -70,7 +68,7 @@ def sequence_stage(exp: Experiment, name: str) -> Stage:
     folder = exp.out / "data" / "eval" / name
     if shift == "appearance":
         # the source's content in the target style: labelled images, no recording to track
-        key |= {"images": True, "outfits": demo_data_spec(exp).wardrobe}
+        key |= {"images": True, "outfits": synthetic_data_spec(exp).wardrobe}
         return Stage(folder, key, outputs=(Path("rgb.txt"), Path("labels")))
     if SHIFT_OUTFITS[shift] != "office":  # keys of sequences rendered before shifts existed
         key["outfits"] = SHIFT_OUTFITS[shift]
@@ -138,24 +136,24 @@ def _vocabulary(exp: Experiment, data: Data, run: bool, dry: bool) -> str:
 
 
 def _synthetic_data(exp: Experiment, run: bool, dry: bool) -> tuple[Data, str]:
-    from uss_slam.pipelines import demo_data
+    from uss_slam.pipelines import synthetic_data
 
     data = Data(train_dir=exp.out / "data" / "train")
     assert data.train_dir is not None
-    spec = demo_data_spec(exp)
+    spec = synthetic_data_spec(exp)
     done = []
     if run:
-        if demo_data.is_complete(data.train_dir, spec):
+        if synthetic_data.is_complete(data.train_dir, spec):
             done.append("training data reused")
         else:
             # replaces an earlier (other-sized) data set only once the new one is complete
-            demo_data.render_demo_data(data.train_dir, spec, overwrite=True, progress=False)
+            synthetic_data.render_demo_data(data.train_dir, spec, overwrite=True, progress=False)
             done.append("training data rendered")
-        print(demo_data.summarize(data.train_dir), flush=True)
-    record = data.train_dir / demo_data.RECORD
-    if not demo_data.is_complete(data.train_dir, spec) and dry:
+        print(synthetic_data.summarize(data.train_dir), flush=True)
+    record = data.train_dir / synthetic_data.RECORD
+    if not synthetic_data.is_complete(data.train_dir, spec) and dry:
         done.append(f"training data to render into {data.train_dir}")
-    elif not demo_data.is_complete(data.train_dir, spec):
+    elif not synthetic_data.is_complete(data.train_dir, spec):
         raise DataFormatError(
             data.train_dir,
             "missing or incomplete synthetic training data (its demo.yaml is "

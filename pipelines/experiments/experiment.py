@@ -32,6 +32,8 @@ STAGES = ("data", "train", "export", "slam", "tables")
 
 
 LAUNCHERS = ("basic", "joblib", "submitit_local", "submitit_slurm")
+TUM_PREFIX = "rgbd_dataset_freiburg3_"
+"""The folder name of a TUM RGB-D fr3 sequence before its name (``data.real.target``)."""
 
 
 def check_choices(argv: Sequence[str]) -> None:
@@ -76,7 +78,7 @@ class Experiment:
 def training_seeds(seed: int) -> set[int]:
     """The seeds of the synthetic training data (VOC set, target training sequences,
     validation sequences): the evaluation sequences' seeds must differ from all of them."""
-    from uss_slam.pipelines.demo_data import sequence_seeds
+    from uss_slam.pipelines.synthetic_data import sequence_seeds
 
     return {seed, *sequence_seeds(seed).values()}
 
@@ -128,8 +130,6 @@ def check_t0(plain: dict[str, Any], synthetic: bool) -> None:
     real = plain["data"].get("real") or {}
     if synthetic or not grid["oracle"] or real.get("tum") in (None, "???"):
         return  # (a missing data.real.tum is the data checks' error)
-    from .data import TUM_PREFIX
-
     for name in real.get("target") or []:
         labels = Path(str(real["tum"])).expanduser() / f"{TUM_PREFIX}{name}" / "labels"
         if not labels.is_dir():
@@ -217,7 +217,7 @@ def check(cfg: DictConfig) -> Experiment:
         syn = plain["data"]["synthetic"]
         for key in ("voc_size", "train_size", "eval_size"):
             _size(f"data.synthetic.{key}", syn[key])
-        from uss_slam.pipelines.demo_data import SHIFT_WARDROBE, SHIFTS
+        from uss_slam.pipelines.synthetic_data import SHIFT_WARDROBE, SHIFTS
         from uss_slam.synthetic.textures import WARDROBES
 
         shift = choose("data.synthetic.shift", syn.get("shift", "tum_like"), SHIFTS)

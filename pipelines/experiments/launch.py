@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import json
 import os
-import re
 import shlex
 import subprocess
 import sys
@@ -24,39 +23,10 @@ from uss_slam.pipelines.runs import RESUME_FROM
 from . import tables as tbl
 from .experiment import Experiment
 from .jobs import FAILURE, RESULT, clear_failure, stage_of
+from .overrides import hydra_value
 from .plan import Job
 
 NOT_RUN = "not run yet (its stage was not run)"
-
-
-def _typed(text: str) -> bool:
-    """True when Hydra would read ``text`` unquoted as a number, boolean or null."""
-    if text.lower() in ("true", "false", "null"):
-        return True
-    try:
-        float(text)
-    except ValueError:
-        return False
-    return True
-
-
-def hydra_value(value: Any) -> str:
-    """A Hydra override value: quoted strings, plain numbers / booleans / null, lists."""
-    if value is None:
-        return "null"
-    if isinstance(value, bool):
-        return str(value).lower()
-    if isinstance(value, (int, float)):
-        return repr(value)
-    if isinstance(value, (list, tuple)):
-        return "[" + ",".join(hydra_value(v) for v in value) + "]"
-    if isinstance(value, dict):
-        return "{" + ",".join(f"{k}:{hydra_value(v)}" for k, v in value.items()) + "}"
-    text = str(value)
-    if re.fullmatch(r"[A-Za-z0-9_\-./+@%]+", text) and not _typed(text):
-        return text  # a plain Hydra string: no quotes needed
-    text = text.replace("\\", "\\\\").replace("'", "\\'")
-    return f"'{text}'"
 
 
 def launcher_overrides(exp: Experiment, stage: str) -> list[str]:

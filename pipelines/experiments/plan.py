@@ -20,10 +20,11 @@ from uss_slam.pipelines.runs import (
 )
 from uss_slam.pipelines.stages import Stage
 
-from .data import Data
+from .data import Data, synthetic_data_spec
 from .experiment import Experiment
 from .grid import ORACLE, VARIANTS, AdaBNCell, Model, SlamCell, TrainCell, given, source_val_stride
 from .jobs import stage_of
+from .overrides import hydra_value
 from .tables import SOURCE_VAL
 
 FAST_TRAIN = (
@@ -79,12 +80,10 @@ def common_overrides(exp: Experiment, data: Data) -> list[str]:
     cfg = exp.cfg
     base = [f"experiment={cfg['train']['experiment']}", f"paths.log_dir={exp.out}"]
     if exp.synthetic:
-        from .data import demo_data_spec
-
         assert data.train_dir is not None
         base.append(f"paths.data_dir={data.train_dir}")
         # the appearance shift's target folders are not the shipped data config's
-        base += demo_data_spec(exp).train_overrides(data.train_dir)
+        base += synthetic_data_spec(exp).train_overrides(data.train_dir)
     else:
         real = cfg["data"]["real"]
         base += [
@@ -133,8 +132,6 @@ def oracle_overrides(data: Data, base: Sequence[str]) -> list[str]:
     (every frame of ``data.target``, with the source's training transform: the same crops) and
     no precise BatchNorm callback (its source images are gone; the oracle keeps the statistics
     of its own training). Network, budget and everything else stay the trainings'."""
-    from .launch import hydra_value
-
     source = _composed_source(tuple(base))
     node: dict[str, Any] = {"_target_": TUM_FRAMES, "roots": [str(p) for p in data.target]}
     node["labels"] = True

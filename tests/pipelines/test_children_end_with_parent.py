@@ -90,7 +90,7 @@ def test_the_demo_data_workers_end_with_a_killed_uss_demo(tmp_path: Path) -> Non
     driver_code = textwrap.dedent(f"""
         import os, time
         from pathlib import Path
-        from uss_slam.pipelines import demo_data
+        from uss_slam.pipelines import synthetic_data
 
         def sleeper(out, size, progress=False):
             with open({str(pids)!r}, "a") as file:
@@ -100,8 +100,8 @@ def test_the_demo_data_workers_end_with_a_killed_uss_demo(tmp_path: Path) -> Non
         def tasks(tmp, spec):
             return [(name, sleeper, {{"out": tmp / name, "size": (8, 8)}}) for name in "ab"]
 
-        demo_data._tasks = tasks  # forked workers see it too
-        demo_data.render_demo_data(Path({str(out)!r}), demo_data.DemoData(), workers=2,
+        synthetic_data._tasks = tasks  # forked workers see it too
+        synthetic_data.render_demo_data(Path({str(out)!r}), synthetic_data.DemoData(), workers=2,
                                    progress=False)
     """)
     driver = subprocess.Popen([sys.executable, "-c", driver_code], stderr=subprocess.PIPE)

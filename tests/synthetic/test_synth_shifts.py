@@ -117,7 +117,7 @@ def test_near_views_face_a_person_and_leave_the_other_images_as_they_were() -> N
 
 
 def test_the_tum_like_source_set_has_near_views() -> None:
-    from uss_slam.pipelines.demo_data import DemoData
+    from uss_slam.pipelines.synthetic_data import DemoData
 
     assert DemoData(shift="tum_like").near == 0.3
     assert DemoData(shift="tum_like").record()["source_near"] == 0.3

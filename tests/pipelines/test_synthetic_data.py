@@ -9,8 +9,8 @@ import pytest
 import yaml
 
 from uss_slam.core.errors import UssSlamError
-from uss_slam.pipelines import demo, demo_data
-from uss_slam.pipelines.demo_data import DemoData
+from uss_slam.pipelines import demo, synthetic_data
+from uss_slam.pipelines.synthetic_data import DemoData
 from uss_slam.synthetic.output import OUTPUT_MARKER
 
 SMALL = DemoData(voc_images=5, voc_size=(64, 48), train_frames=3, val_frames=2,
@@ -47,7 +47,7 @@ def test_record_keeps_the_old_keys_and_names_the_validation_sequences(tmp_path: 
     assert record.pop("val_sequences") == ["walking_xyz", "walking_rpy"]
     assert yaml.safe_dump(record, sort_keys=False) == CI_RECORD
     (tmp_path / "demo.yaml").write_text(CI_RECORD)
-    assert not demo_data.is_complete(tmp_path, full)
+    assert not synthetic_data.is_complete(tmp_path, full)
     assert ci.record() == full.record() | {
         "source_outfits": "all",
         "shift": "tum_like",
@@ -96,7 +96,7 @@ def test_source_outfits_record() -> None:
 def test_shift_layouts(tmp_path: Path) -> None:
     """Each shift's target folders, and the overrides that point uss-train at them."""
     tum_like = DemoData()
-    assert tum_like.target_folders() == [f"target_train/{p}" for p in demo_data.TRAIN_PRESETS]
+    assert tum_like.target_folders() == [f"target_train/{p}" for p in synthetic_data.TRAIN_PRESETS]
     assert tum_like.val_folders() == ["target_val/walking_xyz", "target_val/walking_rpy"]
     assert tum_like.train_overrides(tmp_path) == []  # the shipped data=synthetic layout
     assert (tum_like.wardrobe, tum_like.sequence_outfits) == ("all", "drawn")
@@ -113,7 +113,7 @@ def test_shift_layouts(tmp_path: Path) -> None:
 def test_appearance_data_set_is_the_source_content_in_target_style(tmp_path: Path) -> None:
     spec = DemoData(voc_images=3, voc_size=(64, 48), train_frames=2, val_frames=2,
                     train_size=(64, 48), slam_frames=0, shift="appearance")  # fmt: skip
-    out = demo_data.render_demo_data(tmp_path / "data", spec, progress=False, workers=1)
+    out = synthetic_data.render_demo_data(tmp_path / "data", spec, progress=False, workers=1)
     from uss_slam.datasets.tum import TUMFrames
 
     for folder in spec.target_folders() + spec.val_folders():
@@ -122,16 +122,16 @@ def test_appearance_data_set_is_the_source_content_in_target_style(tmp_path: Pat
         assert len(frames) == 2 and frames.labelled
     meta = yaml.safe_load((out / "target_val/images/synthetic.yaml").read_text())
     assert meta["style"] == "target" and meta["outfits"] == "classic"
-    assert demo_data.is_complete(out, spec)
+    assert synthetic_data.is_complete(out, spec)
 
 
 def test_small_data_set(tmp_path: Path) -> None:
     out = tmp_path / "data"
-    demo_data.render_demo_data(out, SMALL, workers=1, progress=False)
-    text = demo_data.summarize(out)
+    synthetic_data.render_demo_data(out, SMALL, workers=1, progress=False)
+    text = synthetic_data.summarize(out)
     assert str(out.resolve()) in text
     assert "voc/VOCdevkit/VOC2012: 4 train + 1 val images, 64x48" in text
-    for name in demo_data.TRAIN_PRESETS:
+    for name in synthetic_data.TRAIN_PRESETS:
         assert f"target_train/{name}: 3 frames, 48x32, target style" in text
         assert (out / "target_train" / name / "groundtruth.txt").is_file()
     assert "target_val/walking_xyz: 2 frames, 48x32" in text
@@ -141,11 +141,11 @@ def test_small_data_set(tmp_path: Path) -> None:
     assert seeds == [100, 101]  # seed + 100 + k: none a training sequence's
     assert "slam/walking_xyz: 2 frames, 64x48" in text and "slam/static_xyz: 2 frames" in text
     assert "person" in text and "%" in text
-    assert demo_data.is_complete(out, SMALL) and (out / OUTPUT_MARKER).is_file()
-    assert not demo_data.is_complete(out, DemoData(voc_images=6, **_but(SMALL, "voc_images")))
+    assert synthetic_data.is_complete(out, SMALL) and (out / OUTPUT_MARKER).is_file()
+    assert not synthetic_data.is_complete(out, DemoData(voc_images=6, **_but(SMALL, "voc_images")))
     # two worker processes produce the same files
     again = tmp_path / "again"
-    demo_data.render_demo_data(again, SMALL, workers=2, progress=False)
+    synthetic_data.render_demo_data(again, SMALL, workers=2, progress=False)
     files = sorted(p.relative_to(out) for p in out.rglob("*") if p.is_file())
     assert files == sorted(p.relative_to(again) for p in again.rglob("*") if p.is_file())
     assert all((out / f).read_bytes() == (again / f).read_bytes() for f in files)
@@ -167,7 +167,8 @@ def test_stage_reuses_then_rerenders_on_another_spec(tmp_path: Path, capsys) -> 
     other = DemoData(slam_frames=3, **_but(SMALL, "slam_frames"))
     assert demo.stage_data(out, other, force=False, quiet=True) == "rendered"
     assert (
-        demo_data.is_complete(out, other) and "slam/static_xyz: 3 frames" in capsys.readouterr().out
+        synthetic_data.is_complete(out, other)
+        and "slam/static_xyz: 3 frames" in capsys.readouterr().out
     )
     assert sorted(p.name for p in tmp_path.iterdir()) == ["data"]
     # --force renders again even when complete

@@ -1,4 +1,5 @@
-"""The demo data set: what ``uss-demo``'s ``data`` stage renders with :mod:`uss_slam.synthetic`.
+"""The synthetic data set recipe (:class:`DemoData`): what ``uss-demo``'s ``data`` stage and
+``uss-experiments``' ``data`` stage render with :mod:`uss_slam.synthetic`.
 
 Layout of ``OUT/data`` (what ``configs/data/synthetic.yaml`` reads from ``paths.data_dir``)::
 
@@ -205,6 +206,24 @@ class DemoData:
         if self.val_frames and self.shift != "appearance":
             record["val_sequences"] = list(VAL_PRESETS)
         return record
+
+
+def read_spec(root: Path) -> DemoData:
+    """The spec a data set at ``root`` was rendered from, read back from its ``demo.yaml``
+    (records written before ``source_outfits`` and ``shift`` existed get their defaults)."""
+    record = yaml.safe_load((Path(root) / RECORD).read_text())
+    return DemoData(
+        seed=record["seed"],
+        voc_images=record["voc_images"],
+        voc_size=tuple(record["voc_size"]),
+        train_frames=record["train_frames"],
+        val_frames=record["val_frames"],
+        train_size=tuple(record["train_size"]),
+        slam_frames=record["slam_frames"],
+        slam_size=tuple(record["slam_size"]),
+        source_outfits=record.get("source_outfits"),
+        shift=record.get("shift", "full"),
+    )
 
 
 def is_complete(out: Path, spec: DemoData) -> bool:
