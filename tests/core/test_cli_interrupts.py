@@ -73,3 +73,29 @@ def test_a_console_script_without_interrupt_ends_normally(monkeypatch) -> None:
     with exit_on_user_error("uss-x"):
         drop_in_weakref_callback(ValueError("elsewhere"))
     assert [str(e) for e in reported] == ["elsewhere"]
+
+
+def test_sigterm_is_an_interrupt_named_in_the_line(capsys) -> None:
+    import os
+    import signal
+
+    from uss_slam.core.cli import TERMINATED
+
+    with pytest.raises(SystemExit) as stop, exit_on_user_error("uss-x"):
+        os.kill(os.getpid(), signal.SIGTERM)
+    assert stop.value.code == TERMINATED
+    assert capsys.readouterr().err.splitlines() == ["uss-x: interrupted (SIGTERM)"]
+    assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL  # restored
+
+
+def test_a_deferred_step_finishes_before_sigterm_takes_effect() -> None:
+    import os
+    import signal
+
+    from uss_slam.core.cli import Terminated, signals_as_interrupts
+
+    done = []
+    with signals_as_interrupts(), pytest.raises(Terminated), interrupts_deferred():
+        os.kill(os.getpid(), signal.SIGTERM)
+        done.append(True)
+    assert done == [True]
