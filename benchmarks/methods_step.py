@@ -1,10 +1,13 @@
-"""Seconds per training iteration of each adaptation method, relative to adaptsegnet, same run.
+"""How much does each adaptation method cost per training iteration, relative to adaptsegnet,
+measured in the same run? Reported in BENCHMARKS.md, "Adaptation methods: CPU per training
+iteration".
 
 Every method trains the same segmenter from the same initial state on the same fixed random batch
-under a Lightning Trainer that logs like ``uss-train`` (:func:`uss_slam.testing.step_timing.time_lightning`, as
-``benchmarks/train_step.py``); the methods are interleaved and rotated per repeat so that each sees the same
-machine load. Default shapes are the demo experiment's: the small backbone, 129-pixel crops,
-batch 4 per domain, BatchNorm trained, discriminators of width 16.
+under a Lightning Trainer that logs like ``uss-train``
+(:func:`uss_slam.testing.step_timing.time_lightning`, as ``benchmarks/train_step.py``); the
+methods are interleaved and rotated per repeat so that each sees the same machine load. Default
+shapes are the demo experiment's: the small backbone, 129-pixel crops, batch 4 per domain,
+BatchNorm trained, discriminators of width 16.
 
     .venv/bin/python benchmarks/methods_step.py                      # both small nets, CPU clock
     .venv/bin/python benchmarks/methods_step.py --nets deeplab_small --iters 10 --repeats 5

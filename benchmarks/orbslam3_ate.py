@@ -1,5 +1,6 @@
-"""ORB-SLAM3 (pyorbslam3) unfiltered vs with the ground-truth people blanked, next to the harness,
-on the same synthetic frames.
+"""How does the real ORB-SLAM3 (pyorbslam3), unfiltered and with the ground-truth people blanked,
+compare with the harness on the same synthetic frames? Reported in BENCHMARKS.md, "ORB-SLAM3 next to
+the harness", and docs/results/slam.md, "2026-12-01 — ORB-SLAM3 next to the harness (seed 7)".
 
 For each preset: ORB-SLAM3 with ``segmenter=none`` and with ``segmenter=labels`` (person, dilated
 as the harness's semantic filter, blanked to grey with depth 0), each the median of ``--repeats``

@@ -1,4 +1,6 @@
-"""Segmenter inference: PyTorch eager vs onnxruntime (``python benchmarks/segmenter_speed.py``).
+"""How fast is segmenter inference per frame with onnxruntime (FP32, INT8) against PyTorch eager, in
+the same process (``python benchmarks/segmenter_speed.py``)? Reported in BENCHMARKS.md, "Segmenter
+inference (PyTorch eager vs onnxruntime)".
 
 For the demo model (DeepLab-v2 on the small backbone, ``configs/model/net/deeplab_small.yaml``)
 and the paper's ResNet-101 DeepLab-v2, random weights (nothing is downloaded; timings do not

@@ -1,5 +1,7 @@
-"""The SLAM harness's back end measured: local bundle adjustment, loop closing and the PROSAC
-sampler against the tracker alone, ATE RMSE and frames/s on synthetic sequences over seeds.
+"""What do the SLAM harness's back end (local bundle adjustment, loop closing) and the PROSAC
+sampler change against the tracker alone, in ATE RMSE and frames/s on synthetic sequences over
+seeds? Reported in BENCHMARKS.md, "SLAM back end (local BA, loop closing, PROSAC)", and
+docs/results/slam.md (its 2026-12-04 entries).
 
     python benchmarks/slam_backend.py --presets static_xyz walking_xyz --seeds 0 1 2 \\
         --frames 300 --size 640x480 --variants tracker local_ba local_ba_orbslam2 prosac

@@ -1,6 +1,7 @@
-"""What ``slam.reuse_labels`` saves: one ``uss-slam`` job of ``uss-experiments`` (an exported
-segmenter, the ``semantic`` filter, ``slam.repeats=3``) timed with the segmenter run in every
-repeat and with repeat 0's labels reused, alternately, in the same command.
+"""What does ``slam.reuse_labels`` save? One ``uss-slam`` job of ``uss-experiments`` (an exported
+segmenter, the ``semantic`` filter, ``slam.repeats=3``) timed with the segmenter run in every repeat
+and with repeat 0's labels reused, alternately, in the same command. Reported in BENCHMARKS.md,
+"Repeated harness runs: segmenting once (``slam.reuse_labels``)".
 
 Each job is a fresh ``python -m uss_slam.slam_eval.run`` process, as the experiments launch them
 (start-up, model loading and the report included). Reported: median wall and CPU seconds per

@@ -1,4 +1,6 @@
-"""Segmentation schedule of the SLAM harness: keyframes only vs every frame.
+"""What do frames/s, segmentation time and ATE become when the SLAM harness segments keyframes only
+instead of every frame? Reported in BENCHMARKS.md, "SLAM harness" / "Segmentation schedule:
+keyframes only vs every frame".
 
 Segmentation is the slow stage (USS-SLAM: 0.31 s per frame on a GTX 1080). This script runs the
 pipeline with the ``semantic`` filter under both schedules (``segment=every_frame``: every frame,

@@ -1,4 +1,6 @@
-"""Accuracy targets of the SLAM harness on synthetic sequences (results in BENCHMARKS.md).
+"""Does the SLAM harness meet its accuracy targets on synthetic sequences (the ``semantic`` filter's
+ATE RMSE against the unfiltered baseline's)? Reported in BENCHMARKS.md, "SLAM harness" / "Accuracy
+targets", and docs/results/slam.md (its tracking-policy entries).
 
 For each preset (640x480, >= 300 frames) the unfiltered baseline and the ``labels`` segmenter +
 ``semantic`` filter run on the same sequence; the script prints ATE RMSE of both, their ratio and

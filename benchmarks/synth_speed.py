@@ -1,4 +1,6 @@
-"""Rendering speed of the synthetic world, single core (``python benchmarks/synth_speed.py``).
+"""How fast does the synthetic world render on a single core, against the naive ray caster in the
+same run (``python benchmarks/synth_speed.py``)? Reported in BENCHMARKS.md, "Synthetic world
+rendering".
 
 For each size (320x240, 640x480) and style (source, target) renders frames of ``walking_xyz``
 with depth and labels (``SequenceRenderer.frame``: colour, depth PNG array, labels, style

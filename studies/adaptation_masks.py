@@ -1,11 +1,14 @@
-"""Where a segmenter's person masks help or hurt the SLAM front end: per frame, the ORB keypoints
+"""Where do a segmenter's person masks help or hurt the SLAM front end? Per frame, the ORB keypoints
 the semantic filter would drop on people (wanted) and on static structure (false alarms), the
-people's keypoints it keeps (misses), and each walker's pixel recall by size and distance.
+people's keypoints it keeps (misses), and each walker's pixel recall by size and distance. Reported
+in docs/results/README.md, "2026-12-04 — why AdaptSegNet's masks help with a lower mIoU", and
+docs/results/adaptation.md, "1. Evidence: the masks miss the walkers, and the ATE differences were
+noise".
 
 For an exported model (``.onnx``, run through :class:`OnnxSegmenter`, argmax or each
 ``--threshold`` on the person probability) on labelled TUM folders (``labels/``)::
 
-    python benchmarks/adaptation_masks.py exports/adapted.onnx --sequence SEQ [--sequence SEQ2]
+    python studies/adaptation_masks.py exports/adapted.onnx --sequence SEQ [--sequence SEQ2]
         [--stride 5] [--threshold 0.5 --threshold 0.3 ...] [--dilation 5] [--json out.json]
 
 Keypoints: the harness's :class:`OrbExtractor` (1000 ORB features, ORB-SLAM2 TUM settings) on
@@ -23,7 +26,7 @@ keypoints inside the predicted person mask dilated the same way. Reported per se
 
 For every model of a ``uss-experiments`` output folder, joined with its SLAM runs::
 
-    python benchmarks/adaptation_masks.py --experiment OUT [--sequences walking_xyz,walking_rpy]
+    python studies/adaptation_masks.py --experiment OUT [--sequences walking_xyz,walking_rpy]
         [--models source_only_s0,...] [--stride 5] [--json out.json]
 
 scores each export (``OUT/exports/<model>/<model>.onnx``) on the labelled evaluation sequences

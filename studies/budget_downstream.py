@@ -1,6 +1,9 @@
-"""The SLAM side of ``shift_probe.py`` trainings: export their last checkpoints (and the same
-with target BatchNorm statistics, AdaBN), run the SLAM jobs of ``uss-experiments`` with their
-masks on a finished experiment's evaluation sequences, and print the downstream ratios.
+"""Do the SLAM figures follow the segmentation at another training budget? The SLAM side of
+``shift_probe.py`` trainings: export their last checkpoints (and the same with target BatchNorm
+statistics, AdaBN), run the SLAM jobs of ``uss-experiments`` with their masks on a finished
+experiment's evaluation sequences, and print the downstream ratios. Reported in
+docs/results/README.md, "The board" (its 5-seed rows), from the entries of docs/results/shifts.md
+("At the converged budget ...", "Five seeds at the converged budget ...").
 
 For trainings of another budget than the experiment's (``shift_probe.py --iters N``), so that
 the claim can be checked at a budget where source-only has converged without re-running the
@@ -17,7 +20,7 @@ once per sequence. Then, per system, filter and sequence, the downstream ratio
 repeats; on ``static_*`` sequences ATE_model / ATE_none) and each row's difference to ``--base``, paired by seed (with its mean and 95% Student-t
 interval over the seeds)::
 
-    python benchmarks/budget_downstream.py --experiment OUT --runs RUNS --seeds 0,1 \\
+    python studies/budget_downstream.py --experiment OUT --runs RUNS --seeds 0,1 \\
         --rows source_only,adaptsegnet+adv10 [--sequences walking_xyz,walking_rpy] [--json F] \\
         [--variants harness:semantic_geometry,orbslam3:semantic] [--plot downstream.png] \\
         [--pool] [--segeval 5] [--baseline-repeats 21]

@@ -1,5 +1,6 @@
-"""Where the gap to the target oracle lies, per class, and whether a class-prior (label) shift
-explains it: an evidence probe on a finished ``uss-experiments`` output folder.
+"""Where does the gap to the target oracle lie, per class, and does a class-prior (label) shift
+explain it? An evidence probe on a finished ``uss-experiments`` output folder. Reported in
+docs/results/README.md, "2026-12-05 — where the gap to the oracle lies (no new training)".
 
 For each exported model and seed (``OUT/exports/<model>_s<seed>/<model>_s<seed>.onnx``):
 
@@ -19,7 +20,7 @@ For each exported model and seed (``OUT/exports/<model>_s<seed>/<model>_s<seed>.
 
 ::
 
-    python benchmarks/class_gap.py --experiment OUT [--models source_only,adabn,...]
+    python studies/class_gap.py --experiment OUT [--models source_only,adabn,...]
         [--seeds 0,1,2] [--sequences walking_xyz,walking_rpy] [--stride 10] [--json out.json]
 """
 

@@ -1,4 +1,5 @@
-"""Can a discriminator tell the domains apart from a segmenter's softmax maps at all?
+"""Can a discriminator tell the domains apart from a segmenter's softmax maps at all? Reported in
+docs/results/shifts.md, "Why the discriminators stay at chance: BatchNorm while training".
 
 Takes one trained checkpoint and a ``DemoData`` folder, computes the main head's softmax maps
 (upsampled to the crop, as AdaptSegNet's discriminator sees them) of random training crops of
@@ -14,7 +15,7 @@ them under each ``model.domain_batch_norm`` (BatchNorm in train mode), and as at
 A discriminator near 0.5 in a mode means the maps of that mode carry no domain signal it can
 learn, so the adversarial gradient of a training in that mode has no domain direction.
 
-    .venv/bin/python benchmarks/d_probe.py --data DATA --ckpt RUN/checkpoints/last.ckpt
+    .venv/bin/python studies/d_probe.py --data DATA --ckpt RUN/checkpoints/last.ckpt
 """
 
 from __future__ import annotations

@@ -1,4 +1,5 @@
-"""Score a ``uss-train`` checkpoint on the demo data's source val, target val and SLAM labels.
+"""How large is the domain gap of the demo data for one ``uss-train`` checkpoint: its mIoU on the
+source val, target val and SLAM labels? Reported in docs/results/README.md, "History".
 
 What the README's "The demo experiment, measured" figures come from: mIoU and per-class IoU
 (over all four classes, as ``uss-demo``'s ``miou`` stage) of the ``main`` head on
@@ -10,8 +11,8 @@ What the README's "The demo experiment, measured" figures come from: mIoU and pe
 with the checkpoint's BatchNorm statistics, or (``--bn source|target``) statistics re-estimated
 over 100 evenly spaced source training images / target training frames first (AdaBN).
 
-    .venv/bin/python benchmarks/demo_domain_gap.py outputs/demo/train/adapted/checkpoints/last.ckpt
-    .venv/bin/python benchmarks/demo_domain_gap.py CKPT --data outputs/demo/data --bn target
+    .venv/bin/python studies/demo_domain_gap.py outputs/demo/train/adapted/checkpoints/last.ckpt
+    .venv/bin/python studies/demo_domain_gap.py CKPT --data outputs/demo/data --bn target
 """
 
 from __future__ import annotations

@@ -1,5 +1,7 @@
-"""A control for "the adapted segmenter's masks help SLAM": the same SLAM jobs with the baseline
-model's person masks grown to the adapted model's size, without any adaptation.
+"""Do the adapted segmenter's masks help SLAM only because they are larger? A control: the same SLAM
+jobs with the baseline model's person masks grown to the adapted model's size, without any
+adaptation. Reported in docs/results/README.md, "2026-12-04 — source-only with a lower person
+threshold (a control)".
 
 For each seed of a ``uss-experiments`` output folder, the person probability threshold of the
 ``--base`` model (default ``source_only``; ``uss-slam segmenter.threshold``) is chosen so that
@@ -11,7 +13,7 @@ choose it. Then every SLAM job of the grid that ran the base model with the sema
 puts the base model at argmax, the base model grown and the like model side by side, as
 downstream ratios (ATE / unfiltered ATE on ``static_xyz``) with the paired differences::
 
-    python benchmarks/mask_size_control.py --experiment OUT [--base source_only]
+    python studies/mask_size_control.py --experiment OUT [--base source_only]
         [--like adaptsegnet_n5] [--seeds 0,1,2] [--sequences walking_xyz,walking_rpy,static_xyz]
         [--systems harness,orbslam3] [--json out.json]
 

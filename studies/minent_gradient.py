@@ -1,4 +1,5 @@
-"""How strong MinEnt's entropy term is: ‖∇θ L_ent‖ / ‖∇θ L_seg‖ over the segmenter's parameters.
+"""How strong is MinEnt's entropy term: ‖∇θ L_ent‖ / ‖∇θ L_seg‖ over the segmenter's parameters? Not
+yet reported in the results record (docs/training.md, "Adaptation methods", quotes its figures).
 
 On training batches of ``experiment=demo model/method=minent`` (the real config and data module;
 BatchNorm in train mode, each domain through its own forward as in training), for each segmenter
@@ -8,8 +9,8 @@ and of the weighted target entropy ``λ_ent_aux·E(aux) + λ_ent_main·E(main)``
 their ratio (median and range over the batches), at ADVENT's weights (0.0002 / 0.001) and at the
 configured ones. The ratio is linear in the entropy weights.
 
-    .venv/bin/python benchmarks/minent_gradient.py                       # renders small data
-    .venv/bin/python benchmarks/minent_gradient.py --data outputs/demo/data --states init CKPT
+    .venv/bin/python studies/minent_gradient.py                       # renders small data
+    .venv/bin/python studies/minent_gradient.py --data outputs/demo/data --states init CKPT
 """
 
 from __future__ import annotations

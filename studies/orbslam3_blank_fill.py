@@ -1,4 +1,5 @@
-"""Which grey to blank dynamic pixels with for ORB-SLAM3: ORB keypoints at the blanked region.
+"""Which grey should dynamic pixels be blanked with for ORB-SLAM3, judged by the ORB keypoints at
+the blanked region? Reported in BENCHMARKS.md, "ORB-SLAM3 next to the harness".
 
 A flat region has no FAST corners inside; its border against the rest of the image can. For
 every ``--stride``-th frame with people of a synthetic sequence, the person mask is dilated as
@@ -7,7 +8,7 @@ grey of the unmasked pixels; ORB (cv2, ORB-SLAM's 1000 features / 1.2 / 8 levels
 ranked by FAST response) runs on each, and the keypoints within 10 px of the mask (inside it or on its border) are
 counted with their mean response, next to the unblanked frame.
 
-    python benchmarks/orbslam3_blank_fill.py --sequence outputs/bench/orbslam3/walking_xyz_300_seed7
+    python studies/orbslam3_blank_fill.py --sequence outputs/bench/orbslam3/walking_xyz_300_seed7
 """
 
 from __future__ import annotations

@@ -1,4 +1,6 @@
-"""What a trained segmenter's blanking leaves ORB-SLAM3 to track: ORB keypoints on the walkers.
+"""What does a trained segmenter's blanking leave ORB-SLAM3 to track: how many ORB keypoints on the
+walkers, for each fill? Reported in docs/results/shifts.md, "ORB-SLAM3's blanked input and masks
+that cover part of a walker (2026-12-05)".
 
 ORB-SLAM3 takes no masks, so ``uss-slam system=orbslam3`` blanks the segmenter's dilated person
 mask in its input (flat grey, depth 0). A mask that covers only part of a walker leaves the rest
@@ -20,7 +22,7 @@ Printed per model and fill: the mean over frames of the walker keypoints with de
 keypoints with depth, and the walkers' share of them (the dynamic share), with the pixel recall
 of the mask on the walkers. ::
 
-    python benchmarks/orbslam3_partial_masks.py --sequence OUT/data/train/target_val/walking_rpy \\
+    python studies/orbslam3_partial_masks.py --sequence OUT/data/train/target_val/walking_rpy \\
         --model labels --model RUNS/exports/source_only_s0.onnx [--stride 10] [--json F]
 """
 

@@ -1,4 +1,6 @@
-"""Are the walkers missed because of what they wear? Swap their clothes and segment again.
+"""Are the walkers missed because of what they wear? Swap their clothes and segment again. Reported
+in docs/results/adaptation.md, "7. The source wardrobe: evidence, and a varied one at the standard
+scale (2026-12-02)".
 
 Renders one target-style sequence twice, frame for frame identical except for the people's
 materials: once as ``uss-synth`` renders it (the target texture family's clothes, skin and hair)
@@ -11,7 +13,7 @@ target clothing rather than on the target image style.
 Use the validation preset and seed (``walking_xyz``, seed 100 for ``uss-demo`` seed 0), not an
 evaluation sequence: this is a diagnosis of the training data, not a test.
 
-    python benchmarks/outfit_swap.py --models /path/exports/*/*.onnx --frames 40
+    python studies/outfit_swap.py --models /path/exports/*/*.onnx --frames 40
 """
 
 from __future__ import annotations

@@ -1,9 +1,12 @@
 """Which part of the Kinect-like target style carries a hand-held sequence's per-frame ATE (the
-"fast part" a keyframe back end cannot remove): the sequence rendered with one part of the style
-switched off at a time, then the tracker alone and the default back end on each, medians of
-repeats::
+"fast part" a keyframe back end cannot remove)? The sequence is rendered with one part of the style
+switched off at a time, then run with the tracker alone and with the default back end, medians of
+repeats. Reported in docs/results/slam.md, "2026-12-04/05 — what a back end can remove on a
+hand-held camera", and BENCHMARKS.md, "SLAM back end (local BA, loop closing, PROSAC)".
 
-    python benchmarks/sensor_parts.py --data DIR --preset handheld_rpy --seeds 0 1 2 \\
+Command::
+
+    python studies/sensor_parts.py --data DIR --preset handheld_rpy --seeds 0 1 2 \\
         --repeats 3 [--parts full no_blur no_image_noise exact_depth] [--json F]
 
 Parts (every other part of the style and the preset's sensor timing, e.g. ``handheld_rpy``'s

@@ -1,5 +1,7 @@
-"""The UDA table of one synthetic shift at a small budget: in-domain, source-only (source and
-target BatchNorm statistics), each method, a target oracle, and each method's closure.
+"""What does adaptation gain on one synthetic shift at a small budget? The UDA table: in-domain,
+source-only (source and target BatchNorm statistics), each method, a target oracle, and each
+method's closure. Reported in docs/results/shifts.md (its dated entries) and docs/results/README.md,
+"The board" (its 5-seed rows).
 
 Trains (with ``uss-train``, each run reused when its ``last.ckpt`` exists) and scores the
 *last* checkpoint of every run (no selection, so no target labels are used to choose it):
@@ -17,7 +19,7 @@ statistics) and to AdaBN (with on how many seeds the row is above) and closure =
 *labelled* target training frames (same network, budget and crops; BatchNorm statistics from
 its own training). Data: a ``DemoData`` folder of any shift (``pipelines/synthetic_data.py``).
 
-    .venv/bin/python benchmarks/shift_probe.py --data DATA --test TEST_DIR --runs RUNS \\
+    .venv/bin/python studies/shift_probe.py --data DATA --test TEST_DIR --runs RUNS \\
         --seeds 0,1 --methods source_only,adaptsegnet,oracle --iters 1200
 
 ``--render SHIFT`` renders the data set into ``--data`` first; ``--merge A.json --merge B.json``

@@ -1,4 +1,5 @@
-"""Where and why the tracker loses a synthetic sequence, and where its error builds up.
+"""Where and why does the tracker lose a synthetic sequence, and where does its error build up?
+Reported in BENCHMARKS.md, "SLAM harness" / "Accuracy targets".
 
 Runs the unfiltered baseline and ``labels`` + ``semantic`` on one sequence and prints, per run,
 the stretches of frames not tracked together with what the view holds there (ground-truth
@@ -7,7 +8,7 @@ share of the person without depth, i.e. closer than the sensor's minimum range),
 with the largest ATE (SE(3)-aligned, per frame). With ``--plot`` also the ATE of both runs over
 time in one PNG. Used in BENCHMARKS.md ("SLAM harness": walking targets over seeds).
 
-    python benchmarks/slam_lost.py /tmp/st12/walking_xyz_300_640x480_seed1 --plot ate.png
+    python studies/slam_lost.py /tmp/st12/walking_xyz_300_640x480_seed1 --plot ate.png
 """
 
 from __future__ import annotations

@@ -1,12 +1,13 @@
-"""How much the people of a synthetic sequence get into the unfiltered tracker's pose estimates.
+"""How much do the people of a synthetic sequence get into the unfiltered tracker's pose estimates?
+Reported in BENCHMARKS.md, "SLAM harness" / "Accuracy targets" (what it measures; no figure of it is
+recorded yet).
 
 Runs the pipeline without filters and, per frame, counts the keypoints on a person (ground-truth
 ``labels/``) and how many of them are inliers of the final pose (matched to a map point after
 PnP-RANSAC and the χ² tests). Also the error over time against ground truth: ATE RMSE and the
-frames with the largest one-frame relative pose error. Used in BENCHMARKS.md ("SLAM harness") to
-explain why filtering gains little on the current synthetic scene.
+frames with the largest one-frame relative pose error.
 
-    python benchmarks/slam_people.py outputs/bench/slam/walking_xyz_300_640x480_seed1
+    python studies/slam_people.py outputs/bench/slam/walking_xyz_300_640x480_seed1
 """
 
 from __future__ import annotations

@@ -1,7 +1,9 @@
 """How much of a SLAM system's tracking rests on the walkers: per frame, the share of the pose's
-inliers that lie on people, and the ATE, for harness settings and (optionally) the real ORB-SLAM3.
+inliers that lie on people, and the ATE, for harness settings and (optionally) the real ORB-SLAM3?
+Reported in docs/results/slam.md, "2026-12-01/02 — why walkers fool ORB-SLAM3 more than the
+harness's own policy", and BENCHMARKS.md, "ORB-SLAM3 next to the harness".
 
-    python benchmarks/slam_walker_inliers.py --sequence /tmp/walkers/wxyz7 \\
+    python studies/slam_walker_inliers.py --sequence /tmp/walkers/wxyz7 \\
         --variant default --variant "kf_every_frame:tracker.max_keyframe_interval=1" \\
         --orbslam3 --vocabulary vocab.txt
 
