@@ -95,7 +95,7 @@ class AdversarialSegmentation(LightningModule):
         domain_batch_norm: what BatchNorm layers in train mode (a segmenter trained from
             scratch) normalise the target batch with: ``separate`` (each domain's batch its own
             statistics: two forwards; the target maps are then normalised like AdaBN's and a
-            discriminator finds little domain in them, ``benchmarks/d_probe.py``), ``joint``
+            discriminator finds little domain in them, ``studies/d_probe.py``), ``joint``
             (source and target batch in one forward, statistics of both; needs crops of one
             size) or ``running`` (the target batch by the running statistics of the source
             batches, as at evaluation with source statistics; two forwards). Ignored when no

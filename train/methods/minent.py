@@ -12,7 +12,7 @@ pixels of ``-sum_c P log2 P / log2 C``, against a cross-entropy that is a mean o
 pixels; ``LAMBDA_ENT_MAIN`` 0.001, ``LAMBDA_ENT_AUX`` 0.0002). At those weights the entropy term is
 a no-op at this project's budgets: its gradient norm on the segmenter's parameters is 0.008% of the
 segmentation loss's at the demo's initialisation and 0.04–0.11% at trained demo checkpoints
-(``benchmarks/minent_gradient.py``, ``experiment=demo``). The defaults are 50× ADVENT's (``0.05``
+(``studies/minent_gradient.py``, ``experiment=demo``). The defaults are 50× ADVENT's (``0.05``
 main, ``0.01`` aux, the same 1 : 5), which puts that ratio at 0.42% at initialisation (0.38–0.48%
 over 4 batches) and, the ratio being linear in the weights, 2–5.5% at those trained checkpoints, of
 the order of the adversarial term's 2–8% in ``adaptsegnet`` at the paper's weights. ADVENT's

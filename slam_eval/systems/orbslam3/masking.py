@@ -39,7 +39,7 @@ def fill_dynamic(rgb: np.ndarray, mask: np.ndarray, fill: str = "grey", value: i
     (``grey``), or continued from the pixels around the mask (``inpaint``: ``cv2.inpaint``,
     Telea). A mask that covers only part of a walker leaves an edge across him that moves with
     him; inpainting leaves a weaker one there than flat grey, so fewer corners on the walker
-    (``benchmarks/orbslam3_partial_masks.py``)."""
+    (``studies/orbslam3_partial_masks.py``)."""
     if fill == "grey":
         out = rgb.copy()
         out[mask] = value

@@ -18,7 +18,7 @@ the numbers are comparable:
   FAST corners inside; only its border can, where it meets the image. Grey rather than black:
   the border's contrast against a typical scene is smaller, so fewer corners appear on the
   silhouette (walking_xyz: 126 ORB keypoints per frame within 10 px of the mask with grey 128,
-  156 with black; ``benchmarks/orbslam3_blank_fill.py``). Corners centred inside the mask get
+  156 with black; ``studies/orbslam3_blank_fill.py``). Corners centred inside the mask get
   no depth (no map point from a single frame); those just outside lie on what is behind the
   person, as the dilation reaches past its edge. ``segmenter=none`` blanks nothing.
 - **Repeats**: ORB-SLAM3 runs its local mapping and loop closing in threads of its own and its
