@@ -28,16 +28,11 @@ from typing import Any, ClassVar
 
 from uss_slam.core.errors import UssSlamError
 from uss_slam.pipelines.runs import Variant
+from uss_slam.train.method_configs import method_names, trains_discriminators
 
-METHODS: dict[str, tuple[str, ...]] = {
-    # uss-train overrides of each adaptation method ("without ATL" / "with ATL", then the
-    # methods that followed AdaptSegNet).
-    "source_only": ("model/method=source_only",),
-    "adaptsegnet": ("model/method=adaptsegnet",),
-    "advent": ("model/method=advent",),
-    "minent": ("model/method=minent",),
-    "self_training": ("model/method=self_training",),
-}
+METHODS: dict[str, tuple[str, ...]] = {name: (f"model/method={name}",) for name in method_names()}
+"""``uss-train`` overrides of each shipped adaptation method: every option of the config group
+``model/method`` (source-only, the "without ATL" baseline, first; then the others)."""
 ORACLE = "oracle"
 """T0's target oracle: source-only trained on the *labelled* target training frames (the same
 net, budget and crops; ``grid.oracle``). Not a method of ``grid.methods``: its data overrides are
@@ -49,10 +44,16 @@ REFERENCE_METHODS: dict[str, tuple[str, ...]] = {ORACLE: ("model/method=source_o
 """The ``uss-train`` overrides of T0's reference trainings (besides the plan's data ones)."""
 ADAPTED = "adaptsegnet"
 """The paper's adapted model: the "with ATL" side of T2 / T3 and the downstream ratio."""
-DISCRIMINATOR_METHODS = ("adaptsegnet", "advent")
-"""Methods with discriminators: trained at a discriminator depth (every depth of
-``grid.n_layers`` when listed in ``grid.depth_sweep``, else ``tables.n_layers`` only), and the
-only ones the adversarial loss weights of ``grid.loss`` apply to."""
+
+
+def discriminator_methods() -> tuple[str, ...]:
+    """Methods with discriminators (their class's ``trains_discriminators``): trained at a
+    discriminator depth (every depth of ``grid.n_layers`` when listed in ``grid.depth_sweep``,
+    else ``tables.n_layers`` only), and the only ones the adversarial loss weights of
+    ``grid.loss`` apply to."""
+    return tuple(m for m in METHODS if trains_discriminators(m))
+
+
 DEPTH_SWEEP = (ADAPTED,)
 """``grid.depth_sweep`` when not given: the paper sweeps the depth of AdaptSegNet's
 discriminators; the other methods are compared at the tables' depth."""
@@ -399,8 +400,9 @@ def training_cells(grid: Mapping[str, Any], n_table: Any = None) -> list[TrainCe
     sweep = grid.get("depth_sweep", list(DEPTH_SWEEP))
     if isinstance(sweep, (str, bytes)) or not isinstance(sweep, Sequence):
         raise UssSlamError(f"grid.depth_sweep: expected a list of methods, got {sweep!r}")
+    with_discriminators = discriminator_methods()
     for m in sweep:
-        choose("grid.depth_sweep", m, DISCRIMINATOR_METHODS)
+        choose("grid.depth_sweep", m, with_discriminators)
     _unique("grid.depth_sweep", list(sweep))
     seeds = _non_empty_list("grid.seeds", grid.get("seeds"))
     for s in seeds:
@@ -418,14 +420,14 @@ def training_cells(grid: Mapping[str, Any], n_table: Any = None) -> list[TrainCe
                 f"tables.n_layers: {n_table!r} is not a depth of the grid; accepted: "
                 f"{', '.join(map(str, depths))}"
             )
-    if any(m in DISCRIMINATOR_METHODS and m not in sweep for m in methods):
+    if any(m in with_discriminators and m not in sweep for m in methods):
         _depth("tables.n_layers", n_table, "a discriminator depth")
     combos = loss_combinations(grid.get("loss"))
     varied = {k for k in given(grid.get("loss")) if len({dict(c)[k] for c in combos}) > 1}
     settings = method_overrides(grid.get("method_overrides"))
     cells: list[TrainCell] = []
     for method in methods:
-        adversarial = method in DISCRIMINATOR_METHODS
+        adversarial = method in with_discriminators
         method_combos: list[tuple[tuple[str, float], ...]] = []
         for combo in combos:
             # Methods without discriminators never use the adversarial weights: one training

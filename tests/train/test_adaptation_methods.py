@@ -20,7 +20,14 @@ from train_helpers import fit_repeated, quiet_trainer
 from uss_slam.core.errors import UssSlamError
 from uss_slam.models.checkpoint import read_checkpoint
 from uss_slam.testing import reference_step as bench
+from uss_slam.train import method_configs
 from uss_slam.train.losses import upsample
+from uss_slam.train.method_configs import (
+    METHOD_GROUP,
+    method_class,
+    method_names,
+    trains_discriminators,
+)
 from uss_slam.train.methods import (
     AdaptSegNet,
     DomainPass,
@@ -84,24 +91,26 @@ def test_method_config_group(overrides: list[str], kind: type, tmp_path: Path) -
     assert model.hparams["method"] == kind.name and model.hparams["adaptation"] is kind.adapts
 
 
-@pytest.mark.parametrize(
-    ("method", "networks"),
-    [
-        ("adaptsegnet", {"segmenter", "d_aux", "d_main"}),
-        ("advent", {"segmenter", "d_aux", "d_main"}),
-        ("source_only", {"segmenter"}),
-        ("minent", {"segmenter"}),
-        ("self_training", {"segmenter", "method"}),  # the teacher and its counts
-    ],
-)
-def test_a_method_owns_what_it_trains(method: str, networks: set[str], tmp_path: Path) -> None:
-    """Discriminators and their optimiser exist only for the methods that train them."""
+@pytest.mark.parametrize("method", method_names())
+def test_a_method_owns_what_it_trains(method: str, tmp_path: Path) -> None:
+    """Every option of ``model/method`` (a new one too): its class is the config's, and the
+    discriminators and their optimiser exist only for a method whose class trains them."""
     model = instantiate(_compose(tmp_path, f"model/method={method}").model)
+    assert type(model.method) is method_class(method) and model.method.name == method
+    trains = method_class(method).trains_discriminators
+    own = {"method"} if model.method.state_dict() else set()  # e.g. a teacher and its counts
+    networks = {"segmenter"} | ({"d_aux", "d_main"} if trains else set()) | own
     assert {key.split(".")[0] for key in model.state_dict()} == networks
     optimizers, schedules = model.configure_optimizers()
-    trains = model.method.trains_discriminators
     assert len(optimizers) == len(schedules) == (2 if trains else 1)
     assert (model.discriminators is not None) is trains
+
+
+def test_the_shipped_methods_are_the_config_group() -> None:
+    shipped = sorted(p.stem for p in METHOD_GROUP.glob("*.yaml"))
+    assert sorted(method_names()) == shipped and method_names()[0] == "source_only"
+    trains = {m for m in method_names() if trains_discriminators(m)}
+    assert trains == {"adaptsegnet", "advent"}  # the shipped classes' own flag
 
 
 def test_the_method_is_chosen_by_its_config_group_only(tmp_path: Path) -> None:
@@ -253,6 +262,33 @@ def test_domain_pass_error_skips_the_pending_backward() -> None:
 
 
 TOY_CONFIG = "_target_: test_adaptation_methods.TargetEntropy\nweight: 0.5\n"
+
+
+def test_a_new_method_joins_the_method_list(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    """One more ``model/method/<name>.yaml`` in the group is one more method for the grid and
+    the every-method tests (nothing else lists them); a YAML without a ``_target_`` is an error
+    naming the file."""
+    group = tmp_path / "method"
+    group.mkdir()
+    for path in METHOD_GROUP.glob("*.yaml"):
+        (group / path.name).write_text(path.read_text())
+    (group / "target_entropy.yaml").write_text(TOY_CONFIG)
+    monkeypatch.setattr(method_configs, "METHOD_GROUP", group)
+    method_configs.method_target.cache_clear()
+    try:
+        assert method_names() == ("source_only", *sorted([*method_names()[1:]]))
+        assert "target_entropy" in method_names()
+        assert method_class("target_entropy") is TargetEntropy
+        assert not trains_discriminators("target_entropy")
+        (group / "broken.yaml").write_text("weight: 0.5\n")
+        with pytest.raises(UssSlamError, match="broken.yaml.*expected a _target_"):
+            method_class("broken")
+        with pytest.raises(UssSlamError, match="model/method=nope: no such method"):
+            method_class("nope")
+    finally:
+        method_configs.method_target.cache_clear()
 
 
 def test_a_new_method_plugs_in_by_config(uda_data: dict[str, Path], tmp_path: Path) -> None:

@@ -6,7 +6,9 @@ segmenter, the discriminators (built only for a method that trains them), the sc
 and checkpoints. To add one: subclass :class:`Method` in ``train/methods/<name>.py``; its
 ``training_step`` usually calls :func:`segmenter_step` with its :class:`TargetLoss` (and
 :func:`discriminator_step` when it trains discriminators); add
-``configs/model/method/<name>.yaml`` with its ``_target_``.
+``configs/model/method/<name>.yaml`` with its ``_target_``. That is all: the config group is the
+list of methods (:mod:`uss_slam.train.method_configs`), which the experiment grid and the
+every-method tests read.
 """
 
 from uss_slam.train.methods.adaptsegnet import AdaptSegNet
