@@ -1,5 +1,7 @@
-"""Seconds per training iteration: the Lightning module vs a plain-PyTorch loop, same run;
-with ``--suite speed``, the speed options (compile, channels-last, bf16, fused optimisers).
+"""What does the Lightning module cost per training iteration against a plain-PyTorch loop of the
+same computation, in the same run, and what do its speed options (``--suite speed``: compile,
+channels-last, bf16, fused optimisers) gain? Reported in BENCHMARKS.md, "Training iteration" and
+"Training speed options".
 
 One iteration = the paper's Algorithm 1: source and target forward, segmentation and
 adversarial losses, segmenter step, both discriminator updates. Both loops train the same
@@ -50,6 +52,7 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
+from uss_slam.models import DeepLabV2
 from uss_slam.testing.reference_step import (
     PlainState,
     build_module,
@@ -98,13 +101,21 @@ class Case:
     iters: int
     repeats: int
     ndf: int
-    freeze_bn: bool = True
+    batchnorm: str = "frozen"  # model.net.batchnorm: frozen, trained or reference
+
+    @property
+    def freeze_bn(self) -> bool:
+        return self.batchnorm == "frozen"
 
     def start(self) -> tuple[AdversarialSegmentation, dict]:
         """The seeded module and fixed random batch every variant starts from (BatchNorm
         statistics calibrated on the batch)."""
         torch.manual_seed(0)
         module = build_module(self.backbone, ndf=self.ndf, freeze_bn=self.freeze_bn)
+        if self.batchnorm == "reference":  # same weights, AdaptSegNet's BatchNorm
+            net = DeepLabV2(4, self.backbone, batchnorm="reference")
+            net.load_state_dict(module.segmenter.state_dict())
+            module.segmenter = net
         batch = random_batch(self.size, self.batch_size)
         calibrate_batchnorm(
             module.segmenter, torch.cat([batch["source"]["image"], batch["target"]["image"]])
@@ -121,16 +132,21 @@ class Case:
 
 def cases(args: argparse.Namespace) -> list[Case]:
     """The ``--models`` of the command line: ``small`` the demo experiment's shapes, ``tiny``
-    the small network at 33x33 and batch 1, the ResNets the paper's."""
-    freeze_bn = not args.train_bn
+    the small network at 33x33 and batch 1, the ResNets the paper's. BatchNorm: ``--batchnorm``,
+    else frozen for the small network and the paper's ``reference`` for the ResNets (a random
+    ResNet-101 under frozen BatchNorm diverges within a few iterations, even with statistics
+    calibrated on the batch: the loop would time NaN arithmetic)."""
+    chosen = "trained" if args.train_bn else args.batchnorm
     out = []
     for name in args.models:
         if name == "small":
-            out.append(Case("resnet_small", 129, 4, args.iters * 4, args.repeats, 16, freeze_bn))
+            bn = chosen or "frozen"
+            out.append(Case("resnet_small", 129, 4, args.iters * 4, args.repeats, 16, bn))
         elif name == "tiny":
-            out.append(Case("resnet_small", 33, 1, args.iters * 20, args.repeats, 16, freeze_bn))
+            bn = chosen or "frozen"
+            out.append(Case("resnet_small", 33, 1, args.iters * 20, args.repeats, 16, bn))
         else:
-            out.append(Case(name, 321, 1, args.iters, args.repeats, 64, freeze_bn))
+            out.append(Case(name, 321, 1, args.iters, args.repeats, 64, chosen or "reference"))
     return out
 
 
@@ -171,7 +187,7 @@ def run(case: Case, compare: type[AdversarialSegmentation] | None = None) -> Non
         raise SystemExit(f"{case.backbone}: the plain loop produced non-finite weights")
     plain = statistics.median(results["plain"])
     base = statistics.median(results["lightning"])
-    bn = "frozen BN" if case.freeze_bn else "BN trained (batched variants run unbatched)"
+    bn = "frozen BN" if case.freeze_bn else f"BN {case.batchnorm} (batched variants run unbatched)"
     print(
         f"{case.heading(bn)}, median s/iteration over "
         f"{len(results['plain'])} iterations each; segmenter max |difference| module vs plain "
@@ -241,7 +257,7 @@ def run_speed(case: Case, variants: list[str] | None = None) -> None:
         finals[name] = {k: v.detach().float().clone() for k, v in variant.state_dict().items()}
     plain = statistics.median(results["plain"])
     eager = statistics.median(results["eager"]) if "eager" in results else plain
-    bn = "frozen BN" if case.freeze_bn else "BN trained (domains unbatched)"
+    bn = "frozen BN" if case.freeze_bn else f"BN {case.batchnorm} (domains unbatched)"
     print(
         f"{case.heading(bn)}: median s/iteration "
         f"over {case.iters - 1} x {case.repeats} iterations each (the first of each fit excluded)"
@@ -319,7 +335,13 @@ def main() -> None:
     parser.add_argument(
         "--train-bn",
         action="store_true",
-        help="BatchNorm in train mode (the demo experiment) instead of frozen (the paper)",
+        help="same as --batchnorm trained (the demo experiment's BatchNorm)",
+    )
+    parser.add_argument(
+        "--batchnorm",
+        choices=["frozen", "trained", "reference"],
+        help="model.net.batchnorm of every case (default: frozen for small / tiny, reference "
+        "for the ResNets, the paper's)",
     )
     parser.add_argument(
         "--compare-module",

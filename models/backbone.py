@@ -71,15 +71,30 @@ class ResNetBackbone(nn.Module):
         self.layer3 = trunk.layer3
         self.layer4 = trunk.layer4
         self.layout = layout
-        if layout == "caffe":
-            _caffe_strides(self)
-            self.register_buffer(CAFFE_LAYOUT_BUFFER, torch.ones((), dtype=torch.uint8))
         _dilate(self.layer3, 2)
         _dilate(self.layer4, 4)
+        if layout == "caffe":
+            self.to_caffe_layout()
         self.out_channels: tuple[int, int] = (
             self.layer3[-1].conv3.out_channels,
             self.layer4[-1].conv3.out_channels,
         )
+
+    def to_caffe_layout(self) -> None:
+        """Switch to the ``caffe`` layout (same parameters, strides moved; marker buffer)."""
+        _caffe_strides(self)
+        self.layout = "caffe"
+        if not hasattr(self, CAFFE_LAYOUT_BUFFER):
+            device = self.conv1.weight.device
+            marker = torch.ones((), dtype=torch.uint8, device=device)
+            self.register_buffer(CAFFE_LAYOUT_BUFFER, marker)
+
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):  # type: ignore[no-untyped-def]
+        # A state dict of a caffe-layout backbone (e.g. a checkpoint that export rebuilds from
+        # its net config) turns this backbone into that layout: its weights mean that function.
+        if prefix + CAFFE_LAYOUT_BUFFER in state_dict and self.layout != "caffe":
+            self.to_caffe_layout()
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
 
     def forward(self, x: Tensor) -> tuple[Tensor, Tensor]:
         x = self.maxpool(self.relu(self.bn1(self.conv1(x))))

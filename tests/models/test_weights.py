@@ -216,6 +216,13 @@ def test_caffe_layout_is_another_function_and_its_classifier_loads_as_main(
     # An even size: the caffe max-pool rounds up.
     assert model(torch.randn(1, 3, 32, 32)).main.shape[-2:] == (5, 5)
     assert same_weights(torch.randn(1, 3, 32, 32)).main.shape[-2:] == (4, 4)
+    # Its state dict loads strictly into a model built without the file (export rebuilds the
+    # net from its config) and switches that model to the caffe layout.
+    rebuilt = DeepLabV2(4, "resnet_small", batchnorm="frozen")
+    rebuilt.load_state_dict(model.state_dict())
+    assert rebuilt.backbone.layout == "caffe" and rebuilt.backbone.layer2[0].conv1.stride == (2, 2)
+    x = torch.randn(1, 3, 33, 33)
+    torch.testing.assert_close(rebuilt.eval()(x).main, model.eval()(x).main, rtol=0, atol=0)
     # Its checkpoint is read back in the caffe layout (the marker buffer).
     saved = tmp_path / "segmenter.pt"
     torch.save(model.state_dict(), saved)
