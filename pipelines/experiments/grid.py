@@ -23,11 +23,11 @@ from __future__ import annotations
 
 import itertools
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, ClassVar
 
 from uss_slam.core.errors import UssSlamError
-from uss_slam.pipelines.runs import Variant
+from uss_slam.pipelines.runs import USES_TARGET_LABELS, Variant
 from uss_slam.train.method_configs import method_names, trains_discriminators
 
 METHODS: dict[str, tuple[str, ...]] = {name: (f"model/method={name}",) for name in method_names()}
@@ -88,6 +88,27 @@ PRESET_METHOD_OVERRIDES: dict[str, dict[str, tuple[str, ...]]] = {
     },
     "full": {},
 }
+
+
+TARGET_LABEL_USES = ("training", "settings", "checkpoint selection")
+"""What of a model was chosen with target labels (``runs.csv`` column ``target_labels``, ``;``
+between them; the tables mark its rows †): the oracle's training, method settings of
+:data:`PRESET_METHOD_OVERRIDES` (chosen on labelled target validation frames), a checkpoint
+policy that reads them (``train.checkpoint=best_target_val``)."""
+
+
+def target_label_uses(cfg: Mapping[str, Any], cell: TrainCell) -> tuple[str, ...]:
+    """What of training ``cell`` the config ``cfg`` chose with target labels
+    (:data:`TARGET_LABEL_USES`): settings count when one of them is the synthetic shift preset's
+    for that method, whether by ``grid.method_overrides: null`` or written out."""
+    data = cfg.get("data") or {}
+    shift = (data.get("synthetic") or {}).get("shift", "tum_like")
+    preset = PRESET_METHOD_OVERRIDES.get(str(shift), {}) if data.get("kind") == "synthetic" else {}
+    policy = str((cfg.get("train") or {}).get("checkpoint") or "last")
+    uses = ["training"] if cell.method == ORACLE else []
+    uses += ["settings"] if set(cell.settings) & set(preset.get(cell.method, ())) else []
+    uses += ["checkpoint selection"] if policy in USES_TARGET_LABELS else []
+    return tuple(uses)
 
 
 VARIANTS: dict[str, Variant] = {
@@ -197,6 +218,7 @@ class TrainCell(_ModelNames):
     loss: tuple[tuple[str, float], ...] = ()  # (key, value) pinned for this training
     tag: str = ""  # loss suffix of the config name when the grid varies the loss weights
     settings: tuple[str, ...] = ()  # the method's own uss-train overrides (grid.method_overrides)
+    target_labels: tuple[str, ...] = ()  # what was chosen with them (TARGET_LABEL_USES; no key)
 
     @property
     def config(self) -> str:
@@ -220,6 +242,7 @@ class TrainCell(_ModelNames):
             "loss": ";".join(f"{k}={_short(v)}" for k, v in self.loss),
             "config": self.config,
             "seed": self.seed,
+            "target_labels": ";".join(self.target_labels) or None,
         }
 
 
@@ -496,6 +519,7 @@ def expand(cfg: Mapping[str, Any], accepted_sequences: Sequence[str]) -> Grid:
         trainings += [
             TrainCell(ORACLE, int(s), settings=oracle_settings) for s in cfg["grid"]["seeds"]
         ]
+    trainings = [replace(t, target_labels=target_label_uses(cfg, t)) for t in trainings]
     adabn_methods = adabn_method_list(cfg["grid"].get("adabn_methods", ["source_only"]))
     adabn = [
         AdaBNCell(t)

@@ -11,6 +11,8 @@ from typing import Any
 from uss_slam.core.classes import CLASS_NAMES
 from uss_slam.core.errors import DataFormatError
 
+from ..grid import TARGET_LABEL_USES
+
 RATES = ("FPR", "FNR", "recall", "precision", "PWC")
 ATE_KEYS = ("ate_rmse", "ate_mean", "ate_median", "ate_std")
 REPEAT_COLUMNS = ("ate_runs", "ate_rmse_min", "ate_rmse_max")
@@ -25,6 +27,7 @@ COLUMNS: tuple[str, ...] = (
     "n_layers",
     "loss",
     "config",
+    "target_labels",
     "seed",
     "system",
     "sequence",
@@ -44,7 +47,10 @@ COLUMNS: tuple[str, ...] = (
     "seconds",
     "folder",
 )
-"""The columns of ``runs.csv``, in order."""
+"""The columns of ``runs.csv``, in order. ``target_labels``: what of the row's model was chosen
+with target labels (:data:`~uss_slam.pipelines.experiments.grid.TARGET_LABEL_USES`, ``;``
+between them; empty = nothing; a runs.csv from before the column reads as empty, and the tables
+still mark the oracle and the checkpoint policy's rows)."""
 TIMING_COLUMNS = {
     "segmentation_ms": "segmentation",
     "crf_ms": "segmentation.crf",
@@ -61,6 +67,7 @@ TEXT_COLUMNS = (
     "method",
     "loss",
     "config",
+    "target_labels",
     "system",
     "sequence",
     "variant",
@@ -111,6 +118,15 @@ def read_runs(path: Path) -> list[dict[str, Any]]:
                     raise DataFormatError(
                         path, f"column {key}: expected a number, got {value!r}", line=line
                     ) from None
+        uses = row["target_labels"].split(";") if row.get("target_labels") else []
+        unknown = [u for u in uses if u not in TARGET_LABEL_USES]
+        if unknown:
+            raise DataFormatError(
+                path,
+                f"column target_labels: expected {'; '.join(TARGET_LABEL_USES)} separated by ';', "
+                f"got {unknown[0]!r}",
+                line=line,
+            )
         if row.get("status") not in STATUSES:
             raise DataFormatError(
                 path,
