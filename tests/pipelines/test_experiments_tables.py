@@ -1,5 +1,7 @@
 """The tables of uss-experiments from a small hand-written runs.csv: mean ± s.d. over seeds,
-the paper's improvement %, the downstream ratio, failure marking and the runs.csv format."""
+the paper's improvement %, the downstream ratio, failure marking, the runs.csv format, the
+minimum detectable effect beside every paired interval and the † of rows chosen with target
+labels."""
 
 from __future__ import annotations
 
@@ -132,10 +134,14 @@ def test_t1_t2_t3_ratio_and_failures(rows: list[dict], tmp_path: Path) -> None:
     assert (paired["positive"], paired["n"]) == (2, 2)
     half = 12.7062 * math.sqrt(((0.25 - 0.26875) ** 2 + (0.2875 - 0.26875) ** 2) / 1) / math.sqrt(2)
     assert paired["interval"] == pytest.approx([0.26875 - half, 0.26875 + half], abs=1e-4)
+    # beside the interval, its minimum detectable effect: (t_0.975,1 + t_0.80,1) · s / √2
+    sd = math.sqrt(((0.25 - 0.26875) ** 2 + (0.2875 - 0.26875) ** 2) / 1)
+    assert paired["mde"] == pytest.approx((12.7062 + 1.3764) * sd / math.sqrt(2), abs=1e-4)
     assert (
         f"| adaptsegnet_n5 | − source_only | +0.25 / +0.29 (2/2 > 0), mean +0.27 "
-        f"[{0.26875 - half:+.2f}, {0.26875 + half:+.2f}] |"
+        f"[{0.26875 - half:+.2f}, {0.26875 + half:+.2f}], MDE {paired['mde']:.2f} |"
     ) in text
+    assert tbl.MDE_FORMULA in text  # the footnote states the formula
     assert tbl.paired_interval([0.1])["interval"] is None
     assert tbl.paired_interval([])["mean"] is None
     assert "| adaptsegnet_n5 | median | 0.706 |" in text  # of two seeds: their mean
@@ -319,3 +325,181 @@ def test_tables_without_crf_or_timing_columns_leave_them_out(rows: list[dict]) -
     assert data["crf"] == [] and data["timing"] == []
     assert "Dense CRF" not in text and "Time per frame" not in text
     assert [r["config"] for r in data["T2"]["by_method"]] == ["source_only", "adaptsegnet_n5"]
+
+
+def test_mde_is_the_paired_t_tests_smallest_detectable_effect() -> None:
+    # n = 8, s = 6: (t_0.975,7 + t_0.80,7) · 6 / √8 = (2.365 + 0.896) · 6 / 2.828 = 6.92
+    assert tbl.mde(6.0, 8) == pytest.approx((2.3646 + 0.8960) * 6 / math.sqrt(8), abs=1e-3)
+    assert tbl.mde(6.0, 8) == pytest.approx(6.917, abs=1e-3)
+    # n = 3, s = 0.1: (4.303 + 1.061) · 0.1 / √3 = 0.310
+    assert tbl.mde(0.1, 3) == pytest.approx((4.3027 + 1.0607) * 0.1 / math.sqrt(3), abs=1e-4)
+    assert tbl.mde(0.0, 5) == 0.0  # identical differences: any effect shows
+    assert tbl.mde(0.3, 1) is None and tbl.mde(None, 4) is None and tbl.mde(0.3, 0) is None
+    assert tbl.mde_text(None) == "MDE —" and tbl.mde_text(0.12345) == "MDE 0.12"
+    # paired_interval carries it; paired_text prints it on request only
+    paired = tbl.paired_interval([0.2, 0.3, 0.1])
+    assert paired["mde"] == pytest.approx((4.3027 + 1.0607) * 0.1 / math.sqrt(3), abs=1e-4)
+    assert tbl.paired_text(paired).endswith("[-0.05, +0.45]")
+    assert tbl.paired_text(paired, with_mde=True).endswith("[-0.05, +0.45], MDE 0.31")
+    one = tbl.paired_interval([0.2])
+    assert one["mde"] is None and tbl.paired_text(one, with_mde=True) == "+0.20 (1/1 > 0), MDE —"
+
+
+def _with_target_labels(text: str, config: str, uses: str) -> str:
+    """RUNS_CSV with a ``target_labels`` column: ``uses`` on every row of ``config``."""
+    lines = text.splitlines()
+    header = lines[0].split(",")
+    at = header.index("config")
+    out = [",".join([*header, "target_labels"])]
+    for line in lines[1:]:
+        cells = line.split(",")
+        out.append(",".join([*cells, uses if cells[at] == config else ""]))
+    return "\n".join(out) + "\n"
+
+
+def _daggered(text: str) -> set[str]:
+    """The names marked † in markdown tables and titles."""
+    import re
+
+    return set(re.findall(r"([A-Za-z0-9_]+) †", text)) - {"ATL"}  # T2's "with ATL †"
+
+
+def test_a_runs_csv_without_the_column_marks_nothing_but_the_policy(rows: list[dict]) -> None:
+    # an older runs.csv: no target_labels column, no oracle, last checkpoints: no †
+    assert "target_labels" not in rows[0]
+    data, text = tbl.compute(rows, n_layers=5)
+    assert _daggered(text) == set() and tbl.DAGGER_NOTE not in text
+    assert data["layout"]["target_labels"] == {}
+    assert "\ntarget labels used: none\n" in text  # T0's header line
+    assert [r["target_labels"] for r in data["T0"]["rows"]] == ["none", "none"]
+    # ... unless the settings say otherwise: a checkpoint policy that reads target labels
+    data, text = tbl.compute(rows, n_layers=5, policy="best_target_val")
+    assert _daggered(text) == {"source_only", "adaptsegnet_n5"}
+    assert "target labels used: none" not in text
+    assert (
+        "target labels used: source_only (checkpoint selection); adaptsegnet_n5 (checkpoint "
+        "selection)"
+    ) in text
+
+
+def test_rows_chosen_with_target_labels_are_marked_in_every_table(tmp_path: Path) -> None:
+    path = tmp_path / "runs.csv"
+    path.write_text(_with_target_labels(RUNS_CSV, "adaptsegnet_n5", "settings"))
+    rows = tbl.read_runs(path)
+    data, text = tbl.compute(rows, n_layers=5)
+    other, other_text = tbl.compute(tbl.read_runs(_plain(tmp_path)), n_layers=5)
+    assert data["layout"]["target_labels"] == {"adaptsegnet_n5": ["settings"]}
+    # † on adaptsegnet_n5 wherever it is a row or a side, never on source-only
+    assert _daggered(text) == {"adaptsegnet_n5"}
+    assert "| adaptsegnet_n5 † | settings | " in text  # T0
+    assert "\ntarget labels used: adaptsegnet_n5 (settings)\n" in text  # T0's header line
+    assert "| adaptsegnet_n5 † | 0.420 ± 0.028 (n=2, 1 failed) | 0.320 ± 0.028" in text  # T1a
+    assert "| adaptsegnet_n5 † | 0.0435 ± 0.0049 (n=2, 1 failed) |" in text  # T1b
+    assert "| metric | without ATL | with ATL † | improvement |" in text  # T2
+    assert "### T3: without / with multi-view geometry (adaptsegnet_n5 †, harness)" in text
+    assert "| adaptsegnet_n5 † | − source_only | +0.25 / +0.29 (2/2 > 0)" in text  # ratio
+    assert "| adaptsegnet_n5 † | mean ± s.d. | 0.706 ± 0.062 (n=2) |" in text
+    assert "| source_only | mean ± s.d. | 0.375 ± 0.125 (n=3) |" in text
+    # the footnote under each table with a †: T0 (3 tables), T1a, T1b, T2, T3, T2 by method,
+    # the downstream ratio (semantic, semantic+geometry)
+    assert text.count(tbl.DAGGER_NOTE) == 10
+
+    # the other columns are those of the same runs.csv without the column
+    def unmarked(md: str) -> str:
+        md = md.replace(tbl.DAGGER_NOTE + "\n\n", "").replace(" †", "")
+        md = md.replace("target labels used: adaptsegnet_n5 (settings)", "target labels used: none")
+        return md.replace("| adaptsegnet_n5 | settings |", "| adaptsegnet_n5 | none |")
+
+    assert unmarked(text) == unmarked(other_text)
+    assert (
+        data["T1"] == other["T1"]
+        and data["downstream_ratio_paired"] == other["downstream_ratio_paired"]
+    )
+
+
+def _plain(tmp_path: Path) -> Path:
+    path = tmp_path / "plain.csv"
+    path.write_text(RUNS_CSV)
+    return path
+
+
+def test_t0_prints_the_mde_of_each_closure(tmp_path: Path) -> None:
+    # source-only, the method and the oracle over three seeds on one sequence; the method's
+    # closure per seed 0.2, 0.3, 0.1 (mean 0.2, s = 0.1)
+    rows = []
+    miou = {"source_only": (0.20, 0.20, 0.20), "adaptsegnet_n5": (0.24, 0.26, 0.22),
+            "oracle": (0.40, 0.40, 0.40)}  # fmt: skip
+    for config, values in miou.items():
+        method = config.removesuffix("_n5")
+        for seed, value in enumerate(values):
+            common = {"status": "ok", "method": method, "config": config, "seed": seed,
+                      "n_layers": 5 if config.endswith("_n5") else None}  # fmt: skip
+            rows.append({"kind": "train", "id": f"train/{config}_s{seed}", **common})
+            rows.append({"kind": "segeval", "id": f"segeval/{config}_s{seed}", **common,
+                         "sequence": "walking_xyz", "mIoU": value, "IoU_person": value})  # fmt: skip
+    path = tmp_path / "runs.csv"
+    tbl.write_runs(path, rows)
+    data, text = tbl.compute(tbl.read_runs(path), n_layers=5)
+    t0 = {r["config"]: r for r in data["T0"]["rows"]}
+    assert t0["adaptsegnet_n5"]["closure_mIoU"]["values"] == pytest.approx([0.2, 0.3, 0.1])
+    expected = (4.3027 + 1.0607) * 0.1 / math.sqrt(3)  # 0.310
+    assert t0["adaptsegnet_n5"]["closure_mIoU_mde"] == pytest.approx(expected, abs=1e-4)
+    assert t0["source_only"]["closure_mIoU_mde"] == 0.0  # closure 0 on every seed
+    assert "| MDE closure (mIoU) | MDE closure (person IoU) |" in text
+    assert f"(n=3) | {expected:.3f} | {expected:.3f} |" in text
+    assert tbl.MDE_FORMULA in text
+    # the oracle is marked: it trained on target labels (a reference)
+    assert "| oracle † | training |" in text and "target labels used: oracle (training)" in text
+    # a single seed: no MDE
+    one, one_text = tbl.compute([r for r in tbl.read_runs(path) if r["seed"] == 0], 5)
+    assert {r["closure_mIoU_mde"] for r in one["T0"]["rows"]} == {None}
+    assert "(n=1) | — | — |" in one_text
+
+
+def test_the_grid_passes_what_target_labels_chose_into_the_job_rows() -> None:
+    from uss_slam.pipelines.experiments.grid import (
+        PRESET_METHOD_OVERRIDES,
+        AdaBNCell,
+        TrainCell,
+        target_label_uses,
+    )
+
+    tuned = PRESET_METHOD_OVERRIDES["tum_like"]["adaptsegnet"]
+    cfg = {"data": {"kind": "synthetic", "synthetic": {"shift": "tum_like"}}, "train": {}}
+    adapted = TrainCell("adaptsegnet", 0, 5, settings=tuned)
+    assert target_label_uses(cfg, adapted) == ("settings",)
+    assert target_label_uses(cfg, TrainCell("source_only", 0)) == ()
+    assert target_label_uses(cfg, TrainCell("oracle", 0)) == ("training",)
+    # settings of the user's own (or {}), real data, and the full preset (not swept): none
+    own = TrainCell("adaptsegnet", 0, 5, settings=("model.domain_batch_norm=joint",))
+    assert target_label_uses(cfg, own) == ()
+    real = {**cfg, "data": {"kind": "real", "synthetic": {"shift": "tum_like"}}}
+    assert target_label_uses(real, adapted) == ()
+    full = {**cfg, "data": {"kind": "synthetic", "synthetic": {"shift": "full"}}}
+    assert target_label_uses(full, adapted) == ()
+    best = {**cfg, "train": {"checkpoint": "best_target_val"}}
+    assert target_label_uses(best, adapted) == ("settings", "checkpoint selection")
+    assert target_label_uses(best, TrainCell("oracle", 0)) == ("training", "checkpoint selection")
+    # the rows: a training's, and an AdaBN export of it inherits what chose its checkpoint
+    cell = TrainCell("adaptsegnet", 0, 5, settings=tuned, target_labels=("settings",))
+    assert cell.describe()["target_labels"] == "settings"
+    assert AdaBNCell(cell).describe()["target_labels"] == "settings"
+    assert TrainCell("source_only", 0).describe()["target_labels"] is None
+    # written and read back through runs.csv
+    both = TrainCell("oracle", 1, target_labels=("training", "checkpoint selection"))
+    assert both.describe()["target_labels"] == "training;checkpoint selection"
+
+
+def test_target_labels_column_round_trips_and_rejects_unknown_uses(tmp_path: Path) -> None:
+    path = tmp_path / "runs.csv"
+    row = {"kind": "train", "id": "train/oracle_s0", "status": "ok", "method": "oracle",
+           "config": "oracle", "seed": 0, "target_labels": "training;checkpoint selection"}  # fmt: skip
+    tbl.write_runs(path, [row])
+    assert tbl.read_runs(path)[0]["target_labels"] == "training;checkpoint selection"
+    path.write_text("kind,id,status,target_labels\ntrain,x,ok,labels\n")
+    with pytest.raises(DataFormatError) as info:
+        tbl.read_runs(path)
+    assert str(info.value).startswith(str(path)) and (
+        ":2: column target_labels: expected training; settings; checkpoint selection separated "
+        "by ';', got 'labels'"
+    ) in str(info.value)

@@ -19,6 +19,10 @@
 
 Each cell is ``mean ± s.d. (n=k)`` over the seeds whose job succeeded (sample s.d., ``n − 1``);
 a cell with failed jobs says how many (``n=2, 1 failed``); a cell with none says ``failed``.
+Beside every paired comparison over seeds (T0's closure, the downstream ratio's differences to
+source-only) stands its minimum detectable effect (:func:`~.stats.mde`). Every model chosen with
+target labels (the oracle's training, a shift preset's method settings, a checkpoint policy that
+reads them: ``runs.csv``'s ``target_labels``) is marked † in each table that shows it.
 Pure Python + numpy (matplotlib for the plots only).
 
 One module each: :mod:`.runs_csv` (the rows), :mod:`.stats` (the statistics the tables share),
@@ -32,7 +36,7 @@ from __future__ import annotations
 from .baselines import BASELINES, table_baselines
 from .crf import CRF_PAIRS, table_crf
 from .failures import table_failures
-from .layout import Layout, layout_from_rows
+from .layout import DAGGER_NOTE, Layout, layout_from_rows, target_label_uses
 from .markdown import LABELS
 from .plots import write_plots
 from .ratio import RATIO_FILTERS, table_ratio
@@ -53,11 +57,14 @@ from .runs_csv import (
 )
 from .stats import (
     LOWER_IS_BETTER,
+    MDE_FORMULA,
     SeedValues,
     Stat,
     closure,
     downstream_ratio,
     improvement,
+    mde,
+    mde_text,
     paired_closure,
     paired_interval,
     paired_text,
@@ -76,9 +83,11 @@ __all__ = [
     "BASELINES",
     "COLUMNS",
     "CRF_PAIRS",
+    "DAGGER_NOTE",
     "INT_COLUMNS",
     "LABELS",
     "LOWER_IS_BETTER",
+    "MDE_FORMULA",
     "RATES",
     "RATIO_FILTERS",
     "REPEAT_COLUMNS",
@@ -97,6 +106,8 @@ __all__ = [
     "downstream_ratio",
     "improvement",
     "layout_from_rows",
+    "mde",
+    "mde_text",
     "paired_closure",
     "paired_interval",
     "paired_text",
@@ -115,6 +126,7 @@ __all__ = [
     "table_t2",
     "table_t3",
     "table_timing",
+    "target_label_uses",
     "target_labels",
     "write_plots",
     "write_runs",

@@ -48,7 +48,7 @@ def table_crf(rows, layout: Layout) -> tuple[list[dict[str, Any]], list[str]]:
                     )
                     body.append(
                         [
-                            config,
+                            layout.name(config),
                             VARIANTS[off].label,
                             "on" if crf else "off",
                             *(seg[k].text(3) for k in seg_keys),
@@ -64,5 +64,6 @@ def table_crf(rows, layout: Layout) -> tuple[list[dict[str, Any]], list[str]]:
             "",
             *md_table(header, body),
             "",
+            *layout.footnote(layout.crf_configs),
         ]
     return data, lines

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
 from typing import Any
 
-from ..grid import ADABN, ADAPTED, ORACLE
+from uss_slam.pipelines.runs import USES_TARGET_LABELS
+
+from ..grid import ADABN, ADAPTED, ORACLE, TARGET_LABEL_USES
 from .runs_csv import ALL_SEQUENCES, SOURCE_VAL
 
 
@@ -24,10 +26,44 @@ class Layout:
     crf_configs: tuple[str, ...] = ()  # configs with dense-CRF runs or segmentation metrics
     adabn: tuple[str, ...] = ()  # T0's AdaBN configs (one per source-only config)
     oracle: str | None = None  # T0's target oracle
+    target_labels: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
+    """Config -> what of its model was chosen with target labels (:func:`target_label_uses`)."""
+
+    def name(self, config: str) -> str:
+        """``config``, with `` †`` when it was chosen with target labels."""
+        return f"{config} †" if self.target_labels.get(config) else config
+
+    def footnote(self, configs: Iterable[str | None]) -> list[str]:
+        """The footnote of a table showing ``configs`` (``[]`` when none is marked)."""
+        return [DAGGER_NOTE, ""] if any(self.target_labels.get(c) for c in configs if c) else []
 
 
-def layout_from_rows(rows: Sequence[Mapping[str, Any]], n_layers: int | None) -> Layout:
-    """The layout implied by the rows (names in order of first appearance)."""
+DAGGER_NOTE = "† chosen with target labels"
+
+
+def target_label_uses(
+    rows: Sequence[Mapping[str, Any]], policy: str = "last"
+) -> dict[str, tuple[str, ...]]:
+    """Config -> what of its model was chosen with target labels, in the order of
+    :data:`~uss_slam.pipelines.experiments.grid.TARGET_LABEL_USES`: the ``target_labels`` column
+    of its rows; and, for a runs.csv without the column too, the oracle's training and a
+    checkpoint ``policy`` that reads target labels (every model's checkpoint)."""
+    found: dict[str, set[str]] = {}
+    for r in rows:
+        if r.get("config") is None:
+            continue
+        uses = found.setdefault(r["config"], set())
+        uses.update(r["target_labels"].split(";") if r.get("target_labels") else ())
+        uses.update(["training"] if r.get("method") == ORACLE else [])
+        uses.update(["checkpoint selection"] if policy in USES_TARGET_LABELS else [])
+    return {c: tuple(u for u in TARGET_LABEL_USES if u in uses) for c, uses in found.items()}
+
+
+def layout_from_rows(
+    rows: Sequence[Mapping[str, Any]], n_layers: int | None, policy: str = "last"
+) -> Layout:
+    """The layout implied by the rows (names in order of first appearance); ``policy``: the
+    trainings' checkpoint policy (``train.checkpoint``), for the rows' † marks."""
 
     def ordered(key: str, kind: str | None = None) -> tuple[str, ...]:
         return tuple(
@@ -74,6 +110,7 @@ def layout_from_rows(rows: Sequence[Mapping[str, Any]], n_layers: int | None) ->
         crf_configs,
         adabn,
         oracle,
+        target_label_uses(rows, policy),
     )
 
 

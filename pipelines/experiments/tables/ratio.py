@@ -9,7 +9,7 @@ from typing import Any
 
 from .layout import Layout, select, slam_rows
 from .markdown import md_table
-from .stats import Stat, downstream_ratio, paired_interval, paired_text, stat
+from .stats import MDE_FORMULA, Stat, downstream_ratio, paired_interval, paired_text, stat
 
 RATIO_FILTERS = ("semantic", "semantic_geometry")
 """The filters of the downstream ratio tables (each when its SLAM runs were made)."""
@@ -43,7 +43,8 @@ def table_ratio(
         "better than no filter. Median and mean ± s.d. over the seeds. Each model's row "
         "\"− source_only\": its ratio minus source-only's, paired by seed (every seed's "
         "difference, on how many seeds it is positive, and the mean with its 95% Student-t "
-        "interval over the seeds: an interval above 0 excludes no gain).",
+        "interval over the seeds: an interval above 0 excludes no gain; MDE: the smallest "
+        "difference the seeds can detect, footnote).",
         "",
     ]
     # T0's AdaBN models and the target oracle too: the baseline any method must beat, and how
@@ -64,6 +65,8 @@ def table_ratio(
     filters = [f for f in RATIO_FILTERS if f in layout.variants]
     for system, variant in ((s, f) for s in layout.systems for f in filters):
         body = []
+        shown: list[str] = []  # the models of this table
+        paired_shown = False
         per_sequence: dict[tuple[str, str], list[float]] = {}
         baselines = {
             sequence: (
@@ -79,8 +82,10 @@ def table_ratio(
             )
             if not any(slam_rows(rows, system, s, variant, config) for s in layout.sequences):
                 continue  # this filter was not run with this model
+            shown.append(config)
+            name = layout.name(config)
             for seed in seeds:
-                cells = [config, str(seed)]
+                cells = [name, str(seed)]
                 for sequence in layout.sequences:
                     none_, oracle = baselines[sequence]
                     runs = [
@@ -105,9 +110,9 @@ def table_ratio(
                 body.append(cells)
             values = [per_sequence.get((config, s), []) for s in layout.sequences]
             body.append(
-                [config, "median", *(f"{statistics.median(v):.3f}" if v else "—" for v in values)]
+                [name, "median", *(f"{statistics.median(v):.3f}" if v else "—" for v in values)]
             )
-            body.append([config, "mean ± s.d.", *(Stat(tuple(v)).text(3) for v in values)])
+            body.append([name, "mean ± s.d.", *(Stat(tuple(v)).text(3) for v in values)])
             so = layout.source_only
             if (
                 config != so
@@ -116,7 +121,7 @@ def table_ratio(
                     _ratios(data, system, variant, so, sequence) for sequence in layout.sequences
                 )
             ):
-                cells = [config, f"− {layout.source_only}"]
+                cells = [name, f"− {layout.name(so)}"]
                 for sequence in layout.sequences:
                     mine = _ratios(data, system, variant, config, sequence)
                     base = _ratios(data, system, variant, layout.source_only, sequence)
@@ -124,8 +129,9 @@ def table_ratio(
                     paired = paired_interval(diffs)
                     paired_rows.append({"system": system, "filter": variant, "config": config,
                                         "sequence": sequence, **paired})  # fmt: skip
-                    cells.append(paired_text(paired))
+                    cells.append(paired_text(paired, with_mde=True))
                 body.append(cells)
+                paired_shown = True
         if not body:  # no model was run with this filter (e.g. ORB-SLAM3 + geometry)
             continue
         lines += [
@@ -133,6 +139,8 @@ def table_ratio(
             "",
             *md_table(["configuration", "seed", *layout.sequences], body),
             "",
+            *layout.footnote(shown),
+            *([MDE_FORMULA + ".", ""] if paired_shown else []),
         ]
     return data, paired_rows, lines
 

@@ -29,8 +29,9 @@ def compute(
     policy: str = "last",
 ) -> tuple[dict[str, Any], str]:
     """Every table: ``(tables.json content, tables.md text)``; ``policy``: the trainings'
-    checkpoint policy (``train.checkpoint``: T0 marks the rows it selected with target labels)."""
-    layout = layout or layout_from_rows(rows, n_layers)
+    checkpoint policy (``train.checkpoint``: the tables mark † the rows it selected with target
+    labels, as they mark the rows whose ``target_labels`` column says so)."""
+    layout = layout or layout_from_rows(rows, n_layers, policy)
     t0, t0_md = table_t0(rows, layout, policy)
     t1, t1_md = table_t1(rows, layout)
     t2, t2_md = table_t2(rows, layout)
@@ -55,6 +56,7 @@ def compute(
             "adabn": list(layout.adabn),
             "oracle": layout.oracle,
             "n_layers": n_layers,
+            "target_labels": {c: list(u) for c, u in layout.target_labels.items() if u},
         },
         "T0": t0,
         "T1": t1,
@@ -94,7 +96,7 @@ def write_tables(
     policy: str = "last",
 ) -> dict[str, Any]:
     """``tables.md``, ``tables.json`` and the plots (under ``plots/``) in ``out``."""
-    layout = layout or layout_from_rows(rows, n_layers)
+    layout = layout or layout_from_rows(rows, n_layers, policy)
     data, text = compute(rows, n_layers, layout, policy)
     images = write_plots(out / "plots", rows, layout) if plots else []
     md = [*header, text]

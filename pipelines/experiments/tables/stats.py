@@ -1,6 +1,6 @@
 """The statistics the tables share: a cell over seeds (:class:`Stat`, :class:`SeedValues`),
-the paper's improvement %, differences in points, closure, the downstream ratio and paired
-intervals."""
+the paper's improvement %, differences in points, closure, the downstream ratio, paired
+intervals and the smallest effect a paired design can detect (:func:`mde`)."""
 
 from __future__ import annotations
 
@@ -151,23 +151,56 @@ def downstream_ratio(none: float | None, model: float | None, oracle: float | No
     return (none - model) / (none - oracle)
 
 
+MDE_ALPHA = 0.05
+MDE_POWER = 0.8
+MDE_FORMULA = (
+    "MDE = (t_{0.975, n−1} + t_{0.80, n−1}) · s / √n: the smallest true mean difference a paired "
+    "two-sided Student-t test at α = 0.05 detects with power 0.8 over n seeds, s the sample s.d. "
+    "of the paired values (— below two seeds)"
+)
+"""The footnote of every table that prints an :func:`mde`."""
+
+
+def mde(sd: float | None, n: int) -> float | None:
+    """The minimum detectable effect of a paired two-sided Student-t test at ``MDE_ALPHA`` with
+    power ``MDE_POWER`` over ``n`` paired values of sample standard deviation ``sd``:
+    ``(t_{1−α/2, n−1} + t_{power, n−1}) · sd / √n`` (in the values' unit); None below two values
+    or without ``sd``."""
+    if n < 2 or sd is None:
+        return None
+    from scipy.stats import t
+
+    quantiles = t.ppf(1 - MDE_ALPHA / 2, n - 1) + t.ppf(MDE_POWER, n - 1)
+    return float(quantiles * sd / math.sqrt(n))
+
+
+def mde_text(value: float | None, digits: int = 2) -> str:
+    """``MDE 0.12`` (``MDE —`` when there is none)."""
+    return "MDE —" if value is None else f"MDE {value:.{digits}f}"
+
+
 def paired_interval(diffs: Sequence[float], level: float = 0.95) -> dict[str, Any]:
     """Paired differences: each value, how many are positive, their mean and its Student-t
-    interval at ``level`` (None below two values)."""
+    interval at ``level`` (None below two values), and the minimum detectable effect of the
+    comparison (:func:`mde`; None below two values)."""
     out: dict[str, Any] = {"values": list(diffs), "positive": sum(d > 0 for d in diffs),
-                           "n": len(diffs), "mean": None, "interval": None}  # fmt: skip
+                           "n": len(diffs), "mean": None, "interval": None,
+                           "mde": None}  # fmt: skip
     if diffs:
         out["mean"] = statistics.fmean(diffs)
     if len(diffs) >= 2:
         from scipy.stats import t
 
-        half = t.ppf(0.5 + level / 2, len(diffs) - 1) * statistics.stdev(diffs) / len(diffs) ** 0.5
+        sd = statistics.stdev(diffs)
+        half = t.ppf(0.5 + level / 2, len(diffs) - 1) * sd / len(diffs) ** 0.5
         out["interval"] = [out["mean"] - half, out["mean"] + half]
+        out["mde"] = mde(sd, len(diffs))
     return out
 
 
-def paired_text(paired: Mapping[str, Any]) -> str:
-    """``+0.12 / +0.30 (2/2 > 0), mean +0.21 [-0.93, +1.35]`` of a :func:`paired_interval`."""
+def paired_text(paired: Mapping[str, Any], with_mde: bool = False) -> str:
+    """``+0.12 / +0.30 (2/2 > 0), mean +0.21 [-0.93, +1.35]`` of a :func:`paired_interval`;
+    ``with_mde``: then ``, MDE 0.45`` (``, MDE —`` below two values)."""
     if not paired["n"]:
         return "—"
     each = " / ".join(f"{d:+.2f}" for d in paired["values"])
@@ -175,4 +208,6 @@ def paired_text(paired: Mapping[str, Any]) -> str:
     if paired["interval"] is not None:
         lo, hi = paired["interval"]
         text += f", mean {paired['mean']:+.2f} [{lo:+.2f}, {hi:+.2f}]"
+    if with_mde:
+        text += ", " + mde_text(paired.get("mde"))
     return text

@@ -9,11 +9,11 @@ from typing import Any
 
 from uss_slam.pipelines.runs import USES_TARGET_LABELS
 
-from ..grid import ADABN
-from .layout import Layout, select, slam_rows
+from ..grid import ADABN, TARGET_LABEL_USES
+from .layout import DAGGER_NOTE, Layout, select, slam_rows
 from .markdown import LABELS, md_table, value_text
 from .runs_csv import RATES, SOURCE_VAL
-from .stats import SeedValues, is_defined, paired_closure, stat
+from .stats import MDE_FORMULA, SeedValues, is_defined, mde, paired_closure, stat
 
 T0_SEG = ("mIoU", "IoU_person")
 T0_FRAMES = tuple(f"person_{r}" for r in RATES)
@@ -61,12 +61,21 @@ def t0_rows(layout: Layout) -> list[tuple[str, str]]:
     return rows
 
 
-def target_labels(role: str, policy: str) -> str:
-    """What target labels a T0 row used: the oracle's training, and the checkpoint selection
-    of a policy that reads them (``train.checkpoint=best_target_val``)."""
-    used = ["training"] if role == "oracle" else []
-    used += ["checkpoint selection"] if policy in USES_TARGET_LABELS else []
-    return ", ".join(used) or "none"
+def target_labels(role: str, policy: str, uses: Sequence[str] = ()) -> str:
+    """What target labels a T0 row used: the oracle's training, method settings chosen on
+    labelled target validation frames (``uses``: its rows' ``target_labels``), and the
+    checkpoint selection of a policy that reads them (``train.checkpoint=best_target_val``)."""
+    used = {*uses, *(["training"] if role == "oracle" else [])}
+    used |= {"checkpoint selection"} if policy in USES_TARGET_LABELS else set()
+    return ", ".join(u for u in TARGET_LABEL_USES if u in used) or "none"
+
+
+def labels_line(used: Sequence[tuple[str, str]]) -> str:
+    """T0's header line: ``target labels used: none``, or each † row and what it used them
+    for (``used``: ``(config, target_labels text)`` of the rows that used them)."""
+    if not used:
+        return "target labels used: none"
+    return "target labels used: " + "; ".join(f"{c} ({what})" for c, what in used)
 
 
 def table_t0(rows, layout: Layout, policy: str = "last") -> tuple[dict[str, Any], list[str]]:
@@ -99,11 +108,13 @@ def table_t0(rows, layout: Layout, policy: str = "last") -> tuple[dict[str, Any]
         "policy": policy,
         "rows": [],
     }
-    body, per_seed, frames = [], [], []
+    body, per_seed, frames, used = [], [], [], []
     for config, role in order:
-        labels = target_labels(role, policy)
+        labels = target_labels(role, policy, layout.target_labels.get(config, ()))
         name = config + (" †" if labels != "none" else "")
+        used += [(config, labels)] if labels != "none" else []
         c = cells[config]
+        mdes = {k: mde(c[f"closure_{k}"].stat.sd, c[f"closure_{k}"].stat.n) for k in T0_SEG}
         ate = {
             (system, seq): stat(slam_rows(rows, system, seq, "semantic", config), "ate_rmse")
             for system in systems
@@ -115,13 +126,21 @@ def table_t0(rows, layout: Layout, policy: str = "last") -> tuple[dict[str, Any]
                 "role": role,
                 "target_labels": labels,
                 **{k: v.as_json() for k, v in c.items()},
+                **{f"closure_{k}_mde": v for k, v in mdes.items()},
                 "ate_rmse": [
                     {"system": system, "sequence": seq, **s.as_json(), "se": s.se}
                     for (system, seq), s in ate.items()
                 ],
             }
         )
-        body.append([name, labels, *(c[k].stat.text(3, "se") for k in main)])
+        body.append(
+            [
+                name,
+                labels,
+                *(c[k].stat.text(3, "se") for k in main),
+                *(value_text(mdes[k]) for k in T0_SEG),
+            ]
+        )
         frames.append(
             [
                 name,
@@ -133,7 +152,7 @@ def table_t0(rows, layout: Layout, policy: str = "last") -> tuple[dict[str, Any]
             {int(r["seed"]) for r in select(rows, config=config) if r.get("seed") is not None}
         )
         for seed in seeds:
-            per_seed.append([config, str(seed), *(value_text(c[k].values.get(seed)) for k in main)])
+            per_seed.append([name, str(seed), *(value_text(c[k].values.get(seed)) for k in main)])
     header = [
         "row",
         "target labels used",
@@ -143,8 +162,12 @@ def table_t0(rows, layout: Layout, policy: str = "last") -> tuple[dict[str, Any]
         "closure (mIoU)",
         "closure (person IoU)",
     ]
+    mde_header = ["MDE closure (mIoU)", "MDE closure (person IoU)"]
+    dagger = [DAGGER_NOTE, ""] if used else []
     lines = [
         title,
+        "",
+        labels_line(used),
         "",
         "source-only: the source-only model (source BatchNorm statistics); adabn: the same "
         "checkpoint with BatchNorm statistics of unlabelled target training frames (AdaBN, the "
@@ -158,14 +181,22 @@ def table_t0(rows, layout: Layout, policy: str = "last") -> tuple[dict[str, Any]
         "oracle's; n/a when the oracle is no better than source-only)"
         + ("" if layout.oracle else "; no oracle in this run (grid.oracle=false): no closure")
         + ". Each cell: mean ± standard error over seeds (n = seeds with a value); the per-seed "
-        "table has every seed's value. † = target labels used (column 2).",
+        "table has every seed's value. † = target labels used (column 2): training = the "
+        "oracle's (a reference, not a method); settings = method settings chosen on labelled "
+        "target validation frames (the shift preset's, grid.method_overrides: null); checkpoint "
+        "selection = train.checkpoint=best_target_val. MDE closure: the "
+        "smallest mean closure the seeds can tell from 0 (footnote).",
         "",
-        *md_table(header, body),
+        *md_table([*header, *mde_header], body),
+        "",
+        *dagger,
+        MDE_FORMULA + ".",
         "",
         "#### T0 per seed",
         "",
         *md_table(["row", "seed", *header[2:]], per_seed),
         "",
+        *dagger,
         "#### T0 person masks and SLAM",
         "",
         "Person-mask frame metrics (as in T2; mean over the evaluation sequences) and ATE RMSE "
@@ -184,5 +215,6 @@ def table_t0(rows, layout: Layout, policy: str = "last") -> tuple[dict[str, Any]
             frames,
         ),
         "",
+        *dagger,
     ]
     return data, lines

@@ -36,7 +36,7 @@ def table_t1(rows, layout: Layout) -> tuple[dict[str, Any], list[str]]:
         )
         body.append(
             [
-                config,
+                layout.name(config),
                 stats["val_mIoU"].text(3),
                 stats["mIoU"].text(3),
                 points_text(delta),
@@ -59,6 +59,7 @@ def table_t1(rows, layout: Layout) -> tuple[dict[str, Any], list[str]]:
         "",
         *md_table(header, body),
         "",
+        *layout.footnote(layout.configs),
     ]
     for system in layout.systems:
         body = []
@@ -70,11 +71,12 @@ def table_t1(rows, layout: Layout) -> tuple[dict[str, Any], list[str]]:
                     {"system": system, "config": config, "sequence": sequence, **s.as_json()}
                 )
                 cells.append(s.text(4))
-            body.append([config, *cells])
+            body.append([layout.name(config), *cells])
         lines += [
             f"### T1b: ATE RMSE [m] by discriminator depth ({system}, semantic filter)",
             "",
             *md_table(["configuration", *layout.sequences], body),
             "",
+            *layout.footnote(layout.configs),
         ]
     return data, lines

@@ -71,11 +71,16 @@ def table_t2(rows, layout: Layout) -> tuple[dict[str, Any], list[str]]:
                 )
                 body.append([label, without.text(digits(key)), with_.text(digits(key)), pct(gain)])
                 summary.setdefault((adapted, label), []).append(pct(gain))
+            header = [
+                "without ATL" + (" †" if layout.target_labels.get(so) else ""),
+                "with ATL" + (" †" if layout.target_labels.get(adapted) else ""),
+            ]
             lines += [
                 f"#### {sequence}",
                 "",
-                *md_table(["metric", "without ATL", "with ATL", "improvement"], body),
+                *md_table(["metric", *header, "improvement"], body),
                 "",
+                *layout.footnote([so, adapted]),
             ]
     lines += [
         "### T2 summary: improvement with ATL per sequence",
@@ -84,7 +89,7 @@ def table_t2(rows, layout: Layout) -> tuple[dict[str, Any], list[str]]:
         "",
     ]
     body = [
-        [f"{label} ({adapted})" if len(layout.adapted) > 1 else label, *cells]
+        [f"{label} ({layout.name(adapted)})" if len(layout.adapted) > 1 else label, *cells]
         for (adapted, label), cells in summary.items()
     ]
     for (adapted, label), cells in summary.items():
@@ -96,6 +101,7 @@ def table_t2(rows, layout: Layout) -> tuple[dict[str, Any], list[str]]:
             }
         )
     lines += [*md_table(["metric", *layout.sequences], body), ""]
+    lines += layout.footnote(layout.adapted) if len(layout.adapted) > 1 else []
     return data, lines
 
 
@@ -127,7 +133,7 @@ def table_methods(rows, layout: Layout) -> tuple[list[dict[str, Any]], list[str]
     for config in layout.methods:
         seg = {k: stat(seg_rows(rows, config, ALL_SEQUENCES), k) for k in seg_keys}
         entry: dict[str, Any] = {"config": config}
-        cells = [config]
+        cells = [layout.name(config)]
         for k in seg_keys:
             delta = points(seg[k], reference[k])
             entry[k] = seg[k].as_json()
@@ -141,4 +147,4 @@ def table_methods(rows, layout: Layout) -> tuple[list[dict[str, Any]], list[str]
                 cells.append(s_.text(4))
         data.append(entry)
         body.append(cells)
-    return data, [*lines, *md_table(header, body), ""]
+    return data, [*lines, *md_table(header, body), "", *layout.footnote(layout.methods)]

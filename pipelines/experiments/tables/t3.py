@@ -54,12 +54,13 @@ def table_t3(rows, layout: Layout) -> tuple[dict[str, Any], list[str]]:
                     body.append(cells)
                     data.append(entry)
             lines += [
-                f"### T3: without / with multi-view geometry ({adapted}, {system})",
+                f"### T3: without / with multi-view geometry ({layout.name(adapted)}, {system})",
                 "",
                 "Improvement: positive = better with geometry.",
                 "",
                 *md_table(header, body),
                 "",
+                *layout.footnote([adapted]),
             ]
     if not lines:
         lines = [
