@@ -490,12 +490,16 @@ def test_the_grid_passes_what_target_labels_chose_into_the_job_rows() -> None:
     assert both.describe()["target_labels"] == "training;checkpoint selection"
 
 
-def test_target_labels_column_round_trips_and_rejects_unknown_uses(tmp_path: Path) -> None:
+def test_target_labels_init_and_batchnorm_columns_round_trip(tmp_path: Path) -> None:
     path = tmp_path / "runs.csv"
     row = {"kind": "train", "id": "train/oracle_s0", "status": "ok", "method": "oracle",
            "config": "oracle", "seed": 0, "target_labels": "training;checkpoint selection"}  # fmt: skip
-    tbl.write_runs(path, [row])
-    assert tbl.read_runs(path)[0]["target_labels"] == "training;checkpoint selection"
+    tbl.write_runs(path, [row, {**row, "id": "train/oracle_i1_s0", "init": 1,
+                                "batchnorm": "reference", "target_labels": None}])  # fmt: skip
+    first, second = tbl.read_runs(path)
+    assert first["target_labels"] == "training;checkpoint selection" and first["init"] is None
+    assert second["target_labels"] is None
+    assert (second["init"], second["batchnorm"]) == (1, "reference")  # the init's seed: an int
     path.write_text("kind,id,status,target_labels\ntrain,x,ok,labels\n")
     with pytest.raises(DataFormatError) as info:
         tbl.read_runs(path)

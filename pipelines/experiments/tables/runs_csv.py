@@ -28,6 +28,8 @@ COLUMNS: tuple[str, ...] = (
     "loss",
     "config",
     "target_labels",
+    "init",
+    "batchnorm",
     "seed",
     "system",
     "sequence",
@@ -50,7 +52,9 @@ COLUMNS: tuple[str, ...] = (
 """The columns of ``runs.csv``, in order. ``target_labels``: what of the row's model was chosen
 with target labels (:data:`~uss_slam.pipelines.experiments.grid.TARGET_LABEL_USES`, ``;``
 between them; empty = nothing; a runs.csv from before the column reads as empty, and the tables
-still mark the oracle and the checkpoint policy's rows)."""
+still mark the oracle and the checkpoint policy's rows). ``init``: the seed of the pretrained
+init a training started from (empty: from scratch or a given file); ``batchnorm``: its
+``model.net.batchnorm`` when the grid sets one (``grid.batchnorm``)."""
 TIMING_COLUMNS = {
     "segmentation_ms": "segmentation",
     "crf_ms": "segmentation.crf",
@@ -58,7 +62,7 @@ TIMING_COLUMNS = {
 }
 """``runs.csv`` column -> key of a SLAM run's ``timing_ms`` (mean wall ms per processed frame;
 ``segmentation`` includes the CRF's ``segmentation.crf``)."""
-INT_COLUMNS = ("n_layers", "seed", "crf", "ate_runs")
+INT_COLUMNS = ("n_layers", "init", "seed", "crf", "ate_runs")
 TEXT_COLUMNS = (
     "kind",
     "id",
@@ -68,6 +72,7 @@ TEXT_COLUMNS = (
     "loss",
     "config",
     "target_labels",
+    "batchnorm",
     "system",
     "sequence",
     "variant",
