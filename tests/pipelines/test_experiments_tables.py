@@ -400,9 +400,10 @@ def test_rows_chosen_with_target_labels_are_marked_in_every_table(tmp_path: Path
     assert "| adaptsegnet_n5 † | − source_only | +0.25 / +0.29 (2/2 > 0)" in text  # ratio
     assert "| adaptsegnet_n5 † | mean ± s.d. | 0.706 ± 0.062 (n=2) |" in text
     assert "| source_only | mean ± s.d. | 0.375 ± 0.125 (n=3) |" in text
-    # the footnote under each table with a †: T0 (3 tables), T1a, T1b, T2, T3, T2 by method,
+    assert "| adaptsegnet_n5 † | − source_only | +10.00 / +12.00 (2/2 > 0)" in text  # T0
+    # the footnote under each table with a †: T0 (4 tables), T1a, T1b, T2, T3, T2 by method,
     # the downstream ratio (semantic, semantic+geometry)
-    assert text.count(tbl.DAGGER_NOTE) == 10
+    assert text.count(tbl.DAGGER_NOTE) == 11
 
     # the other columns are those of the same runs.csv without the column
     def unmarked(md: str) -> str:
@@ -427,8 +428,8 @@ def test_t0_prints_the_mde_of_each_closure(tmp_path: Path) -> None:
     # source-only, the method and the oracle over three seeds on one sequence; the method's
     # closure per seed 0.2, 0.3, 0.1 (mean 0.2, s = 0.1)
     rows = []
-    miou = {"source_only": (0.20, 0.20, 0.20), "adaptsegnet_n5": (0.24, 0.26, 0.22),
-            "oracle": (0.40, 0.40, 0.40)}  # fmt: skip
+    miou = {"source_only": (0.20, 0.20, 0.20), "adabn": (0.23, 0.23, 0.23),
+            "adaptsegnet_n5": (0.24, 0.26, 0.22), "oracle": (0.40, 0.40, 0.40)}  # fmt: skip
     for config, values in miou.items():
         method = config.removesuffix("_n5")
         for seed, value in enumerate(values):
@@ -450,10 +451,28 @@ def test_t0_prints_the_mde_of_each_closure(tmp_path: Path) -> None:
     assert tbl.MDE_FORMULA in text
     # the oracle is marked: it trained on target labels (a reference)
     assert "| oracle † | training |" in text and "target labels used: oracle (training)" in text
+    # each row against source-only and AdaBN in points, paired by seed, with the MDE:
+    # adaptsegnet − source-only = 4, 6, 2 (mean 4, s = 2): interval 4 ± 4.303 · 2 / √3
+    diffs = {(r["config"], r["against"]): r for r in data["T0"]["differences"]}
+    assert list(diffs) == [("adabn", "source_only"), ("adaptsegnet_n5", "source_only"),
+                           ("adaptsegnet_n5", "adabn"), ("oracle", "source_only"),
+                           ("oracle", "adabn")]  # fmt: skip
+    paired = diffs[("adaptsegnet_n5", "source_only")]["mIoU"]
+    assert paired["values"] == pytest.approx([4.0, 6.0, 2.0])
+    half = 4.3027 * 2 / math.sqrt(3)
+    assert paired["interval"] == pytest.approx([4 - half, 4 + half], abs=1e-3)
+    assert paired["mde"] == pytest.approx((4.3027 + 1.0607) * 2 / math.sqrt(3), abs=1e-3)  # 6.19
+    assert (
+        f"| adaptsegnet_n5 | − source_only | +4.00 / +6.00 / +2.00 (3/3 > 0), mean +4.00 "
+        f"[{4 - half:+.2f}, {4 + half:+.2f}], MDE 6.19 |"
+    ) in text
+    assert "| adaptsegnet_n5 | − adabn | +1.00 / +3.00 / -1.00 (2/3 > 0)" in text
+    assert "| oracle † | − adabn |" in text
     # a single seed: no MDE
     one, one_text = tbl.compute([r for r in tbl.read_runs(path) if r["seed"] == 0], 5)
     assert {r["closure_mIoU_mde"] for r in one["T0"]["rows"]} == {None}
     assert "(n=1) | — | — |" in one_text
+    assert "| adaptsegnet_n5 | − source_only | +4.00 (1/1 > 0), MDE — |" in one_text
 
 
 def test_the_grid_passes_what_target_labels_chose_into_the_job_rows() -> None:

@@ -19,8 +19,9 @@
 
 Each cell is ``mean ± s.d. (n=k)`` over the seeds whose job succeeded (sample s.d., ``n − 1``);
 a cell with failed jobs says how many (``n=2, 1 failed``); a cell with none says ``failed``.
-Beside every paired comparison over seeds (T0's closure, the downstream ratio's differences to
-source-only) stands its minimum detectable effect (:func:`~.stats.mde`). Every model chosen with
+Beside every paired comparison over seeds (T0's closures, T0's paired differences of each row to
+source-only and to AdaBN, the downstream ratio's differences to source-only) stands its minimum
+detectable effect (:func:`~.stats.mde`). Every model chosen with
 target labels (the oracle's training, a shift preset's method settings, a checkpoint policy that
 reads them: ``runs.csv``'s ``target_labels``) is marked † in each table that shows it.
 Pure Python + numpy (matplotlib for the plots only).

@@ -13,7 +13,16 @@ from ..grid import ADABN, TARGET_LABEL_USES
 from .layout import DAGGER_NOTE, Layout, select, slam_rows
 from .markdown import LABELS, md_table, value_text
 from .runs_csv import RATES, SOURCE_VAL
-from .stats import MDE_FORMULA, SeedValues, is_defined, mde, paired_closure, stat
+from .stats import (
+    MDE_FORMULA,
+    SeedValues,
+    is_defined,
+    mde,
+    paired_closure,
+    paired_interval,
+    paired_text,
+    stat,
+)
 
 T0_SEG = ("mIoU", "IoU_person")
 T0_FRAMES = tuple(f"person_{r}" for r in RATES)
@@ -78,6 +87,40 @@ def labels_line(used: Sequence[tuple[str, str]]) -> str:
     return "target labels used: " + "; ".join(f"{c} ({what})" for c, what in used)
 
 
+def paired_points(row: SeedValues, reference: SeedValues) -> dict[str, Any]:
+    """``row − reference`` in points (100 × the difference), paired by seed over the seeds
+    both have (:func:`~.stats.paired_interval`: values, interval, MDE)."""
+    seeds = [s for s in sorted(row.values) if s in reference.values]
+    return paired_interval([100.0 * (row.values[s] - reference.values[s]) for s in seeds])
+
+
+def t0_differences(
+    order: Sequence[tuple[str, str]],
+    cells: Mapping[str, Mapping[str, SeedValues]],
+    names: Mapping[str, str],
+) -> tuple[list[dict[str, Any]], list[list[str]]]:
+    """Each T0 row against source-only and against source-only's AdaBN (the baseline any
+    method must beat), target mIoU and person IoU in points, paired by seed with their 95%
+    interval and MDE: ``(json rows, table body)``."""
+    so = next(c for c, role in order if role == "source-only")
+    adabn = next((c for c, role in order if role == "AdaBN" and not c.endswith(f"_{ADABN}")), None)
+    data: list[dict[str, Any]] = []
+    body: list[list[str]] = []
+    for config, _ in order:
+        for reference in (so, adabn):
+            if reference is None or config in (so, reference):
+                continue
+            entry: dict[str, Any] = {"config": config, "against": reference}
+            cells_ = [names[config], f"− {names[reference]}"]
+            for k in T0_SEG:
+                paired = paired_points(cells[config][k], cells[reference][k])
+                entry[k] = paired
+                cells_.append(paired_text(paired, with_mde=True))
+            data.append(entry)
+            body.append(cells_)
+    return data, body
+
+
 def table_t0(rows, layout: Layout, policy: str = "last") -> tuple[dict[str, Any], list[str]]:
     """T0, the standard UDA table (module docstring)."""
     title = "### T0: the UDA table (source-only, AdaBN, methods, target oracle)"
@@ -109,9 +152,10 @@ def table_t0(rows, layout: Layout, policy: str = "last") -> tuple[dict[str, Any]
         "rows": [],
     }
     body, per_seed, frames, used = [], [], [], []
+    names: dict[str, str] = {}
     for config, role in order:
         labels = target_labels(role, policy, layout.target_labels.get(config, ()))
-        name = config + (" †" if labels != "none" else "")
+        name = names[config] = config + (" †" if labels != "none" else "")
         used += [(config, labels)] if labels != "none" else []
         c = cells[config]
         mdes = {k: mde(c[f"closure_{k}"].stat.sd, c[f"closure_{k}"].stat.n) for k in T0_SEG}
@@ -163,6 +207,7 @@ def table_t0(rows, layout: Layout, policy: str = "last") -> tuple[dict[str, Any]
         "closure (person IoU)",
     ]
     mde_header = ["MDE closure (mIoU)", "MDE closure (person IoU)"]
+    data["differences"], differences = t0_differences(order, cells, names)
     dagger = [DAGGER_NOTE, ""] if used else []
     lines = [
         title,
@@ -192,6 +237,24 @@ def table_t0(rows, layout: Layout, policy: str = "last") -> tuple[dict[str, Any]
         *dagger,
         MDE_FORMULA + ".",
         "",
+        *(
+            [
+                "#### T0 paired differences",
+                "",
+                "Each row minus source-only and minus AdaBN (source-only's checkpoint with "
+                "target statistics: the baseline any method must beat), in points (100 × the "
+                "difference), paired by seed: every seed's difference, on how many it is "
+                "positive, the mean with its 95% Student-t interval, and the MDE (footnote).",
+                "",
+                *md_table(["row", "against", "target mIoU", "person IoU"], differences),
+                "",
+                *dagger,
+                MDE_FORMULA + ".",
+                "",
+            ]
+            if differences
+            else []
+        ),
         "#### T0 per seed",
         "",
         *md_table(["row", "seed", *header[2:]], per_seed),
