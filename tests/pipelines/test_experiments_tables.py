@@ -526,3 +526,35 @@ def test_target_labels_init_and_batchnorm_columns_round_trip(tmp_path: Path) -> 
         ":2: column target_labels: expected training; settings; checkpoint selection separated "
         "by ';', got 'labels'"
     ) in str(info.value)
+
+
+def test_the_expanded_grid_carries_the_mark_to_every_row_of_a_model() -> None:
+    from uss_slam.pipelines.experiments.grid import PRESET_METHOD_OVERRIDES, expand
+
+    tuned = PRESET_METHOD_OVERRIDES["tum_like"]["adaptsegnet"]
+    cfg = {
+        "data": {"kind": "synthetic", "synthetic": {"shift": "tum_like"}},
+        "train": {"checkpoint": "last"},
+        "grid": {"methods": ["source_only", "adaptsegnet"], "n_layers": [5], "seeds": [0, 1],
+                 "oracle": True, "adabn": True, "adabn_methods": ["source_only", "adaptsegnet"],
+                 "method_overrides": {"adaptsegnet": list(tuned)}},
+        "sequences": ["walking_xyz"], "variants": ["semantic"], "systems": ["harness"],
+        "tables": {"n_layers": 5},
+    }  # fmt: skip
+    grid = expand(cfg, ["walking_xyz"])
+    marks = {m.config: m.describe()["target_labels"] for m in grid.models}
+    assert marks == {"source_only": None, "adaptsegnet_n5": "settings", "oracle": "training",
+                     "adabn": None, "adaptsegnet_n5_adabn": "settings"}  # fmt: skip
+    # the mark is no part of what a training runs: its overrides are those of an unmarked cell
+    cell = next(t for t in grid.trainings if t.method == "adaptsegnet")
+    assert "settings" not in " ".join(cell.overrides())
+    # what the tables make of the rows
+    rows = [{"kind": "train", "id": m.id, "status": "ok", **m.describe()} for m in grid.models]
+    layout = tbl.layout_from_rows(rows, 5)
+    assert dict(layout.target_labels) == {"source_only": (), "adaptsegnet_n5": ("settings",),
+                                          "oracle": ("training",), "adabn": (),
+                                          "adaptsegnet_n5_adabn": ("settings",)}  # fmt: skip
+    assert [layout.name(c) for c in ("source_only", "adaptsegnet_n5")] == [
+        "source_only",
+        "adaptsegnet_n5 †",
+    ]
