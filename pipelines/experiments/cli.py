@@ -55,6 +55,7 @@ from .plan import (
     plan_train,
     source_val_held_out,
 )
+from .warm_start import describe_init, init_header, stage_init
 
 PROG = "uss-experiments"
 
@@ -77,7 +78,10 @@ def _run_experiments(exp: Experiment) -> dict[str, Any]:
     data_holder: dict[str, Data] = {}
 
     def do_data() -> str:
-        data, status = stage_data(exp, run="data" in exp.stages and not dry, dry=dry)
+        run = "data" in exp.stages and not dry
+        data, status = stage_data(exp, run=run, dry=dry)
+        if exp.init.pretrained:  # the warm start: the init every training starts from
+            status += ", " + stage_init(exp, data, run=run, dry=dry)
         data_holder["data"] = data
         return status
 
@@ -91,6 +95,9 @@ def _run_experiments(exp: Experiment) -> dict[str, Any]:
     exp.train_specs.update({j.id: j.spec for j in train_jobs})
     launches: dict[str, Launch] = {}
     if dry:
+        init_plan = describe_init(exp)
+        if init_plan is not None:
+            print(init_plan)
         print(describe_plan(exp, "train", train_jobs, set()))
         print(describe_exports(exp, data))
         exports = existing_exports(exp, data)
@@ -279,6 +286,7 @@ def _header(exp: Experiment, data: Data) -> list[str]:
             for method, settings in method_overrides(grid.get("method_overrides")).items()
             if settings
         ),
+        init_header(exp),
         f"- evaluation sequences: {', '.join(exp.grid.sequences)}"
         + (
             ""

@@ -32,6 +32,11 @@ class Data:
     source_val_key: Any = None
     vocabulary: Path | None = None  # ORB-SLAM3's vocabulary (systems with orbslam3)
     vocabulary_key: Any = None
+    init: dict[int | None, Path] = field(default_factory=dict)
+    """The pretrained init every training starts from (``init.kind=pretrained``), by init seed
+    (``None``: ``init.path``); empty: from scratch."""
+    init_keys: dict[int | None, str | None] = field(default_factory=dict)
+    """The sha256 of each init file (None while an init is still to be trained: dry run)."""
 
 
 def synthetic_data_spec(exp: Experiment) -> Any:

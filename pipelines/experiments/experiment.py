@@ -19,6 +19,7 @@ from .grid import (
     TUM_SEQUENCES,
     VARIANTS,
     Grid,
+    check_sequences,
     choose,
     expand,
     given,
@@ -56,6 +57,34 @@ def _size(key: str, text: Any) -> str:
     return str(text)
 
 
+INIT_KINDS = ("scratch", "pretrained")
+"""``init.kind``: ``scratch`` (every training from random weights) or ``pretrained`` (every
+training from a pretrained init: ``init.path``, or one trained on a synthetic pretraining set)."""
+
+
+@dataclass(frozen=True)
+class Init:
+    """The checked ``init`` section: where every training of the grid starts from."""
+
+    kind: str
+    seeds: tuple[int, ...] = ()  # one init per seed (synthetic pretraining only)
+    images: int = 0  # the pretraining set: images, size, uss-synth seed
+    size: str = ""
+    render_seed: int = 0
+    experiment: str = ""  # the uss-train experiment of the pretraining
+    overrides: tuple[str, ...] = ()  # more uss-train overrides of the pretraining
+    path: Path | None = None  # a user's pretrained file (no pretraining runs)
+
+    @property
+    def pretrained(self) -> bool:
+        return self.kind == "pretrained"
+
+    @property
+    def pretrains(self) -> bool:
+        """True when the data stage trains the init(s) on a synthetic pretraining set."""
+        return self.pretrained and self.path is None
+
+
 @dataclass
 class Experiment:
     """The checked configuration: everything the stages need."""
@@ -67,6 +96,8 @@ class Experiment:
     synthetic: bool
     launcher: dict[str, Any]
     missing_launcher_keys: list[str]
+    init: Init = field(default_factory=lambda: Init("scratch"))
+    """The warm-start protocol (``init``): where every training starts from."""
     train_specs: dict[str, dict[str, Any]] = field(default_factory=dict)
     """Training id -> its job spec (set when the trainings are planned)."""
 
@@ -175,6 +206,108 @@ def check_counts(plain: Mapping[str, Any], synthetic: bool) -> None:
             )
 
 
+def check_init(
+    plain: Mapping[str, Any], synthetic: bool, experiments: Sequence[str], sequences: Sequence[str]
+) -> Init:
+    """The ``init`` section (absent = ``scratch``): its kind, and for ``pretrained`` either a
+    readable ``init.path`` or (synthetic data only) the pretraining set and its trainings; the
+    pretraining set's ``render_seed`` must differ from every seed of the source set and of the
+    (training, validation and evaluation) sequences."""
+    init = plain.get("init") or {}
+    if not isinstance(init, Mapping):
+        raise UssSlamError(f"init: expected a mapping (kind, seeds, ...), got {init!r}")
+    kind = choose("init.kind", init.get("kind", "scratch"), INIT_KINDS)
+    if kind == "scratch":
+        return Init(kind)
+    if init.get("path") is not None:
+        path = Path(str(init["path"])).expanduser().resolve()
+        if not path.is_file():
+            raise UssSlamError(
+                f"init.path: no such file {path}; expected a pretrained weights file (a "
+                "DeepLab-v2 Caffe init, a torchvision ResNet state dict or a uss-train checkpoint)"
+            )
+        return Init(kind, path=path)
+    if not synthetic:
+        return Init(kind)  # no init: an error after the data checks (check_real_init)
+    seeds = init.get("seeds")
+    if isinstance(seeds, (str, bytes)) or not isinstance(seeds, Sequence) or not seeds:
+        raise UssSlamError(f"init.seeds: expected a non-empty list of integers >= 0, got {seeds!r}")
+    for s in seeds:
+        integer("init.seeds", s, 0)
+    if len(set(seeds)) != len(seeds):
+        raise UssSlamError(f"init.seeds: a seed is listed twice in {list(seeds)}")
+    images = integer("init.images", init.get("images"), 2)
+    size = _size("init.size", init.get("size"))
+    render_seed = integer("init.render_seed", init.get("render_seed"), 0)
+    syn = plain["data"]["synthetic"]
+    used = training_seeds(int(syn["seed"])) | {eval_seed(plain, name) for name in sequences}
+    if render_seed in used:
+        raise UssSlamError(
+            f"init.render_seed: {render_seed} is a seed of the source set or of a sequence "
+            f"({', '.join(map(str, sorted(used)))}); the pretraining set must be a collection of "
+            "its own: choose another init.render_seed"
+        )
+    experiment = choose("init.experiment", init.get("experiment"), experiments)
+    overrides = init.get("overrides") or []
+    if isinstance(overrides, (str, bytes)) or not isinstance(overrides, Sequence):
+        raise UssSlamError(f"init.overrides: expected a list of key=value, got {overrides!r}")
+    for item in overrides:
+        if not isinstance(item, str) or "=" not in item or item.startswith("="):
+            raise UssSlamError(f"init.overrides: expected key=value overrides, got {item!r}")
+    return Init(
+        kind,
+        seeds=tuple(int(s) for s in seeds),
+        images=images,
+        size=size,
+        render_seed=render_seed,
+        experiment=experiment,
+        overrides=tuple(overrides),
+    )
+
+
+def check_real_init(init: Init, synthetic: bool) -> None:
+    """Real data has no synthetic pretraining set: a warm start needs ``init.path``."""
+    if init.pretrains and not synthetic:
+        raise UssSlamError(
+            "init.path: missing; data.kind=real with init.kind=pretrained needs the pretrained "
+            "weights file every training starts from (init.path=FILE, e.g. the COCO-pretrained "
+            "DeepLab-v2 init), or init.kind=scratch"
+        )
+
+
+def check_batchnorm(plain: Mapping[str, Any], grid: Grid) -> None:
+    """``grid.batchnorm``'s modes against the BatchNorm modes of the network the trainings
+    build (its class's ``BATCHNORM_SUPPORTED``; the config is composed only when modes are
+    asked for)."""
+    asked = {m: modes for m, modes in grid.batchnorm.items() if modes}
+    if not asked:
+        return
+    from hydra.utils import get_class
+
+    from uss_slam.core.cli import hydra_error_line
+    from uss_slam.pipelines.runs import compose_config
+
+    overrides = [f"experiment={plain['train']['experiment']}"]
+    overrides += [str(o) for o in plain["train"].get("overrides") or []]
+    try:
+        target = str(compose_config("train", overrides).model.net._target_)
+    except Exception as error:
+        line = hydra_error_line(error)
+        if line is None:
+            raise
+        raise UssSlamError(
+            f"train.overrides: the training config does not compose ({line})"
+        ) from None
+    supported = tuple(getattr(get_class(target), "BATCHNORM_SUPPORTED", ()))
+    for method, modes in asked.items():
+        for mode in modes:
+            if mode not in supported:
+                raise UssSlamError(
+                    f"grid.batchnorm.{method}: mode {mode!r} is not one of the network's "
+                    f"({target.rsplit('.', 1)[-1]}); accepted: {', '.join(supported)}"
+                )
+
+
 def eval_seed(cfg: Mapping[str, Any], name: str) -> int:
     """The held-out seed of synthetic evaluation sequence ``name``."""
     return int(cfg["data"]["synthetic"]["eval_seed"]) + SYNTHETIC_SEQUENCES.index(name)
@@ -207,7 +340,11 @@ def check(cfg: DictConfig) -> Experiment:
     check_t0(plain, synthetic)
     resolve_method_overrides(plain, synthetic)
     check_counts(plain, synthetic)
-    grid = expand(plain, SYNTHETIC_SEQUENCES if synthetic else TUM_SEQUENCES)
+    accepted = SYNTHETIC_SEQUENCES if synthetic else TUM_SEQUENCES
+    sequences = check_sequences(plain.get("sequences"), accepted)
+    init = check_init(plain, synthetic, experiments, sequences)
+    grid = expand(plain, accepted, inits=(init.seeds if init.pretrains else ()) or (None,))
+    check_batchnorm(plain, grid)
     check_crf(plain, grid)
     launcher = plain.get("launcher") or {}
     choose("launcher.name", launcher.get("name"), LAUNCHERS)
@@ -251,7 +388,15 @@ def check(cfg: DictConfig) -> Experiment:
             raise UssSlamError("data.real.target: expected a non-empty list of TUM sequences")
         for t in targets:
             choose("data.real.target", t, TUM_SEQUENCES)
+        check_real_init(init, synthetic)
     out = Path(str(plain["out_dir"])).expanduser().resolve()
     return Experiment(
-        plain, out, grid, tuple(s for s in STAGES if s in stages), synthetic, launcher, missing
+        plain,
+        out,
+        grid,
+        tuple(s for s in STAGES if s in stages),
+        synthetic,
+        launcher,
+        missing,
+        init,
     )

@@ -7,8 +7,10 @@ accepted values.
 
 Ids (= folders under ``out_dir``)::
 
-    train/<config>_s<seed>                         one training (config = method [+ _n<n>] [+ loss])
-                                                   (_n<n>: methods with discriminators)
+    train/<config>_s<seed>                         one training (config = method [+ _n<n>] [+ loss]
+                                                   [+ _bn<mode>] [+ _i<k>]) (_n<n>: methods with
+                                                   discriminators; _bn<mode>: grid.batchnorm;
+                                                   _i<k>: init k, with more than one init seed)
     train/oracle_s<seed>                           T0's target oracle (labelled target frames)
     exports/adabn[<loss>]_s<seed>                  source-only's checkpoint with target BatchNorm
                                                    statistics (AdaBN; an export, not a training)
@@ -219,12 +221,17 @@ class TrainCell(_ModelNames):
     tag: str = ""  # loss suffix of the config name when the grid varies the loss weights
     settings: tuple[str, ...] = ()  # the method's own uss-train overrides (grid.method_overrides)
     target_labels: tuple[str, ...] = ()  # what was chosen with them (TARGET_LABEL_USES; no key)
+    batchnorm: str | None = None  # model.net.batchnorm of this training (grid.batchnorm)
+    init: int | None = None  # the pretrained init's seed (init.seeds; None: scratch or init.path)
+    init_tag: bool = False  # the config names the init (more than one init seed)
 
     @property
     def config(self) -> str:
-        """The configuration the tables aggregate over seeds: method, depth, loss weights."""
+        """The configuration the tables aggregate over seeds: method, depth, loss weights,
+        BatchNorm mode, init."""
         name = self.method if self.n_layers is None else f"{self.method}_n{self.n_layers}"
-        return f"{name}{self.tag}"
+        bn = "" if self.batchnorm is None else f"_bn{self.batchnorm}"
+        return f"{name}{self.tag}{bn}{f'_i{self.init}' if self.init_tag else ''}"
 
     def overrides(self) -> list[str]:
         """The cell's own ``uss-train`` overrides (after the scale's)."""
@@ -233,6 +240,8 @@ class TrainCell(_ModelNames):
         if self.n_layers is not None:
             out.append(f"model.discriminator.n_layers={self.n_layers}")
         out += [f"model.loss.{k}={_short(v)}" for k, v in self.loss]
+        if self.batchnorm is not None:
+            out.append(f"model.net.batchnorm={self.batchnorm}")
         return out
 
     def describe(self) -> dict[str, Any]:
@@ -243,6 +252,8 @@ class TrainCell(_ModelNames):
             "config": self.config,
             "seed": self.seed,
             "target_labels": ";".join(self.target_labels) or None,
+            "init": self.init,
+            "batchnorm": self.batchnorm,
         }
 
 
@@ -316,6 +327,8 @@ class Grid:
     variants: tuple[str, ...]
     table_configs: tuple[str, ...] = field(default=())
     """Configs of T2 / T3 / the downstream ratio: source-only and the adapted one of ``n``."""
+    batchnorm: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
+    """``grid.batchnorm``: method -> the BatchNorm modes it is trained in."""
     adabn: tuple[AdaBNCell, ...] = ()
     """T0's AdaBN exports (``grid.adabn``): one per training of ``grid.adabn_methods``
     (source-only by default) at the tables' depth."""
@@ -393,6 +406,32 @@ def method_overrides(values: Any) -> dict[str, tuple[str, ...]]:
     return out
 
 
+def batchnorm_modes(values: Any) -> dict[str, tuple[str, ...]]:
+    """``grid.batchnorm``: a mapping of method to the ``model.net.batchnorm`` modes it is
+    trained in, one training row each (``_bn<mode>`` in its config) instead of its row in the
+    network's own mode; a method not listed keeps its network's mode. The modes are checked
+    against the network by
+    :func:`uss_slam.pipelines.experiments.experiment.check_batchnorm`."""
+    if values is None:
+        return {}
+    if not isinstance(values, Mapping):
+        raise UssSlamError(
+            f"grid.batchnorm: expected a mapping of method to a list of BatchNorm modes "
+            f"({{adaptsegnet: [trained, reference]}}), got {values!r}"
+        )
+    out: dict[str, tuple[str, ...]] = {}
+    for method, listed in values.items():
+        choose("grid.batchnorm", method, METHODS)
+        key = f"grid.batchnorm.{method}"
+        modes = _non_empty_list(key, [listed] if isinstance(listed, str) else listed)
+        for mode in modes:
+            if not isinstance(mode, str) or not mode.isidentifier():
+                raise UssSlamError(f"{key}: expected BatchNorm mode names, got {mode!r}")
+        _unique(key, modes)
+        out[str(method)] = tuple(modes)
+    return out
+
+
 def adabn_method_list(values: Any) -> list[str]:
     """``grid.adabn_methods``: the methods whose checkpoints (at ``tables.n_layers``) also get
     an AdaBN export; source-only's is T0's AdaBN row."""
@@ -411,11 +450,14 @@ def _depth(key: str, n: Any, what: str = "integers") -> int:
     return n
 
 
-def training_cells(grid: Mapping[str, Any], n_table: Any = None) -> list[TrainCell]:
+def training_cells(
+    grid: Mapping[str, Any], n_table: Any = None, inits: Sequence[int | None] = (None,)
+) -> list[TrainCell]:
     """The trainings of ``grid`` (``methods``, ``n_layers``, ``depth_sweep``, ``seeds``,
-    ``loss``), in table order: per method in the order listed, every seed. A method with
-    discriminators is trained once per depth of ``n_layers`` when ``depth_sweep`` lists it, else
-    at ``n_table`` (``tables.n_layers``) only."""
+    ``loss``, ``batchnorm``), in table order: per method in the order listed, every BatchNorm
+    mode of ``batchnorm``, every init of ``inits`` (``init.seeds``; ``None``: no init to tell
+    apart), every seed. A method with discriminators is trained once per depth of ``n_layers``
+    when ``depth_sweep`` lists it, else at ``n_table`` (``tables.n_layers``) only."""
     methods = _non_empty_list("grid.methods", grid.get("methods"))
     for m in methods:
         choose("grid.methods", m, METHODS)
@@ -448,6 +490,8 @@ def training_cells(grid: Mapping[str, Any], n_table: Any = None) -> list[TrainCe
     combos = loss_combinations(grid.get("loss"))
     varied = {k for k in given(grid.get("loss")) if len({dict(c)[k] for c in combos}) > 1}
     settings = method_overrides(grid.get("method_overrides"))
+    modes = batchnorm_modes(grid.get("batchnorm"))
+    tagged = len(inits) > 1
     cells: list[TrainCell] = []
     for method in methods:
         adversarial = method in with_discriminators
@@ -466,10 +510,22 @@ def training_cells(grid: Mapping[str, Any], n_table: Any = None) -> list[TrainCe
         for n in method_depths:
             for combo in method_combos:
                 tag = _loss_tag(combo, varied)
-                for seed in seeds:
-                    cells.append(
-                        TrainCell(method, int(seed), n, combo, tag, settings.get(method, ()))
-                    )
+                for bn in modes.get(method, (None,)):
+                    for init in inits:
+                        cells += [
+                            TrainCell(
+                                method,
+                                int(seed),
+                                n,
+                                combo,
+                                tag,
+                                settings.get(method, ()),
+                                batchnorm=bn,
+                                init=init,
+                                init_tag=tagged,
+                            )  # fmt: skip
+                            for seed in seeds
+                        ]
     return cells
 
 
@@ -508,16 +564,24 @@ def check_sequences(sequences: Any, accepted: Sequence[str]) -> list[str]:
     return names
 
 
-def expand(cfg: Mapping[str, Any], accepted_sequences: Sequence[str]) -> Grid:
-    """The whole grid of a (resolved, plain-container) ``uss-experiments`` config."""
+def expand(
+    cfg: Mapping[str, Any],
+    accepted_sequences: Sequence[str],
+    inits: Sequence[int | None] = (None,),
+) -> Grid:
+    """The whole grid of a (resolved, plain-container) ``uss-experiments`` config; ``inits``:
+    the pretrained inits every training is repeated from (``init.seeds``; one ``None``: a single
+    start, scratch or ``init.path``)."""
     n_table = (cfg.get("tables") or {}).get("n_layers")
-    trainings = training_cells(cfg["grid"], n_table)
+    trainings = training_cells(cfg["grid"], n_table, inits)
     # T0's reference rows: the target oracle (one more training per seed) and AdaBN (an export
     # of each source-only training); absent keys = off (configs/experiments.yaml turns them on)
     if flag("grid.oracle", cfg["grid"].get("oracle")):
         oracle_settings = method_overrides(cfg["grid"].get("method_overrides")).get(ORACLE, ())
         trainings += [
-            TrainCell(ORACLE, int(s), settings=oracle_settings) for s in cfg["grid"]["seeds"]
+            TrainCell(ORACLE, int(s), settings=oracle_settings, init=i, init_tag=len(inits) > 1)
+            for i in inits
+            for s in cfg["grid"]["seeds"]
         ]
     trainings = [replace(t, target_labels=target_label_uses(cfg, t)) for t in trainings]
     adabn_methods = adabn_method_list(cfg["grid"].get("adabn_methods", ["source_only"]))
@@ -584,6 +648,7 @@ def expand(cfg: Mapping[str, Any], accepted_sequences: Sequence[str]) -> Grid:
             if isinstance(m, AdaBNCell) or m.n_layers in (None, n_table)
         ]
     return Grid(
+        batchnorm=batchnorm_modes(cfg["grid"].get("batchnorm")),
         trainings=tuple(trainings),
         segevals=tuple(segevals),
         slams=tuple(slams),

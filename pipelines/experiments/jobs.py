@@ -25,6 +25,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import shutil
 import time
 import traceback
 from collections.abc import Callable, Mapping
@@ -35,7 +36,7 @@ import hydra
 from omegaconf import DictConfig
 
 from uss_slam.core.errors import UssSlamError
-from uss_slam.core.files import write_json_atomic
+from uss_slam.core.files import file_sha256, write_json_atomic
 from uss_slam.core.processes import die_with_parent, end_with_watched
 from uss_slam.pipelines.runs import (
     RESUME_FROM,
@@ -84,12 +85,19 @@ def run_train(folder: Path, spec: Mapping[str, Any]) -> dict[str, Any]:
     ckpt = select_checkpoint(folder, spec.get("checkpoint", "last"))
     val = checkpoint_miou(ckpt)
     start = metrics.pop("resumed_from_iteration", None)
-    return {
+    result = {
         "checkpoint": str(ckpt.relative_to(folder)),
         "val_mIoU": val if val is not None else metrics.get("val/mIoU"),
         "metrics": metrics,
         **({} if start is None else {"resumed_from_iteration": int(start)}),
     }
+    if spec.get("init"):  # a pretraining: its checkpoint is the init of the trainings
+        init = folder / str(spec["init"])
+        tmp = init.with_name(init.name + ".tmp")
+        shutil.copyfile(ckpt, tmp)
+        tmp.replace(init)
+        result |= {"init": init.name, "init_sha256": file_sha256(init)}
+    return result
 
 
 def run_segeval(folder: Path, spec: Mapping[str, Any]) -> dict[str, Any]:

@@ -37,6 +37,12 @@ def launcher_overrides(exp: Experiment, stage: str) -> list[str]:
     return overrides
 
 
+def launcher_section(stage: str) -> str:
+    """The launcher section (``launcher.<section>``) of a stage's jobs: the pretrained inits'
+    (stage ``init``) are trainings."""
+    return "train" if stage == "init" else stage
+
+
 def multirun_command(exp: Experiment, stage: str, plan: Path, ids: Sequence[str]) -> list[str]:
     return [
         sys.executable,
@@ -46,7 +52,7 @@ def multirun_command(exp: Experiment, stage: str, plan: Path, ids: Sequence[str]
         f"plan={hydra_value(str(plan))}",
         f"out={hydra_value(str(exp.out))}",
         "cell=" + ",".join(hydra_value(i) for i in ids),
-        *launcher_overrides(exp, stage),
+        *launcher_overrides(exp, launcher_section(stage)),
     ]
 
 
@@ -70,7 +76,8 @@ def launch(exp: Experiment, stage: str, jobs: Sequence[Job], blocked: set[str]) 
     )
     if not pending:
         return Launch(pending)
-    bad = [k for k in exp.missing_launcher_keys if k.split(".")[1] in ("params", stage)]
+    section = launcher_section(stage)
+    bad = [k for k in exp.missing_launcher_keys if k.split(".")[1] in ("params", section)]
     if bad:
         raise UssSlamError(
             f"{bad[0]}: missing; launcher={exp.launcher['name']} needs it ({bad[0]}=VALUE)"

@@ -69,10 +69,33 @@ def train_overrides(exp: Experiment, data: Data, cell: TrainCell) -> tuple[list[
     """``(overrides that define the training, runtime-only overrides)``."""
     base = common_overrides(exp, data)
     oracle = oracle_overrides(data, base) if cell.method == ORACLE else []
+    return [*base, *cell.overrides(), *oracle, *init_overrides(data, cell)], runtime_overrides(exp)
+
+
+def runtime_overrides(exp: Experiment) -> list[str]:
+    """Overrides that change how fast a training runs, not what it computes
+    (``train.num_threads``): not in its cache key."""
     threads = exp.cfg["train"].get("num_threads")
-    return [*base, *cell.overrides(), *oracle], (
-        [] if threads is None else [f"num_threads={int(threads)}"]
-    )
+    return [] if threads is None else [f"num_threads={int(threads)}"]
+
+
+def init_overrides(data: Data, cell: TrainCell) -> list[str]:
+    """The warm start of a training: ``model.net.weights_path`` of its init (none from
+    scratch)."""
+    if not data.init:
+        return []
+    return [f"model.net.weights_path={hydra_value(str(data.init[cell.init]))}"]
+
+
+def train_key(
+    exp: Experiment, data: Data, cell: TrainCell, overrides: Sequence[str]
+) -> dict[str, Any]:
+    """What a training's result depends on: its overrides, its data and (warm start) the
+    sha256 of its init file. From scratch the key is as it was before the warm start."""
+    key: dict[str, Any] = {"overrides": _portable(overrides, exp.out), "data": data.train_key}
+    if data.init:
+        key["init"] = data.init_keys[cell.init]
+    return key
 
 
 def common_overrides(exp: Experiment, data: Data) -> list[str]:
@@ -153,7 +176,7 @@ def plan_train(exp: Experiment, data: Data) -> list[Job]:
         spec = {
             "kind": "train",
             "overrides": [*overrides, *runtime],
-            "key": {"overrides": _portable(overrides, exp.out), "data": data.train_key},
+            "key": train_key(exp, data, cell, overrides),
             "outputs": ["checkpoints/*.ckpt"],
             "checkpoint": checkpoint_policy(exp),  # which one is reported (not in the key)
         }

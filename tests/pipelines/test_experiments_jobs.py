@@ -185,7 +185,7 @@ def test_launcher_overrides_merge_the_stage_section() -> None:
         (["sequences=[walking_xyz,kitchen]"], "sequences: unknown value 'kitchen'; accepted: "),
         (
             ["train.experiment=nope"],
-            "train.experiment: unknown value 'nope'; accepted: ci, demo, uss_slam_paper",
+            "train.experiment: unknown value 'nope'; accepted: ci, demo, pretrain, uss_slam_paper",
         ),
         (
             ["systems=[harness,orbslam2]"],
@@ -273,6 +273,7 @@ def test_incomplete_real_data_names_the_folder(tmp_path: Path) -> None:
         f"data.real.sbd={tmp_path}",
         f"data.real.coco={tmp_path}",
         f"data.real.tum={tmp_path}",
+        "init.kind=scratch",  # (scale=paper's warm start needs an init file)
     ]
     exp = experiment.check(compose_experiments(*overrides))
     with pytest.raises(DataFormatError) as info:
@@ -312,7 +313,7 @@ def test_missing_launcher_key_is_named_before_launching(tmp_path: Path) -> None:
         (
             ["train.experiment=nope"],
             "uss-experiments: error: train.experiment: unknown value 'nope'; accepted: ci, demo, "
-            "uss_slam_paper",
+            "pretrain, uss_slam_paper",
         ),
         (
             ["systems=[harness,orbslam2]"],

@@ -335,6 +335,7 @@ def test_paper_scale_fast_dev_run_on_real_formats(tmp_path: Path) -> None:
         "sequences=[walking_xyz]",
         "grid.seeds=[0]",
         "grid.n_layers=[5]",
+        "init.kind=scratch",  # (scale=paper's warm start needs the COCO init file)
         # on this CPU machine, offline: no ImageNet download, small crops, no GPU
         'train.overrides=["model.net.backbone_weights=null","trainer=cpu","logger=none",'
         '"data.source.transform.crop_size=65","data.target.transform.crop_size=65"]',

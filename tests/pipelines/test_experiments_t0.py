@@ -508,6 +508,7 @@ def _real(tmp_path: Path, *extra: str) -> list[str]:
         f"data.real.coco={tmp_path}",
         f"data.real.tum={tum}",
         "data.real.target=[walking_xyz,sitting_static]",
+        "init.kind=scratch",  # (scale=paper's warm start needs an init file)
         *extra,
     ]
 
