@@ -21,9 +21,9 @@ ORB-SLAM3's vocabulary (``uss-vocab build``) never sees the frames it is scored 
 gets one built from the other stretches in ``--data``, a synthetic sequence one built from the
 same preset rendered with another seed. The real stretches use ``--camera`` (TUM fr1 for
 freiburg1); the synthetic ones their own ``intrinsics.yaml``. The synthetic preset is
-``handheld_rpy``, the fastest hand-held motion ``uss-synth`` renders (up to ~60°/s, ~40 on
-average): no preset reaches 200°/s between frames at 30 Hz, so strides 2 and 3 raise the motion
-between the frames used to up to ~120 and ~180°/s-equivalent. Writes ``<out>/table.md`` and
+``handheld_rpy``, the fastest hand-held motion ``uss-synth`` renders (up to ~60°/s by its
+description, ~40 on average): no preset reaches 200°/s between frames at 30 Hz, so strides 2 and 3
+multiply the motion between the frames used by 2 and 3. Writes ``<out>/table.md`` and
 ``<out>/table.json``.
 """
 
@@ -335,6 +335,17 @@ def git_commit() -> str | None:
     return proc.stdout.strip() or None
 
 
+def cpu_model() -> str:
+    """The CPU's model name (Linux ``/proc/cpuinfo``), with ``avx512_bf16`` when it has it."""
+    try:
+        info = Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return platform.processor() or platform.machine()
+    names = [ln.split(":", 1)[1].strip() for ln in info.splitlines() if ln.startswith("model name")]
+    name = names[0] if names else platform.machine()
+    return name + (" (avx512_bf16)" if " avx512_bf16" in info else "")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", type=Path, default=DEFAULT_DATA,
@@ -411,7 +422,7 @@ def run(args: argparse.Namespace, command: str) -> int:
     meta = {
         "command": command,
         "commit": git_commit(),
-        "machine": platform.processor() or platform.machine(),
+        "machine": cpu_model(),
         "cpus": os.cpu_count(),
         "load_average_start": load_start,
         "load_average_end": os.getloadavg(),
