@@ -213,11 +213,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     voc.add_argument(
         "--style",
-        choices=STYLES,
+        choices=(*STYLES, "mixed"),
         default="source",
         help="source: the VOC tree; target: the same content in the recordings' lighting and "
         "sensor, written as a labelled image folder (rgb/, labels/ with the void band, "
-        "rgb.txt; no depth), as the appearance shift's target frames (default: source)",
+        "rgb.txt; no depth), as the appearance shift's target frames; mixed: the VOC tree with "
+        "each image in the source or the target style (even odds), as a broad photo "
+        "collection such as COCO, the stand-in for a pretraining set (default: source)",
     )
     common(voc)
 
@@ -256,6 +258,7 @@ def _render(args: argparse.Namespace) -> int:
         else:
             out = render_voc(args.out, images=args.images, size=args.size, seed=args.seed,
                              outfits=args.outfits, near=args.near, overwrite=args.overwrite,
+                             lighting="mixed" if args.style == "mixed" else "source",
                              progress=not args.quiet)  # fmt: skip
             print(f"wrote {args.images} images ({args.size[0]}x{args.size[1]}) to {out}")
     except SynthArgumentError as err:

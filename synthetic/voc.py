@@ -237,6 +237,7 @@ def render_voc(
     seed: int = 0,
     outfits: str = "classic",
     near: float = 0.0,
+    lighting: str = "source",
     overwrite: bool = False,
     progress: bool = False,
 ) -> Path:
@@ -247,10 +248,17 @@ def render_voc(
     when complete; an existing non-empty ``out_dir`` is an error unless ``overwrite``.
     ``outfits``: the people's clothing (:data:`~.textures.WARDROBES`; ``varied``: every kind of
     fabric and colour, a new wardrobe of 4 outfits every 20 images). ``near``: the share of
-    images that face a person at walking distance (:func:`near_view`).
+    images that face a person at walking distance (:func:`near_view`). ``lighting``: ``source``
+    (every image in the source style) or ``mixed`` (each image in the source or the target style,
+    drawn per image with even odds: :func:`image_style`), the lighting mix of a broad photo
+    collection such as COCO, which the pretraining set of :mod:`uss_slam.pipelines` stands in for.
     """
     _check_images(images, outfits)
     check_near(near)
+    if lighting not in LIGHTINGS:
+        raise SynthArgumentError(
+            f"unknown lighting {lighting!r}; choose one of {', '.join(LIGHTINGS)}"
+        )
     size = check_size(size)
     palette = voc_palette().reshape(-1).tolist()
     band = void_width(size)
@@ -265,7 +273,9 @@ def render_voc(
             folder.mkdir(parents=True)
         names = []
         for i in progress_bar(range(images), desc="VOC images", unit="img", disable=not progress):
-            sample = render_voc_sample(seed, i, size, outfits, near=near)
+            sample = render_voc_sample(
+                seed, i, size, outfits, image_style(seed, i, lighting), near=near
+            )
             write_jpeg(jpeg / f"{sample.name}.jpg", sample.rgb)
             png = Image.fromarray(voc_indices(sample.labels, band), mode="P")
             png.putpalette(palette)
@@ -276,6 +286,19 @@ def render_voc(
         for split, items in (("train", train), ("val", val), ("trainval", names)):
             (sets / f"{split}.txt").write_text("".join(f"{n}\n" for n in items))
     return Path(out_dir) / "VOCdevkit" / "VOC2012"
+
+
+LIGHTINGS = ("source", "mixed")
+"""The lightings of a VOC tree (:func:`render_voc`)."""
+
+
+def image_style(seed: int, index: int, lighting: str) -> str:
+    """The style image ``index`` of a VOC tree with ``lighting`` is rendered in: ``source``, or
+    under ``mixed`` the source or target style with even odds (its own random stream, so the
+    content of every image is the same as under ``source``)."""
+    if lighting == "source":
+        return "source"
+    return "target" if stream(seed, "voc/lighting", index).uniform() < 0.5 else "source"
 
 
 FRAMES_RATE = 30.0

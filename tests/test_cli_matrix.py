@@ -354,7 +354,7 @@ CASES = [
          setup=(afile, write("m", "not read: --out is checked first", ".onnx"))),
     case("eval-unknown-data-option-after-options", "uss-eval",
          "{m} --out {tmp}/eval data=nope", 1,
-         "Could not find 'data/nope'", "(Available options in 'data': real, synthetic)",
+         "Could not find 'data/nope'", "(Available options in 'data': pretrain, real, synthetic)",
          setup=(write("m", "not read: the data config is composed first", ".onnx"),)),
     case("eval-unknown-data-key", "uss-eval", "{m} data.val.bogus=1 --out {tmp}/eval", 1,
          "data.val.bogus: Key 'bogus' is not in struct",

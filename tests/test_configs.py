@@ -287,6 +287,8 @@ def test_option_instantiates(case: Case, tmp_path: Path) -> None:
 
 def _tiny_data_overrides(cfg: DictConfig, data: dict[str, Path]) -> list[str]:
     """Point whatever data config the experiment composed at the tiny synthetic data."""
+    if "roots" not in cfg.data.target:  # data=pretrain: one VOC tree is every split
+        return [f"data.source.root={data['voc']}"]
     if "voc" in cfg.data.source:  # data=real: the synthetic VOC tree stands in for VOC
         return [
             "data/source=[voc]",

@@ -50,6 +50,8 @@ def test_every_experiment_composes_and_instantiates(
             "model.net.allow_random_init=true",  # no weights file in tests
             "trainer.accelerator=cpu",
         ]
+    if experiment == "pretrain":  # one VOC tree is every split of the pretraining set
+        overrides = [f"experiment={experiment}", f"data.source.root={uda_data['voc']}"]
     cfg = compose_train(overrides, tmp_path)
     datamodule = instantiate(cfg.data)
     model = instantiate(cfg.model)
@@ -58,6 +60,11 @@ def test_every_experiment_composes_and_instantiates(
     trainer = instantiate(cfg.trainer, callbacks=callbacks, logger=loggers or False)
     assert isinstance(datamodule, UDADataModule) and isinstance(trainer, Trainer)
     assert isinstance(model, AdversarialSegmentation) and isinstance(model.segmenter, DeepLabV2)
+    assert len(datamodule.source) > 0 and len(datamodule.target) > 0
+    if experiment == "pretrain":  # source-only on labelled photos: no discriminators
+        assert model.method.name == "source_only" and model.d_aux is None
+        assert datamodule.val is not None and len(datamodule.val) > 0
+        return
     assert isinstance(model.d_aux, PatchDiscriminator) and model.d_aux is not model.d_main
     assert len(datamodule.source) > 0 and len(datamodule.target) > 0
     (opt_seg, opt_d), _ = model.configure_optimizers()
