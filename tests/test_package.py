@@ -14,7 +14,7 @@ import pytest
 REPO = Path(__file__).resolve().parents[1]
 # Every top-level folder with an __init__.py (the config tree's too) installs as uss_slam.<folder>.
 PACKAGES = {f"uss_slam.{p.parent.name}": p.parent.name for p in sorted(REPO.glob("*/__init__.py"))}
-SHIPPED_SUFFIXES = (".py", ".yaml")
+SHIPPED_SUFFIXES = (".py", ".yaml", ".pt")  # .pt: package data (pipelines/assets/)
 
 
 def shipped_files() -> set[str]:
