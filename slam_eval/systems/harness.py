@@ -51,6 +51,7 @@ those it removed that no earlier filter had removed (so the ``dropped`` values a
 
 from __future__ import annotations
 
+import sys
 import time
 from collections import defaultdict
 from collections.abc import Iterator, Sequence
@@ -250,6 +251,8 @@ class SlamPipeline:
         keyframes_only = self.segment == "keyframes"
         stamps: list[float] = []
         poses: list[np.ndarray] = []
+        no_depth: list[int] = []
+        """Frames whose depth image holds no valid pixel (untracked, warned about)."""
         log: list[FrameLog] = []
         previous: Frame | None = None
         bar = progress_bar(
@@ -290,6 +293,11 @@ class SlamPipeline:
                         self._apply(f, ctx, state, timer, counts)
                 with timer("tracking"):
                     result = tracker.track(frame.index, frame.stamp, features, state.dynamic)
+                    if not np.any(frame.depth > 0):
+                        # No depth at all: a pose from 2D matches alone would be a silent guess.
+                        no_depth.append(frame.index)
+                        if result.pose_wc is not None:
+                            tracker.mark_lost(result)
                     if tracker.readout > 0:
                         features = ctx.features = tracker.unroll_tracked(
                             raw, features, frame.stamp, result
@@ -312,9 +320,12 @@ class SlamPipeline:
                         self._apply(f, ctx, state, timer, counts)
                     if (state.dynamic & ~before).any() and result.new_keyframe is None:
                         with timer("tracking"):
-                            result.pose_wc, result.matched = tracker.refine_without(
+                            pose_wc, result.matched = tracker.refine_without(
                                 result.pose_wc, features, result.matched, state.dynamic
                             )
+                            if pose_wc is None:  # failed its inlier check: lost, not mapped
+                                tracker.mark_lost(result)
+                            result.pose_wc = pose_wc
                         result.inliers = int((result.matched >= 0).sum())
                 segmented += labels is not None
                 dynamic, regions = state.dynamic, state.regions
@@ -373,6 +384,12 @@ class SlamPipeline:
             frames.close()
             bar.close()
         wall = time.perf_counter() - start
+        if no_depth:
+            print(
+                f"uss-slam: warning: {self.sequence.path}: {len(no_depth)} frame(s) with an "
+                f"all-zero depth image (frame index {no_depth[0]} first) were not tracked",
+                file=sys.stderr,
+            )
         count = len(log)
         timing = timer.mean_ms(count)
         timing["total"] = 1000.0 * wall / max(count, 1)

@@ -13,14 +13,17 @@ Per frame, as ORB-SLAM2's RGB-D ``Tracking``:
    (:mod:`.sampling`); the pose is then optimised with the robust χ² rounds of
    ``PoseOptimization``. Without a motion model (the second frame, the first after a
    relocalisation) the frame is matched to its reference keyframe by descriptor, as
-   ORB-SLAM2's ``TrackReferenceKeyFrame`` (``reference_keyframe``); failing that, the local map
-   is projected with the last pose and PnP-RANSAC (or PROSAC, ``sampler="prosac"``) estimates
-   the pose.
+   ORB-SLAM2's ``TrackReferenceKeyFrame`` (``reference_keyframe``); failing that, the frame is
+   lost and relocalised, never tracked with a zero-motion guess (``reference_keyframe=false``
+   projects the local map with the last pose instead, and PnP-RANSAC or PROSAC,
+   ``sampler="prosac"``, estimates the pose).
 2. **Local-map tracking** (``TrackLocalMap``): the points of the keyframes that share the most
    points with the previous frame, plus the latest keyframe, are projected with the estimated
    pose, matched in a tight window, and the pose refined on all matches. Tracking succeeds with
    ``min_inliers`` (``reloc_min_inliers`` during the ``reloc_recent_frames`` frames after a
-   relocalisation, as ORB-SLAM2).
+   relocalisation, as ORB-SLAM2). A pose that fails a later inlier check (too few inliers
+   left once the post-pose filters drop keypoints) is taken back: the frame is lost
+   (:meth:`Tracker.mark_lost`), never added to the map.
 3. **Keyframes** follow ``NeedNewKeyFrame`` and create map points from their close keypoints
    as ``CreateNewKeyFrame`` (:mod:`.keyframes`); recent points that are rarely found are culled.
 4. **Relocalisation** when lost (:mod:`.relocalisation`): descriptor matching against every
@@ -218,18 +221,39 @@ class Tracker:
 
     def refine_without(
         self, pose_wc: np.ndarray, features: Features, matched: np.ndarray, drop: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray]:
+    ) -> tuple[np.ndarray | None, np.ndarray]:
         """Re-estimate a tracked pose without the keypoints the post-pose filters flagged.
 
         ``drop`` (N,) bool. Returns ``(pose_wc, matched)`` with the dropped keypoints unmatched;
-        the pose is kept when fewer than ``min_inliers`` matches would remain.
+        ``(None, all -1)`` when fewer than ``min_inliers`` inliers would remain: the pose leant
+        on the dropped keypoints and fails the inlier check (the caller marks the frame lost,
+        :meth:`mark_lost`).
         """
         keep = (matched >= 0) & ~drop
-        if not np.any(drop & (matched >= 0)) or keep.sum() < self.config.min_inliers:
-            matched = np.where(drop, -1, matched)
-            return pose_wc, matched
+        if not np.any(drop & (matched >= 0)):
+            return pose_wc, np.where(drop, -1, matched)
+        if keep.sum() < self.config.min_inliers:
+            return None, np.full(len(matched), -1, np.int64)
         pose_cw, out = self._refine_matches(invert(pose_wc), features, matched, keep)
+        if int((out >= 0).sum()) < self.config.min_inliers:
+            return None, np.full(len(matched), -1, np.int64)
         return invert(pose_cw), out
+
+    def mark_lost(self, result: TrackResult) -> None:
+        """Take back a tracked frame whose pose failed a later check (too few inliers after the
+        post-pose filters, a frame without depth): it gets no pose, adds nothing to the map and
+        the next frame relocalises, as a frame lost in :meth:`track`. ``result`` is updated in
+        place."""
+        if self.state is TrackingState.OK:
+            self.lost_events += 1
+        if self.state is not TrackingState.NOT_INITIALIZED:
+            self.state = TrackingState.LOST
+        self._previous_tracked = False
+        self.velocity = None
+        result.state = self.state
+        result.pose_wc = None
+        result.matched = np.full(len(result.matched), -1, np.int64)
+        result.inliers = 0
 
     def _refine_matches(
         self, pose_cw: np.ndarray, features: Features, matched: np.ndarray, keep: np.ndarray
@@ -367,14 +391,15 @@ class Tracker:
 
     def _track_motion(self, features: Features, static: np.ndarray):
         cfg = self.config
-        if self.velocity is None and cfg.reference_keyframe and self.reference is not None:
-            tracked = self._track_reference(features, static)
-            if tracked[0] is not None:
-                return tracked
         if self.velocity is not None:
             return self._track_last_frame(features, static)
-        velocity = self.velocity if self.velocity is not None else np.eye(4)
-        predicted = velocity @ self.last_pose_cw
+        if cfg.reference_keyframe:
+            # No motion model: the reference keyframe or nothing (then relocalisation), never a
+            # zero-motion guess, which a camera already turning fast breaks (ORB-SLAM2).
+            if self.reference is None:
+                return None, None
+            return self._track_reference(features, static)
+        predicted = self.last_pose_cw
         local = self._local_points()
         ids, m = self.projection.match_map_points(
             local, predicted, features, static, cfg.search_radius

@@ -1,0 +1,121 @@
+"""What the tracker accepts: no zero-motion guess without a motion model, the doubled search
+window, a pose that fails its inlier check taken back, frames without depth never posed."""
+
+from __future__ import annotations
+
+import shutil
+
+import cv2
+import numpy as np
+import pytest
+
+from uss_slam.slam_eval.filters.build import build_filters
+from uss_slam.slam_eval.frontend.orb import Features, OrbConfig, OrbExtractor
+from uss_slam.slam_eval.segmenters.base import NoSegmenter
+from uss_slam.slam_eval.sequence import TumSequence
+from uss_slam.slam_eval.systems.harness import SlamPipeline
+from uss_slam.slam_eval.tracking.tracker import Tracker, TrackerConfig, TrackingState
+
+
+@pytest.fixture(scope="module")
+def static_frames(synthetic_sequence):
+    seq = TumSequence(synthetic_sequence(preset="static_xyz", frames=30))
+    ex = OrbExtractor(OrbConfig(), seq.camera)
+    frames = [seq.load(i) for i in range(len(seq))]
+    return seq, ex, frames, [ex(f.gray, f.depth) for f in frames]
+
+
+def _step(tracker: Tracker, frames, i: int, features: Features):
+    dyn = np.zeros(len(features), bool)
+    r = tracker.track(i, frames[i].stamp, features, dyn)
+    tracker.finish_frame(i, frames[i].stamp, r, features, dyn)
+    return r
+
+
+def test_without_a_motion_model_a_failed_reference_match_relocalises(static_frames) -> None:
+    # The second frame repeats the first: a zero-motion guess would track it at once. With the
+    # reference keyframe's descriptor matching failing, the frame is lost and relocalised.
+    _, ex, frames, feats = static_frames
+    tracker = Tracker(TrackerConfig(), ex)
+    _step(tracker, frames, 0, feats[0])
+    calls = []
+
+    def refuse(features, static):
+        calls.append(len(features))
+        return None, None
+
+    tracker._track_reference = refuse
+    r = _step(tracker, frames, 1, feats[0])
+    assert calls == [len(feats[0])]  # no velocity: the reference keyframe was asked first
+    assert r.state is TrackingState.OK and r.relocalised
+    assert tracker.lost_events == 1 and tracker.relocalisations == 1
+
+
+def test_the_motion_model_doubles_its_window_below_min_matches(static_frames) -> None:
+    _, ex, frames, feats = static_frames
+    tracker = Tracker(TrackerConfig(), ex)
+    for i in range(3):
+        assert _step(tracker, frames, i, feats[i]).state is TrackingState.OK
+    assert tracker.velocity is not None
+    match_points = tracker.projection.match_points
+    radii = []
+
+    def few_in_the_narrow_window(world, desc, level, pose, features, static, radius):
+        radii.append(radius)
+        query, kp = match_points(world, desc, level, pose, features, static, radius)
+        if radius == tracker.config.search_radius:
+            return query[:5], kp[:5]  # as if the camera had turned beyond the window
+        return query, kp
+
+    tracker.projection.match_points = few_in_the_narrow_window
+    r = _step(tracker, frames, 3, feats[3])
+    assert radii == [7.0, 14.0]
+    assert r.state is TrackingState.OK and not r.relocalised
+
+
+def test_a_pose_failing_its_inlier_check_is_lost_and_not_mapped(static_frames) -> None:
+    _, ex, frames, feats = static_frames
+    tracker = Tracker(TrackerConfig(), ex)
+    for i in range(6):
+        assert _step(tracker, frames, i, feats[i]).state is TrackingState.OK
+    keyframes, found = len(tracker.map.keyframes), tracker.map.points.found.view.copy()
+    f = feats[6]
+    dyn = np.zeros(len(f), bool)
+    r = tracker.track(6, frames[6].stamp, f, dyn)
+    assert r.state is TrackingState.OK and r.inliers >= 30
+    # The post-pose filters drop all but 10 of its matched keypoints.
+    drop = r.matched >= 0
+    drop[np.flatnonzero(drop)[:10]] = False
+    pose_wc, matched = tracker.refine_without(r.pose_wc, f, r.matched, drop)
+    assert pose_wc is None and (matched < 0).all()
+    tracker.mark_lost(r)
+    assert r.pose_wc is None and r.state is TrackingState.LOST and r.inliers == 0
+    assert tracker.finish_frame(6, frames[6].stamp, r, f, drop) is None
+    assert len(tracker.map.keyframes) == keyframes
+    np.testing.assert_array_equal(tracker.map.points.found.view, found)
+    assert tracker.lost_events == 1
+    r = _step(tracker, frames, 7, feats[7])  # the next frame relocalises
+    assert r.state is TrackingState.OK and r.relocalised
+    # Dropping a few keypoints only: refined without them, still tracked.
+    r = tracker.track(8, frames[8].stamp, feats[8], np.zeros(len(feats[8]), bool))
+    drop = np.zeros(len(feats[8]), bool)
+    drop[np.flatnonzero(r.matched >= 0)[:5]] = True
+    pose_wc, matched = tracker.refine_without(r.pose_wc, feats[8], r.matched, drop)
+    assert pose_wc is not None and (matched[drop] < 0).all()
+    assert (matched >= 0).sum() >= TrackerConfig().min_inliers
+
+
+def test_frames_without_depth_are_not_posed_and_counted(synthetic_sequence, tmp_path, capsys):
+    path = tmp_path / "seq"
+    shutil.copytree(synthetic_sequence(preset="static_xyz", frames=30), path)
+    seq = TumSequence(path)
+    for i in (10, 11, 12):
+        depth = seq.records[i].depth_path
+        cv2.imwrite(str(depth), np.zeros_like(cv2.imread(str(depth), cv2.IMREAD_UNCHANGED)))
+    result = SlamPipeline(TumSequence(path), NoSegmenter(), build_filters([]), progress=False).run()
+    tracked = {e.index: e.tracked for e in result.log}
+    assert not any(tracked[i] for i in (10, 11, 12))
+    assert all(tracked[i] for i in range(10)) and tracked[29]
+    assert result.tracked == 27 and len(result.trajectory.stamps) == 27
+    err = capsys.readouterr().err
+    assert f"{path}: 3 frame(s) with an all-zero depth image (frame index 10 first)" in err
