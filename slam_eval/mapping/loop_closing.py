@@ -17,7 +17,11 @@ Per new keyframe ``K`` (not within ``min_keyframes`` of the start or of the last
    ``min_inliers`` inliers; then the map points of the candidate and its covisible keyframes are
    projected into ``K`` with that pose and matched, and after refining on all of them
    ``min_projected`` inliers are needed (ORB-SLAM2: 20 and 40).
-4. **Correction** (``CorrectLoop``): ``K`` and its covisible keyframes are moved rigidly to the
+4. **Plausibility** (not ORB-SLAM2's): the correction the verified pose makes to ``K`` must fit
+   the motion since the loop keyframe (``correction_ratio`` of the path travelled between them,
+   in metres and in degrees, plus a small floor); a correction beyond it is rejected as a wrong
+   match before it changes the map.
+5. **Correction** (``CorrectLoop``): ``K`` and its covisible keyframes are moved rigidly to the
    verified pose, their map points with them; the loop side's map points are fused into them
    (duplicates replaced, unmatched keypoints given the loop's points). Then the **essential
    graph** is optimised with Levenberg–Marquardt: all keyframes, the loop keyframe fixed, one
@@ -75,6 +79,15 @@ class LoopClosingConfig:
     """Covisibility edges of the essential graph need this many shared points (ORB-SLAM2: 100)."""
     iterations: int = 20
     """LM iterations of the essential-graph optimisation (ORB-SLAM2: 20)."""
+    correction_ratio: float = 0.25
+    """A verified loop is closed only when its correction of the current keyframe fits the motion
+    since the loop keyframe: at most this fraction of the path travelled between them (metres
+    along the keyframes' centres, and degrees of rotation between consecutive keyframes), plus
+    ``correction_floor_m`` / ``correction_floor_deg``. A tracker drifts by a few percent of its
+    path; a larger correction is a wrong match, not drift (after 3.5 s of pure rotation a match
+    moving the camera by 0.2 m is not a loop). 0 = off."""
+    correction_floor_m: float = 0.02
+    correction_floor_deg: float = 1.0
     global_ba: bool = True
     """Bundle-adjust the whole map after each loop closure."""
     global_ba_iterations: int = 10
@@ -91,6 +104,8 @@ class LoopClosingConfig:
             ),
             unit=("ratio",),
         )
+        if self.correction_ratio > 1:
+            raise ValueError(f"correction_ratio must be in [0, 1], got {self.correction_ratio}")
 
 
 @dataclass
@@ -177,7 +192,8 @@ class LoopCloser:
         self._last_loop = -1
         self.detection_s = 0.0
         self.rejected = 0
-        """Consistent candidates that failed the geometric verification."""
+        """Consistent candidates that failed the geometric verification or whose correction
+        did not fit the motion since the loop keyframe (:meth:`fits_motion`)."""
 
     @property
     def map(self) -> SlamMap:
@@ -197,8 +213,9 @@ class LoopCloser:
         match = None
         for loop_kf, kp, pid, distance in candidates:
             match = self._verify(keyframe, loop_kf, kp, pid, distance)
-            if match is not None:
+            if match is not None and self.fits_motion(keyframe, match.loop_keyframe, match.pose_cw):
                 break
+            match = None
             self.rejected += 1
         self.detection_s += time.perf_counter() - start
         if match is None:
@@ -278,6 +295,26 @@ class LoopCloser:
         matched = np.full(len(features), -1, np.int64)
         matched[m.keypoint[inl]] = ids[m.query[inl]]
         return _Match(loop_id, pose_cw, matched)
+
+    def fits_motion(self, kf: KeyFrame, loop_id: int, pose_cw: np.ndarray) -> bool:
+        """Does moving ``kf`` to ``pose_cw`` (the verified pose) fit the motion since keyframe
+        ``loop_id`` (``correction_ratio``)? The path runs over every keyframe between the two,
+        culled ones at the pose they follow."""
+        cfg = self.config
+        if cfg.correction_ratio == 0:
+            return True
+        lo, hi = sorted((int(loop_id), int(kf.id)))
+        poses = [self.map.pose_wc(k) for k in range(lo, hi + 1)]
+        steps = list(zip(poses[:-1], poses[1:], strict=True))
+        path_m = sum(float(np.linalg.norm(b[:3, 3] - a[:3, 3])) for a, b in steps)
+        path_deg = sum(rotation_angle_deg(a[:3, :3].T @ b[:3, :3]) for a, b in steps)
+        corrected = invert(pose_cw)
+        shift_m = float(np.linalg.norm(corrected[:3, 3] - kf.center))
+        shift_deg = rotation_angle_deg(kf.pose_wc[:3, :3].T @ corrected[:3, :3])
+        return bool(
+            shift_m <= cfg.correction_ratio * path_m + cfg.correction_floor_m
+            and shift_deg <= cfg.correction_ratio * path_deg + cfg.correction_floor_deg
+        )
 
     # ------------------------------------------------------------------ correction
 

@@ -207,3 +207,33 @@ def test_no_loop_closure_on_the_xyz_presets(synthetic_sequence, preset: str) -> 
         synthetic_sequence(preset=preset, frames=150), local_ba=True, loop_closing=True
     )
     assert result.loop_closing and result.loop_closures == []
+
+
+def test_a_loop_whose_correction_does_not_fit_the_motion_is_rejected() -> None:
+    # The same verified loop as above (3 cm and 6 degrees of drift after a 1.9 m, 360 degree
+    # circle): allowed up to 0.5% of the path, the correction is refused and nothing moves.
+    world = _LoopWorld()
+    closer = _closer(world, correction_ratio=0.005, correction_floor_m=0, correction_floor_deg=0)
+    assert all(closer.process(world.add(i)) is None for i in range(30))
+    assert closer.rejected >= 1 and closer.loop_edges == []
+    assert world.error(24)[1] > 5.5  # still drifted
+    # The rule itself: a pose 10 cm from keyframe 12's fits the 0.94 m travelled since
+    # keyframe 0 (25% of it plus 2 cm), one 40 cm away does not; nor a 48.5 degree turn.
+    world = _LoopWorld()
+    closer = _closer(world)
+    for i in range(13):
+        world.add(i)
+    kf = world.map.keyframes[12]
+    shifted = kf.pose_wc.copy()
+    shifted[:3, 3] += [0.1, 0.0, 0.0]
+    assert closer.fits_motion(kf, 0, invert(shifted))
+    shifted[:3, 3] += [0.3, 0.0, 0.0]
+    assert not closer.fits_motion(kf, 0, invert(shifted))
+    # 12 steps of 15 degrees (+ 0.25 of drift each) travelled: 25% of 183 + 1 = 46.75 allowed.
+    turned = kf.pose_wc @ from_rvec(np.array([0.0, np.radians(45.0), 0.0]), np.zeros(3))
+    assert closer.fits_motion(kf, 0, invert(turned))
+    turned = kf.pose_wc @ from_rvec(np.array([0.0, np.radians(48.5), 0.0]), np.zeros(3))
+    assert not closer.fits_motion(kf, 0, invert(turned))
+    assert _closer(world, correction_ratio=0).fits_motion(kf, 0, invert(shifted))  # off
+    with pytest.raises(ValueError, match=r"correction_ratio must be in \[0, 1\], got 2"):
+        LoopClosingConfig(correction_ratio=2)
