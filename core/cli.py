@@ -19,6 +19,7 @@ that need them (this module stays importable without them).
 
 from __future__ import annotations
 
+import errno
 import functools
 import logging
 import os
@@ -133,6 +134,29 @@ def report_interrupt(prog: str, error: BaseException | None = None, note: str = 
     named = "" if signum == signal.SIGINT else f" ({signal.Signals(signum).name})"
     print(f"{prog}: interrupted{named}" + (f"; {note}" if note else ""), file=sys.stderr)
     return 128 + int(signum)
+
+
+CLOSED_PIPE = 1
+"""Exit code when stdout was closed before the output was written (``... | head -c0``): the
+reader did not get it. Nothing is printed on stderr; the convention of Python's documentation
+(``BrokenPipeError``)."""
+
+
+def print_output(text: str) -> int:
+    """Print ``text`` on stdout and return the exit code: 0, or :data:`CLOSED_PIPE` when the
+    reader closed the pipe; then stdout is pointed at ``/dev/null``, so that the flush at exit
+    raises nothing either (no traceback, no ``Exception ignored`` line)."""
+    try:
+        print(text, flush=True)
+    except BrokenPipeError:
+        try:
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(devnull, sys.stdout.fileno())
+            os.close(devnull)
+        except (OSError, ValueError):  # stdout is not a file (replaced by a test harness)
+            pass
+        return CLOSED_PIPE
+    return 0
 
 
 _program: str | None = None
@@ -448,6 +472,14 @@ def output_folder_line(error: OSError) -> str:
     """``cannot create the output folder <path> (<why>)`` for an ``OSError`` of ``mkdir``;
     names the file in the way when a part of the path is a file."""
     path = Path(str(error.filename))
+    if error.errno == errno.ENAMETOOLONG:
+        from uss_slam.core.files import check_name_lengths
+
+        try:
+            check_name_lengths(path)
+        except UssSlamError as too_long:
+            return f"cannot create the output folder {too_long}"
+        return f"cannot create the output folder {path} (a name in it is too long)"
     existing = path
     while not existing.exists() and existing != existing.parent:
         existing = existing.parent
@@ -456,6 +488,57 @@ def output_folder_line(error: OSError) -> str:
     else:
         why = error.strerror or type(error).__name__
     return f"cannot create the output folder {path} ({why})"
+
+
+class RefusedRunFolder(BaseException):
+    """A Hydra app's run folder refused before Hydra writes into it (:class:`RunFolderCheck`).
+
+    A ``BaseException``: Hydra turns an ``Exception`` of a callback into a warning and goes
+    on; :func:`run_hydra_app` prints the one line of :attr:`error` and exits."""
+
+    def __init__(self, error: UssSlamError) -> None:
+        super().__init__(str(error))
+        self.error = error
+
+
+class RunFolderCheck:
+    """Hydra callback (``hydra.callbacks``, ``_target_`` this class, ``prog`` the app): before
+    Hydra creates the run folder and writes its record (``.hydra/``, the log file) into it,
+    refuse a folder that holds another console script's outputs
+    (:func:`uss_slam.core.files.check_output_owner`) or whose path the system cannot create.
+    Multirun job folders are Hydra's own fresh sweep folders and are not checked."""
+
+    def __init__(self, prog: str) -> None:
+        self.prog = prog
+
+    def on_run_start(self, config: Any, **kwargs: Any) -> None:
+        from uss_slam.core.files import check_name_lengths, check_output_owner
+
+        folder = str(config.hydra.run.dir)
+        try:
+            check_name_lengths(folder, "hydra.run.dir")
+            check_output_owner(folder, self.prog, "hydra.run.dir")
+        except UssSlamError as error:
+            raise RefusedRunFolder(error) from None
+
+    # Hydra calls every hook of a callback (its base class would import Hydra here)
+    def on_run_end(self, config: Any, **kwargs: Any) -> None:
+        pass
+
+    def on_multirun_start(self, config: Any, **kwargs: Any) -> None:
+        pass
+
+    def on_multirun_end(self, config: Any, **kwargs: Any) -> None:
+        pass
+
+    def on_job_start(self, config: Any, **kwargs: Any) -> None:
+        pass
+
+    def on_job_end(self, config: Any, job_return: Any, **kwargs: Any) -> None:
+        pass
+
+    def on_compose_config(self, config: Any, **kwargs: Any) -> None:
+        pass
 
 
 def run_hydra_app(prog: str, app: Callable[[], object]) -> None:
@@ -473,6 +556,9 @@ def run_hydra_app(prog: str, app: Callable[[], object]) -> None:
             app()
     except KeyboardInterrupt as interrupt:  # before the app's own handling (composition)
         sys.exit(report_interrupt(prog, interrupt))
+    except RefusedRunFolder as refused:
+        print(error_line(prog, refused.error), file=sys.stderr)
+        sys.exit(exit_code(refused.error))
     except Exception as error:
         line = hydra_error_line(error)
         if line is None and isinstance(error, OSError) and not report.started:

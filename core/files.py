@@ -263,6 +263,7 @@ def check_writable(
     """
     path = Path(folder)
     where = str(path) if key is None else f"{key}={path}"
+    check_name_lengths(path, key)
     if path.exists() and not path.is_dir():
         raise UssSlamError(f"{where}: output folder is a file, not a folder")
     probe = path  # the nearest existing folder on the way to it
@@ -279,6 +280,38 @@ def check_writable(
         reason = error.strerror or type(error).__name__
         raise UssSlamError(f"{where}: cannot write to the output folder ({reason})") from None
     return path
+
+
+def check_name_lengths(path: str | PathLike[str], key: str | None = None) -> None:
+    """Refuse (one line naming ``key=path``) a path the system cannot create: a name in it
+    longer than ``NAME_MAX`` bytes (255 on Linux file systems) or the whole longer than
+    ``PATH_MAX`` (4096); ``os.stat`` and ``mkdir`` would raise ``ENAMETOOLONG`` on it."""
+    path = Path(path)
+    where = str(path) if key is None else f"{key}={path}"
+    name_max, path_max = _limit("PC_NAME_MAX", 255), _limit("PC_PATH_MAX", 4096)
+    for part in path.parts:
+        size = len(os.fsencode(part))
+        if size > name_max and part != path.anchor:
+            shown = part if len(part) <= 40 else part[:20] + "..." + part[-10:]
+            raise UssSlamError(
+                f"{where}: the name {shown!r} is {size} bytes; expected at most {name_max} "
+                "(the longest name the file system allows)"
+            )
+    size = len(os.fsencode(str(path.absolute())))
+    if size >= path_max:
+        raise UssSlamError(
+            f"{where}: the path is {size} bytes; expected fewer than {path_max} (the longest "
+            "path the system allows)"
+        )
+
+
+def _limit(name: str, default: int) -> int:
+    """``os.pathconf("/", name)``, or ``default`` where the system does not say."""
+    try:
+        value = os.pathconf("/", name)
+    except (OSError, ValueError, AttributeError):
+        return default
+    return value if value > 0 else default
 
 
 # ------------------------------------------------------------------------------ output locks
@@ -390,6 +423,11 @@ def output_lock(target: str | PathLike[str], key: str | None = None) -> Iterator
                 _held[path] -= 1
         return
     path.parent.mkdir(parents=True, exist_ok=True)
+    if path.is_dir() or (path.exists() and not path.is_file()):
+        kind = "a folder" if path.is_dir() else "not a regular file"
+        raise UssSlamError(
+            f"{path}: the lock file of {where} is {kind}; expected a file (or none): remove it"
+        )
     while True:
         fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
         try:
@@ -435,3 +473,53 @@ def output_lock(target: str | PathLike[str], key: str | None = None) -> Iterator
                 pass
     finally:
         os.close(fd)
+
+
+# ------------------------------------------------------------------------------ output owners
+
+OUTPUT_MARKERS: dict[str, tuple[str, ...]] = {
+    "uss-slam": ("run.json",),
+    "uss-experiments": ("runs.csv", "tables.json"),
+    "uss-demo": ("summary.json", "miou.json"),
+    "uss-eval": ("eval.json",),
+    "uss-train": ("checkpoints",),
+}
+"""What each console script leaves at the top of its output folder: the folder belongs to it.
+A Hydra app's record (``.hydra/hydra.yaml``, ``help.app_name``) names its app as well
+(``uss-train``, ``uss-export``, ``uss-slam``, ``uss-experiments``)."""
+
+
+def output_owner(folder: str | PathLike[str]) -> tuple[str, str] | None:
+    """``(console script, what shows it)`` of the outputs ``folder`` holds (a marker of
+    :data:`OUTPUT_MARKERS`, or the app a Hydra record names); None for a folder that does not
+    exist or holds no tool's outputs."""
+    path = Path(folder)
+    if not path.is_dir():
+        return None
+    for prog, markers in OUTPUT_MARKERS.items():
+        for marker in markers:
+            if (path / marker).exists():
+                return prog, marker
+    record = path / ".hydra" / "hydra.yaml"
+    if record.is_file():
+        import yaml
+
+        try:
+            app = yaml.safe_load(record.read_text())["hydra"]["help"]["app_name"]
+        except (OSError, ValueError, yaml.YAMLError, KeyError, TypeError):
+            return None
+        if isinstance(app, str) and app.startswith("uss-"):
+            return app, ".hydra/hydra.yaml"
+    return None
+
+
+def check_output_owner(folder: str | PathLike[str], prog: str, key: str) -> None:
+    """Refuse (one line naming ``key=folder``) an output folder that holds another console
+    script's outputs: writing into it would overwrite or mix with them (``uss-demo --out`` on
+    a ``uss-slam`` run would replace its ``report.md``)."""
+    owner = output_owner(folder)
+    if owner is not None and owner[0] != prog:
+        raise UssSlamError(
+            f"{key}={folder}: holds the outputs of {owner[0]} ({owner[1]}); expected a new "
+            f"folder or an earlier {prog} output"
+        )

@@ -258,6 +258,18 @@ TRAIN = (
     "data.val.stride=1 hydra.run.dir={tmp}/run paths.log_dir={tmp}/logs logger=none"
 )
 EXPORT = "ckpt_path={ckpt} out_dir={tmp}/exports hydra.run.dir={tmp}/hydra"
+TRAIN_AT = TRAIN.replace(" hydra.run.dir={tmp}/run", "")
+LONG = "a" * 300
+"""A file name longer than any file system allows (255 bytes)."""
+
+
+def _no_cuda() -> tuple[Any, ...]:
+    import torch
+
+    return (pytest.mark.skipif(torch.cuda.is_available(), reason="a CUDA device is present"),)
+
+
+NO_CUDA = _no_cuda()
 EXPERIMENTS = "out_dir={tmp}/exp dry_run=true"
 CASES = [
     # ---------------------------------------------------------------- uss-synth (argparse)
@@ -280,6 +292,9 @@ CASES = [
          "sequence --preset static_xyz --frames 4 --size 32x24 --out {tmp}/seq --quiet", 130,
          "uss-synth: interrupted; nothing was written",
          interrupt=("uss_slam.synthetic.sequence:SequenceRenderer.frame", 2)),
+    case("synth-out-name-too-long", "uss-synth",
+         f"voc --images 1 --size 32x24 --out {{tmp}}/{LONG} --quiet", 1,
+         f"--out={{tmp}}/{LONG}: the name", "is 300 bytes; expected at most 255"),
     # ---------------------------------------------------------------- uss-traj (argparse)
     case("traj-png-as-trajectory", "uss-traj", "ate {gt} {png}", 1,
          "{png}: not a text file", setup=(write("png", png_bytes),)),
@@ -368,6 +383,11 @@ CASES = [
     case("eval-ctrl-c-while-inferring", "uss-eval",
          "{ckpt} --sequence {seq} --overlays 2 --out {tmp}/eval", 130, "uss-eval: interrupted",
          interrupt=("uss_slam.pipelines.evaluate:CheckpointSegmenter.infer", 2)),
+    case("eval-val-stride-zero", "uss-eval", "{m} data.val.stride=0 --out {tmp}/eval", 1,
+         "data.val: stride must be >= 1, got 0", setup=(write("m", "not read", ".onnx"),)),
+    case("eval-lock-file-is-a-folder", "uss-eval", "{m} --sequence {seq} --out {tmp}/eval", 1,
+         "{tmp}/.eval.lock: the lock file of --out={tmp}/eval is a folder; expected a file",
+         setup=(write("m", "not read: the lock comes first", ".onnx"), folder(".eval", ".lock"))),
     # ---------------------------------------------------------------- uss-demo (argparse)
     case("demo-out-under-a-file", "uss-demo",
          "--out {afile}/demo --experiment ci --until data --quiet", 1,
@@ -387,6 +407,13 @@ CASES = [
     case("demo-ctrl-c-in-the-data-stage", "uss-demo",
          "--out {tmp}/demo --experiment ci --until data --quiet", 130, "uss-demo: interrupted",
          interrupt=("uss_slam.pipelines.synthetic_data:render_demo_data", 0)),
+    case("demo-out-is-a-slam-run", "uss-demo", "--out {out} --experiment ci --quiet", 1,
+         "--out={out}: holds the outputs of uss-slam (run.json); expected a new folder or an "
+         "earlier uss-demo output", setup=(earlier_slam_run,)),
+    case("demo-sequence-empty-groundtruth", "uss-demo",
+         "--out {tmp}/demo --experiment ci --sequence {s} --quiet", 1,
+         "--sequence {s}: {s}/groundtruth.txt: expected at least 2 poses",
+         setup=(seq_copy(lambda s: (s / "groundtruth.txt").write_text("")),)),
     # ---------------------------------------------------------------- uss-slam (Hydra)
     case("slam-stride-not-a-number", "uss-slam", f"{SLAM} sequence.stride=abc", 1,
          "sequence.stride must be a whole number >= 1, got 'abc'", setup=(earlier_slam_run,)),
@@ -457,6 +484,9 @@ CASES = [
          f"{SLAM} segmenter=labels compare=[[semantic],[geometry]]", 130,
          "uss-slam: interrupted", setup=(earlier_slam_run,),
          interrupt=("uss_slam.slam_eval.systems.harness:SlamPipeline.run", 2)),
+    case("slam-out-dir-name-too-long", "uss-slam",
+         f"sequence.path={{seq}} out_dir={{tmp}}/{LONG} progress=false", 1,
+         "cannot create the output folder", "is 300 bytes; expected at most 255"),
     # ---------------------------------------------------------------- uss-train (Hydra)
     case("train-negative-learning-rate", "uss-train", f"{TRAIN} model.optimizer.lr=-1", 1,
          "model.optimizer: Invalid learning rate: -1"),
@@ -490,6 +520,15 @@ CASES = [
          "seed: Value 'abc' of type 'str' could not be converted to Integer"),
     case("train-tags-not-a-list", "uss-train", f"{TRAIN} tags=5", 1,
          "tags: Invalid value assigned: AnyNode is not a ListConfig, list or tuple."),
+    case("train-seed-negative", "uss-train", f"{TRAIN} seed=-1", 1,
+         "seed must be an integer in 0..4294967295 or null (no seeding), got -1"),
+    case("train-gpu-without-cuda", "uss-train", f"{TRAIN} trainer=gpu", 1,
+         "trainer=gpu: no CUDA device found; use trainer=cpu", marks=NO_CUDA),
+    case("train-ddp-without-cuda", "uss-train", f"{TRAIN} trainer=ddp", 1,
+         "trainer=ddp: no CUDA device found; use trainer=cpu", marks=NO_CUDA),
+    case("train-run-dir-is-a-slam-run", "uss-train", f"{TRAIN_AT} hydra.run.dir={{out}}", 1,
+         "hydra.run.dir={out}: holds the outputs of uss-slam (run.json)",
+         setup=(earlier_slam_run,)),
     # ---------------------------------------------------------------- uss-export (Hydra)
     case("export-unknown-key", "uss-export", f"{EXPORT} opsett=17", 1,
          "Key 'opsett' is not in struct"),
@@ -526,6 +565,10 @@ CASES = [
          "ckpt_path={ckpt} out_dir={exports} hydra.run.dir={tmp}/hydra", 130,
          "uss-export: interrupted", setup=(earlier_export,),
          interrupt=("uss_slam.export.onnx:verify_model", 0)),
+    case("export-run-dir-is-a-slam-run", "uss-export",
+         "ckpt_path={ckpt} out_dir={tmp}/exports hydra.run.dir={out}", 1,
+         "hydra.run.dir={out}: holds the outputs of uss-slam (run.json); expected a new folder "
+         "or an earlier uss-export output", setup=(earlier_slam_run,)),
     # ---------------------------------------------------------------- uss-experiments (Hydra)
     case("experiments-unknown-scale", "uss-experiments", f"{EXPERIMENTS} scale=huge", 1,
          "scale: unknown value 'huge'; accepted: converged, paper, quick, standard, standard_full"),

@@ -167,6 +167,10 @@ def check_config_types(cfg: DictConfig, sections: Sequence[str]) -> None:
             check_node(cfg[section], section)
 
 
+MAX_SEED = 2**32 - 1
+"""The largest seed numpy (and so Lightning's ``seed_everything``) accepts."""
+
+
 @dataclass
 class RunSettings:
     """The top level of ``uss-train``'s config (``configs/train.yaml``) besides its groups."""
@@ -184,6 +188,11 @@ class RunSettings:
     """Metric returned to Hydra sweepers."""
 
     def __post_init__(self) -> None:
+        if self.seed is not None and not 0 <= self.seed <= MAX_SEED:
+            # what numpy's and Lightning's seeding accept; Lightning raises deep inside
+            raise UssSlamError(
+                f"seed must be an integer in 0..{MAX_SEED} or null (no seeding), got {self.seed}"
+            )
         if self.num_threads is not None and self.num_threads < 1:
             # 0 would silently mean torch's default, -1 end in torch's traceback
             raise UssSlamError(

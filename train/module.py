@@ -53,6 +53,61 @@ from uss_slam.train.schedules import PolyLR, poly_horizon
 log = logging.getLogger(__name__)
 
 OptimizerFactory = Callable[..., Optimizer]
+
+RESUME_IGNORED = ("backbone", "adaptation")
+"""``hyper_parameters`` not compared on resume: the architecture is checked weight by weight,
+``adaptation`` follows from ``method``."""
+RESUME_KEYS = {"method": "model/method"}
+"""``hyper_parameters`` key -> the config key a user changes (others: ``model.<key>``)."""
+
+
+def factory_settings(factory: Any) -> dict[str, Any] | None:
+    """An optimiser factory (a ``functools.partial`` of ``_partial_: true``) as plain values:
+    ``{"name": "SGD", "lr": ..., ...}`` (what a checkpoint keeps, so that a resume with another
+    learning rate is noticed); None when it is not a partial."""
+    keywords = getattr(factory, "keywords", None)
+    if factory is None or not isinstance(keywords, dict):
+        return None
+    settings: dict[str, Any] = {"name": getattr(factory.func, "__name__", str(factory.func))}
+    for key, value in keywords.items():
+        if isinstance(value, (bool, int, float, str)) or value is None:
+            settings[key] = value
+        elif isinstance(value, Sequence) and all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) for v in value
+        ):
+            settings[key] = list(value)
+    return settings
+
+
+def resume_differences(saved: dict[str, Any], current: dict[str, Any]) -> list[str]:
+    """``key (checkpoint -> now)`` for every setting of the model that a resumed run would
+    silently not apply or apply half-way (another learning rate, method, ``max_iters``, loss
+    weight): ``hyper_parameters`` of the checkpoint against those of the configured model.
+    Keys an older checkpoint lacks are not compared."""
+
+    def flat(values: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+        out: dict[str, Any] = {}
+        for key, value in values.items():
+            name = f"{prefix}{key}"
+            if isinstance(value, dict):
+                out.update(flat(value, f"{name}."))
+            else:
+                out[name] = list(value) if isinstance(value, tuple) else value
+        return out
+
+    theirs, mine = flat(dict(saved)), flat(dict(current))
+    differences = []
+    for key, value in mine.items():
+        top = key.split(".")[0]
+        if top in RESUME_IGNORED or key not in theirs or theirs[key] == value:
+            continue
+        if isinstance(value, (list, tuple)) and list(value) == list(theirs[key] or []):
+            continue
+        shown = RESUME_KEYS.get(key, f"model.{key}")
+        differences.append(f"{shown} ({theirs[key]!r} -> {value!r})")
+    return differences
+
+
 OptimizerKernels = Literal["default", "foreach", "fused"]
 DomainBatchNorm = Literal["separate", "joint", "running"]
 
@@ -220,6 +275,8 @@ class AdversarialSegmentation(LightningModule):
                 "adaptation": self.method.adapts,
                 "class_names": list(self.class_names),
                 "backbone": getattr(net, "backbone_name", type(net).__name__),
+                "optimizer": factory_settings(optimizer),
+                "d_optimizer": factory_settings(d_optimizer) if self.discriminators else None,
             },
             logger=False,
         )

@@ -32,8 +32,9 @@ from uss_slam.core.errors import UssSlamError
 from uss_slam.core.files import check_writable
 from uss_slam.models.checkpoint import CheckpointInfo, read_checkpoint
 from uss_slam.train.callbacks import LogProgressBar
+from uss_slam.train.checkpoint_io import AtomicCheckpointIO
 from uss_slam.train.config_check import check_config_types, run_settings
-from uss_slam.train.module import AdversarialSegmentation
+from uss_slam.train.module import AdversarialSegmentation, resume_differences
 from uss_slam.train.speed import resolve_precision
 
 log = logging.getLogger(__name__)
@@ -162,6 +163,56 @@ def check_optimizers(cfg: DictConfig) -> None:
             raise UssSlamError(f"model.{key}: {error}") from None
 
 
+def check_accelerator(cfg: DictConfig) -> None:
+    """``trainer.accelerator=gpu`` (``trainer=gpu``, ``trainer=ddp``) on a machine without a
+    GPU, or more ``trainer.devices`` than it has, is one line before anything is built
+    (Lightning's own error comes wrapped by Hydra in two lines, after the data was built)."""
+    accelerator = str(cfg.trainer.get("accelerator", "auto"))
+    if accelerator not in ("gpu", "cuda"):
+        return
+    choice = _trainer_choice()
+    where = f"trainer={choice}" if choice else f"trainer.accelerator={accelerator}"
+    available = torch.cuda.device_count()
+    mps = accelerator == "gpu" and torch.backends.mps.is_available()
+    if available == 0 and not mps:
+        raise UssSlamError(
+            f"{where}: no CUDA device found; use trainer=cpu (or trainer=ddp_cpu for several "
+            "processes on the CPU)"
+        )
+    devices = cfg.trainer.get("devices")
+    if isinstance(devices, int) and not isinstance(devices, bool) and devices > max(available, 1):
+        raise UssSlamError(
+            f"trainer.devices={devices}: only {available} CUDA device(s) found; expected at most "
+            f"{available} (or trainer.devices=-1 for all of them)"
+        )
+
+
+def _trainer_choice() -> str | None:
+    """The ``trainer`` config group option of this run (``gpu``, ``ddp``, ...), if Hydra says."""
+    from hydra.core.hydra_config import HydraConfig
+
+    if not HydraConfig.initialized():
+        return None
+    choice = HydraConfig.get().runtime.choices.get("trainer")
+    return str(choice) if choice else None
+
+
+def check_resumed_settings(model: LightningModule, info: CheckpointInfo) -> None:
+    """A resumed run (``ckpt_path``) continues the checkpoint's training: a model setting that
+    differs from the checkpoint's (``model.optimizer.lr``, ``model/method``,
+    ``model.max_iters``, a loss weight, ...) would be ignored by the restored optimiser or end
+    the run at once, so it is refused with the differing keys. Trainer, logging, callbacks,
+    paths, threads and data loading may change (:mod:`uss_slam.train.module`'s
+    ``resume_differences`` compares the model's ``hyper_parameters`` only)."""
+    differences = resume_differences(info.hyper_parameters, dict(model.hparams))
+    if differences:
+        raise UssSlamError(
+            f"ckpt_path {info.path}: expected the checkpoint's model settings for a resumed "
+            f"run, got other values for {'; '.join(differences)} (checkpoint -> configured); "
+            "drop these overrides, or start a new run (ckpt_path=null)"
+        )
+
+
 def build(cfg: DictConfig, key: str) -> Any:
     """``instantiate(cfg[key])``; a ``ValueError`` its constructors raise for a value out of
     range (``data.batch_size=0``, ``model.discriminator.n_layers=0``) becomes one line naming
@@ -220,6 +271,7 @@ def train(cfg: DictConfig) -> dict[str, float]:
     settings = run_settings(cfg)
     check_config_types(cfg, TYPED_SECTIONS)
     check_optimizers(cfg)
+    check_accelerator(cfg)
     if settings.num_threads is not None:
         torch.set_num_threads(settings.num_threads)
     if settings.seed is not None:
@@ -234,6 +286,7 @@ def train(cfg: DictConfig) -> dict[str, float]:
     model: LightningModule = build(cfg, "model")
     if checkpoint is not None:
         check_architecture(model, checkpoint)
+        check_resumed_settings(model, checkpoint)
         del checkpoint  # Lightning reads the file again; do not hold two copies
     callbacks: list[Callback] = _instantiate_all(cfg.get("callbacks"))
     if cfg.trainer.get("enable_progress_bar", True) and not any(
@@ -251,7 +304,11 @@ def train(cfg: DictConfig) -> dict[str, float]:
         print(f"uss-train: {reason}", flush=True)
         with open_dict(cfg):
             cfg.trainer.precision = precision
-    trainer: Trainer = instantiate(cfg.trainer, callbacks=callbacks, logger=loggers or False)
+    # checkpoints written atomically in their folder (Lightning's go through $TMPDIR)
+    plugins = [AtomicCheckpointIO()]
+    trainer: Trainer = instantiate(
+        cfg.trainer, callbacks=callbacks, logger=loggers or False, plugins=plugins
+    )
 
     hparams = OmegaConf.to_container(cfg, resolve=True)
     for logger in loggers:

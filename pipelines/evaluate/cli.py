@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from uss_slam.core.classes import CLASS_NAMES, DYNAMIC_CLASSES
-from uss_slam.core.cli import exit_on_user_error
+from uss_slam.core.cli import exit_on_user_error, warning
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.files import check_writable, output_lock, write_json_atomic, write_text_atomic
 from uss_slam.core.seg_metrics import iou_report, mask_metrics
@@ -80,6 +80,7 @@ def _evaluate(
     dynamic_ids = [CLASS_NAMES.index(c) for c in dynamic]
     chosen = set(evenly_spaced(overlays, source.count))
     scores = evaluate_frames(infer, source.frames(), CLASS_NAMES, dynamic_ids, chosen.__contains__)
+    warn_unlabelled(scores.unlabelled, len(scores.names), source.description)
     written = write_overlays(out, scores.kept)
     result = {
         "model": info,
@@ -97,6 +98,24 @@ def _evaluate(
     write_text_atomic(out / "eval.md", markdown(result))
     remove_stale_overlays(out / "overlays", written)
     return result
+
+
+def warn_unlabelled(frames: Sequence[str], total: int, data: Any) -> None:
+    """One warning naming the frames whose labels are all ignore (255): they add nothing to
+    the IoUs, and when every frame is such a frame each IoU and the mIoU are null."""
+    if not frames:
+        return
+    roots = data.get("roots") if isinstance(data, dict) else None
+    where = "--sequence " + ", ".join(roots) if roots else "data.val"
+    shown = ", ".join(frames[:3]) + (f" and {len(frames) - 3} more" if len(frames) > 3 else "")
+    result = (
+        "every IoU and the mIoU are null"
+        if len(frames) == total
+        else "they count for nothing in the IoUs"
+    )
+    warning(
+        f"{where}: {len(frames)} of {total} frames have only ignore labels (255): {shown}; {result}"
+    )
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -89,12 +89,30 @@ def _read_pair(frame: Any) -> tuple[np.ndarray, np.ndarray]:
     return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), labels
 
 
+def _instantiate_val(node: Any) -> Any:
+    """``instantiate(data.val)``; a value its constructor rejects (``data.val.stride=0``) is
+    one line naming ``data.val``, as in ``uss-train`` (Hydra wraps it with the target's name)."""
+    from hydra.errors import InstantiationException
+    from hydra.utils import instantiate
+
+    try:
+        return instantiate(node)
+    except InstantiationException as error:
+        cause: BaseException | None = error
+        while isinstance(cause, InstantiationException):
+            cause = cause.__cause__
+        if isinstance(cause, UssSlamError):
+            raise cause from None
+        if isinstance(cause, (ValueError, TypeError)):
+            raise UssSlamError(f"data.val: {cause}") from None
+        raise
+
+
 def config_val_frames(overrides: Sequence[str]) -> FrameSource:
     """The validation set (``data.val``) of the data config composed from the shipped
     ``train`` config with ``overrides`` (e.g. ``data=real``, ``paths.data_dir=...``)."""
     from hydra import compose, initialize_config_dir
     from hydra.core.global_hydra import GlobalHydra
-    from hydra.utils import instantiate
     from omegaconf import OmegaConf
 
     from uss_slam.train.config_check import check_config_types
@@ -120,7 +138,7 @@ def config_val_frames(overrides: Sequence[str]) -> FrameSource:
     if node is None:
         raise UssSlamError("the composed data config has no data.val (the validation set)")
     check_config_types(cfg, ("data",))  # data.val.stride=abc: one line naming the key
-    dataset = instantiate(node)
+    dataset = _instantiate_val(node)
     if not getattr(dataset, "labelled", False):
         raise UssSlamError("data.val has no labels: nothing to evaluate against")
 

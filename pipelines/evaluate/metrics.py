@@ -27,6 +27,9 @@ class FrameScores:
     names: list[str] = field(default_factory=list)
     seconds: float = 0.0
     kept: list[tuple[LabelledFrame, np.ndarray]] = field(default_factory=list)
+    unlabelled: list[str] = field(default_factory=list)
+    """Frames whose every label pixel is outside the classes (255, ignore): they count for
+    nothing in the IoUs."""
 
 
 def evaluate_frames(
@@ -51,6 +54,8 @@ def evaluate_frames(
         if dynamic_ids:
             scores.mask_counts.append(mask_counts(frame.labels, pred, dynamic_ids))
         scores.names.append(frame.name)
+        if not np.any(np.asarray(frame.labels) < n):
+            scores.unlabelled.append(frame.name)
         if keep(k):
             scores.kept.append((frame, pred))
     return scores

@@ -13,7 +13,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from uss_slam.core.cli import interruptible, report_interrupt
+from uss_slam.core.cli import interruptible, print_output, report_interrupt
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.files import check_writable
 from uss_slam.core.tum_io import read_trajectory
@@ -238,8 +238,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt as interrupt:  # Ctrl-C or SIGTERM
         # the plot is written atomically: nothing half-written is left
         return report_interrupt(PROG, interrupt)
-    print(out)
-    return 0
+    return print_output(out)  # a closed pipe (| head -c0): exit code 1, nothing on stderr
 
 
 if __name__ == "__main__":

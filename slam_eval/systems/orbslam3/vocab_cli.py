@@ -124,6 +124,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         if args.command == "build":
+            args.sequences = unique_sequences(args.sequences)
             check_writable(args.out.parent, create=False)  # before the lock and the clustering
             # a second build into the same file stops at once (exit code 2), naming the first
             with output_lock(args.out, "--out"):
@@ -141,6 +142,23 @@ def main(argv: Sequence[str] | None = None) -> int:
         # --out is written atomically: nothing half-written is left
         return report_interrupt(PROG, interrupt)
     return 0
+
+
+def unique_sequences(sequences: Sequence[Path]) -> list[Path]:
+    """``sequences`` with each folder once (the same folder under two spellings too): a folder
+    given twice would count its frames twice in every word's weight. A warning names it."""
+    seen: dict[Path, Path] = {}
+    for folder in sequences:
+        key = folder.resolve()
+        if key in seen:
+            print(
+                f"{PROG}: warning: {folder}: given more than once (as {seen[key]}); its frames "
+                "are counted once",
+                file=sys.stderr,
+            )
+            continue
+        seen[key] = folder
+    return list(seen.values())
 
 
 def _build(args: argparse.Namespace) -> None:
