@@ -790,6 +790,66 @@ def test_vocab_of_one_frame_warns_that_every_weight_is_zero(
     ]
 
 
+def test_vocab_sequence_given_twice_counts_once_with_a_warning(
+    world: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    """``uss-vocab build S S`` (the same folder twice, also as another spelling) trains on S's
+    frames once, as ``build S`` does, with one warning naming the repeated folder."""
+    seq = world["seq"]
+    common = ["-k", "3", "-L", "2", "--max-frames", "3"]
+    once, twice = tmp_path / "once.txt", tmp_path / "twice.txt"
+    code, _, err_once = run_console_script(
+        "uss-vocab", ["build", str(seq), "--out", str(once), *common], monkeypatch, capsys
+    )
+    assert code == 0, err_once
+    again = f"{seq}/../{seq.name}"
+    argv = ["build", str(seq), again, "--out", str(twice), *common]
+    code, _, err = run_console_script("uss-vocab", argv, monkeypatch, capsys)
+    assert code == 0, err
+    assert err.strip().splitlines() == [  # then what the build of S alone says
+        f"uss-vocab: warning: {again}: given more than once (as {seq}); its frames are counted "
+        "once",
+        *err_once.strip().splitlines(),
+    ]
+    assert twice.read_bytes() == once.read_bytes()
+
+
+def test_eval_of_frames_with_only_ignore_labels_warns(
+    world: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    """Labels that are all 255 (ignore) leave every IoU null: the run succeeds and one warning
+    names the sequence and its frames."""
+    seq = tmp_path / "s"
+    shutil.copytree(world["seq"], seq)
+    for label in (seq / "labels").iterdir():
+        cv2.imwrite(str(label), np.full((120, 160), 255, np.uint8))
+    model = tmp_path / "m.onnx"
+    model.write_bytes(colour_onnx({"tmp": tmp_path}))
+    argv = [str(model), "--sequence", str(seq), "--out", str(tmp_path / "eval")]
+    code, _, err = run_console_script("uss-eval", argv, monkeypatch, capsys)
+    assert code == 0, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(
+        f"uss-eval: warning: --sequence {seq}: 8 of 8 frames have only ignore labels (255): s/"
+    ), err
+    assert lines[0].endswith("and 5 more; every IoU and the mIoU are null"), err
+    assert json.loads((tmp_path / "eval" / "eval.json").read_text())["mIoU"] is None
+
+
+def test_traj_into_a_closed_pipe_exits_quietly(world: dict[str, Path]) -> None:
+    """``uss-traj ate GT EST --json | head -c0``: the reader is gone before the output is
+    written; exit code 1 (the output was not delivered) and nothing on stderr."""
+    command = [sys.executable, "-m", "uss_slam.slam_eval.scoring.traj_cli", "ate",
+               str(world["gt"]), str(world["gt"]), "--json"]  # fmt: skip
+    reader, writer = os.pipe()
+    os.close(reader)  # head -c0: closed before uss-traj writes
+    try:
+        done = subprocess.run(command, stdout=writer, stderr=subprocess.PIPE, timeout=120)
+    finally:
+        os.close(writer)
+    assert (done.returncode, done.stderr.decode()) == (1, "")
+
+
 # ------------------------------------------------------------------------------ file modes
 
 

@@ -215,3 +215,62 @@ def test_slam_multirun_jobs_fail_independently(
     assert err[1:] == ["uss-slam: 1 of 2 jobs failed:", f"  #0 slam.orb.scale_factor=0.9: {err[0]}"]
     assert (out / "1" / "metrics.json").is_file()
     assert not (out / "0" / "metrics.json").exists()
+
+
+@pytest.mark.parametrize(
+    ("override", "named"),
+    [
+        ("model.optimizer.lr=0.1", "model.optimizer.lr ("),
+        ("model.max_iters=1", "model.max_iters (4 -> 1)"),
+        ("model/method=minent", "model/method ('adaptsegnet' -> 'minent')"),
+    ],
+)
+def test_resume_with_other_model_settings_is_one_line(
+    override: str, named: str, uda_data: dict[str, Path], tmp_path: Path, monkeypatch, capsys
+) -> None:
+    """A resumed run keeps the checkpoint's optimiser, method and schedule: another value is
+    refused (naming the key, both values) before the trainer starts, instead of being ignored
+    (a new lr) or ending the run at once (a smaller max_iters)."""
+    path = _checkpoint(tmp_path, "earlier.ckpt", [])
+    before = path.read_bytes()
+    args = [*_common(uda_data, tmp_path), f"ckpt_path={path}", override]
+    code, err = _uss_train(args, monkeypatch, capsys)
+    assert code == 1 and len(err) == 1, err
+    assert err[0].startswith(f"uss-train: error: ckpt_path {path}: expected the checkpoint's")
+    assert named in err[0], err[0]
+    assert _left_behind(tmp_path / "run") == set()
+    assert path.read_bytes() == before
+
+
+def test_resume_with_the_same_model_settings_passes_the_check(
+    uda_data: dict[str, Path], tmp_path: Path
+) -> None:
+    """Trainer, logging and thread settings may change on resume; the model's may not."""
+    from uss_slam.train.module import resume_differences
+
+    cfg = compose_train(["experiment=ci"], tmp_path / "a")
+    saved = dict(instantiate(cfg.model).hparams)
+    again = compose_train(["experiment=ci", "trainer.max_epochs=7", "num_threads=1"], tmp_path)
+    assert resume_differences(saved, dict(instantiate(again.model).hparams)) == []
+    other = compose_train(["experiment=ci", "model.loss.lambda_adv_main=0.5"], tmp_path / "b")
+    assert resume_differences(saved, dict(instantiate(other.model).hparams)) == [
+        "model.loss.lambda_adv_main (0.01 -> 0.5)"
+    ]
+
+
+def test_a_full_disk_while_saving_a_checkpoint_names_it_and_leaves_no_part(
+    uda_data: dict[str, Path], tmp_path: Path, monkeypatch, capsys
+) -> None:
+    """Checkpoints are written beside their final name and renamed: a full disk is one line
+    naming the checkpoint's own path, and no truncated ``.ckpt`` nor temporary file is left."""
+    from shared_helpers import full_disk
+
+    hit = full_disk(monkeypatch, lambda path: path.suffix == ".ckpt")
+    code, err = _uss_train([*_common(uda_data, tmp_path), "logger=none"], monkeypatch, capsys)
+    assert hit, "no checkpoint was written"
+    assert code == 1, err
+    assert err[-1] == f"uss-train: error: no space left on device while writing {hit[0]}", err
+    assert "Traceback" not in "\n".join(err)
+    folder = tmp_path / "run" / "checkpoints"
+    assert hit[0].parent == folder
+    assert sorted(p.name for p in folder.iterdir()) == []
