@@ -15,8 +15,9 @@ $(STAMP): pyproject.toml setup.py
 	$(PY) -m pip install -e '.[dev]'
 	@touch $(STAMP)
 
-# uss-demo: synthetic data, two trainings, two ONNX exports, five SLAM runs, table + report.md;
-# complete stages are reused (DEMO_ARGS=--force redoes them).
+# uss-demo: synthetic data, two trainings from the packaged pretrained init (source-only and
+# AdaptSegNet), three ONNX exports (+ AdaBN), six SLAM rows of three runs each, table +
+# report.md; complete stages are reused (DEMO_ARGS=--force redoes them).
 demo: $(STAMP)
 	$(VENV)/bin/uss-demo --out $(DEMO_OUT) $(DEMO_ARGS)
 

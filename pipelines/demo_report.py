@@ -1,4 +1,5 @@
-"""The demo's table and plots: one row per SLAM variant (ATE, tracking, speed, segmenter mIoU),
+"""The demo's table and plots: one row per SLAM variant (median ATE over the repeats with their
+range, tracking, speed, segmenter mIoU), what the numbers say (:func:`findings`),
 ``ate_rmse.png`` (ATE RMSE per variant) and ``trajectories.png`` (every aligned estimate against
 the ground truth, drawn by :mod:`uss_slam.slam_eval.scoring.plots`)."""
 
@@ -17,10 +18,10 @@ if TYPE_CHECKING:
     from .runs import Variant
 
 TABLE_HEADER = (
-    "| variant | filters | ATE RMSE [m] | Mean [m] | Median [m] | S.D. [m] | tracked | "
-    "frames/s | seg. [ms/frame] | mIoU | person IoU |"
+    "| variant | filters | ATE RMSE [m], median | min–max [m] | tracked | frames/s | "
+    "seg. [ms/frame] | mIoU | person IoU |"
 )
-ROW_COLORS = ("0.5", "tab:green", "tab:orange", "tab:blue", "tab:purple")
+ROW_COLORS = ("0.5", "tab:green", "tab:orange", "tab:red", "tab:blue", "tab:purple")
 """Colour of each variant (in order) in both plots."""
 DPI = 110
 
@@ -41,6 +42,7 @@ def summary_rows(
     for v in variants:
         m = json.loads((slam_dir / v.name / "metrics.json").read_text())
         ate = m["ate"] or {}
+        spread = m.get("ate_rmse_repeats") or {"min": ate.get("rmse"), "max": ate.get("rmse")}
         if v.segmenter == "labels":
             seg_iou: Mapping[str, Any] = {"mIoU": 1.0, "IoU": dict.fromkeys(CLASS_NAMES, 1.0)}
         else:
@@ -51,15 +53,16 @@ def summary_rows(
                 "label": v.label,
                 "segmenter": m["segmenter"],
                 "filters": list(v.filters),
-                "ate_rmse": ate.get("rmse"),
-                "ate_mean": ate.get("mean"),
-                "ate_median": ate.get("median"),
-                "ate_std": ate.get("std"),
+                "ate_rmse": ate.get("rmse"),  # the median repeat's
+                "ate_min": spread["min"],
+                "ate_max": spread["max"],
+                "repeats": len(m.get("repeats") or [None]),
                 "tracked_fraction": m["tracked_fraction"],
                 "fps": m["fps"],
                 "segmentation_ms": m["segmentation"]["wall_ms"],
                 "mIoU": seg_iou["mIoU"],
                 "person_IoU": seg_iou["IoU"].get("person"),
+                "keypoints": {k: m["keypoints"][k] for k in ("extracted", "kept", "dropped")},
             }
         )
     return rows
@@ -71,12 +74,110 @@ def markdown_table(rows: Sequence[Mapping[str, Any]]) -> str:
     for r in rows:
         lines.append(
             f"| {r['label']} | {'+'.join(r['filters']) or '—'} | {fmt(r['ate_rmse'])} | "
-            f"{fmt(r['ate_mean'])} | {fmt(r['ate_median'])} | {fmt(r['ate_std'])} | "
+            f"{fmt(r['ate_min'])}–{fmt(r['ate_max'])} | "
             f"{100 * r['tracked_fraction']:.0f}% | {r['fps']:.1f} | "
             f"{fmt(r['segmentation_ms'], 1)} | {fmt(r['mIoU'], 3)} | "
             f"{fmt(r['person_IoU'], 3)} |"
         )
     return "\n".join(lines)
+
+
+def _change(value: float | None, reference: float | None) -> str:
+    """``value`` against ``reference`` in percent (signed), "n/a" without both."""
+    if value is None or not reference:
+        return "n/a"
+    return f"{100 * (value - reference) / reference:+.0f}%"
+
+
+def findings(rows: Sequence[Mapping[str, Any]]) -> list[str]:
+    """What the table's numbers say, computed from them (no claim beyond its one sequence and
+    training seed): each mask row's median ATE against no filter, adapted against source-only
+    (and whether their repeats' ranges overlap), and whether geometry helps the adapted masks,
+    with the keypoints it dropped when it does not. Rows are those of :func:`summary_rows`
+    (``none``, ``source_only``, ``adapted`` and ``adapted_geometry`` needed)."""
+    by = {r["variant"]: r for r in rows}
+    base, src, ada, geo = (by[n] for n in ("none", "source_only", "adapted", "adapted_geometry"))
+    ref = base["ate_rmse"]
+    masks = [r for r in rows if r["filters"] == ["semantic"]]
+    helping = [r["label"] for r in masks if _lower(r["ate_rmse"], ref)]
+    others = [r["label"] for r in masks if r["label"] not in helping]
+    first = (
+        f"On this sequence (one training seed, median of {base['repeats']} SLAM runs per row), "
+        f"against no filter ({fmt(ref)} m): "
+        + ", ".join(f"{r['label']} {_ate(r['ate_rmse'], ref)}" for r in masks)
+        + "; masks that lower the median ATE: "
+        + (_join(helping) if helping else "none")
+        + (f"; that do not: {_join(others)}." if others else ".")
+    )
+    if src["ate_rmse"] is None or ada["ate_rmse"] is None:
+        second = "Adapted and source-only cannot be compared: a run has no ATE."
+    else:
+        diff = ada["ate_rmse"] - src["ate_rmse"]
+        verdict = (
+            f"Adapted equals source-only ({fmt(ada['ate_rmse'])} m)"
+            if round(diff, 4) == 0
+            else f"Adapted is {'below' if diff < 0 else 'above'} source-only by "
+            f"{abs(diff):.4f} m ({_change(ada['ate_rmse'], src['ate_rmse'])})"
+        )
+        second = verdict + (
+            "; their repeats' ranges overlap, so these runs do not separate them."
+            if _overlap(src, ada)
+            else "; their repeats' ranges do not overlap."
+        )
+    return [first, second, geometry_line(geo, ada, by.get("labels"))]
+
+
+def _ate(value: float | None, reference: float | None) -> str:
+    """A row's median ATE with its change against ``reference``; "no ATE" for a lost run."""
+    return "no ATE" if value is None else f"{fmt(value)} m ({_change(value, reference)})"
+
+
+def _lower(value: float | None, reference: float | None) -> bool:
+    return value is not None and reference is not None and value < reference
+
+
+def _join(names: Sequence[str]) -> str:
+    return names[0] if len(names) == 1 else ", ".join(names[:-1]) + " and " + names[-1]
+
+
+def _overlap(a: Mapping[str, Any], b: Mapping[str, Any]) -> bool:
+    """Whether two rows' ATE ranges over their repeats overlap (a missing bound: yes)."""
+    bounds = (a["ate_min"], a["ate_max"], b["ate_min"], b["ate_max"])
+    if any(v is None for v in bounds):
+        return True
+    return a["ate_min"] <= b["ate_max"] and b["ate_min"] <= a["ate_max"]
+
+
+def geometry_line(
+    geo: Mapping[str, Any], masks: Mapping[str, Any], labels: Mapping[str, Any] | None
+) -> str:
+    """One line: does the geometry check help the masks (``geo`` row against ``masks``)? When
+    it does not, what it dropped: its share of the keypoints the masks kept and, when it dropped
+    more than the ground-truth masks (``labels`` row) drop on walkers in the whole sequence, the
+    least number of them that were on static structure."""
+    a, g = masks["ate_rmse"], geo["ate_rmse"]
+    kp = geo["keypoints"]
+    dropped = int(kp["dropped"].get("geometry", 0))
+    kept_by_masks = int(kp["extracted"]) - int(kp["dropped"].get("semantic", 0))
+    share = 100 * dropped / max(kept_by_masks, 1)
+    what = f"it dropped {dropped} keypoints, {share:.1f}% of those the masks kept"
+    if _lower(g, a):
+        overlap = " (the repeats' ranges overlap)" if _overlap(geo, masks) else ""
+        return (
+            f"Geometry helps: {fmt(g)} m against {fmt(a)} m with the masks alone "
+            f"({_change(g, a)}){overlap}; {what}."
+        )
+    line = (
+        f"Geometry does not help here: {fmt(g)} m against {fmt(a)} m with the masks alone "
+        f"({_change(g, a)}); {what}"
+    )
+    walkers = None if labels is None else labels["keypoints"]["dropped"].get("semantic")
+    if walkers is not None and dropped > int(walkers):
+        line += (
+            f", more than the {int(walkers)} the ground-truth masks drop on walkers in the whole "
+            f"sequence: at least {dropped - int(walkers)} were on static structure"
+        )
+    return line + "."
 
 
 def plot_ate_bars(path: Path, rows: Sequence[Mapping[str, Any]], title: str) -> Path:

@@ -83,7 +83,7 @@ def check_shift(shift: str, key: str = "shift") -> str:
 TRAIN_PRESETS = ("walking_xyz", "walking_rpy", "walking_halfsphere", "sitting_static")
 """Target training sequences (one seed each: ``seed + 1 + k``)."""
 SLAM_PRESETS = ("walking_xyz", "static_xyz")
-"""SLAM evaluation sequences (seed ``seed``)."""
+"""SLAM evaluation sequences (seed :attr:`DemoData.slam_seed`, else ``seed``)."""
 VAL_PRESETS = ("walking_xyz", "walking_rpy")
 """Labelled target validation sequences (seed ``seed + VAL_SEED_OFFSET + k``): checkpoint
 selection with target labels and the methods' hyper-parameters are chosen on all of them, so that
@@ -121,6 +121,8 @@ class DemoData:
     # the VOC set's people's clothing (synthetic.WARDROBES); None: the shift's (SHIFT_WARDROBE)
     source_outfits: str | None = None
     shift: str = DEFAULT_SHIFT  # what source and target differ in (SHIFTS)
+    # the SLAM sequences' own seed (None: ``seed``), so that they are renders no choice saw
+    slam_seed: int | None = None
 
     def __post_init__(self) -> None:
         check_shift(self.shift)
@@ -142,6 +144,8 @@ class DemoData:
                 raise UssSlamError(f"{name} must be 0 (skip) or >= 2, got {value}")
         for name in ("voc_size", "train_size", "slam_size"):
             check_size(getattr(self, name))
+        if self.slam_seed is not None and self.slam_seed < 0:
+            raise UssSlamError(f"slam_seed must be >= 0 (or None: seed), got {self.slam_seed}")
 
     @property
     def wardrobe(self) -> str:
@@ -185,7 +189,7 @@ class DemoData:
         ``source_outfits`` only when not ``classic``, ``shift`` only when not ``full``,
         ``source_near`` only when not 0; ``val_sequences`` whenever the validation frames are
         sequences, so a data set made when there was one validation sequence is rendered again
-        rather than read without the others)."""
+        rather than read without the others; ``slam_seed`` only when set)."""
         record = {
             "generator": GENERATOR,
             "seed": self.seed,
@@ -205,6 +209,8 @@ class DemoData:
             record["source_near"] = self.near
         if self.val_frames and self.shift != "appearance":
             record["val_sequences"] = list(VAL_PRESETS)
+        if self.slam_seed is not None:
+            record["slam_seed"] = self.slam_seed
         return record
 
 
@@ -223,6 +229,7 @@ def read_spec(root: Path) -> DemoData:
         slam_size=tuple(record["slam_size"]),
         source_outfits=record.get("source_outfits"),
         shift=record.get("shift", "full"),
+        slam_seed=record.get("slam_seed"),
     )
 
 
@@ -262,7 +269,8 @@ def _tasks(root: Path, spec: DemoData) -> list[Task]:
         for preset in SLAM_PRESETS:
             tasks.append((f"slam/{preset}", render_sequence, dict(
                 out_dir=root / "slam" / preset, preset=preset, frames=spec.slam_frames,
-                size=spec.slam_size, seed=spec.seed, style="target", outfits=outfits)))  # fmt: skip
+                size=spec.slam_size, seed=spec.seed if spec.slam_seed is None else spec.slam_seed,
+                style="target", outfits=outfits)))  # fmt: skip
     return tasks
 
 

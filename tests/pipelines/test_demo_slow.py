@@ -1,5 +1,6 @@
-"""``uss-demo --experiment ci``: the whole demo pipeline end to end on tiny data (slow), then a
-second call that reuses every stage."""
+"""``uss-demo --experiment ci``: the whole demo pipeline end to end on tiny data (slow): both
+trainings from the packaged init, the AdaBN export, repeated SLAM runs and what the table says;
+then a second call that reuses every stage."""
 
 from __future__ import annotations
 
@@ -14,23 +15,27 @@ import numpy as np
 import pytest
 
 from uss_slam.core.classes import CLASS_NAMES
+from uss_slam.core.files import file_sha256
 from uss_slam.core.onnx_contract import SegmenterMetadata
 from uss_slam.pipelines import demo, demo_report
+from uss_slam.pipelines.assets import demo_init_path
 from uss_slam.pipelines.runs import select_checkpoint
 from uss_slam.pipelines.stages import STAMP
 from uss_slam.slam_eval.segmenters.onnx import OnnxSegmenter
 
 ROW_KEYS = {
-    "variant", "label", "segmenter", "filters", "ate_rmse", "ate_mean", "ate_median", "ate_std",
-    "tracked_fraction", "fps", "segmentation_ms", "mIoU", "person_IoU",
+    "variant", "label", "segmenter", "filters", "ate_rmse", "ate_min", "ate_max", "repeats",
+    "tracked_fraction", "fps", "segmentation_ms", "mIoU", "person_IoU", "keypoints",
 }  # fmt: skip
 SEGMENTERS = {
     "none": "none",
     "labels": "labels",
     "source_only": "onnx:source_only.onnx",
+    "adabn": "onnx:adabn.onnx",
     "adapted": "onnx:adapted.onnx",
     "adapted_geometry": "onnx:adapted.onnx",
 }
+STEPS = 14  # data, 2 trainings, 3 exports, mIoU, 6 SLAM rows, report
 
 
 @pytest.mark.slow
@@ -47,11 +52,17 @@ def test_demo_ci_end_to_end_then_reused(
     assert [row.split(" | ")[0][2:] for row in table[1:]] == [v.label for v in demo.VARIANTS]
     report = (out / "report.md").read_text()
     assert "\n".join(table[:1]) in report and all(row in report for row in table[1:])
+    summary = json.loads((out / "summary.json").read_text())
+    # What the numbers say: printed under the table and in the report, computed from the rows.
+    assert summary["findings"] == demo_report.findings(summary["rows"])
+    assert len(summary["findings"]) == 3
+    assert all(line in printed and line in report for line in summary["findings"])
+    assert summary["findings"][2].startswith(("Geometry helps: ", "Geometry does not help here: "))
     for plot in ("ate_rmse.png", "trajectories.png"):
         assert (out / plot).stat().st_size > 1000 and f"]({plot})" in report
 
-    summary = json.loads((out / "summary.json").read_text())
-    assert summary["experiment"] == "ci"
+    assert summary["experiment"] == "ci" and summary["slam_repeats"] == 2
+    assert summary["init"]["sha256"] == file_sha256(demo_init_path())
     assert summary["sequence"] == str(out / "data" / "slam" / "walking_xyz")
     assert set(summary["stage_seconds"]) == {"data", "train", "export", "miou", "slam"}
     rows = summary["rows"]
@@ -63,6 +74,11 @@ def test_demo_ci_end_to_end_then_reused(
         metrics = json.loads((out / "slam" / variant.name / "metrics.json").read_text())
         assert row["ate_rmse"] == metrics["ate"]["rmse"] and row["fps"] == metrics["fps"] > 0
         assert metrics["frames"] == 30 and metrics["filters"] == list(variant.filters)
+        # slam.repeats=2: the folder is the median run's, the range spans both runs
+        assert row["repeats"] == len(metrics["repeats"]) == 2
+        spread = metrics["ate_rmse_repeats"]
+        assert (row["ate_min"], row["ate_max"]) == (spread["min"], spread["max"])
+        assert spread["min"] <= row["ate_rmse"] <= spread["max"]
         for name in ("trajectory.txt", "report.md", "trajectory.png", "ate.png", "map.ply"):
             assert (out / "slam" / variant.name / name).is_file(), (variant.name, name)
         assert f"](slam/{variant.name}/trajectory.png)" in report
@@ -72,7 +88,7 @@ def test_demo_ci_end_to_end_then_reused(
 
     # mIoU of the exported models on the SLAM sequence: consistent per-class numbers.
     miou = json.loads((out / "miou.json").read_text())["scores"]
-    assert set(miou) == {"adapted", "source_only"}
+    assert set(miou) == {"adapted", "adabn", "source_only"}
     for name, scores in miou.items():
         assert scores["frames"] == 6  # 30 frames, every 5th
         present = [v for v in scores["IoU"].values() if v is not None]
@@ -80,26 +96,32 @@ def test_demo_ci_end_to_end_then_reused(
         assert scores["mIoU"] == pytest.approx(float(np.mean(present)))
         assert by_name[name]["mIoU"] == scores["mIoU"]
 
-    # Exports: verified, self-describing, tied to the training run's best checkpoint.
-    for name in ("adapted", "source_only"):
+    # Exports: verified, self-describing, tied to the training run's last checkpoint; AdaBN is
+    # source-only's checkpoint with other BatchNorm statistics (other labels on target frames).
+    for name, training in demo.MODELS.items():
         model = out / "exports" / f"{name}.onnx"
         verify = json.loads((out / "exports" / f"{name}.verify.json").read_text())
         assert verify["ok"] is True and verify["max_abs_logit_diff"] <= 1e-4
         seg = OnnxSegmenter(model)
         meta: SegmenterMetadata = seg.metadata
         assert meta.experiment == f"ci_{name}" and meta.class_names == CLASS_NAMES
-        ckpt = select_checkpoint(out / "train" / name)
+        ckpt = select_checkpoint(out / "train" / training)
         assert (
             ckpt.name == "last.ckpt"  # the protocol's default: no target labels choose it
             and meta.checkpoint_sha256 == hashlib.sha256(ckpt.read_bytes()).hexdigest()
         )
         assert (out / "train" / name / ".hydra" / "config.yaml").is_file()
-    adaptation = {
-        name: json.loads((out / "train" / name / STAMP).read_text())["overrides"]
-        for name in ("adapted", "source_only")
+    assert (out / "exports" / "adabn.onnx").read_bytes() != (
+        out / "exports" / "source_only.onnx"
+    ).read_bytes()
+    stamps = {
+        name: json.loads((out / "train" / name / STAMP).read_text()) for name in demo.TRAININGS
     }
-    assert "model/method=adaptsegnet" in adaptation["adapted"]
-    assert "model/method=source_only" in adaptation["source_only"]
+    assert "model/method=adaptsegnet" in stamps["adapted"]["overrides"]
+    assert "model/method=source_only" in stamps["source_only"]["overrides"]
+    for name, stamp in stamps.items():  # both from the packaged init, keyed on its content
+        assert f"model.net.weights_path={demo_init_path()}" in stamp["overrides"], name
+        assert stamp["init"] == file_sha256(demo_init_path())
     comparison = (out / "slam" / "comparison.md").read_text()
     assert all(f" {v.name} " in comparison.splitlines()[2] for v in demo.VARIANTS)
 
@@ -108,7 +130,7 @@ def test_demo_ci_end_to_end_then_reused(
     assert demo.main(["--out", str(out), "--experiment", "ci", "--quiet"]) == 0
     again = capsys.readouterr().out
     done = [line for line in again.splitlines() if line.startswith("[") and " in " in line]
-    assert len(done) == 12
+    assert len(done) == STEPS
     assert all(": reused in " in line for line in done[:-1]), done
     assert {p: p.stat().st_mtime_ns for p in out.rglob("metrics.json")} == mtimes
     assert json.loads((out / "summary.json").read_text())["rows"] == rows
@@ -127,9 +149,9 @@ def test_demo_ci_end_to_end_then_reused(
     assert demo.main(argv) == 0
     lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("[")]
     done = [line for line in lines if " in " in line and " ..." not in line]
-    assert all(": reused in " in line for line in done[:5]), done  # data, trainings, exports
-    assert ": redone (sequence changed): " in done[5], done[5]  # mIoU
-    assert all(": redone (inputs.sequence changed): " in line for line in done[6:11]), done
+    assert all(": reused in " in line for line in done[:6]), done  # data, trainings, exports
+    assert ": redone (sequence changed): " in done[6], done[6]  # mIoU
+    assert all(": redone (inputs.sequence changed): " in line for line in done[7:13]), done
     summary = json.loads((out / "summary.json").read_text())
     assert summary["sequence"] == str(seq)
     assert [r["ate_rmse"] for r in summary["rows"]] != [r["ate_rmse"] for r in rows]
@@ -140,8 +162,8 @@ def test_demo_ci_end_to_end_then_reused(
     assert demo.main(argv) == 0
     lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("[")]
     done = [line for line in lines if " in " in line and " ..." not in line]
-    assert all(": reused in " in line for line in done[:6]), done  # up to mIoU
-    assert all(": redone (defaults changed): " in line for line in done[6:11]), done
+    assert all(": reused in " in line for line in done[:7]), done  # up to mIoU
+    assert all(": redone (defaults changed): " in line for line in done[7:13]), done
 
 
 def test_options_default_to_reuse() -> None:
