@@ -154,6 +154,6 @@ def test_help_documents_everything(capsys) -> None:
                 assert word in text, word
         if command == ["voc"]:
             assert "--outfits {classic,varied,all}" in text and "varied = every kind of" in text
-            assert "--style {source,target}" in text and "labelled" in text
+            assert "--style {source,target,mixed}" in text and "labelled" in text and "COCO" in text
         if command == []:
             assert "{sequence,voc}" in text and "killed" in text and OUTPUT_MARKER in text
