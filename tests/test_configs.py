@@ -287,8 +287,6 @@ def test_option_instantiates(case: Case, tmp_path: Path) -> None:
 
 def _tiny_data_overrides(cfg: DictConfig, data: dict[str, Path]) -> list[str]:
     """Point whatever data config the experiment composed at the tiny synthetic data."""
-    if "roots" not in cfg.data.target:  # data=pretrain: one VOC tree is every split
-        return [f"data.source.root={data['voc']}"]
     if "voc" in cfg.data.source:  # data=real: the synthetic VOC tree stands in for VOC
         return [
             "data/source=[voc]",
@@ -297,6 +295,8 @@ def _tiny_data_overrides(cfg: DictConfig, data: dict[str, Path]) -> list[str]:
             "data.source.selection.require=any",
             f"data.target.roots=[{data['target']}]",
         ]
+    if cfg.data.val._target_.endswith("VOCSegmentation"):  # data=pretrain: one VOC tree
+        return [f"data.source.root={data['voc']}"]
     return [
         f"data.source.root={data['voc']}",
         f"data.target.roots=[{data['target']}]",
