@@ -66,6 +66,10 @@ class TrackerConfig:
     """Without a motion model (the second frame, the first after a relocalisation) match the
     reference keyframe by descriptor, as ORB-SLAM2 (``TrackReferenceKeyFrame``); False = project
     the local map with the last pose."""
+    check_orientation: bool = True
+    """Keep only matches of a consistent image rotation when matching the last frame by
+    projection, the reference keyframe and relocalisation candidates by descriptor (ORB-SLAM2's
+    ``mbCheckOrientation`` rotation histogram, :func:`.projection.rotation_consistent`)."""
     local_keyframes: int = 10
     keyframe_ratio: float = 0.75
     """New keyframe when inliers < this × the reference keyframe's tracked points (ORB-SLAM2 RGB-D)."""

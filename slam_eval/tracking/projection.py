@@ -13,6 +13,25 @@ from ..geometry import invert, project, transform
 from ..map.slam_map import SlamMap
 from .config import TrackerConfig
 
+ROTATION_BINS = 30
+"""Bins of the rotation histogram (ORB-SLAM2's ``HISTO_LENGTH``)."""
+
+
+def rotation_consistent(reference_angle: np.ndarray, angle: np.ndarray) -> np.ndarray:
+    """ORB-SLAM2's orientation check (``mbCheckOrientation``, ``ComputeThreeMaxima``): the
+    keypoint-angle changes ``reference_angle - angle`` (degrees) of a set of matches are binned
+    in a 30-bin histogram, and only the matches in the three fullest bins are kept (the second
+    and third only with at least 10% of the fullest's count). Between two views the image turns
+    by one angle for every true match; wrong matches spread over all bins. Returns ``(M,)`` bool."""
+    if len(angle) == 0:
+        return np.zeros(0, bool)
+    turn = np.mod(np.asarray(reference_angle, np.float64) - angle, 360.0)
+    bins = np.minimum((turn * ROTATION_BINS / 360.0).astype(np.int64), ROTATION_BINS - 1)
+    counts = np.bincount(bins, minlength=ROTATION_BINS)
+    order = np.argsort(-counts, kind="stable")[:3]
+    keep = order[counts[order] >= max(0.1 * counts[order[0]], 1)]
+    return np.isin(bins, keep)
+
 
 class ProjectionMatcher:
     """Projection matching into frames of one camera: ``k`` (3, 3), ``size`` ``(width, height)``
@@ -97,11 +116,13 @@ class ProjectionMatcher:
             ratio=self.config.ratio,
         )
 
-    def match_points(self, world, desc, level, pose_cw, features, available, radius):
+    def match_points(self, world, desc, level, pose_cw, features, available, radius, angle=None):
         """Points ``world`` (with their descriptors and the level they were seen at) projected
         with ``pose_cw`` and matched to the ``available`` keypoints within ``radius`` × their
         level's scale (ORB-SLAM2's frame-to-frame ``SearchByProjection``): ``(query, keypoint)``
-        index arrays."""
+        index arrays. ``angle`` (M,) degrees, the points' keypoint angles in the view they come
+        from: the matches are checked for a consistent image rotation
+        (:func:`rotation_consistent`, ``check_orientation``)."""
         cam = transform(pose_cw, world)
         w, h = self.size
         front = cam[:, 2] > 1e-6
@@ -110,4 +131,8 @@ class ProjectionMatcher:
         q = np.flatnonzero(inside)
         radii = radius * self.scales[level[q]]
         m = self.guided(uv[q], radii, level[q], (desc[q],), features, available)
-        return q[m.query], m.keypoint
+        query, kp = q[m.query], m.keypoint
+        if angle is not None and self.config.check_orientation:
+            keep = rotation_consistent(angle[query], features.angle[kp])
+            query, kp = query[keep], kp[keep]
+        return query, kp

@@ -113,6 +113,8 @@ class Tracker:
         """Frame index of the latest relocalisation."""
         self.lost_events = 0
         self._current_index = 0
+        self._last_frame_keypoints = np.zeros(0, np.int64)
+        """Keypoints of the last frame behind :meth:`_last_frame_points`' points, in order."""
         self._last_frame: tuple[Features, np.ndarray, np.ndarray] | None = None
         """The last tracked frame's features, its map point per keypoint
         and the keypoints its visual odometry may use (static, not a keyframe's)."""
@@ -437,9 +439,10 @@ class Tracker:
         assert self.velocity is not None and self.last_pose_cw is not None
         predicted = self.velocity @ self.last_pose_cw
         world, desc, level, map_ids = self._last_frame_points()
+        angle = self._last_frame_angles()
         for radius in (cfg.search_radius, 2 * cfg.search_radius):
             query, kp = self.projection.match_points(
-                world, desc, level, predicted, features, static, radius
+                world, desc, level, predicted, features, static, radius, angle
             )
             if len(query) >= cfg.min_matches:
                 break
@@ -461,6 +464,12 @@ class Tracker:
             return self._track_reference(features, static)
         return None, None
 
+    def _last_frame_angles(self) -> np.ndarray:
+        """``(M,)`` keypoint angles, degrees, of :meth:`_last_frame_points`' points, in order."""
+        assert self._last_frame is not None
+        feats = self._last_frame[0]
+        return feats.angle[self._last_frame_keypoints]
+
     def _last_frame_points(self):
         """``(world (M, 3), descriptors (M, 32), level (M,), map id or -1 (M,))`` of the last
         frame: its good map points, then its visual-odometry points (nearest first, every one
@@ -481,6 +490,7 @@ class Tracker:
         desc = np.concatenate([pts.descriptor.view[ids[own]], feats.descriptors[vo]], axis=0)
         level = np.concatenate([feats.octave[own], feats.octave[vo]])
         map_ids = np.concatenate([ids[own], np.full(len(vo), -1, np.int64)])
+        self._last_frame_keypoints = np.concatenate([own, vo])
         return world, desc, level, map_ids
 
     def _track_local_map_vo(self, pose_cw, features, static, world, map_ids, kp):
@@ -517,8 +527,15 @@ class Tracker:
         moves fast when tracking starts (a hand-held Kinect turning at 1.5 rad/s moves the
         image ~25 px per frame, beyond twice the 7 px window)."""
         assert self.reference is not None
-        found = self.match_keyframe(
-            features, np.flatnonzero(static), self.reference, 0.7, self.config.max_hamming, 15
+        found = match_keyframe(
+            self.map,
+            features,
+            np.flatnonzero(static),
+            self.reference,
+            0.7,
+            self.config.max_hamming,
+            15,
+            self.config.check_orientation,
         )
         if found is None or len(found[0]) < 15:
             return None, None

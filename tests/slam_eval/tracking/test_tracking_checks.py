@@ -1,9 +1,11 @@
 """What the tracker accepts: no zero-motion guess without a motion model, the doubled search
-window, a pose that fails its inlier check taken back, frames without depth never posed."""
+window, a pose that fails its inlier check taken back, frames without depth never posed, matches
+of one image rotation only."""
 
 from __future__ import annotations
 
 import shutil
+from dataclasses import replace
 
 import cv2
 import numpy as np
@@ -14,6 +16,8 @@ from uss_slam.slam_eval.frontend.orb import Features, OrbConfig, OrbExtractor
 from uss_slam.slam_eval.segmenters.base import NoSegmenter
 from uss_slam.slam_eval.sequence import TumSequence
 from uss_slam.slam_eval.systems.harness import SlamPipeline
+from uss_slam.slam_eval.tracking.projection import rotation_consistent
+from uss_slam.slam_eval.tracking.relocalisation import match_keyframe
 from uss_slam.slam_eval.tracking.tracker import Tracker, TrackerConfig, TrackingState
 
 
@@ -60,9 +64,9 @@ def test_the_motion_model_doubles_its_window_below_min_matches(static_frames) ->
     match_points = tracker.projection.match_points
     radii = []
 
-    def few_in_the_narrow_window(world, desc, level, pose, features, static, radius):
+    def few_in_the_narrow_window(world, desc, level, pose, features, static, radius, angle):
         radii.append(radius)
-        query, kp = match_points(world, desc, level, pose, features, static, radius)
+        query, kp = match_points(world, desc, level, pose, features, static, radius, angle)
         if radius == tracker.config.search_radius:
             return query[:5], kp[:5]  # as if the camera had turned beyond the window
         return query, kp
@@ -119,3 +123,41 @@ def test_frames_without_depth_are_not_posed_and_counted(synthetic_sequence, tmp_
     assert result.tracked == 27 and len(result.trajectory.stamps) == 27
     err = capsys.readouterr().err
     assert f"{path}: 3 frame(s) with an all-zero depth image (frame index 10 first)" in err
+
+
+def test_matches_of_an_inconsistent_image_rotation_are_dropped() -> None:
+    # 60 true matches whose keypoints turned by 40 degrees (±2), 30 wrong ones at random angles:
+    # ORB-SLAM2's rotation histogram keeps the bin of 40 degrees and at most two others.
+    rng = np.random.default_rng(0)
+    reference = rng.uniform(0, 360, 90)
+    turn = np.r_[40 + rng.uniform(-2, 2, 60), rng.uniform(0, 360, 30)]
+    angle = np.mod(reference - turn, 360)
+    keep = rotation_consistent(reference, angle)
+    assert keep[:60].all()
+    assert keep[60:].sum() <= 6  # wrong matches in the kept bins only
+    wrapped = rotation_consistent(np.array([359.0, 1.0, 2.0]), np.array([1.0, 3.0, 4.0]))
+    assert wrapped.all()  # -2 degrees = 358: one bin across the wrap
+    assert rotation_consistent(np.zeros(0), np.zeros(0)).shape == (0,)
+
+
+def test_the_reference_keyframe_match_checks_the_rotation(static_frames) -> None:
+    _, ex, frames, feats = static_frames
+    tracker = Tracker(TrackerConfig(), ex)
+    _step(tracker, frames, 0, feats[0])
+    kf = tracker.map.keyframes[0]
+    f = feats[0]
+    query = np.arange(len(f))
+    plain = match_keyframe(tracker.map, f, query, kf, 0.7, 100, 15)
+    # The same frame with a third of its keypoint angles scrambled: those matches are dropped
+    # (but for the few whose random turn falls in a kept bin).
+    scrambled = replace(f, angle=f.angle.copy())
+    bad = np.arange(len(f)) % 3 == 0
+    turn = np.random.default_rng(0).uniform(0, 360, bad.sum())
+    scrambled.angle[bad] = np.mod(f.angle[bad] - turn, 360)
+    checked = match_keyframe(tracker.map, scrambled, query, kf, 0.7, 100, 15, True)
+    unchecked = match_keyframe(tracker.map, scrambled, query, kf, 0.7, 100, 15, False)
+    np.testing.assert_array_equal(unchecked[0], plain[0])
+    good_before, bad_before = (~bad[plain[0]]).sum(), bad[plain[0]].sum()
+    assert bad_before > 100
+    assert (~bad[checked[0]]).sum() >= 0.95 * good_before
+    assert bad[checked[0]].sum() <= 0.1 * bad_before
