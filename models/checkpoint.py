@@ -44,7 +44,14 @@ class CheckpointInfo:
     """The whole ``state_dict`` (segmenter and discriminators)."""
 
 
-def _load(path: Path) -> object:
+def load_checkpoint_file(path: Path) -> object:
+    """``torch.load`` of ``path`` on the CPU with ``weights_only=True`` (no pickled code runs),
+    before any check of what it holds.
+
+    Raises:
+        DataFormatError: naming ``path``: missing, not a file, empty, truncated or not a torch
+            file.
+    """
     if not path.exists():
         raise DataFormatError(path, "checkpoint not found")
     if not path.is_file():
@@ -86,7 +93,7 @@ def read_checkpoint(path: str | Path, num_classes: int | None = None) -> Checkpo
     ``num_classes`` is given and differs from the checkpoint's class count.
     """
     path = Path(path)
-    blob = _load(path)
+    blob = load_checkpoint_file(path)
     if not isinstance(blob, Mapping):
         raise DataFormatError(
             path, f"not a Lightning checkpoint: holds a {type(blob).__name__}, expected a dict"

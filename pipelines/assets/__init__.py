@@ -47,15 +47,10 @@ def extract_segmenter(checkpoint: str | Path, out: str | Path) -> ExtractedInit:
     """
     import torch
 
+    from uss_slam.models.checkpoint import load_checkpoint_file
+
     checkpoint = Path(checkpoint)
-    if not checkpoint.is_file():
-        raise DataFormatError(checkpoint, "checkpoint not found; expected a uss-train .ckpt")
-    try:
-        blob = torch.load(checkpoint, map_location="cpu", weights_only=False)
-    except Exception as error:  # unpickling errors have no common base class
-        raise DataFormatError(
-            checkpoint, f"not a readable checkpoint ({type(error).__name__}: {error})"
-        ) from error
+    blob = load_checkpoint_file(checkpoint)
     state = blob.get("state_dict") if isinstance(blob, dict) else None
     if not isinstance(state, dict):
         raise DataFormatError(checkpoint, "expected a uss-train checkpoint with a state_dict")
