@@ -110,7 +110,7 @@ def test_demo_ci_end_to_end_then_reused(
             ckpt.name == "last.ckpt"  # the protocol's default: no target labels choose it
             and meta.checkpoint_sha256 == hashlib.sha256(ckpt.read_bytes()).hexdigest()
         )
-        assert (out / "train" / name / ".hydra" / "config.yaml").is_file()
+        assert (out / "train" / training / ".hydra" / "config.yaml").is_file()
     assert (out / "exports" / "adabn.onnx").read_bytes() != (
         out / "exports" / "source_only.onnx"
     ).read_bytes()
