@@ -119,6 +119,37 @@ class Stage:
         self.started.unlink(missing_ok=True)
 
 
+def staging_folder(folder: Path) -> Path:
+    """The hidden sibling a stage with an earlier result works in (``.<name>.next``): the earlier
+    result stays whole until :func:`swap_in` replaces it with a successful new one."""
+    return folder.with_name(f".{folder.name}.next")
+
+
+def _retired(folder: Path) -> Path:
+    return folder.with_name(f".{folder.name}.old")
+
+
+def swap_in(new: Path, folder: Path) -> None:
+    """Replace ``folder`` by ``new`` (its staging folder, complete): two renames in one parent
+    folder, then the earlier result is deleted. Killed between the renames, :func:`recover`
+    puts the earlier result back."""
+    old = _retired(folder)
+    if old.exists():
+        shutil.rmtree(old)
+    if folder.exists():
+        folder.rename(old)
+    new.rename(folder)
+    if old.exists():
+        shutil.rmtree(old)
+
+
+def recover(folder: Path) -> None:
+    """Undo a :func:`swap_in` killed half-way: the earlier result back in ``folder``."""
+    old = _retired(folder)
+    if old.exists() and not folder.exists():
+        old.rename(folder)
+
+
 def _changed(new: Any, old: Any, prefix: str = "") -> list[str]:
     """The dotted names of the entries that differ between two JSON values (mappings are
     followed down; anything else that differs is named as a whole)."""

@@ -41,7 +41,7 @@ from .data import Data, stage_data
 from .experiment import Experiment, check, check_choices, eval_seed
 from .grid import AdaBNCell, given, method_overrides
 from .jobs import reason_of, stage_of
-from .launch import NOT_RUN, Launch, describe_plan, launch, result_rows, status_of
+from .launch import KEPT, NOT_RUN, Launch, describe_plan, launch, result_rows, status_of
 from .plan import (
     ADABN_BATCH_SIZE,
     ADABN_IMAGES,
@@ -55,6 +55,7 @@ from .plan import (
     plan_train,
     source_val_held_out,
 )
+from .validate import check_job_configs
 from .warm_start import describe_init, init_header, stage_init
 
 PROG = "uss-experiments"
@@ -76,6 +77,13 @@ def _run_experiments(exp: Experiment) -> dict[str, Any]:
     dry = bool(exp.cfg.get("dry_run"))
     progress = Progress(total=len(exp.stages))
     data_holder: dict[str, Data] = {}
+    # every job's config composed and checked before any work (the data stage included)
+    t0 = time.perf_counter()
+    n_train, n_slam = check_job_configs(exp, stage_data(exp, run=False, dry=True)[0])
+    print(
+        f"configs: {n_train} training and {n_slam} SLAM configs composed and checked in "
+        f"{time.perf_counter() - t0:.1f} s"
+    )
 
     def do_data() -> str:
         run = "data" in exp.stages and not dry
@@ -162,7 +170,14 @@ def _run_experiments(exp: Experiment) -> dict[str, Any]:
             )
 
         progress.run("tables", "tables", do_tables)
-    bad = sorted({r["id"] for r in rows if r["status"] != "ok" and r["reason"] != NOT_RUN})
+    bad = sorted(
+        {
+            r["id"]
+            for r in rows
+            if (r["status"] != "ok" and r["reason"] != NOT_RUN)
+            or str(r.get("reason") or "").startswith(KEPT)
+        }
+    )
     total = time.perf_counter() - progress.start
     print(
         f"{PROG}: done in {total:.1f} s; {len({r['id'] for r in rows})} jobs, "
@@ -348,6 +363,13 @@ def _app(cfg: DictConfig) -> None:
     if result is None:  # under -m, a sweep that failed: the other sweeps go on
         return
     if result.get("failed"):
+        failed = result["failed"]
+        print(
+            f"{PROG}: error: {len(failed)} job{'' if len(failed) == 1 else 's'} without a new "
+            f"result: {', '.join(failed)} (their reasons: the Failures table, runs.csv)",
+            file=sys.stderr,
+            flush=True,
+        )
         sys.exit(1)
 
 

@@ -308,6 +308,18 @@ def check_batchnorm(plain: Mapping[str, Any], grid: Grid) -> None:
                 )
 
 
+def check_parallelism(plain: Mapping[str, Any], missing: Sequence[str]) -> None:
+    """``train.num_threads`` and the launcher's ``n_jobs`` (each section's): an integer >= 1
+    (``num_threads``: or null), before any work instead of inside every job."""
+    integer("train.num_threads", plain["train"].get("num_threads"), 1, nullable=True)
+    launcher = plain.get("launcher") or {}
+    for section in ("params", "train", "slam"):
+        node = launcher.get(section) or {}
+        key = f"launcher.{section}.n_jobs"
+        if isinstance(node, Mapping) and "n_jobs" in node and key not in missing:
+            integer(key, node["n_jobs"], 1)
+
+
 def eval_seed(cfg: Mapping[str, Any], name: str) -> int:
     """The held-out seed of synthetic evaluation sequence ``name``."""
     return int(cfg["data"]["synthetic"]["eval_seed"]) + SYNTHETIC_SEQUENCES.index(name)
@@ -348,6 +360,7 @@ def check(cfg: DictConfig) -> Experiment:
     check_crf(plain, grid)
     launcher = plain.get("launcher") or {}
     choose("launcher.name", launcher.get("name"), LAUNCHERS)
+    check_parallelism(plain, missing)
     if "orbslam3" in grid.systems:
         check_orbslam3(plain["slam"].get("orbslam3") or {})
     if synthetic:

@@ -17,6 +17,10 @@ job directory), logs to ``OUT/logs/<id>.log`` and ends in one of two ways:
 - failed: ``failure.json`` with the reason (one line) and the traceback; the job returns normally,
   so a failure never stops the other jobs (a failed training starts afresh next time).
 
+A job whose folder holds a finished result of other inputs runs in a hidden sibling folder
+(``.<name>.next``) that replaces the earlier result only once the new one is written: a failed
+rerun leaves the earlier result byte for byte, with ``failure.json`` beside it.
+
 A job also runs alone (to debug one cell): the same command without ``-m`` and with one id.
 """
 
@@ -29,6 +33,7 @@ import shutil
 import time
 import traceback
 from collections.abc import Callable, Mapping
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -46,7 +51,7 @@ from uss_slam.pipelines.runs import (
     run_training,
     select_checkpoint,
 )
-from uss_slam.pipelines.stages import Stage
+from uss_slam.pipelines.stages import Stage, recover, staging_folder, swap_in
 
 from .tables import SOURCE_VAL
 
@@ -214,18 +219,24 @@ def run_cell(plan_path: Path, out: Path, cell: str) -> dict[str, Any]:
     die_with_parent(os.getppid())
     end_with_watched()
     stage = stage_of(out, spec, cell)
+    recover(stage.folder)
     if stage.complete():
         log.info("%s: complete already, reused", cell)
         return {"status": "reused"}
-    stage.start()  # a training interrupted earlier (same key) is kept, and goes on
+    # A finished earlier result (of other inputs) is replaced only by a successful new one: the
+    # job then works in a hidden sibling folder, swapped in once its result is written.
+    earlier = (stage.folder / RESULT).is_file()
+    work = replace(stage, folder=staging_folder(stage.folder)) if earlier else stage
+    work.start()  # a training interrupted earlier (same key) is kept, and goes on
     t0 = time.perf_counter()
     try:
-        result = KINDS[spec["kind"]](stage.folder, spec)
+        result = KINDS[spec["kind"]](work.folder, spec)
     except Exception as error:
-        stage.abandon()  # failed, not interrupted: the next run starts it afresh
+        work.abandon()  # failed, not interrupted: the next run starts it afresh
         seconds = time.perf_counter() - t0
         reason = reason_of(error)
         log.error("%s failed after %.1f s: %s", cell, seconds, reason, exc_info=True)
+        stage.folder.mkdir(parents=True, exist_ok=True)
         write_json_atomic(
             stage.folder / FAILURE,
             {
@@ -237,8 +248,10 @@ def run_cell(plan_path: Path, out: Path, cell: str) -> dict[str, Any]:
         )
         return {"status": "failed", "reason": reason}
     result["seconds"] = time.perf_counter() - t0
-    write_json_atomic(stage.folder / RESULT, result)
-    stage.finish()
+    write_json_atomic(work.folder / RESULT, result)
+    work.finish()
+    if earlier:
+        swap_in(work.folder, stage.folder)
     log.info("%s: done in %.1f s", cell, result["seconds"])
     return {"status": "ok", "seconds": result["seconds"]}
 

@@ -27,6 +27,9 @@ from .overrides import hydra_value
 from .plan import Job
 
 NOT_RUN = "not run yet (its stage was not run)"
+KEPT = "rerun failed, the earlier result kept: "
+"""The reason of a job whose rerun (other inputs) failed: its row keeps the earlier result's
+figures, and the Failures table lists it."""
 
 
 def launcher_overrides(exp: Experiment, stage: str) -> list[str]:
@@ -194,11 +197,13 @@ def status_of(
     failure = stage.folder / FAILURE
     if failure.is_file():
         record = json.loads(failure.read_text())
-        return (
-            "failed",
-            f"{record['reason']} (log: logs/{job.id}.log)",
-            {"seconds": record.get("seconds")},
-        )
+        reason = f"{record['reason']} (log: logs/{job.id}.log)"
+        if (stage.folder / RESULT).is_file():  # the rerun failed: the earlier result stands
+            result = json.loads((stage.folder / RESULT).read_text())
+            if job.spec["kind"] == "slam":
+                result["timing_ms"] = slam_timing(stage.folder / "metrics.json")
+            return "ok", KEPT + reason, result
+        return "failed", reason, {"seconds": record.get("seconds")}
     launched = launches.get("train" if job.spec["kind"] == "train" else "slam")
     if launched is None:
         return "missing", NOT_RUN, {}

@@ -185,7 +185,7 @@ def test_launcher_overrides_merge_the_stage_section() -> None:
         (["sequences=[walking_xyz,kitchen]"], "sequences: unknown value 'kitchen'; accepted: "),
         (
             ["train.experiment=nope"],
-            "train.experiment: unknown value 'nope'; accepted: ci, demo, pretrain, uss_slam_paper",
+            "train.experiment: unknown value 'nope'; accepted: ci, demo, demo_scratch, pretrain, uss_slam_paper",
         ),
         (
             ["systems=[harness,orbslam2]"],
@@ -313,7 +313,7 @@ def test_missing_launcher_key_is_named_before_launching(tmp_path: Path) -> None:
         (
             ["train.experiment=nope"],
             "uss-experiments: error: train.experiment: unknown value 'nope'; accepted: ci, demo, "
-            "pretrain, uss_slam_paper",
+            "demo_scratch, pretrain, uss_slam_paper",
         ),
         (
             ["systems=[harness,orbslam2]"],
@@ -496,8 +496,9 @@ def test_an_interrupted_training_goes_on_from_its_last_checkpoint(
     import torch
     from shared_helpers import data_overrides
 
-    def iteration() -> int:
-        return torch.load(folder / "checkpoints" / "last.ckpt", weights_only=True)["iteration"]
+    def iteration(where: Path | None = None) -> int:
+        ckpt = (where or folder) / "checkpoints" / "last.ckpt"
+        return torch.load(ckpt, weights_only=True)["iteration"]
 
     common = [
         "experiment=ci",
@@ -525,13 +526,18 @@ def test_an_interrupted_training_goes_on_from_its_last_checkpoint(
     assert jobs.run_cell(_train_plan(tmp_path, common, "c"), tmp_path, "train/a")["status"] == "ok"
     assert "resumed_from_iteration" not in json.loads((folder / jobs.RESULT).read_text())
 
-    # interrupted, then a run of the same key that fails: the next one starts afresh
+    # interrupted, then a run of the same key that fails: the next one starts afresh; all the
+    # while the finished result of key "c" stays (the reruns work in the staging folder)
+    staging = folder.with_name(".a.next")
     with pytest.raises(KeyboardInterrupt):
         jobs.run_cell(_train_plan(tmp_path, [*common, *stop], "d"), tmp_path, "train/a")
+    assert iteration(staging) == 2 and iteration() == 4
     bad = _train_plan(tmp_path, [*common, "model.optimizer.lr=-1"], "d")
     assert jobs.run_cell(bad, tmp_path, "train/a")["status"] == "failed"
-    assert iteration() == 2  # a failed run leaves the checkpoints it found
+    assert iteration(staging) == 2  # a failed run leaves the checkpoints it found
+    assert (folder / jobs.FAILURE).is_file() and (folder / jobs.RESULT).is_file()
     assert jobs.run_cell(_train_plan(tmp_path, common, "d"), tmp_path, "train/a")["status"] == "ok"
+    assert not staging.exists() and not (folder / jobs.FAILURE).exists()
     assert "resumed_from_iteration" not in json.loads((folder / jobs.RESULT).read_text())
     assert iteration() == 4
 

@@ -9,7 +9,8 @@ from .runs_csv import STATUSES
 
 
 def table_failures(rows) -> tuple[list[dict[str, Any]], list[str]]:
-    bad = [r for r in rows if r["status"] != "ok"]
+    # an "ok" row with a reason: its rerun failed and the earlier result was kept
+    bad = [r for r in rows if r["status"] != "ok" or r.get("reason")]
     data = [{"id": r["id"], "status": r["status"], "reason": r.get("reason") or ""} for r in bad]
     seen: set[str] = set()
     body = []
@@ -22,6 +23,9 @@ def table_failures(rows) -> tuple[list[dict[str, Any]], list[str]]:
     if not body:
         return data, [*lines, "Every job succeeded.", ""]
     counts = {s: len({r["id"] for r in bad if r["status"] == s}) for s in STATUSES[1:]}
+    counts["rerun failed (earlier result kept)"] = len(
+        {r["id"] for r in bad if r["status"] == "ok"}
+    )
     lines += [
         ", ".join(f"{n} {s}" for s, n in counts.items() if n) + " (blocked = an earlier job "
         "it needs failed; missing = the job left no result: killed or interrupted).",
