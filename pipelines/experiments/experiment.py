@@ -284,20 +284,19 @@ def check_batchnorm(plain: Mapping[str, Any], grid: Grid) -> None:
         return
     from hydra.utils import get_class
 
-    from uss_slam.core.cli import hydra_error_line
     from uss_slam.pipelines.runs import compose_config
+
+    from .overrides import config_error_line
 
     overrides = [f"experiment={plain['train']['experiment']}"]
     overrides += [str(o) for o in plain["train"].get("overrides") or []]
     try:
         target = str(compose_config("train", overrides).model.net._target_)
     except Exception as error:
-        line = hydra_error_line(error)
+        line = config_error_line(error, "training")
         if line is None:
             raise
-        raise UssSlamError(
-            f"train.overrides: the training config does not compose ({line})"
-        ) from None
+        raise UssSlamError(f"train.overrides: {line}") from None
     supported = tuple(getattr(get_class(target), "BATCHNORM_SUPPORTED", ()))
     for method, modes in asked.items():
         for mode in modes:

@@ -35,3 +35,23 @@ def hydra_value(value: Any) -> str:
         return text  # a plain Hydra string: no quotes needed
     text = text.replace("\\", "\\\\").replace("'", "\\'")
     return f"'{text}'"
+
+
+_NOT_IN_STRUCT = re.compile(r"(?:(?P<path>\S+): )?Key '(?P<key>[^']+)' is not in struct")
+
+
+def config_error_line(error: Exception, what: str) -> str | None:
+    """The line of an error composing or checking a job's config (``<key>: <what was
+    expected>``; ``what`` names the config: ``training``, ``uss-slam``), None for an error that
+    is not about the config."""
+    from uss_slam.core.cli import hydra_error_line
+    from uss_slam.core.errors import UssSlamError
+
+    line = str(error).strip() if isinstance(error, UssSlamError) else hydra_error_line(error)
+    if line is None:
+        return None
+    found = _NOT_IN_STRUCT.fullmatch(line)
+    if found:
+        key = found["path"] or found["key"]
+        return f"{key}: not a key of the {what} config (a new key needs +{key}=VALUE)"
+    return line

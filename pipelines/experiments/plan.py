@@ -24,7 +24,7 @@ from .data import Data, synthetic_data_spec
 from .experiment import Experiment
 from .grid import ORACLE, VARIANTS, AdaBNCell, Model, SlamCell, TrainCell, given, source_val_stride
 from .jobs import stage_of
-from .overrides import hydra_value
+from .overrides import config_error_line, hydra_value
 from .tables import SOURCE_VAL
 
 FAST_TRAIN = (
@@ -127,7 +127,6 @@ def _composed_source(base: tuple[str, ...]) -> dict[str, Any]:
     its ``transform`` and ``on_error`` (resolved) and the VOC ``split`` it reads."""
     from omegaconf import OmegaConf
 
-    from uss_slam.core.cli import hydra_error_line
     from uss_slam.pipelines.runs import compose_config
 
     try:
@@ -139,12 +138,10 @@ def _composed_source(base: tuple[str, ...]) -> dict[str, Any]:
             if k in node
         }
     except Exception as error:  # a bad train.overrides entry: one line
-        line = hydra_error_line(error)
+        line = config_error_line(error, "training")
         if line is None:
             raise
-        raise UssSlamError(
-            f"train.overrides: the training config does not compose ({line})"
-        ) from None
+        raise UssSlamError(f"train.overrides: {line}") from None
     split = OmegaConf.select(cfg, "data.source.split", default=None)
     found["split"] = OmegaConf.select(cfg, "data.source.voc.split", default=split)
     return found

@@ -12,7 +12,6 @@ composed once."""
 from __future__ import annotations
 
 import functools
-import re
 from pathlib import Path
 
 from uss_slam.core.errors import UssSlamError
@@ -20,6 +19,7 @@ from uss_slam.core.errors import UssSlamError
 from .data import Data
 from .experiment import Experiment
 from .grid import METHODS, REFERENCE_METHODS, TrainCell
+from .overrides import config_error_line
 from .plan import Job, common_overrides, plan_slam, plan_train, runtime_overrides
 
 PER_JOB_TRAIN = ("seed=", "run_name=", "model.net.weights_path=")
@@ -31,7 +31,6 @@ PER_JOB_SLAM = ("sequence.path=", "segmenter.path=", "system.vocabulary=")
 stand-in path."""
 
 _STAND_IN = "/dev/null"
-_NOT_IN_STRUCT = re.compile(r"(?:(?P<path>\S+): )?Key '(?P<key>[^']+)' is not in struct")
 
 
 def check_job_configs(exp: Experiment, data: Data) -> tuple[int, int]:
@@ -94,21 +93,6 @@ def _check_slam(exp: Experiment, job: Job) -> None:
     raise UssSlamError(f"SLAM job {job.id}: {problem}")
 
 
-def _one_line(error: Exception, what: str) -> str | None:
-    """The line of a composition or check error (``<key>: <what was expected>``), None for an
-    error that is not about the config."""
-    from uss_slam.core.cli import hydra_error_line
-
-    line = str(error).strip() if isinstance(error, UssSlamError) else hydra_error_line(error)
-    if line is None:
-        return None
-    found = _NOT_IN_STRUCT.fullmatch(line)
-    if found:
-        key = found["path"] or found["key"]
-        return f"{key}: not a key of the {what} config (a new key needs +{key}=VALUE)"
-    return line
-
-
 @functools.lru_cache(maxsize=512)
 def _train_problem(overrides: tuple[str, ...]) -> str | None:
     """What is wrong with the ``train`` config composed with ``overrides`` (None: nothing)."""
@@ -122,7 +106,7 @@ def _train_problem(overrides: tuple[str, ...]) -> str | None:
         check_config_types(cfg, TYPED_SECTIONS)
         check_optimizers(cfg)
     except Exception as error:
-        line = _one_line(error, "training")
+        line = config_error_line(error, "training")
         if line is None:
             raise
         return line
@@ -140,7 +124,7 @@ def _slam_problem(overrides: tuple[str, ...]) -> str | None:
     try:
         check(compose_config("slam_eval", [*overrides, f"out_dir={_STAND_IN}", "progress=false"]))
     except Exception as error:
-        line = _one_line(error, "uss-slam")
+        line = config_error_line(error, "uss-slam")
         if line is None:
             raise
         return line

@@ -1,0 +1,166 @@
+"""Every job's config is composed and checked in the plan, before any work (dry run or not), and a
+failed rerun of a job leaves its earlier result byte for byte."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from pathlib import Path
+from types import SimpleNamespace
+from typing import Any
+
+import pytest
+from hydra import compose, initialize_config_dir
+
+from uss_slam.core.errors import UssSlamError
+from uss_slam.core.files import write_json_atomic
+from uss_slam.pipelines.experiments import cli, jobs, launch
+from uss_slam.pipelines.experiments.plan import Job
+from uss_slam.pipelines.experiments.tables.failures import table_failures
+
+CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
+
+
+def compose_experiments(*overrides: str):
+    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
+        return compose("experiments", overrides=list(overrides))
+
+
+BAD = [
+    (
+        'train.overrides=["model.max_iters=abc"]',
+        "train.overrides: model.max_iters: expected an integer, got 'abc'",
+    ),
+    (
+        'train.overrides=["bogus=1"]',
+        "train.overrides: bogus: not a key of the training config (a new key needs +bogus=VALUE)",
+    ),
+    (
+        'slam.overrides=["bogus=1"]',
+        "slam.overrides: bogus: not a key of the uss-slam config (a new key needs +bogus=VALUE)",
+    ),
+    (
+        'slam.overrides=["slam.orb.n_features=abc"]',
+        "slam.overrides: slam.orb.n_features: Value 'abc' of type 'str' could not be converted "
+        "to Integer",
+    ),
+    ('slam.overrides=["slam.workers=0"]', "slam.overrides: slam.workers: must be >= 1"),
+    (
+        'grid.method_overrides={adaptsegnet:["model.bogus=1"]}',
+        "grid.method_overrides.adaptsegnet: model.bogus: not a key of the training config (a new "
+        "key needs +model.bogus=VALUE)",
+    ),
+    ("train.num_threads=0", "train.num_threads: expected an integer >= 1 or null, got 0"),
+]
+
+
+@pytest.mark.parametrize("dry", [True, False])
+@pytest.mark.parametrize(("override", "line"), BAD)
+def test_a_bad_job_setting_is_one_line_before_any_work(
+    tmp_path: Path, override: str, line: str, dry: bool
+) -> None:
+    out = tmp_path / "out"
+    cfg = compose_experiments(f"out_dir={out}", f"dry_run={str(dry).lower()}", override)
+    with pytest.raises(UssSlamError) as info:
+        cli.run_experiments(cfg)
+    assert str(info.value) == line
+    assert not (out / "data").exists() and not (out / "train").exists()
+    assert not (out / "jobs").exists()
+
+
+@pytest.mark.parametrize("dry", [True, False])
+@pytest.mark.parametrize("section", ["params", "train", "slam"])
+def test_launcher_n_jobs_below_one_is_one_line(tmp_path: Path, section: str, dry: bool) -> None:
+    out = tmp_path / "out"
+    cfg = compose_experiments(
+        f"out_dir={out}",
+        f"dry_run={str(dry).lower()}",
+        "launcher=joblib",
+        f"++launcher.{section}.n_jobs=0",
+    )
+    with pytest.raises(UssSlamError) as info:
+        cli.run_experiments(cfg)
+    assert str(info.value) == f"launcher.{section}.n_jobs: expected an integer >= 1, got 0"
+    assert not (out / "data").exists()
+
+
+def test_seeds_share_one_compose() -> None:
+    """Jobs differing only in seed and run name compose once (the cache key drops them)."""
+    from uss_slam.pipelines.experiments import validate
+
+    validate._train_problem.cache_clear()
+    base = ("experiment=ci", "paths.output_dir=/nonexistent")
+    keys = {
+        tuple(
+            o
+            for o in (*base, f"seed={s}", f"run_name=r{s}")
+            if not o.startswith(validate.PER_JOB_TRAIN)
+        )
+        for s in range(5)
+    }
+    for key in keys:
+        assert validate._train_problem(key) is None
+    assert validate._train_problem.cache_info().currsize == 1
+
+
+# ----------------------------------------------------------------- a failed rerun keeps the result
+
+
+def _plan(tmp_path: Path, key: str) -> Path:
+    spec = {"kind": "train", "key": {"k": key}, "overrides": [], "outputs": ["checkpoints/*.ckpt"]}
+    plan_file = tmp_path / "jobs" / "train.json"
+    write_json_atomic(
+        plan_file, {"stage": "train", "out": str(tmp_path), "cells": {"train/a": spec}}
+    )
+    return plan_file
+
+
+def _snapshot(folder: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(folder)): p.read_bytes() for p in folder.rglob("*") if p.is_file()}
+
+
+def test_a_failed_rerun_leaves_the_earlier_result_byte_for_byte(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    def trained(folder: Path, spec: Mapping[str, Any]) -> dict[str, Any]:
+        (folder / "checkpoints").mkdir(parents=True)
+        (folder / "checkpoints" / "last.ckpt").write_bytes(b"weights of the first run")
+        return {"checkpoint": "checkpoints/last.ckpt", "val_mIoU": 0.5}
+
+    def broken(folder: Path, spec: Mapping[str, Any]) -> dict[str, Any]:
+        (folder / "checkpoints").mkdir(parents=True)
+        (folder / "checkpoints" / "last.ckpt").write_bytes(b"half")
+        raise FileNotFoundError("data/train/rgb: no such folder")
+
+    folder = tmp_path / "train" / "a"
+    monkeypatch.setitem(jobs.KINDS, "train", trained)
+    assert jobs.run_cell(_plan(tmp_path, "first"), tmp_path, "train/a")["status"] == "ok"
+    before = _snapshot(folder)
+
+    monkeypatch.setitem(jobs.KINDS, "train", broken)
+    plan_file = _plan(tmp_path, "second")  # another key: the job reruns
+    assert jobs.run_cell(plan_file, tmp_path, "train/a")["status"] == "failed"
+    after = _snapshot(folder)
+    failure = json.loads(after.pop(jobs.FAILURE))
+    assert after == before  # the earlier result, byte for byte
+    assert failure["reason"] == "FileNotFoundError: data/train/rgb: no such folder"
+
+    # the tables keep its figures and list the failure
+    spec = json.loads(plan_file.read_text())["cells"]["train/a"]
+    job = Job("train/a", spec, {"kind": "train", "method": "source_only"})
+    exp = SimpleNamespace(out=tmp_path)
+    status, reason, result = launch.status_of(exp, job, {}, {})  # type: ignore[arg-type]
+    assert status == "ok" and result["val_mIoU"] == 0.5
+    assert reason == launch.KEPT + failure["reason"] + " (log: logs/train/a.log)"
+    rows = launch.result_rows(job, status, reason, result, [])
+    data, lines = table_failures(rows)
+    assert [r["id"] for r in data] == ["train/a"]
+    assert any("rerun failed (earlier result kept)" in line for line in lines)
+
+    # a successful rerun replaces it
+    monkeypatch.setitem(jobs.KINDS, "train", trained)
+    launch.clear_failure(folder)
+    assert jobs.run_cell(plan_file, tmp_path, "train/a")["status"] == "ok"
+    assert json.loads((folder / ".uss-demo.json").read_text()) == {"k": "second"}
+    assert not (folder / jobs.FAILURE).exists()
+    assert not folder.with_name(".a.next").exists()
