@@ -39,23 +39,22 @@ def check_job_configs(exp: Experiment, data: Data) -> tuple[int, int]:
     one line for the first bad one."""
     trainings = exp.grid.trainings
     jobs = plan_train(exp, data)
-    for cell, job in zip(trainings, jobs, strict=True):
-        _check_training(exp, data, cell, job)
-    for job in plan_slam(exp, data, {}):
-        if job.spec["kind"] == "slam":
-            _check_slam(exp, job)
-    return _train_problem.cache_info().currsize, _slam_problem.cache_info().currsize
+    train_keys = {_check_training(exp, data, c, j) for c, j in zip(trainings, jobs, strict=True)}
+    slam_keys = {_check_slam(exp, j) for j in plan_slam(exp, data, {}) if j.spec["kind"] == "slam"}
+    return len(train_keys), len(slam_keys)
 
 
 def _output_dir(exp: Experiment) -> str:
     return f"paths.output_dir={exp.out / '.config-check'}"
 
 
-def _check_training(exp: Experiment, data: Data, cell: TrainCell, job: Job) -> None:
+def _check_training(exp: Experiment, data: Data, cell: TrainCell, job: Job) -> tuple[str, ...]:
+    """Check a training's config; returns the overrides it was composed with."""
     overrides = tuple(o for o in job.spec["overrides"] if not o.startswith(PER_JOB_TRAIN))
-    problem = _train_problem((*overrides, _output_dir(exp)))
+    overrides = (*overrides, _output_dir(exp))
+    problem = _train_problem(overrides)
     if problem is None:
-        return
+        return overrides
     # which of the user's settings it is: the trainings' common ones, else the method's own
     base = (*common_overrides(exp, data), *runtime_overrides(exp), _output_dir(exp))
     line = _train_problem(base)
@@ -70,7 +69,8 @@ def _check_training(exp: Experiment, data: Data, cell: TrainCell, job: Job) -> N
     raise UssSlamError(f"training {job.id}: {problem}")
 
 
-def _check_slam(exp: Experiment, job: Job) -> None:
+def _check_slam(exp: Experiment, job: Job) -> tuple[str, ...]:
+    """Check a SLAM run's config; returns the overrides it was composed with."""
     from uss_slam.pipelines.runs import SlamJob
 
     slam = SlamJob.from_json(job.spec["job"])
@@ -80,7 +80,7 @@ def _check_slam(exp: Experiment, job: Job) -> None:
     )
     problem = _slam_problem(overrides)
     if problem is None:
-        return
+        return overrides
     given = tuple(str(o) for o in exp.cfg["slam"].get("overrides") or [])
     line = (
         _slam_problem(tuple(SlamJob(Path(_STAND_IN), extra=given).overrides())) if given else None

@@ -4,6 +4,8 @@ failed rerun of a job leaves its earlier result byte for byte."""
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 from collections.abc import Mapping
 from pathlib import Path
 from types import SimpleNamespace
@@ -19,6 +21,7 @@ from uss_slam.pipelines.experiments.plan import Job
 from uss_slam.pipelines.experiments.tables.failures import table_failures
 
 CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
+PROG = [sys.executable, "-m", "uss_slam.pipelines.experiments.cli"]
 
 
 def compose_experiments(*overrides: str):
@@ -164,3 +167,39 @@ def test_a_failed_rerun_leaves_the_earlier_result_byte_for_byte(
     assert json.loads((folder / ".uss-demo.json").read_text()) == {"k": "second"}
     assert not (folder / jobs.FAILURE).exists()
     assert not folder.with_name(".a.next").exists()
+
+
+def test_console_script_rejects_a_bad_override_before_any_work(tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    proc = subprocess.run(
+        [*PROG, f"out_dir={out}", 'train.overrides=["model.max_iters=abc"]'],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+    )
+    assert proc.returncode == 1
+    assert proc.stderr.strip() == (
+        "uss-experiments: error: train.overrides: model.max_iters: expected an integer, got 'abc'"
+    )
+    assert not (out / "data").exists() and not (out / "train").exists()
+
+
+def test_failed_jobs_are_one_line_on_stderr_and_exit_code_1(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The jobs without a new result (a failed rerun whose earlier result was kept included)
+    are named on stderr, one line, after the run."""
+    monkeypatch.setattr(
+        cli, "run_experiments", lambda cfg: {"rows": [], "tables": {}, "failed": ["train/a"]}
+    )
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(
+        sys, "argv", ["uss-experiments", f"out_dir={tmp_path}", f"hydra.run.dir={tmp_path}/h"]
+    )
+    with pytest.raises(SystemExit) as info:
+        cli.main()
+    assert info.value.code == 1
+    assert capsys.readouterr().err.strip().splitlines() == [
+        "uss-experiments: error: 1 job without a new result: train/a (their reasons: the "
+        "Failures table, runs.csv)"
+    ]
