@@ -41,6 +41,10 @@ def check_job_configs(exp: Experiment, data: Data) -> tuple[int, int]:
     jobs = plan_train(exp, data)
     train_keys = {_check_training(exp, data, c, j) for c, j in zip(trainings, jobs, strict=True)}
     slam_keys = {_check_slam(exp, j) for j in plan_slam(exp, data, {}) if j.spec["kind"] == "slam"}
+    if exp.init.pretrains:  # the pretrainings of the warm start (init.overrides)
+        from .warm_start import init_jobs, pretrain_set_stage
+
+        train_keys |= {_check_init(exp, j) for j in init_jobs(exp, pretrain_set_stage(exp))}
     return len(train_keys), len(slam_keys)
 
 
@@ -67,6 +71,19 @@ def _check_training(exp: Experiment, data: Data, cell: TrainCell, job: Job) -> t
         if line is not None:
             raise UssSlamError(f"grid.method_overrides.{cell.method}: {line}")
     raise UssSlamError(f"training {job.id}: {problem}")
+
+
+def _check_init(exp: Experiment, job: Job) -> tuple[str, ...]:
+    """Check a pretraining's config; returns the overrides it was composed with."""
+    overrides = tuple(o for o in job.spec["overrides"] if not o.startswith(PER_JOB_TRAIN))
+    overrides = (*overrides, _output_dir(exp))
+    problem = _train_problem(overrides)
+    if problem is None:
+        return overrides
+    given = set(exp.init.overrides)
+    if given and _train_problem(tuple(o for o in overrides if o not in given)) is None:
+        raise UssSlamError(f"init.overrides: {problem}")
+    raise UssSlamError(f"pretraining {job.id}: {problem}")
 
 
 def _check_slam(exp: Experiment, job: Job) -> tuple[str, ...]:

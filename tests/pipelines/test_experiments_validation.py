@@ -6,7 +6,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
@@ -19,6 +19,7 @@ from uss_slam.core.files import write_json_atomic
 from uss_slam.pipelines.experiments import cli, jobs, launch
 from uss_slam.pipelines.experiments.plan import Job
 from uss_slam.pipelines.experiments.tables.failures import table_failures
+from uss_slam.pipelines.runs import SlamJob
 
 CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
 PROG = [sys.executable, "-m", "uss_slam.pipelines.experiments.cli"]
@@ -54,6 +55,10 @@ BAD = [
         "key needs +model.bogus=VALUE)",
     ),
     ("train.num_threads=0", "train.num_threads: expected an integer >= 1 or null, got 0"),
+    (
+        'init.overrides=["model.max_iters=abc"]',
+        "init.overrides: model.max_iters: expected an integer, got 'abc'",
+    ),
 ]
 
 
@@ -203,3 +208,39 @@ def test_failed_jobs_are_one_line_on_stderr_and_exit_code_1(
         "uss-experiments: error: 1 job without a new result: train/a (their reasons: the "
         "Failures table, runs.csv)"
     ]
+
+
+def test_a_failed_slam_rerun_leaves_the_earlier_outputs_byte_for_byte(
+    tmp_path: Path, synthetic_sequence: Callable[..., Path]
+) -> None:
+    """A real SLAM job: complete, then rerun with another key on a sequence folder that was
+    removed (what composition cannot know): its earlier outputs stay, the failure beside them."""
+    import shutil
+
+    seq = synthetic_sequence(preset="static_xyz", frames=12)
+    copy = tmp_path / "seq_copy"
+    shutil.copytree(seq, copy)
+    cell = "slam/harness/static_xyz/none"
+
+    def plan(key: str) -> Path:
+        spec = {
+            "kind": "slam",
+            "job": SlamJob(copy).to_json(),
+            "key": {"sequence": key},
+            "outputs": ["metrics.json"],
+        }
+        plan_file = tmp_path / "jobs" / "slam.json"
+        write_json_atomic(plan_file, {"stage": "slam", "out": str(tmp_path), "cells": {cell: spec}})
+        return plan_file
+
+    assert jobs.run_cell(plan("first"), tmp_path, cell)["status"] == "ok"
+    folder = tmp_path / cell
+    before = _snapshot(folder)
+    assert "metrics.json" in before and "trajectory.txt" in before
+
+    shutil.rmtree(copy)
+    failed = jobs.run_cell(plan("second"), tmp_path, cell)
+    assert failed["status"] == "failed" and str(copy) in failed["reason"]
+    after = _snapshot(folder)
+    assert json.loads(after.pop(jobs.FAILURE))["reason"] == failed["reason"]
+    assert after == before
