@@ -51,7 +51,6 @@ from uss_slam.core.files import (
     file_sha256,
     output_lock,
     write_json_atomic,
-    write_text_atomic,
 )
 
 from . import demo_report, synthetic_data
@@ -391,7 +390,7 @@ def stage_report(
 
     runs = {v.name: json.loads((slam_dir / v.name / "metrics.json").read_text()) for v in VARIANTS}
     write_comparison(slam_dir, runs)
-    val = {name: _final_val_miou(d) for name, d in train_dirs.items()}
+    val = {name: demo_report.final_val_miou(d) for name, d in train_dirs.items()}
     summary = {
         "experiment": plan.experiment,
         "sequence": str(sequence),
@@ -403,88 +402,19 @@ def stage_report(
         "stage_seconds": times,
     }
     write_json_atomic(out / "summary.json", summary)
-    fmt = demo_report.fmt
-    lines = [
-        f"# uss-slam demo: {sequence.name} (experiment `{plan.experiment}`)",
-        "",
-        "Synthetic data (`data/`), two trainings of the same segmenter from the pretrained init "
-        "that ships with the package, with the same budget — source-only continued and "
-        "AdaptSegNet — (`train/`), their ONNX exports and source-only's with target BatchNorm "
-        "statistics (AdaBN) (`exports/`), and the SLAM harness on the target-style walking "
-        f"sequence (SLAM seed {plan.data.slam_seed}, rendered for this demo only) with six "
-        f"dynamic-point treatments, {plan.slam_repeats} runs each (`slam/<variant>/`, each with "
-        "its own report).",
-        "",
-        table,
-        "",
-        *(line for finding in findings for line in (finding, "")),
-        f"ATE after SE(3) alignment: the median run's RMSE and the range over the "
-        f"{plan.slam_repeats} runs (seeded feature-budget and RANSAC perturbations); tracked, "
-        f"frames/s and segmentation wall time per segmented frame (in the prefetch threads) of "
-        f"the median run; mIoU / person IoU of each segmenter on every {plan.miou_stride}th "
-        "frame of the SLAM sequence's labels (ground-truth masks = 1 by definition).",
-        "",
-        "Exported: each run's last checkpoint (chosen without target labels). Target "
-        "validation mIoU at the end of training, for information: "
-        + ", ".join(f"{n} {fmt(v, 3)}" for n, v in val.items())
-        + ".",
-        "",
-        CAVEAT,
-        "",
-        "Baseline-vs-each improvements: [slam/comparison.md](slam/comparison.md).",
-        "",
-        "![ATE RMSE per variant](ate_rmse.png)",
-        "",
-        "![aligned trajectories](trajectories.png)",
-        "",
-        "## Each run",
-        "",
-    ]
-    for v in VARIANTS:
-        lines += [
-            f"### {v.label}",
-            "",
-            f"[report](slam/{v.name}/report.md)",
-            "",
-            f"![trajectory](slam/{v.name}/trajectory.png) ![ATE](slam/{v.name}/ate.png)",
-            "",
-        ]
-    lines += [
-        "## Time per stage",
-        "",
-        "| stage | seconds |",
-        "|---|---|",
-        *(f"| {name} | {seconds:.1f} |" for name, seconds in times.items()),
-        "",
-    ]
-    write_text_atomic(out / "report.md", "\n".join(lines))
-    print()
-    print(table)
-    print()
-    for finding in findings:
-        print(finding)
-    print()
-    print(CAVEAT)
-    print()
+    demo_report.write_report(
+        out / "report.md",
+        title=f"{sequence.name} (experiment `{plan.experiment}`)",
+        slam_seed=plan.data.slam_seed,
+        slam_repeats=plan.slam_repeats,
+        miou_stride=plan.miou_stride,
+        table=table,
+        findings=findings,
+        val=val,
+        variants=VARIANTS,
+        times=times,
+    )
     return f"{out / 'report.md'} ({len(plots)} plots)"
-
-
-CAVEAT = (
-    "Data: the tum_like shift (docs/synthetic.md, Domain shifts). One training seed and one "
-    "sequence: a single SLAM run's ATE moves 10-50% for a 1% change of the feature budget, and "
-    "the repeats' range shows only that part of the noise, not the training's; uss-experiments "
-    "gives seeds, sequences and intervals."
-)
-"""What the demo's table can and cannot show, printed under it and written in report.md."""
-
-
-def _final_val_miou(run_dir: Path) -> float | None:
-    """``val/mIoU`` at the end of a training (its ``metrics.json``; None when absent)."""
-    try:
-        value = json.loads((run_dir / "metrics.json").read_text()).get("val/mIoU")
-    except (OSError, ValueError):
-        return None
-    return None if value is None else float(value)
 
 
 # ------------------------------------------------------------------------------- main
