@@ -39,8 +39,9 @@ from uss_slam.pipelines.stages import Progress
 from . import tables as tbl
 from .data import Data, stage_data
 from .experiment import Experiment, check, check_choices, eval_seed
-from .grid import AdaBNCell, given, method_overrides
+from .grid import AdaBNCell, method_overrides
 from .jobs import reason_of, stage_of
+from .keys import given
 from .launch import KEPT, NOT_RUN, Launch, describe_plan, launch, result_rows, status_of
 from .plan import (
     ADABN_BATCH_SIZE,

@@ -19,12 +19,9 @@ from .grid import (
     TUM_SEQUENCES,
     VARIANTS,
     Grid,
-    check_sequences,
-    choose,
     expand,
-    given,
-    integer,
 )
+from .keys import check_sequences, choose, given, integer
 
 CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
 

@@ -23,14 +23,24 @@ Ids (= folders under ``out_dir``)::
 
 from __future__ import annotations
 
-import itertools
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any, ClassVar
 
 from uss_slam.core.errors import UssSlamError
 from uss_slam.pipelines.runs import USES_TARGET_LABELS, Variant
 from uss_slam.train.method_configs import method_names, trains_discriminators
+
+from .keys import (
+    check_sequences,
+    choose,
+    flag,
+    given,
+    loss_combinations,
+    non_empty_list,
+    source_val_stride,
+    unique,
+)
 
 METHODS: dict[str, tuple[str, ...]] = {name: (f"model/method={name}",) for name in method_names()}
 """``uss-train`` overrides of each shipped adaptation method: every option of the config group
@@ -59,7 +69,6 @@ def discriminator_methods() -> tuple[str, ...]:
 DEPTH_SWEEP = (ADAPTED,)
 """``grid.depth_sweep`` when not given: the paper sweeps the depth of AdaptSegNet's
 discriminators; the other methods are compared at the tables' depth."""
-LOSS_KEYS = ("lambda_seg_aux", "lambda_seg_main", "lambda_adv_aux", "lambda_adv_main")
 ADVERSARIAL_LOSS_KEYS = ("lambda_adv_aux", "lambda_adv_main")
 N_LAYERS_RANGE = range(1, 9)
 """Discriminator depths the grid accepts (the paper sweeps 4..7)."""
@@ -162,32 +171,6 @@ TUM_SEQUENCES = tuple(
     for motion in ("xyz", "static", "rpy", "halfsphere")
 )
 """Evaluation sequences of real data: TUM RGB-D fr3 ``rgbd_dataset_freiburg3_<name>``."""
-
-
-def choose(key: str, value: Any, accepted: Iterable[str]) -> str:
-    """``value`` if it is one of ``accepted``; else the one-line error naming ``key``."""
-    accepted = tuple(accepted)
-    if str(value) not in accepted:
-        raise UssSlamError(f"{key}: unknown value {value!r}; accepted: {', '.join(accepted)}")
-    return str(value)
-
-
-def _unique(key: str, values: Sequence[Any]) -> None:
-    seen = [v for k, v in enumerate(values) if v in values[:k]]
-    if seen:
-        raise UssSlamError(f"{key}: {seen[0]!r} is listed twice")
-
-
-def _non_empty_list(key: str, values: Any) -> list[Any]:
-    if isinstance(values, (str, bytes)) or not isinstance(values, Sequence) or not values:
-        raise UssSlamError(f"{key}: expected a non-empty list, got {values!r}")
-    return list(values)
-
-
-def _number(key: str, value: Any) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise UssSlamError(f"{key}: expected a number, got {value!r}")
-    return float(value)
 
 
 def _short(value: float) -> str:
@@ -350,31 +333,6 @@ class Grid:
         return cell.source if isinstance(cell, AdaBNCell) else cell
 
 
-def given(values: Mapping[str, Any] | None) -> dict[str, Any]:
-    """The entries of a mapping of options that are set (null = not given)."""
-    return {k: v for k, v in (values or {}).items() if v is not None}
-
-
-def loss_combinations(loss: Mapping[str, Any] | None) -> list[tuple[tuple[str, float], ...]]:
-    """Every combination of the loss weights given as lists (``{key: [v1, v2]}``; null = not
-    varied), in order."""
-    loss = given(loss)
-    if not loss:
-        return [()]
-    keys = list(loss)
-    for key in keys:
-        choose("grid.loss", key, LOSS_KEYS)
-    values = []
-    for key in keys:
-        listed = loss[key]
-        listed = [listed] if isinstance(listed, (int, float)) else listed
-        items = _non_empty_list(f"grid.loss.{key}", listed)
-        nums = [_number(f"grid.loss.{key}", v) for v in items]
-        _unique(f"grid.loss.{key}", nums)
-        values.append(nums)
-    return [tuple(zip(keys, combo, strict=True)) for combo in itertools.product(*values)]
-
-
 def _loss_tag(combo: tuple[tuple[str, float], ...], varied: set[str]) -> str:
     """``_adv_main0.001`` for each varied key (the config name only shows what changes)."""
     return "".join(f"_{k.removeprefix('lambda_')}{_short(v)}" for k, v in combo if k in varied)
@@ -423,11 +381,11 @@ def batchnorm_modes(values: Any) -> dict[str, tuple[str, ...]]:
     for method, listed in values.items():
         choose("grid.batchnorm", method, METHODS)
         key = f"grid.batchnorm.{method}"
-        modes = _non_empty_list(key, [listed] if isinstance(listed, str) else listed)
+        modes = non_empty_list(key, [listed] if isinstance(listed, str) else listed)
         for mode in modes:
             if not isinstance(mode, str) or not mode.isidentifier():
                 raise UssSlamError(f"{key}: expected BatchNorm mode names, got {mode!r}")
-        _unique(key, modes)
+        unique(key, modes)
         out[str(method)] = tuple(modes)
     return out
 
@@ -435,10 +393,10 @@ def batchnorm_modes(values: Any) -> dict[str, tuple[str, ...]]:
 def adabn_method_list(values: Any) -> list[str]:
     """``grid.adabn_methods``: the methods whose checkpoints (at ``tables.n_layers``) also get
     an AdaBN export; source-only's is T0's AdaBN row."""
-    methods = [str(m) for m in _non_empty_list("grid.adabn_methods", values)]
+    methods = [str(m) for m in non_empty_list("grid.adabn_methods", values)]
     for m in methods:
         choose("grid.adabn_methods", m, METHODS)
-    _unique("grid.adabn_methods", methods)
+    unique("grid.adabn_methods", methods)
     return methods
 
 
@@ -458,28 +416,28 @@ def training_cells(
     mode of ``batchnorm``, every init of ``inits`` (``init.seeds``; ``None``: no init to tell
     apart), every seed. A method with discriminators is trained once per depth of ``n_layers``
     when ``depth_sweep`` lists it, else at ``n_table`` (``tables.n_layers``) only."""
-    methods = _non_empty_list("grid.methods", grid.get("methods"))
+    methods = non_empty_list("grid.methods", grid.get("methods"))
     for m in methods:
         choose("grid.methods", m, METHODS)
-    _unique("grid.methods", methods)
+    unique("grid.methods", methods)
     sweep = grid.get("depth_sweep", list(DEPTH_SWEEP))
     if isinstance(sweep, (str, bytes)) or not isinstance(sweep, Sequence):
         raise UssSlamError(f"grid.depth_sweep: expected a list of methods, got {sweep!r}")
     with_discriminators = discriminator_methods()
     for m in sweep:
         choose("grid.depth_sweep", m, with_discriminators)
-    _unique("grid.depth_sweep", list(sweep))
-    seeds = _non_empty_list("grid.seeds", grid.get("seeds"))
+    unique("grid.depth_sweep", list(sweep))
+    seeds = non_empty_list("grid.seeds", grid.get("seeds"))
     for s in seeds:
         if isinstance(s, bool) or not isinstance(s, int) or s < 0:
             raise UssSlamError(f"grid.seeds: expected integers >= 0, got {s!r}")
-    _unique("grid.seeds", seeds)
+    unique("grid.seeds", seeds)
     depths: list[int] = []
     if any(m in sweep for m in methods):
-        depths = _non_empty_list("grid.n_layers", grid.get("n_layers"))
+        depths = non_empty_list("grid.n_layers", grid.get("n_layers"))
         for n in depths:
             _depth("grid.n_layers", n)
-        _unique("grid.n_layers", depths)
+        unique("grid.n_layers", depths)
         if n_table is not None and n_table not in depths:
             raise UssSlamError(
                 f"tables.n_layers: {n_table!r} is not a depth of the grid; accepted: "
@@ -529,41 +487,6 @@ def training_cells(
     return cells
 
 
-def flag(key: str, value: Any) -> bool:
-    """A true / false option (absent = false); anything else is the one-line error."""
-    if value is None:
-        return False
-    if not isinstance(value, bool):
-        raise UssSlamError(f"{key}: expected true or false, got {value!r}")
-    return value
-
-
-def integer(key: str, value: Any, minimum: int, nullable: bool = False) -> Any:
-    """``value`` if it is an integer >= ``minimum`` (or None, when ``nullable``); else a
-    :class:`UssSlamError` naming ``key``."""
-    if nullable and value is None:
-        return None
-    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-        hint = " or null" if nullable else ""
-        raise UssSlamError(f"{key}: expected an integer >= {minimum}{hint}, got {value!r}")
-    return value
-
-
-def source_val_stride(cfg: Mapping[str, Any]) -> int | None:
-    """``segeval.source_val_stride`` (T0's in-domain column: every n-th source validation
-    image); None = not scored."""
-    stride = (cfg.get("segeval") or {}).get("source_val_stride")
-    return integer("segeval.source_val_stride", stride, 1, nullable=True)
-
-
-def check_sequences(sequences: Any, accepted: Sequence[str]) -> list[str]:
-    names = [str(s) for s in _non_empty_list("sequences", sequences)]
-    for s in names:
-        choose("sequences", s, accepted)
-    _unique("sequences", names)
-    return names
-
-
 def expand(
     cfg: Mapping[str, Any],
     accepted_sequences: Sequence[str],
@@ -594,14 +517,14 @@ def expand(
     ]
     models: list[Model] = [*trainings, *adabn]
     sequences = check_sequences(cfg.get("sequences"), accepted_sequences)
-    systems = [str(s) for s in _non_empty_list("systems", cfg.get("systems"))]
+    systems = [str(s) for s in non_empty_list("systems", cfg.get("systems"))]
     for s in systems:
         choose("systems", s, SYSTEMS)
-    _unique("systems", systems)
-    variants = [str(v) for v in _non_empty_list("variants", cfg.get("variants"))]
+    unique("systems", systems)
+    variants = [str(v) for v in non_empty_list("variants", cfg.get("variants"))]
     for v in variants:
         choose("variants", v, VARIANTS)
-    _unique("variants", variants)
+    unique("variants", variants)
     if n_table is None and any(t.n_layers is not None for t in trainings):
         raise UssSlamError("tables.n_layers: missing; expected a depth of grid.n_layers")
     table_configs = list(

@@ -22,8 +22,9 @@ from uss_slam.pipelines.stages import Stage
 
 from .data import Data, synthetic_data_spec
 from .experiment import Experiment
-from .grid import ORACLE, VARIANTS, AdaBNCell, Model, SlamCell, TrainCell, given, source_val_stride
+from .grid import ORACLE, VARIANTS, AdaBNCell, Model, SlamCell, TrainCell
 from .jobs import stage_of
+from .keys import given, source_val_stride
 from .overrides import config_error_line, hydra_value
 from .tables import SOURCE_VAL
 

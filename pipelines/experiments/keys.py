@@ -1,0 +1,99 @@
+"""Checks of ``uss-experiments``' configuration values, each failing with the one-line error
+that names the key (``grid.seeds: expected a non-empty list, got 3``)."""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Iterable, Mapping, Sequence
+from typing import Any
+
+from uss_slam.core.errors import UssSlamError
+
+LOSS_KEYS = ("lambda_seg_aux", "lambda_seg_main", "lambda_adv_aux", "lambda_adv_main")
+"""The loss weights ``grid.loss`` may vary (``model.loss.<key>``)."""
+
+
+def choose(key: str, value: Any, accepted: Iterable[str]) -> str:
+    """``value`` if it is one of ``accepted``; else the one-line error naming ``key``."""
+    accepted = tuple(accepted)
+    if str(value) not in accepted:
+        raise UssSlamError(f"{key}: unknown value {value!r}; accepted: {', '.join(accepted)}")
+    return str(value)
+
+
+def unique(key: str, values: Sequence[Any]) -> None:
+    seen = [v for k, v in enumerate(values) if v in values[:k]]
+    if seen:
+        raise UssSlamError(f"{key}: {seen[0]!r} is listed twice")
+
+
+def non_empty_list(key: str, values: Any) -> list[Any]:
+    if isinstance(values, (str, bytes)) or not isinstance(values, Sequence) or not values:
+        raise UssSlamError(f"{key}: expected a non-empty list, got {values!r}")
+    return list(values)
+
+
+def number(key: str, value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise UssSlamError(f"{key}: expected a number, got {value!r}")
+    return float(value)
+
+
+def given(values: Mapping[str, Any] | None) -> dict[str, Any]:
+    """The entries of a mapping of options that are set (null = not given)."""
+    return {k: v for k, v in (values or {}).items() if v is not None}
+
+
+def flag(key: str, value: Any) -> bool:
+    """A true / false option (absent = false); anything else is the one-line error."""
+    if value is None:
+        return False
+    if not isinstance(value, bool):
+        raise UssSlamError(f"{key}: expected true or false, got {value!r}")
+    return value
+
+
+def integer(key: str, value: Any, minimum: int, nullable: bool = False) -> Any:
+    """``value`` if it is an integer >= ``minimum`` (or None, when ``nullable``); else a
+    :class:`UssSlamError` naming ``key``."""
+    if nullable and value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+        hint = " or null" if nullable else ""
+        raise UssSlamError(f"{key}: expected an integer >= {minimum}{hint}, got {value!r}")
+    return value
+
+
+def check_sequences(sequences: Any, accepted: Sequence[str]) -> list[str]:
+    names = [str(s) for s in non_empty_list("sequences", sequences)]
+    for s in names:
+        choose("sequences", s, accepted)
+    unique("sequences", names)
+    return names
+
+
+def source_val_stride(cfg: Mapping[str, Any]) -> int | None:
+    """``segeval.source_val_stride`` (T0's in-domain column: every n-th source validation
+    image); None = not scored."""
+    stride = (cfg.get("segeval") or {}).get("source_val_stride")
+    return integer("segeval.source_val_stride", stride, 1, nullable=True)
+
+
+def loss_combinations(loss: Mapping[str, Any] | None) -> list[tuple[tuple[str, float], ...]]:
+    """Every combination of the loss weights given as lists (``{key: [v1, v2]}``; null = not
+    varied), in order."""
+    loss = given(loss)
+    if not loss:
+        return [()]
+    keys = list(loss)
+    for key in keys:
+        choose("grid.loss", key, LOSS_KEYS)
+    values = []
+    for key in keys:
+        listed = loss[key]
+        listed = [listed] if isinstance(listed, (int, float)) else listed
+        items = non_empty_list(f"grid.loss.{key}", listed)
+        nums = [number(f"grid.loss.{key}", v) for v in items]
+        unique(f"grid.loss.{key}", nums)
+        values.append(nums)
+    return [tuple(zip(keys, combo, strict=True)) for combo in itertools.product(*values)]
