@@ -40,12 +40,13 @@ from enum import Enum
 
 import numpy as np
 
-from ..frontend.matching import Matches, hamming
+from ..frontend.matching import hamming
 from ..frontend.orb import Features, OrbExtractor
 from ..geometry import invert, transform
 from ..map.slam_map import KeyFrame, SlamMap
 from .config import SAMPLERS, TrackerConfig
 from .keyframes import nearest_close, need_keyframe, new_points
+from .place_matching import PlaceMatching
 from .projection import ProjectionMatcher
 from .relocalisation import match_keyframe, relocalise
 from .rolling_shutter import readout_of, twist, unroll
@@ -74,7 +75,7 @@ class TrackResult:
     new_keyframe: KeyFrame | None = None
 
 
-class Tracker:
+class Tracker(PlaceMatching):
     """Frame-to-local-map RGB-D tracker. Feed frames in order with :meth:`track`."""
 
     def __init__(
@@ -563,46 +564,6 @@ class Tracker:
         matched = np.full(len(features), -1, np.int64)
         matched[m.keypoint[inl]] = ids[m.query[inl]]
         return pose_cw, matched
-
-    # ------------------------------------------------------------------ for loop closing
-
-    def match_keyframe(
-        self,
-        features: Features,
-        query: np.ndarray,
-        kf: KeyFrame,
-        ratio: float,
-        max_hamming: int,
-        min_points: int,
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-        """:func:`.relocalisation.match_keyframe` on this tracker's map."""
-        return match_keyframe(self.map, features, query, kf, ratio, max_hamming, min_points)
-
-    def match_projected(
-        self,
-        point_ids: np.ndarray,
-        pose_cw: np.ndarray,
-        features: Features,
-        available: np.ndarray,
-        radius: float,
-        local: bool = False,
-    ) -> tuple[np.ndarray, Matches]:
-        """:meth:`.ProjectionMatcher.match_map_points`: ``(projected ids, matches)``."""
-        return self.projection.match_map_points(
-            point_ids, pose_cw, features, available, radius, local
-        )
-
-    def pnp_global(
-        self, world: np.ndarray, features: Features, kp: np.ndarray, distance: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray] | None:
-        """:meth:`.PoseSampler.pnp_global`: a pose without a prior."""
-        return self.sampler.pnp_global(world, features, kp, distance)
-
-    def refine_pose(
-        self, world: np.ndarray, features: Features, kp: np.ndarray, pose_cw: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """:meth:`.PoseSampler.refine_pose`: ``(pose_cw, inlier mask)``."""
-        return self.sampler.refine_pose(world, features, kp, pose_cw)
 
 
 __all__ = ["SAMPLERS", "TrackResult", "Tracker", "TrackerConfig", "TrackingState", "hamming"]
