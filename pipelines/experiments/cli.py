@@ -125,7 +125,7 @@ def _run_experiments(exp: Experiment) -> dict[str, Any]:
     if "export" in exp.stages:
         progress.run(
             "export",
-            "export: best checkpoints -> ONNX",
+            f"export: {checkpoint_policy(exp)} checkpoints -> ONNX",
             lambda: stage_exports(exp, data, export_failures, export_rows),
         )
     exports = existing_exports(exp, data)

@@ -101,7 +101,7 @@ def test_quick_end_to_end_then_reuse_then_resume(tmp_path: Path) -> None:
     again = run(out, cwd=tmp_path)
     assert again.returncode == 0, again.stderr[-3000:]
     assert "train: 12 training jobs: every job complete already (reused)" in again.stdout
-    assert "export: best checkpoints -> ONNX: 0 exported, 14 reused" in again.stdout
+    assert "export: last checkpoints -> ONNX: 0 exported, 14 reused" in again.stdout
     assert "every job complete already (reused)" in again.stdout.split("slam:")[-1]
     assert pending(out, "train") == [] and pending(out, "slam") == []
 
