@@ -69,7 +69,7 @@ FLAGS = {
 
 ADV = (0.002, 0.01)  # the USS-SLAM paper's lambda_adv_aux / lambda_adv_main (model/adversarial)
 D_LR = 1e-4  # the discriminators' Adam rate (model/adversarial)
-LR = 0.01  # the segmenter's SGD rate of experiment=demo (its heads get 10x)
+LR = 0.01  # the segmenter's SGD rate of experiment=demo_scratch (its heads get 10x)
 ENT = (0.01, 0.05)  # MinEnt's lambda_ent_aux / lambda_ent_main (model/method/minent)
 FACTOR = re.compile(r"^(?P<knob>adv|dlr|lr|ent|thr)(?P<factor>[0-9.]+)$")
 
@@ -118,7 +118,7 @@ def train_overrides(
     logger: str = "none",
 ) -> list[str]:
     common = [
-        "experiment=demo",
+        "experiment=demo_scratch",  # the from-scratch runs its figures come from
         f"num_threads={threads}",
         f"paths.data_dir={data}",
         f"seed={seed}",

@@ -62,8 +62,8 @@ def test_every_knob_composes(tmp_path) -> None:
 
 def test_knob_bases_are_the_configs_defaults(tmp_path) -> None:
     """The factors multiply what the shipped configs hold: a change there must show here."""
-    adv = compose_train(["experiment=demo", "model/method=adaptsegnet"], tmp_path / "a")
-    ent = compose_train(["experiment=demo", "model/method=minent"], tmp_path / "m")
+    adv = compose_train(["experiment=demo_scratch", "model/method=adaptsegnet"], tmp_path / "a")
+    ent = compose_train(["experiment=demo_scratch", "model/method=minent"], tmp_path / "m")
     one = knob_overrides("adaptsegnet+adv1") + knob_overrides("minent+ent1")[1:]
     values = {o.split("=")[0]: float(o.split("=")[1]) for o in one if "=" in o and "." in o}
     assert values["model.loss.lambda_adv_aux"] == adv.model.loss.lambda_adv_aux
