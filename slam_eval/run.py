@@ -41,19 +41,29 @@ PROG = "uss-slam"
 register_configs()  # the typed slam / eval defaults, before Hydra composes configs/slam_eval.yaml
 
 
+def _own_hydra() -> Any:
+    """Hydra's config when ``uss-slam`` runs as its own Hydra app; None when it is not a Hydra
+    app or runs composed inside another one (``uss-experiments``' jobs), whose job directory
+    and records are that app's, not this run's."""
+    if not HydraConfig.initialized():
+        return None
+    hydra_cfg = HydraConfig.get()
+    return hydra_cfg if hydra_cfg.job.config_name == "slam_eval" else None
+
+
 def output_dir(cfg: DictConfig) -> Path:
-    """Hydra's job directory (``out_dir``, or its numbered sub-folder in a multirun)."""
-    if HydraConfig.initialized():
-        return Path(HydraConfig.get().runtime.output_dir)
-    return Path(str(cfg.out_dir))
+    """Hydra's job directory (``out_dir``, or its numbered sub-folder in a multirun); ``out_dir``
+    itself when ``uss-slam`` runs inside another app."""
+    hydra_cfg = _own_hydra()
+    return Path(hydra_cfg.runtime.output_dir) if hydra_cfg is not None else Path(str(cfg.out_dir))
 
 
 def _write_hydra_files(folder: RunFolder, cfg: DictConfig) -> list[str]:
     """``.hydra/config.yaml``, ``hydra.yaml`` and ``overrides.yaml`` as Hydra writes them (its
     ``output_subdir`` is off so that they appear only with a finished run's outputs)."""
-    if not HydraConfig.initialized():
+    hydra_cfg = _own_hydra()
+    if hydra_cfg is None:
         return []
-    hydra_cfg = HydraConfig.get()
     folder.write_text(".hydra/config.yaml", OmegaConf.to_yaml(cfg))
     folder.write_text(
         ".hydra/hydra.yaml", OmegaConf.to_yaml(OmegaConf.create({"hydra": hydra_cfg}))
