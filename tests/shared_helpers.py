@@ -293,3 +293,26 @@ def drop_in_weakref_callback(error: BaseException) -> None:
     del thing
     gc.collect()
     assert ref() is None
+
+
+def import_cycle(graph: Mapping[str, set[str]]) -> list[str] | None:
+    """One cycle of an import graph (its modules in order, the first repeated), or None."""
+    state: dict[str, int] = {}  # 1 = on the current path, 2 = done
+    path: list[str] = []
+
+    def visit(node: str) -> list[str] | None:
+        state[node] = 1
+        path.append(node)
+        for nxt in sorted(graph.get(node, ())):
+            if state.get(nxt) == 1:
+                return path[path.index(nxt) :] + [nxt]
+            if nxt not in state and (found := visit(nxt)):
+                return found
+        path.pop()
+        state[node] = 2
+        return None
+
+    for node in sorted(graph):
+        if node not in state and (found := visit(node)):
+            return found
+    return None

@@ -7,6 +7,8 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
+from shared_helpers import import_cycle
+
 PIPELINES = Path(__file__).resolve().parents[2] / "pipelines"
 PACKAGE = "uss_slam.pipelines"
 
@@ -43,32 +45,9 @@ def _graph() -> dict[str, set[str]]:
     return {_module(p): _imports(p, modules) for p in files}
 
 
-def _cycle(graph: dict[str, set[str]]) -> list[str] | None:
-    """One import cycle of ``graph`` (its modules in order, the first repeated), or None."""
-    state: dict[str, int] = {}  # 1 = on the current path, 2 = done
-    path: list[str] = []
-
-    def visit(node: str) -> list[str] | None:
-        state[node] = 1
-        path.append(node)
-        for nxt in sorted(graph[node]):
-            if state.get(nxt) == 1:
-                return path[path.index(nxt) :] + [nxt]
-            if nxt not in state and (found := visit(nxt)):
-                return found
-        path.pop()
-        state[node] = 2
-        return None
-
-    for node in sorted(graph):
-        if node not in state and (found := visit(node)):
-            return found
-    return None
-
-
 def test_the_cycle_finder_finds_a_cycle() -> None:
-    assert _cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
-    assert _cycle({"a": {"b"}, "b": set(), "c": {"a", "b"}}) is None
+    assert import_cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
+    assert import_cycle({"a": {"b"}, "b": set(), "c": {"a", "b"}}) is None
 
 
 def test_no_import_cycle_in_pipelines() -> None:
@@ -78,7 +57,7 @@ def test_no_import_cycle_in_pipelines() -> None:
     # package is the package importing the module, not a cycle between two modules
     for name, imported in graph.items():
         graph[name] = {m for m in imported if not name.startswith(m + ".")}
-    assert _cycle(graph) is None, " -> ".join(_cycle(graph) or [])
+    assert import_cycle(graph) is None, " -> ".join(import_cycle(graph) or [])
 
 
 def test_no_pipelines_module_is_named_after_one_of_its_users() -> None:

@@ -7,6 +7,8 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
+from shared_helpers import import_cycle
+
 SLAM_EVAL = Path(__file__).resolve().parents[2] / "slam_eval"
 PACKAGE = "uss_slam.slam_eval"
 
@@ -60,33 +62,11 @@ def sub_package_graph() -> dict[str, set[str]]:
     return graph
 
 
-def _cycle(graph: dict[str, set[str]]) -> list[str] | None:
-    state: dict[str, int] = {}  # 1 on the current path, 2 done
-    path: list[str] = []
-
-    def visit(node: str) -> list[str] | None:
-        state[node] = 1
-        path.append(node)
-        for nxt in sorted(graph.get(node, ())):
-            if state.get(nxt) == 1:
-                return path[path.index(nxt) :] + [nxt]
-            if nxt not in state and (found := visit(nxt)):
-                return found
-        path.pop()
-        state[node] = 2
-        return None
-
-    for node in sorted(graph):
-        if node not in state and (found := visit(node)):
-            return found
-    return None
-
-
 def test_the_graph_sees_the_sub_packages_and_their_imports() -> None:
     graph = sub_package_graph()
     assert {"tracking", "mapping", "map", "filters", "systems", "scoring"} <= set(graph)
     assert "map" in graph["tracking"] and "map" in graph["mapping"]
-    assert _cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
+    assert import_cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
 
 
 def test_tracking_and_mapping_do_not_import_each_other() -> None:
@@ -96,5 +76,5 @@ def test_tracking_and_mapping_do_not_import_each_other() -> None:
 
 
 def test_no_import_cycle_between_sub_packages() -> None:
-    cycle = _cycle(sub_package_graph())
+    cycle = import_cycle(sub_package_graph())
     assert cycle is None, "import cycle between slam_eval sub-packages: " + " -> ".join(cycle)

@@ -31,5 +31,5 @@ def test_a_log_gets_lines_not_one_redraw_per_batch(capsys) -> None:
     assert "\r" not in out
     # 600 batches: the last state (the first line comes before the bar is named "Epoch"), not
     # 600 redraws; a very slow machine adds one line per 30 s
-    assert 1 <= len(lines) <= 4, lines
+    assert 0 < len(lines) <= 4, lines
     assert "300/300" in lines[-1]
