@@ -414,6 +414,10 @@ def stage_report(
         variants=VARIANTS,
         times=times,
     )
+    print(f"\n{table}\n")
+    for finding in findings:
+        print(finding)
+    print(f"\n{demo_report.CAVEAT}\n")
     return f"{out / 'report.md'} ({len(plots)} plots)"
 
 

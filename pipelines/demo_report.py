@@ -315,11 +315,3 @@ def write_report(
         "",
     ]
     write_text_atomic(path, "\n".join(lines))
-    print()
-    print(table)
-    print()
-    for finding in findings:
-        print(finding)
-    print()
-    print(CAVEAT)
-    print()
