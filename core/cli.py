@@ -355,7 +355,8 @@ def exit_on_user_error(prog: str, kinds: tuple[type[BaseException], ...] = ()) -
     ``kinds`` adds exception types the entry point treats as user errors (Hydra apps pass
     OmegaConf's config errors). Ctrl-C is one line ``<prog>: interrupted`` and exit code
     :data:`INTERRUPTED` (a multirun stops as a whole), also when Python dropped it
-    (:func:`interrupts_kept`): then at the next check, at the latest when the body ends.
+    (:func:`interrupts_kept`): then at the next check, at the latest when the body ends; any
+    error raised after the interrupt arrived is reported as the interrupt.
     SIGTERM is handled as Ctrl-C (:func:`signals_as_interrupts`): ``<prog>: interrupted
     (SIGTERM)`` and exit code :data:`TERMINATED`.
     Anything else propagates with its traceback.
@@ -382,6 +383,11 @@ def exit_on_user_error(prog: str, kinds: tuple[type[BaseException], ...] = ()) -
         # Ctrl-C or SIGTERM: a stop asked for, not a failure to explain with a traceback.
         sys.exit(report_interrupt(prog, interrupt))
     except BaseException as error:
+        if _received is not None:
+            # The error followed a stop asked for (a process pool whose workers the interrupt
+            # ended reports itself broken before the interrupt reaches the body): the stop is
+            # what to report.
+            sys.exit(report_interrupt(prog, error))
         cause = user_error(error, kinds) or no_space_error(error)
         if cause is None:
             raise

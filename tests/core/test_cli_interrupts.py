@@ -99,3 +99,29 @@ def test_a_deferred_step_finishes_before_sigterm_takes_effect() -> None:
         os.kill(os.getpid(), signal.SIGTERM)
         done.append(True)
     assert done == [True]
+
+
+@pytest.mark.parametrize("sig_name", ["SIGINT", "SIGTERM"])
+def test_an_error_that_follows_an_interrupt_is_reported_as_the_interrupt(sig_name, capsys):
+    """A process pool whose workers the interrupt ended can report itself broken before the
+    interrupt reaches the body (the interrupt caught where Python drops it): the one line of
+    the interrupt, no traceback."""
+    import os
+    import signal
+    from concurrent.futures.process import BrokenProcessPool
+
+    sig = signal.Signals[sig_name]
+    with pytest.raises(SystemExit) as stop, exit_on_user_error("uss-x"):
+        try:
+            os.kill(os.getpid(), sig)
+        except KeyboardInterrupt:
+            pass  # swallowed where it was raised
+        raise BrokenProcessPool("A process in the process pool was terminated abruptly")
+    assert stop.value.code == 128 + sig
+    named = "" if sig == signal.SIGINT else " (SIGTERM)"
+    assert capsys.readouterr().err.splitlines() == [f"uss-x: interrupted{named}"]
+
+
+def test_an_error_without_an_interrupt_still_propagates() -> None:
+    with pytest.raises(RuntimeError, match="real"), exit_on_user_error("uss-x"):
+        raise RuntimeError("real failure")
