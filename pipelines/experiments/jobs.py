@@ -109,7 +109,8 @@ def run_segeval(folder: Path, spec: Mapping[str, Any]) -> dict[str, Any]:
     """An exported model's mIoU, per-class IoU and person-mask frame metrics (``uss-eval``'s)
     on the labelled frames of every evaluation sequence (every ``stride``-th), per sequence
     and pooled over all of them (``"all"``); with ``crf`` (parameters), after the dense CRF the
-    ``*_crf`` SLAM runs apply. With ``source_val`` (``root``, ``split``, ``stride``) instead: on
+    ``*_crf`` SLAM runs apply; each sequence's confusion matrix is kept (``"confusion"``), so
+    that any subset of the sequences can be pooled later. With ``source_val`` (``root``, ``split``, ``stride``) instead: on
     every ``stride``-th image of that split of a VOC tree (``"source_val"``: T0's in-domain
     column)."""
     import numpy as np
@@ -140,6 +141,8 @@ def run_segeval(folder: Path, spec: Mapping[str, Any]) -> dict[str, Any]:
             **iou_report(result.matrix, CLASS_NAMES),
             "person": mask_metrics(result.mask_counts),
             "frames": len(result.names),
+            # rows: true class, columns: predicted (CLASS_NAMES' order): pools any subset
+            "confusion": result.matrix.tolist(),
         }
     if "source_val" not in spec:
         scores["all"] = {

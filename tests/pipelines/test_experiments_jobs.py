@@ -554,3 +554,27 @@ def test_the_plan_names_a_training_that_goes_on(tmp_path: Path) -> None:
     resumed = f"  to run: {jobs_[0].id} (goes on from its interrupted run's checkpoints/last.ckpt)"
     assert resumed in lines
     assert f"  to run: {jobs_[1].id}" in lines  # not started: from scratch
+
+
+def test_segeval_keeps_each_sequences_confusion_matrix(
+    tmp_path: Path, synthetic_sequence: Callable[..., Path]
+) -> None:
+    """Each sequence's confusion matrix is in the result: their sum gives the pooled figures,
+    so a subset (the walking sequences without the static control) can be pooled later."""
+    import numpy as np
+
+    from uss_slam.core.classes import CLASS_NAMES
+    from uss_slam.core.seg_metrics import iou_report
+
+    walking = synthetic_sequence(preset="walking_xyz", frames=4, size=(96, 72), seed=1)
+    static = synthetic_sequence(preset="static_xyz", frames=4, size=(96, 72), seed=2)
+    model = _tiny_onnx(tmp_path / "m.onnx")
+    spec = {"model": str(model), "sequences": {"w": str(walking), "s": str(static)}, "stride": 2}
+    scores = jobs.run_segeval(tmp_path / "job", spec)["sequences"]
+    for name in ("w", "s"):
+        matrix = np.array(scores[name]["confusion"])
+        assert matrix.shape == (len(CLASS_NAMES), len(CLASS_NAMES))
+        assert matrix.sum() == 2 * 96 * 72  # every pixel of the 2 evaluated frames, once
+        assert iou_report(matrix, CLASS_NAMES)["mIoU"] == scores[name]["mIoU"]
+    pooled = np.array(scores["w"]["confusion"]) + np.array(scores["s"]["confusion"])
+    assert iou_report(pooled, CLASS_NAMES)["mIoU"] == scores["all"]["mIoU"]
