@@ -4,6 +4,7 @@ before any work starts, and named in a one-line error with the accepted values."
 from __future__ import annotations
 
 import importlib.util
+import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -305,15 +306,28 @@ def check_batchnorm(plain: Mapping[str, Any], grid: Grid) -> None:
 
 
 def check_parallelism(plain: Mapping[str, Any], missing: Sequence[str]) -> None:
-    """``train.num_threads`` and the launcher's ``n_jobs`` (each section's): an integer >= 1
-    (``num_threads``: or null), before any work instead of inside every job."""
+    """``train.num_threads`` (an integer >= 1 or null) and the launcher's ``n_jobs`` (each
+    section's: joblib's count, an integer >= 1, or negative for "every CPU but |n_jobs| − 1"
+    when that leaves at least one), before any work instead of inside every job."""
     integer("train.num_threads", plain["train"].get("num_threads"), 1, nullable=True)
     launcher = plain.get("launcher") or {}
+    cpus = os.cpu_count() or 1
     for section in ("params", "train", "slam"):
         node = launcher.get(section) or {}
         key = f"launcher.{section}.n_jobs"
-        if isinstance(node, Mapping) and "n_jobs" in node and key not in missing:
-            integer(key, node["n_jobs"], 1)
+        if not (isinstance(node, Mapping) and "n_jobs" in node and key not in missing):
+            continue
+        value = node["n_jobs"]
+        usable = isinstance(value, int) and not isinstance(value, bool)
+        if usable and value < 0:
+            usable = cpus + 1 + value >= 1
+        elif usable:
+            usable = value >= 1
+        if not usable:
+            raise UssSlamError(
+                f"{key}: expected an integer >= 1, or -1 (every CPU) down to -{cpus} (one: "
+                f"this machine has {cpus} CPUs), got {value!r}"
+            )
 
 
 def eval_seed(cfg: Mapping[str, Any], name: str) -> int:

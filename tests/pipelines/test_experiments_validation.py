@@ -48,7 +48,10 @@ BAD = [
         "slam.overrides: slam.orb.n_features: Value 'abc' of type 'str' could not be converted "
         "to Integer",
     ),
-    ('slam.overrides=["slam.workers=0"]', "slam.overrides: slam.workers: must be >= 1"),
+    (
+        'slam.overrides=["slam.workers=0"]',
+        "slam.overrides: slam.workers: expected an integer >= 1, got 0",
+    ),
     (
         'grid.method_overrides={adaptsegnet:["model.bogus=1"]}',
         "grid.method_overrides.adaptsegnet: model.bogus: not a key of the training config (a new "
@@ -78,18 +81,40 @@ def test_a_bad_job_setting_is_one_line_before_any_work(
 
 @pytest.mark.parametrize("dry", [True, False])
 @pytest.mark.parametrize("section", ["params", "train", "slam"])
-def test_launcher_n_jobs_below_one_is_one_line(tmp_path: Path, section: str, dry: bool) -> None:
+@pytest.mark.parametrize("value", ["0", "too_many", "two"])
+def test_launcher_n_jobs_out_of_range_is_one_line(
+    tmp_path: Path, section: str, dry: bool, value: str
+) -> None:
+    """0, a negative count that leaves no CPU (joblib's -1 = every CPU, -2 = all but one) or
+    a non-integer: one line before any work."""
+    import os
+
+    cpus = os.cpu_count() or 1
+    given = str(-(cpus + 1)) if value == "too_many" else value
     out = tmp_path / "out"
     cfg = compose_experiments(
         f"out_dir={out}",
         f"dry_run={str(dry).lower()}",
         "launcher=joblib",
-        f"++launcher.{section}.n_jobs=0",
+        f"++launcher.{section}.n_jobs={given}",
     )
     with pytest.raises(UssSlamError) as info:
         cli.run_experiments(cfg)
-    assert str(info.value) == f"launcher.{section}.n_jobs: expected an integer >= 1, got 0"
+    shown = repr(int(given)) if value != "two" else "'two'"
+    assert str(info.value) == (
+        f"launcher.{section}.n_jobs: expected an integer >= 1, or -1 (every CPU) down to "
+        f"-{cpus} (one: this machine has {cpus} CPUs), got {shown}"
+    )
     assert not (out / "data").exists()
+
+
+def test_launcher_n_jobs_minus_one_is_joblibs_every_cpu(tmp_path: Path, capsys) -> None:
+    out = tmp_path / "out"
+    cfg = compose_experiments(
+        f"out_dir={out}", "dry_run=true", "launcher=joblib", "launcher.params.n_jobs=-1"
+    )
+    cli.run_experiments(cfg)
+    assert "hydra/launcher=joblib" in capsys.readouterr().out
 
 
 def test_seeds_share_one_compose() -> None:
