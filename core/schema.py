@@ -57,7 +57,9 @@ class SchemaError(UssSlamError, ValueError):
     ) -> None:
         self.key = key or "config"
         self.expected = expected
-        if unknown:
+        if unknown and not expected:
+            message = f"{self.key}: unknown key; {owner or 'this section'} takes no parameters"
+        elif unknown:
             message = f"{self.key}: unknown key; expected one of {expected}"
             if owner:
                 message += f" (the parameters of {owner})"
@@ -181,7 +183,7 @@ def check(node: Any, schema: type, key: str = "") -> DictConfig:
     if not isinstance(plain, Mapping):
         raise SchemaError(key, _describe(schema), plain)
     try:
-        typed = OmegaConf.merge(OmegaConf.structured(schema), plain)
+        typed = OmegaConf.merge(structured(schema), plain)
     except OmegaConfBaseException as error:
         if not error.full_key:  # a section of the wrong shape: the walk names it
             _walk(schema, plain, key)
@@ -427,10 +429,8 @@ def target_schema(target: str | Callable[..., Any], opaque: Iterable[type] = ())
     schema of its named parameters only (:func:`check_targets` leaves the other keys)."""
     opaque = tuple(opaque)
     try:
-        obj = _import(target) if isinstance(target, str) else target
-        function = obj.__init__ if inspect.isclass(obj) else obj
-        signature = inspect.signature(function)
-        hints = typing.get_type_hints(function)
+        obj, signature = _signature(target)
+        hints = typing.get_type_hints(obj.__init__ if inspect.isclass(obj) else obj)
     except Exception:  # unknown target or unresolvable hints: the target reports it when built
         return None
     fields_: list[Any] = []
@@ -445,18 +445,19 @@ def target_schema(target: str | Callable[..., Any], opaque: Iterable[type] = ())
     return schema
 
 
-def _import(path: str) -> Any:
+def _signature(target: str | Callable[..., Any]) -> tuple[Any, inspect.Signature]:
+    """The object ``target`` names and the signature a call of it takes (a class: its
+    constructor's, without ``self``)."""
     from hydra.utils import get_object
 
-    return get_object(path)
+    obj = get_object(target) if isinstance(target, str) else target
+    return obj, inspect.signature(obj)
 
 
 def takes_any_keyword(target: str | Callable[..., Any]) -> bool:
     """Whether ``target`` accepts ``**kwargs``."""
     try:
-        obj = _import(target) if isinstance(target, str) else target
-        function = obj.__init__ if inspect.isclass(obj) else obj
-        params = inspect.signature(function).parameters.values()
+        params = _signature(target)[1].parameters.values()
     except Exception:
         return True
     return any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params)
@@ -493,7 +494,7 @@ def check_target(
             continue  # built by its own target, checked on its own
         if also and str(node[name]) in map(str, also.get(_join(key, name), ())):
             continue
-        values[name] = node[name]
+        values[name] = _plain(node[name])
     check(values, schema, key)
 
 

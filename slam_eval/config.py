@@ -13,22 +13,25 @@ parameters, built by :mod:`.filters.build`).
 ``slam.orb.n_features=500`` overrides one, and a value of the wrong type fails while the config is
 composed, naming its key.
 
-:func:`check` validates what composition cannot (allowed values, filter names and parameters,
-segmenter options) and returns the typed settings of the run.
+:func:`check` validates the composed config against :class:`SlamEvalConfig` with
+:mod:`uss_slam.core.schema` (types, value ranges declared as field metadata, unknown keys: one
+line ``<key>: expected ..., got ...``), the filters' and the segmenter's parameters against their
+classes' annotations, then the rules across keys (filter names, a filter that needs a
+segmenter), and returns the typed settings of the run.
 """
 
 from __future__ import annotations
 
 import inspect
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, fields
-from typing import Any
+from typing import Any, Optional
 
-from hydra.core.config_store import ConfigStore
-from omegaconf import DictConfig, ListConfig, OmegaConf
+from omegaconf import MISSING, DictConfig, ListConfig, OmegaConf
 
 from uss_slam.core.errors import UssSlamError
+from uss_slam.core.schema import SchemaError, check_target, ranged, register
+from uss_slam.core.schema import check as schema_check
 
 from .filters.build import build_filters, shipped_filter_configs
 from .frontend.orb import OrbConfig
@@ -81,12 +84,13 @@ class SlamConfig:
     orb: OrbConfig = field(default_factory=OrbConfig)
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
     map: MapConfig = field(default_factory=MapConfig)
-    filter_params: Any = field(default_factory=dict)
+    filter_params: dict[str, Any] = field(default_factory=dict)
     """Each filter by name: ``_target_`` (its class) and its parameters (the nodes of
-    ``configs/slam/orb_rgbd.yaml``); which filters run is the top-level ``filters`` list."""
-    prefetch: int = 4
+    ``configs/slam/orb_rgbd.yaml``), checked against the class's parameter annotations; which
+    filters run is the top-level ``filters`` list."""
+    prefetch: int = ranged(4, min=0)
     """Frames loaded ahead by background threads."""
-    workers: int = 2
+    workers: int = ranged(2, min=1)
     """Background threads (PNG decoding releases the GIL)."""
     parallel: bool = True
     """Segment and extract ORB in those threads too (overlaps tracking)."""
@@ -97,12 +101,12 @@ class SlamConfig:
     """Loop detection, verification and essential-graph optimisation (ORB-SLAM2's loop closing)."""
     local_ba_params: LocalMappingConfig = field(default_factory=LocalMappingConfig)
     loop_closing_params: LoopClosingConfig = field(default_factory=LoopClosingConfig)
-    repeats: int = 1
+    repeats: int = ranged(1, min=1)
     """Runs per filter set: repeat 0 unperturbed, the others with a perturbed feature budget and
     RANSAC sampling; the outputs are the median run's, with the spread (:mod:`.scoring.repeats`)."""
     repeat_seed: int = 0
     """Seed of the repeats' perturbations (the same on every sequence: paired comparisons)."""
-    repeat_budget: float = 0.01
+    repeat_budget: float = ranged(0.01, min=0, lt=0.5)
     """Relative half-width of the repeats' feature-budget jitter (0.01: ``n_features`` ± 1%)."""
     reuse_labels: bool = True
     """With ``repeats`` > 1: the segmenter labels each frame once, in repeat 0, and the later
@@ -110,26 +114,50 @@ class SlamConfig:
     image); the run's timing figures are then repeat 0's. False: every repeat segments again."""
 
 
-def _editable(cls: type) -> DictConfig:
-    """The structured config of ``cls``; frozen dataclasses give read-only nodes, which Hydra
-    could not override, so every node is made writable (types are still enforced)."""
-    node = OmegaConf.structured(cls)
+@dataclass
+class SequenceConfig:
+    """The ``sequence`` group (``configs/sequence/default.yaml``): the frames of a TUM RGB-D
+    sequence folder."""
 
-    def unlock(cfg: Any) -> None:
-        if isinstance(cfg, DictConfig):
-            OmegaConf.set_readonly(cfg, False)
-            for key in cfg:
-                unlock(cfg[key])
+    path: str = MISSING
+    """The sequence folder (rgb.txt, depth.txt, groundtruth.txt, rgb/, depth/, [labels/])."""
+    camera: Optional[str] = None  # noqa: UP045 (OmegaConf reads typing's Optional)
+    """fr1 | fr2 | fr3 | a path to an intrinsics.yaml; null = the sequence's own, else fr3."""
+    max_diff: float = ranged(0.02, min=0)
+    """Largest rgb <-> depth stamp difference, s (TUM's associate.py)."""
+    start: int = ranged(0, min=0)
+    """First associated frame to use."""
+    stride: int = ranged(1, min=1)
+    """Use every stride-th frame."""
+    max_frames: Optional[int] = ranged(None, min=1)  # noqa: UP045
+    """At most this many frames; null = all."""
 
-    unlock(node)
-    return node
+
+@dataclass
+class SlamEvalConfig:
+    """The top level of ``configs/slam_eval.yaml`` as composed (``segmenter`` and ``system`` are
+    checked against their ``_target_`` classes and by the system)."""
+
+    sequence: SequenceConfig = field(default_factory=SequenceConfig)
+    segmenter: Any = None
+    slam: SlamConfig = field(default_factory=SlamConfig)
+    system: Any = None
+    eval: EvalConfig = field(default_factory=EvalConfig)
+    filters: Any = field(default_factory=list)
+    """Filter names (a list, or one name)."""
+    segment: str = ranged("every_frame", choices=SEGMENT_SCHEDULES)
+    """every_frame: segment every frame, concurrently with ORB extraction; keyframes: segment
+    keyframes only."""
+    compare: Any = None
+    """null, or a non-empty list of filter lists (comparison mode)."""
+    out_dir: str = MISSING
+    progress: bool = True
 
 
 def register_configs() -> None:
     """Store the schema nodes in Hydra's ConfigStore (idempotent)."""
-    store = ConfigStore.instance()
-    store.store(group=SCHEMA_GROUP, name="slam", node=_editable(SlamConfig))
-    store.store(group=SCHEMA_GROUP, name="eval", node=_editable(EvalConfig))
+    register(SCHEMA_GROUP, "slam", SlamConfig)
+    register(SCHEMA_GROUP, "eval", EvalConfig)
 
 
 # ------------------------------------------------------------------------------------ checks
@@ -158,24 +186,17 @@ def run_name(filters: Sequence[str]) -> str:
     return "+".join(filters) if filters else "baseline"
 
 
-def _dataclass(cls: type, section: Any, where: str) -> Any:
-    values = OmegaConf.to_container(section, resolve=True) if section is not None else {}
-    known = {f.name for f in fields(cls)}
-    for key in values or {}:
-        if key not in known:
-            raise UssSlamError(f"{where}.{key}: unknown key; expected one of {', '.join(known)}")
+def _settings(cls: type, typed: Any, where: str) -> Any:
+    """The dataclass ``cls`` of a section whose types :func:`~uss_slam.core.schema.check`
+    checked; its own ``__post_init__`` rules (messages "<field> must ...") name the full key."""
+    values = OmegaConf.to_container(typed, resolve=True) if typed is not None else {}
     try:
         return cls(**(values or {}))
     except (TypeError, ValueError) as err:
         message = str(err)
-        first = message.split(" ", 1)[0]
-        if first in known:  # "<field> must ...": name the full key
-            return _raise(f"{where}.{message}")
-        return _raise(f"{where}: {message}")
-
-
-def _raise(message: str) -> Any:
-    raise UssSlamError(message)
+        if message.split(" ", 1)[0] in {f.name for f in fields(cls)}:
+            raise UssSlamError(f"{where}.{message}") from None
+        raise UssSlamError(f"{where}: {message}") from None
 
 
 def _filter_names(value: Any, key: str, known: Sequence[str]) -> list[str]:
@@ -200,159 +221,73 @@ def _compare_sets(compare: Any, known: Sequence[str]) -> list[list[str]]:
     return [_filter_names(item, f"compare[{k}]", known) for k, item in enumerate(compare)]
 
 
-def _check_filter_params(params: Any) -> dict[str, dict[str, Any]]:
-    """Filter nodes: each a mapping with an importable ``_target_``, parameter names its
-    constructor takes, values of its default's type."""
-    if params is None:
-        return {}
-    if not isinstance(params, dict):
-        raise UssSlamError(f"slam.filter_params: expected a mapping, got {params!r}")
-    for name, values in params.items():
-        if not isinstance(values, dict):
-            raise UssSlamError(
-                f"slam.filter_params.{name}: expected a mapping with _target_ and parameters, "
-                f"got {values!r}"
-            )
-    defaults = filter_defaults(params)
-    for name, values in params.items():
+def _check_filter_params(params: DictConfig) -> dict[str, dict[str, Any]]:
+    """Filter nodes: each a mapping with a ``_target_``, its parameters checked against the
+    class's parameter annotations (:func:`~uss_slam.core.schema.check_target`)."""
+    for name in params:
         key = f"slam.filter_params.{name}"
-        for param, value in values.items():
-            if param == "_target_":
-                continue
-            if param not in defaults[name]:
-                raise UssSlamError(
-                    f"{key}.{param}: unknown parameter; expected one of {', '.join(defaults[name])}"
-                )
-            default = defaults[name][param]
-            problem = _type_problem(default, value)
-            if problem:
-                raise UssSlamError(f"{key}.{param}: {problem}")
-    return params
+        node = params[name]
+        if not isinstance(node, DictConfig) or "_target_" not in node:
+            raise SchemaError(key, "a mapping with _target_ (the filter class) and parameters",
+                              _plain(node))  # fmt: skip
+        _import_target(OmegaConf.to_container(node), key)
+        check_target(node, key)
+    return OmegaConf.to_container(params, resolve=True)  # type: ignore[return-value]
 
 
-def _type_problem(default: Any, value: Any) -> str | None:
-    if isinstance(default, bool):
-        return None if isinstance(value, bool) else f"expected true or false, got {value!r}"
-    if isinstance(default, (int, float)):
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            return f"expected a number, got {value!r}"
-        if not math.isfinite(value):
-            return f"expected a finite number, got {value!r}"
-        if isinstance(default, int) and not float(value).is_integer():
-            return f"expected a whole number, got {value!r}"
-        return None
-    if isinstance(default, list) and not isinstance(value, list):
-        return f"expected a list, got {value!r}"
-    return None
+def _plain(node: Any) -> Any:
+    return OmegaConf.to_container(node) if isinstance(node, (DictConfig, ListConfig)) else node
 
 
 def _check_segmenter(section: Any) -> None:
-    """The segmenter's options against its class's constructor (before it is built)."""
+    """The segmenter's options against its class's parameter annotations (before it is
+    built), and the parameters it requires."""
     target = section.get("_target_") if isinstance(section, DictConfig) else None
     if not target:
         raise UssSlamError(
             "segmenter: expected a config with _target_ (segmenter=none|labels|onnx)"
         )
-    module_name, _, class_name = str(target).rpartition(".")
-    try:
-        module = __import__(module_name, fromlist=[class_name])
-        cls = getattr(module, class_name)
-    except (ImportError, AttributeError, ValueError):
-        raise UssSlamError(f"segmenter._target_: cannot import {target!r}") from None
+    cls = _import_target(OmegaConf.to_container(section), "segmenter")
+    check_target(section, "segmenter")
     params = inspect.signature(cls).parameters
-    accepts_any = any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values())
-    options = [k for k in section if not str(k).startswith("_")]
-    for key in options:
-        if key not in params and not accepts_any:
-            allowed = ", ".join(params) or "none"
-            raise UssSlamError(
-                f"segmenter.{key}: not an option of {class_name} (options: {allowed})"
-            )
-    missing = [
+    required = [
         name
         for name, p in params.items()
         if p.default is inspect.Parameter.empty
         and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)
-        and name not in options
     ]
-    if missing:
-        raise UssSlamError(f"segmenter.{missing[0]}: required by {class_name}")
-
-
-TOP_LEVEL_KEYS = ("sequence", "segmenter", "slam", "system", "eval", "filters", "segment",
-                  "compare", "out_dir", "progress")  # fmt: skip
-"""The top-level keys of ``configs/slam_eval.yaml`` as composed."""
-SEQUENCE_KEYS = ("path", "camera", "max_diff", "start", "stride", "max_frames")
-"""The keys of ``configs/sequence/default.yaml``."""
-
-
-def _check_sequence(cfg: DictConfig) -> None:
-    """The frame selection and association of ``sequence`` and the ``progress`` flag (plain
-    keys without a typed schema): a wrong type is one line, never a traceback or a silent
-    truthy string."""
-    unknown = sorted(str(k) for k in cfg if str(k) not in TOP_LEVEL_KEYS)
-    if unknown:  # added with +key=value: nothing would read it
-        raise UssSlamError(
-            f"{unknown[0]}: unknown key; uss-slam's keys are {', '.join(TOP_LEVEL_KEYS)}"
-        )
-    seq = cfg.get("sequence") or {}
-    unknown = sorted(str(k) for k in seq if str(k) not in SEQUENCE_KEYS)
-    if unknown:
-        raise UssSlamError(
-            f"sequence.{unknown[0]}: unknown key; expected one of {', '.join(SEQUENCE_KEYS)}"
-        )
-    for key, minimum, nullable in (
-        ("start", 0, False),
-        ("stride", 1, False),
-        ("max_frames", 1, True),
-    ):
-        value = seq.get(key)
-        if value is None and nullable:
-            continue
-        if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-            null = " or null" if nullable else ""
-            raise UssSlamError(
-                f"sequence.{key} must be a whole number >= {minimum}{null}, got {value!r}"
-            )
-    max_diff = seq.get("max_diff")
-    if isinstance(max_diff, bool) or not isinstance(max_diff, (int, float)) or not max_diff >= 0:
-        raise UssSlamError(f"sequence.max_diff must be a number of seconds >= 0, got {max_diff!r}")
-    if not isinstance(cfg.get("progress", True), bool):
-        raise UssSlamError(f"progress must be true or false, got {cfg.progress!r}")
+    for name in required:
+        if name not in section:
+            raise UssSlamError(f"segmenter.{name}: required by {cls.__name__}")
 
 
 def check(cfg: DictConfig) -> RunPlan:
-    """Validate everything the run will use, before any frame is read or file written."""
+    """Validate everything the run will use, before any frame is read or file written: the
+    config against :class:`SlamEvalConfig` (types, ranges, unknown keys), the filters' and the
+    segmenter's parameters against their classes, then the rules across keys."""
     for key in ("segment", "filters", "compare", "eval", "slam", "segmenter", "out_dir"):
         if key not in cfg:
             raise UssSlamError(f"{key}: missing from the config")
-    segment = str(cfg.segment)
-    if segment not in SEGMENT_SCHEDULES:
-        raise UssSlamError(
-            f"segment={segment!r}: choose every_frame (segment every frame, concurrently "
-            "with ORB extraction) or keyframes (segment keyframes only)"
-        )
-    slam = cfg.slam
-    orb = _dataclass(OrbConfig, slam.orb, "slam.orb")
-    tracker = _dataclass(TrackerConfig, slam.tracker, "slam.tracker")
-    semantic_map = _dataclass(MapConfig, slam.map, "slam.map")
-    evaluation = _dataclass(EvalConfig, cfg.eval, "eval")
+    typed = schema_check(cfg, SlamEvalConfig)
+    slam = typed.slam
+    orb = _settings(OrbConfig, slam.orb, "slam.orb")
+    tracker = _settings(TrackerConfig, slam.tracker, "slam.tracker")
+    semantic_map = _settings(MapConfig, slam.map, "slam.map")
+    evaluation = _settings(EvalConfig, typed.eval, "eval")
     backend = {
         "local_ba": bool(slam.local_ba),
         "loop_closing": bool(slam.loop_closing),
-        "local_ba_params": _dataclass(
+        "local_ba_params": _settings(
             LocalMappingConfig, slam.local_ba_params, "slam.local_ba_params"
         ),
-        "loop_closing_params": _dataclass(
+        "loop_closing_params": _settings(
             LoopClosingConfig, slam.loop_closing_params, "slam.loop_closing_params"
         ),
     }
-    for key in ("prefetch", "workers"):
-        if int(slam[key]) < (0 if key == "prefetch" else 1):
-            raise UssSlamError(f"slam.{key}: must be >= {0 if key == 'prefetch' else 1}")
-    _check_sequence(cfg)
-    repeats = _check_repeats(slam, orb.n_features)
-    params = _check_filter_params(OmegaConf.to_container(slam.filter_params, resolve=True))
+    repeats = perturbations(
+        int(slam.repeats), int(slam.repeat_seed), float(slam.repeat_budget), orb.n_features
+    )
+    params = _check_filter_params(cfg.slam.filter_params)
     known = list(params)
     if cfg.compare is None:
         runs: list[tuple[str | None, list[str]]] = [
@@ -378,17 +313,3 @@ def removed_override(overrides: Sequence[str]) -> str | None:
         if section == "slam.tracker" and name in REMOVED_TRACKER_KEYS:
             return f"{key}: {REMOVED_TRACKER_KEYS[name]}"
     return None
-
-
-def _check_repeats(slam: DictConfig, n_features: int) -> list[Perturbation]:
-    """``slam.repeats``, ``slam.repeat_seed`` and ``slam.repeat_budget`` as the repeats'
-    perturbations (the types are enforced by the schema while composing)."""
-    count, budget = int(slam.repeats), float(slam.repeat_budget)
-    if count < 1:
-        raise UssSlamError(f"slam.repeats must be >= 1, got {count}")
-    if not (math.isfinite(budget) and 0 <= budget < 0.5):
-        raise UssSlamError(f"slam.repeat_budget must be in [0, 0.5), got {budget}")
-    return perturbations(count, int(slam.repeat_seed), budget, n_features)
-
-
-# ------------------------------------------------------------------------- config errors

@@ -78,7 +78,7 @@ BAD_CONFIGS = [
     (["eval.rpe_delta=1.5"], "eval.rpe_delta must be a whole number of frames with rpe_unit="),
     (["eval.rpe_delta=0"], "eval.rpe_delta must be > 0, got 0.0"),
     (["eval.max_diff=abc"], "eval.max_diff: Value 'abc' of type 'str' could not be converted"),
-    (["segment=sometimes"], "segment='sometimes': choose every_frame"),
+    (["segment=sometimes"], "segment: expected one of 'every_frame', 'keyframes', got 'sometimes'"),
     (["filters=[semantic,teleport]"], "filters: unknown filter 'teleport'; choose from semantic"),
     (["compare=[[semantic],[flow,warp]]"], "compare[1]: unknown filter 'warp'; choose from"),
     (["compare=[]"], "compare must be a non-empty list of filter lists"),
@@ -86,12 +86,13 @@ BAD_CONFIGS = [
     (["slam.filter_params.flow.threshold=fast"],
      "slam.filter_params.flow.threshold: expected a number, got 'fast'"),
     (["+slam.filter_params.flow.radius=3"],
-     "slam.filter_params.flow.radius: unknown parameter; expected one of threshold, window"),
+     "slam.filter_params.flow.radius: unknown key; expected one of threshold, window"),
     (["slam.filter_params.semantic.dynamic_classes=[person,ghost]"],
      "unknown class 'ghost'; the project's classes are background, person, chair, monitor"),
     (["segmenter=labels", "+segmenter.model=x.onnx"],
-     "segmenter.model: not an option of LabelsSegmenter (options: none)"),
-    (["segmenter=onnx"], "Missing mandatory value: segmenter.path"),
+     "segmenter.model: unknown key; uss_slam.slam_eval.segmenters.base.LabelsSegmenter takes no "
+     "parameters"),
+    (["segmenter=onnx"], "segmenter.path: required by OnnxSegmenter"),
     (["segmenter=onnx", "segmenter.path=missing.onnx"], "segmenter.path missing.onnx: no such"),
     (["slam.orb.bogus=1"], "slam.orb.bogus: Key 'bogus' not in 'OrbConfig'"),
     (["slam.tracker.policy=harness"], "slam.tracker.policy: the harness tracking policy was "
@@ -138,7 +139,7 @@ def test_onnx_segmenter_threads_checked_before_loading(
         f"sequence.path={seq}", f"out_dir={tmp_path / 'out'}", "segmenter=onnx",
         f"segmenter.path={model}", "segmenter.threads=abc"])  # fmt: skip
     assert code == 1 and err.strip().splitlines() == [
-        "uss-slam: error: segmenter.threads must be a whole number >= 1 or null, got 'abc'"
+        "uss-slam: error: segmenter.threads: expected an integer or null, got 'abc'"
     ]
     assert not (tmp_path / "out" / MANIFEST).exists()
 
