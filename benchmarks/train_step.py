@@ -44,6 +44,7 @@ import importlib.util
 import logging
 import os
 import statistics
+import sys
 import tempfile
 import time
 from dataclasses import dataclass
@@ -65,6 +66,7 @@ from uss_slam.testing.reference_step import (
 from uss_slam.testing.step_timing import FAST_CPU, Speed, time_lightning
 from uss_slam.train.losses import LossWeights
 from uss_slam.train.module import AdversarialSegmentation
+from uss_slam.train.speed import BF16_FLAGS, cpu_flags
 
 CLOCKS = {"wall": time.perf_counter, "cpu": time.process_time}
 clock = time.perf_counter
@@ -235,18 +237,30 @@ def run_speed(case: Case, variants: list[str] | None = None) -> None:
     instances = {name: speed_variant(module, speed) for name, speed in speeds.items()}
     first: dict[str, float] = {}
     results: dict[str, list[float]] = {"plain": [], **{name: [] for name in speeds}}
+    # Each repeat's median too: the spread between repeats shows an outlier that the pooled
+    # median hides.
+    repeat_medians: dict[str, list[float]] = {name: [] for name in results}
     names = list(results)
     state = plain_state_from(module)
     for repeat in range(case.repeats):
         for name in names[repeat % len(names) :] + names[: repeat % len(names)]:
             if name == "plain":
-                results["plain"] += time_plain(state, batch, case.iters, weights)[1:]
-                continue
-            times = time_lightning(
-                instances[name], batch, case.iters, speeds[name].precision, clock=clock
+                timed = time_plain(state, batch, case.iters, weights)[1:]
+            else:
+                times = time_lightning(
+                    instances[name], batch, case.iters, speeds[name].precision, clock=clock
+                )
+                first.setdefault(name, times[0])
+                timed = times[1:]
+            results[name] += timed
+            repeat_medians[name].append(statistics.median(timed))
+            # A ResNet-101 suite runs for tens of minutes on a busy CPU: say where it is.
+            print(
+                f"{case.backbone}: repeat {repeat + 1}/{case.repeats} {name} "
+                f"{repeat_medians[name][-1]:.4f} s/it",
+                file=sys.stderr,
+                flush=True,
             )
-            first.setdefault(name, times[0])
-            results[name] += times[1:]
     # Same computation: 2 iterations of every variant from the same start, against eager.
     losses: dict[str, list[dict[str, float]]] = {}
     finals: dict[str, dict[str, Tensor]] = {}
@@ -256,7 +270,7 @@ def run_speed(case: Case, variants: list[str] | None = None) -> None:
         time_lightning(variant, batch, 2, speeds[name].precision, losses[name], clock=clock)
         finals[name] = {k: v.detach().float().clone() for k, v in variant.state_dict().items()}
     plain = statistics.median(results["plain"])
-    eager = statistics.median(results["eager"]) if "eager" in results else plain
+    eager = statistics.median(results["eager"]) if "eager" in results else None
     bn = "frozen BN" if case.freeze_bn else f"BN {case.batchnorm} (domains unbatched)"
     print(
         f"{case.heading(bn)}: median s/iteration "
@@ -264,7 +278,7 @@ def run_speed(case: Case, variants: list[str] | None = None) -> None:
     )
     print(
         f"  {'variant':14s} {'s/it':>8s} {'vs plain':>9s} {'vs eager':>9s} {'compile s':>10s} "
-        f"{'max |dloss|/loss':>17s} {'max |dweight|':>14s}"
+        f"{'repeats min-max':>16s} {'max |dloss|/loss':>17s} {'max |dweight|':>14s}"
     )
     for name, times in results.items():
         median = statistics.median(times)
@@ -276,10 +290,12 @@ def run_speed(case: Case, variants: list[str] | None = None) -> None:
         if name in losses and "eager" in losses and name != "eager":
             loss_diff = f"{_max_relative(losses[name], losses['eager']):.1e}"
             weight_diff = f"{_max_abs(finals[name], finals['eager']):.1e}"
+        spread = f"{min(repeat_medians[name]):.4f}-{max(repeat_medians[name]):.4f}"
         print(
-            f"  {name:14s} {median:8.4f} {median / plain:9.3f} {median / eager:9.3f} "
-            f"{'-' if compile_s is None else f'{compile_s:.1f}':>10s} {loss_diff:>17s} "
-            f"{weight_diff:>14s}"
+            f"  {name:14s} {median:8.4f} {median / plain:9.3f} "
+            f"{'-' if eager is None else f'{median / eager:.3f}':>9s} "
+            f"{'-' if compile_s is None else f'{compile_s:.1f}':>10s} {spread:>16s} "
+            f"{loss_diff:>17s} {weight_diff:>14s}"
         )
 
 
@@ -355,6 +371,11 @@ def main() -> None:
         help="time the Lightning variants with the TQDM progress bar (interactive uss-train)",
     )
     args = parser.parse_args()
+    if args.iters < 2 or args.repeats < 1:
+        parser.error(
+            f"--iters must be at least 2 (the first iteration of each fit is a warm-up, not "
+            f"timed) and --repeats at least 1, got --iters {args.iters} --repeats {args.repeats}"
+        )
     if args.suite == "speed":
         return main_speed(args)
     global clock, progress_bar
@@ -374,6 +395,18 @@ def main() -> None:
         run(case, compare)
 
 
+def cpu_model(cpuinfo: Path = Path("/proc/cpuinfo")) -> str:
+    """The CPU's model name (Linux ``/proc/cpuinfo``; ``unknown CPU`` where there is none)."""
+    try:
+        lines = cpuinfo.read_text().splitlines()
+    except OSError:
+        return "unknown CPU"
+    for line in lines:
+        if line.startswith("model name") and ":" in line:
+            return line.split(":", 1)[1].strip()
+    return "unknown CPU"
+
+
 def main_speed(args: argparse.Namespace) -> None:
     global clock
     clock = CLOCKS[args.clock]
@@ -382,14 +415,21 @@ def main_speed(args: argparse.Namespace) -> None:
     with tempfile.TemporaryDirectory(prefix="inductor_") as cache:
         if not args.warm_cache:
             os.environ["TORCHINDUCTOR_CACHE_DIR"] = cache
+        bf16 = sorted(flag for flag in BF16_FLAGS if flag in cpu_flags()) or ["none"]
         print(
-            f"torch {torch.__version__}, {args.threads} threads, {args.clock} clock, "
-            f"{'warm' if args.warm_cache else 'cold'} compile cache, load "
-            f"{os.getloadavg()[0]:.1f}"
+            f"{cpu_model()} (bfloat16 instructions: {', '.join(bf16)}), torch "
+            f"{torch.__version__}, {args.threads} threads, {args.clock} clock, "
+            f"{'warm' if args.warm_cache else 'cold'} compile cache"
         )
+        print(f"{time.strftime('%Y-%m-%d %H:%M', time.gmtime())} UTC, load {_load()}")
         for case in cases(args):
             run_speed(case, args.variants)
-        print(f"load at the end {os.getloadavg()[0]:.1f}")
+        print(f"{time.strftime('%Y-%m-%d %H:%M', time.gmtime())} UTC, load at the end {_load()}")
+
+
+def _load() -> str:
+    """The 1-, 5- and 15-minute load averages."""
+    return " / ".join(f"{x:.1f}" for x in os.getloadavg())
 
 
 if __name__ == "__main__":
