@@ -196,6 +196,10 @@ def check(node: Any, schema: type, key: str = "") -> DictConfig:
 def _plain(node: Any) -> Any:
     if isinstance(node, (DictConfig, ListConfig)):
         return OmegaConf.to_container(node, resolve=True, throw_on_missing=False)
+    if isinstance(node, Mapping):
+        return {name: _plain(value) for name, value in node.items()}
+    if isinstance(node, (list, tuple)):
+        return [_plain(value) for value in node]
     return node
 
 
@@ -305,8 +309,9 @@ def _check_value(value: Any, tp: Any, metadata: dict[str, Any], where: str) -> N
         if "length" in metadata and len(value) != metadata["length"]:
             raise SchemaError(where, describe(tp, metadata), value)
         element = args[0] if args else Any
+        text = {"text": True} if metadata.get("text") else {}
         for i, item in enumerate(value):
-            _check_value(item, element, {}, _join(where, i))
+            _check_value(item, element, text, _join(where, i))
         return
     if origin in _MAPPINGS and isinstance(value, Mapping) and len(args) == 2:
         for name, item in value.items():

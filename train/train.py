@@ -13,8 +13,9 @@ from __future__ import annotations
 
 import logging
 import signal
+from dataclasses import dataclass, fields
 from pathlib import Path
-from typing import Any
+from typing import Any, Optional
 
 import hydra
 import lightning as L
@@ -30,10 +31,10 @@ from omegaconf import DictConfig, OmegaConf, open_dict
 from uss_slam.core.cli import hydra_task, run_hydra_app
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.files import check_writable
+from uss_slam.core.schema import check_targets, ranged, validate
 from uss_slam.models.checkpoint import CheckpointInfo, read_checkpoint
 from uss_slam.train.callbacks import LogProgressBar
 from uss_slam.train.checkpoint_io import AtomicCheckpointIO
-from uss_slam.train.config_check import check_config_types, run_settings
 from uss_slam.train.module import AdversarialSegmentation, resume_differences
 from uss_slam.train.speed import resolve_precision
 
@@ -75,6 +76,44 @@ def resolve_ckpt_path(cfg: DictConfig) -> str | None:
 
 TYPED_SECTIONS = ("data", "model", "trainer", "callbacks", "logger")
 """Config sections whose ``_target_`` nodes are checked against their targets' signatures."""
+
+RESOLVED_LATER = {"trainer.precision": ("auto",)}
+"""Values accepted besides the annotation's: resolved for the CPU or GPU when the run starts
+(:func:`~uss_slam.train.speed.resolve_precision`)."""
+
+MAX_SEED = 2**32 - 1
+"""The largest seed numpy (and so Lightning's ``seed_everything``) accepts."""
+
+
+@dataclass
+class RunSettings:
+    """The top level of ``uss-train``'s config (``configs/train.yaml``) besides its groups."""
+
+    task_name: str = ranged("train", text=True)
+    run_name: str = ranged("default", text=True)
+    """Runs land in ``${paths.log_dir}/${task_name}/runs/${run_name}/<time>``."""
+    tags: list[str] = ranged(default_factory=list, text=True)
+    seed: Optional[int] = ranged(0, min=0, max=MAX_SEED)  # noqa: UP045 (OmegaConf reads Optional)
+    """What numpy's and Lightning's seeding accept (Lightning raises deep inside); null: no
+    seeding."""
+    ckpt_path: Optional[str] = None  # noqa: UP045
+    """Checkpoint to resume from: null, a ``.ckpt`` file, or ``last``."""
+    num_threads: Optional[int] = ranged(None, min=1)  # noqa: UP045
+    """``torch.set_num_threads``, or null for torch's default (0 would silently mean the
+    default, -1 end in torch's traceback)."""
+    optimized_metric: Optional[str] = "val/mIoU"  # noqa: UP045
+    """Metric returned to Hydra sweepers."""
+
+
+def check_config(cfg: DictConfig) -> RunSettings:
+    """The types and ranges of ``cfg`` before anything is built: the top-level keys as
+    :class:`RunSettings`, every ``_target_`` node of :data:`TYPED_SECTIONS` against its
+    target's parameter annotations (:mod:`uss_slam.core.schema`). A problem is one line
+    ``<key>: expected ..., got ...``."""
+    values = {f.name: cfg[f.name] for f in fields(RunSettings) if f.name in cfg}
+    settings = validate(values, RunSettings)
+    check_targets(cfg, TYPED_SECTIONS, opaque=(torch.Tensor,), also=RESOLVED_LATER)
+    return settings
 
 
 def _output_folders(cfg: DictConfig) -> list[tuple[str, str]]:
@@ -268,8 +307,7 @@ def train(cfg: DictConfig) -> dict[str, float]:
     config, the checkpoint to resume, the output folders), so that a bad run leaves no
     checkpoints or logs behind.
     """
-    settings = run_settings(cfg)
-    check_config_types(cfg, TYPED_SECTIONS)
+    settings = check_config(cfg)
     check_optimizers(cfg)
     check_accelerator(cfg)
     if settings.num_threads is not None:

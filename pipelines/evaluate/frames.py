@@ -115,7 +115,7 @@ def config_val_frames(overrides: Sequence[str]) -> FrameSource:
     from hydra.core.global_hydra import GlobalHydra
     from omegaconf import OmegaConf
 
-    from uss_slam.train.config_check import check_config_types
+    from uss_slam.core.schema import check_targets
 
     bad = [o for o in overrides if "=" not in o]
     if bad:
@@ -137,7 +137,7 @@ def config_val_frames(overrides: Sequence[str]) -> FrameSource:
     node = OmegaConf.select(cfg, "data.val")
     if node is None:
         raise UssSlamError("the composed data config has no data.val (the validation set)")
-    check_config_types(cfg, ("data",))  # data.val.stride=abc: one line naming the key
+    check_targets(cfg, ("data",))  # data.val.stride=abc: one line naming the key
     dataset = _instantiate_val(node)
     if not getattr(dataset, "labelled", False):
         raise UssSlamError("data.val has no labels: nothing to evaluate against")

@@ -114,13 +114,11 @@ def _check_slam(exp: Experiment, job: Job) -> tuple[str, ...]:
 def _train_problem(overrides: tuple[str, ...]) -> str | None:
     """What is wrong with the ``train`` config composed with ``overrides`` (None: nothing)."""
     from uss_slam.pipelines.runs import compose_config
-    from uss_slam.train.config_check import check_config_types, run_settings
-    from uss_slam.train.train import TYPED_SECTIONS, check_optimizers
+    from uss_slam.train.train import check_config, check_optimizers
 
     try:
         cfg = compose_config("train", list(overrides))
-        run_settings(cfg)
-        check_config_types(cfg, TYPED_SECTIONS)
+        check_config(cfg)
         check_optimizers(cfg)
     except Exception as error:
         line = config_error_line(error, "training")

@@ -16,9 +16,8 @@ from lightning.pytorch.strategies import DDPStrategy
 from omegaconf import DictConfig, OmegaConf, open_dict
 
 from uss_slam.testing import step_timing as bench
-from uss_slam.train.config_check import check_config_types
 from uss_slam.train.module import AdversarialSegmentation
-from uss_slam.train.train import TYPED_SECTIONS
+from uss_slam.train.train import check_config
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -60,7 +59,7 @@ GPU_CASES = [
 @pytest.mark.parametrize("overrides", GPU_CASES, ids=" ".join)
 def test_gpu_options_compose(overrides: tuple[str, ...], tmp_path: Path) -> None:
     cfg = _compose(*overrides, tmp_path=tmp_path)
-    check_config_types(cfg, TYPED_SECTIONS)
+    check_config(cfg)
     for override in overrides:
         key, _, value = override.partition("=")
         if "." in key:
@@ -99,7 +98,7 @@ def test_full_precision_stays_the_default(tmp_path: Path) -> None:
 def test_fast_cpu_sets_what_the_benchmark_measures(experiment: str | None, tmp_path: Path) -> None:
     overrides = ["trainer=fast_cpu"] + ([f"experiment={experiment}"] if experiment else [])
     cfg = _compose(*overrides, tmp_path=tmp_path)
-    check_config_types(cfg, TYPED_SECTIONS)
+    check_config(cfg)
     assert cfg.trainer.accelerator == "cpu"
     # `auto` resolves per CPU; on one with bfloat16 instructions it is what the benchmark times
     assert cfg.trainer.precision == "auto"
