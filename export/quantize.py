@@ -19,6 +19,7 @@ import numpy as np
 import onnx
 import onnxruntime as ort
 
+from uss_slam.core.cli import warning
 from uss_slam.core.errors import DataFormatError, UssSlamError
 from uss_slam.core.files import StagedFiles
 from uss_slam.core.onnx_contract import INPUT_NAME, OUTPUT_LABELS
@@ -39,6 +40,9 @@ def read_calibration_frames(
     """``2 × frames`` RGB frames spread evenly over a TUM folder's ``rgb.txt``, alternately
     assigned to calibration and evaluation (so agreement is measured on frames the calibration
     never saw). Returns ``(calibration, evaluation)`` lists of ``(H, W, 3)`` uint8 RGB.
+
+    A folder with fewer than ``2 × frames`` frames gives all of them, with one warning naming
+    both numbers.
 
     Raises :class:`DataFormatError` naming the folder, ``rgb.txt`` or the image when the folder
     is missing, lists fewer than 2 frames or an image cannot be read.
@@ -65,6 +69,12 @@ def read_calibration_frames(
         if bgr is None:
             raise DataFormatError(path, "not a readable image (listed in rgb.txt)")
         images.append(np.ascontiguousarray(bgr[:, :, ::-1]))
+    if count < 2 * frames:  # after the reads: a bad folder is one error line, no warning
+        warning(
+            f"calibration.frames={frames} asks for {frames} calibration and {frames} evaluation "
+            f"frames, but {rgb_list} lists {len(listing)}: {(count + 1) // 2} calibrate and "
+            f"{count // 2} evaluate"
+        )
     return images[0::2], images[1::2]
 
 

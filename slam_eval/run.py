@@ -18,8 +18,9 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
 from uss_slam.core.cli import hydra_task, run_hydra_app
-from uss_slam.core.files import check_writable, output_lock
+from uss_slam.core.files import check_output_owner, check_writable, output_lock
 
+from .compare_sets import checked_runs
 from .config import check, register_configs, removed_override, run_name
 from .filters.build import build_filters
 from .scoring.evaluation import evaluate
@@ -86,6 +87,8 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     """
     plan = check(cfg)
     out = check_writable(output_dir(cfg), "out_dir")
+    if _own_hydra() is not None:  # inside uss-experiments, its job folder is that app's
+        check_output_owner(out, PROG, "out_dir")  # a uss-eval or uss-demo output, ...
     if OmegaConf.select(cfg, "system.name") == "orbslam3":  # the real ORB-SLAM3, not the harness
         from .systems.orbslam3.system import run_from_config
 
@@ -93,6 +96,7 @@ def run(cfg: DictConfig) -> dict[str, Any]:
             return run_from_config(
                 cfg, out, before_commit=lambda f: {"overrides": _write_hydra_files(f, cfg)}
             )
+    plan = replace(plan, runs=checked_runs(cfg, plan.runs, plan.filter_params))
     segmenter: Segmenter = hydra.utils.instantiate(cfg.segmenter)
     seq_cfg = cfg.sequence
     sequence = TumSequence(
@@ -186,10 +190,18 @@ def _run_harness(
 
 def warn_if_groundtruth_misses(sequence: TumSequence) -> None:
     """One warning line on stderr, before any work, when the sequence's ground truth shares no
-    time span with its selected frames (no pose to score against: ATE and RPE will be n/a).
-    Not an error: the trajectory and map are still worth having."""
+    time span with its selected frames, or when the sequence has no ``groundtruth.txt`` (no
+    pose to score against: ATE and RPE will be n/a). Not an error: the trajectory and map are
+    still worth having."""
     gt = sequence.groundtruth
     frames = sequence.stamps
+    if gt is None:
+        print(
+            f"{PROG}: warning: {sequence.path}: no groundtruth.txt, so ATE and RPE are n/a "
+            "(the trajectory and the map are written)",
+            file=sys.stderr,
+        )
+        return
     if gt is None or not len(gt) or not len(frames):
         return
     if gt.stamps.min() <= frames.max() and frames.min() <= gt.stamps.max():

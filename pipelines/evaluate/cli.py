@@ -12,7 +12,13 @@ from typing import Any
 from uss_slam.core.classes import CLASS_NAMES, DYNAMIC_CLASSES
 from uss_slam.core.cli import exit_on_user_error, warning
 from uss_slam.core.errors import UssSlamError
-from uss_slam.core.files import check_writable, output_lock, write_json_atomic, write_text_atomic
+from uss_slam.core.files import (
+    check_output_owner,
+    check_writable,
+    output_lock,
+    write_json_atomic,
+    write_text_atomic,
+)
 from uss_slam.core.seg_metrics import iou_report, mask_metrics
 
 from .frames import FrameSource, config_val_frames, sequence_frames
@@ -59,9 +65,15 @@ def evaluate(
     if out.exists() and not out.is_dir():
         raise UssSlamError(f"--out {out}: exists and is not a folder")
     check_writable(out, "--out", create=False)
+    check_output_owner(out, PROG, "--out")  # a uss-slam run, a uss-demo output, ...
     source = sequence_frames(sequences, stride) if sequences else config_val_frames(overrides)
     if source.count == 0:
         raise UssSlamError("no labelled frames to evaluate")
+    if overlays > source.count:
+        warning(
+            f"--overlays {overlays}: the data has {source.count} frames; {source.count} "
+            "overlays are written, one per frame"
+        )
     with output_lock(out, "--out"):
         return _evaluate(model, out, source, dynamic, frame_iou, overlays, threads)
 

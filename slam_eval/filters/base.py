@@ -67,6 +67,11 @@ class DynamicFilter(ABC):
     @abstractmethod
     def __call__(self, ctx: FilterContext) -> FilterOutput: ...
 
+    def idle_reason(self) -> str | None:
+        """Why this filter, as configured, can flag no keypoint whatever the frames (``<its
+        parameter> ...: ...``, for a warning), or None when it can flag some."""
+        return None
+
 
 def values_at(image: np.ndarray, xy: np.ndarray) -> np.ndarray:
     """Values of a (H, W) image at float pixel positions ``xy`` (nearest pixel, clamped)."""

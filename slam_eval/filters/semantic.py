@@ -33,6 +33,11 @@ class SemanticFilter(DynamicFilter):
         size = 2 * self.dilation + 1
         self._kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
 
+    def idle_reason(self) -> str | None:
+        if len(self.ids):
+            return None
+        return "dynamic_classes is empty: the semantic filter drops no keypoint"
+
     def mask(self, labels: np.ndarray) -> np.ndarray:
         """``(H, W)`` uint8 1 where a dynamic class is (after dilation)."""
         mask = cv2.LUT(labels, self._lut)

@@ -46,9 +46,11 @@ import numpy as np
 import onnxruntime as ort
 
 from uss_slam.core.classes import CLASS_NAMES
+from uss_slam.core.cli import warning
 from uss_slam.core.errors import DataFormatError, UssSlamError
 from uss_slam.core.onnx_contract import (
     INPUT_NAME,
+    KEY_DYNAMIC_CLASSES,
     OUTPUT_LABELS,
     OUTPUT_LOGITS,
     SegmenterMetadata,
@@ -200,6 +202,11 @@ class OnnxSegmenter(ImageSegmenter):
         self._dynamic_channels = np.array(
             [names.index(n) for n in self.dynamic_classes if n in names], np.int64
         )
+        if self.threshold is not None and not self.dynamic_classes:
+            warning(
+                f"{self.path}: metadata {KEY_DYNAMIC_CLASSES} is empty (the model names no "
+                f"dynamic class), so segmenter.threshold={self.threshold:g} changes no label"
+            )
 
     def _check_io(self, session: ort.InferenceSession) -> None:
         inputs = session.get_inputs()
