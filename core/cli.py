@@ -439,11 +439,25 @@ def report_failed_jobs(prog: str) -> Iterator[JobReport]:
 
 
 def hydra_error_line(error: BaseException) -> str | None:
-    """One line for an error Hydra raises while composing the config (unknown key or option,
-    bad override syntax, a config value of the wrong type), naming the key; None for anything
-    else."""
-    from hydra.errors import HydraException
+    """One line for an error Hydra raises while composing the config, naming the key; None for
+    anything else. Built from the exceptions' attributes:
+
+    - ``MissingConfigException`` (an unknown option of a config group): its ``missing_cfg_file``
+      and ``options`` -> ``<group>: unknown option '<name>'; expected one of ...``;
+    - ``OverrideParseException`` (bad override syntax): its ``override`` and the parser's
+      ``message`` -> ``<override>: <message>`` (the message's first line: the second is Hydra's
+      link to its grammar page);
+    - an OmegaConf error in the cause chain (a value of the wrong type for a structured config,
+      a key the config does not have): :func:`uss_slam.core.schema.omegaconf_error_line`,
+      ``<key>: expected ..., got ...``.
+
+    Hydra's other composition errors (``+key`` for a key that exists, ``~key`` for one that does
+    not, a sweep without ``-m``) carry no attributes besides their text: their lines are joined
+    into one, as the only part of this function that reads an error's text."""
+    from hydra.errors import HydraException, MissingConfigException, OverrideParseException
     from omegaconf.errors import OmegaConfBaseException
+
+    from uss_slam.core.schema import omegaconf_error_line
 
     chain: list[BaseException] = []
     current: BaseException | None = error
@@ -451,26 +465,22 @@ def hydra_error_line(error: BaseException) -> str | None:
         chain.append(current)
         current = current.__cause__ or current.__context__
     for item in chain:
+        if isinstance(item, MissingConfigException) and item.missing_cfg_file:
+            group, _, name = item.missing_cfg_file.rpartition("/")
+            if item.options:
+                expected = ", ".join(item.options)
+                return f"{group}: unknown option {name!r}; expected one of {expected}"
+            return f"{item.missing_cfg_file}: no such config"
+        if isinstance(item, OverrideParseException):
+            message = (item.message.strip().splitlines() or [type(item).__name__])[0]
+            return f"{item.override}: {message}"
+    for item in chain:
         if isinstance(item, OmegaConfBaseException):
-            key = getattr(item, "full_key", None)
-            message = " ".join(str(getattr(item, "msg", None) or item).split("\n")[0].split())
-            return f"{key}: {message}" if key and str(key) not in message else message
+            return omegaconf_error_line(item)
     for item in chain:
         if isinstance(item, HydraException):
-            lines = [line.strip() for line in str(item).strip().splitlines() if line.strip()]
-            if not lines:
-                return type(item).__name__
-            head, parts = lines[0], []
-            for line in lines[1:]:
-                if line.startswith("Config search path"):
-                    break  # Hydra's internals (its config providers), not the user's concern
-                if parts and parts[-1].endswith(":"):
-                    parts[-1] += " " + line  # "Available options in 'model':" + the first one
-                elif parts and ":" in parts[-1] and not line.endswith(":"):
-                    parts[-1] += ", " + line  # the other options, comma-separated
-                else:
-                    parts.append(line)
-            return head + (f" ({'; '.join(parts)})" if parts else "")
+            lines = [line.strip().rstrip(".") for line in str(item).splitlines() if line.strip()]
+            return "; ".join(lines) or type(item).__name__
     return None
 
 

@@ -37,9 +37,6 @@ def hydra_value(value: Any) -> str:
     return f"'{text}'"
 
 
-_NOT_IN_STRUCT = re.compile(r"(?:(?P<path>\S+): )?Key '(?P<key>[^']+)' is not in struct")
-
-
 def config_error_line(error: Exception, what: str) -> str | None:
     """The line of an error composing or checking a job's config (``<key>: <what was
     expected>``; ``what`` names the config: ``training``, ``uss-slam``), None for an error that
@@ -50,8 +47,26 @@ def config_error_line(error: Exception, what: str) -> str | None:
     line = str(error).strip() if isinstance(error, UssSlamError) else hydra_error_line(error)
     if line is None:
         return None
-    found = _NOT_IN_STRUCT.fullmatch(line)
-    if found:
-        key = found["path"] or found["key"]
+    key = _not_in_struct(error)
+    if key is not None:
         return f"{key}: not a key of the {what} config (a new key needs +{key}=VALUE)"
     return line
+
+
+def _not_in_struct(error: BaseException) -> str | None:
+    """The key of an override that names no key of a plain (struct) config node, which ``+``
+    would add; None otherwise (a typed section's keys are fixed)."""
+    import dataclasses
+
+    from omegaconf.errors import ConfigAttributeError, ConfigKeyError
+
+    seen: list[BaseException] = []
+    current: BaseException | None = error
+    while current is not None and all(current is not c for c in seen):
+        seen.append(current)
+        if isinstance(current, (ConfigAttributeError, ConfigKeyError)) and current.full_key:
+            if not dataclasses.is_dataclass(current.object_type):
+                return str(current.full_key)
+            return None
+        current = current.__cause__ or current.__context__
+    return None

@@ -180,3 +180,44 @@ def test_check_targets_recurses_and_leaves_what_it_cannot_judge() -> None:
     check_targets(OmegaConf.create({"m": {"_target_": "no.such.Thing", "x": 1}}), ["m"])
     also = OmegaConf.create({"m": {"_target_": target, "count": 1, "precision": "auto"}})
     check_targets(also, ["m"], also={"m.precision": ("auto",)})
+
+
+def test_hydra_error_line_from_the_exceptions_attributes(tmp_path) -> None:
+    from hydra import compose, initialize_config_dir
+    from hydra.core.global_hydra import GlobalHydra
+
+    from uss_slam.core.cli import hydra_error_line
+
+    register("test_schema_group", "section", Section)
+    (tmp_path / "g").mkdir()
+    (tmp_path / "g" / "a.yaml").write_text("x: 1\n")
+    (tmp_path / "g" / "b.yaml").write_text("x: 2\n")
+    (tmp_path / "main.yaml").write_text(
+        "defaults:\n  - g: a\n  - /test_schema_group/section@sec\n  - _self_\nlimit: 3\n"
+    )
+
+    def line(*overrides: str) -> str | None:
+        GlobalHydra.instance().clear()
+        try:
+            with initialize_config_dir(config_dir=str(tmp_path), version_base="1.3"):
+                compose("main", overrides=list(overrides))
+        except Exception as error:
+            return hydra_error_line(error)
+        finally:
+            GlobalHydra.instance().clear()
+        return "composed"
+
+    assert line("g=b") == "composed"
+    assert line("g=c") == "g: unknown option 'c'; expected one of a, b"
+    assert line("limit=[1") == "limit=[1: no viable alternative at input '[1'"
+    assert line("sec.count=many") == "sec.count: expected an integer, got 'many'"
+    assert line("sec.align=se4") == "sec.align: expected one of se3, sim3, got 'se4'"
+    assert line("sec.inner.nn=1") == "sec.inner.nn: unknown key; expected one of n, xs"
+    assert line("limits=4") == "limits: unknown key; expected one of g, sec, limit"
+    # no structured form: Hydra's text, its lines joined
+    assert line("+limit=4") == (
+        "Could not append to config. An item is already at 'limit'; "
+        "Either remove + prefix: 'limit=4'; Or add a second + to add or override 'limit': "
+        "'++limit=4'"
+    )
+    assert hydra_error_line(ValueError("not Hydra's")) is None

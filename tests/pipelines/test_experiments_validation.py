@@ -45,8 +45,7 @@ BAD = [
     ),
     (
         'slam.overrides=["slam.orb.n_features=abc"]',
-        "slam.overrides: slam.orb.n_features: Value 'abc' of type 'str' could not be converted "
-        "to Integer",
+        "slam.overrides: slam.orb.n_features: expected an integer, got 'abc'",
     ),
     (
         'slam.overrides=["slam.workers=0"]',
