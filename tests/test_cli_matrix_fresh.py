@@ -180,7 +180,7 @@ CASES = [
     case("vocab-info-missing-file", "uss-vocab", "info {tmp}/v.txt", 1, "{tmp}/v.txt",
          ": file not found"),
     case("vocab-info-folder", "uss-vocab", "info {tmp}", 1, "{tmp}",
-         ": not a DBoW2 text vocabulary"),
+         ": is a folder; expected a DBoW2 text vocabulary file"),
     case("vocab-info-header-not-numbers", "uss-vocab", "info {v}", 1, "{v}:1:",
          "expected the DBoW2 text header 'k L scoring weighting' (4 integers), got 'ten four zero zero'",
          setup=(write("v", "ten four zero zero\n"),)),

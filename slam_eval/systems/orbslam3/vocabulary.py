@@ -318,6 +318,8 @@ def read_header(path: StrPath) -> tuple[int, int, int, int]:
             first = fh.readline()
     except FileNotFoundError:
         raise DataFormatError(path, "file not found") from None
+    except IsADirectoryError:
+        raise DataFormatError(path, "is a folder; expected a DBoW2 text vocabulary file") from None
     except (OSError, UnicodeDecodeError) as err:
         raise DataFormatError(path, f"not a DBoW2 text vocabulary ({err})") from None
     return _parse_header(path, first)
@@ -359,6 +361,8 @@ def read_vocabulary(path: StrPath) -> Vocabulary:
         text = path.read_text(encoding="ascii")
     except FileNotFoundError:
         raise DataFormatError(path, "file not found") from None
+    except IsADirectoryError:
+        raise DataFormatError(path, "is a folder; expected a DBoW2 text vocabulary file") from None
     except (OSError, UnicodeDecodeError) as err:
         raise DataFormatError(path, f"not a DBoW2 text vocabulary ({err})") from None
     lines = text.split("\n")
