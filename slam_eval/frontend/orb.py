@@ -17,6 +17,7 @@ leaves too few map points at the far end of the room; set ``max_depth: 3.0`` for
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass, fields
 
@@ -141,11 +142,12 @@ class OrbExtractor:
             patchSize=2 * HALF_PATCH + 1,
             fastThreshold=config.ini_fast,
         )
-        # Disc of radius HALF_PATCH (ORB's umax rule), as (dy, dx) offsets.
+        # Disc of radius HALF_PATCH (ORB's umax rule) as (dx, dy) weights over the square
+        # window around a keypoint, 0 outside the disc: (side², 2) float32.
         dy, dx = np.mgrid[-HALF_PATCH : HALF_PATCH + 1, -HALF_PATCH : HALF_PATCH + 1]
         inside = dx**2 + dy**2 <= HALF_PATCH**2 + HALF_PATCH  # ~ umax's rounding
-        self._disc_dy = dy[inside].astype(np.int64)
-        self._disc_dx = dx[inside].astype(np.int64)
+        self._disc_weights = np.stack([(dx * inside).ravel(), (dy * inside).ravel()], axis=1)
+        self._disc_weights = self._disc_weights.astype(np.float32)
         self._k = camera.matrix
         self._dist = np.asarray(camera.distortion, dtype=np.float64)
 
@@ -183,26 +185,38 @@ class OrbExtractor:
             cy = np.minimum(((xy[:, 1] - lo_y) / cell).astype(np.int64), ny - 1)
             occupied[cy * nx + cx] = True
         # Search again with the low threshold, one call per horizontal run of empty cells: the
-        # scan stays inside the empty (low-texture) area, where FAST rejects pixels fastest.
-        extra_xy, extra_score = [], []
+        # scan stays inside the empty (low-texture) area, where FAST rejects pixels fastest. The
+        # corners of all runs are converted to arrays at once (per-run numpy calls would hold the
+        # GIL about as long as FAST itself takes, beside the main thread's tracking).
         grid = np.zeros((ny, nx + 2), np.int8)
         grid[:, 1:-1] = ~occupied.reshape(ny, nx)
         edges = np.diff(grid, axis=1)
         run_rows, run_starts = np.nonzero(edges == 1)
         _, run_ends = np.nonzero(edges == -1)
+        found: list[tuple[cv2.KeyPoint, ...]] = []
+        boxes: list[tuple[int, int, int, int]] = []
         for gy, gx0, gx1 in zip(
             run_rows.tolist(), run_starts.tolist(), run_ends.tolist(), strict=True
         ):
             x0, y0 = lo_x + gx0 * cell, lo_y + gy * cell
             x1, y1 = min(lo_x + gx1 * cell, hi_x), min(y0 + cell, hi_y)
-            sub = image[y0 - 3 : y1 + 3, x0 - 3 : x1 + 3]
-            p, sc = _fast(self._fast_lo, sub, x0 - 3, y0 - 3)
-            keep = _inside(p, x0, y0, x1, y1)
-            extra_xy.append(p[keep])
-            extra_score.append(sc[keep])
-        if extra_xy:
-            xy = np.concatenate([xy, *extra_xy])
-            score = np.concatenate([score, *extra_score])
+            corners = self._fast_lo.detect(image[y0 - 3 : y1 + 3, x0 - 3 : x1 + 3])
+            if corners:
+                found.append(corners)
+                boxes.append((x0, y0, x1, y1))
+        if found:
+            box = np.repeat(np.array(boxes, np.float32), [len(c) for c in found], axis=0)
+            flat = list(itertools.chain.from_iterable(found))
+            extra = cv2.KeyPoint_convert(flat).reshape(-1, 2) + (box[:, :2] - np.float32(3))
+            extra_score = np.array([k.response for k in flat], dtype=np.float32)
+            keep = (
+                (extra[:, 0] >= box[:, 0])
+                & (extra[:, 0] < box[:, 2])
+                & (extra[:, 1] >= box[:, 1])
+                & (extra[:, 1] < box[:, 3])
+            )
+            xy = np.concatenate([xy, extra[keep]])
+            score = np.concatenate([score, extra_score[keep]])
         if len(xy) <= budget:
             return xy, score
         # Grid bucketing: cells sized so that there are about `budget` of them; take rank-0
@@ -213,8 +227,8 @@ class OrbExtractor:
         bucket = ((xy[:, 1] - lo_y) / side).astype(np.int64) * bx + col
         order = np.lexsort((-score, bucket))
         sorted_bucket = bucket[order]
-        first = np.r_[0, np.flatnonzero(np.diff(sorted_bucket)) + 1]
-        rank = np.arange(len(order)) - np.repeat(first, np.diff(np.r_[first, len(order)]))
+        first = np.concatenate(([0], np.flatnonzero(np.diff(sorted_bucket)) + 1))
+        rank = np.arange(len(order)) - np.repeat(first, np.diff(first, append=len(order)))
         pick = order[np.lexsort((-score[order], rank))[:budget]]
         return xy[pick], score[pick]
 
@@ -222,15 +236,13 @@ class OrbExtractor:
         """``(M,)`` ORB intensity-centroid angle in degrees [0, 360) at level coordinates ``xy``."""
         if len(xy) == 0:
             return np.zeros(0, np.float32)
-        w = image.shape[1]
-        centre = np.rint(xy).astype(np.int64)
-        flat = image.reshape(-1)
-        offsets = self._disc_dy * w + self._disc_dx
-        patches = flat[(centre[:, 1] * w + centre[:, 0])[:, None] + offsets[None, :]].astype(
-            np.float32
-        )
-        m01 = patches @ self._disc_dy.astype(np.float32)
-        m10 = patches @ self._disc_dx.astype(np.float32)
+        # The (2r+1)² window at each keypoint, weighted by dx / dy inside the disc (0 outside):
+        # the moments are integers below 2^24, so float32 sums are exact in any order.
+        corner = np.rint(xy).astype(np.intp) - HALF_PATCH
+        side = 2 * HALF_PATCH + 1
+        windows = np.lib.stride_tricks.sliding_window_view(image, (side, side))
+        patches = windows[corner[:, 1], corner[:, 0]].reshape(len(xy), -1).astype(np.float32)
+        m10, m01 = (patches @ self._disc_weights).T
         return (np.degrees(np.arctan2(m01, m10)) % 360.0).astype(np.float32)
 
     # ------------------------------------------------------------------ public

@@ -59,6 +59,61 @@ def test_low_threshold_fills_cells_without_strong_corners(texture) -> None:
     assert (without.xy[:, 0] < 150).sum() == 0
 
 
+def test_low_threshold_search_equals_one_fast_call_per_empty_cell(texture) -> None:
+    """The fallback search finds exactly FAST 20's corners plus the corners FAST 7 finds in each
+    horizontal run of empty cells searched alone (with its 3 px ring)."""
+    gray = texture((320, 240), seed=6)
+    left = gray[:, :160].astype(np.float32)
+    gray[:, :160] = np.clip(128 + (left - left.mean()) * 0.08, 0, 255).astype(np.uint8)
+    ex = OrbExtractor(OrbConfig(), CAM.scaled(320, 240))
+    xy, score = ex._detect_level(gray, 10**6)  # a budget this large keeps every corner
+
+    def corners(threshold: int, x0: int, y0: int, x1: int, y1: int) -> set[tuple]:
+        fast = cv2.FastFeatureDetector_create(threshold, True)
+        found = fast.detect(gray[y0 - 3 : y1 + 3, x0 - 3 : x1 + 3])
+        return {
+            (k.pt[0] + x0 - 3, k.pt[1] + y0 - 3, k.response)
+            for k in found
+            if x0 <= k.pt[0] + x0 - 3 < x1 and y0 <= k.pt[1] + y0 - 3 < y1
+        }
+
+    h, w = gray.shape
+    lo, hi_x, hi_y, cell = EDGE, w - EDGE, h - EDGE, 30
+    expected = corners(20, lo, lo, hi_x, hi_y)
+    strong = {(int((x - lo) // cell), int((y - lo) // cell)) for x, y, _ in expected}
+    empty = 0
+    for y0 in range(lo, hi_y, cell):
+        row = [
+            x0
+            for x0 in range(lo, hi_x, cell)
+            if ((x0 - lo) // cell, (y0 - lo) // cell) not in strong
+        ]
+        empty += len(row)
+        while row:  # one search per horizontal run of empty cells
+            run = [row.pop(0)]
+            while row and row[0] == run[-1] + cell:
+                run.append(row.pop(0))
+            y1 = min(y0 + cell, hi_y)
+            expected |= corners(7, run[0], y0, min(run[-1] + cell, hi_x), y1)
+    assert empty > 10
+    got = {(float(x), float(y), float(r)) for (x, y), r in zip(xy, score, strict=True)}
+    assert len(got) == len(xy) and got == expected
+
+
+def test_orientation_is_the_exact_disc_centroid(texture) -> None:
+    gray = texture((320, 240), seed=7)
+    ex = OrbExtractor(OrbConfig(), CAM.scaled(320, 240))
+    xy, _ = ex._detect_level(gray, 300)
+    dy, dx = np.mgrid[-15:16, -15:16]
+    disc = dx**2 + dy**2 <= 15**2 + 15
+    expected = []
+    for x, y in np.rint(xy).astype(int):
+        patch = gray[y - 15 : y + 16, x - 15 : x + 16].astype(np.int64)
+        m01, m10 = np.float32((patch * dy)[disc].sum()), np.float32((patch * dx)[disc].sum())
+        expected.append(np.degrees(np.arctan2(m01, m10)) % 360.0)
+    np.testing.assert_array_equal(ex._orientation(gray, xy), np.array(expected, np.float32))
+
+
 def test_orientation_matches_opencv_orb(texture) -> None:
     gray = texture((640, 480), seed=2)
     orb = cv2.ORB_create(500, 1.2, 1, 19, 0, 2, cv2.ORB_FAST_SCORE, 31, 20)
