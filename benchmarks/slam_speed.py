@@ -34,6 +34,7 @@ from pathlib import Path
 
 from uss_slam.slam_eval.filters.build import build_filters
 from uss_slam.slam_eval.frontend.orb import OrbConfig, OrbExtractor
+from uss_slam.slam_eval.scoring.metrics import ate
 from uss_slam.slam_eval.segmenters.base import LabelsSegmenter
 from uss_slam.slam_eval.sequence import TumSequence
 from uss_slam.slam_eval.systems.harness import SlamPipeline
@@ -70,8 +71,8 @@ def main() -> None:
     frames = [seq.load(i) for i in range(len(seq))]
     extractor = OrbExtractor(OrbConfig(), seq.camera)
     print(f"{path}: {len(seq)} frames {size[0]}x{size[1]}, filters {args.filters}, local BA "
-          f"{args.local_ba}, loop closing {args.loop_closing}, {os.cpu_count()} CPUs, "
-          f"load average {os.getloadavg()[0]:.2f}")  # fmt: skip
+          f"{args.local_ba}, loop closing {args.loop_closing}, {os.cpu_count()} CPUs "
+          f"({cpu_model()}), load average {os.getloadavg()[0]:.2f}")  # fmt: skip
 
     fps, ratios, own_ratios, modules, cpus, bounds = [], [], [], [], [], []
     worker_modules = {"read", "segmentation", "orb"}
@@ -107,7 +108,8 @@ def main() -> None:
         print(
             f"repeat {repeat}: {result.fps:5.1f} frames/s, pipeline {total:.1f} ms/frame, "
             f"ORB alone {orb_only:.1f} ms/frame -> ratio {total / orb_only:.2f} "
-            f"(tracked {result.tracked_fraction:.2f})",
+            f"(tracked {result.tracked_fraction:.2f}, ATE RMSE "
+            f"{ate(seq.groundtruth, result.trajectory).stats.rmse:.6f} m)",
             flush=True,
         )
     print(f"median: {statistics.median(fps):.1f} frames/s; pipeline / ORB-only "
@@ -125,6 +127,18 @@ def main() -> None:
               f"(repeats {', '.join(f'{v:.1f}' for v in orb3)}); harness / ORB-SLAM3 "
               f"{statistics.median(fps) / statistics.median(orb3):.2f}")  # fmt: skip
     print(f"load average after: {os.getloadavg()[0]:.2f}")
+
+
+def cpu_model() -> str:
+    """The CPU's model name as ``lscpu`` prints it (``/proc/cpuinfo``), or ``unknown CPU``."""
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as info:
+            for line in info:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return "unknown CPU"
 
 
 def orbslam3_fps(path: Path, vocabulary: Path, repeats: int) -> list[float]:
