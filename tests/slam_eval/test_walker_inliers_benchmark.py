@@ -49,7 +49,7 @@ def test_variants_parse_typed_overrides() -> None:
     assert bench.parse_variant("default") == bench.Variant("default")
     for spec, message in [
         ("x:tracker.nope=1", "unknown key 'nope'"),
-        ("x:tracker.local_radius=abc", "local_radius expects a value like 4.0"),
+        ("x:tracker.local_radius=abc", "local_radius expects a value like 12.0"),
         ("x:tracker.local_radius=-1", "local_radius must be a finite number >= 0"),
         ("x:local_ba=1", "local_ba expects true or false"),
         ("x:orb.n_features=5", "keys are tracker.<field>"),
