@@ -483,8 +483,10 @@ OUTPUT_MARKERS: dict[str, tuple[str, ...]] = {
     "uss-demo": ("summary.json", "miou.json"),
     "uss-eval": ("eval.json",),
     "uss-train": ("checkpoints",),
+    "uss-export": ("*.verify.json",),
 }
-"""What each console script leaves at the top of its output folder: the folder belongs to it.
+"""What each console script leaves at the top of its output folder: the folder belongs to it
+(a name, or a glob pattern: an export folder holds ``<name>.verify.json`` per model).
 A Hydra app's record (``.hydra/hydra.yaml``, ``help.app_name``) names its app as well
 (``uss-train``, ``uss-export``, ``uss-slam``, ``uss-experiments``)."""
 
@@ -498,8 +500,9 @@ def output_owner(folder: str | PathLike[str]) -> tuple[str, str] | None:
         return None
     for prog, markers in OUTPUT_MARKERS.items():
         for marker in markers:
-            if (path / marker).exists():
-                return prog, marker
+            found = next(path.glob(marker), None) if "*" in marker else path / marker
+            if found is not None and found.exists():
+                return prog, found.name
     record = path / ".hydra" / "hydra.yaml"
     if record.is_file():
         import yaml

@@ -346,10 +346,9 @@ CASES = [
          "sequence.path={seq} out_dir={ev} progress=false", 1,
          "out_dir={ev}: holds the outputs of uss-eval (eval.json)", setup=(eval_output,)),
     case("slam-out-dir-is-an-export", "uss-slam",
-         "sequence.path={seq} out_dir={exports} progress=false", 1, "{exports}",
-         setup=(earlier_export,),
-         marks=bad("uss-slam writes its run beside uss-export's models: an export folder has "
-                   "no marker in core.files.OUTPUT_MARKERS, so nothing refuses it")),
+         "sequence.path={seq} out_dir={exports} progress=false", 1,
+         "out_dir={exports}: holds the outputs of uss-export (fake.verify.json)",
+         setup=(earlier_export,)),
     # ---------------------------------------------------------------- uss-train (Hydra)
     case("train-source-root-missing", "uss-train", f"{TRAIN} data.source.root={{tmp}}/nope", 1,
          "{tmp}/nope",
@@ -434,8 +433,10 @@ CASES = [
          "stages",
          "expected a non-empty list of data, train, export, slam, tables"),
     case("experiments-added-unknown-key", "uss-experiments", f"{EXPERIMENTS} +bogus=1", 1,
-         "bogus",
-         marks=bad("uss-experiments accepts a key no one reads (+bogus=1): exit 0, no line")),
+         "bogus: not a uss-experiments key; accepted: crf_params, data, dry_run"),
+    case("experiments-added-unknown-section-key", "uss-experiments",
+         f"{EXPERIMENTS} +grid.seed=1", 1,
+         "grid.seed: not a uss-experiments key; accepted in grid: adabn, adabn_methods"),
     case("experiments-out-dir-is-a-slam-run", "uss-experiments", "out_dir={out} dry_run=true",
          1, "{out}", setup=(earlier_slam_run,),
          marks=bad("uss-experiments takes a uss-slam run folder as out_dir (exit 0): its "

@@ -335,6 +335,48 @@ def eval_seed(cfg: Mapping[str, Any], name: str) -> int:
     return int(cfg["data"]["synthetic"]["eval_seed"]) + SYNTHETIC_SEQUENCES.index(name)
 
 
+OPEN_SECTIONS = ("grid.loss", "grid.batchnorm", "grid.method_overrides")
+"""Sections whose keys are the user's (a loss weight, a method name): not checked by name."""
+
+
+def known_keys() -> dict[str, set[str]]:
+    """The keys uss-experiments reads: top level (``""``) and one level down in each section,
+    from ``experiments.yaml`` and every ``scale`` config (which add to the same sections)."""
+    import yaml
+
+    files = [CONFIG_DIR / "experiments.yaml", *sorted((CONFIG_DIR / "scale").glob("*.yaml"))]
+    known: dict[str, set[str]] = {"": {"launcher", "hydra"}}
+    for path in files:
+        node = yaml.safe_load(path.read_text()) or {}
+        for key, value in node.items():
+            if key == "defaults":
+                continue
+            known[""].add(key)
+            if isinstance(value, Mapping):
+                known.setdefault(key, set()).update(value)
+    return known
+
+
+def check_unknown_keys(plain: Mapping[str, Any]) -> None:
+    """A key no part of uss-experiments reads (``+bogus=1``, ``+grid.seed=[1]``): one line
+    naming it and the keys accepted there, instead of a run that ignores it."""
+    known = known_keys()
+    for key in plain:
+        if key not in known[""]:
+            accepted = ", ".join(sorted(known[""] - {"hydra"}))
+            raise UssSlamError(f"{key}: not a uss-experiments key; accepted: {accepted}")
+    for section, keys in known.items():
+        node = plain.get(section) if section else None
+        if not isinstance(node, Mapping):
+            continue
+        for key in node:
+            if key not in keys and f"{section}.{key}" not in OPEN_SECTIONS:
+                raise UssSlamError(
+                    f"{section}.{key}: not a uss-experiments key; accepted in {section}: "
+                    f"{', '.join(sorted(map(str, keys)))}"
+                )
+
+
 def check(cfg: DictConfig) -> Experiment:
     """Everything that can be checked before any work starts (one error line each)."""
     launcher_node = cfg.get("launcher")
@@ -344,6 +386,7 @@ def check(cfg: DictConfig) -> Experiment:
             node = launcher_node.get(section) or {}
             missing += [f"launcher.{section}.{k}" for k in node if OmegaConf.is_missing(node, k)]
     plain: dict[str, Any] = OmegaConf.to_container(cfg, resolve=True)  # type: ignore[assignment]
+    check_unknown_keys(plain)
     for key in ("dry_run", "fast_dev_run"):
         if not isinstance(plain.get(key, False), bool):
             raise UssSlamError(f"{key} must be true or false, got {plain.get(key)!r}")

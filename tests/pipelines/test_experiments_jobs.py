@@ -201,8 +201,9 @@ def test_launcher_overrides_merge_the_stage_section() -> None:
         ),
         (
             ["+crf_params.sigma=3"],
-            "crf_params: unknown key 'sigma'; known: iterations, gaussian_sxy, gaussian_compat, "
-            "bilateral_sxy, bilateral_srgb, bilateral_compat",
+            "crf_params.sigma: not a uss-experiments key; accepted in crf_params: "
+            "bilateral_compat, bilateral_srgb, bilateral_sxy, gaussian_compat, gaussian_sxy, "
+            "iterations",
         ),
     ],
 )
