@@ -524,16 +524,17 @@ class RunFolderCheck:
     (:func:`uss_slam.core.files.check_output_owner`) or whose path the system cannot create.
     Multirun job folders are Hydra's own fresh sweep folders and are not checked."""
 
-    def __init__(self, prog: str) -> None:
+    def __init__(self, prog: str, key: str = "hydra.run.dir") -> None:
         self.prog = prog
+        self.key = key  # the key the line names (uss-experiments: out_dir, its run folder)
 
     def on_run_start(self, config: Any, **kwargs: Any) -> None:
         from uss_slam.core.files import check_name_lengths, check_output_owner
 
         folder = str(config.hydra.run.dir)
         try:
-            check_name_lengths(folder, "hydra.run.dir")
-            check_output_owner(folder, self.prog, "hydra.run.dir")
+            check_name_lengths(folder, self.key)
+            check_output_owner(folder, self.prog, self.key)
         except UssSlamError as error:
             raise RefusedRunFolder(error) from None
 

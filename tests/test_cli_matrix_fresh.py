@@ -438,14 +438,11 @@ CASES = [
          f"{EXPERIMENTS} +grid.seed=1", 1,
          "grid.seed: not a uss-experiments key; accepted in grid: adabn, adabn_methods"),
     case("experiments-out-dir-is-a-slam-run", "uss-experiments", "out_dir={out} dry_run=true",
-         1, "{out}", setup=(earlier_slam_run,),
-         marks=bad("uss-experiments takes a uss-slam run folder as out_dir (exit 0): its "
-                   "config has no RunFolderCheck, and Hydra's record of the call replaces the "
-                   "run's .hydra/")),
+         1, "out_dir={out}: holds the outputs of uss-slam (run.json)",
+         setup=(earlier_slam_run,)),
     case("experiments-out-dir-is-an-eval-output", "uss-experiments",
-         "out_dir={ev} dry_run=true", 1, "{ev}", setup=(eval_output,),
-         marks=bad("uss-experiments takes a uss-eval output as out_dir (exit 0): its config "
-                   "has no RunFolderCheck")),
+         "out_dir={ev} dry_run=true", 1, "out_dir={ev}: holds the outputs of uss-eval (eval.json)",
+         setup=(eval_output,)),
     case("experiments-duplicated-seeds", "uss-experiments", f"{EXPERIMENTS} grid.seeds=[3,3]",
          1, "grid.seeds",
          "3 is listed twice"),
