@@ -225,11 +225,14 @@ class OrbExtractor:
         bx = max(1, int(math.ceil((hi_x - lo_x) / side)))
         col = np.minimum(((xy[:, 0] - lo_x) / side).astype(np.int64), bx - 1)
         bucket = ((xy[:, 1] - lo_y) / side).astype(np.int64) * bx + col
-        order = np.lexsort((-score, bucket))
+        # FAST scores are integers in [0, 255], so (key, best score first) packs into one int64
+        # and a stable argsort gives the two-key lexsort's order (ties by position) for less.
+        worse = 255 - score.astype(np.int64)
+        order = np.argsort(bucket * 256 + worse, kind="stable")
         sorted_bucket = bucket[order]
         first = np.concatenate(([0], np.flatnonzero(np.diff(sorted_bucket)) + 1))
         rank = np.arange(len(order)) - np.repeat(first, np.diff(first, append=len(order)))
-        pick = order[np.lexsort((-score[order], rank))[:budget]]
+        pick = order[np.argsort(rank * 256 + worse[order], kind="stable")[:budget]]
         return xy[pick], score[pick]
 
     def _orientation(self, image: np.ndarray, xy: np.ndarray) -> np.ndarray:

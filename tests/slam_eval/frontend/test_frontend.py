@@ -100,6 +100,31 @@ def test_low_threshold_search_equals_one_fast_call_per_empty_cell(texture) -> No
     assert len(got) == len(xy) and got == expected
 
 
+def test_bucketing_takes_each_cells_best_corners_rank_by_rank(texture) -> None:
+    """With more corners than the budget: every cell's best corner first (better scores first,
+    then cell order), then every cell's second best, ... exactly in that order."""
+    gray = texture((320, 240), seed=8)
+    ex = OrbExtractor(OrbConfig(), CAM.scaled(320, 240))
+    everything, scores = ex._detect_level(gray, 10**6)
+    budget = 150
+    xy, score = ex._detect_level(gray, budget)
+    h, w = gray.shape
+    span_x, span_y = w - 2 * EDGE, h - 2 * EDGE
+    side = np.sqrt(span_x * span_y / budget)
+    bx = int(np.ceil(span_x / side))
+    cells = [
+        int((y - EDGE) / side) * bx + min(int((x - EDGE) / side), bx - 1) for x, y in everything
+    ]
+    by_cell: dict[int, list[int]] = {}
+    for i in sorted(range(len(cells)), key=lambda i: (cells[i], -scores[i], i)):
+        by_cell.setdefault(cells[i], []).append(i)
+    rank = {i: r for members in by_cell.values() for r, i in enumerate(members)}
+    expected = sorted(range(len(cells)), key=lambda i: (rank[i], -scores[i], cells[i], i))[:budget]
+    assert len(everything) > 2 * budget
+    np.testing.assert_array_equal(xy, everything[expected])
+    np.testing.assert_array_equal(score, scores[expected])
+
+
 def test_orientation_is_the_exact_disc_centroid(texture) -> None:
     gray = texture((320, 240), seed=7)
     ex = OrbExtractor(OrbConfig(), CAM.scaled(320, 240))
