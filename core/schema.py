@@ -506,11 +506,18 @@ def target_schema(target: str | Callable[..., Any], opaque: Iterable[type] = ())
         hints = typing.get_type_hints(obj.__init__ if inspect.isclass(obj) else obj)
     except Exception:  # unknown target or unresolvable hints: the target reports it when built
         return None
+    # a dataclass target's own fields may declare ranges (:func:`ranged`): kept
+    declared = (
+        {f.name: dict(f.metadata) for f in dataclasses.fields(obj)}
+        if dataclasses.is_dataclass(obj)
+        else {}
+    )
     fields_: list[Any] = []
     for name, param in signature.parameters.items():
         if name == "self" or param.kind in (param.VAR_POSITIONAL, param.VAR_KEYWORD):
             continue
         tp, metadata = _config_type(hints.get(name, Any), opaque)
+        metadata = {**metadata, **declared.get(name, {})}
         fields_.append((name, tp, dataclasses.field(default=MISSING, metadata=metadata)))
     label = getattr(obj, "__qualname__", str(target))
     schema = dataclasses.make_dataclass(label.replace(".", "_"), fields_)

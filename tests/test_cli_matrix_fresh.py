@@ -362,9 +362,7 @@ CASES = [
     case("train-max-iters-zero", "uss-train", f"{TRAIN} model.max_iters=0", 1, "max_iters",
          "must be a positive integer, got 0"),
     case("train-adv-weight-negative", "uss-train", f"{TRAIN} model.loss.lambda_adv_main=-1", 1,
-         "lambda_adv_main",
-         marks=(pytest.mark.slow, *bad("uss-train trains with a negative adversarial loss "
-                                       "weight (exit 0): LossWeights checks no range"))),
+         "model.loss.lambda_adv_main: expected a number >= 0, got -1"),
     case("train-weights-path-missing", "uss-train",
          f"{TRAIN} model.net.weights_path={{tmp}}/init.ckpt", 1, "{tmp}/init.ckpt",
          "weights file not found; expected a uss-train checkpoint"),

@@ -14,6 +14,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from uss_slam.core.classes import IGNORE_INDEX
+from uss_slam.core.schema import ranged
 
 SOURCE_LABEL = 0.0
 """Domain label of source outputs for the discriminators (paper: 0 = source)."""
@@ -24,10 +25,10 @@ TARGET_LABEL = 1.0
 class LossWeights:
     """λ of the four weighted terms (paper §3.3 defaults)."""
 
-    lambda_seg_aux: float = 0.1
-    lambda_seg_main: float = 1.0
-    lambda_adv_aux: float = 0.002
-    lambda_adv_main: float = 0.01
+    lambda_seg_aux: float = ranged(0.1, min=0)
+    lambda_seg_main: float = ranged(1.0, min=0)
+    lambda_adv_aux: float = ranged(0.002, min=0)
+    lambda_adv_main: float = ranged(0.01, min=0)
 
 
 def upsample(logits: Tensor, size: tuple[int, int]) -> Tensor:

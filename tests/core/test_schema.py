@@ -221,3 +221,20 @@ def test_hydra_error_line_from_the_exceptions_attributes(tmp_path) -> None:
         "'++limit=4'"
     )
     assert hydra_error_line(ValueError("not Hydra's")) is None
+
+
+@dataclass
+class _Weights:
+    """A dataclass target whose fields declare their ranges (as train.losses.LossWeights)."""
+
+    weight: float = ranged(0.5, min=0)
+    name: str = "w"
+
+
+def test_a_dataclass_targets_declared_ranges_are_checked() -> None:
+    cfg = OmegaConf.create({"loss": {"_target_": f"{__name__}._Weights", "weight": -1}})
+    with pytest.raises(SchemaError) as caught:
+        check_targets(cfg, ["loss"])
+    assert str(caught.value) == "loss.weight: expected a number >= 0, got -1"
+    check_targets(OmegaConf.create({"loss": {"_target_": f"{__name__}._Weights", "weight": 0}}),
+                  ["loss"])  # fmt: skip
