@@ -118,8 +118,11 @@ def read_weights(path: str | Path) -> WeightsFile:
     try:
         blob = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as error:  # unpickling errors have no common base class
+        # torch's own text (several paragraphs on weights_only) does not help here
         raise DataFormatError(
-            path, f"not a readable torch weights file ({type(error).__name__}: {error})"
+            path,
+            f"not a readable torch weights file (truncated, corrupt or not written by "
+            f"torch.save: {type(error).__name__}); expected {ACCEPTED}",
         ) from error
     if not isinstance(blob, dict):
         raise DataFormatError(

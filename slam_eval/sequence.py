@@ -104,8 +104,8 @@ class TumSequence:
             selected = selected[:max_frames]
         if not selected:
             raise UssSlamError(
-                f"sequence {self.path}: start={start} is past the {len(folder.frames)} "
-                "associated frames"
+                f"sequence.start={start}: past the {len(folder.frames)} associated frames of "
+                f"{self.path}; expected 0..{max(len(folder.frames) - 1, 0)}"
             )
         for files in selected:
             error = folder.missing(files)

@@ -156,6 +156,12 @@ class OnnxSegmenter(ImageSegmenter):
         try:
             session = ort.InferenceSession(str(self.path), options, providers=resolved)
         except Exception as error:  # onnxruntime raises its own exception types
+            if _is_torch_checkpoint(self.path):
+                raise DataFormatError(
+                    self.path,
+                    "a PyTorch checkpoint, not an ONNX model; export it first: uss-export "
+                    f"ckpt_path={self.path}",
+                ) from None
             message = str(error).strip().splitlines()[0] if str(error).strip() else repr(error)
             raise DataFormatError(
                 self.path, f"onnxruntime cannot load it as an ONNX model: {message}"
@@ -317,3 +323,14 @@ class OnnxSegmenter(ImageSegmenter):
             f"providers={self.providers}, threshold={self.threshold}, crf={self.crf}, "
             f"classes={list(self.metadata.class_names)})"
         )
+
+
+def _is_torch_checkpoint(path: Path) -> bool:
+    """Whether ``path`` is a file ``torch.save`` wrote (a zip archive holding ``data.pkl``)."""
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(path) as archive:
+            return any(name.endswith("data.pkl") for name in archive.namelist())
+    except (OSError, zipfile.BadZipFile):
+        return False
