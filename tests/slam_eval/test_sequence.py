@@ -216,7 +216,9 @@ def test_bad_selection_arguments(write_sequence) -> None:
     root = write_sequence()
     with pytest.raises(UssSlamError, match="stride >= 1"):
         TumSequence(root, stride=0)
-    with pytest.raises(UssSlamError, match=r"sequence.start=10: past the 6 associated frames of .*; expected 0..5"):
+    with pytest.raises(
+        UssSlamError, match=r"sequence.start=10: past the 6 associated frames of .*; expected 0..5"
+    ):
         TumSequence(root, start=10)
 
 
