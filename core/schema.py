@@ -39,9 +39,10 @@ from omegaconf.errors import (
 
 from uss_slam.core.errors import UssSlamError
 
-RANGE_KEYS = ("min", "max", "gt", "lt", "choices", "length", "text")
+RANGE_KEYS = ("min", "max", "gt", "lt", "choices", "length", "text", "nonempty")
 """Field metadata that :func:`validate` checks after the types (``text``: a string field that
-takes any scalar as its text, e.g. a run name given as a number)."""
+takes any scalar as its text, e.g. a run name given as a number; on a list field ``min``,
+``max``, ``gt`` and ``lt`` bound each element, ``nonempty`` refuses an empty list)."""
 
 _SCALARS: dict[Any, str] = {int: "an integer", float: "a number", bool: "true or false",
                             str: "a string"}  # fmt: skip
@@ -91,10 +92,13 @@ def ranged(
     choices: Sequence[Any] | None = None,
     length: int | None = None,
     text: bool | None = None,
+    nonempty: bool | None = None,
 ) -> Any:
-    """A dataclass field with range metadata: ``n: int = ranged(1, min=1)``."""
+    """A dataclass field with range metadata: ``n: int = ranged(1, min=1)``; on a list field
+    the bounds are each element's: ``seeds: list[int] = ranged(..., min=0, nonempty=True)``."""
     metadata = {k: v for k, v in (("min", min), ("max", max), ("gt", gt), ("lt", lt),
-                                  ("choices", choices), ("length", length), ("text", text)) if v is not None}  # fmt: skip
+                                  ("choices", choices), ("length", length), ("text", text),
+                                  ("nonempty", nonempty)) if v is not None}  # fmt: skip
     if default_factory is not None:
         return dataclasses.field(default_factory=default_factory, metadata=metadata)
     return dataclasses.field(default=default, metadata=metadata)
@@ -128,6 +132,8 @@ def describe(tp: Any, metadata: Mapping[str, Any] | None = None) -> str:
             text += " " + " and ".join(bounds)
         if "length" in metadata:
             text += f" of length {metadata['length']}"
+        if metadata.get("nonempty") and text.startswith("a list"):
+            text = "a non-empty list" + text.removeprefix("a list")
     return text + (" or null" if nullable and tp is not Any else "")
 
 
@@ -308,12 +314,14 @@ def _check_value(value: Any, tp: Any, metadata: dict[str, Any], where: str) -> N
         raise SchemaError(where, describe(tp, metadata), value)
     origin, args = typing.get_origin(inner), typing.get_args(inner)
     if origin in _SEQUENCES and isinstance(value, (list, tuple)):
-        if "length" in metadata and len(value) != metadata["length"]:
+        if ("length" in metadata and len(value) != metadata["length"]) or (
+            metadata.get("nonempty") and not value
+        ):
             raise SchemaError(where, describe(tp, metadata), value)
         element = args[0] if args else Any
-        text = {"text": True} if metadata.get("text") else {}
+        each = {k: v for k, v in metadata.items() if k in ("min", "max", "gt", "lt", "text")}
         for i, item in enumerate(value):
-            _check_value(item, element, text, _join(where, i))
+            _check_value(item, element, each, _join(where, i))
         return
     if origin in _MAPPINGS and isinstance(value, Mapping) and len(args) == 2:
         for name, item in value.items():

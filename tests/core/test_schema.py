@@ -100,6 +100,27 @@ def test_describe() -> None:
     assert describe(list[str]) == "a list of strings"
     assert describe(Literal[1, "a"]) == "one of 1, 'a'"
     assert describe(Align) == "one of se3, sim3"
+    assert describe(list[int], {"min": 0, "nonempty": True}) == (
+        "a non-empty list of integers >= 0"
+    )
+
+
+def test_a_list_fields_bounds_are_each_elements() -> None:
+    @dataclass
+    class Grid:
+        depths: list[int] = ranged(default_factory=lambda: [4], min=1, max=8, nonempty=True)
+        seeds: list[Align] = field(default_factory=lambda: [Align.se3])
+
+    assert validate({"depths": [1, 8]}, Grid).depths == [1, 8]
+    for values, line in [
+        ({"depths": [4, 9]}, "depths[1]: expected an integer >= 1 and <= 8, got 9"),
+        ({"depths": []}, "depths: expected a non-empty list of integers >= 1 and <= 8, got []"),
+        ({"depths": "x"}, "depths: expected a non-empty list of integers >= 1 and <= 8, got 'x'"),
+        ({"seeds": ["se3", "se9"]}, "seeds[1]: expected one of se3, sim3, got 'se9'"),
+    ]:
+        with pytest.raises(SchemaError) as caught:
+            validate(values, Grid)
+        assert str(caught.value) == line
 
 
 def test_register_puts_an_editable_schema_in_the_config_store() -> None:
