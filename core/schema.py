@@ -159,6 +159,8 @@ def _describe(tp: Any) -> str:
         inner = [a for a in args if a is not Ellipsis]
         if not inner or inner[0] is Any:
             return "a list"
+        if isinstance(inner[0], type) and issubclass(inner[0], enum.Enum):
+            return "a list of " + ", ".join(m.name for m in inner[0])
         return f"a list of {_PLURALS.get(inner[0]) or _describe(inner[0])}"
     if origin in _MAPPINGS or tp is dict:
         return "a mapping"
@@ -264,7 +266,8 @@ def _type_at(schema: type, relative: str) -> tuple[Any, dict[str, Any], Any]:
         parent = inner
         if isinstance(part, int):
             args = [a for a in typing.get_args(inner) if a is not Ellipsis]
-            tp, metadata = (args[0] if args else Any), {}
+            bounds = {k: v for k, v in metadata.items() if k in ("min", "max", "gt", "lt")}
+            tp, metadata = (args[0] if args else Any), bounds
         elif dataclasses.is_dataclass(inner):
             found = {f.name: f for f in dataclasses.fields(inner)}.get(part)
             if found is None:

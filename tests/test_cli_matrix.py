@@ -574,11 +574,11 @@ CASES = [
     case("experiments-unknown-launcher", "uss-experiments", f"{EXPERIMENTS} launcher=k8s", 1,
          "launcher: unknown value 'k8s'; accepted: joblib, local, slurm, submitit_local"),
     case("experiments-unknown-stage", "uss-experiments", f"{EXPERIMENTS} stages=[deploy]", 1,
-         "stages: unknown value 'deploy'; accepted: data, train, export, slam, tables"),
+         "stages[0]: expected one of data, train, export, slam, tables, got 'deploy'"),
     case("experiments-depth-out-of-range", "uss-experiments", f"{EXPERIMENTS} grid.n_layers=[0]",
-         1, "grid.n_layers: expected integers 1..8, got 0"),
+         1, "grid.n_layers[0]: expected an integer >= 1 and <= 8, got 0"),
     case("experiments-seeds-not-a-list", "uss-experiments", f"{EXPERIMENTS} grid.seeds=abc", 1,
-         "grid.seeds: expected a non-empty list, got 'abc'"),
+         "grid.seeds: expected a non-empty list of integers >= 0, got 'abc'"),
     case("experiments-unknown-key", "uss-experiments", f"{EXPERIMENTS} grid.depths=[4]", 1,
          "grid.depths"),
     case("experiments-bad-override-syntax", "uss-experiments", f"{EXPERIMENTS} grid.seeds=[0",
@@ -586,7 +586,7 @@ CASES = [
     case("experiments-out-dir-is-a-file", "uss-experiments",
          "out_dir={afile} dry_run=true", 1, "{afile}", setup=(afile,)),
     case("experiments-dry-run-not-a-bool", "uss-experiments", "out_dir={tmp}/exp dry_run=maybe",
-         1, "dry_run must be true or false, got 'maybe'"),
+         1, "dry_run: expected true or false, got 'maybe'"),
 ]  # fmt: skip
 
 

@@ -1,5 +1,7 @@
 """The checked configuration of ``uss-experiments``: every key that can be wrong is checked here,
-before any work starts, and named in a one-line error with the accepted values."""
+before any work starts, and named in a one-line error with the accepted values. Types, ranges,
+choices and unknown keys are the schema's (:mod:`.schema`); what is left here are the rules
+across keys and what needs the file system or an installed package."""
 
 from __future__ import annotations
 
@@ -13,6 +15,7 @@ from typing import Any
 from omegaconf import DictConfig, OmegaConf
 
 from uss_slam.core.errors import UssSlamError
+from uss_slam.core.schema import check as check_schema
 
 from .grid import (
     PRESET_METHOD_OVERRIDES,
@@ -22,13 +25,10 @@ from .grid import (
     Grid,
     expand,
 )
-from .keys import check_sequences, choose, given, integer
+from .keys import check_sequences, choose, given
+from .schema import CONFIG_DIR, INIT_KINDS, STAGES, ExperimentsSchema
 
-CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
-
-
-STAGES = ("data", "train", "export", "slam", "tables")
-
+__all__ = ["CONFIG_DIR", "INIT_KINDS", "STAGES", "Experiment", "Init", "check"]
 
 LAUNCHERS = ("basic", "joblib", "submitit_local", "submitit_slurm")
 TUM_PREFIX = "rgbd_dataset_freiburg3_"
@@ -53,11 +53,6 @@ def _size(key: str, text: Any) -> str:
     except SynthArgumentError as error:
         raise UssSlamError(f"{key}: {error}") from None
     return str(text)
-
-
-INIT_KINDS = ("scratch", "pretrained")
-"""``init.kind``: ``scratch`` (every training from random weights) or ``pretrained`` (every
-training from a pretrained init: ``init.path``, or one trained on a synthetic pretraining set)."""
 
 
 @dataclass(frozen=True)
@@ -114,7 +109,7 @@ def training_seeds(seed: int) -> set[int]:
 
 def check_orbslam3(orb: Mapping[str, Any]) -> None:
     """``systems=[...,orbslam3]``: the bindings installed, a readable vocabulary (when given)
-    and a repeat count, before any work."""
+    before any work."""
     import importlib.util
 
     from uss_slam.slam_eval.systems.orbslam3.config import INSTALL_HINT, check_vocabulary
@@ -124,7 +119,6 @@ def check_orbslam3(orb: Mapping[str, Any]) -> None:
             f"systems: orbslam3 needs the pyorbslam3 package ({INSTALL_HINT}); without it "
             "accepted: harness"
         )
-    integer("slam.orbslam3.repeats", orb.get("repeats"), 1)
     if orb.get("vocabulary") is not None:
         try:
             check_vocabulary(str(orb["vocabulary"]))
@@ -138,8 +132,6 @@ def check_crf(cfg: Mapping[str, Any], grid: Grid) -> None:
     from uss_slam.slam_eval.segmenters.crf import INSTALL_HINT, DenseCrf
 
     params = cfg.get("crf_params") or {}
-    if not isinstance(params, Mapping):
-        raise UssSlamError(f"crf_params: expected a mapping of CRF parameters, got {params!r}")
     DenseCrf.from_config(given(params), "crf_params")
     wanted = [v for v in grid.variants if VARIANTS[v].crf]
     if wanted and importlib.util.find_spec("pydensecrf") is None:
@@ -147,13 +139,10 @@ def check_crf(cfg: Mapping[str, Any], grid: Grid) -> None:
 
 
 def check_t0(plain: dict[str, Any], synthetic: bool) -> None:
-    """T0's keys: ``grid.adabn``, and ``grid.oracle`` resolved in ``plain`` (null = true for
-    synthetic data, false for real); the oracle of real data needs labelled target training
-    sequences (``labels/`` in each of ``data.real.target``; TUM has none)."""
+    """``grid.oracle`` resolved in ``plain`` (null = true for synthetic data, false for real);
+    the oracle of real data needs labelled target training sequences (``labels/`` in each of
+    ``data.real.target``; TUM has none)."""
     grid = plain["grid"]
-    for key in ("adabn", "oracle"):
-        if grid.get(key) is not None and not isinstance(grid[key], bool):
-            raise UssSlamError(f"grid.{key}: expected true or false, got {grid[key]!r}")
     if grid.get("oracle") is None:
         grid["oracle"] = synthetic
     real = plain["data"].get("real") or {}
@@ -183,19 +172,11 @@ def resolve_method_overrides(plain: dict[str, Any], synthetic: bool) -> None:
 
 
 def check_counts(plain: Mapping[str, Any], synthetic: bool) -> None:
-    """The counts the jobs read late (segmentation evaluation, rendering), checked before any
-    work so that a bad value names its key at once instead of failing every job."""
-    seg = plain.get("segeval") or {}  # (segeval.source_val_stride: checked by the grid)
-    integer("segeval.stride", seg.get("stride", 5), 1)
-    integer("segeval.threads", seg.get("threads", 1), 1, nullable=True)
-    integer("slam.repeats", (plain.get("slam") or {}).get("repeats", 1), 1)
+    """Synthetic evaluation sequences long enough for ``segeval.stride`` (each count's own
+    range is the schema's)."""
+    seg = plain.get("segeval") or {}
     if synthetic:
         syn = plain["data"]["synthetic"]
-        integer("data.synthetic.seed", syn.get("seed", 0), 0)
-        integer("data.synthetic.eval_seed", syn.get("eval_seed", 1000), 0)
-        integer("data.synthetic.voc_images", syn.get("voc_images"), 1)
-        for key in ("train_frames", "val_frames", "eval_frames"):
-            integer(f"data.synthetic.{key}", syn.get(key), 2)
         stride = int(seg.get("stride", 5))
         if int(syn["eval_frames"]) < stride:
             raise UssSlamError(
@@ -204,17 +185,13 @@ def check_counts(plain: Mapping[str, Any], synthetic: bool) -> None:
             )
 
 
-def check_init(
-    plain: Mapping[str, Any], synthetic: bool, experiments: Sequence[str], sequences: Sequence[str]
-) -> Init:
+def check_init(plain: Mapping[str, Any], synthetic: bool, sequences: Sequence[str]) -> Init:
     """The ``init`` section (absent = ``scratch``): its kind, and for ``pretrained`` either a
     readable ``init.path`` or (synthetic data only) the pretraining set and its trainings; the
     pretraining set's ``render_seed`` must differ from every seed of the source set and of the
     (training, validation and evaluation) sequences."""
     init = plain.get("init") or {}
-    if not isinstance(init, Mapping):
-        raise UssSlamError(f"init: expected a mapping (kind, seeds, ...), got {init!r}")
-    kind = choose("init.kind", init.get("kind", "scratch"), INIT_KINDS)
+    kind = str(init.get("kind", "scratch"))
     if kind == "scratch":
         return Init(kind)
     if init.get("path") is not None:
@@ -227,16 +204,12 @@ def check_init(
         return Init(kind, path=path)
     if not synthetic:
         return Init(kind)  # no init: an error after the data checks (check_real_init)
-    seeds = init.get("seeds")
-    if isinstance(seeds, (str, bytes)) or not isinstance(seeds, Sequence) or not seeds:
-        raise UssSlamError(f"init.seeds: expected a non-empty list of integers >= 0, got {seeds!r}")
-    for s in seeds:
-        integer("init.seeds", s, 0)
+    seeds = list(init["seeds"])
     if len(set(seeds)) != len(seeds):
-        raise UssSlamError(f"init.seeds: a seed is listed twice in {list(seeds)}")
-    images = integer("init.images", init.get("images"), 2)
+        raise UssSlamError(f"init.seeds: a seed is listed twice in {seeds}")
+    images = int(init["images"])
     size = _size("init.size", init.get("size"))
-    render_seed = integer("init.render_seed", init.get("render_seed"), 0)
+    render_seed = int(init["render_seed"])
     syn = plain["data"]["synthetic"]
     used = training_seeds(int(syn["seed"])) | {eval_seed(plain, name) for name in sequences}
     if render_seed in used:
@@ -245,12 +218,10 @@ def check_init(
             f"({', '.join(map(str, sorted(used)))}); the pretraining set must be a collection of "
             "its own: choose another init.render_seed"
         )
-    experiment = choose("init.experiment", init.get("experiment"), experiments)
+    experiment = str(init["experiment"])
     overrides = init.get("overrides") or []
-    if isinstance(overrides, (str, bytes)) or not isinstance(overrides, Sequence):
-        raise UssSlamError(f"init.overrides: expected a list of key=value, got {overrides!r}")
     for item in overrides:
-        if not isinstance(item, str) or "=" not in item or item.startswith("="):
+        if "=" not in item or item.startswith("="):
             raise UssSlamError(f"init.overrides: expected key=value overrides, got {item!r}")
     return Init(
         kind,
@@ -306,10 +277,9 @@ def check_batchnorm(plain: Mapping[str, Any], grid: Grid) -> None:
 
 
 def check_parallelism(plain: Mapping[str, Any], missing: Sequence[str]) -> None:
-    """``train.num_threads`` (an integer >= 1 or null) and the launcher's ``n_jobs`` (each
-    section's: joblib's count, an integer >= 1, or negative for "every CPU but |n_jobs| − 1"
-    when that leaves at least one), before any work instead of inside every job."""
-    integer("train.num_threads", plain["train"].get("num_threads"), 1, nullable=True)
+    """The launcher's ``n_jobs`` (each section's: joblib's count, an integer >= 1, or negative
+    for "every CPU but |n_jobs| − 1" when that leaves at least one), before any work instead of
+    inside every job (the launcher group is Hydra's, outside the schema)."""
     launcher = plain.get("launcher") or {}
     cpus = os.cpu_count() or 1
     for section in ("params", "train", "slam"):
@@ -335,48 +305,6 @@ def eval_seed(cfg: Mapping[str, Any], name: str) -> int:
     return int(cfg["data"]["synthetic"]["eval_seed"]) + SYNTHETIC_SEQUENCES.index(name)
 
 
-OPEN_SECTIONS = ("grid.loss", "grid.batchnorm", "grid.method_overrides")
-"""Sections whose keys are the user's (a loss weight, a method name): not checked by name."""
-
-
-def known_keys() -> dict[str, set[str]]:
-    """The keys uss-experiments reads: top level (``""``) and one level down in each section,
-    from ``experiments.yaml`` and every ``scale`` config (which add to the same sections)."""
-    import yaml
-
-    files = [CONFIG_DIR / "experiments.yaml", *sorted((CONFIG_DIR / "scale").glob("*.yaml"))]
-    known: dict[str, set[str]] = {"": {"launcher", "hydra"}}
-    for path in files:
-        node = yaml.safe_load(path.read_text()) or {}
-        for key, value in node.items():
-            if key == "defaults":
-                continue
-            known[""].add(key)
-            if isinstance(value, Mapping):
-                known.setdefault(key, set()).update(value)
-    return known
-
-
-def check_unknown_keys(plain: Mapping[str, Any]) -> None:
-    """A key no part of uss-experiments reads (``+bogus=1``, ``+grid.seed=[1]``): one line
-    naming it and the keys accepted there, instead of a run that ignores it."""
-    known = known_keys()
-    for key in plain:
-        if key not in known[""]:
-            accepted = ", ".join(sorted(known[""] - {"hydra"}))
-            raise UssSlamError(f"{key}: not a uss-experiments key; accepted: {accepted}")
-    for section, keys in known.items():
-        node = plain.get(section) if section else None
-        if not isinstance(node, Mapping):
-            continue
-        for key in node:
-            if key not in keys and f"{section}.{key}" not in OPEN_SECTIONS:
-                raise UssSlamError(
-                    f"{section}.{key}: not a uss-experiments key; accepted in {section}: "
-                    f"{', '.join(sorted(map(str, keys)))}"
-                )
-
-
 def check(cfg: DictConfig) -> Experiment:
     """Everything that can be checked before any work starts (one error line each)."""
     launcher_node = cfg.get("launcher")
@@ -385,29 +313,17 @@ def check(cfg: DictConfig) -> Experiment:
         for section in ("params", "train", "slam"):
             node = launcher_node.get(section) or {}
             missing += [f"launcher.{section}.{k}" for k in node if OmegaConf.is_missing(node, k)]
+    # every key's type, range and accepted values, and no key that nothing reads
+    check_schema({k: v for k, v in cfg.items() if k != "hydra"}, ExperimentsSchema)
     plain: dict[str, Any] = OmegaConf.to_container(cfg, resolve=True)  # type: ignore[assignment]
-    check_unknown_keys(plain)
-    for key in ("dry_run", "fast_dev_run"):
-        if not isinstance(plain.get(key, False), bool):
-            raise UssSlamError(f"{key} must be true or false, got {plain.get(key)!r}")
-    stages = [str(s) for s in plain.get("stages") or []]
-    if not stages:
-        raise UssSlamError(f"stages: expected a non-empty list of {', '.join(STAGES)}")
-    for s in stages:
-        choose("stages", s, STAGES)
-    kind = choose("data.kind", plain["data"]["kind"], ("synthetic", "real"))
-    synthetic = kind == "synthetic"
-    experiments = sorted(p.stem for p in (CONFIG_DIR / "experiment").glob("*.yaml"))
-    choose("train.experiment", plain["train"].get("experiment"), experiments)
-    from uss_slam.pipelines.runs import CHECKPOINT_POLICIES
-
-    choose("train.checkpoint", plain["train"].get("checkpoint", "last"), CHECKPOINT_POLICIES)
+    stages = [str(s) for s in plain["stages"]]
+    synthetic = plain["data"]["kind"] == "synthetic"
     check_t0(plain, synthetic)
     resolve_method_overrides(plain, synthetic)
     check_counts(plain, synthetic)
     accepted = SYNTHETIC_SEQUENCES if synthetic else TUM_SEQUENCES
     sequences = check_sequences(plain.get("sequences"), accepted)
-    init = check_init(plain, synthetic, experiments, sequences)
+    init = check_init(plain, synthetic, sequences)
     grid = expand(plain, accepted, inits=(init.seeds if init.pretrains else ()) or (None,))
     check_batchnorm(plain, grid)
     check_crf(plain, grid)
@@ -420,19 +336,16 @@ def check(cfg: DictConfig) -> Experiment:
         syn = plain["data"]["synthetic"]
         for key in ("voc_size", "train_size", "eval_size"):
             _size(f"data.synthetic.{key}", syn[key])
-        from uss_slam.pipelines.synthetic_data import SHIFT_WARDROBE, SHIFTS
-        from uss_slam.synthetic.textures import WARDROBES
+        from uss_slam.pipelines.synthetic_data import SHIFT_WARDROBE
 
-        shift = choose("data.synthetic.shift", syn.get("shift", "tum_like"), SHIFTS)
+        shift = str(syn["shift"])
         outfits = syn.get("source_outfits")
-        if outfits is not None:
-            choose("data.synthetic.source_outfits", outfits, WARDROBES)
-            if shift != "full" and outfits != SHIFT_WARDROBE[shift]:
-                raise UssSlamError(
-                    f"data.synthetic.source_outfits: {outfits} is shift {shift}'s to choose (it "
-                    f"dresses the source in {SHIFT_WARDROBE[shift]}); set it to null, or use "
-                    "data.synthetic.shift=full"
-                )
+        if outfits is not None and shift != "full" and outfits != SHIFT_WARDROBE[shift]:
+            raise UssSlamError(
+                f"data.synthetic.source_outfits: {outfits} is shift {shift}'s to choose (it "
+                f"dresses the source in {SHIFT_WARDROBE[shift]}); set it to null, or use "
+                "data.synthetic.shift=full"
+            )
         used = training_seeds(int(syn["seed"]))
         for name in grid.sequences:
             if eval_seed(plain, name) in used:
@@ -449,11 +362,11 @@ def check(cfg: DictConfig) -> Experiment:
                     f"data.real.{key}: missing; data.kind=real needs the {key.upper()} folder "
                     f"(data.real.{key}=PATH)"
                 )
-        targets = [str(t) for t in real.get("target") or []]
-        if not targets:
-            raise UssSlamError("data.real.target: expected a non-empty list of TUM sequences")
-        for t in targets:
-            choose("data.real.target", t, TUM_SEQUENCES)
+        if not real.get("target"):
+            raise UssSlamError(
+                "data.real.target: missing; data.kind=real needs a non-empty list of the TUM "
+                "sequences of the target domain"
+            )
         check_real_init(init, synthetic)
     out = Path(str(plain["out_dir"])).expanduser().resolve()
     return Experiment(

@@ -1,5 +1,6 @@
-"""Checks of ``uss-experiments``' configuration values, each failing with the one-line error
-that names the key (``grid.seeds: expected a non-empty list, got 3``)."""
+"""Checks of ``uss-experiments``' values that the schema (:mod:`.schema`) cannot express or that
+the grid needs when called on its own: a name among those of the data kind, a value listed twice,
+loss-weight lists; each fails with the one-line error that names the key."""
 
 from __future__ import annotations
 
@@ -53,17 +54,6 @@ def flag(key: str, value: Any) -> bool:
     return value
 
 
-def integer(key: str, value: Any, minimum: int, nullable: bool = False) -> Any:
-    """``value`` if it is an integer >= ``minimum`` (or None, when ``nullable``); else a
-    :class:`UssSlamError` naming ``key``."""
-    if nullable and value is None:
-        return None
-    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-        hint = " or null" if nullable else ""
-        raise UssSlamError(f"{key}: expected an integer >= {minimum}{hint}, got {value!r}")
-    return value
-
-
 def check_sequences(sequences: Any, accepted: Sequence[str]) -> list[str]:
     names = [str(s) for s in non_empty_list("sequences", sequences)]
     for s in names:
@@ -74,9 +64,9 @@ def check_sequences(sequences: Any, accepted: Sequence[str]) -> list[str]:
 
 def source_val_stride(cfg: Mapping[str, Any]) -> int | None:
     """``segeval.source_val_stride`` (T0's in-domain column: every n-th source validation
-    image); None = not scored."""
+    image); None = not scored. Its type and range are the schema's."""
     stride = (cfg.get("segeval") or {}).get("source_val_stride")
-    return integer("segeval.source_val_stride", stride, 1, nullable=True)
+    return None if stride is None else int(stride)
 
 
 def loss_combinations(loss: Mapping[str, Any] | None) -> list[tuple[tuple[str, float], ...]]:

@@ -100,6 +100,7 @@ def test_describe() -> None:
     assert describe(list[str]) == "a list of strings"
     assert describe(Literal[1, "a"]) == "one of 1, 'a'"
     assert describe(Align) == "one of se3, sim3"
+    assert describe(list[Align], {"nonempty": True}) == "a non-empty list of se3, sim3"
     assert describe(list[int], {"min": 0, "nonempty": True}) == (
         "a non-empty list of integers >= 0"
     )
@@ -114,6 +115,7 @@ def test_a_list_fields_bounds_are_each_elements() -> None:
     assert validate({"depths": [1, 8]}, Grid).depths == [1, 8]
     for values, line in [
         ({"depths": [4, 9]}, "depths[1]: expected an integer >= 1 and <= 8, got 9"),
+        ({"depths": [4, "x"]}, "depths[1]: expected an integer >= 1 and <= 8, got 'x'"),
         ({"depths": []}, "depths: expected a non-empty list of integers >= 1 and <= 8, got []"),
         ({"depths": "x"}, "depths: expected a non-empty list of integers >= 1 and <= 8, got 'x'"),
         ({"seeds": ["se3", "se9"]}, "seeds[1]: expected one of se3, sim3, got 'se9'"),

@@ -148,9 +148,9 @@ def test_launcher_overrides_merge_the_stage_section() -> None:
     [
         (
             ["stages=[data,evaluate]"],
-            "stages: unknown value 'evaluate'; accepted: data, train, export, slam, tables",
+            "stages[1]: expected one of data, train, export, slam, tables, got 'evaluate'",
         ),
-        (["data.kind=cloud"], "data.kind: unknown value 'cloud'; accepted: synthetic, real"),
+        (["data.kind=cloud"], "data.kind: expected one of 'synthetic', 'real', got 'cloud'"),
         (
             ["launcher.name=ray"],
             "launcher.name: unknown value 'ray'; accepted: basic, joblib, submitit_local, "
@@ -161,14 +161,18 @@ def test_launcher_overrides_merge_the_stage_section() -> None:
             "data.synthetic.eval_seed: sequence walking_xyz would be rendered with seed 1, a "
             "training or validation seed (0, 1, 2, 3, 4, 100, 101); choose another eval_seed",
         ),
-        (["data.synthetic.eval_size=640"], "data.synthetic.eval_size: "),
+        (
+            ["data.synthetic.eval_size=640"],
+            "data.synthetic.eval_size: size must be WIDTHxHEIGHT like 640x480, got '640'",
+        ),
         (
             ["data.synthetic.source_outfits=plain"],
-            "data.synthetic.source_outfits: unknown value 'plain'; accepted: classic, varied",
+            "data.synthetic.source_outfits: expected one of 'classic', 'varied', 'all' or null, "
+            "got 'plain'",
         ),
         (
             ["data.synthetic.shift=style"],
-            "data.synthetic.shift: unknown value 'style'; accepted: tum_like, appearance, full",
+            "data.synthetic.shift: expected one of 'tum_like', 'appearance', 'full', got 'style'",
         ),
         (
             ["data.synthetic.source_outfits=varied"],
@@ -176,24 +180,32 @@ def test_launcher_overrides_merge_the_stage_section() -> None:
         ),
         (
             ["train.checkpoint=best"],
-            "train.checkpoint: unknown value 'best'; accepted: last, best_target_val",
+            "train.checkpoint: expected one of 'last', 'best_target_val', got 'best'",
         ),
         (
             ["scale=paper"],
             "data.real.voc: missing; data.kind=real needs the VOC folder (data.real.voc=PATH)",
         ),
-        (["sequences=[walking_xyz,kitchen]"], "sequences: unknown value 'kitchen'; accepted: "),
+        (
+            ["sequences=[walking_xyz,kitchen]"],
+            "sequences[1]: expected one of walking_xyz, walking_static, walking_rpy, ",
+        ),
+        (
+            ["sequences=[sitting_xyz]"],
+            "sequences: unknown value 'sitting_xyz'; accepted: walking_xyz, walking_static, ",
+        ),
         (
             ["train.experiment=nope"],
-            "train.experiment: unknown value 'nope'; accepted: ci, demo, demo_scratch, pretrain, uss_slam_paper",
+            "train.experiment: expected one of 'ci', 'demo', 'demo_scratch', 'pretrain', "
+            "'uss_slam_paper', got 'nope'",
         ),
         (
             ["systems=[harness,orbslam2]"],
-            "systems: unknown value 'orbslam2'; accepted: harness, orbslam3",
+            "systems[1]: expected one of harness, orbslam3, got 'orbslam2'",
         ),
         (
             ["grid.depth_sweep=[self_training]"],
-            "grid.depth_sweep: unknown value 'self_training'; accepted: adaptsegnet, advent",
+            "grid.depth_sweep[0]: expected one of adaptsegnet, advent, got 'self_training'",
         ),
         (
             ["crf_params.iterations=0"],
@@ -201,9 +213,16 @@ def test_launcher_overrides_merge_the_stage_section() -> None:
         ),
         (
             ["+crf_params.sigma=3"],
-            "crf_params.sigma: not a uss-experiments key; accepted in crf_params: "
-            "bilateral_compat, bilateral_srgb, bilateral_sxy, gaussian_compat, gaussian_sxy, "
-            "iterations",
+            "crf_params.sigma: unknown key; expected one of iterations, gaussian_sxy, "
+            "gaussian_compat, bilateral_sxy, bilateral_srgb, bilateral_compat",
+        ),
+        (
+            ["+bogus=1"],
+            "bogus: unknown key; expected one of scale_name, out_dir, stages, dry_run, ",
+        ),
+        (
+            ["init.kind=pretrained", "init.seeds=[0,0]"],
+            "init.seeds: a seed is listed twice in [0, 0]",
         ),
     ],
 )
@@ -308,23 +327,23 @@ def test_missing_launcher_key_is_named_before_launching(tmp_path: Path) -> None:
         ),
         (
             ["grid.methods=[source_only,dann]"],
-            "uss-experiments: error: grid.methods: unknown "
-            "value 'dann'; accepted: source_only, adaptsegnet, advent, minent, self_training",
+            "uss-experiments: error: grid.methods[1]: expected one of source_only, adaptsegnet, "
+            "advent, minent, self_training, got 'dann'",
         ),
         (
             ["train.experiment=nope"],
-            "uss-experiments: error: train.experiment: unknown value 'nope'; accepted: ci, demo, "
-            "demo_scratch, pretrain, uss_slam_paper",
+            "uss-experiments: error: train.experiment: expected one of 'ci', 'demo', "
+            "'demo_scratch', 'pretrain', 'uss_slam_paper', got 'nope'",
         ),
         (
             ["systems=[harness,orbslam2]"],
-            "uss-experiments: error: systems: unknown value 'orbslam2'; accepted: harness, orbslam3",
+            "uss-experiments: error: systems[1]: expected one of harness, orbslam3, got 'orbslam2'",
         ),
         (
             ["variants=[none,flow]"],
-            "uss-experiments: error: variants: unknown value 'flow'; "
-            "accepted: none, geometry, semantic, semantic_crf, semantic_geometry, "
-            "semantic_geometry_crf, semantic_geometry_object, oracle",
+            "uss-experiments: error: variants[1]: expected one of none, geometry, semantic, "
+            "semantic_crf, semantic_geometry, semantic_geometry_crf, semantic_geometry_object, "
+            "oracle, got 'flow'",
         ),
     ],
 )

@@ -477,14 +477,18 @@ def test_stat_standard_error() -> None:
 @pytest.mark.parametrize(
     ("overrides", "message"),
     [
-        (["grid.oracle=maybe"], "grid.oracle: expected true or false, got 'maybe'"),
+        (["grid.oracle=maybe"], "grid.oracle: expected true or false or null, got 'maybe'"),
         (["grid.adabn=1"], "grid.adabn: expected true or false, got 1"),
         (
             ["grid.adabn_methods=[mystery]"],
-            "grid.adabn_methods: unknown value 'mystery'; accepted: source_only, adaptsegnet, "
-            "advent, minent, self_training",
+            "grid.adabn_methods[0]: expected one of source_only, adaptsegnet, "
+            "advent, minent, self_training, got 'mystery'",
         ),
-        (["grid.adabn_methods=[]"], "grid.adabn_methods: expected a non-empty list, got []"),
+        (
+            ["grid.adabn_methods=[]"],
+            "grid.adabn_methods: expected a non-empty list of source_only, adaptsegnet, advent, "
+            "minent, self_training, got []",
+        ),
         (
             ["segeval.source_val_stride=0"],
             "segeval.source_val_stride: expected an integer >= 1 or null, got 0",
