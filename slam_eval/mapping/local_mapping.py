@@ -320,14 +320,14 @@ class BundleAdjuster:
         params = gtsam.LevenbergMarquardtParams()
         params.setMaxIterations(int(iterations))
         optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
-        before = graph.error(values)
+        before = optimizer.error()  # the graph's error at the initial values, computed once
         result = optimizer.optimize()
         out_poses = dict(poses_wc)
         for k in free_used:
             out_poses[k] = result.atPose3(pose_key(k)).matrix()
         out_positions = positions.copy()
         out_positions[used_points] = gtsam.utilities.extractPoint3(result)
-        return out_poses, out_positions, before, graph.error(result), optimizer.iterations()
+        return out_poses, out_positions, before, optimizer.error(), optimizer.iterations()
 
     def adjust(
         self,
