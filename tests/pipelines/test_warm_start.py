@@ -227,7 +227,7 @@ def test_batchnorm_modes_are_rows_of_their_own(tmp_path: Path) -> None:
 @pytest.mark.parametrize(
     ("overrides", "message"),
     [
-        (["init.kind=imagenet"], "init.kind: unknown value 'imagenet'; accepted: scratch, pretrained"),
+        (["init.kind=imagenet"], "init.kind: expected one of 'scratch', 'pretrained', got 'imagenet'"),
         (["init.path=/nonexistent/coco.pth"], "init.path: no such file /nonexistent/coco.pth"),
         (["init.render_seed=3"], "init.render_seed: 3 is a seed of the source set or of a sequence"),
         (["init.render_seed=1000"], "init.render_seed: 1000 is a seed of the source set or of a"),
@@ -235,7 +235,7 @@ def test_batchnorm_modes_are_rows_of_their_own(tmp_path: Path) -> None:
         (["init.seeds=[]"], "init.seeds: expected a non-empty list"),
         (["init.images=0"], "init.images: expected an integer >= 2, got 0"),
         (["init.size=big"], "init.size: "),
-        (["init.experiment=nope"], "init.experiment: unknown value 'nope'; accepted: ci, demo, "),
+        (["init.experiment=nope"], "init.experiment: expected one of 'ci', 'demo', "),
         (["init.overrides=[max_iters]"], "init.overrides: expected key=value overrides, got 'max_iters'"),
         (
             ["scale=paper", "data.real.voc=/v", "data.real.sbd=/s", "data.real.coco=/c",
