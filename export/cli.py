@@ -13,10 +13,9 @@ line on stderr naming the key or file, and exit code 1.
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Optional
 
 import hydra
 import torch
@@ -25,6 +24,7 @@ from omegaconf import DictConfig, OmegaConf
 from uss_slam.core.cli import hydra_task, run_hydra_app
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.onnx_contract import HEADS
+from uss_slam.core.schema import check, ranged
 from uss_slam.export.checkpoint import run_name
 from uss_slam.export.onnx import check_options, export_checkpoint
 from uss_slam.export.outputs import ExportResult
@@ -32,43 +32,45 @@ from uss_slam.export.quantize import CalibrationSet
 
 PROG = "uss-export"
 
+# OmegaConf reads Optional[...] (not X | None) in a dataclass schema.
+# ruff: noqa: UP045
+
+
+@dataclass
+class CalibrationSchema:
+    root: Optional[str] = ranged(None, text=True)
+    frames: int = ranged(16, min=1)
+
+
+@dataclass
+class ExportSchema:
+    """The keys of ``configs/export.yaml`` (see that file for each), their types and ranges:
+    checked by :func:`uss_slam.core.schema.check` before anything is read; a bad value or an
+    unknown key is one line ``<key>: expected ..., got ...``. Rules across keys and against the
+    installed torch / onnxruntime (the opset range, the two sizes, int8's calibration folder)
+    are :func:`uss_slam.export.onnx.check_options`' and :meth:`ExportOptions.from_config`'s."""
+
+    ckpt_path: Optional[str] = ranged(None, text=True)
+    name: Optional[str] = ranged(None, text=True)
+    out_dir: str = ranged("exports", text=True)
+    out: Optional[str] = ranged(None, text=True)
+    head: str = ranged("main", choices=HEADS)
+    opset: int = 17
+    net_config: Any = None
+    experiment: Optional[str] = ranged(None, text=True)
+    dynamic_classes: list[str] = field(default_factory=lambda: ["person"])
+    trace_size: Any = field(default_factory=lambda: [97, 129])
+    verify_size: Any = field(default_factory=lambda: [120, 160])
+    max_logit_diff: Optional[float] = ranged(None, gt=0)
+    min_label_agreement: Optional[float] = ranged(None, gt=0, max=1)
+    num_threads: Optional[int] = ranged(None, min=1)
+    int8: bool = False
+    calibration: CalibrationSchema = field(default_factory=CalibrationSchema)
+
 
 def _value(cfg: DictConfig, key: str) -> Any:
     value = OmegaConf.select(cfg, key, default=None)
     return OmegaConf.to_container(value) if OmegaConf.is_config(value) else value
-
-
-def _is_int(value: Any) -> bool:
-    return isinstance(value, int) and not isinstance(value, bool)
-
-
-def _int(cfg: DictConfig, key: str, *, optional: bool = False, minimum: int = 1) -> int | None:
-    value = _value(cfg, key)
-    if value is None and optional:
-        return None
-    if not _is_int(value) or value < minimum:
-        raise UssSlamError(f"{key} must be an integer >= {minimum}, got {value!r}")
-    return value
-
-
-def _number(cfg: DictConfig, key: str, low: float, high: float = math.inf) -> float | None:
-    """A number in ``(low, high]``, or null."""
-    value = _value(cfg, key)
-    if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))):
-        raise UssSlamError(f"{key} must be a number or null, got {value!r}")
-    if value is not None and not low < value <= high:
-        within = f"> {low:g}" if math.isinf(high) else f"in ({low:g}, {high:g}]"
-        raise UssSlamError(f"{key} must be {within} or null, got {value!r}")
-    return None if value is None else float(value)
-
-
-def _text(cfg: DictConfig, key: str, *, optional: bool = True) -> str | None:
-    value = _value(cfg, key)
-    if value is None and optional:
-        return None
-    if not isinstance(value, str) or not value:
-        raise UssSlamError(f"{key} must be a non-empty string, got {value!r}")
-    return value
 
 
 @dataclass(frozen=True)
@@ -92,57 +94,49 @@ class ExportOptions:
 
     @classmethod
     def from_config(cls, cfg: DictConfig) -> ExportOptions:
+        plain = {k: v for k, v in cfg.items() if k != "hydra"}
+        check(OmegaConf.create(plain), ExportSchema)
         ckpt = _value(cfg, "ckpt_path")
-        if ckpt is None:
+        if ckpt is None or ckpt == "":
             raise UssSlamError("ckpt_path=PATH is required (a uss-train .ckpt)")
-        if not isinstance(ckpt, str) or not ckpt:
-            raise UssSlamError(f"ckpt_path must be a file path, got {ckpt!r}")
-        ckpt_path = Path(ckpt)
+        ckpt_path = Path(str(ckpt))
         head = _value(cfg, "head")
-        if head not in HEADS:
-            raise UssSlamError(f"head must be one of {HEADS}, got {head!r}")
-        opset = _value(cfg, "opset")
-        if not _is_int(opset):
-            raise UssSlamError(f"opset must be an integer, got {opset!r}")
-        dynamic = _value(cfg, "dynamic_classes")
-        if not isinstance(dynamic, list) or not all(isinstance(c, str) for c in dynamic):
-            raise UssSlamError(f"dynamic_classes must be a list of class names, got {dynamic!r}")
         net_config = _value(cfg, "net_config")
         if net_config is not None and not isinstance(net_config, (str, dict)):
             raise UssSlamError(
-                f"net_config must be a yaml file or a mapping with a _target_, got {net_config!r}"
+                f"net_config: expected a yaml file or a mapping with a _target_, got {net_config!r}"
             )
-        int8 = _value(cfg, "int8")
-        if not isinstance(int8, bool):
-            raise UssSlamError(f"int8 must be true or false, got {int8!r}")
-        root = _text(cfg, "calibration.root")
+        int8 = bool(_value(cfg, "int8"))
+        root = _value(cfg, "calibration.root")
         if int8 and root is None:
             raise UssSlamError(
                 "int8=true needs calibration.root=<TUM RGB-D folder of target frames>"
             )
-        out = _text(cfg, "out")
+        out = _value(cfg, "out")
         if out is None:
-            name = _text(cfg, "name")
+            name = _value(cfg, "name")
             if name is None:
                 name = run_name(ckpt_path) or ckpt_path.stem
                 if head != "main":
                     name = f"{name}_{head}"
-            out = str(Path(_text(cfg, "out_dir", optional=False)) / f"{name}.onnx")
+            out = str(Path(str(_value(cfg, "out_dir"))) / f"{name}.onnx")
+        max_diff, agreement = _value(cfg, "max_logit_diff"), _value(cfg, "min_label_agreement")
+        experiment = _value(cfg, "experiment")
         return cls(
             ckpt_path=ckpt_path,
-            out=Path(out),
+            out=Path(str(out)),
             head=head,
-            opset=opset,
+            opset=_value(cfg, "opset"),
             net_config=net_config,
-            experiment=_text(cfg, "experiment"),
-            dynamic_classes=tuple(dynamic),
+            experiment=None if experiment is None else str(experiment),
+            dynamic_classes=tuple(_value(cfg, "dynamic_classes")),
             trace_size=_value(cfg, "trace_size"),
             verify_size=_value(cfg, "verify_size"),
-            max_logit_diff=_number(cfg, "max_logit_diff", 0.0),
-            min_label_agreement=_number(cfg, "min_label_agreement", 0.0, 1.0),
-            num_threads=_int(cfg, "num_threads", optional=True),
-            calibration_root=Path(root) if int8 and root is not None else None,
-            calibration_frames=_int(cfg, "calibration.frames"),  # type: ignore[arg-type]
+            max_logit_diff=None if max_diff is None else float(max_diff),
+            min_label_agreement=None if agreement is None else float(agreement),
+            num_threads=_value(cfg, "num_threads"),
+            calibration_root=Path(str(root)) if int8 and root is not None else None,
+            calibration_frames=_value(cfg, "calibration.frames"),
         )
 
 

@@ -239,20 +239,20 @@ def test_opset_range_of_this_install(tmp_path: Path) -> None:
 @pytest.mark.parametrize(
     ("override", "expected"),
     [
-        ("opset=abc", "opset must be an integer, got 'abc'"),
-        ("opset=17.5", "opset must be an integer, got 17.5"),
-        ("opset=true", "opset must be an integer, got True"),
+        ("opset=abc", "opset: expected an integer, got 'abc'"),
+        ("opset=17.5", "opset: expected an integer, got 17.5"),
+        ("opset=true", "opset: expected an integer, got True"),
         ("opset=10", "opset 10 is not supported: "),
         ("opset=99", "opset 99 is not supported: "),
         ("trace_size=[1]", "trace_size must be [H, W], two positive integers; got [1]"),
         ("trace_size=abc", "trace_size must be [H, W], two positive integers; got 'abc'"),
         ("verify_size=[0,5]", "verify_size must be [H, W], two positive integers; got [0, 5]"),
         ("verify_size=[97,129]", "verify_size must differ from trace_size ((97, 129))"),
-        ("head=side", "head must be one of ('main', 'aux'), got 'side'"),
-        ("num_threads=0", "num_threads must be an integer >= 1, got 0"),
-        ("int8=maybe", "int8 must be true or false, got 'maybe'"),
-        ("max_logit_diff=abc", "max_logit_diff must be a number or null, got 'abc'"),
-        ("dynamic_classes=person", "dynamic_classes must be a list of class names, got 'person'"),
+        ("head=side", "head: expected one of 'main', 'aux', got 'side'"),
+        ("num_threads=0", "num_threads: expected an integer >= 1 or null, got 0"),
+        ("int8=maybe", "int8: expected true or false, got 'maybe'"),
+        ("max_logit_diff=abc", "max_logit_diff: expected a number > 0 or null, got 'abc'"),
+        ("dynamic_classes=person", "dynamic_classes: expected a list of strings, got 'person'"),
         ("out=model.txt", "out must end in .onnx, got model.txt"),
     ],
 )
@@ -278,7 +278,7 @@ def test_calibration_frames_must_be_positive(
         f"calibration.root={calibration}",
         "calibration.frames=0",
     )
-    _assert_one_line(code, err, "calibration.frames must be an integer >= 1, got 0")
+    _assert_one_line(code, err, "calibration.frames: expected an integer >= 1, got 0")
     assert not (tmp_path / "exports").exists()
 
 
