@@ -106,16 +106,15 @@ def test_an_error_that_follows_an_interrupt_is_reported_as_the_interrupt(sig_nam
     """A process pool whose workers the interrupt ended can report itself broken before the
     interrupt reaches the body (the interrupt caught where Python drops it): the one line of
     the interrupt, no traceback."""
+    import contextlib
     import os
     import signal
     from concurrent.futures.process import BrokenProcessPool
 
     sig = signal.Signals[sig_name]
     with pytest.raises(SystemExit) as stop, exit_on_user_error("uss-x"):
-        try:
+        with contextlib.suppress(KeyboardInterrupt):  # swallowed where it was raised
             os.kill(os.getpid(), sig)
-        except KeyboardInterrupt:
-            pass  # swallowed where it was raised
         raise BrokenProcessPool("A process in the process pool was terminated abruptly")
     assert stop.value.code == 128 + sig
     named = "" if sig == signal.SIGINT else " (SIGTERM)"
