@@ -182,7 +182,7 @@ def test_slam_process(sig_name: str, world: dict[str, Path], tmp_path: Path) -> 
     before = snapshot(out)
     got, err = stop(
         [str(BIN / "uss-slam"), f"sequence.path={world['seq']}", f"out_dir={out}",
-         "progress=false", "segmenter=labels", "compare=[[semantic],[geometry],[semantic]]"],
+         "progress=false", "segmenter=labels", "compare=[[semantic],[geometry],[semantic,geometry]]"],
         lambda: any(out.glob(".uss-slam-new.*")), sig, tmp_path,
     )  # fmt: skip
     assert got == code, err

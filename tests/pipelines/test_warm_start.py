@@ -270,8 +270,9 @@ def test_bad_init_or_batchnorm_is_one_line(
 
 
 def test_scratch_ignores_the_pretraining_keys_and_paper_takes_a_file(tmp_path: Path) -> None:
-    # scratch: nothing of init is read (a bad pretraining key does not matter)
-    assert not check(tmp_path, "init.kind=scratch", "init.images=0").init.pretrained
+    # scratch: no pretraining is planned from the init keys (their values are still checked
+    # against the schema: a bad one is an error in any mode)
+    assert not check(tmp_path, "init.kind=scratch", "init.images=3").init.pretrained
     weights = tmp_path / "init.pth"
     weights.write_bytes(b"x")
     paper = check(
