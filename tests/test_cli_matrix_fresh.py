@@ -16,7 +16,6 @@ problem: it fails when the fault is mended, and the mark must go then.
 
 from __future__ import annotations
 
-import logging
 import shutil
 from collections.abc import Callable
 from pathlib import Path
@@ -34,6 +33,7 @@ from test_cli_matrix import (  # noqa: F401  (world: the fixture of the shared i
     Case,
     afile,
     case,
+    check_case,
     corrupt,
     earlier_export,
     earlier_slam_run,
@@ -458,30 +458,7 @@ def test_bad_input_fresh(
     monkeypatch: pytest.MonkeyPatch,
     capsys,
 ) -> None:
-    paths = {**world, "tmp": tmp_path}
-    for setup in bad.setup:
-        setup(paths)
-    argv = [arg.format(**paths) for arg in bad.argv]
-    says = [text.format(**paths) for text in bad.says]
-    monkeypatch.chdir(tmp_path)  # relative defaults (outputs/...) stay in the test's folder
-    # An earlier in-process app call may leave a log handler on a capture stream pytest has
-    # closed since; its "--- Logging error ---" report is this process's, not the script's.
-    monkeypatch.setattr(logging, "raiseExceptions", False)
-    before = snapshot(tmp_path)
-
-    code, _, err = run_console_script(bad.prog, argv, monkeypatch, capsys)
-
-    assert "Traceback" not in err, err
-    lines = err.strip().splitlines()
-    assert code == bad.code, err
-    if code == 2:  # argparse: its usage (uss-synth: none), then the error line
-        assert lines[-1].startswith(bad.prog) and ": error: " in lines[-1], err
-        assert all(line.startswith(("usage:", " ")) for line in lines[:-1]), err
-    else:
-        assert len(lines) == 1 and lines[0].startswith(f"{bad.prog}: error: "), err
-    for text in says:
-        assert text in lines[-1], (text, lines[-1])
-    assert snapshot(tmp_path) == before  # nothing written; an earlier run or export intact
+    check_case(bad, world, tmp_path, monkeypatch, capsys)
 
 
 def test_the_fresh_cases_are_new_and_cover_every_console_script() -> None:
