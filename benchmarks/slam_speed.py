@@ -25,6 +25,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import statistics
 import subprocess
 import sys
@@ -59,6 +60,8 @@ def main() -> None:
                              "runs the tracker alone without it)")  # fmt: skip
     parser.add_argument("--loop-closing", action="store_true",
                         help="loop closing on (uss-slam's default, as --local-ba)")  # fmt: skip
+    parser.add_argument("--prefetch-mode", choices=("thread", "process", "both"), default="both",
+                        help="slam.prefetch_mode; both: the two in turns in every repeat")  # fmt: skip
     parser.add_argument(
         "--orbslam3", type=Path, metavar="VOCAB", help="also time ORB-SLAM3 with this vocabulary"
     )
@@ -74,59 +77,109 @@ def main() -> None:
           f"{args.local_ba}, loop closing {args.loop_closing}, {os.cpu_count()} CPUs "
           f"({cpu_model()}), load average {os.getloadavg()[0]:.2f}")  # fmt: skip
 
-    fps, ratios, own_ratios, modules, cpus, bounds = [], [], [], [], [], []
-    worker_modules = {"read", "segmentation", "orb"}
+    modes = ["thread", "process"] if args.prefetch_mode == "both" else [args.prefetch_mode]
+    runs: dict[str, list[dict]] = {mode: [] for mode in modes}
+    orb_alone = []
     for repeat in range(args.repeats):
-        result = SlamPipeline(
-            seq,
-            LabelsSegmenter(),
-            build_filters(args.filters),
-            progress=False,
-            local_ba=args.local_ba,
-            loop_closing=args.loop_closing,
-        ).run()
+        # Both modes in every repeat, in turns (A B, B A, ...): same-run pairs.
+        order = modes if repeat % 2 == 0 else modes[::-1]
+        for mode in order:
+            runs[mode].append(timed_run(seq, args, mode))
+            show(repeat, mode, runs[mode][-1], seq)
         start = time.perf_counter()
         for frame in frames:
             extractor(frame.gray, frame.depth)
-        orb_only = 1000.0 * (time.perf_counter() - start) / len(frames)
-        total = result.timing_ms["total"]
-        fps.append(result.fps)
-        ratios.append(total / orb_only)
-        own_ratios.append(total / result.timing_ms["orb"])
-        modules.append(result.timing_ms)
-        cpus.append(result.cpu_ms)
-        worker = sum(v for k, v in result.cpu_ms.items() if k in worker_modules)
-        main_thread = sum(v for k, v in result.cpu_ms.items() if k not in worker_modules)
-        # Two prefetch workers and the main thread share the two cores: per frame at least
-        # half the total CPU time, and at least the main thread's own (it is sequential).
-        bounds.append(1000.0 / max(main_thread, (worker + main_thread) / 2))
-        print(
-            f"  CPU ms/frame: prefetch workers {worker:.1f} (read+segmentation+orb), main thread "
-            f"{main_thread:.1f} (filters+tracking+mapping) -> CPU-bound rate on 2 idle cores "
-            f"{bounds[-1]:.1f} frames/s"
-        )
-        print(
-            f"repeat {repeat}: {result.fps:5.1f} frames/s, pipeline {total:.1f} ms/frame, "
-            f"ORB alone {orb_only:.1f} ms/frame -> ratio {total / orb_only:.2f} "
-            f"(tracked {result.tracked_fraction:.2f}, ATE RMSE "
-            f"{ate(seq.groundtruth, result.trajectory).stats.rmse:.6f} m)",
-            flush=True,
-        )
-    print(f"median: {statistics.median(fps):.1f} frames/s; pipeline / ORB-only "
-          f"{statistics.median(ratios):.2f}; pipeline / ORB inside the run "
-          f"{statistics.median(own_ratios):.2f}")  # fmt: skip
-    names = list(modules[0])
-    print("median ms per frame: " + ", ".join(
-        f"{n} {statistics.median(m.get(n, 0.0) for m in modules):.2f}" for n in names))  # fmt: skip
-    print("median CPU ms per frame: " + ", ".join(
-        f"{n} {statistics.median(c.get(n, 0.0) for c in cpus):.2f}" for n in cpus[0]))  # fmt: skip
-    print(f"median CPU-bound rate on 2 idle cores: {statistics.median(bounds):.1f} frames/s")
+        orb_alone.append(1000.0 * (time.perf_counter() - start) / len(frames))
+        print(f"repeat {repeat}: ORB alone {orb_alone[-1]:.1f} ms/frame", flush=True)
+    orb_only = statistics.median(orb_alone)
+    fps_of = {}
+    for mode in modes:
+        done = runs[mode]
+        fps_of[mode] = statistics.median(r["fps"] for r in done)
+        total = statistics.median(r["timing"]["total"] for r in done)
+        each = ", ".join(f"{r['fps']:.1f}" for r in done)
+        print(f"[{mode}] median: {fps_of[mode]:.1f} frames/s (runs {each}); pipeline / ORB-only "
+              f"{total / orb_only:.2f}")  # fmt: skip
+        names = list(done[0]["timing"])
+        print(f"[{mode}] median ms per frame: " + ", ".join(
+            f"{n} {statistics.median(r['timing'].get(n, 0.0) for r in done):.2f}"
+            for n in names))  # fmt: skip
+        print(f"[{mode}] median CPU ms per frame: " + ", ".join(
+            f"{n} {statistics.median(r['cpu'].get(n, 0.0) for r in done):.2f}"
+            for n in done[0]["cpu"]))  # fmt: skip
+        for key, text in (
+            ("main_thread", "main thread"),
+            ("main_process", "main process"),
+            ("worker_process", "worker process"),
+            ("bound", "CPU-bound rate"),
+        ):
+            unit = "frames/s on 2 idle cores" if key == "bound" else "CPU ms per frame"
+            print(f"[{mode}] median {text}: "
+                  f"{statistics.median(r[key] for r in done):.1f} {unit}")  # fmt: skip
+    if len(modes) == 2:
+        pairs = [p["fps"] / t["fps"] for t, p in zip(runs["thread"], runs["process"], strict=True)]
+        print(f"process / thread frames/s, per repeat: {', '.join(f'{v:.2f}' for v in pairs)}; "
+              f"median {statistics.median(pairs):.2f}")  # fmt: skip
     if args.orbslam3 is not None:
         orb3 = orbslam3_fps(path, args.orbslam3, args.repeats)
-        print(f"ORB-SLAM3, same frames, no filter: median {statistics.median(orb3):.1f} frames/s "
-              f"(repeats {', '.join(f'{v:.1f}' for v in orb3)}); harness / ORB-SLAM3 "
-              f"{statistics.median(fps) / statistics.median(orb3):.2f}")  # fmt: skip
+        median3 = statistics.median(orb3)
+        print(f"ORB-SLAM3, same frames, no filter: median {median3:.1f} frames/s "
+              f"(repeats {', '.join(f'{v:.1f}' for v in orb3)}); harness / ORB-SLAM3: "
+              + ", ".join(f"{m} {fps_of[m] / median3:.2f}" for m in modes))  # fmt: skip
     print(f"load average after: {os.getloadavg()[0]:.2f}")
+
+
+WORKER_MODULES = {"read", "segmentation", "orb"}
+"""Modules of the prefetch threads (and of the worker process): the rest is the main thread's."""
+
+
+def timed_run(seq: TumSequence, args: argparse.Namespace, mode: str) -> dict:
+    """One whole-pipeline run: frames/s, per-module wall and CPU ms per frame, the CPU ms per
+    frame of the main thread, of this process and of the worker process, and the CPU-bound
+    rate on two idle cores."""
+    pipeline = SlamPipeline(
+        seq,
+        LabelsSegmenter(),
+        build_filters(args.filters),
+        progress=False,
+        local_ba=args.local_ba,
+        loop_closing=args.loop_closing,
+        prefetch_mode=mode,
+    )
+    own, children = time.process_time(), resource.getrusage(resource.RUSAGE_CHILDREN)
+    result = pipeline.run()
+    own = time.process_time() - own
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    child = (after.ru_utime + after.ru_stime) - (children.ru_utime + children.ru_stime)
+    n = max(result.frames, 1)
+    main_thread = sum(v for k, v in result.cpu_ms.items() if k not in WORKER_MODULES)
+    main_process, worker_process = 1000.0 * own / n, 1000.0 * child / n
+    # Per frame the two cores need at least half the CPU time of both processes, and at least
+    # the main thread's own (it is sequential).
+    bound = 1000.0 / max(main_thread, (main_process + worker_process) / 2)
+    return {
+        "fps": result.fps,
+        "timing": result.timing_ms,
+        "cpu": result.cpu_ms,
+        "main_thread": main_thread,
+        "main_process": main_process,
+        "worker_process": worker_process,
+        "bound": bound,
+        "tracked": result.tracked_fraction,
+        "ate": ate(seq.groundtruth, result.trajectory).stats.rmse,
+    }
+
+
+def show(repeat: int, mode: str, run: dict, seq: TumSequence) -> None:
+    print(
+        f"repeat {repeat} [{mode}]: {run['fps']:5.1f} frames/s, pipeline "
+        f"{run['timing']['total']:.1f} ms/frame; CPU ms/frame: main thread "
+        f"{run['main_thread']:.1f}, main process {run['main_process']:.1f}, worker process "
+        f"{run['worker_process']:.1f} -> CPU-bound rate on 2 idle cores {run['bound']:.1f} "
+        f"frames/s (tracked {run['tracked']:.2f}, ATE RMSE {run['ate']:.6f} m, load "
+        f"{os.getloadavg()[0]:.2f})",
+        flush=True,
+    )
 
 
 def cpu_model() -> str:

@@ -35,6 +35,7 @@ from uss_slam.core.schema import check as schema_check
 
 from .filters.build import build_filters, shipped_filter_configs
 from .frontend.orb import OrbConfig
+from .frontend.process import PREFETCH_MODES
 from .mapping.local_mapping import LocalMappingConfig
 from .mapping.loop_closing import LoopClosingConfig
 from .mapping.semantic_map import MapConfig
@@ -94,6 +95,11 @@ class SlamConfig:
     """Background threads (PNG decoding releases the GIL)."""
     parallel: bool = True
     """Segment and extract ORB in those threads too (overlaps tracking)."""
+    prefetch_mode: str = ranged("thread", choices=PREFETCH_MODES)
+    """thread: read and extract ORB in this process's prefetch threads; process: in a worker
+    process (its own ``workers`` threads), so that the Python work there does not take turns
+    with tracking and the back end under one GIL (:mod:`.frontend.process`; the same
+    trajectories). Used with ``parallel`` and ``prefetch`` > 0."""
     local_ba: bool = True
     """Local bundle adjustment and keyframe culling after each new keyframe (ORB-SLAM2's local
     mapping, on GTSAM); false = the tracker alone, trajectories as without a back end."""

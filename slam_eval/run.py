@@ -131,6 +131,7 @@ def _run_harness(
             prefetch=int(slam.prefetch),
             workers=int(slam.workers),
             parallel=bool(slam.parallel),
+            prefetch_mode=str(slam.prefetch_mode),
             **plan.backend,
             segment=str(cfg.segment),
             progress=bool(cfg.progress),

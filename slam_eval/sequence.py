@@ -31,6 +31,7 @@ from uss_slam.core.tum_io import (
 )
 
 T = TypeVar("T")
+S = TypeVar("S")
 
 
 @dataclass(frozen=True)
@@ -197,23 +198,33 @@ class TumSequence:
         def job(k: int) -> T:
             return prepare(self.load(k))
 
-        with ThreadPoolExecutor(
-            max_workers=max(1, workers), thread_name_prefix="tum-prefetch"
-        ) as pool:
-            upcoming = iter(range(len(self)))
-            pending: deque[Future[T]] = deque(
-                pool.submit(job, k) for k in itertools.islice(upcoming, prefetch)
-            )
-            try:
-                while pending:
-                    item = pending.popleft().result()
-                    nxt = next(upcoming, None)
-                    if nxt is not None:
-                        pending.append(pool.submit(job, nxt))
-                    yield item
-            finally:
-                for future in pending:
-                    future.cancel()
+        yield from ahead(job, iter(range(len(self))), prefetch, workers)
+
+
+def ahead(
+    job: Callable[[S], T], items: Iterator[S], prefetch: int, workers: int = 1
+) -> Iterator[T]:
+    """Yield ``job(item)`` for every item in order, with ``job`` running in ``workers``
+    background threads (named ``tum-prefetch-*``) up to ``prefetch`` items ahead. ``items`` is
+    advanced in the caller's thread; an error of ``job`` is raised here, at the item that failed.
+    Closing the generator cancels the jobs not started yet and waits for the running ones."""
+    with ThreadPoolExecutor(max_workers=max(1, workers), thread_name_prefix="tum-prefetch") as pool:
+        pending: deque[Future[T]] = deque(
+            pool.submit(job, item) for item in itertools.islice(items, max(1, prefetch))
+        )
+        try:
+            while pending:
+                result = pending.popleft().result()
+                nxt = next(items, _END)
+                if nxt is not _END:
+                    pending.append(pool.submit(job, nxt))
+                yield result
+        finally:
+            for future in pending:
+                future.cancel()
+
+
+_END = object()
 
 
 def _identity(frame: Frame) -> Frame:

@@ -3,7 +3,9 @@
 With ``parallel`` (the default) segmentation and ORB extraction of upcoming frames run in the
 prefetch threads, next to PNG decoding, while the main thread filters and tracks the current frame
 (PSPNet-SLAM likewise runs segmentation in its own thread); results are identical to the serial
-order.
+order. With ``prefetch_mode="process"`` reading and ORB extraction run in a worker process instead
+(:mod:`..frontend.process`), off the GIL that tracking and the back end hold; segmentation stays
+in this process's prefetch threads; the results are the same.
 
 Segmentation schedule (``segment``, config key ``segment=every_frame|keyframes``):
 
@@ -65,6 +67,7 @@ from uss_slam.core.progress import progress_bar
 from uss_slam.core.tum_io import Trajectory
 
 from ..filters.base import DynamicFilter, FilterContext
+from ..frontend import process as frontend_process
 from ..frontend.orb import Features, OrbConfig, OrbExtractor
 from ..geometry import invert
 from ..mapping.local_mapping import BundleAdjuster, LocalMapping, LocalMappingConfig, depth_noise_of
@@ -73,7 +76,7 @@ from ..mapping.octomap import OctoMapBuilder, load_pyoctomap
 from ..mapping.semantic_map import MapConfig, PointCloud, SemanticMapBuilder, merge_clouds
 from ..scoring.run_result import FrameLog, RunResult
 from ..segmenters.base import Segmenter
-from ..sequence import Frame, TumSequence
+from ..sequence import Frame, TumSequence, ahead
 from ..tracking.tracker import Tracker, TrackerConfig
 
 SEGMENT_SCHEDULES = ("every_frame", "keyframes")
@@ -135,6 +138,7 @@ class SlamPipeline:
         prefetch: int = 4,
         workers: int = 2,
         parallel: bool = True,
+        prefetch_mode: str = "thread",
         segment: str = "every_frame",
         progress: bool = True,
         description: str | None = None,
@@ -145,7 +149,14 @@ class SlamPipeline:
         sampling_seed: int | None = None,
     ) -> None:
         """``sampling_seed``: perturbs the tracker's RANSAC sampling (a repeated run,
-        :mod:`.repeats`); None = the deterministic run."""
+        :mod:`.repeats`); None = the deterministic run. ``prefetch_mode``: ``"thread"`` or
+        ``"process"`` (reading and ORB extraction in a worker process, :mod:`..frontend.process`;
+        with ``parallel`` and ``prefetch`` > 0 only)."""
+        if prefetch_mode not in frontend_process.PREFETCH_MODES:
+            raise UssSlamError(
+                f"prefetch_mode={prefetch_mode!r}: choose "
+                + " or ".join(frontend_process.PREFETCH_MODES)
+            )
         if segment not in SEGMENT_SCHEDULES:
             raise UssSlamError(
                 f"segment={segment!r}: choose every_frame (segment every frame, concurrently "
@@ -171,6 +182,7 @@ class SlamPipeline:
         self.prefetch = prefetch
         self.workers = workers
         self.parallel = parallel and prefetch > 0
+        self.prefetch_mode = prefetch_mode
         self.segment = segment
         self.progress = progress
         self.description = description or sequence.path.name
@@ -191,6 +203,18 @@ class SlamPipeline:
         with timer("orb"):
             features = self.extractor(frame.gray, frame.depth)
         return _Prepared(frame, labels, features, timer)
+
+    def _label(self, extracted: frontend_process.Extracted) -> _Prepared:
+        """Segmentation (``every_frame`` schedule) of a frame the worker process read and
+        extracted (``prefetch_mode="process"``; in the prefetch threads of this process)."""
+        frame = extracted.frame
+        timer = Timer()
+        timer.add("read", *frame.read_time)
+        labels = None
+        if self.segment == "every_frame":
+            labels = self._segment_timed(frame, timer)
+        timer.add("orb", *extracted.orb_time)
+        return _Prepared(frame, labels, extracted.features, timer)
 
     @staticmethod
     def _apply(
@@ -263,7 +287,14 @@ class SlamPipeline:
             dynamic_ncols=True,
         )
         start = time.perf_counter()
-        if self.parallel:
+        worker = None
+        if self.parallel and self.prefetch_mode == "process":
+            worker = frontend_process.start(
+                self.sequence, extractor.config, self.prefetch, self.workers
+            )
+        if worker is not None:
+            frames = ahead(self._label, iter(worker), self.prefetch, self.workers)
+        elif self.parallel:
             frames = self.sequence.prepared(self._prepare, self.prefetch, self.workers)
         else:
             frames = (self._prepare(f) for f in self.sequence.frames(self.prefetch, self.workers))
@@ -382,6 +413,8 @@ class SlamPipeline:
                 )
         finally:
             frames.close()
+            if worker is not None:
+                worker.close()
             bar.close()
         wall = time.perf_counter() - start
         if no_depth:

@@ -1,0 +1,360 @@
+"""Frame reading and ORB extraction in a worker process (``slam.prefetch_mode=process``).
+
+In the default thread mode the prefetch threads read PNGs and extract ORB features in the main
+process, beside the thread that tracks and runs the back end: they share one GIL, and the Python
+part of the extraction (grid bucketing, orientation, the per-keypoint OpenCV objects) and
+GTSAM's optimiser (which holds the GIL for a whole optimisation) take turns with tracking. Here
+one spawned worker process does the reading and the extraction, ``workers`` threads of its own
+``prefetch`` frames ahead, and hands each frame to the main process:
+
+- the images (``rgb``, ``gray``, ``depth``, ``labels``) through a ring of ``prefetch`` slots of
+  shared memory (a 640x480 frame is 2.9 MB: through a pipe it would cost the main process a
+  copy and an unpickling each); the main process copies a slot out and gives it back;
+- the :class:`~.orb.Features` (about 100 kB) and the timings through a queue.
+
+The worker computes exactly what the threads compute (the same code on the same inputs), so the
+features, and the run's trajectory, are bit-identical in both modes.
+
+Ending: the main process stops and joins the worker when the run ends, fails or is interrupted
+(Ctrl-C, SIGTERM: the pipeline's ``finally``); the worker ignores Ctrl-C (the terminal sends it
+to the whole process group; the parent ends it) and gets SIGTERM from the kernel if the main
+process dies without cleaning up (``prctl(PR_SET_PDEATHSIG)`` on Linux). An error while
+reading or extracting a frame reaches the main process and is raised there as one line naming
+the frame's file, as in thread mode. Where a worker process cannot be started (inside a
+daemonic process such as a ``multiprocessing.Pool`` worker, no shared memory), :func:`start`
+prints one warning line and returns None: the pipeline uses its threads.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import multiprocessing
+import os
+import queue
+import signal
+import sys
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from multiprocessing import shared_memory
+from typing import Any
+
+import numpy as np
+
+from uss_slam.core.errors import DataFormatError, UssSlamError
+from uss_slam.core.processes import die_with_parent
+
+from ..sequence import Frame, TumSequence
+from .orb import Features, OrbConfig, OrbExtractor
+
+PREFETCH_MODES = ("thread", "process")
+"""Values of ``slam.prefetch_mode``."""
+
+POLL_S = 0.2
+"""How often a blocked side looks whether the other one has gone, seconds."""
+
+_warned: set[str] = set()
+"""Fallback reasons warned about already (one line per reason and process)."""
+
+
+@dataclass(frozen=True)
+class _Layout:
+    """Where each image of a frame lies in a slot of the shared ring (byte offsets)."""
+
+    height: int
+    width: int
+    labels: bool
+
+    @property
+    def parts(self) -> list[tuple[str, tuple[int, ...], np.dtype]]:
+        h, w = self.height, self.width
+        parts = [
+            ("rgb", (h, w, 3), np.dtype(np.uint8)),
+            ("gray", (h, w), np.dtype(np.uint8)),
+            ("depth", (h, w), np.dtype(np.float32)),
+        ]
+        if self.labels:
+            parts.append(("labels", (h, w), np.dtype(np.uint8)))
+        return parts
+
+    @property
+    def slot_bytes(self) -> int:
+        return sum(int(np.prod(shape)) * dtype.itemsize for _, shape, dtype in self.parts)
+
+    def views(self, buffer: memoryview, slot: int) -> dict[str, np.ndarray]:
+        """The arrays of ``slot`` as views into the shared ``buffer``."""
+        out, offset = {}, slot * self.slot_bytes
+        for name, shape, dtype in self.parts:
+            count = int(np.prod(shape))
+            out[name] = np.frombuffer(buffer, dtype, count, offset).reshape(shape)
+            offset += count * dtype.itemsize
+        return out
+
+
+@dataclass
+class Extracted:
+    """One frame as the worker process prepared it: the frame, its features, and the wall and
+    CPU seconds of its reading (``frame.read_time``) and of the ORB extraction (``orb_time``)."""
+
+    frame: Frame
+    features: Features
+    orb_time: tuple[float, float]
+
+
+class FrontendProcess:
+    """The worker process and its shared ring; iterate once for the frames in order.
+
+    Use :func:`start` (which falls back to None where a process cannot be used); always
+    :meth:`close` (the iterator's end and the pipeline's ``finally`` do).
+    """
+
+    def __init__(self, sequence: TumSequence, orb: OrbConfig, prefetch: int, workers: int) -> None:
+        self.sequence = sequence
+        self._closed = False
+        width, height = sequence.image_size
+        self.layout = _Layout(height, width, sequence.load_labels)
+        slots = max(1, prefetch)
+        context = multiprocessing.get_context("spawn")  # fork is unsafe beside threads
+        self._shm: shared_memory.SharedMemory | None = shared_memory.SharedMemory(
+            create=True, size=slots * self.layout.slot_bytes
+        )
+        self._ready: Any = context.Queue()
+        self._free: Any = context.Queue()
+        self._stop = context.Event()
+        for slot in range(slots):
+            self._free.put(slot)
+        self._proc = context.Process(
+            target=_serve,
+            args=(
+                sequence,
+                orb,
+                max(1, prefetch),
+                max(1, workers),
+                self._shm.name,
+                self.layout,
+                self._ready,
+                self._free,
+                self._stop,
+                os.getpid(),
+            ),
+            name="uss-slam-frontend",
+            daemon=True,
+        )
+        try:
+            with _starting():
+                self._proc.start()
+        except BaseException:
+            self._release()
+            raise
+
+    def __iter__(self) -> Iterator[Extracted]:
+        try:
+            for index in range(len(self.sequence)):
+                yield self._receive(index)
+        finally:
+            self.close()
+
+    def _receive(self, index: int) -> Extracted:
+        message = self._get(index)
+        kind = message[0]
+        if kind == "error":
+            raise _rebuild_error(message[1:])
+        _, slot, meta, features, orb_time = message
+        assert self._shm is not None
+        views = self.layout.views(self._shm.buf, slot)
+        images = {name: view.copy() for name, view in views.items()}
+        del views  # no view may outlive the slot (nor keep the buffer from closing)
+        self._free.put(slot)
+        frame = Frame(
+            meta["index"],
+            meta["stamp"],
+            images["rgb"],
+            images["gray"],
+            images["depth"],
+            images["labels"] if meta["labels"] else None,
+            meta["read_time"],
+        )
+        return Extracted(frame, features, orb_time)
+
+    def _get(self, index: int) -> tuple:
+        """The worker's next message, waiting as long as the worker lives."""
+        while True:
+            try:
+                return self._ready.get(timeout=POLL_S)
+            except queue.Empty:
+                if not self._proc.is_alive():
+                    record = self.sequence.records[index]
+                    raise UssSlamError(
+                        f"{record.rgb_path}: the frame reader process ended (exit code "
+                        f"{self._proc.exitcode}) before this frame was read and extracted"
+                    ) from None
+
+    def close(self) -> None:
+        """Stop the worker (at once: frames it prepared ahead are dropped) and free the ring."""
+        if self._closed:
+            return
+        self._closed = True
+        proc = self._proc
+        self._stop.set()
+        if proc.is_alive():
+            proc.join(timeout=2 * POLL_S + 0.5)
+        if proc.is_alive():
+            proc.terminate()
+            proc.join(timeout=2.0)
+        if proc.is_alive():
+            proc.kill()
+            proc.join()
+        self._release()
+
+    def _release(self) -> None:
+        for q in (self._ready, self._free):
+            q.cancel_join_thread()  # nobody reads them any more: never block on their feeders
+            q.close()
+        if self._shm is not None:
+            self._shm.close()
+            with contextlib.suppress(FileNotFoundError):
+                self._shm.unlink()
+            self._shm = None
+
+
+@contextlib.contextmanager
+def _starting() -> Iterator[None]:
+    """The conditions for starting the worker.
+
+    Ctrl-C is blocked meanwhile (delivered to this process afterwards): the child inherits the
+    mask and sets Ctrl-C aside before unblocking it, so that a Ctrl-C while its interpreter
+    starts does not end it with a traceback (as multiprocessing's resource tracker does). The
+    default start method is a standard one: a spawned child sets the parent's default method
+    before anything else, and inside joblib's workers that is ``loky``, which a fresh
+    interpreter does not know (it would fail before running any code)."""
+    method = multiprocessing.get_start_method(allow_none=True)
+    swap = method not in (None, *multiprocessing.get_all_start_methods())
+    if swap:
+        multiprocessing.set_start_method("spawn", force=True)
+    mask = hasattr(signal, "pthread_sigmask")
+    if mask:
+        signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        if mask:
+            signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+        if swap:
+            multiprocessing.set_start_method(method, force=True)
+
+
+def start(
+    sequence: TumSequence, orb: OrbConfig, prefetch: int, workers: int
+) -> FrontendProcess | None:
+    """The worker process for ``sequence``, or None (after one warning line on stderr, once per
+    reason) where this process cannot start one; the caller then reads and extracts in threads."""
+    try:
+        return FrontendProcess(sequence, orb, prefetch, workers)
+    except (AssertionError, OSError, ValueError, RuntimeError) as err:
+        # AssertionError: multiprocessing's "daemonic processes are not allowed to have
+        # children"; OSError: no shared memory, no process; RuntimeError: not allowed here.
+        reason = str(err) or type(err).__name__
+        if reason not in _warned:
+            _warned.add(reason)
+            print(
+                f"uss-slam: warning: slam.prefetch_mode=process: cannot start the frame reader "
+                f"process ({reason}); reading and ORB extraction run in threads",
+                file=sys.stderr,
+            )
+        return None
+
+
+# ------------------------------------------------------------------------ the worker process
+
+
+def _serve(
+    sequence: TumSequence,
+    orb: OrbConfig,
+    prefetch: int,
+    workers: int,
+    shm_name: str,
+    layout: _Layout,
+    ready: Any,
+    free: Any,
+    stop: Any,
+    parent: int,
+) -> None:
+    """The worker process: read and extract every frame in order into the ring, until done,
+    told to stop, or the parent is gone."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
+    if hasattr(signal, "pthread_sigmask"):
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})  # blocked by _starting
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    die_with_parent(parent)
+    shm = shared_memory.SharedMemory(name=shm_name)
+    index = 0
+    try:
+        extractor = OrbExtractor(orb, sequence.camera)
+
+        def extract(frame: Frame) -> tuple[Frame, Features, tuple[float, float]]:
+            wall, cpu = time.perf_counter(), time.thread_time()
+            features = extractor(frame.gray, frame.depth)
+            return frame, features, (time.perf_counter() - wall, time.thread_time() - cpu)
+
+        items = sequence.prepared(extract, prefetch, workers)
+        try:
+            while not stop.is_set():
+                item = next(items, None)
+                if item is None:
+                    return
+                frame, features, orb_time = item
+                slot = _free_slot(free, stop)
+                if slot is None:
+                    return
+                _write_slot(layout, shm.buf, slot, frame)
+                meta = {
+                    "index": frame.index,
+                    "stamp": frame.stamp,
+                    "read_time": frame.read_time,
+                    "labels": frame.labels is not None,
+                }
+                ready.put(("frame", slot, meta, features, orb_time))
+                index += 1
+        finally:
+            items.close()
+    except Exception as err:  # noqa: BLE001 (every failure goes to the parent, as one line)
+        ready.put(("error", *_describe_error(err, sequence, index)))
+    finally:
+        shm.close()
+        if stop.is_set():  # the parent reads no more: do not wait to flush the queue at exit
+            ready.cancel_join_thread()
+
+
+def _write_slot(layout: _Layout, buffer: memoryview, slot: int, frame: Frame) -> None:
+    """Copy the frame's images into ``slot`` (the views end with the call: the shared memory
+    cannot be closed while one exists)."""
+    for name, view in layout.views(buffer, slot).items():
+        image = getattr(frame, name)
+        if image is not None:
+            view[...] = image
+
+
+def _free_slot(free: Any, stop: Any) -> int | None:
+    """A slot the main process has given back, or None once told to stop."""
+    while not stop.is_set():
+        try:
+            return free.get(timeout=POLL_S)
+        except queue.Empty:
+            continue
+    return None
+
+
+def _describe_error(err: BaseException, sequence: TumSequence, index: int) -> tuple:
+    """A picklable description of a worker's error (project errors keep their type)."""
+    if isinstance(err, DataFormatError):
+        return ("data", err.path, err.detail, err.line)
+    if isinstance(err, UssSlamError):
+        return ("project", str(err))
+    path = sequence.records[index].rgb_path if index < len(sequence) else sequence.path
+    return ("project", f"{path}: {type(err).__name__}: {err} (in the frame reader process)")
+
+
+def _rebuild_error(description: tuple) -> UssSlamError:
+    if description[0] == "data":
+        return DataFormatError(description[1], description[2], description[3])
+    return UssSlamError(description[1])

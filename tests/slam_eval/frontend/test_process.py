@@ -1,0 +1,323 @@
+"""Reading and ORB extraction in a worker process (``slam.prefetch_mode=process``): the same
+frames, features and trajectories as the threads; errors as one line naming the frame file; no
+worker left behind after the end, an error, an interrupt or the parent's death; a clean fallback
+to threads where no process can be started."""
+
+from __future__ import annotations
+
+import contextlib
+import multiprocessing
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from dataclasses import fields
+from pathlib import Path
+
+import numpy as np
+import pytest
+from shared_helpers import slam_run_config
+
+from uss_slam.core.errors import DataFormatError, UssSlamError
+from uss_slam.slam_eval.filters.build import build_filters
+from uss_slam.slam_eval.frontend import process as frontend_process
+from uss_slam.slam_eval.frontend.orb import OrbConfig, OrbExtractor
+from uss_slam.slam_eval.frontend.process import FrontendProcess
+from uss_slam.slam_eval.run import run
+from uss_slam.slam_eval.segmenters.base import LabelsSegmenter
+from uss_slam.slam_eval.sequence import TumSequence
+from uss_slam.slam_eval.systems.harness import RunResult, SlamPipeline
+
+
+def _pipeline(path: Path, mode: str, **kwargs) -> SlamPipeline:
+    seq = TumSequence(path, load_labels=True)
+    return SlamPipeline(
+        seq,
+        LabelsSegmenter(),
+        build_filters(["semantic"]),
+        prefetch_mode=mode,
+        progress=False,
+        **kwargs,
+    )
+
+
+def _assert_same_run(a: RunResult, b: RunResult) -> None:
+    np.testing.assert_array_equal(a.trajectory.stamps, b.trajectory.stamps)
+    np.testing.assert_array_equal(a.trajectory.positions, b.trajectory.positions)
+    np.testing.assert_array_equal(a.trajectory.quaternions, b.trajectory.quaternions)
+    assert a.keypoints == b.keypoints
+    assert a.log == b.log
+    assert a.keyframes == b.keyframes and a.map_points == b.map_points
+    np.testing.assert_array_equal(a.cloud.points, b.cloud.points)
+
+
+def _no_worker_left() -> None:
+    deadline = time.monotonic() + 5.0
+    while multiprocessing.active_children() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert multiprocessing.active_children() == []
+
+
+@pytest.fixture
+def started(monkeypatch: pytest.MonkeyPatch) -> list:
+    """The values :func:`frontend_process.start` returned during the test."""
+    calls: list = []
+    real = frontend_process.start
+
+    def recording(*args, **kwargs):
+        worker = real(*args, **kwargs)
+        calls.append(worker)
+        return worker
+
+    monkeypatch.setattr(frontend_process, "start", recording)
+    return calls
+
+
+def test_the_worker_yields_the_frames_and_features_of_the_threads(synthetic_sequence) -> None:
+    seq = TumSequence(synthetic_sequence(frames=12), load_labels=True)
+    config = OrbConfig(n_features=700)
+    extractor = OrbExtractor(config, seq.camera)
+    got = list(FrontendProcess(seq, config, prefetch=3, workers=2))
+    assert [e.frame.index for e in got] == list(range(len(seq)))
+    for extracted in got:
+        frame = seq.load(extracted.frame.index)
+        for name in ("rgb", "gray", "depth", "labels"):
+            expected, actual = getattr(frame, name), getattr(extracted.frame, name)
+            assert actual.dtype == expected.dtype and actual.flags.writeable
+            np.testing.assert_array_equal(actual, expected)
+        assert extracted.frame.stamp == frame.stamp
+        reference = extractor(frame.gray, frame.depth)
+        for field in fields(reference):
+            np.testing.assert_array_equal(
+                getattr(extracted.features, field.name), getattr(reference, field.name)
+            )
+        assert extracted.orb_time[0] > 0 and extracted.frame.read_time[0] > 0
+    _no_worker_left()
+
+
+def test_process_mode_gives_the_threads_run_with_the_back_end(synthetic_sequence, started) -> None:
+    path = synthetic_sequence(frames=30)
+    backend = {"local_ba": True, "loop_closing": True}
+    threads = _pipeline(path, "thread", **backend).run()
+    processes = _pipeline(path, "process", **backend).run()
+    assert len(started) == 1 and started[0] is not None  # it did run in a worker process
+    assert processes.tracked == 30 and processes.keyframes > 1
+    _assert_same_run(threads, processes)
+    assert processes.segmented_frames == 30 and processes.cpu_ms["orb"] > 0
+    _no_worker_left()
+
+
+def test_uss_slam_repeats_and_a_comparison_in_process_mode(
+    synthetic_sequence, tmp_path: Path, started
+) -> None:
+    path = synthetic_sequence(frames=20)
+    common = ["segmenter=labels", "slam.repeats=2", "compare=[[semantic]]"]
+    a = run(slam_run_config(path, tmp_path / "a", *common, "slam.prefetch_mode=thread"))
+    b = run(slam_run_config(path, tmp_path / "b", *common, "slam.prefetch_mode=process"))
+    assert len(started) == 4 and all(w is not None for w in started)  # 2 sets x 2 repeats
+    for name in ("baseline", "semantic"):
+        assert (tmp_path / "a" / name / "trajectory.txt").read_text() == (
+            tmp_path / "b" / name / "trajectory.txt"
+        ).read_text()
+        assert a["comparison"][name]["ate"] == b["comparison"][name]["ate"]
+    _no_worker_left()
+
+
+def test_a_bad_frame_is_one_line_naming_its_file(synthetic_sequence, tmp_path: Path) -> None:
+    source = synthetic_sequence(frames=8)
+    path = tmp_path / "seq"
+    subprocess.run(["cp", "-r", str(source), str(path)], check=True)
+    seq = TumSequence(path, load_labels=True)
+    broken = seq.records[5].depth_path
+    broken.write_bytes(b"not a png")
+    worker = FrontendProcess(seq, OrbConfig(), prefetch=2, workers=2)
+    seen = []
+    with pytest.raises(DataFormatError) as caught:
+        for extracted in worker:
+            seen.append(extracted.frame.index)
+    assert seen == [0, 1, 2, 3, 4]
+    assert str(caught.value) == f"{broken}: not a readable image"
+    _no_worker_left()
+    # Through the pipeline: the same error, raised at that frame.
+    with pytest.raises(DataFormatError, match="not a readable image"):
+        _pipeline(path, "process").run()
+    _no_worker_left()
+
+
+def test_an_interrupt_ends_the_worker_and_frees_its_memory(synthetic_sequence) -> None:
+    seq = TumSequence(synthetic_sequence(frames=12), load_labels=True)
+    worker = FrontendProcess(seq, OrbConfig(), prefetch=2, workers=1)
+    name = worker._shm.name
+    with pytest.raises(KeyboardInterrupt):
+        for extracted in worker:
+            if extracted.frame.index == 2:
+                raise KeyboardInterrupt
+    _no_worker_left()
+    assert not Path("/dev/shm", name).exists()
+
+
+def test_the_worker_ends_with_a_killed_parent(synthetic_sequence, tmp_path: Path) -> None:
+    if not sys.platform.startswith("linux"):
+        pytest.skip("the parent-death signal is Linux's")
+    path = synthetic_sequence(frames=12)
+    script = textwrap.dedent(f"""
+        import multiprocessing, sys, time
+        from uss_slam.slam_eval.frontend.orb import OrbConfig
+        from uss_slam.slam_eval.frontend.process import FrontendProcess
+        from uss_slam.slam_eval.sequence import TumSequence
+        if __name__ == "__main__":
+            worker = FrontendProcess(TumSequence({str(path)!r}), OrbConfig(), 2, 1)
+            frames = iter(worker)
+            next(frames)
+            print(worker._proc.pid, flush=True)
+            time.sleep(60)
+    """)
+    (tmp_path / "parent.py").write_text(script)
+    parent = subprocess.Popen(
+        [sys.executable, str(tmp_path / "parent.py")], stdout=subprocess.PIPE, text=True
+    )
+    try:
+        child = int(parent.stdout.readline())
+        os.kill(child, 0)  # running
+        parent.send_signal(signal.SIGKILL)
+        parent.wait(timeout=10)
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline and Path(f"/proc/{child}").exists():
+            state = Path(f"/proc/{child}/stat").read_text().split()[2]
+            if state == "Z":
+                break  # ended, waiting for init to reap it
+            time.sleep(0.05)
+        else:
+            assert not Path(f"/proc/{child}").exists(), "the worker outlived its parent"
+    finally:
+        if parent.poll() is None:
+            parent.kill()
+
+
+def test_no_process_possible_is_one_warning_and_the_threads_run(
+    synthetic_sequence, monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    path = synthetic_sequence(frames=12)
+    threads = _pipeline(path, "thread").run()
+
+    def no_shared_memory(*args, **kwargs):
+        raise OSError("[Errno 38] Function not implemented: '/dev/shm'")
+
+    monkeypatch.setattr(frontend_process.shared_memory, "SharedMemory", no_shared_memory)
+    monkeypatch.setattr(frontend_process, "_warned", set())
+    fallback = _pipeline(path, "process").run()
+    again = _pipeline(path, "process").run()
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert lines == [
+        "uss-slam: warning: slam.prefetch_mode=process: cannot start the frame reader process "
+        "([Errno 38] Function not implemented: '/dev/shm'); reading and ORB extraction run in "
+        "threads"
+    ]
+    _assert_same_run(threads, fallback)
+    _assert_same_run(threads, again)
+
+
+def test_an_unknown_mode_is_refused(synthetic_sequence) -> None:
+    with pytest.raises(UssSlamError, match="prefetch_mode='fork': choose thread or process"):
+        _pipeline(synthetic_sequence(frames=12), "fork")
+
+
+def _job_in_a_pool_worker(path: str) -> tuple[bool, np.ndarray]:
+    """Whether a worker process can be started here, and the process-mode run's positions."""
+    seq = TumSequence(path, load_labels=True)
+    worker = frontend_process.start(seq, OrbConfig(), 2, 1)
+    if worker is not None:
+        worker.close()
+    return worker is not None, _pipeline(Path(path), "process").run().trajectory.positions
+
+
+def test_process_mode_inside_joblib_jobs(synthetic_sequence) -> None:
+    """uss-experiments runs its jobs in joblib's (loky) worker processes."""
+    joblib = pytest.importorskip("joblib")
+    cloudpickle = pytest.importorskip("cloudpickle")
+
+    path = synthetic_sequence(frames=12)
+    expected = _pipeline(path, "thread").run().trajectory.positions
+    module = sys.modules[__name__]
+    cloudpickle.register_pickle_by_value(module)  # the pool's workers cannot import tests
+    try:
+        done = joblib.Parallel(n_jobs=2, backend="loky")(
+            joblib.delayed(_job_in_a_pool_worker)(str(path)) for _ in range(2)
+        )
+    finally:
+        cloudpickle.unregister_pickle_by_value(module)
+    for usable, positions in done:
+        assert usable
+        np.testing.assert_array_equal(positions, expected)
+
+
+def _children(pid: int) -> list[int]:
+    found = []
+    for task in Path(f"/proc/{pid}/task").glob("*"):
+        with contextlib.suppress(OSError):
+            found += [int(c) for c in (task / "children").read_text().split()]
+    return found
+
+
+def _gone(pid: int) -> bool:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().split()[2] == "Z"
+    except OSError:
+        return True
+
+
+def _tree(path: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(path)): p.read_bytes() for p in path.rglob("*") if p.is_file()}
+
+
+@pytest.mark.slow  # three uss-slam runs: ~30 s
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_uss_slam_stopped_mid_run_leaves_no_worker(sig, synthetic_sequence, tmp_path: Path) -> None:
+    """Ctrl-C (to the whole process group, as a terminal sends it) or SIGTERM (to uss-slam
+    alone) while the worker runs: one line, the exit code of the signal, the earlier run's
+    outputs as they were, and no process left."""
+    if not Path(f"/proc/{os.getpid()}/task/{os.getpid()}/children").exists():
+        pytest.skip("needs /proc/<pid>/task/<tid>/children")
+    uss_slam = Path(sys.executable).parent / "uss-slam"
+    path = synthetic_sequence(frames=30)
+    out = tmp_path / "run"
+    args = [str(uss_slam), f"sequence.path={path}", f"out_dir={out}", "progress=false",
+            "segmenter=labels", "slam.prefetch_mode=process"]  # fmt: skip
+    subprocess.run([*args, "filters=[semantic]"], check=True, capture_output=True)
+    before = _tree(out)
+    proc = subprocess.Popen(
+        [*args, "compare=[[semantic]]", "slam.repeats=3"],
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
+    try:
+        deadline, workers = time.monotonic() + 60, []
+        while time.monotonic() < deadline and not workers and proc.poll() is None:
+            workers = [
+                c
+                for c in _children(proc.pid)
+                if b"spawn_main" in Path(f"/proc/{c}/cmdline").read_bytes()
+            ]
+            time.sleep(0.05)
+        assert workers, "the worker process never started"
+        everyone = _children(proc.pid)
+        time.sleep(0.5)  # mid-run
+        if sig == signal.SIGINT:
+            os.killpg(proc.pid, sig)
+        else:
+            proc.send_signal(sig)
+        _, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 128 + sig, err
+    named = "" if sig == signal.SIGINT else " (SIGTERM)"
+    assert err.strip().splitlines() == [f"uss-slam: interrupted{named}"], err
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline and not all(_gone(c) for c in everyone):
+        time.sleep(0.05)
+    assert all(_gone(c) for c in everyone)
+    assert _tree(out) == before
