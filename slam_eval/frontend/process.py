@@ -15,10 +15,15 @@ one spawned worker process does the reading and the extraction, ``workers`` thre
 The worker computes exactly what the threads compute (the same code on the same inputs), so the
 features, and the run's trajectory, are bit-identical in both modes.
 
+Starting: the worker is a child of Python's fork server (started once per process with this
+module and the main script imported, so that each run's worker starts in milliseconds), or a
+spawned interpreter where there is no fork server; never a plain fork of this process, which
+runs threads.
+
 Ending: the main process stops and joins the worker when the run ends, fails or is interrupted
 (Ctrl-C, SIGTERM: the pipeline's ``finally``); the worker ignores Ctrl-C (the terminal sends it
-to the whole process group; the parent ends it) and gets SIGTERM from the kernel if the main
-process dies without cleaning up (``prctl(PR_SET_PDEATHSIG)`` on Linux). An error while
+to the whole process group; the parent ends it) and ends itself when the main process has ended
+without cleaning up (``kill -9``: a thread waits on the parent's sentinel). An error while
 reading or extracting a frame reaches the main process and is raised there as one line naming
 the frame's file, as in thread mode. Where a worker process cannot be started (inside a
 daemonic process such as a ``multiprocessing.Pool`` worker, no shared memory), :func:`start`
@@ -33,10 +38,12 @@ import os
 import queue
 import signal
 import sys
+import threading
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from multiprocessing import shared_memory
+from multiprocessing.connection import wait
 from typing import Any
 
 import numpy as np
@@ -114,7 +121,7 @@ class FrontendProcess:
         width, height = sequence.image_size
         self.layout = _Layout(height, width, sequence.load_labels)
         slots = max(1, prefetch)
-        context = multiprocessing.get_context("spawn")  # fork is unsafe beside threads
+        context = _context()
         self._shm: shared_memory.SharedMemory | None = shared_memory.SharedMemory(
             create=True, size=slots * self.layout.slot_bytes
         )
@@ -135,7 +142,6 @@ class FrontendProcess:
                 self._ready,
                 self._free,
                 self._stop,
-                os.getpid(),
             ),
             name="uss-slam-frontend",
             daemon=True,
@@ -217,6 +223,18 @@ class FrontendProcess:
             self._shm = None
 
 
+def _context() -> Any:
+    """Where the worker comes from: Python's fork server (started once per process, with this
+    module and the main script imported: a worker then starts in milliseconds instead of the
+    second a fresh interpreter takes to import them), else a spawned interpreter. Never a plain
+    fork of this process, which runs threads."""
+    if "forkserver" in multiprocessing.get_all_start_methods():
+        context = multiprocessing.get_context("forkserver")
+        context.set_forkserver_preload(["__main__", __name__])
+        return context
+    return multiprocessing.get_context("spawn")
+
+
 @contextlib.contextmanager
 def _starting() -> Iterator[None]:
     """The conditions for starting the worker.
@@ -277,7 +295,6 @@ def _serve(
     ready: Any,
     free: Any,
     stop: Any,
-    parent: int,
 ) -> None:
     """The worker process: read and extract every frame in order into the ring, until done,
     told to stop, or the parent is gone."""
@@ -285,7 +302,7 @@ def _serve(
     if hasattr(signal, "pthread_sigmask"):
         signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})  # blocked by _starting
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
-    die_with_parent(parent)
+    _end_with_parent()
     shm = shared_memory.SharedMemory(name=shm_name)
     index = 0
     try:
@@ -323,6 +340,22 @@ def _serve(
         shm.close()
         if stop.is_set():  # the parent reads no more: do not wait to flush the queue at exit
             ready.cancel_join_thread()
+
+
+def _end_with_parent() -> None:
+    """End this worker (SIGTERM) as soon as the main process has ended, however it ended. The
+    kernel's parent-death signal is not enough: a fork server's child has the server as its
+    parent, and the server lives as long as any of its children."""
+    parent = multiprocessing.parent_process()
+    if parent is None:
+        die_with_parent(os.getppid())
+        return
+
+    def watch() -> None:
+        wait([parent.sentinel])
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    threading.Thread(target=watch, name="uss-slam-frontend-watch", daemon=True).start()
 
 
 def _write_slot(layout: _Layout, buffer: memoryview, slot: int, frame: Frame) -> None:

@@ -253,11 +253,17 @@ def test_process_mode_inside_joblib_jobs(synthetic_sequence) -> None:
         np.testing.assert_array_equal(positions, expected)
 
 
-def _children(pid: int) -> list[int]:
-    found = []
-    for task in Path(f"/proc/{pid}/task").glob("*"):
-        with contextlib.suppress(OSError):
-            found += [int(c) for c in (task / "children").read_text().split()]
+def _descendants(pid: int) -> dict[int, int]:
+    """``{pid: parent pid}`` of every process below ``pid``."""
+    found: dict[int, int] = {}
+    parents = [pid]
+    while parents:
+        parent = parents.pop()
+        for task in Path(f"/proc/{parent}/task").glob("*"):
+            with contextlib.suppress(OSError):
+                for child in (task / "children").read_text().split():
+                    found[int(child)] = parent
+                    parents.append(int(child))
     return found
 
 
@@ -294,16 +300,14 @@ def test_uss_slam_stopped_mid_run_leaves_no_worker(sig, synthetic_sequence, tmp_
         start_new_session=True,
     )
     try:
+        # The worker: a child of the fork server (a child of uss-slam), or spawned.
         deadline, workers = time.monotonic() + 60, []
         while time.monotonic() < deadline and not workers and proc.poll() is None:
-            workers = [
-                c
-                for c in _children(proc.pid)
-                if b"spawn_main" in Path(f"/proc/{c}/cmdline").read_bytes()
-            ]
+            below = _descendants(proc.pid)
+            workers = [c for c, parent in below.items() if parent != proc.pid]
             time.sleep(0.05)
         assert workers, "the worker process never started"
-        everyone = _children(proc.pid)
+        everyone = list(_descendants(proc.pid))
         time.sleep(0.5)  # mid-run
         if sig == signal.SIGINT:
             os.killpg(proc.pid, sig)
