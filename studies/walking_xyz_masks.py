@@ -8,7 +8,7 @@ docs/results/warm_start_main/walking_xyz_why.md.
     python studies/walking_xyz_masks.py --sequence OUT/data/eval/walking_xyz \\
         --sequence OUT/data/eval/walking_rpy --model none --model labels \\
         --model source_only_s0=OUT/exports/source_only_s0/source_only_s0.onnx [...] \\
-        [--max-frames N] [--window 30] [--json F]
+        [--split] [--max-frames N] [--window 30] [--json F]
 
 Each ``--model`` is ``none`` (no filter), ``labels`` (the sequence's ground-truth masks) or
 ``NAME=PATH`` (an exported ONNX segmenter). Every run is ``uss-slam`` as ``uss-experiments``
@@ -18,7 +18,10 @@ repeat: the deterministic run (repeat 0 of a job's ``repeats/``). The harness's 
 wrapped as in ``studies/slam_walker_inliers.py`` (its recording tracker): nothing in its
 behaviour changes. A keypoint is a *walker* keypoint when its pixel is labelled person in the
 frame's ``labels/`` image (undilated); the filter removes the keypoints inside the predicted
-person mask dilated by 5 px.
+person mask dilated by 5 px. ``--split`` adds, for each ONNX model, two runs with part of its
+person mask: ``NAME:walkers`` keeps only its pixels on the walkers (its hits), ``NAME:static``
+only its pixels off them (its false alarms; the 5 px dilation may still reach a walker's edge):
+which part of the mask changes the run.
 
 Printed per sequence:
 
@@ -85,11 +88,30 @@ class Render:
     depth: dict[int, float]
 
 
+PARTS = ("walkers", "static")
+"""The parts of a model's person mask that ``--split`` runs alone: on the walkers (its hits) and
+off them (its false alarms)."""
+
+
 @dataclass
 class ModelSpec:
+    """A run's segmenter and filters; ``part``: only that part of the model's person mask
+    (:data:`PARTS`; None = all of it)."""
+
     name: str
     segmenter: Segmenter
     filters: tuple[str, ...]
+    part: str | None = None
+
+
+def split(model: ModelSpec) -> list[ModelSpec]:
+    """``model`` and, for an ONNX model, its mask's two parts (``NAME:walkers``,
+    ``NAME:static``)."""
+    if model.segmenter.kind != "onnx":
+        return [model]
+    return [model] + [
+        ModelSpec(f"{model.name}:{part}", model.segmenter, model.filters, part) for part in PARTS
+    ]
 
 
 @dataclass
@@ -192,6 +214,10 @@ def run_model(
     def counting(self: ImageSegmenter, frame: Any) -> np.ndarray:
         labels = segment(self, frame)
         truth = render.people[frame.index]
+        if model.part is not None:  # the rest of the person mask becomes background
+            labels = labels.copy()
+            off = truth if model.part == "static" else ~truth
+            labels[(labels == PERSON) & off] = 0
         pixels[frame.index] = (int(truth.sum()), int(((labels == PERSON) & truth).sum()))
         return labels
 
@@ -460,6 +486,12 @@ def main(argv: list[str] | None = None) -> int:
         default=None,
         help="none, labels or NAME=PATH.onnx; repeatable, in the tables' order",
     )
+    parser.add_argument(
+        "--split",
+        action="store_true",
+        help="also run each ONNX model's person mask restricted to the walkers (NAME:walkers, "
+        "its hits) and to everything else (NAME:static, its false alarms)",
+    )
     parser.add_argument("--max-frames", type=int, help="only the first N frames of each sequence")
     parser.add_argument(
         "--window", type=int, default=30, help="frames per drift window (default: 30, 1 s)"
@@ -482,6 +514,8 @@ def main(argv: list[str] | None = None) -> int:
         if args.json is not None and not args.json.parent.is_dir():
             raise UssSlamError(f"--json {args.json}: no such folder {args.json.parent}")
         models = [parse_model(spec) for spec in args.model]
+        if args.split:
+            models = [part for m in models for part in split(m)]
         names = [m.name for m in models]
         if len(set(names)) < len(names):
             raise UssSlamError(f"--model: names must differ, got {', '.join(names)}")

@@ -155,3 +155,23 @@ def test_bad_input_is_one_line(tmp_path, capsys) -> None:
         study.main(["--help"])
     assert exit_info.value.code == 0
     assert "NAME=PATH.onnx" in capsys.readouterr().out
+
+
+def test_split_runs_each_part_of_the_mask(walkers, tmp_path) -> None:
+    model = colour_model(tmp_path / "colour.onnx", segmenter_props(CLASS_NAMES))
+    assert [m.name for m in study.split(study.parse_model("none"))] == ["none"]
+    full, on, off = study.split(study.parse_model(f"colour={model}"))
+    assert (on.name, on.part, off.name, off.part) == ("colour:walkers", "walkers",
+                                                      "colour:static", "static")  # fmt: skip
+    render = study.read_render(walkers, max_frames=10)
+    runs = [study.run_model(render, m, tmp_path, window=5, max_frames=10) for m in (full, on, off)]
+    hits = [f.hit_pixels for f in runs[0].frames]
+    assert sum(hits) > 0 and [f.hit_pixels for f in runs[1].frames] == hits
+    assert all(f.hit_pixels == 0 for f in runs[2].frames)
+    # The keypoints are the same; the full mask removes what either part removes, no more.
+    for whole, a, b in zip(*(r.frames for r in runs), strict=True):
+        assert whole.keypoints == a.keypoints == b.keypoints and whole.walker == a.walker
+        for key in ("walker_removed", "static_removed"):
+            parts = (getattr(a, key), getattr(b, key))
+            assert max(parts) <= getattr(whole, key) <= sum(parts)
+    assert sum(f.static_removed for f in runs[2].frames) > 0
