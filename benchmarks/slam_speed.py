@@ -13,6 +13,12 @@ cores (the machine this runs on is shared: its load average is printed).
     python benchmarks/slam_speed.py --filters --local-ba --loop-closing   # the back end on
     python benchmarks/slam_speed.py --local-ba --loop-closing --orbslam3 vocab.txt
 
+``--prefetch-mode both`` (the default) runs every repeat twice, in turns, with frames read and
+ORB-extracted in this process's threads (``slam.prefetch_mode=thread``) and in a worker process
+(``process``; the first such run also starts Python's fork server), and prints the frame-rate
+ratio of each pair beside the CPU milliseconds per frame of the main thread, of this process and
+of the worker process.
+
 ``--orbslam3 VOCAB`` also runs the real ORB-SLAM3 on the same frames in the same command
 (``uss-slam system=orbslam3 system.repeats=--repeats system.realtime=false``: as fast as it
 tracks, unfiltered, after the harness's repeats)
@@ -25,7 +31,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import resource
 import statistics
 import subprocess
 import sys
@@ -34,6 +39,7 @@ import time
 from pathlib import Path
 
 from uss_slam.slam_eval.filters.build import build_filters
+from uss_slam.slam_eval.frontend import process as frontend_process
 from uss_slam.slam_eval.frontend.orb import OrbConfig, OrbExtractor
 from uss_slam.slam_eval.scoring.metrics import ate
 from uss_slam.slam_eval.segmenters.base import LabelsSegmenter
@@ -146,11 +152,21 @@ def timed_run(seq: TumSequence, args: argparse.Namespace, mode: str) -> dict:
         loop_closing=args.loop_closing,
         prefetch_mode=mode,
     )
-    own, children = time.process_time(), resource.getrusage(resource.RUSAGE_CHILDREN)
-    result = pipeline.run()
+    workers: list[frontend_process.FrontendProcess | None] = []
+    start = frontend_process.start
+
+    def recording(*args, **kwargs):  # the worker's own CPU clock (a fork server's child)
+        workers.append(start(*args, **kwargs))
+        return workers[-1]
+
+    frontend_process.start = recording
+    own = time.process_time()
+    try:
+        result = pipeline.run()
+    finally:
+        frontend_process.start = start
     own = time.process_time() - own
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    child = (after.ru_utime + after.ru_stime) - (children.ru_utime + children.ru_stime)
+    child = sum(w.worker_cpu for w in workers if w is not None)
     n = max(result.frames, 1)
     main_thread = sum(v for k, v in result.cpu_ms.items() if k not in WORKER_MODULES)
     main_process, worker_process = 1000.0 * own / n, 1000.0 * child / n

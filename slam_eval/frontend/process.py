@@ -118,6 +118,8 @@ class FrontendProcess:
     def __init__(self, sequence: TumSequence, orb: OrbConfig, prefetch: int, workers: int) -> None:
         self.sequence = sequence
         self._closed = False
+        self.worker_cpu = 0.0
+        """CPU seconds the worker process had used when it sent the last frame received."""
         width, height = sequence.image_size
         self.layout = _Layout(height, width, sequence.load_labels)
         slots = max(1, prefetch)
@@ -166,6 +168,7 @@ class FrontendProcess:
         if kind == "error":
             raise _rebuild_error(message[1:])
         _, slot, meta, features, orb_time = message
+        self.worker_cpu = meta["cpu"]
         assert self._shm is not None
         views = self.layout.views(self._shm.buf, slot)
         images = {name: view.copy() for name, view in views.items()}
@@ -329,6 +332,7 @@ def _serve(
                     "stamp": frame.stamp,
                     "read_time": frame.read_time,
                     "labels": frame.labels is not None,
+                    "cpu": time.process_time(),
                 }
                 ready.put(("frame", slot, meta, features, orb_time))
                 index += 1

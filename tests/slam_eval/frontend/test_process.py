@@ -325,3 +325,16 @@ def test_uss_slam_stopped_mid_run_leaves_no_worker(sig, synthetic_sequence, tmp_
         time.sleep(0.05)
     assert all(_gone(c) for c in everyone)
     assert _tree(out) == before
+
+
+def test_inside_a_daemonic_process_the_threads_run(synthetic_sequence, capfd) -> None:
+    """A multiprocessing.Pool worker may not have children: one warning line, None."""
+    seq = TumSequence(synthetic_sequence(frames=12))
+    with multiprocessing.get_context("spawn").Pool(1) as pool:
+        got = pool.apply(frontend_process.start, (seq, OrbConfig(), 2, 1))
+    assert got is None
+    assert capfd.readouterr().err.splitlines() == [
+        "uss-slam: warning: slam.prefetch_mode=process: cannot start the frame reader process "
+        "(daemonic processes are not allowed to have children); reading and ORB extraction run "
+        "in threads"
+    ]
