@@ -109,6 +109,7 @@ def run(cfg: DictConfig) -> dict[str, Any]:
         max_frames=None if seq_cfg.max_frames is None else int(seq_cfg.max_frames),
     )
     warn_if_groundtruth_misses(sequence)
+    warn_if_prefetch_mode_unused(cfg.slam)
     with output_lock(out, "out_dir"):
         return _run_harness(cfg, plan, segmenter, sequence, out)
 
@@ -213,6 +214,22 @@ def warn_if_groundtruth_misses(sequence: TumSequence) -> None:
         "in common, so ATE and RPE are n/a",
         file=sys.stderr,
     )
+
+
+def warn_if_prefetch_mode_unused(slam: DictConfig) -> None:
+    """One warning line when ``slam.prefetch_mode=process`` would change nothing: without
+    ``slam.parallel`` or with ``slam.prefetch=0`` nothing is prepared ahead, in any mode."""
+    if str(slam.prefetch_mode) != "process":
+        return
+    off = [k for k, v in (("slam.parallel=false", not slam.parallel),
+                          ("slam.prefetch=0", int(slam.prefetch) <= 0)) if v]  # fmt: skip
+    if off:
+        print(
+            f"{PROG}: warning: slam.prefetch_mode=process does nothing with {' and '.join(off)} "
+            "(the worker process needs slam.parallel=true and slam.prefetch > 0): frames are "
+            "read and ORB-extracted in this process",
+            file=sys.stderr,
+        )
 
 
 def _summary(data: dict[str, Any]) -> str:

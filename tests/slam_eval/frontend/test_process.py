@@ -338,3 +338,21 @@ def test_inside_a_daemonic_process_the_threads_run(synthetic_sequence, capfd) ->
         "(daemonic processes are not allowed to have children); reading and ORB extraction run "
         "in threads"
     ]
+
+
+@pytest.mark.parametrize(
+    ("override", "named"),
+    [("slam.parallel=false", "slam.parallel=false"), ("slam.prefetch=0", "slam.prefetch=0")],
+)
+def test_process_mode_that_changes_nothing_warns(
+    override: str, named: str, synthetic_sequence, tmp_path: Path, capsys, started
+) -> None:
+    path = synthetic_sequence(frames=12)
+    run(slam_run_config(path, tmp_path / "out", "slam.prefetch_mode=process", override))
+    warnings = [line for line in capsys.readouterr().err.splitlines() if "warning" in line]
+    assert warnings == [
+        f"uss-slam: warning: slam.prefetch_mode=process does nothing with {named} (the worker "
+        "process needs slam.parallel=true and slam.prefetch > 0): frames are read and "
+        "ORB-extracted in this process"
+    ]
+    assert started == []  # no worker process
