@@ -26,7 +26,7 @@ which part of the mask changes the run.
 Printed per sequence:
 
 - the render: frames with walkers, the walkers' mean share of the frame, the median depth of
-  their pixels, their share of the ORB keypoints;
+  their pixels, their share of the ORB keypoints (in the ``none`` run, when there is one);
 - per model, the filter: ATE RMSE, walker keypoints per frame and the share removed, static
   keypoints removed per frame (and their share), the walkers' share among the kept keypoints;
   the mask's per-frame pixel recall on the walkers; *cover* per frame = share of that frame's
