@@ -39,7 +39,7 @@ Printed per sequence:
   the walkers' share of the inliers in it, for every model; and, pooled over the models and
   windows of the sequence, the Spearman rank correlation of the two.
 
-It is analysis of runs that were already scored: nothing here chooses a setting.
+It measures; nothing here chooses a setting (on evaluation renders nothing may be chosen).
 """
 
 from __future__ import annotations
@@ -469,8 +469,7 @@ def tables(render: Render, runs: list[RunRecord], window: int) -> str:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="walking_xyz_masks",
-        description=__doc__.splitlines()[0],
-        epilog="\n".join(__doc__.splitlines()[1:]),
+        description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument(
