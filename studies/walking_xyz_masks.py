@@ -8,7 +8,7 @@ docs/results/warm_start_main/walking_xyz_why.md.
     python studies/walking_xyz_masks.py --sequence OUT/data/eval/walking_xyz \\
         --sequence OUT/data/eval/walking_rpy --model none --model labels \\
         --model source_only_s0=OUT/exports/source_only_s0/source_only_s0.onnx [...] \\
-        [--split] [--max-frames N] [--window 30] [--json F]
+        [--split [walkers,static,moved]] [--max-frames N] [--window 30] [--json F]
 
 Each ``--model`` is ``none`` (no filter), ``labels`` (the sequence's ground-truth masks) or
 ``NAME=PATH`` (an exported ONNX segmenter). Every run is ``uss-slam`` as ``uss-experiments``
@@ -18,10 +18,12 @@ repeat: the deterministic run (repeat 0 of a job's ``repeats/``). The harness's 
 wrapped as in ``studies/slam_walker_inliers.py`` (its recording tracker): nothing in its
 behaviour changes. A keypoint is a *walker* keypoint when its pixel is labelled person in the
 frame's ``labels/`` image (undilated); the filter removes the keypoints inside the predicted
-person mask dilated by 5 px. ``--split`` adds, for each ONNX model, two runs with part of its
+person mask dilated by 5 px. ``--split`` adds, for each ONNX model, runs with part of its
 person mask: ``NAME:walkers`` keeps only its pixels on the walkers (its hits), ``NAME:static``
 only its pixels off them (its false alarms; the 5 px dilation may still reach a walker's edge):
-which part of the mask changes the run.
+which part of the mask changes the run; ``NAME:moved`` replaces the mask by as many walker
+pixels as it hits, on the other side of the walkers: whether these walker keypoints matter or
+any as many.
 
 Printed per sequence:
 
@@ -88,9 +90,10 @@ class Render:
     depth: dict[int, float]
 
 
-PARTS = ("walkers", "static")
-"""The parts of a model's person mask that ``--split`` runs alone: on the walkers (its hits) and
-off them (its false alarms)."""
+PARTS = ("walkers", "static", "moved")
+"""What ``--split`` runs of a model's person mask: its pixels on the walkers (its hits), its
+pixels off them (its false alarms), and ``moved``: as many walker pixels as it hits, taken
+elsewhere on the walkers (:func:`moved_hits`)."""
 
 
 @dataclass
@@ -104,14 +107,41 @@ class ModelSpec:
     part: str | None = None
 
 
-def split(model: ModelSpec) -> list[ModelSpec]:
-    """``model`` and, for an ONNX model, its mask's two parts (``NAME:walkers``,
-    ``NAME:static``)."""
+def split(model: ModelSpec, parts: tuple[str, ...] = PARTS) -> list[ModelSpec]:
+    """``model`` and, for an ONNX model, its mask's ``parts`` (``NAME:walkers``, ...)."""
     if model.segmenter.kind != "onnx":
         return [model]
     return [model] + [
-        ModelSpec(f"{model.name}:{part}", model.segmenter, model.filters, part) for part in PARTS
+        ModelSpec(f"{model.name}:{part}", model.segmenter, model.filters, part) for part in parts
     ]
+
+
+def parse_parts(text: str) -> tuple[str, ...]:
+    """``--split``'s comma-separated parts, each one of :data:`PARTS`."""
+    parts = tuple(p.strip() for p in text.split(",") if p.strip())
+    bad = [p for p in parts if p not in PARTS]
+    if not parts or bad:
+        raise UssSlamError(
+            f"--split {text!r}: expected a comma-separated list of {', '.join(PARTS)}"
+        )
+    return parts
+
+
+def moved_hits(hits: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """A control for a mask's hits on the walkers: as many walker pixels (``truth``) as ``hits``
+    holds, the ones nearest to the hits' centroid reflected through the walkers' centroid, so
+    the same amount of walker, in one piece, on the other side of the walkers (deterministic,
+    and as steady from frame to frame as the hits). ``(H, W)`` bool in and out."""
+    k = int(hits.sum())
+    ys, xs = np.nonzero(truth)
+    if k == 0 or k >= len(ys):
+        return hits.copy() if k == 0 else truth.copy()
+    hy, hx = np.nonzero(hits)
+    ay, ax = 2 * ys.mean() - hy.mean(), 2 * xs.mean() - hx.mean()
+    nearest = np.argpartition((ys - ay) ** 2 + (xs - ax) ** 2, k - 1)[:k]
+    out = np.zeros_like(truth)
+    out[ys[nearest], xs[nearest]] = True
+    return out
 
 
 @dataclass
@@ -216,8 +246,12 @@ def run_model(
         truth = render.people[frame.index]
         if model.part is not None:  # the rest of the person mask becomes background
             labels = labels.copy()
-            off = truth if model.part == "static" else ~truth
-            labels[(labels == PERSON) & off] = 0
+            person = labels == PERSON
+            if model.part == "moved":
+                labels[person] = 0
+                labels[moved_hits(person & truth, truth)] = PERSON
+            else:
+                labels[person & (truth if model.part == "static" else ~truth)] = 0
         pixels[frame.index] = (int(truth.sum()), int(((labels == PERSON) & truth).sum()))
         return labels
 
@@ -487,9 +521,13 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument(
         "--split",
-        action="store_true",
-        help="also run each ONNX model's person mask restricted to the walkers (NAME:walkers, "
-        "its hits) and to everything else (NAME:static, its false alarms)",
+        nargs="?",
+        const=",".join(PARTS),
+        default=None,
+        metavar="PARTS",
+        help="also run parts of each ONNX model's person mask (comma-separated; default all): "
+        "walkers (NAME:walkers, its hits), static (NAME:static, its false alarms), moved "
+        "(NAME:moved, as many walker pixels as it hits, on the other side of the walkers)",
     )
     parser.add_argument("--max-frames", type=int, help="only the first N frames of each sequence")
     parser.add_argument(
@@ -513,8 +551,9 @@ def main(argv: list[str] | None = None) -> int:
         if args.json is not None and not args.json.parent.is_dir():
             raise UssSlamError(f"--json {args.json}: no such folder {args.json.parent}")
         models = [parse_model(spec) for spec in args.model]
-        if args.split:
-            models = [part for m in models for part in split(m)]
+        if args.split is not None:
+            parts = parse_parts(args.split)
+            models = [part for m in models for part in split(m, parts)]
         names = [m.name for m in models]
         if len(set(names)) < len(names):
             raise UssSlamError(f"--model: names must differ, got {', '.join(names)}")

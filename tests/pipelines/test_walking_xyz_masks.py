@@ -141,6 +141,8 @@ def test_bad_input_is_one_line(tmp_path, capsys) -> None:
          "--model: names must differ, got none, none"),
         (["--sequence", str(bare), "--model", "none"],
          f"--sequence {bare}: no labels/ folder (expected a synthetic sequence)"),
+        (["--sequence", str(bare), "--model", "none", "--split", "nope"],
+         "--split 'nope': expected a comma-separated list of walkers, static, moved"),
         (["--sequence", str(bare), "--model", "none", "--window", "0"],
          "--window: expected an integer >= 1, got 0"),
         (["--sequence", str(bare), "--model", "none", "--max-frames", "1"],
@@ -160,7 +162,7 @@ def test_bad_input_is_one_line(tmp_path, capsys) -> None:
 def test_split_runs_each_part_of_the_mask(walkers, tmp_path) -> None:
     model = colour_model(tmp_path / "colour.onnx", segmenter_props(CLASS_NAMES))
     assert [m.name for m in study.split(study.parse_model("none"))] == ["none"]
-    full, on, off = study.split(study.parse_model(f"colour={model}"))
+    full, on, off = study.split(study.parse_model(f"colour={model}"), ("walkers", "static"))
     assert (on.name, on.part, off.name, off.part) == ("colour:walkers", "walkers",
                                                       "colour:static", "static")  # fmt: skip
     render = study.read_render(walkers, max_frames=10)
@@ -175,3 +177,34 @@ def test_split_runs_each_part_of_the_mask(walkers, tmp_path) -> None:
             parts = (getattr(a, key), getattr(b, key))
             assert max(parts) <= getattr(whole, key) <= sum(parts)
     assert sum(f.static_removed for f in runs[2].frames) > 0
+
+
+def test_moved_hits_take_as_many_walker_pixels_on_the_other_side() -> None:
+    truth = np.zeros((5, 12), bool)
+    truth[1:4, 1:11] = True  # a 3 x 10 walker, centroid column 5.5
+    hits = np.zeros_like(truth)
+    hits[1:4, 1:3] = True  # its two left columns, centroid column 1.5
+    moved = study.moved_hits(hits, truth)
+    expected = np.zeros_like(truth)
+    expected[1:4, 9:11] = True  # reflected: column 9.5, the two right columns
+    np.testing.assert_array_equal(moved, expected)
+    assert not study.moved_hits(np.zeros_like(truth), truth).any()
+    np.testing.assert_array_equal(study.moved_hits(truth, truth), truth)
+
+
+def test_split_parts_parse() -> None:
+    assert study.parse_parts("walkers, moved") == ("walkers", "moved")
+    assert study.parse_parts(",".join(study.PARTS)) == study.PARTS
+    for text in ("", "walkers,nope"):
+        with pytest.raises(study.UssSlamError, match="expected a comma-separated list of walkers"):
+            study.parse_parts(text)
+
+
+def test_moved_run_removes_as_many_walker_pixels(walkers, tmp_path) -> None:
+    model = colour_model(tmp_path / "colour.onnx", segmenter_props(CLASS_NAMES))
+    full, moved = study.split(study.parse_model(f"colour={model}"), ("moved",))
+    assert moved.name == "colour:moved"
+    render = study.read_render(walkers, max_frames=8)
+    runs = [study.run_model(render, m, tmp_path, window=4, max_frames=8) for m in (full, moved)]
+    # The same count of walker pixels per frame, all of them on the walkers.
+    assert [f.hit_pixels for f in runs[1].frames] == [f.hit_pixels for f in runs[0].frames]
