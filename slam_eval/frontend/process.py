@@ -154,6 +154,9 @@ class FrontendProcess:
         except BaseException:
             self._release()
             raise
+        # The worker has its copy of the queue's write end: without this one, a worker that dies
+        # in the middle of a message leaves the reader at end-of-file instead of waiting forever.
+        self._ready._writer.close()
 
     def __iter__(self) -> Iterator[Extracted]:
         try:
@@ -191,12 +194,15 @@ class FrontendProcess:
             try:
                 return self._ready.get(timeout=POLL_S)
             except queue.Empty:
-                if not self._proc.is_alive():
-                    record = self.sequence.records[index]
-                    raise UssSlamError(
-                        f"{record.rgb_path}: the frame reader process ended (exit code "
-                        f"{self._proc.exitcode}) before this frame was read and extracted"
-                    ) from None
+                if self._proc.is_alive():
+                    continue
+            except (EOFError, OSError):  # it died while sending
+                self._proc.join(timeout=2.0)
+            record = self.sequence.records[index]
+            raise UssSlamError(
+                f"{record.rgb_path}: the frame reader process ended (exit code "
+                f"{self._proc.exitcode}) before this frame was read and extracted"
+            )
 
     def close(self) -> None:
         """Stop the worker (at once: frames it prepared ahead are dropped) and free the ring."""

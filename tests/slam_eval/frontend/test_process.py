@@ -53,11 +53,16 @@ def _assert_same_run(a: RunResult, b: RunResult) -> None:
     np.testing.assert_array_equal(a.cloud.points, b.cloud.points)
 
 
+def _workers() -> list:
+    """This process's frame reader workers still running (joblib's pool may keep its own)."""
+    return [p for p in multiprocessing.active_children() if p.name == "uss-slam-frontend"]
+
+
 def _no_worker_left() -> None:
     deadline = time.monotonic() + 5.0
-    while multiprocessing.active_children() and time.monotonic() < deadline:
+    while _workers() and time.monotonic() < deadline:
         time.sleep(0.05)
-    assert multiprocessing.active_children() == []
+    assert _workers() == []
 
 
 @pytest.fixture
@@ -356,3 +361,23 @@ def test_process_mode_that_changes_nothing_warns(
         "ORB-extracted in this process"
     ]
     assert started == []  # no worker process
+
+
+def test_a_worker_that_dies_is_one_line_naming_the_frame(synthetic_sequence) -> None:
+    """A worker killed from outside (out of memory, kill -9): the frames it sent, then one
+    line naming the first frame it did not send, and no hang."""
+    seq = TumSequence(synthetic_sequence(frames=30), load_labels=True)
+    worker = FrontendProcess(seq, OrbConfig(), prefetch=2, workers=1)
+    seen = []
+    with pytest.raises(UssSlamError) as caught:
+        for extracted in worker:
+            seen.append(extracted.frame.index)
+            if len(seen) == 1:
+                os.kill(worker._proc.pid, signal.SIGKILL)
+    missing = seq.records[len(seen)].rgb_path
+    assert seen == list(range(len(seen))) and len(seen) < 30
+    assert str(caught.value) == (
+        f"{missing}: the frame reader process ended (exit code -9) before this frame was read "
+        "and extracted"
+    )
+    _no_worker_left()
