@@ -117,7 +117,7 @@ def test_process_mode_gives_the_threads_run_with_the_back_end(synthetic_sequence
 def test_uss_slam_repeats_and_a_comparison_in_process_mode(
     synthetic_sequence, tmp_path: Path, started
 ) -> None:
-    path = synthetic_sequence(frames=20)
+    path = synthetic_sequence(frames=12)
     common = ["segmenter=labels", "slam.repeats=2", "compare=[[semantic]]"]
     a = run(slam_run_config(path, tmp_path / "a", *common, "slam.prefetch_mode=thread"))
     b = run(slam_run_config(path, tmp_path / "b", *common, "slam.prefetch_mode=process"))
