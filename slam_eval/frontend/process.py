@@ -4,7 +4,7 @@ In the default thread mode the prefetch threads read PNGs and extract ORB featur
 process, beside the thread that tracks and runs the back end: they share one GIL, and the Python
 part of the extraction (grid bucketing, orientation, the per-keypoint OpenCV objects) and
 GTSAM's optimiser (which holds the GIL for a whole optimisation) take turns with tracking. Here
-one spawned worker process does the reading and the extraction, ``workers`` threads of its own
+one worker process does the reading and the extraction, ``workers`` threads of its own
 ``prefetch`` frames ahead, and hands each frame to the main process:
 
 - the images (``rgb``, ``gray``, ``depth``, ``labels``) through a ring of ``prefetch`` slots of
@@ -151,8 +151,8 @@ class FrontendProcess:
         try:
             with _starting():
                 self._proc.start()
-        except BaseException:
-            self._release()
+        except BaseException:  # a Ctrl-C held back while starting may arrive after the start
+            self.close()
             raise
         # The worker has its copy of the queue's write end: without this one, a worker that dies
         # in the middle of a message leaves the reader at end-of-file instead of waiting forever.
