@@ -20,7 +20,10 @@ matrix, summed); static_xyz is reported beside them as the control. Exploratory 
 
 Usage::
 
-    python studies/warm_start_hypotheses.py OUT_DIR [--markdown FILE]
+    python studies/warm_start_hypotheses.py OUT_DIR [--markdown FILE] [--seeds 0-7]
+
+``--seeds`` keeps only those adaptation seeds (``0-7``, ``0,2,5`` or both mixed), e.g. to read a
+16-seed folder on the 8 seeds of another run beside it; a seed that no model has is an error.
 """
 
 from __future__ import annotations
@@ -65,6 +68,34 @@ def seg_scores(out: Path, sequences: tuple[str, ...]) -> dict[str, dict[int, dic
             "person": 100.0 * float(iou[PERSON]),
         }
     return scores
+
+
+def parse_seeds(text: str) -> set[int]:
+    """``"0-7"``, ``"0,2,5"`` or a mix (``"0-3,8"``) -> the set of seeds."""
+    seeds: set[int] = set()
+    for part in text.split(","):
+        bounds = part.strip().split("-")
+        if not all(b.strip().isdigit() for b in bounds) or len(bounds) > 2:
+            raise argparse.ArgumentTypeError(
+                f"expected seeds as 0-7, 0,2,5 or 0-3,8 (integers >= 0), got {text!r}"
+            )
+        lo, hi = int(bounds[0]), int(bounds[-1])
+        if hi < lo:
+            raise argparse.ArgumentTypeError(f"a range must go up, got {part.strip()!r}")
+        seeds.update(range(lo, hi + 1))
+    return seeds
+
+
+def keep_seeds(scores: dict[str, dict[int, dict]], seeds: set[int]) -> dict[str, dict[int, dict]]:
+    """``scores`` with only ``seeds`` (every model); a seed no model has exits with one line."""
+    present = {s for by_seed in scores.values() for s in by_seed}
+    missing = sorted(seeds - present)
+    if missing:
+        sys.exit(
+            f"--seeds: no model has seed(s) {', '.join(map(str, missing))}; "
+            f"the folder has {', '.join(map(str, sorted(present))) or 'none'}"
+        )
+    return {m: {s: v for s, v in by_seed.items() if s in seeds} for m, by_seed in scores.items()}
 
 
 def paired(
@@ -146,9 +177,16 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("out", type=Path, help="the uss-experiments output folder")
     parser.add_argument("--markdown", type=Path, help="also write the report to this file")
+    parser.add_argument(
+        "--seeds",
+        type=parse_seeds,
+        help="only these adaptation seeds: 0-7, 0,2,5 or 0-3,8 (default: every seed found)",
+    )
     args = parser.parse_args(argv)
     walking = seg_scores(args.out, WALKING)
     control = seg_scores(args.out, (CONTROL,))
+    if args.seeds is not None:
+        walking, control = keep_seeds(walking, args.seeds), keep_seeds(control, args.seeds)
     lines = [
         f"Output folder: {args.out}; segmentation pooled over {', '.join(WALKING)} "
         f"(paired differences in points; 95% Student-t interval; MDE at α 0.05, power 0.8)",
@@ -207,6 +245,14 @@ def main(argv: list[str] | None = None) -> int:
                 closure = text(p)
         lines.append(f"| {row} | {len(seeds)} | {miou:.1f} | {person:.1f} | {closure} |")
     ratios = slam_ratios(args.out)
+    if args.seeds is not None:
+        ratios = {
+            key: {
+                m: (v if m == "_ate" else {s: r for s, r in v.items() if s in args.seeds})
+                for m, v in models.items()
+            }
+            for key, models in ratios.items()
+        }
     if ratios:
         lines += [
             "",

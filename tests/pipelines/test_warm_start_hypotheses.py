@@ -76,3 +76,22 @@ def test_a_result_without_confusion_matrices_is_refused(tmp_path: Path) -> None:
     (folder / "result.json").write_text(json.dumps({"sequences": {"walking_xyz": {}}}))
     with pytest.raises(SystemExit, match=r"result\.json: no confusion matrix for walking_xyz"):
         study.seg_scores(tmp_path, study.WALKING)
+
+
+def test_seeds_keeps_a_subset_and_refuses_absent_seeds(tmp_path: Path, capsys) -> None:
+    for seed in range(4):
+        _write(tmp_path, "source_only", seed, 0.5, 0.9)
+        _write(tmp_path, "adabn", seed, 0.5 + 0.1 * seed, 0.9)
+    assert study.parse_seeds("0-2,5") == {0, 1, 2, 5}
+    for bad in ("a", "3-1", "1-2-3", ""):
+        with pytest.raises(Exception, match="expected seeds|must go up"):
+            study.parse_seeds(bad)
+    walking = study.keep_seeds(study.seg_scores(tmp_path, study.WALKING), {0, 1})
+    assert study.paired(walking, "adabn", "source_only", "person")["values"] == pytest.approx(
+        [0.0, 10.0]
+    )
+    (tmp_path / "runs.csv").write_text("kind,id,status,ate_rmse\n")
+    assert study.main([str(tmp_path), "--seeds", "0-1"]) == 0
+    assert "| source_only | 2 |" in capsys.readouterr().out
+    with pytest.raises(SystemExit, match=r"no model has seed\(s\) 4, 5; the folder has 0, 1, 2, 3"):
+        study.main([str(tmp_path), "--seeds", "3-5"])
