@@ -98,6 +98,18 @@ class TrackerConfig:
     """For this many frames after a relocalisation, tracking needs ``reloc_min_inliers`` inliers
     instead of ``min_inliers`` (ORB-SLAM2's ``TrackLocalMap``: 50 within ``mMaxFrames`` = the
     frame rate after ``mnLastRelocFrameId``); 0 = off."""
+    reloc_local_radius: float = 20.0
+    """Window for local-map matching on the frame that relocalises and the next ones
+    (``reloc_local_frames`` in all), px at level 0, 0.625× for near-frontal views, in place of
+    ``local_radius``: a relocalised pose comes from PnP on descriptor matches and may sit further
+    from the truth than a tracked one (ORB-SLAM2's ``SearchLocalPoints``: th 5 instead of the
+    RGB-D 3 while ``mnId < mnLastRelocFrameId + 2``, ``RadiusByViewingCos`` 4 × 5)."""
+    reloc_local_frames: int = 2
+    """Frames that match the local map in ``reloc_local_radius``: the frame that relocalises and
+    the ones after it, this many in all (ORB-SLAM2: 2, that frame and the next); 0 = off. Only a
+    relocalisation opens the window: ORB-SLAM2's ``mnLastRelocFrameId`` starts at frame 0, which
+    also widens its second frame's search; here the start of tracking is not a relocalisation,
+    as for ``reloc_recent_frames``."""
 
     def __post_init__(self) -> None:
         # Messages start with the field name: uss-slam prefixes the config section.
@@ -110,6 +122,7 @@ class TrackerConfig:
             positive=(
                 "search_radius",
                 "local_radius",
+                "reloc_local_radius",
                 "ransac_threshold",
                 "virtual_baseline",
                 "ransac_iterations",

@@ -19,8 +19,9 @@ Per frame, as ORB-SLAM2's RGB-D ``Tracking``:
    ``sampler="prosac"``, estimates the pose).
 2. **Local-map tracking** (``TrackLocalMap``): the points of the keyframes that share the most
    points with the previous frame, plus the latest keyframe, are projected with the estimated
-   pose, matched in a tight window, and the pose refined on all matches. Tracking succeeds with
-   ``min_inliers`` (``reloc_min_inliers`` during the ``reloc_recent_frames`` frames after a
+   pose, matched in a tight window (``local_radius``; ``reloc_local_radius`` on the frame that
+   relocalises and the next, as ORB-SLAM2's ``SearchLocalPoints``, :meth:`Tracker.local_window`),
+   and the pose refined on all matches. Tracking succeeds with ``min_inliers`` (``reloc_min_inliers`` during the ``reloc_recent_frames`` frames after a
    relocalisation, as ORB-SLAM2). A pose that fails a later inlier check (too few inliers
    left once the post-pose filters drop keypoints) is taken back: the frame is lost
    (:meth:`Tracker.mark_lost`), never added to the map.
@@ -37,6 +38,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from enum import Enum
+from functools import partial
 
 import numpy as np
 
@@ -160,8 +162,12 @@ class Tracker(PlaceMatching):
             if self.state is TrackingState.OK:
                 self.lost_events += 1
             self.state = TrackingState.LOST
+            # ORB-SLAM2 sets mnLastRelocFrameId before this frame's TrackLocalMap: the wider
+            # window already holds for the frame that relocalises.
+            radius = self.local_window(frame_index, relocalising=True)
+            track_local_map = partial(self._track_local_map, radius=radius)
             pose_cw, matched = relocalise(
-                self.config, self.map, self.sampler, self._track_local_map, features, static
+                self.config, self.map, self.sampler, track_local_map, features, static
             )
             relocalised = pose_cw is not None
             if relocalised:
@@ -311,6 +317,16 @@ class Tracker(PlaceMatching):
         usable = np.zeros(len(features), bool) if kf is not None else ~dynamic
         self._last_frame = (features, matched, usable)
         return kf
+
+    def local_window(self, frame_index: int, relocalising: bool = False) -> float:
+        """Window of the local-map search for frame ``frame_index``, px at level 0:
+        ``reloc_local_radius`` on the frame that relocalises (``relocalising``) and the frames
+        after it, ``reloc_local_frames`` in all, ``local_radius`` otherwise (ORB-SLAM2's
+        ``SearchLocalPoints``: th 5 while ``mnId < mnLastRelocFrameId + 2``, else th 3)."""
+        last = frame_index if relocalising else self.last_relocalisation
+        if last is not None and frame_index < last + self.config.reloc_local_frames:
+            return self.config.reloc_local_radius
+        return self.config.local_radius
 
     def _recently_relocalised(self, frame_index: int) -> bool:
         last = self.last_relocalisation
@@ -506,7 +522,7 @@ class Tracker(PlaceMatching):
         free = static.copy()
         free[kp] = False
         ids, m = self.projection.match_map_points(
-            local, pose_cw, features, free, cfg.local_radius, local=True
+            local, pose_cw, features, free, self.local_window(self._current_index), local=True
         )
         world = np.concatenate([world, self.map.points.position.view[ids[m.query]]], axis=0)
         map_ids = np.concatenate([map_ids, ids[m.query]])
@@ -549,10 +565,19 @@ class Tracker(PlaceMatching):
         return self._track_local_map(self._local_points(), pose_cw, features, static)
 
     def _track_local_map(
-        self, local: np.ndarray, pose_cw: np.ndarray, features: Features, static: np.ndarray
+        self,
+        local: np.ndarray,
+        pose_cw: np.ndarray,
+        features: Features,
+        static: np.ndarray,
+        radius: float | None = None,
     ):
+        """ORB-SLAM2's ``SearchLocalPoints`` + pose optimisation: the ``local`` map points
+        matched in ``radius`` px (None = :meth:`local_window` of the current frame)."""
+        if radius is None:
+            radius = self.local_window(self._current_index)
         ids, m = self.projection.match_map_points(
-            local, pose_cw, features, static, self.config.local_radius, local=True
+            local, pose_cw, features, static, radius, local=True
         )
         if len(m) < self.config.min_inliers:
             return None, None

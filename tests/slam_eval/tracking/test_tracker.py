@@ -185,6 +185,78 @@ def test_more_inliers_needed_right_after_a_relocalisation(synthetic_sequence) ->
     assert r_later.inliers == n and later.lost_events == 1
 
 
+def _orbslam2_local_radius(frame_id: int, last_reloc_id: int | None) -> float:
+    """ORB-SLAM2's Tracking::SearchLocalPoints for RGB-D, restated: ``th = 3;
+    if (mCurrentFrame.mnId < mnLastRelocFrameId + 2) th = 5;`` and the window
+    RadiusByViewingCos (4 away from frontal views) × th. ``last_reloc_id`` None: no
+    relocalisation yet (ORB-SLAM2 starts it at frame 0; here the start is no relocalisation)."""
+    th = 3
+    if last_reloc_id is not None and frame_id < last_reloc_id + 2:
+        th = 5
+    return 4.0 * th
+
+
+@pytest.mark.parametrize(
+    ("overrides", "wide_radius", "wide_frames"),
+    [({}, 20.0, 2), ({"reloc_local_frames": 0}, None, 0), ({"reloc_local_frames": 3}, 20.0, 3)],
+)
+def test_the_local_map_window_is_wider_right_after_a_relocalisation(
+    synthetic_sequence, overrides, wide_radius, wide_frames
+) -> None:
+    # Frames 0-11 tracked, 12-17 covered (lost), then frames 22-29 of the render, which the
+    # motion model cannot reach: the first of them relocalises. Frame ids run on without a gap,
+    # as ORB-SLAM2's mnId.
+    seq = TumSequence(synthetic_sequence(preset="static_xyz", frames=30))
+    ex = OrbExtractor(OrbConfig(), seq.camera)
+    frames = [seq.load(i) for i in range(len(seq))]
+    render = list(range(12)) + [None] * 6 + list(range(22, 30))
+    tracker = Tracker(TrackerConfig(**overrides), ex)
+    radii: list[tuple[int, float]] = []
+    match = tracker.projection.match_map_points
+
+    def spy(point_ids, pose_cw, features, available, radius, local=False):
+        if local:
+            radii.append((tracker._current_index, radius))
+        return match(point_ids, pose_cw, features, available, radius, local)
+
+    tracker.projection.match_map_points = spy
+    relocalised = []
+    for frame_id, i in enumerate(render):
+        frame = frames[0 if i is None else i]
+        features = Features.empty() if i is None else ex(frame.gray, frame.depth)
+        dyn = np.zeros(len(features), bool)
+        r = tracker.track(frame_id, frame.stamp, features, dyn)
+        tracker.finish_frame(frame_id, frame.stamp, r, features, dyn)
+        assert (r.state is TrackingState.OK) == (i is not None), frame_id
+        if r.relocalised:
+            relocalised.append(frame_id)
+    assert relocalised == [18] and tracker.lost_events == 1
+    # Every tracked frame but the first keyframe searched the local map, the lost ones did not.
+    assert sorted({f for f, _ in radii}) == list(range(1, 12)) + list(range(18, 26))
+    for frame_id, radius in radii:
+        if wide_radius is None:
+            assert radius == TrackerConfig().local_radius, frame_id
+        elif wide_frames == 2:  # the defaults: ORB-SLAM2's rule itself
+            assert radius == _orbslam2_local_radius(frame_id, 18 if frame_id >= 18 else None)
+        else:
+            wide = 18 <= frame_id < 18 + wide_frames
+            assert radius == (wide_radius if wide else TrackerConfig().local_radius), frame_id
+    assert {f for f, r in radii if r == 20.0} == set(range(18, 18 + wide_frames))
+
+
+@pytest.mark.parametrize(
+    ("key", "value", "line"),
+    [
+        ("reloc_local_radius", 0.0, "reloc_local_radius must be > 0, got 0.0"),
+        ("reloc_local_frames", -1, "reloc_local_frames must be a finite number >= 0, got -1"),
+    ],
+)
+def test_a_bad_relocalisation_window_names_its_key(key, value, line) -> None:
+    with pytest.raises(ValueError) as caught:
+        TrackerConfig(**{key: value})
+    assert str(caught.value) == line
+
+
 def test_not_enough_depth_to_initialise(synthetic_sequence) -> None:
     seq = TumSequence(synthetic_sequence(preset="static_xyz", frames=30))
     ex = OrbExtractor(OrbConfig(), seq.camera)
