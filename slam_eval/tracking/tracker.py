@@ -21,8 +21,9 @@ Per frame, as ORB-SLAM2's RGB-D ``Tracking``:
    points with the previous frame, plus the latest keyframe, are projected with the estimated
    pose, matched in a tight window (``local_radius``; ``reloc_local_radius`` on the frame that
    relocalises and the next, as ORB-SLAM2's ``SearchLocalPoints``, :meth:`Tracker.local_window`),
-   and the pose refined on all matches. Tracking succeeds with ``min_inliers`` (``reloc_min_inliers`` during the ``reloc_recent_frames`` frames after a
-   relocalisation, as ORB-SLAM2). A pose that fails a later inlier check (too few inliers
+   and the pose refined on all matches. Tracking succeeds with ``min_inliers``
+   (``reloc_min_inliers`` during the ``reloc_recent_frames`` frames after a relocalisation, as
+   ORB-SLAM2). A pose that fails a later inlier check (too few inliers
    left once the post-pose filters drop keypoints) is taken back: the frame is lost
    (:meth:`Tracker.mark_lost`), never added to the map.
 3. **Keyframes** follow ``NeedNewKeyFrame`` and create map points from their close keypoints
@@ -154,7 +155,7 @@ class Tracker(PlaceMatching):
             # ORB-SLAM2 is more restrictive right after a relocalisation.
             if (
                 pose_cw is not None
-                and self._recently_relocalised(frame_index)
+                and self._recently_relocalised(frame_index, self.config.reloc_recent_frames)
                 and int((matched >= 0).sum()) < self.config.reloc_min_inliers
             ):
                 pose_cw = None
@@ -323,14 +324,18 @@ class Tracker(PlaceMatching):
         ``reloc_local_radius`` on the frame that relocalises (``relocalising``) and the frames
         after it, ``reloc_local_frames`` in all, ``local_radius`` otherwise (ORB-SLAM2's
         ``SearchLocalPoints``: th 5 while ``mnId < mnLastRelocFrameId + 2``, else th 3)."""
-        last = frame_index if relocalising else self.last_relocalisation
-        if last is not None and frame_index < last + self.config.reloc_local_frames:
-            return self.config.reloc_local_radius
-        return self.config.local_radius
+        cfg = self.config
+        if self._recently_relocalised(frame_index, cfg.reloc_local_frames, relocalising):
+            return cfg.reloc_local_radius
+        return cfg.local_radius
 
-    def _recently_relocalised(self, frame_index: int) -> bool:
-        last = self.last_relocalisation
-        return last is not None and frame_index < last + self.config.reloc_recent_frames
+    def _recently_relocalised(
+        self, frame_index: int, frames: int, relocalising: bool = False
+    ) -> bool:
+        """Is ``frame_index`` one of the ``frames`` frames from the last relocalisation on
+        (``relocalising``: from this frame, which relocalises now)?"""
+        last = frame_index if relocalising else self.last_relocalisation
+        return last is not None and frame_index < last + frames
 
     @property
     def initialized(self) -> bool:
