@@ -2,7 +2,7 @@
 SLAM work starts.
 
 Defaults live in the dataclasses (:class:`~.frontend.orb.OrbConfig`,
-:class:`~.tracking.config.TrackerConfig`, :class:`~.mapping.semantic_map.MapConfig`,
+:class:`~.tracking.config.TrackerConfig`, :class:`~.products.semantic_map.MapConfig`,
 :class:`~.mapping.local_mapping.LocalMappingConfig`,
 :class:`~.mapping.loop_closing.LoopClosingConfig`, :class:`~.scoring.evaluation.EvalConfig`); the
 filters are the ``slam.filter_params`` nodes of ``configs/slam/orb_rgbd.yaml`` (``_target_`` and
@@ -38,7 +38,7 @@ from .frontend.orb import OrbConfig
 from .frontend.process import PREFETCH_MODES
 from .mapping.local_mapping import LocalMappingConfig
 from .mapping.loop_closing import LoopClosingConfig
-from .mapping.semantic_map import MapConfig
+from .products.semantic_map import MapConfig
 from .scoring.evaluation import EvalConfig
 from .scoring.repeats import Perturbation, perturbations
 from .systems.harness import SEGMENT_SCHEDULES

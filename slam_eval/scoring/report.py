@@ -45,7 +45,7 @@ import numpy as np
 
 from uss_slam.core.tum_io import StrPath, write_trajectory
 
-from ..mapping.semantic_map import write_ply
+from ..products.semantic_map import write_ply
 from . import plots
 from .evaluation import STAT_KEYS, EvalConfig, Evaluation, scores_dict
 from .repeats import repeats_md

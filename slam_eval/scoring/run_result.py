@@ -9,8 +9,8 @@ from dataclasses import dataclass, field
 
 from uss_slam.core.tum_io import Trajectory
 
-from ..mapping.octomap import SemanticOctoMap
-from ..mapping.semantic_map import PointCloud
+from ..products.octomap import SemanticOctoMap
+from ..products.semantic_map import PointCloud
 
 
 @dataclass

@@ -72,8 +72,8 @@ from ..frontend.orb import Features, OrbConfig, OrbExtractor
 from ..geometry import invert
 from ..mapping.local_mapping import BundleAdjuster, LocalMapping, LocalMappingConfig, depth_noise_of
 from ..mapping.loop_closing import LoopCloser, LoopClosingConfig
-from ..mapping.octomap import OctoMapBuilder, load_pyoctomap
-from ..mapping.semantic_map import MapConfig, PointCloud, SemanticMapBuilder, merge_clouds
+from ..products.octomap import OctoMapBuilder, load_pyoctomap
+from ..products.semantic_map import MapConfig, PointCloud, SemanticMapBuilder, merge_clouds
 from ..scoring.run_result import FrameLog, RunResult
 from ..segmenters.base import Segmenter
 from ..sequence import Frame, TumSequence, ahead

@@ -75,6 +75,13 @@ def test_tracking_and_mapping_do_not_import_each_other() -> None:
     assert "tracking" not in graph["mapping"], "slam_eval/mapping imports slam_eval/tracking"
 
 
+def test_scoring_reads_the_map_products_not_the_back_end() -> None:
+    graph = sub_package_graph()
+    assert "products" in graph["scoring"]
+    assert "mapping" not in graph["scoring"], "slam_eval/scoring imports slam_eval/mapping"
+    assert "mapping" not in graph["products"], "slam_eval/products imports slam_eval/mapping"
+
+
 def test_no_import_cycle_between_sub_packages() -> None:
     cycle = import_cycle(sub_package_graph())
     assert cycle is None, "import cycle between slam_eval sub-packages: " + " -> ".join(cycle)

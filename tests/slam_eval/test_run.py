@@ -18,7 +18,7 @@ from uss_slam.core.tum_io import read_trajectory
 from uss_slam.slam_eval.config import filter_defaults
 from uss_slam.slam_eval.filters.build import shipped_filter_configs
 from uss_slam.slam_eval.frontend.orb import OrbConfig
-from uss_slam.slam_eval.mapping.semantic_map import MapConfig, read_ply
+from uss_slam.slam_eval.products.semantic_map import MapConfig, read_ply
 from uss_slam.slam_eval.run import run
 from uss_slam.slam_eval.scoring.evaluation import EvalConfig
 from uss_slam.slam_eval.scoring.run_folder import verify_run

@@ -21,7 +21,7 @@ from shared_helpers import drop_in_weakref_callback, outside_staging
 import uss_slam.configs
 from uss_slam.core.files import file_sha256
 from uss_slam.core.tum_io import read_trajectory
-from uss_slam.slam_eval.mapping.semantic_map import read_ply
+from uss_slam.slam_eval.products.semantic_map import read_ply
 from uss_slam.slam_eval.run import main
 from uss_slam.slam_eval.scoring.run_folder import (
     MANIFEST,

@@ -18,13 +18,13 @@ from uss_slam.core.tum_io import TUM_CAMERAS
 from uss_slam.slam_eval.filters.build import build_filters
 from uss_slam.slam_eval.frontend.orb import OrbConfig, OrbExtractor
 from uss_slam.slam_eval.geometry import transform
-from uss_slam.slam_eval.mapping.octomap import (
+from uss_slam.slam_eval.products.octomap import (
     OctoMapBuilder,
     key_centres,
     read_octomap,
     voxel_keys,
 )
-from uss_slam.slam_eval.mapping.semantic_map import MapConfig
+from uss_slam.slam_eval.products.semantic_map import MapConfig
 from uss_slam.slam_eval.run import run
 from uss_slam.slam_eval.segmenters.base import LabelsSegmenter, NoSegmenter
 from uss_slam.slam_eval.sequence import TumSequence

@@ -12,7 +12,7 @@ from uss_slam.core.classes import CLASS_COLORS, CLASS_NAMES, IGNORE_INDEX
 from uss_slam.core.errors import DataFormatError
 from uss_slam.core.tum_io import TUM_CAMERAS
 from uss_slam.slam_eval.frontend.orb import OrbConfig, OrbExtractor
-from uss_slam.slam_eval.mapping.semantic_map import (
+from uss_slam.slam_eval.products.semantic_map import (
     PLY_RECORD,
     MapConfig,
     PointCloud,
