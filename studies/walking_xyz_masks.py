@@ -23,10 +23,7 @@ person mask: ``NAME:walkers`` keeps only its pixels on the walkers (its hits), `
 only its pixels off them (its false alarms; the 5 px dilation may still reach a walker's edge):
 which part of the mask changes the run; ``NAME:moved`` replaces the mask by as many walker
 pixels as it hits, on the other side of the walkers: whether these walker keypoints matter or
-any as many.
-
-Printed per sequence:
-
+any as many. Printed per sequence:
 - the render: frames with walkers, the walkers' mean share of the frame, the median depth of
   their pixels, their share of the ORB keypoints (in the ``none`` run, when there is one);
 - per model, the filter: ATE RMSE, walker keypoints per frame and the share removed, static
