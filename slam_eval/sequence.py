@@ -33,6 +33,10 @@ from uss_slam.core.tum_io import (
 T = TypeVar("T")
 S = TypeVar("S")
 
+MIN_STRIDED_FRAMES = 10
+"""Fewest frames a ``stride`` > 1 may leave of a sequence (before ``max_frames``): fewer give no
+trajectory worth scoring, and a table of strides would compare a handful of poses."""
+
 
 @dataclass(frozen=True)
 class FrameRecord:
@@ -101,6 +105,7 @@ class TumSequence:
         """Colour frames without a depth frame within ``max_diff`` (not processed, reported)."""
         self.load_labels = load_labels
         selected = folder.frames[start::stride]
+        _check_stride(stride, len(selected), len(folder.frames[start:]), self.path)
         if max_frames is not None:
             selected = selected[:max_frames]
         if not selected:
@@ -225,6 +230,17 @@ def ahead(
 
 
 _END = object()
+
+
+def _check_stride(stride: int, left: int, available: int, path: Path) -> None:
+    """A ``stride`` > 1 that leaves fewer than :data:`MIN_STRIDED_FRAMES` of the ``available``
+    frames (from ``sequence.start`` on) is one line naming ``sequence.stride``."""
+    if stride > 1 and 0 < left < MIN_STRIDED_FRAMES:
+        largest = max(1, (available - 1) // (MIN_STRIDED_FRAMES - 1))
+        raise UssSlamError(
+            f"sequence.stride={stride}: leaves {left} of the {available} associated frames of "
+            f"{path}; expected at least {MIN_STRIDED_FRAMES} (a stride of at most {largest})"
+        )
 
 
 def _identity(frame: Frame) -> Frame:

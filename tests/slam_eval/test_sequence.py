@@ -69,7 +69,7 @@ def test_association_with_offsets_counts_unmatched(write_sequence) -> None:
 
 
 def test_start_stride_max_frames(write_sequence) -> None:
-    seq = TumSequence(write_sequence(n=10), start=1, stride=3, max_frames=2)
+    seq = TumSequence(write_sequence(n=30), start=1, stride=3, max_frames=2)
     all_stamps = TumSequence(seq.path).stamps
     np.testing.assert_array_equal(seq.stamps, all_stamps[[1, 4]])
     assert [r.index for r in seq.records] == [0, 1]
@@ -226,3 +226,16 @@ def re_escape(text: str) -> str:
     import re
 
     return re.escape(text)
+
+
+def test_a_stride_that_leaves_fewer_than_ten_frames_names_the_key(write_sequence) -> None:
+    root = write_sequence(n=28)
+    assert len(TumSequence(root, stride=3)) == 10  # frames 0, 3, ..., 27
+    with pytest.raises(UssSlamError) as info:
+        TumSequence(root, stride=4)
+    message = str(info.value)
+    assert message.startswith("sequence.stride=4: leaves 7 of the 28 associated frames of ")
+    assert message.endswith("expected at least 10 (a stride of at most 3)")
+    with pytest.raises(UssSlamError, match=r"leaves 9 of the 27 associated frames"):
+        TumSequence(root, start=1, stride=3)
+    assert len(TumSequence(write_sequence(n=6, name="short"))) == 6  # stride 1: the user's frames

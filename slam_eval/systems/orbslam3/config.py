@@ -76,5 +76,6 @@ def check_vocabulary(vocabulary: str | None) -> Path:
     try:
         read_header(path)
     except DataFormatError as err:
-        raise UssSlamError(f"system.vocabulary={vocabulary}: {err.detail}") from None
+        where = "" if err.line is None else f"line {err.line}: "
+        raise UssSlamError(f"system.vocabulary={vocabulary}: {where}{err.detail}") from None
     return path

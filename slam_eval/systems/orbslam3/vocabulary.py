@@ -316,13 +316,37 @@ def read_header(path: StrPath) -> tuple[int, int, int, int]:
     try:
         with open(path, encoding="ascii") as fh:
             first = fh.readline()
+            nodes = [fh.readline() for _ in range(HEADER_NODES_CHECKED)]
     except FileNotFoundError:
         raise DataFormatError(path, "file not found") from None
     except IsADirectoryError:
         raise DataFormatError(path, "is a folder; expected a DBoW2 text vocabulary file") from None
     except (OSError, UnicodeDecodeError) as err:
         raise DataFormatError(path, f"not a DBoW2 text vocabulary ({err})") from None
-    return _parse_header(path, first)
+    header = _parse_header(path, first)
+    for number, line in enumerate(nodes, start=2):
+        if line.strip():
+            _check_orb_node(path, line, number)
+    return header
+
+
+HEADER_NODES_CHECKED = 20
+"""Node lines :func:`read_header` checks for ORB descriptors (a vocabulary of another
+descriptor shows on its first node)."""
+
+
+def _check_orb_node(path: Path, line: str, number: int) -> None:
+    """A node line holds ``parent is_leaf`` + 32 integer bytes + ``weight``: a vocabulary of
+    another descriptor (BRISK's or AKAZE's bytes, SURF's floats) is one line naming it."""
+    values = line.split()[2:-1]
+    if len(values) != DESCRIPTOR_BYTES or not all(v.isdigit() and int(v) <= 255 for v in values):
+        kind = "floats" if any("." in v or "e" in v.lower() for v in values) else "values"
+        raise DataFormatError(
+            path,
+            f"a node of {len(values)} descriptor {kind}: built for another descriptor; "
+            f"ORB-SLAM3 needs ORB's {DESCRIPTOR_BYTES} bytes (integers 0..255) per node",
+            number,
+        )
 
 
 def _parse_header(path: Path, line: str) -> tuple[int, int, int, int]:

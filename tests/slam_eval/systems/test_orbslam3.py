@@ -129,6 +129,33 @@ def test_missing_vocabulary_names_the_key_and_the_builder(tmp_path: Path) -> Non
         check_vocabulary(str(tmp_path / "bin.txt"))
 
 
+def test_a_vocabulary_of_another_descriptor_is_one_line_naming_its_line(tmp_path: Path) -> None:
+    """A DBoW2 text vocabulary of BRISK's 64 bytes or SURF's 64 floats per node has ORB's header
+    but not ORB's nodes: stopped before ORB-SLAM3 loads it."""
+    orb = "0 0 " + " ".join(["7"] * 32) + " 0.5\n"
+    (tmp_path / "orb.txt").write_text("10 2 0 0\n" + orb * 3)
+    assert check_vocabulary(str(tmp_path / "orb.txt")) == tmp_path / "orb.txt"
+    for name, node in (
+        ("brisk.txt", "0 0 " + " ".join(["200"] * 64) + " 0.5\n"),
+        ("surf.txt", "0 0 " + " ".join(["0.125"] * 64) + " 0.5\n"),
+        ("floats32.txt", "0 0 " + " ".join(["0.5"] * 32) + " 0.5\n"),
+    ):
+        (tmp_path / name).write_text("10 2 0 0\n" + orb + node)
+        with pytest.raises(UssSlamError) as info:
+            check_vocabulary(str(tmp_path / name))
+        message = str(info.value)
+        assert message.startswith(f"system.vocabulary={tmp_path / name}: line 3: a node of ")
+        assert "built for another descriptor" in message and "\n" not in message
+    assert "64 descriptor values" in str(_error(check_vocabulary, str(tmp_path / "brisk.txt")))
+    assert "64 descriptor floats" in str(_error(check_vocabulary, str(tmp_path / "surf.txt")))
+
+
+def _error(fn, *args) -> UssSlamError:
+    with pytest.raises(UssSlamError) as info:
+        fn(*args)
+    return info.value
+
+
 def test_blanked_pixels_are_exactly_the_dilated_mask() -> None:
     h, w = 40, 50
     labels = np.zeros((h, w), np.uint8)
