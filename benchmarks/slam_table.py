@@ -1,6 +1,6 @@
 """Does a SLAM default hold on every real stretch at every frame rate, with repeats, against
 ORB-SLAM3? One command runs every TUM stretch in ``--data`` (and synthetic hand-held sequences
-with a global and a rolling shutter) at every ``--strides`` frame step, through the harness with
+with a global and a rolling shutter) at every ``--strides`` frame step (default 1-5), through the harness with
 its defaults (local bundle adjustment + loop closing), the harness without back end
 (``slam.local_ba=false slam.loop_closing=false``) and ORB-SLAM3, each ``--repeats`` times, and
 prints one table: per sequence × stride × system the median ATE RMSE, its (min–max) and max/min
@@ -8,8 +8,9 @@ spread, and the ratios harness default / ORB-SLAM3 and default / no back end. Re
 "SLAM on real frames" section of BENCHMARKS.md (docs/results/slam_table/README.md).
 
     python benchmarks/slam_table.py --out outputs/bench/slam_table
-    python benchmarks/slam_table.py --data ../shared/data/tum --repeats 5 --strides 1,2,3 \\
+    python benchmarks/slam_table.py --data ../shared/data/tum --repeats 5 --strides 1,2,3,4,5 \\
         --systems harness,harness_noback,orbslam3 --synthetic --out outputs/bench/slam_table
+    python benchmarks/slam_table.py --no-real --synthetic-presets handheld_fast --strides 1,2
 
 Every run goes through the console scripts (``uss-slam``, ``uss-vocab``, ``uss-synth``), one
 folder per cell under ``<out>/runs/<sequence>/stride<k>/<system>/``; a rerun reuses a cell whose
@@ -20,10 +21,10 @@ The harness repeats are ``slam.repeats`` (seeded ±1% feature budget and RANSAC 
 ORB-SLAM3's vocabulary (``uss-vocab build``) never sees the frames it is scored on: a real stretch
 gets one built from the other stretches in ``--data``, a synthetic sequence one built from the
 same preset rendered with another seed. The real stretches use ``--camera`` (TUM fr1 for
-freiburg1); the synthetic ones their own ``intrinsics.yaml``. The synthetic preset is
-``handheld_rpy``, the fastest hand-held motion ``uss-synth`` renders (up to ~60°/s by its
-description, ~40 on average): no preset reaches 200°/s between frames at 30 Hz, so strides 2 and 3
-multiply the motion between the frames used by 2 and 3. Writes ``<out>/table.md`` and
+freiburg1); the synthetic ones their own ``intrinsics.yaml``. The synthetic presets
+(``--synthetic-presets``) are ``handheld_rpy`` (TUM fr1/rpy-like: up to ~80°/s, ~40 on average)
+and ``handheld_fast`` (the same path 4× faster: up to ~300°/s, ~155 on average); a stride ``k``
+multiplies the motion between the frames used by ``k``. Writes ``<out>/table.md`` and
 ``<out>/table.json``.
 """
 
@@ -49,7 +50,7 @@ SYSTEMS = {
 }
 """System key -> (column title, uss-slam overrides besides the sequence and repeats)."""
 
-SYNTHETIC_PRESET = "handheld_rpy"
+SYNTHETIC_PRESETS = ("handheld_rpy", "handheld_fast")
 SYNTHETIC_TIMINGS = ("global", "rolling")
 SYNTHETIC_SEED = 0
 VOCAB_SEED = 1
@@ -135,27 +136,38 @@ def real_sequences(data: Path, camera: str) -> list[Sequence]:
     ]
 
 
-def render(path: Path, timing: str, seed: int, frames: int, size: str) -> Path:
+def render(path: Path, preset: str, timing: str, seed: int, frames: int, size: str) -> Path:
     """``uss-synth sequence`` into ``path`` unless a complete one with these arguments is
     there."""
     if (path / "rgb.txt").is_file() and (path / "groundtruth.txt").is_file():
         return path
-    cmd = [tool("uss-synth"), "sequence", "--preset", SYNTHETIC_PRESET, "--timing", timing]
+    cmd = [tool("uss-synth"), "sequence", "--preset", preset, "--timing", timing]
     cmd += ["--frames", str(frames), "--size", size, "--seed", str(seed)]
     cmd += ["--out", str(path), "--overwrite", "--quiet"]
     run_tool(cmd, f"uss-synth into {path}")
     return path
 
 
-def synthetic_sequences(out: Path, frames: int, size: str, timings: list[str]) -> list[Sequence]:
+def synthetic_sequences(
+    out: Path, frames: int, size: str, presets: list[str], timings: list[str], vocab: bool
+) -> list[Sequence]:
+    """Each preset × timing rendered with :data:`SYNTHETIC_SEED` (and, for ORB-SLAM3's
+    vocabulary, ``vocab``, with :data:`VOCAB_SEED`)."""
     data = out / "data"
     seqs = []
-    for timing in timings:
-        tag = f"{SYNTHETIC_PRESET}_{timing}_{frames}f_{size}"
-        path = render(data / f"{tag}_seed{SYNTHETIC_SEED}", timing, SYNTHETIC_SEED, frames, size)
-        vocab = render(data / f"{tag}_seed{VOCAB_SEED}", timing, VOCAB_SEED, frames, size)
-        name = f"synthetic {SYNTHETIC_PRESET} {timing} shutter"
-        seqs.append(Sequence(name, path.resolve(), "synthetic", None, [vocab.resolve()]))
+    for preset in presets:
+        for timing in timings:
+            tag = f"{preset}_{timing}_{frames}f_{size}"
+            seed = SYNTHETIC_SEED
+            path = render(data / f"{tag}_seed{seed}", preset, timing, seed, frames, size)
+            sources = []
+            if vocab:
+                seed = VOCAB_SEED
+                sources.append(
+                    render(data / f"{tag}_seed{seed}", preset, timing, seed, frames, size).resolve()
+                )
+            name = f"synthetic {preset} {timing} shutter"
+            seqs.append(Sequence(name, path.resolve(), "synthetic", None, sources))
     return seqs
 
 
@@ -354,11 +366,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--real", action=argparse.BooleanOptionalAction, default=True,
                         help="run the stretches in --data (default: yes)")  # fmt: skip
     parser.add_argument("--repeats", type=int, default=5)
-    parser.add_argument("--strides", default="1,2,3")
+    parser.add_argument("--strides", default="1,2,3,4,5")
     parser.add_argument("--systems", default=",".join(SYSTEMS))
     parser.add_argument("--synthetic", action=argparse.BooleanOptionalAction, default=True,
-                        help=f"also the {SYNTHETIC_PRESET} preset with a global and a rolling "
+                        help="also synthetic hand-held sequences with a global and a rolling "
                         "shutter (default: yes)")  # fmt: skip
+    parser.add_argument("--synthetic-presets", default=",".join(SYNTHETIC_PRESETS),
+                        help="uss-synth presets of the synthetic sequences")  # fmt: skip
     parser.add_argument("--synthetic-frames", type=int, default=200)
     parser.add_argument("--synthetic-size", default="640x480", help="WxH")
     parser.add_argument("--synthetic-timings", default=",".join(SYNTHETIC_TIMINGS),
@@ -393,6 +407,12 @@ def run(args: argparse.Namespace, command: str) -> int:
             f"--synthetic-timings: expected a comma-separated subset of "
             f"{','.join(SYNTHETIC_TIMINGS)}, got {args.synthetic_timings!r}"
         )
+    presets = [p for p in args.synthetic_presets.split(",") if p]
+    if not presets or any(p not in SYNTHETIC_PRESETS for p in presets):
+        raise TableError(
+            f"--synthetic-presets: expected a comma-separated subset of "
+            f"{','.join(SYNTHETIC_PRESETS)}, got {args.synthetic_presets!r}"
+        )
     if not args.real and not args.synthetic:
         raise TableError("--no-real and --no-synthetic: nothing to run")
     seqs = real_sequences(args.data, args.camera) if args.real else []
@@ -400,7 +420,9 @@ def run(args: argparse.Namespace, command: str) -> int:
     out.mkdir(parents=True, exist_ok=True)
     load_start = os.getloadavg()
     if args.synthetic:
-        seqs += synthetic_sequences(out, args.synthetic_frames, size, timings)
+        seqs += synthetic_sequences(
+            out, args.synthetic_frames, size, presets, timings, "orbslam3" in systems
+        )
     vocabs = {s.name: vocabulary(out, s, args.force) for s in seqs} if "orbslam3" in systems else {}
 
     jobs = [(seq, stride, system) for seq in seqs for stride in strides for system in systems]
@@ -429,7 +451,7 @@ def run(args: argparse.Namespace, command: str) -> int:
         "repeats": args.repeats,
         "strides": strides,
         "systems": systems,
-        "synthetic": {"preset": SYNTHETIC_PRESET, "timings": timings,
+        "synthetic": {"presets": presets, "timings": timings,
                       "frames": args.synthetic_frames, "size": size,
                       "seed": SYNTHETIC_SEED, "vocabulary_seed": VOCAB_SEED}
         if args.synthetic else None,

@@ -172,7 +172,7 @@ def build_parser() -> argparse.ArgumentParser:
                           f"at the colour stamp; rolling = a rolling shutter ({READOUT * 1000:.0f} "
                           "ms readout, the labels skewed with the colour); misregistered = the "
                           "depth image at its own stamp; kinect = both (default: the preset's; "
-                          "handheld_rpy: kinect, the others: global)")  # fmt: skip
+                          "handheld_rpy, handheld_fast: kinect, the others: global)")  # fmt: skip
     common(seq)
 
     voc = sub.add_parser(

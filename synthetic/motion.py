@@ -18,8 +18,11 @@ LOOP_PERIOD = 12.0
 """Seconds per turn of the ``loop`` motion (360 frames at 30 Hz)."""
 LOOP_RADIUS = 0.3
 """Radius of the ``loop`` motion's circle, metres."""
-MOTIONS = ("xyz", "static", "rpy", "halfsphere", "loop", "handheld")
+MOTIONS = ("xyz", "static", "rpy", "halfsphere", "loop", "handheld", "handheld_fast")
 """The camera motion kinds (:attr:`Preset.motion`)."""
+FAST_HANDHELD = 4.0
+"""``handheld_fast`` is ``handheld``'s path (same seed, same poses) run this many times faster:
+up to ~300 deg/s, ~155 on average (``handheld``: up to ~80, ~40)."""
 
 
 @dataclass(frozen=True)
@@ -59,6 +62,10 @@ PRESETS: dict[str, Preset] = {
                "(up to ~60 deg/s, ~40 on average) with hand shake and a few cm of drift, a rolling "
                "shutter and depth taken at its own instant; two seated people who never move",
                timing="kinect"),
+        Preset("handheld_fast", "handheld_fast", "frozen",
+               f"handheld_rpy's path {FAST_HANDHELD:g}x faster: up to ~300 deg/s (~155 on "
+               "average, 5 deg between frames, 10 at the peaks), for tracking at large steps; "
+               "two seated people who never move", timing="kinect"),
     )
 }  # fmt: skip
 """The presets by name (``uss-synth sequence --preset NAME``)."""
@@ -84,6 +91,9 @@ class CameraMotion:
         if kind not in MOTIONS:
             raise ValueError(f"unknown camera motion {kind!r}")
         self.kind = kind
+        self.speed = FAST_HANDHELD if kind == "handheld_fast" else 1.0
+        """Time factor of the motion (``handheld_fast`` runs ``handheld``'s path faster)."""
+        kind = "handheld" if kind == "handheld_fast" else kind
         self.eye = np.asarray(eye, np.float64)
         self.target = np.asarray(target, np.float64)
         self.base = look_at(self.eye, self.target)
@@ -103,6 +113,7 @@ class CameraMotion:
 
     def pose(self, t: float) -> np.ndarray:
         """The 4×4 camera-to-world matrix at ``t`` seconds."""
+        t = t * self.speed
         w = self._wave
         out = np.eye(4)
         rot = self.base
@@ -120,7 +131,7 @@ class CameraMotion:
             # camera axes: z ahead (roll), x right (pitch), y down (yaw)
             rot = rot @ rot_y(yaw) @ rot_x(pitch) @ rot_z(roll)
             pos = pos + self.base @ (0.01 * np.array([w(t, 3, 4.1), w(t, 4, 5.3), w(t, 5, 6.7)]))
-        elif self.kind == "handheld":
+        elif self.kind in ("handheld", "handheld_fast"):
             # A hand-held camera swept about its axes (TUM fr1/rpy): slow swings of 11-17 deg
             # plus a faster hand shake, so each axis turns at up to ~35 (roll), ~45 (pitch) and
             # ~60 deg/s (yaw), ~40 deg/s on average; the hand drifts a few cm, trembles 2 mm.

@@ -53,6 +53,8 @@ def test_bad_inputs_are_one_line_each(tmp_path: Path, capsys) -> None:
     assert "--repeats: expected an integer >= 1, got 0" in line
     line = _error(capsys, ["--synthetic-timings", "kinect", "--no-real", *out])
     assert "--synthetic-timings" in line
+    line = _error(capsys, ["--synthetic-presets", "walking_xyz", "--no-real", *out])
+    assert "--synthetic-presets: expected a comma-separated subset of handheld_rpy," in line
     assert not (tmp_path / "out" / "table.md").exists()
 
 
@@ -89,6 +91,7 @@ def test_table_of_synthetic_cells_is_the_run_folders_medians(tmp_path: Path, cap
     out = tmp_path / "out"
     argv = ["--no-real", "--synthetic-frames", "20", "--synthetic-size", "160x120"]
     argv += ["--synthetic-timings", "global", "--repeats", "2", "--strides", "1,2"]
+    argv += ["--synthetic-presets", "handheld_rpy"]
     argv += ["--systems", "harness,harness_noback", "--out", str(out)]
     assert main(argv) == 0
     printed = capsys.readouterr().out
@@ -137,6 +140,7 @@ def test_orbslam3_cells_use_a_vocabulary_of_another_seed(tmp_path: Path, capsys)
     out = tmp_path / "out"
     argv = ["--no-real", "--synthetic-frames", "30", "--synthetic-size", "320x240"]
     argv += ["--synthetic-timings", "rolling", "--repeats", "2", "--strides", "1"]
+    argv += ["--synthetic-presets", "handheld_fast"]
     argv += ["--systems", "harness,orbslam3", "--out", str(out)]
     assert main(argv) == 0
     table = json.loads((out / "table.json").read_text())
@@ -152,6 +156,7 @@ def test_orbslam3_cells_use_a_vocabulary_of_another_seed(tmp_path: Path, capsys)
     assert table["meta"]["synthetic"]["vocabulary_seed"] == 1
     assert "seed: 1" in (other / "synthetic.yaml").read_text()
     assert "seed: 0" in (Path(sequence) / "synthetic.yaml").read_text()
+    assert "handheld_fast" in (Path(sequence) / "synthetic.yaml").read_text()
     assert row["default_over_orbslam3"] == pytest.approx(
         row["systems"]["harness"]["ate_rmse_median"] / orb["ate_rmse_median"]
     )

@@ -85,7 +85,8 @@ def test_kinect_timing_skews_the_rows_and_takes_the_depth_at_its_stamp() -> None
     from uss_slam.synthetic.sequence import READOUT
 
     assert PRESETS["handheld_rpy"].timing == "kinect"
-    assert {p.timing for n, p in PRESETS.items() if n != "handheld_rpy"} == {"global"}
+    hand = ("handheld_rpy", "handheld_fast")
+    assert {p.timing for n, p in PRESETS.items() if n not in hand} == {"global"}
     size = (320, 240)
     plain = SequenceRenderer("handheld_rpy", 40, size, seed=0, timing="global")
     kinect = SequenceRenderer("handheld_rpy", 40, size, seed=0)
@@ -109,3 +110,17 @@ def test_kinect_timing_skews_the_rows_and_takes_the_depth_at_its_stamp() -> None
     assert np.array_equal(misregistered.rgb, a.rgb) and np.array_equal(misregistered.depth, b.depth)
     with pytest.raises(SynthArgumentError, match="unknown timing 'slow'; choose one of global"):
         SequenceRenderer("handheld_rpy", 4, size, timing="slow")
+
+
+def test_the_fast_preset_is_the_handheld_path_four_times_faster() -> None:
+    """``handheld_fast``: ``handheld_rpy``'s poses (same seed) at a quarter of the time, so up to
+    ~300 deg/s, and the same static scene."""
+    preset = PRESETS["handheld_fast"]
+    assert (preset.motion, preset.people, preset.timing) == ("handheld_fast", "frozen", "kinect")
+    for seed in (0, 1, 2):
+        slow = CameraMotion("handheld", EYE, TARGET, seed)
+        fast = CameraMotion("handheld_fast", EYE, TARGET, seed)
+        for t in (0.0, 0.37, 2.5):
+            np.testing.assert_allclose(fast.pose(t), slow.pose(4.0 * t), atol=1e-12)
+        angular, _, _ = _motion("handheld_fast", seed)
+        assert 250 <= angular.max() <= 340 and 140 <= angular.mean() <= 170  # deg/s
