@@ -24,13 +24,13 @@ from __future__ import annotations
 
 import inspect
 from collections.abc import Sequence
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from typing import Any, Optional
 
 from omegaconf import MISSING, DictConfig, ListConfig, OmegaConf
 
 from uss_slam.core.errors import UssSlamError
-from uss_slam.core.schema import SchemaError, check_target, ranged, register
+from uss_slam.core.schema import MAX_THREADS, SchemaError, check_target, ranged, register
 from uss_slam.core.schema import check as schema_check
 
 from .filters.build import build_filters, shipped_filter_configs
@@ -45,6 +45,8 @@ from .systems.harness import SEGMENT_SCHEDULES
 from .tracking.config import REMOVED as REMOVED_TRACKER_KEYS
 from .tracking.config import TrackerConfig
 
+MAX_PREFETCH = 256
+"""The most frames loaded ahead (about 0.5 GB of 640 × 480 frames)."""
 SCHEMA_GROUP = "uss_slam_schema"
 """ConfigStore group of the structured configs (not a choice users make)."""
 
@@ -89,10 +91,11 @@ class SlamConfig:
     """Each filter by name: ``_target_`` (its class) and its parameters (the nodes of
     ``configs/slam/orb_rgbd.yaml``), checked against the class's parameter annotations; which
     filters run is the top-level ``filters`` list."""
-    prefetch: int = ranged(4, min=0)
-    """Frames loaded ahead by background threads."""
-    workers: int = ranged(2, min=1)
-    """Background threads (PNG decoding releases the GIL)."""
+    prefetch: int = ranged(4, min=0, max=MAX_PREFETCH)
+    """Frames loaded ahead by background threads (each held in memory: a 640 × 480 frame with its
+    features and labels is about 2 MB)."""
+    workers: int = ranged(2, min=1, max=MAX_THREADS)
+    """Background threads (PNG decoding releases the GIL); at most 4 per CPU."""
     parallel: bool = True
     """Segment and extract ORB in those threads too (overlaps tracking)."""
     prefetch_mode: str = ranged("thread", choices=PREFETCH_MODES)
@@ -129,7 +132,7 @@ class SequenceConfig:
     """The sequence folder (rgb.txt, depth.txt, groundtruth.txt, rgb/, depth/, [labels/])."""
     camera: Optional[str] = None  # noqa: UP045 (OmegaConf reads typing's Optional)
     """fr1 | fr2 | fr3 | a path to an intrinsics.yaml; null = the sequence's own, else fr3."""
-    max_diff: float = ranged(0.02, min=0)
+    max_diff: float = ranged(0.02, gt=0)
     """Largest rgb <-> depth stamp difference, s (TUM's associate.py)."""
     start: int = ranged(0, min=0)
     """First associated frame to use."""
@@ -193,16 +196,14 @@ def run_name(filters: Sequence[str]) -> str:
 
 
 def _settings(cls: type, typed: Any, where: str) -> Any:
-    """The dataclass ``cls`` of a section whose types :func:`~uss_slam.core.schema.check`
-    checked; its own ``__post_init__`` rules (messages "<field> must ...") name the full key."""
+    """The settings dataclass ``cls`` of the section ``where``, whose fields
+    :func:`~uss_slam.core.schema.check` checked; a rule across its fields (``min_fast`` <=
+    ``ini_fast``) is a :class:`SchemaError` naming the field, here named in full."""
     values = OmegaConf.to_container(typed, resolve=True) if typed is not None else {}
     try:
         return cls(**(values or {}))
-    except (TypeError, ValueError) as err:
-        message = str(err)
-        if message.split(" ", 1)[0] in {f.name for f in fields(cls)}:
-            raise UssSlamError(f"{where}.{message}") from None
-        raise UssSlamError(f"{where}: {message}") from None
+    except SchemaError as err:
+        raise err.within(where) from None
 
 
 def _filter_names(value: Any, key: str, known: Sequence[str]) -> list[str]:

@@ -55,6 +55,7 @@ class SchemaError(UssSlamError, ValueError):
     ) -> None:
         self.key = key or "config"
         self.expected = expected
+        self._args = (expected, got, unknown, owner)
         if unknown and not expected:
             message = f"{self.key}: unknown key; {owner or 'this section'} takes no parameters"
         elif unknown:
@@ -66,6 +67,13 @@ class SchemaError(UssSlamError, ValueError):
         else:
             message = f"{self.key}: expected {expected}, got {_show(got)}"
         super().__init__(message)
+
+    def within(self, section: str) -> SchemaError:
+        """The same error with ``section`` (a dotted config path) before its key: a settings
+        object built from a section names the field, the caller knows the section."""
+        expected, got, unknown, owner = self._args
+        key = f"{section}.{self.key}" if section else self.key
+        return SchemaError(key, expected, got, unknown=unknown, owner=owner)
 
 
 def _show(value: Any) -> str:

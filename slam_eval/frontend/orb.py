@@ -24,6 +24,7 @@ from dataclasses import dataclass, fields
 import cv2
 import numpy as np
 
+from uss_slam.core.schema import SchemaError, check_fields, ranged
 from uss_slam.core.tum_io import CameraIntrinsics
 
 HALF_PATCH = 15
@@ -36,34 +37,27 @@ EDGE = 19
 class OrbConfig:
     """ORB extraction settings (defaults: ORB-SLAM2's TUM RGB-D configuration)."""
 
-    n_features: int = 1000
-    scale_factor: float = 1.2
-    n_levels: int = 8
-    ini_fast: int = 20
-    min_fast: int = 7
-    cell_size: int = 30
+    n_features: int = ranged(1000, min=1)
+    scale_factor: float = ranged(1.2, gt=1.0)
+    n_levels: int = ranged(8, min=1)
+    ini_fast: int = ranged(20, min=1, max=255)
+    """FAST threshold, grey levels (0-255)."""
+    min_fast: int = ranged(7, min=1, max=255)
+    """FAST threshold of the second search, grey levels; at most ``ini_fast``."""
+    cell_size: int = ranged(30, min=8)
     """Side of the cells searched again with ``min_fast`` when ``ini_fast`` finds nothing, px."""
-    min_depth: float = 0.1
-    max_depth: float = 4.0
+    min_depth: float = ranged(0.1, min=0)
+    max_depth: float = ranged(4.0, gt=0)
     """Depth beyond this is not back-projected, metres (see the module docstring)."""
 
     def __post_init__(self) -> None:
-        # Messages start with the field name: uss-slam prefixes the config section.
-        for name in ("n_features", "n_levels", "ini_fast"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
-        if not self.scale_factor > 1.0:
-            raise ValueError(f"scale_factor must be > 1, got {self.scale_factor}")
-        if not 0 < self.min_fast <= self.ini_fast:
-            raise ValueError(
-                f"min_fast must be > 0 and <= ini_fast ({self.ini_fast}), got {self.min_fast}"
-            )
-        if self.cell_size < 8:
-            raise ValueError(f"cell_size must be >= 8 px, got {self.cell_size}")
-        if not 0 <= self.min_depth < self.max_depth:
-            raise ValueError(
-                f"min_depth must be >= 0 and < max_depth ({self.max_depth}), got {self.min_depth}"
-            )
+        check_fields(self)  # the ranges above; then the rules across fields
+        if self.min_fast > self.ini_fast:
+            raise SchemaError("min_fast", f"an integer <= ini_fast ({self.ini_fast})",
+                              self.min_fast)  # fmt: skip
+        if self.min_depth >= self.max_depth:
+            raise SchemaError("min_depth", f"a number < max_depth ({self.max_depth})",
+                              self.min_depth)  # fmt: skip
 
 
 @dataclass

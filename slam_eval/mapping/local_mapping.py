@@ -59,7 +59,8 @@ from itertools import repeat
 import gtsam
 import numpy as np
 
-from ..checks import check_numbers
+from uss_slam.core.schema import check_fields, ranged
+
 from ..geometry import invert
 from ..map.observation import CHI2_MONO, CHI2_STEREO, chi2_per_observation, observations
 from ..map.slam_map import SlamMap
@@ -104,34 +105,30 @@ def point_keys(point_ids: np.ndarray) -> list[int]:
 class LocalMappingConfig:
     """Local bundle adjustment and keyframe culling (defaults: ORB-SLAM2's)."""
 
-    depth_noise: float | None = None
+    depth_noise: float | None = ranged(None, min=0)
     """k of the depth noise ``σ_z = k·z²`` the stereo observations model, metres⁻¹ (module
     docstring); 0 = ORB-SLAM2's independent ``(u, v, u_r)`` of equal sigma; None (the default)
     = the camera's: the ``depth_noise`` its ``intrinsics.yaml`` declares (the synthetic target
     style: 0.0019), else ORB-SLAM2's model (a real Kinect, whose depth is far from ``k·z²``'s
     precision: :func:`depth_noise_of`)."""
-    covisibility: int = 15
+    covisibility: int = ranged(15, min=1)
     """Keyframes sharing at least this many map points with the new keyframe are optimised."""
-    max_keyframes: int = 0
+    max_keyframes: int = ranged(0, min=0)
     """At most this many covisible keyframes are optimised, those sharing the most points first
     (the others are fixed); 0 = all, as ORB-SLAM2."""
-    first_iterations: int = 5
+    first_iterations: int = ranged(5, min=1)
     """LM iterations with the Huber kernel (ORB-SLAM2: 5)."""
-    second_iterations: int = 10
+    second_iterations: int = ranged(10, min=0)
     """LM iterations after leaving the outliers out, without kernel (ORB-SLAM2: 10; 0 = skip)."""
     culling: bool = True
     """Remove redundant keyframes after each local bundle adjustment."""
-    redundancy: float = 0.9
+    redundancy: float = ranged(0.9, gt=0, max=1)
     """A keyframe is redundant when more than this fraction of its close points are seen by
     ``redundant_observers`` other keyframes (ORB-SLAM2: 0.9)."""
-    redundant_observers: int = 3
+    redundant_observers: int = ranged(3, min=1)
 
     def __post_init__(self) -> None:
-        check_numbers(
-            self,
-            at_least_one=("covisibility", "first_iterations", "redundant_observers"),
-            unit=("redundancy",),
-        )
+        check_fields(self)
 
 
 def depth_noise_of(config: LocalMappingConfig, camera_noise: float | None) -> tuple[float, str]:

@@ -42,7 +42,8 @@ from typing import Protocol
 import gtsam
 import numpy as np
 
-from ..checks import check_numbers
+from uss_slam.core.schema import check_fields, ranged
+
 from ..frontend.matching import Matches
 from ..frontend.orb import Features
 from ..geometry import invert, rotation_angle_deg
@@ -54,58 +55,46 @@ from .local_mapping import FIXED_SIGMA, BundleAdjuster, pose_key
 class LoopClosingConfig:
     """Loop detection, verification and correction (defaults: ORB-SLAM2's where it has one)."""
 
-    min_keyframes: int = 10
+    min_keyframes: int = ranged(10, min=0)
     """No detection before the map has this many keyframes, nor within this many keyframes of
     the last loop (ORB-SLAM2: 10)."""
-    covisibility: int = 15
+    covisibility: int = ranged(15, min=0)
     """Keyframes sharing at least this many points with the current one are not candidates."""
-    min_matches: int = 30
+    min_matches: int = ranged(30, min=1)
     """Descriptor matches a candidate needs before it is considered."""
-    candidates: int = 3
+    candidates: int = ranged(3, min=1)
     """The best-scoring candidates kept per keyframe."""
-    ratio: float = 0.75
-    max_hamming: int = 64
-    consistency: int = 3
+    ratio: float = ranged(0.75, gt=0, max=1)
+    max_hamming: int = ranged(64, min=0, max=256)
+    consistency: int = ranged(3, min=0)
     """Consecutive consistent detections needed (ORB-SLAM2: 3)."""
-    min_inliers: int = 20
+    min_inliers: int = ranged(20, min=1)
     """PnP inliers of the geometric verification (ORB-SLAM2's Sim3 RANSAC: 20)."""
-    min_projected: int = 40
+    min_projected: int = ranged(40, min=1)
     """Inliers after matching the loop's local map by projection (ORB-SLAM2: 40)."""
-    search_radius: float = 10.0
+    search_radius: float = ranged(10.0, min=0)
     """Window of the projection search of the verification, px at level 0 (ORB-SLAM2: 10)."""
-    fuse_radius: float = 4.0
+    fuse_radius: float = ranged(4.0, min=0)
     """Window of the fusion of the loop's points into the current side, px (ORB-SLAM2: 4)."""
-    essential_covisibility: int = 100
+    essential_covisibility: int = ranged(100, min=0)
     """Covisibility edges of the essential graph need this many shared points (ORB-SLAM2: 100)."""
-    iterations: int = 20
+    iterations: int = ranged(20, min=1)
     """LM iterations of the essential-graph optimisation (ORB-SLAM2: 20)."""
-    correction_ratio: float = 0.25
+    correction_ratio: float = ranged(0.25, min=0, max=1)
     """A verified loop is closed only when its correction of the current keyframe fits the motion
     since the loop keyframe: at most this fraction of the path travelled between them (metres
     along the keyframes' centres, and degrees of rotation between consecutive keyframes), plus
     ``correction_floor_m`` / ``correction_floor_deg``. A tracker drifts by a few percent of its
     path; a larger correction is a wrong match, not drift (after 3.5 s of pure rotation a match
     moving the camera by 0.2 m is not a loop). 0 = off."""
-    correction_floor_m: float = 0.02
-    correction_floor_deg: float = 1.0
+    correction_floor_m: float = ranged(0.02, min=0)
+    correction_floor_deg: float = ranged(1.0, min=0)
     global_ba: bool = True
     """Bundle-adjust the whole map after each loop closure."""
-    global_ba_iterations: int = 10
+    global_ba_iterations: int = ranged(10, min=0)
 
     def __post_init__(self) -> None:
-        check_numbers(
-            self,
-            at_least_one=(
-                "candidates",
-                "min_inliers",
-                "min_projected",
-                "iterations",
-                "min_matches",
-            ),
-            unit=("ratio",),
-        )
-        if self.correction_ratio > 1:
-            raise ValueError(f"correction_ratio must be in [0, 1], got {self.correction_ratio}")
+        check_fields(self)
 
 
 @dataclass

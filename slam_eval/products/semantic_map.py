@@ -19,6 +19,7 @@ import numpy as np
 
 from uss_slam.core.classes import CLASS_COLORS, IGNORE_INDEX
 from uss_slam.core.errors import DataFormatError
+from uss_slam.core.schema import check_fields, ranged
 from uss_slam.core.tum_io import StrPath
 
 from ..frontend.orb import OrbExtractor
@@ -27,23 +28,19 @@ from ..geometry import transform
 
 @dataclass(frozen=True)
 class MapConfig:
-    stride: int = 4
+    stride: int = ranged(4, min=1)
     """Use every ``stride``-th pixel of a keyframe in both directions."""
-    voxel: float = 0.02
+    voxel: float = ranged(0.02, gt=0)
     """Voxel size of the merged cloud, metres."""
-    max_depth: float = 4.0
+    max_depth: float = ranged(4.0, gt=0)
     """Ignore depth beyond this (noisy), metres."""
     octomap: bool = False
     """Also build a semantic OctoMap (``octomap.ot``, :mod:`.octomap`; needs pyoctomap)."""
-    octomap_resolution: float = 0.05
+    octomap_resolution: float = ranged(0.05, gt=0)
     """Voxel size of the OctoMap, metres."""
 
     def __post_init__(self) -> None:
-        if self.stride < 1:
-            raise ValueError(f"stride must be >= 1 px, got {self.stride}")
-        for name in ("voxel", "max_depth", "octomap_resolution"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"{name} must be > 0 m, got {getattr(self, name)}")
+        check_fields(self)
 
 
 @dataclass

@@ -6,11 +6,11 @@ they fill in ``metrics.json`` (:func:`scores_dict`). The metrics themselves are
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Any
 
 from uss_slam.core.errors import UssSlamError
+from uss_slam.core.schema import SchemaError, check_fields, ranged
 from uss_slam.core.tum_io import Trajectory
 
 from . import metrics
@@ -24,34 +24,20 @@ BANDS_WINDOW = 0.5
 class EvalConfig:
     """How trajectories are scored (TUM / evo conventions)."""
 
-    max_diff: float = metrics.DEFAULT_MAX_DIFF
+    max_diff: float = ranged(metrics.DEFAULT_MAX_DIFF, gt=0)
     """Largest rgb stamp <-> ground-truth stamp difference of an associated pair, seconds."""
-    align: str = "se3"
+    align: str = ranged("se3", choices=metrics.ALIGNMENTS)
     """Umeyama alignment of the estimate: ``se3`` | ``sim3`` | ``none``."""
-    rpe_delta: float = 1.0
+    rpe_delta: float = ranged(1.0, gt=0)
     """RPE pair distance in ``rpe_unit`` (``metrics.json`` also has ``rpe_1s``, per second)."""
-    rpe_unit: str = "frames"
+    rpe_unit: str = ranged("frames", choices=metrics.DELTA_UNITS)
     """``frames`` | ``seconds``."""
 
     def __post_init__(self) -> None:
-        # Messages start with the field name: uss-slam prefixes the config section.
-        if not (math.isfinite(self.max_diff) and self.max_diff >= 0):
-            raise ValueError(f"max_diff must be a number of seconds >= 0, got {self.max_diff}")
-        if self.align not in metrics.ALIGNMENTS:
-            raise ValueError(
-                f"align must be one of {', '.join(metrics.ALIGNMENTS)}, got {self.align!r}"
-            )
-        if self.rpe_unit not in metrics.DELTA_UNITS:
-            raise ValueError(
-                f"rpe_unit must be one of {', '.join(metrics.DELTA_UNITS)}, got {self.rpe_unit!r}"
-            )
-        if not (math.isfinite(self.rpe_delta) and self.rpe_delta > 0):
-            raise ValueError(f"rpe_delta must be > 0, got {self.rpe_delta}")
+        check_fields(self)
         if self.rpe_unit == "frames" and not float(self.rpe_delta).is_integer():
-            raise ValueError(
-                f"rpe_delta must be a whole number of frames with rpe_unit=frames, "
-                f"got {self.rpe_delta}"
-            )
+            raise SchemaError("rpe_delta", "a whole number of frames with rpe_unit=frames",
+                              self.rpe_delta)  # fmt: skip
 
 
 @dataclass

@@ -40,7 +40,7 @@ import time
 from collections.abc import Mapping, Sequence
 from os import PathLike
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 import numpy as np
 import onnxruntime as ort
@@ -57,6 +57,7 @@ from uss_slam.core.onnx_contract import (
     check_label_ids,
     check_logit_channels,
 )
+from uss_slam.core.schema import MAX_THREADS, THREADS
 
 from .base import ImageSegmenter
 from .crf import DenseCrf, check_available, softmax
@@ -113,7 +114,7 @@ class OnnxSegmenter(ImageSegmenter):
     def __init__(
         self,
         path: str | PathLike[str],
-        threads: int | None = None,
+        threads: Annotated[int | None, THREADS] = None,
         providers: str | Sequence[str] | None = "cpu",
         threshold: float | None = None,
         crf: bool = False,
@@ -126,9 +127,11 @@ class OnnxSegmenter(ImageSegmenter):
             )
         if threads is not None and (
             isinstance(threads, bool) or not isinstance(threads, int) or threads < 1
-        ):
+            or threads > MAX_THREADS
+        ):  # fmt: skip
             raise UssSlamError(
-                f"segmenter.threads must be a whole number >= 1 or null, got {threads!r}"
+                f"segmenter.threads must be a whole number in 1..{MAX_THREADS} (4 per CPU) or "
+                f"null, got {threads!r}"
             )
         if threshold is not None and (
             isinstance(threshold, bool)

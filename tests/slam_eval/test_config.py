@@ -40,7 +40,7 @@ def test_the_shipped_config_passes() -> None:
     [
         (["sequence.start=-1"], "sequence.start: expected an integer >= 0, got -1"),
         (["sequence.max_frames=0"], "sequence.max_frames: expected an integer >= 1 or null, got 0"),
-        (["slam.prefetch=-1"], "slam.prefetch: expected an integer >= 0, got -1"),
+        (["slam.prefetch=-1"], "slam.prefetch: expected an integer >= 0 and <= 256, got -1"),
         (["slam.prefetch_mode=fork"],
          "slam.prefetch_mode: expected one of 'thread', 'process', got 'fork'"),
         (["slam.filter_params.object.classes=person"],
@@ -51,7 +51,7 @@ def test_the_shipped_config_passes() -> None:
         ([f"+slam.filter_params.wide._target_={SEMANTIC}", "+slam.filter_params.wide.dilation=abc"],
          "slam.filter_params.wide.dilation: expected an integer, got 'abc'"),
         # rules across keys stay checks of their own, naming the key
-        (["slam.orb.min_fast=30"], "slam.orb.min_fast must be > 0 and <= ini_fast (20), got 30"),
+        (["slam.orb.min_fast=30"], "slam.orb.min_fast: expected an integer <= ini_fast (20), got 30"),
     ],
 )  # fmt: skip
 def test_a_bad_value_is_one_line_naming_its_key(overrides: list[str], line: str) -> None:

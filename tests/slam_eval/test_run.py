@@ -119,7 +119,10 @@ def test_comparison_mode(synthetic_sequence, tmp_path: Path) -> None:
     ("override", "message"),
     [
         ("filters=[semantic]", r"filters \['semantic'\] need a segmenter"),
-        ("slam.orb.scale_factor=0.9", r"slam\.orb\.scale_factor must be > 1, got 0\.9"),
+        (
+            "slam.orb.scale_factor=0.9",
+            r"slam\.orb\.scale_factor: expected a number > 1\.0, got 0\.9",
+        ),
         ("compare=[]", "compare must be a non-empty list"),
     ],
 )

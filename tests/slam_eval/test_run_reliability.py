@@ -20,6 +20,7 @@ from shared_helpers import drop_in_weakref_callback, outside_staging
 
 import uss_slam.configs
 from uss_slam.core.files import file_sha256
+from uss_slam.core.schema import MAX_THREADS
 from uss_slam.core.tum_io import read_trajectory
 from uss_slam.slam_eval.products.semantic_map import read_ply
 from uss_slam.slam_eval.run import main
@@ -70,14 +71,14 @@ def earlier(tmp_path_factory: pytest.TempPathFactory, synthetic_sequence) -> tup
 
 
 BAD_CONFIGS = [
-    (["slam.orb.n_features=abc"], "slam.orb.n_features: expected an integer, got 'abc'"),
-    (["slam.tracker.ratio=1.5"], "slam.tracker.ratio must be in (0, 1], got 1.5"),
-    (["slam.map.voxel=0"], "slam.map.voxel must be > 0 m, got 0.0"),
-    (["eval.align=se4"], "eval.align must be one of se3, sim3, none, got 'se4'"),
-    (["eval.rpe_unit=minutes"], "eval.rpe_unit must be one of frames, seconds, got 'minutes'"),
-    (["eval.rpe_delta=1.5"], "eval.rpe_delta must be a whole number of frames with rpe_unit="),
-    (["eval.rpe_delta=0"], "eval.rpe_delta must be > 0, got 0.0"),
-    (["eval.max_diff=abc"], "eval.max_diff: expected a number, got 'abc'"),
+    (["slam.orb.n_features=abc"], "slam.orb.n_features: expected an integer >= 1, got 'abc'"),
+    (["slam.tracker.ratio=1.5"], "slam.tracker.ratio: expected a number > 0 and <= 1, got 1.5"),
+    (["slam.map.voxel=0"], "slam.map.voxel: expected a number > 0, got 0"),
+    (["eval.align=se4"], "eval.align: expected one of 'se3', 'sim3', 'none', got 'se4'"),
+    (["eval.rpe_unit=minutes"], "eval.rpe_unit: expected one of 'frames', 'seconds', got 'minutes'"),
+    (["eval.rpe_delta=1.5"], "eval.rpe_delta: expected a whole number of frames with rpe_unit="),
+    (["eval.rpe_delta=0"], "eval.rpe_delta: expected a number > 0, got 0"),
+    (["eval.max_diff=abc"], "eval.max_diff: expected a number > 0, got 'abc'"),
     (["segment=sometimes"], "segment: expected one of 'every_frame', 'keyframes', got 'sometimes'"),
     (["filters=[semantic,teleport]"], "filters: unknown filter 'teleport'; choose from semantic"),
     (["compare=[[semantic],[flow,warp]]"], "compare[1]: unknown filter 'warp'; choose from"),
@@ -138,10 +139,14 @@ def test_onnx_segmenter_threads_checked_before_loading(
     code, _, err = _uss_slam(monkeypatch, capsys, [
         f"sequence.path={seq}", f"out_dir={tmp_path / 'out'}", "segmenter=onnx",
         f"segmenter.path={model}", "segmenter.threads=abc"])  # fmt: skip
-    assert code == 1 and err.strip().splitlines() == [
-        "uss-slam: error: segmenter.threads: expected an integer or null, got 'abc'"
-    ]
+    expected = f"segmenter.threads: expected an integer >= 1 and <= {MAX_THREADS} or null"
+    assert code == 1 and err.strip().splitlines() == [f"uss-slam: error: {expected}, got 'abc'"]
     assert not (tmp_path / "out" / MANIFEST).exists()
+    # more threads than the machine runs (4 per CPU): refused before any thread is started
+    code, _, err = _uss_slam(monkeypatch, capsys, [
+        f"sequence.path={seq}", f"out_dir={tmp_path / 'out'}", "segmenter=onnx",
+        f"segmenter.path={model}", "segmenter.threads=100000"])  # fmt: skip
+    assert code == 1 and err.strip().splitlines() == [f"uss-slam: error: {expected}, got 100000"]
 
 
 @pytest.mark.parametrize(

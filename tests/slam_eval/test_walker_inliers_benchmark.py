@@ -50,7 +50,7 @@ def test_variants_parse_typed_overrides() -> None:
     for spec, message in [
         ("x:tracker.nope=1", "unknown key 'nope'"),
         ("x:tracker.local_radius=abc", "local_radius expects a value like 12.0"),
-        ("x:tracker.local_radius=-1", "local_radius must be a finite number >= 0"),
+        ("x:tracker.local_radius=-1", "local_radius: expected a number > 0, got -1"),
         ("x:local_ba=1", "local_ba expects true or false"),
         ("x:orb.n_features=5", "keys are tracker.<field>"),
         ("x:tracker.ratio", "expected KEY=VALUE"),

@@ -201,11 +201,11 @@ def test_deterministic_and_empty_image(texture) -> None:
 
 
 def test_config_validation() -> None:
-    with pytest.raises(ValueError, match="scale_factor must be > 1, got 1.0"):
+    with pytest.raises(ValueError, match=r"scale_factor: expected a number > 1.0, got 1.0"):
         OrbConfig(scale_factor=1.0)
-    with pytest.raises(ValueError, match=r"min_fast must be > 0 and <= ini_fast \(5\), got 7"):
+    with pytest.raises(ValueError, match=r"min_fast: expected an integer <= ini_fast \(5\), got 7"):
         OrbConfig(ini_fast=5, min_fast=7)
     with pytest.raises(
-        ValueError, match=r"min_depth must be >= 0 and < max_depth \(4.0\), got 5.0"
+        ValueError, match=r"min_depth: expected a number < max_depth \(4.0\), got 5.0"
     ):
         OrbConfig(min_depth=5.0, max_depth=4.0)

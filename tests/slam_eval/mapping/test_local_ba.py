@@ -244,11 +244,11 @@ def test_coarser_observations_do_not_make_a_keyframe_redundant() -> None:
 
 
 def test_local_mapping_options_are_checked() -> None:
-    with pytest.raises(ValueError, match="covisibility must be >= 1, got 0"):
+    with pytest.raises(ValueError, match="covisibility: expected an integer >= 1, got 0"):
         LocalMappingConfig(covisibility=0)
-    with pytest.raises(ValueError, match=r"redundancy must be in \(0, 1\], got 1.5"):
+    with pytest.raises(ValueError, match=r"redundancy: expected a number > 0 and <= 1, got 1.5"):
         LocalMappingConfig(redundancy=1.5)
-    with pytest.raises(ValueError, match="depth_noise must be a finite number >= 0"):
+    with pytest.raises(ValueError, match="depth_noise: expected a number >= 0 or null"):
         LocalMappingConfig(depth_noise=-1.0)
     defaults = compose_slam_eval(["sequence.path=/x"])
     assert defaults.slam.local_ba is True and defaults.slam.loop_closing is True  # the back end on
@@ -256,7 +256,9 @@ def test_local_mapping_options_are_checked() -> None:
         ["sequence.path=/x", "slam.loop_closing=false", "slam.local_ba_params.redundancy=2"]
     )
     assert cfg.slam.local_ba is True and cfg.slam.loop_closing is False
-    with pytest.raises(UssSlamError, match=r"slam\.local_ba_params\.redundancy must be in"):
+    with pytest.raises(
+        UssSlamError, match=r"slam\.local_ba_params\.redundancy: expected a number > 0 and <= 1"
+    ):
         run(cfg)
 
 

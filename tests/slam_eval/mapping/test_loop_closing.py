@@ -170,11 +170,11 @@ def test_no_loop_without_consistency_or_geometry() -> None:
 
 
 def test_loop_closing_options_are_checked() -> None:
-    with pytest.raises(ValueError, match="min_projected must be >= 1, got 0"):
+    with pytest.raises(ValueError, match="min_projected: expected an integer >= 1, got 0"):
         LoopClosingConfig(min_projected=0)
-    with pytest.raises(ValueError, match=r"ratio must be in \(0, 1\], got 0"):
+    with pytest.raises(ValueError, match=r"ratio: expected a number > 0 and <= 1, got 0"):
         LoopClosingConfig(ratio=0)
-    with pytest.raises(ValueError, match="iterations must be a finite number >= 0"):
+    with pytest.raises(ValueError, match="iterations: expected an integer >= 1"):
         LoopClosingConfig(iterations=-1)
 
 
@@ -235,5 +235,7 @@ def test_a_loop_whose_correction_does_not_fit_the_motion_is_rejected() -> None:
     turned = kf.pose_wc @ from_rvec(np.array([0.0, np.radians(48.5), 0.0]), np.zeros(3))
     assert not closer.fits_motion(kf, 0, invert(turned))
     assert _closer(world, correction_ratio=0).fits_motion(kf, 0, invert(shifted))  # off
-    with pytest.raises(ValueError, match=r"correction_ratio must be in \[0, 1\], got 2"):
+    with pytest.raises(
+        ValueError, match=r"correction_ratio: expected a number >= 0 and <= 1, got 2"
+    ):
         LoopClosingConfig(correction_ratio=2)

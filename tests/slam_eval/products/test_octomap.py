@@ -190,5 +190,5 @@ def test_off_by_default_and_a_missing_pyoctomap_is_one_line(
     with pytest.raises(UssSlamError, match=r"pip install 'uss-slam\[octomap\]'"):
         SlamPipeline(seq, NoSegmenter(), [], semantic_map=MapConfig(octomap=True))
     SlamPipeline(seq, NoSegmenter(), [], semantic_map=MapConfig())  # off: pyoctomap not needed
-    with pytest.raises(ValueError, match="octomap_resolution must be > 0"):
+    with pytest.raises(ValueError, match="octomap_resolution: expected a number > 0"):
         MapConfig(octomap=True, octomap_resolution=0.0)

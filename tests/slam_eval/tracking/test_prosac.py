@@ -85,11 +85,15 @@ def test_pose_from_matches_with_each_sampler(sampler: str, monkeypatch) -> None:
 
 
 def test_sampler_option_is_checked() -> None:
-    with pytest.raises(ValueError, match="sampler must be one of ransac, prosac, got 'lmeds'"):
+    with pytest.raises(
+        ValueError, match="sampler: expected one of 'ransac', 'prosac', got 'lmeds'"
+    ):
         TrackerConfig(sampler="lmeds")
     assert TrackerConfig().sampler == "ransac"
     cfg = compose_slam_eval(["sequence.path=/x", "slam.tracker.sampler=lmeds"])
-    with pytest.raises(UssSlamError, match=r"slam\.tracker\.sampler must be one of ransac, prosac"):
+    with pytest.raises(
+        UssSlamError, match=r"slam\.tracker\.sampler: expected one of \'ransac\', \'prosac\'"
+    ):
         run(cfg)
 
 

@@ -119,9 +119,11 @@ def test_the_readout_comes_from_the_setting_else_the_camera_else_none() -> None:
     extractor = OrbExtractor(OrbConfig(), replace(TUM_CAMERAS["fr3"], readout=None))
     assert Tracker(TrackerConfig(), extractor).readout == 0.0
     assert Tracker(TrackerConfig(readout=0.025), extractor).readout == 0.025
-    with pytest.raises(ValueError, match="readout must be < 1 s"):
+    with pytest.raises(
+        ValueError, match="readout: expected a number >= 0 and < 1 or null, got 1.5"
+    ):
         TrackerConfig(readout=1.5)
-    with pytest.raises(ValueError, match="readout must be a finite number >= 0"):
+    with pytest.raises(ValueError, match="readout: expected a number >= 0 and < 1 or null"):
         TrackerConfig(readout=-0.01)
 
 

@@ -247,8 +247,8 @@ def test_the_local_map_window_is_wider_right_after_a_relocalisation(
 @pytest.mark.parametrize(
     ("key", "value", "line"),
     [
-        ("reloc_local_radius", 0.0, "reloc_local_radius must be > 0, got 0.0"),
-        ("reloc_local_frames", -1, "reloc_local_frames must be a finite number >= 0, got -1"),
+        ("reloc_local_radius", 0.0, "reloc_local_radius: expected a number > 0, got 0.0"),
+        ("reloc_local_frames", -1, "reloc_local_frames: expected an integer >= 0, got -1"),
     ],
 )
 def test_a_bad_relocalisation_window_names_its_key(key, value, line) -> None:
