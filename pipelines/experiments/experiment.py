@@ -61,6 +61,8 @@ class Init:
 
     kind: str
     seeds: tuple[int, ...] = ()  # one init per seed (synthetic pretraining only)
+    style: str = "source"  # the pretraining set's lighting: source | mixed (init.style)
+    regime: str = "real"  # what the tables claim: real | legacy (init.regime)
     images: int = 0  # the pretraining set: images, size, uss-synth seed
     size: str = ""
     render_seed: int = 0
@@ -218,6 +220,7 @@ def check_init(plain: Mapping[str, Any], synthetic: bool, sequences: Sequence[st
             f"({', '.join(map(str, sorted(used)))}); the pretraining set must be a collection of "
             "its own: choose another init.render_seed"
         )
+    style, regime = check_init_style(init)
     experiment = str(init["experiment"])
     overrides = init.get("overrides") or []
     for item in overrides:
@@ -226,12 +229,28 @@ def check_init(plain: Mapping[str, Any], synthetic: bool, sequences: Sequence[st
     return Init(
         kind,
         seeds=tuple(int(s) for s in seeds),
+        style=style,
+        regime=regime,
         images=images,
         size=size,
         render_seed=render_seed,
         experiment=experiment,
         overrides=tuple(overrides),
     )
+
+
+def check_init_style(init: Mapping[str, Any]) -> tuple[str, str]:
+    """``init.style`` and ``init.regime``: a pretraining set with the target's lighting and
+    sensor (``mixed``) cannot stand for COCO / ImageNet in a run that claims the real regime."""
+    style = str(init.get("style", "source"))
+    regime = str(init.get("regime", "real"))
+    if style != "source" and regime == "real":
+        raise UssSlamError(
+            f"init.style: {style} renders half of the pretraining set in the target's lighting "
+            "and sensor, which a COCO / ImageNet init has never seen; init.regime=real needs "
+            "init.style=source (init.regime=legacy names the earlier tables' mixed init)"
+        )
+    return style, regime
 
 
 def check_real_init(init: Init, synthetic: bool) -> None:

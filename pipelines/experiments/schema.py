@@ -39,6 +39,11 @@ STAGES = ("data", "train", "export", "slam", "tables")
 INIT_KINDS = ("scratch", "pretrained")
 """``init.kind``: ``scratch`` (every training from random weights) or ``pretrained`` (every
 training from a pretrained init: ``init.path``, or one trained on a synthetic pretraining set)."""
+INIT_STYLES = ("source", "mixed")
+"""``init.style``: the synthetic pretraining set's lighting and camera (``source``: the source
+domain's only, the real regime; ``mixed``: half in the target's, the earlier tables' init)."""
+INIT_REGIMES = ("real", "legacy")
+"""``init.regime``: what the tables claim (``real`` needs ``init.style=source``)."""
 EXPERIMENTS = tuple(sorted(p.stem for p in (CONFIG_DIR / "experiment").glob("*.yaml")))
 """The ``uss-train`` experiments a training may start from (``train.experiment``)."""
 DEPTHS = {"min": N_LAYERS_RANGE.start, "max": N_LAYERS_RANGE.stop - 1}
@@ -92,6 +97,8 @@ class Data:
 @dataclass
 class Init:
     kind: str = ranged("scratch", choices=INIT_KINDS)
+    style: str = ranged("source", choices=INIT_STYLES)
+    regime: str = ranged("real", choices=INIT_REGIMES)
     seeds: list[int] = ranged(default_factory=lambda: [0], min=0, nonempty=True)
     images: int = ranged(800, min=2)
     size: str = ranged("320x240", text=True)

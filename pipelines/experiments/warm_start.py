@@ -3,9 +3,10 @@ the grid starts from a pretrained init, the stand-in for the COCO / ImageNet fil
 from, shared by every row and seed.
 
 Part of the data stage: either the user's file (``init.path``), or, on synthetic data, a
-pretraining set rendered once into ``out_dir/data/pretrain/`` (``uss-synth voc --style mixed
---outfits all --near 0.3``: a photo collection that is neither the source set nor the target
-renders) and one init per seed of ``init.seeds`` trained on it into ``out_dir/data/init/i<k>/``
+pretraining set rendered once into ``out_dir/data/pretrain/`` (``uss-synth voc --style
+<init.style> --outfits all --near 0.3``: a photo collection that is neither the source set nor
+the target renders; ``init.style=source``, the real regime, shows the source domain's lighting
+and camera only, ``mixed`` half of it in the target's, the earlier tables' init) and one init per seed of ``init.seeds`` trained on it into ``out_dir/data/init/i<k>/``
 (``uss-train experiment=<init.experiment> data.source.root=... seed=<k>``, a job like the
 trainings, run through the launcher). An init's file is its ``last.ckpt`` copied to
 ``init.ckpt``, with its sha256 in the job's ``result.json``; every training's overrides name
@@ -27,10 +28,20 @@ from .launch import describe_plan, launch
 from .overrides import hydra_value
 from .plan import FAST_TRAIN, Job, _portable, runtime_overrides
 
-PRETRAIN_SET = {"lighting": "mixed", "outfits": "all", "near": 0.3}
-"""How the pretraining set differs from the source set (``uss-synth voc --style mixed --outfits
-all --near 0.3``): both lightings, every garment and material family, people at walking
-distance in 30% of the images."""
+PRETRAIN_SET = {"outfits": "all", "near": 0.3}
+"""What every pretraining set holds (``uss-synth voc --outfits all --near 0.3``): every garment
+and material family the source shows, people at walking distance in 30% of the images; its
+lighting is ``init.style`` (:func:`pretrain_set`)."""
+
+
+def pretrain_set(style: str) -> dict[str, object]:
+    """The pretraining set's recipe for ``init.style``: ``source`` (the source domain's lighting
+    and camera only: the stand-in for COCO / ImageNet) or ``mixed`` (each image in the source or
+    the target style, even odds: the earlier tables' init, whose cache key this keeps)."""
+    return {"lighting": style, **PRETRAIN_SET}
+LIGHTING = {"source": "the source lighting and camera only",
+            "mixed": "both lightings: half in the target's lighting and sensor"}
+"""The tables' words for each ``init.style``."""
 VOC_TREE = Path("VOCdevkit") / "VOC2012"
 INIT_FILE = "init.ckpt"
 STAGE = "init"
@@ -40,7 +51,8 @@ STAGE = "init"
 def pretrain_set_stage(exp: Experiment) -> Stage:
     """The pretraining set (rendered once into ``out_dir/data/pretrain/``)."""
     init = exp.init
-    key = {"images": init.images, "size": init.size, "seed": init.render_seed, **PRETRAIN_SET}
+    key = {"images": init.images, "size": init.size, "seed": init.render_seed,
+           **pretrain_set(init.style)}  # fmt: skip
     outputs = (VOC_TREE / "ImageSets" / "Segmentation" / "train.txt",)
     return Stage(exp.out / "data" / "pretrain", key, outputs=outputs)
 
@@ -164,6 +176,7 @@ def init_header(exp: Experiment) -> str:
     return (
         f"- init: pretrained, every training from the init of its init seed ({seeds}): "
         f"uss-train experiment={init.experiment} on a synthetic pretraining set of "
-        f"{init.images} images ({init.size}, seed {init.render_seed}, both lightings, every "
-        "garment family)" + (f", `{' '.join(init.overrides)}`" if init.overrides else "")
+        f"{init.images} images ({init.size}, seed {init.render_seed}, {LIGHTING[init.style]}, "
+        f"every garment family; init.regime={init.regime})"
+        + (f", `{' '.join(init.overrides)}`" if init.overrides else "")
     )

@@ -133,7 +133,7 @@ def test_pretraining_jobs_are_keyed_by_set_experiment_overrides_and_seed(tmp_pat
         "images": 64,
         "size": "160x120",
         "seed": 900,
-        "lighting": "mixed",
+        "lighting": "source",
         "outfits": "all",
         "near": 0.3,
     }
@@ -174,6 +174,22 @@ def test_pretraining_jobs_are_keyed_by_set_experiment_overrides_and_seed(tmp_pat
         "  to run: data/init/i0",
         "  to run: data/init/i3",
     ]
+
+
+def test_pretraining_style_is_in_the_key_and_the_real_regime_refuses_mixed(tmp_path: Path) -> None:
+    real = warm_start.pretrain_set_stage(check(tmp_path))
+    assert real.key["lighting"] == "source" and real.key["outfits"] == "all"
+    legacy = check(tmp_path, "init.style=mixed", "init.regime=legacy")
+    key = warm_start.pretrain_set_stage(legacy).key
+    # the earlier tables' pretraining set, key for key
+    assert key == {"images": 64, "size": "160x120", "seed": 900, "lighting": "mixed",
+                   "outfits": "all", "near": 0.3}  # fmt: skip
+    assert "init.regime=legacy" in warm_start.init_header(legacy)
+    assert "source lighting and camera only" in warm_start.init_header(check(tmp_path))
+    with pytest.raises(UssSlamError, match=r"^init\.style: mixed renders half of the "):
+        check(tmp_path, "init.style=mixed")
+    with pytest.raises(UssSlamError, match="init.style: expected one of 'source', 'mixed'"):
+        check(tmp_path, "init.style=target", "init.regime=legacy")
 
 
 def test_missing_init_is_an_error_unless_dry(tmp_path: Path) -> None:
