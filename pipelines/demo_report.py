@@ -119,11 +119,16 @@ def findings(rows: Sequence[Mapping[str, Any]]) -> list[str]:
             else f"Adapted is {'below' if diff < 0 else 'above'} source-only by "
             f"{abs(diff):.4f} m ({_change(ada['ate_rmse'], src['ate_rmse'])})"
         )
-        second = verdict + (
-            "; their repeats' ranges overlap, so these runs do not separate them"
-            if _overlap(src, ada)
-            else "; their repeats' ranges do not overlap"
-        ) + _same_masks(src, ada) + "."
+        second = (
+            verdict
+            + (
+                "; their repeats' ranges overlap, so these runs do not separate them"
+                if _overlap(src, ada)
+                else "; their repeats' ranges do not overlap"
+            )
+            + _same_masks(src, ada)
+            + "."
+        )
     return [first, second, geometry_line(geo, ada, by.get("labels"))]
 
 

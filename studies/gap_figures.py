@@ -59,7 +59,11 @@ COMPARISONS = (
     ("headroom", "oracle", SOURCE_ONLY),
     ("H1 AdaBN", "adabn_bntrained", SOURCE_ONLY),
     ("H1 AdaptSegNet", "adaptsegnet_n5_bnreference", SOURCE_ONLY),
-    ("H2 adversarial term (BatchNorm equal)", "adaptsegnet_n5_bnreference", "source_only_bnreference"),
+    (
+        "H2 adversarial term (BatchNorm equal)",
+        "adaptsegnet_n5_bnreference",
+        "source_only_bnreference",
+    ),
     ("H2' ADVENT term (BatchNorm equal)", "advent_n5_bnreference", "source_only_bnreference"),
     ("exploratory: AdaptSegNet − AdaBN", "adaptsegnet_n5_bnreference", "adabn_bntrained"),
     ("exploratory: continued source-only − init", SOURCE_ONLY, "init"),
@@ -177,11 +181,13 @@ def dacc_lines(dacc: dict) -> tuple[list[str], dict[str, str]]:
             cells = []
             for head in ("main", "aux"):
                 blocks = heads.get(head, [])
-                tail = blocks[-max(1, len(blocks) // 4):] if blocks else []
+                tail = blocks[-max(1, len(blocks) // 4) :] if blocks else []
                 cells.append(f"{max(blocks):.3f} / {statistics.fmean(tail):.3f}" if blocks else "—")
             flag = at_chance(heads)
             chance += flag
-            lines.append(f"| {row} | {seed} | {cells[0]} | {cells[1]} | {'D at chance' if flag else ''} |")
+            lines.append(
+                f"| {row} | {seed} | {cells[0]} | {cells[1]} | {'D at chance' if flag else ''} |"
+            )
         if chance:
             marks[row] = f"D at chance on {chance}/{len(seeds)} seeds"
     return lines, marks

@@ -13,9 +13,10 @@ Sub-commands:
 - ``score STUDY --renders DIR --blocks 8100,8200 --role pilot|eval --out FILE.csv``: each export's
   ``(4, 4)`` confusion matrix (rows: truth; columns: prediction; pixels; classes background,
   person, chair, monitor) on every ``--stride``-th frame of each render
-  ``DIR/<preset>_<block + i>`` (walking_xyz, walking_rpy, walking_halfsphere: i = 0, 1, 2), one
-  CSV row per model and render. An ``eval`` block whose seeds ``docs/results/read_renders.csv``
-  lists as read by another study is refused before any work; scored eval seeds are added to it.
+  ``DIR/<preset>_<block + i>`` (walking_xyz, walking_rpy, walking_halfsphere: i = 0, 1, 2; with
+  ``--first N`` only its first N frames), one CSV row per model and render. An ``eval`` block
+  whose seeds ``docs/results/read_renders.csv`` lists as read by another study is refused
+  before any work; scored eval seeds are added to it.
 - ``dacc STUDY --out FILE.csv``: every adversarial training's discriminator accuracy per head
   over training (``train/d_acc_<head>`` of its ``csv/metrics.csv``, the share of patches whose
   domain the discriminator gets right; 0.5 = chance), averaged over blocks of 25 iterations.
@@ -200,15 +201,16 @@ def exports(study: Path, names: list[str] | None = None) -> list[tuple[str, str,
     return found
 
 
-def frame_files(folder: Path, stride: int) -> list[str]:
-    """Every ``stride``-th frame of ``rgb.txt`` (file names relative to the folder)."""
+def frame_files(folder: Path, stride: int, first: int | None = None) -> list[str]:
+    """Every ``stride``-th frame of the first ``first`` frames of ``rgb.txt`` (all when None;
+    file names relative to the folder)."""
     lines = [ln.split() for ln in (folder / "rgb.txt").read_text().splitlines()]
     files = [parts[1] for parts in lines if parts and not parts[0].startswith("#")]
-    return files[::stride]
+    return files[:first][::stride]
 
 
 def score(study: Path, renders: list[tuple[str, int, int, Path]], stride: int,
-          names: list[str] | None, role: str) -> list[dict]:  # fmt: skip
+          names: list[str] | None, role: str, first: int | None = None) -> list[dict]:  # fmt: skip
     """One row per (model, render): the ``(N, N)`` confusion matrix flattened (``c<t><p>``)."""
     from uss_slam.slam_eval.segmenters.onnx import OnnxSegmenter
 
@@ -216,7 +218,9 @@ def score(study: Path, renders: list[tuple[str, int, int, Path]], stride: int,
     nets = {m: OnnxSegmenter(path, threads=1) for m, _, _, path in models}
     rows = []
     for preset, block, seed, folder in renders:
-        files = frame_files(folder, stride)
+        files = frame_files(folder, stride, first)
+        if first is not None and len(files) < len(range(0, first, stride)):
+            raise StudyError(f"{folder}/rgb.txt: fewer than --first {first} frames")
         totals = {m: np.zeros((N, N), np.int64) for m in nets}
         for name in files:
             rgb = np.asarray(Image.open(folder / name).convert("RGB"))
@@ -253,7 +257,9 @@ def dacc(study: Path) -> list[dict]:
     return rows
 
 
-def false_alarm(study: Path, folders: list[Path], names: list[str] | None, stride: int) -> list[dict]:
+def false_alarm(
+    study: Path, folders: list[Path], names: list[str] | None, stride: int
+) -> list[dict]:
     """Predicted person pixels (share of the frame) per model and frame on real frames."""
     from uss_slam.slam_eval.segmenters.onnx import OnnxSegmenter
 
@@ -298,6 +304,7 @@ def main(argv: list[str] | None = None) -> None:
     score_p.add_argument("--renders", type=Path, required=True)
     score_p.add_argument("--blocks", required=True)
     score_p.add_argument("--role", choices=("pilot", "eval"), required=True)
+    score_p.add_argument("--first", type=int, help="score only the first N frames of a render")
     score_p.add_argument("--name", default="real_regime", help="the study's name in the read list")
     sub.choices["false-alarm"].add_argument("--frames", type=Path, nargs="+", required=True)
     args = parser.parse_args(argv)
@@ -318,7 +325,8 @@ def main(argv: list[str] | None = None) -> None:
         if args.role == "eval":
             check_unread(seeds, args.name)
         check_study(study)
-        rows = score(study, render_folders(args.renders, blocks), args.stride, names, args.role)
+        rows = score(study, render_folders(args.renders, blocks), args.stride, names, args.role,
+                     args.first)  # fmt: skip
         write_csv(rows, args.out)
         if args.role == "eval":
             mark_read(seeds, args.name)

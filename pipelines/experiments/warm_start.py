@@ -39,8 +39,12 @@ def pretrain_set(style: str) -> dict[str, object]:
     and camera only: the stand-in for COCO / ImageNet) or ``mixed`` (each image in the source or
     the target style, even odds: the earlier tables' init, whose cache key this keeps)."""
     return {"lighting": style, **PRETRAIN_SET}
-LIGHTING = {"source": "the source lighting and camera only",
-            "mixed": "both lightings: half in the target's lighting and sensor"}
+
+
+LIGHTING = {
+    "source": "the source lighting and camera only",
+    "mixed": "both lightings: half in the target's lighting and sensor",
+}
 """The tables' words for each ``init.style``."""
 VOC_TREE = Path("VOCdevkit") / "VOC2012"
 INIT_FILE = "init.ckpt"

@@ -57,7 +57,9 @@ def test_demo_ci_end_to_end_then_reused(
     assert summary["findings"] == demo_report.findings(summary["rows"])
     assert len(summary["findings"]) == 3
     assert all(line in printed and line in report for line in summary["findings"])
-    assert summary["findings"][2].startswith(("Geometry helps: ", "Geometry lowers the median ATE: ", "Geometry does not help here: "))
+    assert summary["findings"][2].startswith(
+        ("Geometry helps: ", "Geometry lowers the median ATE: ", "Geometry does not help here: ")
+    )
     for plot in ("ate_rmse.png", "trajectories.png"):
         assert (out / plot).stat().st_size > 1000 and f"]({plot})" in report
 

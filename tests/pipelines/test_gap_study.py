@@ -63,7 +63,10 @@ def test_blocks_and_renders(tmp_path: Path) -> None:
         (tmp_path / f"{preset}_{8100 + i}" / "rgb.txt").write_text("# x\n1.0 rgb/1.0.png\n")
     found = study.render_folders(tmp_path, [8100])
     assert [(p, s) for p, _, s, _ in found] == [
-        ("walking_xyz", 8100), ("walking_rpy", 8101), ("walking_halfsphere", 8102)]
+        ("walking_xyz", 8100),
+        ("walking_rpy", 8101),
+        ("walking_halfsphere", 8102),
+    ]
     with pytest.raises(SystemExit, match=r"walking_xyz_8200: no render"):
         study.render_folders(tmp_path, [8200])
 
@@ -124,8 +127,13 @@ def test_figures_pair_across_renders_and_split_the_variance(tmp_path: Path) -> N
 
 
 def test_d_at_chance_is_marked() -> None:
-    lines, marks = figures.dacc_lines({
-        "adaptsegnet_n5_bnreference": {"0": {"main": [0.5, 0.52], "aux": [0.49, 0.5]},
-                                       "1": {"main": [0.5, 0.8], "aux": [0.5, 0.5]}}})
+    lines, marks = figures.dacc_lines(
+        {
+            "adaptsegnet_n5_bnreference": {
+                "0": {"main": [0.5, 0.52], "aux": [0.49, 0.5]},
+                "1": {"main": [0.5, 0.8], "aux": [0.5, 0.5]},
+            }
+        }
+    )
     assert marks == {"adaptsegnet_n5_bnreference": "D at chance on 1/2 seeds"}
     assert any(line.endswith("D at chance |") for line in lines)
