@@ -481,7 +481,7 @@ OUTPUT_MARKERS: dict[str, tuple[str, ...]] = {
     "uss-slam": ("run.json",),
     "uss-experiments": ("runs.csv", "tables.json"),
     "uss-demo": ("summary.json", "miou.json"),
-    "uss-eval": ("eval.json",),
+    "uss-eval": ("eval.json", "compare.json"),
     "uss-train": ("checkpoints",),
     "uss-export": ("*.verify.json",),
 }

@@ -57,6 +57,28 @@ def _check_prob(prob: np.ndarray, who: str) -> np.ndarray:
     return prob.astype(np.float64, copy=False)
 
 
+def downsample_maps(prob: np.ndarray, max_side: int = 160) -> np.ndarray:
+    """``(N, C, H, W)`` softmax maps area-averaged (``cv2.INTER_AREA``) so that the longer side
+    is at most ``max_side`` pixels (unchanged when it already is): what every caller feeds the
+    validators, so that a score does not depend on the frames' resolution, and costs little.
+    Area averages of probability vectors are probability vectors."""
+    prob = np.asarray(prob, np.float32)
+    n, c, h, w = prob.shape
+    scale = max_side / max(h, w)
+    if scale >= 1:
+        return prob
+    size = (max(1, round(w * scale)), max(1, round(h * scale)))
+    out = np.empty((n, c, size[1], size[0]), np.float32)
+    for i in range(n):
+        # cv2 resizes up to 512 channels at once on an (H, W, C) array
+        out[i] = (
+            cv2.resize(prob[i].transpose(1, 2, 0), size, interpolation=cv2.INTER_AREA)
+            .reshape(size[1], size[0], c)
+            .transpose(2, 0, 1)
+        )
+    return out
+
+
 def pixel_rows(prob: np.ndarray) -> np.ndarray:
     """``(N, C, H, W)`` -> ``(N*H*W, C)``: one row per pixel."""
     n, c, h, w = prob.shape
@@ -153,7 +175,7 @@ class SoftNeighborhoodDensity(Validator):
     name = "snd"
 
     def __init__(
-        self, pixels_per_image: int = 64, temperature: float = 0.05, seed: int = 0,
+        self, pixels_per_image: int = 32, temperature: float = 0.05, seed: int = 0,
         block: int = 1024,
     ) -> None:  # fmt: skip
         if pixels_per_image < 1 or temperature <= 0:
@@ -180,7 +202,7 @@ class SoftNeighborhoodDensity(Validator):
     def score(self) -> float:
         if not self._samples:
             return float("nan")
-        feats = np.concatenate(self._samples)
+        feats = np.concatenate(self._samples).astype(np.float32)
         if len(feats) < 2:
             return float("nan")
         feats = feats / np.maximum(np.linalg.norm(feats, axis=1, keepdims=True), EPS)
@@ -192,7 +214,7 @@ class SoftNeighborhoodDensity(Validator):
             sim -= sim.max(axis=1, keepdims=True)
             p = np.exp(sim)
             p /= p.sum(axis=1, keepdims=True)
-            total += float(entropy_rows(p).sum())
+            total += float(entropy_rows(p.astype(np.float64)).sum())
         return total / m
 
 

@@ -133,6 +133,8 @@ def warn_unlabelled(frames: Sequence[str], total: int, data: Any) -> None:
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog=PROG,
+        epilog="uss-eval compare MODEL MODEL [...] --sequence DIR: compare exported models on "
+        "unlabelled target frames (uss-eval compare --help).",
         description="Evaluate a segmenter (a uss-train checkpoint or an exported ONNX model) on "
         "labelled frames: per-class IoU, mIoU and the dynamic-mask frame metrics (FPR, FNR, "
         "recall, precision, PWC). Frames: --sequence TUM folders with labels/, or the val set "
@@ -166,6 +168,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     from hydra.errors import ConfigCompositionException, OverrideParseException
     from omegaconf.errors import OmegaConfBaseException
 
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv[:1] == ["compare"]:  # uss-eval compare MODEL MODEL ... (see compare_cli)
+        from .compare_cli import main as compare_main
+
+        return compare_main(argv[1:])
     # Intermixed: data-config overrides may follow the options (MODEL --out DIR data=real).
     args = build_parser().parse_intermixed_args(argv)
     out = args.out if args.out is not None else Path("outputs") / "eval" / args.model.stem

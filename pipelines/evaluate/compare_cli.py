@@ -1,0 +1,174 @@
+"""``uss-eval compare MODEL MODEL [...] --sequence DIR [...]``: the command line and
+:func:`compare` (check everything, run, write the report, print the table and the verdict)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from uss_slam.core.classes import CLASS_NAMES, DYNAMIC_CLASSES
+from uss_slam.core.cli import exit_on_user_error, warning
+from uss_slam.core.errors import UssSlamError
+from uss_slam.core.files import check_output_owner, check_writable, output_lock
+from uss_slam.core.validators import NEEDS_SOURCE, build_validators
+
+from . import compare_report
+from .compare import (
+    ComparePlan,
+    attach_labels,
+    check_models,
+    check_sequences,
+    run_compare,
+    source_images,
+)
+from .frames import CONFIG_DIR
+
+PROG = "uss-eval"
+COMMAND = "uss-eval compare"
+VALIDATORS_CONFIG = CONFIG_DIR / "validators" / "default.yaml"
+
+
+def default_validators() -> tuple[list[str], dict[str, Any]]:
+    """The ``validators`` config group's default: ``(names, params)``."""
+    cfg = yaml.safe_load(VALIDATORS_CONFIG.read_text())
+    return list(cfg["names"]), dict(cfg.get("params") or {})
+
+
+def plan_compare(
+    models: Sequence[Path],
+    sequences: Sequence[Path],
+    *,
+    stride: int = 1,
+    labels: Sequence[Path] = (),
+    label_frames: int | None = None,
+    source: Path | None = None,
+    source_frames: int = 32,
+    validators: Sequence[str] | None = None,
+    dynamic: Sequence[str] = DYNAMIC_CLASSES,
+    batch: int = 4,
+    threads: int | None = None,
+) -> ComparePlan:
+    """Every input checked (models, frames' headers, labels read and checked, source images),
+    no inference yet: a bad input is one line naming the file or option."""
+    for key, value in (("--batch", batch), ("--source-frames", source_frames)):
+        if value < 1:
+            raise UssSlamError(f"{key}: expected an integer >= 1, got {value}")
+    if label_frames is not None and label_frames < 1:
+        raise UssSlamError(f"--label-frames: expected an integer >= 1, got {label_frames}")
+    if label_frames is not None and not labels:
+        raise UssSlamError("--label-frames needs --labels FOLDER (label PNGs named as the frames)")
+    unknown = [c for c in dynamic if c not in CLASS_NAMES]
+    if unknown or not dynamic:
+        raise UssSlamError(
+            f"--dynamic {','.join(dynamic)}: expected class names of {', '.join(CLASS_NAMES)}"
+        )
+    names, params = default_validators()
+    if validators is not None:
+        names = list(validators)
+    build_validators(names, params, "--validators")  # unknown names: one line
+    if source is None and NEEDS_SOURCE & set(names):
+        if validators is not None:
+            raise UssSlamError(
+                f"--validators {','.join(sorted(NEEDS_SOURCE & set(names)))}: needs --source FOLDER (source images)"
+            )
+        names = [n for n in names if n not in NEEDS_SOURCE]
+    checked = check_models(models, dynamic, threads)
+    frames, seq_names = check_sequences(sequences, stride)
+    if labels:
+        attach_labels(frames, labels, label_frames, len(CLASS_NAMES))
+    src = source_images(source, source_frames) if source is not None else []
+    return ComparePlan(checked, frames, seq_names, tuple(dynamic), names, params, src, batch)
+
+
+def compare(plan: ComparePlan, out: Path, quiet: bool = False) -> dict[str, Any]:
+    """Run ``plan``, write the report into ``out``, print the table; returns ``compare.json``."""
+    progress = None
+    if not quiet and sys.stderr.isatty():
+
+        def progress(done: int, total: int) -> None:
+            print(f"\r{COMMAND}: {done}/{total} frames", end="" if done < total else "\n",
+                  file=sys.stderr, flush=True)  # fmt: skip
+
+    with output_lock(out, "--out"):
+        result = run_compare(plan, progress)
+        stats = compare_report.intervals(result)
+        lines, last = compare_report.verdict(result, stats)
+        note = compare_report.small_label_warning(result, stats)
+        if note:
+            warning(note)
+        compare_report.write_report(out, result, stats, lines, last)
+    print(compare_report.table(result, stats))
+    for line in lines:
+        print(line)
+    print(f"{COMMAND}: {len(plan.models)} models x {len(plan.frames)} frames in "
+          f"{result.seconds:.1f} s; wrote {out / 'report.md'}")  # fmt: skip
+    print(last)
+    return compare_report.summary(result, stats, lines, last)
+
+
+def check_out(out: Path) -> None:
+    if out.exists() and not out.is_dir():
+        raise UssSlamError(f"--out {out}: exists and is not a folder")
+    check_writable(out, "--out", create=False)
+    check_output_owner(out, PROG, "--out")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog=COMMAND,
+        description="Did adaptation help on my target? Compare two or more exported models on "
+        "unlabelled target frames: label-free validators per model, dynamic-mask agreement per "
+        "pair, a contact sheet of the frames where they disagree most; with --labels, person "
+        "IoU and mIoU with bootstrap intervals and a verdict. Writes OUT/report.md, "
+        "OUT/compare.json and images; prints the table; the last line says what to do.",
+    )
+    parser.add_argument(
+        "models", nargs="+", type=Path, metavar="MODEL", help="exported .onnx models (2 or more)"
+    )
+    parser.add_argument("--sequence", type=Path, action="append", default=[], metavar="DIR",
+                        help="a TUM RGB-D folder (rgb.txt, rgb/) of target frames; repeatable")  # fmt: skip
+    parser.add_argument("--stride", type=int, default=1, help="every N-th frame (default: 1)")
+    parser.add_argument("--labels", type=Path, action="append", default=[], metavar="DIR",
+                        help="a folder of uint8 class-id PNGs named as colour frames (a "
+                             "sequence's labels/); repeatable")  # fmt: skip
+    parser.add_argument("--label-frames", type=int, default=None, metavar="N",
+                        help="use N labelled frames, evenly spaced (default: every one found)")  # fmt: skip
+    parser.add_argument("--source", type=Path, default=None, metavar="DIR",
+                        help="source-domain images (PNG/JPEG, e.g. VOC's JPEGImages): adds the "
+                             "domain-separability probe")  # fmt: skip
+    parser.add_argument(
+        "--source-frames", type=int, default=32, help="source images used (default: 32)"
+    )
+    parser.add_argument("--validators", default=None,
+                        help="comma-separated validators (default: configs/validators/default.yaml)")  # fmt: skip
+    parser.add_argument("--dynamic", default=",".join(DYNAMIC_CLASSES),
+                        help=f"classes of the dynamic mask (default: {','.join(DYNAMIC_CLASSES)})")  # fmt: skip
+    parser.add_argument("--out", type=Path, default=None,
+                        help="report folder (default: outputs/compare/<model stems>)")  # fmt: skip
+    parser.add_argument("--batch", type=int, default=4, help="frames per inference (default: 4)")
+    parser.add_argument(
+        "--threads", type=int, default=None, help="inference threads (default: all)"
+    )
+    parser.add_argument("--quiet", action="store_true", help="no progress line")
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    out = args.out or Path("outputs") / "compare" / "_vs_".join(m.stem for m in args.models)
+    with exit_on_user_error(COMMAND):
+        check_out(out)
+        plan = plan_compare(
+            args.models, args.sequence, stride=args.stride, labels=args.labels,
+            label_frames=args.label_frames, source=args.source, source_frames=args.source_frames,
+            validators=None if args.validators is None else [v.strip() for v in args.validators.split(",") if v.strip()],
+            dynamic=[c.strip() for c in args.dynamic.split(",") if c.strip()],
+            batch=args.batch, threads=args.threads,
+        )  # fmt: skip
+        compare(plan, out, quiet=args.quiet)
+    return 0
