@@ -18,7 +18,7 @@ from omegaconf import OmegaConf
 
 from uss_slam.core.errors import UssSlamError
 
-from .base import DynamicFilter
+from .base import STAGES, DynamicFilter
 
 SHIPPED = ("slam", "orb_rgbd.yaml")
 """Where the shipped filter nodes are, in the ``uss_slam.configs`` tree."""
@@ -60,11 +60,29 @@ def build_filters(
         if "_target_" not in node:
             raise UssSlamError(f"slam.filter_params.{name}: expected a _target_ (the filter class)")
         try:
-            out.append(instantiate(node, _convert_="all"))
+            built = instantiate(node, _convert_="all")
         except InstantiationException as err:
             cause = err.__cause__
             if isinstance(cause, UssSlamError):
                 raise cause from None
             detail = cause if isinstance(cause, TypeError) else err
             raise UssSlamError(f"filter {name!r}: bad parameters ({detail})") from None
+        out.append(checked(built, name, node["_target_"]))
     return out
+
+
+def checked(built: object, name: str, target: str) -> DynamicFilter:
+    """``built`` when it is a filter that declares its stage; else one line naming it."""
+    if not isinstance(built, DynamicFilter):
+        raise UssSlamError(
+            f"slam.filter_params.{name}._target_: {target} is not a DynamicFilter "
+            "(uss_slam.slam_eval.filters.base)"
+        )
+    stage = getattr(built, "stage", None)
+    if stage not in STAGES:
+        raise UssSlamError(
+            f"filter {name!r} ({target}) declares no stage: set its class attribute stage to "
+            f"{' or '.join(map(repr, STAGES))} (before tracking / once the pose is known), "
+            f"got {stage!r}"
+        )
+    return built

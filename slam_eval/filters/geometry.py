@@ -63,8 +63,7 @@ class GeometryFilter(DynamicFilter):
     def references(self, ctx: FilterContext) -> list[int]:
         """Ids of the keyframes with the highest overlap (shared map points) with the frame,
         at least ``min_keyframe_age`` frames old (a moving object must have had time to move)."""
-        tracker = ctx.tracker
-        kfs = tracker.map.keyframes
+        kfs = ctx.map.keyframes
         old = np.array(
             [
                 kf.frame_index <= ctx.frame.index - self.min_keyframe_age and not kf.bad
@@ -75,7 +74,7 @@ class GeometryFilter(DynamicFilter):
         if not old.any():
             return []
         matched = ctx.matched if ctx.matched is not None else np.zeros(0, np.int64)
-        overlap = tracker.map.covisibility(matched[matched >= 0]).astype(np.float64)
+        overlap = ctx.map.covisibility(matched[matched >= 0]).astype(np.float64)
         # Ties (and keyframes sharing nothing) go to the nearest camera positions.
         center = ctx.pose_wc[:3, 3]
         near = np.array([np.linalg.norm(kf.center - center) for kf in kfs])
@@ -93,7 +92,7 @@ class GeometryFilter(DynamicFilter):
         camera = ctx.extractor.camera
         out = []
         for kf_id in self.references(ctx):
-            kf = ctx.tracker.map.keyframes[kf_id]
+            kf = ctx.map.keyframes[kf_id]
             use = kf.features.has_depth & ~kf.dynamic
             if not use.any():
                 continue

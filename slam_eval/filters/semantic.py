@@ -13,6 +13,7 @@ import numpy as np
 from uss_slam.core.errors import UssSlamError
 
 from ..segmenters.base import class_ids
+from ..sequence import Frame
 from .base import DynamicFilter, FilterContext, FilterOutput, values_at
 
 
@@ -22,6 +23,7 @@ class SemanticFilter(DynamicFilter):
     name = "semantic"
     stage = "pre"
     needs_labels = True
+    masks_input = True
 
     def __init__(self, dynamic_classes: Sequence[str] = ("person",), dilation: int = 5) -> None:
         if dilation < 0:
@@ -44,6 +46,11 @@ class SemanticFilter(DynamicFilter):
         if self.dilation:
             mask = cv2.dilate(mask, self._kernel)
         return mask
+
+    def input_region(self, frame: Frame, labels: np.ndarray | None) -> np.ndarray | None:
+        """``(H, W)`` bool: the dilated mask of the dynamic classes (:meth:`mask`); None
+        without labels."""
+        return None if labels is None else self.mask(labels) > 0
 
     def __call__(self, ctx: FilterContext) -> FilterOutput:
         if ctx.labels is None:

@@ -55,10 +55,7 @@ from __future__ import annotations
 
 import sys
 import time
-from collections import defaultdict
 from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -66,61 +63,24 @@ from uss_slam.core.errors import UssSlamError
 from uss_slam.core.progress import progress_bar
 from uss_slam.core.tum_io import Trajectory
 
-from ..filters.base import DynamicFilter, FilterContext
+from ..filters.base import DynamicFilter
+from ..filters.chain import FilterChain
 from ..frontend import process as frontend_process
-from ..frontend.orb import Features, OrbConfig, OrbExtractor
+from ..frontend.orb import OrbConfig, OrbExtractor
 from ..geometry import invert
 from ..mapping.local_mapping import BundleAdjuster, LocalMapping, LocalMappingConfig, depth_noise_of
 from ..mapping.loop_closing import LoopCloser, LoopClosingConfig
-from ..products.octomap import OctoMapBuilder, load_pyoctomap
-from ..products.semantic_map import MapConfig, PointCloud, SemanticMapBuilder, merge_clouds
-from ..scoring.run_result import FrameLog, RunResult
+from ..products.builder import MapProducts
+from ..products.octomap import load_pyoctomap
+from ..products.semantic_map import MapConfig
+from ..scoring.run_result import RunResult
 from ..segmenters.base import Segmenter
 from ..sequence import Frame, TumSequence, ahead
 from ..tracking.tracker import Tracker, TrackerConfig
+from .frame_loop import FrameLoop, Prepared, Timer
 
 SEGMENT_SCHEDULES = ("every_frame", "keyframes")
 """Values of ``segment`` (see the module docstring)."""
-
-
-class Timer:
-    """Accumulates wall time and CPU time (of the measuring thread) per named module."""
-
-    def __init__(self) -> None:
-        self.wall: dict[str, float] = defaultdict(float)
-        self.cpu: dict[str, float] = defaultdict(float)
-
-    @contextmanager
-    def __call__(self, name: str) -> Iterator[None]:
-        wall, cpu = time.perf_counter(), time.thread_time()
-        try:
-            yield
-        finally:
-            self.add(name, time.perf_counter() - wall, time.thread_time() - cpu)
-
-    def add(self, name: str, wall: float, cpu: float) -> None:
-        self.wall[name] += wall
-        self.cpu[name] += cpu
-
-    def mean_ms(self, frames: int, cpu: bool = False) -> dict[str, float]:
-        totals = self.cpu if cpu else self.wall
-        return {k: 1000.0 * v / max(frames, 1) for k, v in totals.items()}
-
-
-@dataclass
-class _Prepared:
-    """A frame with its segmentation and features, and how long each took (s)."""
-
-    frame: Frame
-    labels: np.ndarray | None
-    features: Features
-    timer: Timer
-
-
-@dataclass
-class _FilterState:
-    dynamic: np.ndarray
-    regions: list[np.ndarray]
 
 
 class SlamPipeline:
@@ -190,9 +150,11 @@ class SlamPipeline:
         self.loop_closing = loop_closing
         self.local_ba_params = local_ba_params or LocalMappingConfig()
         self.loop_closing_params = loop_closing_params or LoopClosingConfig()
+        self.depth_noise = depth_noise_of(self.local_ba_params, sequence.camera.depth_noise)
+        """``(k, where it came from)``: the depth noise local BA models (:func:`depth_noise_of`)."""
         self.sampling_seed = sampling_seed
 
-    def _prepare(self, frame: Frame) -> _Prepared:
+    def _prepare(self, frame: Frame) -> Prepared:
         """Segmentation (``every_frame`` schedule) and ORB extraction of one frame (run in the
         prefetch threads when ``parallel``, so they overlap the tracking of the previous frame)."""
         timer = Timer()
@@ -202,9 +164,9 @@ class SlamPipeline:
             labels = self._segment_timed(frame, timer)
         with timer("orb"):
             features = self.extractor(frame.gray, frame.depth)
-        return _Prepared(frame, labels, features, timer)
+        return Prepared(frame, labels, features, timer)
 
-    def _label(self, extracted: frontend_process.Extracted) -> _Prepared:
+    def _label(self, extracted: frontend_process.Extracted) -> Prepared:
         """Segmentation (``every_frame`` schedule) of a frame the worker process read and
         extracted (``prefetch_mode="process"``; in the prefetch threads of this process)."""
         frame = extracted.frame
@@ -214,27 +176,7 @@ class SlamPipeline:
         if self.segment == "every_frame":
             labels = self._segment_timed(frame, timer)
         timer.add("orb", *extracted.orb_time)
-        return _Prepared(frame, labels, extracted.features, timer)
-
-    @staticmethod
-    def _apply(
-        f: DynamicFilter,
-        ctx: FilterContext,
-        state: _FilterState,
-        timer: Timer,
-        counts: dict[str, dict[str, int]],
-    ) -> None:
-        with timer(f"filter.{f.name}"):
-            out = f(ctx)
-        counts["flagged"][f.name] += int(out.dynamic.sum())
-        counts["dropped"][f.name] += int((out.dynamic & ~state.dynamic).sum())
-        counts["checked"][f.name] += out.checked
-        state.dynamic = state.dynamic | out.dynamic
-        ctx.flags[f.name] = out.dynamic
-        if f.motion:
-            ctx.motion_flags = ctx.motion_flags | out.dynamic
-        if out.region is not None:
-            state.regions.append(out.region)
+        return Prepared(frame, labels, extracted.features, timer)
 
     def _segment_timed(self, frame: Frame, timer: Timer) -> np.ndarray | None:
         """The segmenter on ``frame``, timed as ``segmentation``, with its own stages as
@@ -247,38 +189,11 @@ class SlamPipeline:
                 timer.add(f"segmentation.{stage}", wall, cpu)
         return labels
 
-    def _segment_now(self, frame: Frame, timer: Timer) -> np.ndarray | None:
-        """Segment ``frame`` in the main thread (``keyframes`` schedule)."""
-        return self._segment_timed(frame, timer)
-
     def run(self) -> RunResult:
+        """Every frame of the sequence through the frame loop (:mod:`.frame_loop`), then the
+        trajectory, the map products and the run's figures."""
         timer = Timer()
-        extractor = self.extractor
-        tracker = Tracker(self.tracker_config, extractor, self.sampling_seed)
-        builder = SemanticMapBuilder(self.map_config, extractor)
-        octo = OctoMapBuilder(self.map_config, extractor) if self.map_config.octomap else None
-        depth_noise, noise_source = depth_noise_of(
-            self.local_ba_params, self.sequence.camera.depth_noise
-        )
-        adjuster = BundleAdjuster(tracker.k, tracker.bf, extractor.sigma2, depth_noise)
-        mapper = LocalMapping(self.local_ba_params, adjuster) if self.local_ba else None
-        closer = (
-            LoopCloser(self.loop_closing_params, tracker, adjuster) if self.loop_closing else None
-        )
-        backend = mapper is not None or closer is not None
-        anchors: list[tuple[int, np.ndarray]] = []
-        # With the back end: each keyframe's cloud in its camera frame, placed at the end.
-        keyframe_clouds: list[tuple[int, PointCloud]] = []
-        names = [f.name for f in self.filters]
-        counts = {key: dict.fromkeys(names, 0) for key in ("flagged", "dropped", "checked")}
-        extracted = kept = segmented = corrected = 0
-        keyframes_only = self.segment == "keyframes"
-        stamps: list[float] = []
-        poses: list[np.ndarray] = []
-        no_depth: list[int] = []
-        """Frames whose depth image holds no valid pixel (untracked, warned about)."""
-        log: list[FrameLog] = []
-        previous: Frame | None = None
+        loop = self._frame_loop(timer)
         bar = progress_bar(
             total=len(self.sequence),
             desc=self.description,
@@ -287,128 +202,18 @@ class SlamPipeline:
             dynamic_ncols=True,
         )
         start = time.perf_counter()
-        worker = None
-        if self.parallel and self.prefetch_mode == "process":
-            worker = frontend_process.start(
-                self.sequence, extractor.config, self.prefetch, self.workers
-            )
-        if worker is not None:
-            frames = ahead(self._label, iter(worker), self.prefetch, self.workers)
-        elif self.parallel:
-            frames = self.sequence.prepared(self._prepare, self.prefetch, self.workers)
-        else:
-            frames = (self._prepare(f) for f in self.sequence.frames(self.prefetch, self.workers))
+        worker, frames = self._frames()
         try:
             while True:
                 with timer("load"):
                     item = next(frames, None)
                 if item is None:
                     break
-                for name in item.timer.wall:
-                    timer.add(name, item.timer.wall[name], item.timer.cpu[name])
-                frame, labels, features = item.frame, item.labels, item.features
-                if keyframes_only and not tracker.initialized:
-                    labels = self._segment_now(frame, timer)  # a first-keyframe candidate
-                raw = features
-                if tracker.readout > 0:
-                    with timer("tracking"):
-                        features = tracker.unroll(raw)
-                n = len(features)
-                ctx = FilterContext(frame, features, labels, extractor, tracker, previous)
-                ctx.motion_flags = np.zeros(n, bool)
-                state = _FilterState(np.zeros(n, bool), [])
-                # Filters needing labels wait for them (keyframes schedule: until a keyframe).
-                ready = [f for f in self.filters if labels is not None or not f.needs_labels]
-                for f in ready:
-                    if f.stage == "pre":
-                        self._apply(f, ctx, state, timer, counts)
-                with timer("tracking"):
-                    result = tracker.track(frame.index, frame.stamp, features, state.dynamic)
-                    if not np.any(frame.depth > 0):
-                        # No depth at all: a pose from 2D matches alone would be a silent guess.
-                        no_depth.append(frame.index)
-                        if result.pose_wc is not None:
-                            tracker.mark_lost(result)
-                    if tracker.readout > 0:
-                        features = ctx.features = tracker.unroll_tracked(
-                            raw, features, frame.stamp, result
-                        )
-                        corrected += features is not raw
-                post = [f for f in ready if f.stage == "post"]
-                late: list[DynamicFilter] = []
-                keyframe: bool | None = None
-                if keyframes_only and labels is None and result.pose_wc is not None:
-                    with timer("mapping"):
-                        keyframe = tracker.wants_keyframe(result, features, state.dynamic)
-                    if keyframe:
-                        labels = ctx.labels = self._segment_now(frame, timer)
-                        if labels is not None:
-                            late = [f for f in self.filters if f.needs_labels]
-                if result.pose_wc is not None and (post or late):
-                    ctx.pose_wc, ctx.matched = result.pose_wc, result.matched
-                    before = state.dynamic.copy()
-                    for f in post + late:
-                        self._apply(f, ctx, state, timer, counts)
-                    if (state.dynamic & ~before).any() and result.new_keyframe is None:
-                        with timer("tracking"):
-                            pose_wc, result.matched = tracker.refine_without(
-                                result.pose_wc, features, result.matched, state.dynamic
-                            )
-                            if pose_wc is None:  # failed its inlier check: lost, not mapped
-                                tracker.mark_lost(result)
-                            result.pose_wc = pose_wc
-                        result.inliers = int((result.matched >= 0).sum())
-                segmented += labels is not None
-                dynamic, regions = state.dynamic, state.regions
-                with timer("mapping"):
-                    kf = tracker.finish_frame(
-                        frame.index, frame.stamp, result, features, dynamic, keyframe
-                    )
-                    if kf is not None:
-                        kf.depth = frame.depth[:: kf.depth_stride, :: kf.depth_stride].copy()
-                        region = np.logical_or.reduce(regions) if regions else None
-                        if backend:  # the keyframe may still move: keep its cloud in its frame
-                            own = SemanticMapBuilder(self.map_config, extractor)
-                            own.add(np.eye(4), frame.rgb, frame.depth, labels, region)
-                            keyframe_clouds.append((kf.id, own.build()))
-                        else:
-                            builder.add(kf.pose_wc, frame.rgb, frame.depth, labels, region)
-                        if octo is not None:
-                            octo.add(kf.id, frame.rgb, frame.depth, labels, region)
-                if result.pose_wc is not None and backend:
-                    anchor = tracker.anchor()
-                    assert anchor is not None
-                    anchors.append(anchor)
-                if kf is not None and kf.id > 0 and backend:
-                    if mapper is not None:
-                        with timer("local_ba"):
-                            mapper.process(tracker.map, kf.id)
-                    if closer is not None:
-                        with timer("loop_closing"):
-                            closer.process(kf)
-                    tracker.map_changed()
-                extracted += n
-                kept += int((~dynamic).sum())
-                if result.pose_wc is not None:
-                    stamps.append(frame.stamp)
-                    poses.append(result.pose_wc)
-                log.append(
-                    FrameLog(
-                        frame.index,
-                        frame.stamp,
-                        result.pose_wc is not None,
-                        n,
-                        int((~dynamic).sum()),
-                        result.inliers,
-                        kf is not None,
-                        result.relocalised,
-                    )
-                )
-                previous = frame
+                loop.step(item)
                 bar.update(1)
                 bar.set_postfix(
-                    tracked=f"{sum(e.tracked for e in log)}/{len(log)}",
-                    kf=len(tracker.map.keyframes),
+                    tracked=f"{loop.tracked}/{len(loop.log)}",
+                    kf=len(loop.tracker.map.keyframes),
                     refresh=False,
                 )
         finally:
@@ -416,53 +221,67 @@ class SlamPipeline:
             if worker is not None:
                 worker.close()
             bar.close()
-        wall = time.perf_counter() - start
-        if no_depth:
+        return self._result(loop, time.perf_counter() - start)
+
+    def _frame_loop(self, timer: Timer) -> FrameLoop:
+        """The run's tracker, filter chain, map products and back end, in a frame loop."""
+        extractor = self.extractor
+        tracker = Tracker(self.tracker_config, extractor, self.sampling_seed)
+        adjuster = BundleAdjuster(tracker.k, tracker.bf, extractor.sigma2, self.depth_noise[0])
+        mapper = LocalMapping(self.local_ba_params, adjuster) if self.local_ba else None
+        closer = (
+            LoopCloser(self.loop_closing_params, tracker, adjuster) if self.loop_closing else None
+        )
+        backend = mapper is not None or closer is not None
+        products = MapProducts(self.map_config, extractor, placed_at_end=backend)
+        segment_now = self._segment_timed if self.segment == "keyframes" else None
+        chain = FilterChain(self.filters, timer)
+        return FrameLoop(timer, tracker, chain, products, mapper, closer, segment_now)
+
+    def _frames(self) -> tuple[frontend_process.FrontendProcess | None, Iterator[Prepared]]:
+        """The prepared frames in order (threads, or a worker process with ``prefetch_mode=
+        "process"``, or serially), and that worker (None without one)."""
+        worker = None
+        if self.parallel and self.prefetch_mode == "process":
+            worker = frontend_process.start(
+                self.sequence, self.extractor.config, self.prefetch, self.workers
+            )
+        if worker is not None:
+            frames = ahead(self._label, iter(worker), self.prefetch, self.workers)
+        elif self.parallel:
+            frames = self.sequence.prepared(self._prepare, self.prefetch, self.workers)
+        else:
+            frames = (self._prepare(f) for f in self.sequence.frames(self.prefetch, self.workers))
+        return worker, frames
+
+    def _result(self, loop: FrameLoop, wall: float) -> RunResult:
+        """The run's :class:`RunResult` from its frame loop (``wall``: seconds of the loop)."""
+        if loop.no_depth:
             print(
-                f"uss-slam: warning: {self.sequence.path}: {len(no_depth)} frame(s) with an "
-                f"all-zero depth image (frame index {no_depth[0]} first) were not tracked",
+                f"uss-slam: warning: {self.sequence.path}: {len(loop.no_depth)} frame(s) with an "
+                f"all-zero depth image (frame index {loop.no_depth[0]} first) were not tracked",
                 file=sys.stderr,
             )
-        count = len(log)
+        count = len(loop.log)
+        timer, tracker, mapper, closer = loop.timer, loop.tracker, loop.mapper, loop.closer
         timing = timer.mean_ms(count)
         timing["total"] = 1000.0 * wall / max(count, 1)
         cpu = timer.mean_ms(count, cpu=True)
         cpu.pop("load", None)
-        per_segmented = (
-            {
-                "wall": 1000.0 * timer.wall["segmentation"] / segmented,
-                "cpu": 1000.0 * timer.cpu["segmentation"] / segmented,
-            }
-            if segmented
-            else {}
-        )
         with timer("map_build"):
-            if backend:
-                placed = []
-                for kf_id, c in keyframe_clouds:
-                    pose = tracker.map.pose_wc(kf_id)
-                    points = (c.points @ pose[:3, :3].T + pose[:3, 3]).astype(np.float32)
-                    placed.append(PointCloud(points, c.colors, c.labels))
-                cloud = merge_clouds(placed, self.map_config.voxel)
-            else:
-                cloud = builder.build()
+            cloud = loop.products.build_cloud(tracker.map.pose_wc)
         with timer("octomap"):  # every keyframe at its final pose
-            octomap = octo.build(tracker.map.pose_wc) if octo is not None else None
-        if backend:  # ORB-SLAM2's SaveTrajectoryTUM: each frame on its keyframe's final pose
-            poses = [tracker.map.pose_wc(k) @ invert(rel) for k, rel in anchors]
-        trajectory = (
-            Trajectory.from_matrices(stamps, np.stack(poses))
-            if poses
-            else Trajectory(np.zeros(0), np.zeros((0, 3)), np.zeros((0, 4)))
-        )
+            octomap = loop.products.build_octomap(tracker.map.pose_wc)
+        noise = dict(zip(("depth_noise", "depth_noise_from"), self.depth_noise, strict=True))
+        thread = "prefetch" if self.parallel and self.segment != "keyframes" else "main"
         return RunResult(
             sequence=str(self.sequence.path),
             camera=self.sequence.camera_source,
             segmenter=getattr(self.segmenter, "name", type(self.segmenter).__name__),
-            filters=names,
-            trajectory=trajectory,
+            filters=loop.chain.names,
+            trajectory=self._trajectory(loop),
             frames=count,
-            tracked=sum(e.tracked for e in log),
+            tracked=loop.tracked,
             keyframes=len(tracker.map.keyframes),
             map_points=tracker.map.n_good,
             culled_points=tracker.map.culled,
@@ -470,36 +289,50 @@ class SlamPipeline:
             lost_events=tracker.lost_events,
             unmatched_rgb=self.sequence.unmatched_rgb,
             keypoints={
-                "extracted": extracted,
-                "kept": kept,
-                "per_frame": extracted / max(count, 1),
-                **counts,
+                "extracted": loop.extracted,
+                "kept": loop.kept,
+                "per_frame": loop.extracted / max(count, 1),
+                **loop.chain.counts,
             },
             timing_ms=timing,
             cpu_ms=cpu,
             wall_time_s=wall,
             cloud=cloud,
-            log=log,
+            log=loop.log,
             segment=self.segment,
-            segmented_frames=segmented,
-            segmentation_ms=per_segmented,
-            segmentation_thread="prefetch" if self.parallel and not keyframes_only else "main",
-            local_ba=(
-                {
-                    **mapper.stats.as_dict(),
-                    "depth_noise": depth_noise,
-                    "depth_noise_from": noise_source,
-                }
-                if mapper is not None
-                else None
-            ),  # fmt: skip
+            segmented_frames=loop.segmented,
+            segmentation_ms=_per_segmented(timer, loop.segmented),
+            segmentation_thread=thread,
+            local_ba=None if mapper is None else {**mapper.stats.as_dict(), **noise},
             rolling_shutter={
                 "readout": tracker.readout,
                 "readout_from": tracker.readout_from,
-                "frames_corrected": corrected,
+                "frames_corrected": loop.corrected,
             },
             loop_closing=closer is not None,
             loop_closures=[c.as_dict() for c in closer.closures] if closer is not None else [],
             loop_candidates_rejected=closer.rejected if closer is not None else 0,
             octomap=octomap,
         )
+
+    @staticmethod
+    def _trajectory(loop: FrameLoop) -> Trajectory:
+        """The tracked frames' poses; with the back end, each frame on its reference keyframe's
+        final pose (ORB-SLAM2's ``SaveTrajectoryTUM``)."""
+        poses = loop.poses
+        if loop.backend:
+            pose_wc = loop.tracker.map.pose_wc
+            poses = [pose_wc(k) @ invert(rel) for k, rel in loop.anchors]
+        if not poses:
+            return Trajectory(np.zeros(0), np.zeros((0, 3)), np.zeros((0, 4)))
+        return Trajectory.from_matrices(loop.stamps, np.stack(poses))
+
+
+def _per_segmented(timer: Timer, segmented: int) -> dict[str, float]:
+    """``{"wall": ms, "cpu": ms}`` of the segmenter per segmented frame ({} for none)."""
+    if not segmented:
+        return {}
+    return {
+        "wall": 1000.0 * timer.wall["segmentation"] / segmented,
+        "cpu": 1000.0 * timer.cpu["segmentation"] / segmented,
+    }

@@ -15,8 +15,8 @@ from uss_slam.slam_eval.filters.geometry import GeometryFilter
 from uss_slam.slam_eval.filters.object_rule import ObjectFilter
 from uss_slam.slam_eval.filters.semantic import SemanticFilter
 from uss_slam.slam_eval.frontend.orb import OrbConfig, OrbExtractor
+from uss_slam.slam_eval.map.slam_map import SlamMap
 from uss_slam.slam_eval.sequence import Frame
-from uss_slam.slam_eval.tracking.tracker import Tracker, TrackerConfig
 
 
 def _frame(index: int, gray: np.ndarray, depth: np.ndarray, labels=None) -> Frame:
@@ -99,13 +99,13 @@ def test_flow_flags_the_moving_patch_not_the_ego_motion(texture) -> None:
 
 def _geometry_case(ex: OrbExtractor):
     """A keyframe saw a wall at 3 m and a box at 2 m; now a person stands at 1.5 m in front."""
-    tracker = Tracker(TrackerConfig(), ex)
+    slam_map = SlamMap(ex.config.scale_factor, ex.config.n_levels)
     wall = np.full((240, 320), 3.0, np.float32)
     kf_depth = wall.copy()
     kf_depth[150:220, 20:100] = 2.0  # box
     kf_xy = _grid(10, 310, 10, 230, 6)
     kf = features_at(ex, kf_xy, kf_depth)
-    keyframe = tracker.map.add_keyframe(0, 0.0, np.eye(4), kf, np.full(len(kf), -1),
+    keyframe = slam_map.add_keyframe(0, 0.0, np.eye(4), kf, np.full(len(kf), -1),
                                         np.zeros(len(kf), bool), kf.has_depth)  # fmt: skip
     keyframe.depth = kf_depth[:: keyframe.depth_stride, :: keyframe.depth_stride]
     pose_wc = np.eye(4)
@@ -122,7 +122,7 @@ def _geometry_case(ex: OrbExtractor):
         features,
         None,
         ex,
-        tracker,
+        slam_map,
         pose_wc=pose_wc,
         matched=np.full(len(features), -1),
     )
@@ -162,11 +162,11 @@ def test_geometry_reverse_check_spares_static_occluders() -> None:
     keyframe saw beside it, deep inside the pillar's silhouette. The keyframe saw the pillar
     too, so projecting the seed back into the keyframe explains it: no dynamic region."""
     ex = OrbExtractor(OrbConfig(), CAM)
-    tracker = Tracker(TrackerConfig(), ex)
+    slam_map = SlamMap(ex.config.scale_factor, ex.config.n_levels)
     kf_depth = np.full((240, 320), 3.0, np.float32)
     kf_depth[:, 100:140] = 1.0  # pillar
     kf_feats = features_at(ex, _grid(10, 310, 10, 230, 6), kf_depth)
-    kf = tracker.map.add_keyframe(0, 0.0, np.eye(4), kf_feats, np.full(len(kf_feats), -1),
+    kf = slam_map.add_keyframe(0, 0.0, np.eye(4), kf_feats, np.full(len(kf_feats), -1),
                                   np.zeros(len(kf_feats), bool), kf_feats.has_depth)  # fmt: skip
     pose_wc = np.eye(4)
     pose_wc[0, 3] = 0.2
@@ -178,7 +178,7 @@ def test_geometry_reverse_check_spares_static_occluders() -> None:
         features_at(ex, xy, depth),
         None,
         ex,
-        tracker,
+        slam_map,
         pose_wc=pose_wc,
         matched=np.full(len(xy), -1),
     )

@@ -1,0 +1,240 @@
+"""The frame loop of one harness run (:class:`~.harness.SlamPipeline`), one method per step.
+
+Per frame (:meth:`FrameLoop.step`), on a frame already read, segmented (``every_frame``) and
+ORB-extracted by the prefetch:
+
+1. **track** (:meth:`FrameLoop.track`): the ``pre`` filters (:mod:`..filters.chain`), the
+   tracker's pose, and the rolling-shutter passes; then (:meth:`FrameLoop.filter_tracked`) the
+   keyframe's segmentation (``segment=keyframes``), the ``post`` / ``late`` filters and the
+   pose refined again without what they flagged;
+2. **map keyframe** (:meth:`FrameLoop.map_keyframe`): motion model, map statistics, the keyframe
+   decision and its map points, and the keyframe in the map products (:mod:`..products`);
+3. **back end** (:meth:`FrameLoop.back_end`): the frame's pose on its reference keyframe, local
+   bundle adjustment and loop closing after a new keyframe;
+4. **record** (:meth:`FrameLoop.record`): keypoint counts, the tracked pose and the frame's log.
+
+Timing names (``tracking``, ``mapping``, ``local_ba``, ``loop_closing``, ``filter.<name>``,
+``segmentation``) are those of the harness's ``timing_ms``.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import defaultdict
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..filters.base import FilterContext
+from ..filters.chain import FilterChain, FrameFilters
+from ..frontend.orb import Features
+from ..map.slam_map import KeyFrame
+from ..mapping.local_mapping import LocalMapping
+from ..mapping.loop_closing import LoopCloser
+from ..products.builder import MapProducts
+from ..scoring.run_result import FrameLog
+from ..sequence import Frame
+from ..tracking.tracker import Tracker, TrackResult
+
+
+class Timer:
+    """Accumulates wall time and CPU time (of the measuring thread) per named module."""
+
+    def __init__(self) -> None:
+        self.wall: dict[str, float] = defaultdict(float)
+        self.cpu: dict[str, float] = defaultdict(float)
+
+    @contextmanager
+    def __call__(self, name: str) -> Iterator[None]:
+        wall, cpu = time.perf_counter(), time.thread_time()
+        try:
+            yield
+        finally:
+            self.add(name, time.perf_counter() - wall, time.thread_time() - cpu)
+
+    def add(self, name: str, wall: float, cpu: float) -> None:
+        self.wall[name] += wall
+        self.cpu[name] += cpu
+
+    def mean_ms(self, frames: int, cpu: bool = False) -> dict[str, float]:
+        totals = self.cpu if cpu else self.wall
+        return {k: 1000.0 * v / max(frames, 1) for k, v in totals.items()}
+
+
+@dataclass
+class Prepared:
+    """A frame with its segmentation and features, and how long each took (s)."""
+
+    frame: Frame
+    labels: np.ndarray | None
+    features: Features
+    timer: Timer
+
+
+Segment = Callable[[Frame, Timer], "np.ndarray | None"]
+"""Segments a frame in the main thread, timed (``segment=keyframes``)."""
+
+
+class FrameLoop:
+    """The state of one run's frame loop and its steps (module docstring). ``segment_now``:
+    the main-thread segmenter of the ``keyframes`` schedule, None for ``every_frame``."""
+
+    def __init__(
+        self,
+        timer: Timer,
+        tracker: Tracker,
+        chain: FilterChain,
+        products: MapProducts,
+        mapper: LocalMapping | None,
+        closer: LoopCloser | None,
+        segment_now: Segment | None,
+    ) -> None:
+        self.timer = timer
+        self.tracker = tracker
+        self.chain = chain
+        self.products = products
+        self.mapper = mapper
+        self.closer = closer
+        self.segment_now = segment_now
+        self.backend = mapper is not None or closer is not None
+        self.anchors: list[tuple[int, np.ndarray]] = []
+        """With the back end: each tracked frame's ``(reference keyframe id, T_c,kf)``."""
+        self.stamps: list[float] = []
+        self.poses: list[np.ndarray] = []
+        """The tracked frames' stamps (s) and (4, 4) camera-to-world poses as tracked."""
+        self.no_depth: list[int] = []
+        """Frames whose depth image holds no valid pixel (untracked, warned about)."""
+        self.log: list[FrameLog] = []
+        self.previous: Frame | None = None
+        self.extracted = self.kept = self.segmented = self.corrected = self.tracked = 0
+
+    def step(self, item: Prepared) -> None:
+        """One frame through every step."""
+        timer = self.timer
+        for name in item.timer.wall:
+            timer.add(name, item.timer.wall[name], item.timer.cpu[name])
+        frame, labels = item.frame, item.labels
+        if self.segment_now is not None and not self.tracker.initialized:
+            labels = self.segment_now(frame, timer)  # a first-keyframe candidate
+        filters, result = self.track(frame, labels, item.features)
+        keyframe = self.filter_tracked(frame, filters, result)
+        kf = self.map_keyframe(frame, filters, result, keyframe)
+        self.back_end(result, kf)
+        self.record(frame, filters, result, kf)
+
+    def track(
+        self, frame: Frame, labels: np.ndarray | None, raw: Features
+    ) -> tuple[FrameFilters, TrackResult]:
+        """The ``pre`` filters and the tracker on the frame's keypoints ``raw`` (corrected for
+        the rolling shutter first, and again once tracked: ``ctx.features`` holds the keypoints
+        the rest of the frame uses). A frame without any depth is taken back (lost)."""
+        tracker, timer = self.tracker, self.timer
+        features = raw
+        if tracker.readout > 0:
+            with timer("tracking"):
+                features = tracker.unroll(raw)
+        ctx = FilterContext(frame, features, labels, tracker.extractor, tracker.map, self.previous)
+        filters = self.chain.frame(ctx)
+        filters.pre()
+        with timer("tracking"):
+            result = tracker.track(frame.index, frame.stamp, features, filters.dynamic)
+            if not np.any(frame.depth > 0):
+                # No depth at all: a pose from 2D matches alone would be a silent guess.
+                self.no_depth.append(frame.index)
+                if result.pose_wc is not None:
+                    tracker.mark_lost(result)
+            if tracker.readout > 0:
+                ctx.features = tracker.unroll_tracked(raw, features, frame.stamp, result)
+                self.corrected += ctx.features is not raw
+        return filters, result
+
+    def filter_tracked(
+        self, frame: Frame, filters: FrameFilters, result: TrackResult
+    ) -> bool | None:
+        """The ``post`` filters on a tracked frame, and with ``segment=keyframes`` the keyframe
+        decision taken now, so that a new keyframe is segmented and its ``late`` filters run
+        before its map points are created; the pose is refined again without what they
+        flagged (lost if too few inliers remain). Returns the keyframe decision (None: not
+        taken yet)."""
+        tracker, timer, ctx = self.tracker, self.timer, filters.ctx
+        keyframe: bool | None = None
+        late = False
+        if self.segment_now is not None and ctx.labels is None and result.pose_wc is not None:
+            with timer("mapping"):
+                keyframe = tracker.wants_keyframe(result, ctx.features, filters.dynamic)
+            if keyframe:
+                ctx.labels = self.segment_now(frame, timer)
+                late = ctx.labels is not None
+        if filters.after_pose(result.pose_wc, result.matched, late) and result.new_keyframe is None:
+            with timer("tracking"):
+                pose_wc, result.matched = tracker.refine_without(
+                    result.pose_wc, ctx.features, result.matched, filters.dynamic
+                )
+                if pose_wc is None:  # failed its inlier check: lost, not mapped
+                    tracker.mark_lost(result)
+                result.pose_wc = pose_wc
+            result.inliers = int((result.matched >= 0).sum())
+        return keyframe
+
+    def map_keyframe(
+        self, frame: Frame, filters: FrameFilters, result: TrackResult, keyframe: bool | None
+    ) -> KeyFrame | None:
+        """The tracker's end of the frame (motion model, map statistics, the keyframe decision
+        and its map points); a new keyframe keeps its subsampled depth (the geometry filter's)
+        and goes into the map products without the filters' dynamic region."""
+        ctx = filters.ctx
+        self.segmented += ctx.labels is not None
+        with self.timer("mapping"):
+            kf = self.tracker.finish_frame(
+                frame.index, frame.stamp, result, ctx.features, filters.dynamic, keyframe
+            )
+            if kf is not None:
+                kf.depth = frame.depth[:: kf.depth_stride, :: kf.depth_stride].copy()
+                self.products.add(
+                    kf.id, kf.pose_wc, frame.rgb, frame.depth, ctx.labels, filters.region()
+                )
+        return kf
+
+    def back_end(self, result: TrackResult, kf: KeyFrame | None) -> None:
+        """With the back end: the tracked frame's pose kept on its reference keyframe, and
+        after a new keyframe (not the first) local bundle adjustment, loop closing and the
+        tracker's last pose put back on the corrected map."""
+        if not self.backend:
+            return
+        tracker = self.tracker
+        if result.pose_wc is not None:
+            anchor = tracker.anchor()
+            assert anchor is not None
+            self.anchors.append(anchor)
+        if kf is None or kf.id == 0:
+            return
+        if self.mapper is not None:
+            with self.timer("local_ba"):
+                self.mapper.process(tracker.map, kf.id)
+        if self.closer is not None:
+            with self.timer("loop_closing"):
+                self.closer.process(kf)
+        tracker.map_changed()
+
+    def record(
+        self, frame: Frame, filters: FrameFilters, result: TrackResult, kf: KeyFrame | None
+    ) -> None:
+        """The frame's keypoint counts, its pose (when tracked) and its :class:`FrameLog`."""
+        n = len(filters.ctx.features)
+        kept = int((~filters.dynamic).sum())
+        self.extracted += n
+        self.kept += kept
+        tracked = result.pose_wc is not None
+        if tracked:
+            self.stamps.append(frame.stamp)
+            self.poses.append(result.pose_wc)
+        self.tracked += tracked
+        self.log.append(
+            FrameLog(
+                frame.index, frame.stamp, tracked, n, kept, result.inliers, kf is not None,
+                result.relocalised,
+            )
+        )  # fmt: skip
+        self.previous = frame
