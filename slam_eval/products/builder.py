@@ -15,6 +15,8 @@ from collections.abc import Callable
 import numpy as np
 
 from ..frontend.orb import OrbExtractor
+from ..map.slam_map import KeyFrame
+from ..sequence import Frame
 from .octomap import OctoMapBuilder, SemanticOctoMap
 from .semantic_map import MapConfig, PointCloud, SemanticMapBuilder, merge_clouds
 
@@ -32,25 +34,20 @@ class MapProducts:
         """With :attr:`placed_at_end`: each keyframe's cloud in its camera frame, by id."""
 
     def add(
-        self,
-        keyframe_id: int,
-        pose_wc: np.ndarray,
-        rgb: np.ndarray,
-        depth: np.ndarray,
-        labels: np.ndarray | None,
-        region: np.ndarray | None,
+        self, kf: KeyFrame, frame: Frame, labels: np.ndarray | None, region: np.ndarray | None
     ) -> None:
-        """A new keyframe: its ``(4, 4)`` pose now, ``(H, W, 3)`` uint8 colour, ``(H, W)``
-        depth in metres, ``(H, W)`` uint8 class ids (None: not segmented) and ``(H, W)`` bool
-        dynamic ``region`` of the filters (None: none), kept out of the products."""
+        """A new keyframe ``kf`` (its id, its pose now) of ``frame`` (colour, depth), with the
+        frame's ``(H, W)`` uint8 class ids (None: not segmented) and the ``(H, W)`` bool dynamic
+        ``region`` of the filters (None: none), which is kept out of the products."""
+        rgb, depth = frame.rgb, frame.depth
         if self.placed_at_end:
             own = SemanticMapBuilder(self.config, self.extractor)
             own.add(np.eye(4), rgb, depth, labels, region)
-            self.keyframe_clouds.append((keyframe_id, own.build()))
+            self.keyframe_clouds.append((kf.id, own.build()))
         else:
-            self.cloud.add(pose_wc, rgb, depth, labels, region)
+            self.cloud.add(kf.pose_wc, rgb, depth, labels, region)
         if self.octo is not None:
-            self.octo.add(keyframe_id, rgb, depth, labels, region)
+            self.octo.add(kf.id, rgb, depth, labels, region)
 
     def build_cloud(self, pose_wc: Callable[[int], np.ndarray]) -> PointCloud:
         """The point cloud, each keyframe at ``pose_wc(id)`` (4, 4) when placed at the end."""

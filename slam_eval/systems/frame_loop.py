@@ -20,10 +20,10 @@ Timing names (``tracking``, ``mapping``, ``local_ba``, ``loop_closing``, ``filte
 from __future__ import annotations
 
 import time
-from collections import defaultdict
+from collections import Counter, defaultdict
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -77,38 +77,36 @@ Segment = Callable[[Frame, Timer], "np.ndarray | None"]
 """Segments a frame in the main thread, timed (``segment=keyframes``)."""
 
 
+@dataclass
 class FrameLoop:
     """The state of one run's frame loop and its steps (module docstring). ``segment_now``:
     the main-thread segmenter of the ``keyframes`` schedule, None for ``every_frame``."""
 
-    def __init__(
-        self,
-        timer: Timer,
-        tracker: Tracker,
-        chain: FilterChain,
-        products: MapProducts,
-        mapper: LocalMapping | None,
-        closer: LoopCloser | None,
-        segment_now: Segment | None,
-    ) -> None:
-        self.timer = timer
-        self.tracker = tracker
-        self.chain = chain
-        self.products = products
-        self.mapper = mapper
-        self.closer = closer
-        self.segment_now = segment_now
-        self.backend = mapper is not None or closer is not None
-        self.anchors: list[tuple[int, np.ndarray]] = []
-        """With the back end: each tracked frame's ``(reference keyframe id, T_c,kf)``."""
-        self.stamps: list[float] = []
-        self.poses: list[np.ndarray] = []
-        """The tracked frames' stamps (s) and (4, 4) camera-to-world poses as tracked."""
-        self.no_depth: list[int] = []
-        """Frames whose depth image holds no valid pixel (untracked, warned about)."""
-        self.log: list[FrameLog] = []
-        self.previous: Frame | None = None
-        self.extracted = self.kept = self.segmented = self.corrected = self.tracked = 0
+    timer: Timer
+    tracker: Tracker
+    chain: FilterChain
+    products: MapProducts
+    mapper: LocalMapping | None
+    closer: LoopCloser | None
+    segment_now: Segment | None
+    anchors: list[tuple[int, np.ndarray]] = field(default_factory=list)
+    """With the back end: each tracked frame's ``(reference keyframe id, T_c,kf)``."""
+    stamps: list[float] = field(default_factory=list)
+    poses: list[np.ndarray] = field(default_factory=list)
+    """The tracked frames' stamps (s) and (4, 4) camera-to-world poses as tracked."""
+    no_depth: list[int] = field(default_factory=list)
+    """Frames whose depth image holds no valid pixel (untracked, warned about)."""
+    log: list[FrameLog] = field(default_factory=list)
+    previous: Frame | None = None
+    counts: Counter[str] = field(default_factory=Counter)
+    """Over the run: ``extracted`` keypoints (after the first rolling-shutter pass), ``kept``
+    (of those, flagged by no filter); frames ``segmented`` (with labels when mapped),
+    ``corrected`` (by the second rolling-shutter pass), ``tracked`` (with a pose)."""
+
+    @property
+    def backend(self) -> bool:
+        """Local mapping or loop closing is on."""
+        return self.mapper is not None or self.closer is not None
 
     def step(self, item: Prepared) -> None:
         """One frame through every step."""
@@ -147,7 +145,7 @@ class FrameLoop:
                     tracker.mark_lost(result)
             if tracker.readout > 0:
                 ctx.features = tracker.unroll_tracked(raw, features, frame.stamp, result)
-                self.corrected += ctx.features is not raw
+                self.counts["corrected"] += ctx.features is not raw
         return filters, result
 
     def filter_tracked(
@@ -185,16 +183,14 @@ class FrameLoop:
         and its map points); a new keyframe keeps its subsampled depth (the geometry filter's)
         and goes into the map products without the filters' dynamic region."""
         ctx = filters.ctx
-        self.segmented += ctx.labels is not None
+        self.counts["segmented"] += ctx.labels is not None
         with self.timer("mapping"):
             kf = self.tracker.finish_frame(
                 frame.index, frame.stamp, result, ctx.features, filters.dynamic, keyframe
             )
             if kf is not None:
                 kf.depth = frame.depth[:: kf.depth_stride, :: kf.depth_stride].copy()
-                self.products.add(
-                    kf.id, kf.pose_wc, frame.rgb, frame.depth, ctx.labels, filters.region()
-                )
+                self.products.add(kf, frame, ctx.labels, filters.region())
         return kf
 
     def back_end(self, result: TrackResult, kf: KeyFrame | None) -> None:
@@ -224,13 +220,13 @@ class FrameLoop:
         """The frame's keypoint counts, its pose (when tracked) and its :class:`FrameLog`."""
         n = len(filters.ctx.features)
         kept = int((~filters.dynamic).sum())
-        self.extracted += n
-        self.kept += kept
+        self.counts["extracted"] += n
+        self.counts["kept"] += kept
         tracked = result.pose_wc is not None
         if tracked:
             self.stamps.append(frame.stamp)
             self.poses.append(result.pose_wc)
-        self.tracked += tracked
+        self.counts["tracked"] += tracked
         self.log.append(
             FrameLog(
                 frame.index, frame.stamp, tracked, n, kept, result.inliers, kf is not None,

@@ -212,7 +212,7 @@ class SlamPipeline:
                 loop.step(item)
                 bar.update(1)
                 bar.set_postfix(
-                    tracked=f"{loop.tracked}/{len(loop.log)}",
+                    tracked=f"{loop.counts['tracked']}/{len(loop.log)}",
                     kf=len(loop.tracker.map.keyframes),
                     refresh=False,
                 )
@@ -281,7 +281,7 @@ class SlamPipeline:
             filters=loop.chain.names,
             trajectory=self._trajectory(loop),
             frames=count,
-            tracked=loop.tracked,
+            tracked=loop.counts["tracked"],
             keyframes=len(tracker.map.keyframes),
             map_points=tracker.map.n_good,
             culled_points=tracker.map.culled,
@@ -289,9 +289,9 @@ class SlamPipeline:
             lost_events=tracker.lost_events,
             unmatched_rgb=self.sequence.unmatched_rgb,
             keypoints={
-                "extracted": loop.extracted,
-                "kept": loop.kept,
-                "per_frame": loop.extracted / max(count, 1),
+                "extracted": loop.counts["extracted"],
+                "kept": loop.counts["kept"],
+                "per_frame": loop.counts["extracted"] / max(count, 1),
                 **loop.chain.counts,
             },
             timing_ms=timing,
@@ -300,14 +300,14 @@ class SlamPipeline:
             cloud=cloud,
             log=loop.log,
             segment=self.segment,
-            segmented_frames=loop.segmented,
-            segmentation_ms=_per_segmented(timer, loop.segmented),
+            segmented_frames=loop.counts["segmented"],
+            segmentation_ms=_per_segmented(timer, loop.counts["segmented"]),
             segmentation_thread=thread,
             local_ba=None if mapper is None else {**mapper.stats.as_dict(), **noise},
             rolling_shutter={
                 "readout": tracker.readout,
                 "readout_from": tracker.readout_from,
-                "frames_corrected": loop.corrected,
+                "frames_corrected": loop.counts["corrected"],
             },
             loop_closing=closer is not None,
             loop_closures=[c.as_dict() for c in closer.closures] if closer is not None else [],
