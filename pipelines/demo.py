@@ -37,7 +37,7 @@ import json
 import sys
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -52,6 +52,9 @@ from uss_slam.core.files import (
     output_lock,
     write_json_atomic,
 )
+from uss_slam.slam_eval.filters.build import filter_classes
+from uss_slam.slam_eval.variants import check_filters
+from uss_slam.slam_eval.variants import read_table as read_variants
 
 from . import demo_report, synthetic_data
 from .assets import demo_init_path
@@ -113,20 +116,21 @@ PLANS = {
 }
 
 
-VARIANTS = (
-    Variant("none", "no filter", "none"),
-    Variant("labels", "ground-truth masks", "labels", ("semantic",)),
-    Variant("source_only", "source-only", "model", ("semantic",), model="source_only"),
-    Variant("adabn", "AdaBN", "model", ("semantic",), model="adabn"),
-    Variant("adapted", "adapted", "model", ("semantic",), model="adapted"),
-    Variant(
-        "adapted_geometry",
-        "adapted + geometry",
-        "model",
-        ("semantic", "geometry"),
-        model="adapted",
-    ),
+ROWS = (
+    # the row's name (its run folder), its label, its variant (configs/variants.yaml), the model
+    ("none", "no filter", "none", None),
+    ("labels", "ground-truth masks", "oracle", None),
+    ("source_only", "source-only", "semantic", "source_only"),
+    ("adabn", "AdaBN", "semantic", "adabn"),
+    ("adapted", "adapted", "semantic", "adapted"),
+    ("adapted_geometry", "adapted + geometry", "semantic_geometry", "adapted"),
 )
+VARIANTS = tuple(
+    replace(read_variants()[variant], name=name, label=label, model=model)
+    for name, label, variant, model in ROWS
+)
+"""The demo's SLAM rows: variants of ``configs/variants.yaml`` (segmenter and filters), each
+under the demo's own name and label, with the exported model it runs."""
 TRAININGS = {"source_only": "source_only", "adapted": "adaptsegnet"}
 """Training run name -> ``model/method``; both start from the packaged init."""
 MODELS = {"source_only": "source_only", "adabn": "source_only", "adapted": "adapted"}
@@ -484,6 +488,7 @@ def run_demo(
         raise UssSlamError(f"--out {out}: exists and is not a folder")
     check_writable(out, "--out", create=False)
     check_output_owner(out, "uss-demo", "--out")  # a uss-slam run's report.md, ...
+    check_filters({v.name: v for v in VARIANTS}, list(filter_classes()))
     data = out / "data"
     # A bad --sequence fails here, before any work: a folder is checked now, a name after the
     # data stage made it.

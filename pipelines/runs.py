@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from uss_slam.core.errors import UssSlamError
+from uss_slam.slam_eval.variants import Variant
 
 if TYPE_CHECKING:
     from omegaconf import DictConfig
@@ -245,36 +246,6 @@ def run_training(run_dir: Path, overrides: Sequence[str], resume: bool = False) 
 
 
 # ------------------------------------------------------------------------- SLAM
-
-
-@dataclass(frozen=True)
-class Variant:
-    """One dynamic-point treatment of a driver's SLAM runs.
-
-    ``segmenter``: ``none``, ``labels`` (the sequence's ground-truth labels) or ``model`` (an
-    exported segmenter; ``model`` names which one when a driver compares several, as the demo
-    does); ``crf``: the dense CRF on the model's output (``uss-slam segmenter.crf=true``).
-    """
-
-    name: str
-    label: str
-    segmenter: str
-    filters: tuple[str, ...] = ()
-    crf: bool = False
-    model: str | None = None
-
-    def __post_init__(self) -> None:
-        if self.segmenter not in SEGMENTER_KINDS:
-            raise UssSlamError(
-                f"variant {self.name}: segmenter {self.segmenter!r}; expected one of "
-                f"{', '.join(SEGMENTER_KINDS)}"
-            )
-        if self.crf and self.segmenter != "model":
-            raise UssSlamError(f"variant {self.name}: the dense CRF needs segmenter 'model'")
-
-
-SEGMENTER_KINDS = ("none", "labels", "model")
-"""A :class:`Variant`'s segmenter kinds."""
 
 
 @dataclass(frozen=True)

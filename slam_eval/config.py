@@ -44,6 +44,8 @@ from .scoring.repeats import Perturbation, perturbations
 from .systems.harness import SEGMENT_SCHEDULES
 from .tracking.config import REMOVED as REMOVED_TRACKER_KEYS
 from .tracking.config import TrackerConfig
+from .variants import check_filters as check_variant_filters
+from .variants import read_table as read_variants
 
 MAX_PREFETCH = 256
 """The most frames loaded ahead (about 0.5 GB of 640 × 480 frames)."""
@@ -306,6 +308,7 @@ def check(cfg: DictConfig) -> RunPlan:
     for _, names in runs:
         build_filters(names, params)
     build_filters(known, params)  # the parameters of unused filters are checked too
+    check_variant_filters(read_variants(), known)  # configs/variants.yaml: known filters only
     _check_segmenter(cfg.segmenter)
     return RunPlan(orb, tracker, semantic_map, evaluation, params, runs, backend, repeats)
 

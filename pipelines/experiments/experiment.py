@@ -23,6 +23,7 @@ from .grid import (
     TUM_SEQUENCES,
     VARIANTS,
     Grid,
+    check_variant_filters,
     expand,
 )
 from .keys import check_sequences, choose, given
@@ -334,6 +335,7 @@ def check(cfg: DictConfig) -> Experiment:
             missing += [f"launcher.{section}.{k}" for k in node if OmegaConf.is_missing(node, k)]
     # every key's type, range and accepted values, and no key that nothing reads
     check_schema({k: v for k, v in cfg.items() if k != "hydra"}, ExperimentsSchema)
+    check_variant_filters()  # configs/variants.yaml names filter nodes only
     plain: dict[str, Any] = OmegaConf.to_container(cfg, resolve=True)  # type: ignore[assignment]
     stages = [str(s) for s in plain["stages"]]
     synthetic = plain["data"]["kind"] == "synthetic"

@@ -28,7 +28,10 @@ from dataclasses import dataclass, field, replace
 from typing import Any, ClassVar
 
 from uss_slam.core.errors import UssSlamError
-from uss_slam.pipelines.runs import USES_TARGET_LABELS, Variant
+from uss_slam.pipelines.runs import USES_TARGET_LABELS
+from uss_slam.slam_eval.filters.build import filter_classes
+from uss_slam.slam_eval.variants import Variant, check_filters, masks_orbslam3_input
+from uss_slam.slam_eval.variants import read_table as read_variants
 from uss_slam.train.method_configs import method_names, trains_discriminators
 
 from .keys import (
@@ -122,38 +125,23 @@ def target_label_uses(cfg: Mapping[str, Any], cell: TrainCell) -> tuple[str, ...
     return tuple(uses)
 
 
-VARIANTS: dict[str, Variant] = {
-    v.name: v
-    for v in (
-        Variant("none", "no filter", "none", ()),
-        Variant("geometry", "geometry", "none", ("geometry",)),
-        Variant("semantic", "semantic", "model", ("semantic",)),
-        Variant("semantic_crf", "semantic (CRF)", "model", ("semantic",), crf=True),
-        Variant("semantic_geometry", "semantic+geometry", "model", ("semantic", "geometry")),
-        Variant(
-            "semantic_geometry_crf",
-            "semantic+geometry (CRF)",
-            "model",
-            ("semantic", "geometry"),
-            crf=True,
-        ),
-        Variant(
-            "semantic_geometry_object",
-            "semantic+geometry+object",
-            "model",
-            ("semantic", "geometry", "object"),
-        ),
-        Variant("oracle", "ground-truth masks", "labels", ("semantic",)),
-    )
-}
-"""The variants by name, in the tables' order."""
+VARIANTS: dict[str, Variant] = read_variants()
+"""The variants by name, in the tables' order (``configs/variants.yaml``; its filters are
+checked against the filter nodes when the experiment is checked, :func:`check_variant_filters`)."""
 
 SYSTEM_VARIANTS: dict[str, tuple[str, ...]] = {
     "harness": tuple(VARIANTS),
-    # ORB-SLAM3 gets the image with the dynamic mask blanked out: only mask variants apply
-    # (the geometry and object checks are the harness's own).
-    "orbslam3": ("none", "semantic", "semantic_crf", "oracle"),
+    # ORB-SLAM3 gets the image with the dynamic pixels blanked out: only the variants whose
+    # filters find them in the frame alone apply (the geometry and object checks need the
+    # harness's map)
+    "orbslam3": tuple(n for n, v in VARIANTS.items() if masks_orbslam3_input(v)),
 }
+
+
+def check_variant_filters() -> None:
+    """Every filter of ``configs/variants.yaml`` is a filter node; else one line."""
+    check_filters(VARIANTS, list(filter_classes()))
+
 
 SYNTHETIC_SEQUENCES = (
     "walking_xyz",

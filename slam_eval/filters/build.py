@@ -13,7 +13,7 @@ from importlib.resources import files
 from typing import Any
 
 from hydra.errors import InstantiationException
-from hydra.utils import instantiate
+from hydra.utils import get_class, instantiate
 from omegaconf import OmegaConf
 
 from uss_slam.core.errors import UssSlamError
@@ -40,6 +40,21 @@ def filter_configs(params: Mapping[str, Any] | None = None) -> dict[str, dict[st
     for name, values in (params or {}).items():
         nodes[name] = {**nodes.get(name, {}), **dict(values or {})}
     return nodes
+
+
+def filter_classes(params: Mapping[str, Any] | None = None) -> dict[str, type[DynamicFilter]]:
+    """The class of each filter node (:func:`filter_configs`) by name, without building it; a
+    ``_target_`` that cannot be imported is one line naming its key."""
+    out: dict[str, type[DynamicFilter]] = {}
+    for name, node in filter_configs(params).items():
+        target = node.get("_target_")
+        try:
+            out[name] = get_class(str(target))
+        except Exception:  # Hydra raises ImportError or ValueError, by version
+            raise UssSlamError(
+                f"slam.filter_params.{name}._target_: cannot import {target!r}"
+            ) from None
+    return out
 
 
 def build_filters(

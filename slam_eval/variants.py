@@ -1,0 +1,121 @@
+"""The SLAM variants: one dynamic-point treatment each (which segmenter labels the frames, which
+filters run, the dense CRF), in one table, ``configs/variants.yaml``, that ``uss-slam`` checks
+at startup, ``uss-experiments`` runs (``variants=[...]``) and ``uss-demo`` takes its rows from.
+
+A variant names filters by their ``slam.filter_params`` node (``configs/slam/orb_rgbd.yaml``);
+a variant naming an unknown filter is one line naming the table, the variant and the filters
+known. ORB-SLAM3 takes no keypoint flags: it runs the variants whose filters all find their
+pixels in the frame alone (:attr:`~.filters.base.DynamicFilter.masks_input`), blanked in its
+input (:func:`masks_orbslam3_input`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from importlib.resources import files
+from typing import Any
+
+from omegaconf import OmegaConf
+
+from uss_slam.core.errors import UssSlamError
+
+TABLE = "variants.yaml"
+"""The table's file in the ``uss_slam.configs`` tree."""
+
+SEGMENTER_KINDS = ("none", "labels", "model")
+"""A :class:`Variant`'s segmenter kinds."""
+
+FIELDS = ("label", "segmenter", "filters", "crf")
+"""The keys of a variant's entry in the table."""
+
+
+@dataclass(frozen=True)
+class Variant:
+    """One dynamic-point treatment of a driver's SLAM runs.
+
+    ``segmenter``: ``none``, ``labels`` (the sequence's ground-truth labels) or ``model`` (an
+    exported segmenter; ``model`` names which one when a driver compares several, as the demo
+    does); ``crf``: the dense CRF on the model's output (``uss-slam segmenter.crf=true``).
+    """
+
+    name: str
+    label: str
+    segmenter: str
+    filters: tuple[str, ...] = ()
+    crf: bool = False
+    model: str | None = None
+
+    def __post_init__(self) -> None:
+        if self.segmenter not in SEGMENTER_KINDS:
+            raise UssSlamError(
+                f"variant {self.name}: segmenter {self.segmenter!r}; expected one of "
+                f"{', '.join(SEGMENTER_KINDS)}"
+            )
+        if self.crf and self.segmenter != "model":
+            raise UssSlamError(f"variant {self.name}: the dense CRF needs segmenter 'model'")
+
+
+def read_table(text: str | None = None, where: str = f"configs/{TABLE}") -> dict[str, Variant]:
+    """The variants by name, in the table's order (``text``: the YAML; None = the shipped
+    table); an entry of the wrong shape is one line naming ``where`` and the variant."""
+    if text is None:
+        text = files("uss_slam.configs").joinpath(TABLE).read_text(encoding="utf-8")
+    data = OmegaConf.to_container(OmegaConf.create(text), resolve=True)
+    if not isinstance(data, dict) or not data:
+        raise UssSlamError(f"{where}: expected a mapping of variant name -> entry")
+    return {str(name): _variant(str(name), entry, where) for name, entry in data.items()}
+
+
+def _variant(name: str, entry: Any, where: str) -> Variant:
+    if not isinstance(entry, dict) or not {"label", "segmenter"} <= set(entry):
+        raise UssSlamError(f"{where}: variant {name}: expected a mapping with label, segmenter")
+    unknown = sorted(set(entry) - set(FIELDS))
+    if unknown:
+        raise UssSlamError(
+            f"{where}: variant {name}: unknown key {unknown[0]!r}; expected {', '.join(FIELDS)}"
+        )
+    filters = entry.get("filters") or []
+    if not isinstance(filters, list) or not all(isinstance(f, str) for f in filters):
+        raise UssSlamError(f"{where}: variant {name}: filters: expected a list of filter names")
+    crf = entry.get("crf", False)
+    if not isinstance(crf, bool):
+        raise UssSlamError(f"{where}: variant {name}: crf: expected true or false, got {crf!r}")
+    try:
+        return Variant(name, str(entry["label"]), str(entry["segmenter"]), tuple(filters), crf)
+    except UssSlamError as err:
+        raise UssSlamError(f"{where}: {err}") from None
+
+
+def check_filters(
+    variants: Mapping[str, Variant], known: Sequence[str], where: str = f"configs/{TABLE}"
+) -> None:
+    """Every filter the ``variants`` name is one of ``known`` (the filter nodes); else one line
+    naming ``where``, the variant and the known filters."""
+    for v in variants.values():
+        for name in v.filters:
+            if name not in known:
+                raise UssSlamError(
+                    f"{where}: variant {v.name}: unknown filter {name!r}; choose from "
+                    f"{', '.join(known)} (slam.filter_params)"
+                )
+
+
+def variants(params: Mapping[str, Any] | None = None) -> dict[str, Variant]:
+    """The shipped table, its filters checked against the filter nodes (``params`` laid over
+    the shipped ones, as :func:`~.filters.build.filter_configs`)."""
+    from .filters.build import filter_classes  # (the table itself is read without cv2)
+
+    table = read_table()
+    check_filters(table, list(filter_classes(params)))
+    return table
+
+
+def masks_orbslam3_input(variant: Variant, params: Mapping[str, Any] | None = None) -> bool:
+    """Whether ORB-SLAM3 can run ``variant``: each of its filters finds its pixels in the frame
+    alone (``masks_input``), so that they can be blanked in its input (False for a filter that
+    is not a node: :func:`variants` names it)."""
+    from .filters.build import filter_classes
+
+    classes = filter_classes(params)
+    return all(name in classes and classes[name].masks_input for name in variant.filters)
