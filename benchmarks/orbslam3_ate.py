@@ -87,7 +87,7 @@ def main() -> None:
             data = run_orbslam3(
                 SequenceSpec(str(path)),
                 segmenter,
-                SemanticFilter(["person"], 5),
+                [SemanticFilter(["person"], 5)],
                 config,
                 EvalConfig(),
                 args.data / "runs" / f"{preset}_{name}",

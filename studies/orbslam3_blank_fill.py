@@ -39,7 +39,7 @@ def main() -> None:
     counts = dict.fromkeys(fills, 0)
     frames = 0
     for frame in seq.frames():
-        mask = dynamic_mask(frame.labels, semantic)
+        mask = dynamic_mask(frame, frame.labels, [semantic])
         if not mask.any():
             continue
         frames += 1

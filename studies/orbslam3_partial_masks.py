@@ -123,14 +123,14 @@ def measure(seq: TumSequence, masks: dict[int, np.ndarray], orb: Any) -> dict[st
 def model_masks(seq: TumSequence, model: str, semantic: SemanticFilter) -> dict[int, np.ndarray]:
     """Every read frame's dilated person mask from ``model`` (``labels``: the ground truth)."""
     if model == "labels":
-        return {f.index: dynamic_mask(f.labels, semantic) for f in seq.frames()}
+        return {f.index: dynamic_mask(f, f.labels, [semantic]) for f in seq.frames()}
     from uss_slam.slam_eval.segmenters.onnx import OnnxSegmenter
 
     segmenter = OnnxSegmenter(model, threads=1)
     names = segmenter.metadata.class_names
     if "person" not in names:
         raise SystemExit(f"{model}: the model has no class person ({', '.join(names)})")
-    return {f.index: dynamic_mask(segmenter.segment(f), semantic) for f in seq.frames()}
+    return {f.index: dynamic_mask(f, segmenter.segment(f), [semantic]) for f in seq.frames()}
 
 
 def main(argv: list[str] | None = None) -> int:

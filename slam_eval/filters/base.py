@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
-from typing import ClassVar, Literal
+from typing import Any, ClassVar, Literal
 
 import numpy as np
 
@@ -79,6 +79,10 @@ class DynamicFilter(ABC):
         alone (no keypoints, pose or map), for a filter with ``masks_input``; None for the
         others (the default)."""
         return None
+
+    def input_settings(self) -> dict[str, Any]:
+        """What shapes :meth:`input_region` (its parameters, for a report); {} by default."""
+        return {}
 
     def idle_reason(self) -> str | None:
         """Why this filter, as configured, can flag no keypoint whatever the frames (``<its

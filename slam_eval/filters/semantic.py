@@ -6,10 +6,12 @@ borders).
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 import cv2
 import numpy as np
 
+from uss_slam.core.classes import CLASS_NAMES
 from uss_slam.core.errors import UssSlamError
 
 from ..segmenters.base import class_ids
@@ -51,6 +53,13 @@ class SemanticFilter(DynamicFilter):
         """``(H, W)`` bool: the dilated mask of the dynamic classes (:meth:`mask`); None
         without labels."""
         return None if labels is None else self.mask(labels) > 0
+
+    def input_settings(self) -> dict[str, Any]:
+        """``dynamic_classes`` (names) and ``dilation`` (px)."""
+        return {
+            "dynamic_classes": [CLASS_NAMES[int(i)] for i in self.ids],
+            "dilation": self.dilation,
+        }
 
     def __call__(self, ctx: FilterContext) -> FilterOutput:
         if ctx.labels is None:

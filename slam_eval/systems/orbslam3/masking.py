@@ -1,12 +1,14 @@
-"""Dynamic pixels for ORB-SLAM3, which takes no masks: the segmenter's dynamic classes, dilated
-exactly as the harness's semantic filter, are blanked in its input (depth 0; the colour flat grey,
-or filled from the surroundings by inpainting), and the masks of every frame, and the inpainted
-images, are computed once for all repeats.
+"""Dynamic pixels for ORB-SLAM3, which takes no masks: the pixels that the region filters find in
+the frame alone (those with ``masks_input``: the semantic filter's dilated dynamic classes,
+exactly as in the harness) are blanked in its input (depth 0; the colour flat grey, or filled
+from the surroundings by inpainting), and the masks of every frame, and the inpainted images,
+are computed once for all repeats.
 """
 
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -16,15 +18,34 @@ import numpy as np
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.progress import progress_bar
 
-from ...filters.semantic import SemanticFilter
+from ...filters.base import DynamicFilter
 from ...segmenters.base import Segmenter
-from ...sequence import TumSequence
+from ...sequence import Frame, TumSequence
 
 
-def dynamic_mask(labels: np.ndarray, semantic: SemanticFilter) -> np.ndarray:
-    """``(H, W)`` bool: the dynamic classes of ``labels``, dilated exactly as the harness's
-    semantic filter does (:meth:`SemanticFilter.mask`)."""
-    return semantic.mask(labels) > 0
+def dynamic_mask(
+    frame: Frame, labels: np.ndarray | None, masks: Sequence[DynamicFilter]
+) -> np.ndarray:
+    """``(H, W)`` bool: the union of the pixels each filter of ``masks`` finds in ``frame`` and
+    its ``labels`` alone (:meth:`~...filters.base.DynamicFilter.input_region`), as the harness's
+    filters find them."""
+    out = np.zeros(frame.depth.shape, bool)
+    for f in masks:
+        region = f.input_region(frame, labels)
+        if region is not None:
+            out |= region
+    return out
+
+
+def check_masks(masks: Sequence[DynamicFilter]) -> None:
+    """Each of ``masks`` finds its pixels in the frame alone; else one line naming it."""
+    for f in masks:
+        if not f.masks_input:
+            raise UssSlamError(
+                f"system=orbslam3: filter {f.name!r} cannot blank ORB-SLAM3's input (it needs "
+                "the harness's keypoints, pose or map); use filters whose pixels come from the "
+                "frame alone (semantic)"
+            )
 
 
 FILLS = ("grey", "inpaint")
@@ -102,14 +123,14 @@ class MaskPass:
 def compute_masks(
     sequence: TumSequence,
     segmenter: Segmenter,
-    semantic: SemanticFilter,
+    masks: Sequence[DynamicFilter],
     progress: bool = True,
     fill_dir: Path | None = None,
 ) -> MaskPass:
-    """Segment every frame once (shared by all repeats) and keep its dilated dynamic mask; with
-    ``fill_dir``, also write every frame with a masked pixel there inpainted
-    (:func:`fill_dynamic`, :func:`filled_path`), so that the repeats feed ORB-SLAM3 at the
-    same pace as with grey."""
+    """Segment every frame once (shared by all repeats) and keep its dynamic mask (the union of
+    the regions of ``masks``, :func:`dynamic_mask`); with ``fill_dir``, also write every frame
+    with a masked pixel there inpainted (:func:`fill_dynamic`, :func:`filled_path`), so that
+    the repeats feed ORB-SLAM3 at the same pace as with grey."""
     width, height = sequence.image_size
     packed = np.zeros((len(sequence), (width * height + 7) // 8), np.uint8)
     spent = 0.0
@@ -134,7 +155,7 @@ def compute_masks(
                 raise UssSlamError(
                     f"segmenter {segmenter.name!r} returned no labels for frame {frame.index}"
                 )
-            mask = dynamic_mask(labels, semantic)
+            mask = dynamic_mask(frame, labels, masks)
             blanked += int(mask.sum())
             packed[frame.index] = np.packbits(mask.reshape(-1))
             if fill_dir is not None and mask.any():

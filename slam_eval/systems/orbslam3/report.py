@@ -5,14 +5,13 @@ every system (:func:`~..scoring.report.write_report`).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from uss_slam.core.classes import CLASS_NAMES
-
-from ...filters.semantic import SemanticFilter
+from ...filters.base import DynamicFilter
 from ...scoring.evaluation import EvalConfig, Evaluation, scores_dict
 from ...scoring.repeats import median_index
 from ...scoring.report import fmt, write_report
@@ -31,7 +30,7 @@ def write_outputs(
     out: Path,
     sequence: TumSequence,
     segmenter: Segmenter,
-    semantic: SemanticFilter,
+    masks: Sequence[DynamicFilter],
     config: OrbSlam3Config,
     evaluation: EvalConfig,
     info: SettingsInfo,
@@ -59,8 +58,8 @@ def write_outputs(
         "blanked": None
         if mask_pass is None
         else {
-            "dynamic_classes": _class_names(semantic),
-            "dilation": semantic.dilation,
+            "filters": [f.name for f in masks],
+            **{k: v for f in masks for k, v in f.input_settings().items()},
             "grey": config.blank_value,
             "fill": config.blank_fill,
             "fill_ms": mask_pass.fill_ms,
@@ -127,10 +126,6 @@ def write_outputs(
     return data
 
 
-def _class_names(semantic: SemanticFilter) -> list[str]:
-    return [CLASS_NAMES[int(i)] for i in semantic.ids]
-
-
 def _package_version(name: str) -> str | None:
     from importlib.metadata import PackageNotFoundError, version
 
@@ -146,13 +141,23 @@ def _fill_text(blanked: dict[str, Any]) -> str:
     return f"inpainted ({blanked['fill_ms']:.0f} ms per frame)"
 
 
+def _what_text(blanked: dict[str, Any], segmenter: str) -> str:
+    """What was blanked: the classes and their dilation (the semantic filter's settings), else
+    the pixels of the filters that found them."""
+    if "dynamic_classes" in blanked and "dilation" in blanked:
+        return (
+            f"{', '.join(blanked['dynamic_classes'])} from segmenter {segmenter}, dilated "
+            f"{blanked['dilation']} px"
+        )
+    return f"the pixels of filters {', '.join(blanked['filters'])} from segmenter {segmenter}"
+
+
 def _summary_md(data: dict[str, Any]) -> list[str]:
     blanked = data["blanked"]
     masking = (
         "none (segmenter=none)"
         if blanked is None
-        else f"{', '.join(blanked['dynamic_classes'])} from segmenter {data['segmenter']}, dilated "
-        f"{blanked['dilation']} px, {_fill_text(blanked)} and depth 0 "
+        else f"{_what_text(blanked, data['segmenter'])}, {_fill_text(blanked)} and depth 0 "
         f"({100 * blanked['fraction']:.1f}% of the pixels per frame on average; segmentation "
         f"{blanked['segmentation_ms']:.1f} ms per frame)"
     )

@@ -10,9 +10,10 @@ the numbers are comparable:
   ``system.*`` (:func:`~.settings.settings_yaml`); or ``system.settings_file`` names one of the user's.
   Either is checked here first (:func:`~.settings.check_settings`): ORB-SLAM3 ends the process on a missing
   or mistyped key.
-- **Dynamic objects**: ORB-SLAM3 takes no masks, so the segmenter's dynamic classes, dilated
-  exactly as the harness's semantic filter (``slam.filter_params.semantic``: ``dynamic_classes``,
-  ``dilation``), are *blanked* in its input (:func:`~.masking.blank_dynamic`): the colour image is set to a
+- **Dynamic objects**: ORB-SLAM3 takes no masks, so the pixels of the region filters that find
+  them in the frame alone (``filters=[...]``, by default ``semantic``: the segmenter's dynamic
+  classes, dilated exactly as the harness's semantic filter, ``slam.filter_params.semantic``:
+  ``dynamic_classes``, ``dilation``) are *blanked* in its input (:func:`~.masking.blank_dynamic`): the colour image is set to a
   flat grey (``system.blank_value``, default 128; ``system.blank_fill=inpaint`` fills it from
   the pixels around it instead) and the depth to 0 there. A flat region has no
   FAST corners inside; only its border can, where it meets the image. Grey rather than black:
@@ -46,7 +47,7 @@ import importlib.util
 import logging
 import shutil
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -56,14 +57,15 @@ import numpy as np
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.tum_io import StrPath
 
-from ...filters.semantic import SemanticFilter
+from ...filters.base import DynamicFilter
+from ...filters.build import build_filters
 from ...scoring.evaluation import EvalConfig, evaluate
 from ...scoring.report import fmt
 from ...scoring.run_folder import RunFolder
 from ...segmenters.base import Segmenter
 from ...sequence import TumSequence
 from .config import INSTALL_HINT, OrbSlam3Config, check_vocabulary
-from .masking import compute_masks
+from .masking import check_masks, compute_masks
 from .repeats import RepeatResult, read_estimate
 from .report import write_outputs
 from .settings import check_settings, frame_rate, settings_yaml
@@ -101,7 +103,7 @@ class SequenceSpec:
 def run_orbslam3(
     spec: SequenceSpec,
     segmenter: Segmenter,
-    semantic: SemanticFilter,
+    masks: Sequence[DynamicFilter],
     config: OrbSlam3Config,
     evaluation: EvalConfig,
     out_dir: StrPath,
@@ -147,7 +149,7 @@ def run_orbslam3(
         fill_dir = None
         if getattr(segmenter, "name", "none") != "none":
             fill_dir = workdir / "filled" if config.blank_fill == "inpaint" else None
-            mask_pass = compute_masks(sequence, segmenter, semantic, progress, fill_dir)
+            mask_pass = compute_masks(sequence, segmenter, masks, progress, fill_dir)
             masks_file = workdir / "masks.npy"
             np.save(masks_file, mask_pass.packed)
         results: list[RepeatResult] = []
@@ -191,7 +193,7 @@ def run_orbslam3(
                 len(sequence) / result.track_s if result.track_s > 0 else 0.0,
             )
         data = write_outputs(
-            folder, out, sequence, segmenter, semantic, config, evaluation, info, fps,
+            folder, out, sequence, segmenter, masks, config, evaluation, info, fps,
             vocabulary, mask_pass, results, settings,
         )  # fmt: skip
         extra = before_commit(folder) if before_commit is not None else {}
@@ -229,12 +231,6 @@ def run_from_config(
             "system=orbslam3 runs one configuration per call; compare= is the harness's "
             "(run once with segmenter=none and once with segmenter=labels instead)"
         )
-    if list(cfg.get("filters") or []):
-        raise UssSlamError(
-            f"system=orbslam3 takes no harness filters (got filters={list(cfg.filters)}): it "
-            "blanks the segmenter's dynamic classes in its input instead; set segmenter=none "
-            "for no masking"
-        )
     if str(cfg.get("segment", "every_frame")) != "every_frame":
         raise UssSlamError(
             "system=orbslam3 segments every frame (its keyframe choice is internal); "
@@ -255,22 +251,22 @@ def run_from_config(
         stride=int(seq.stride),
         max_frames=None if seq.max_frames is None else int(seq.max_frames),
     )
-    params = OmegaConf.to_container(cfg.slam.filter_params.semantic, resolve=True) or {}
-    params.pop("_target_", None)  # ORB-SLAM3's masks are the SemanticFilter's, whatever the node
-    try:
-        semantic = SemanticFilter(**params)
-    except TypeError as err:
-        raise UssSlamError(f"slam.filter_params.semantic: {err}") from None
+    masks = _mask_filters(cfg)
     ev = OmegaConf.to_container(cfg.eval, resolve=True) or {}
     try:
         evaluation = EvalConfig(**ev)
     except TypeError as err:
         raise UssSlamError(f"eval: {err}") from None
     segmenter: Segmenter = hydra.utils.instantiate(cfg.segmenter)
+    if list(cfg.get("filters") or []) and getattr(segmenter, "name", "none") == "none":
+        raise UssSlamError(
+            f"system=orbslam3: filters={list(cfg.filters)} blank what a segmenter finds; set "
+            "segmenter=labels or an exported model (segmenter=none blanks nothing)"
+        )
     data = run_orbslam3(
         spec,
         segmenter,
-        semantic,
+        masks,
         config,
         evaluation,
         out_dir,
@@ -290,3 +286,19 @@ def run_from_config(
         out_dir,
     )
     return data
+
+
+def _mask_filters(cfg: Any) -> list[DynamicFilter]:
+    """The filters whose pixels are blanked in ORB-SLAM3's input: ``filters=[...]`` (each must
+    find its pixels in the frame alone), by default the semantic filter's node."""
+    from omegaconf import OmegaConf
+
+    names = [str(n) for n in (cfg.get("filters") or [])]
+    params = OmegaConf.to_container(cfg.slam.filter_params, resolve=True) or {}
+    masks = build_filters(names or [DEFAULT_MASK], params)
+    check_masks(masks)
+    return masks
+
+
+DEFAULT_MASK = "semantic"
+"""The filter whose pixels ORB-SLAM3's input loses when ``filters`` names none."""

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from uss_slam.core.tum_io import TUM_CAMERAS
+from uss_slam.slam_eval.filters.base import DynamicFilter, FilterContext, FilterOutput
 from uss_slam.slam_eval.frontend.orb import Features, OrbExtractor
 
 CAM = TUM_CAMERAS["fr3"].scaled(320, 240)
@@ -23,3 +24,12 @@ def features_at(ex: OrbExtractor, xy: np.ndarray, depth: np.ndarray) -> Features
         np.zeros((n, 32), np.uint8),
         depth,
     )
+
+
+class NoStage(DynamicFilter):
+    """A filter that declares no stage (refused when it is built)."""
+
+    name = "nostage"
+
+    def __call__(self, ctx: FilterContext) -> FilterOutput:
+        return FilterOutput(np.zeros(len(ctx.features), bool))

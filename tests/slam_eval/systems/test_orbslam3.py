@@ -18,7 +18,7 @@ from uss_slam.slam_eval.filters.semantic import SemanticFilter
 from uss_slam.slam_eval.scoring.evaluation import EvalConfig
 from uss_slam.slam_eval.scoring.repeats import median_index
 from uss_slam.slam_eval.segmenters.base import LabelsSegmenter, NoSegmenter
-from uss_slam.slam_eval.sequence import TumSequence
+from uss_slam.slam_eval.sequence import Frame, TumSequence
 from uss_slam.slam_eval.systems.orbslam3.config import OrbSlam3Config, check_vocabulary
 from uss_slam.slam_eval.systems.orbslam3.masking import (
     blank_dynamic,
@@ -162,7 +162,8 @@ def test_blanked_pixels_are_exactly_the_dilated_mask() -> None:
     labels[20, 25] = 1  # person: dynamic
     labels[5, 5] = 2  # chair: static, left alone
     semantic = SemanticFilter(dynamic_classes=["person"], dilation=3)
-    mask = dynamic_mask(labels, semantic)
+    frame = Frame(0, 0.0, np.zeros((h, w, 3), np.uint8), labels, np.ones((h, w), np.float32))
+    mask = dynamic_mask(frame, labels, [semantic])
     # the dilation is the harness's: an elliptic 7x7 structuring element centred on the pixel
     expected = np.zeros((h, w), bool)
     disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (7, 7)).astype(bool)
@@ -212,11 +213,11 @@ def test_the_inpainted_frames_are_written_once_losslessly(synthetic_sequence, tm
                       load_labels=True)  # fmt: skip
     semantic = SemanticFilter(["person"], 5)
     folder = tmp_path / "filled"
-    masks = compute_masks(seq, LabelsSegmenter(), semantic, progress=False, fill_dir=folder)
+    masks = compute_masks(seq, LabelsSegmenter(), [semantic], progress=False, fill_dir=folder)
     assert masks.fill_ms > 0
     written = 0
     for frame in seq.frames():
-        mask = dynamic_mask(frame.labels, semantic)
+        mask = dynamic_mask(frame, frame.labels, [semantic])
         filled = read_filled(folder, frame.index)
         if not mask.any():
             assert filled is None
@@ -224,7 +225,7 @@ def test_the_inpainted_frames_are_written_once_losslessly(synthetic_sequence, tm
         written += 1
         assert np.array_equal(filled, fill_dynamic(frame.rgb, mask, "inpaint"))
     assert written == len(list(folder.iterdir())) > 0
-    grey = compute_masks(seq, LabelsSegmenter(), semantic, progress=False)
+    grey = compute_masks(seq, LabelsSegmenter(), [semantic], progress=False)
     assert grey.fill_ms == 0.0 and np.array_equal(grey.packed, masks.packed)
 
 
@@ -254,7 +255,7 @@ def test_orbslam3_tracks_with_a_vocabulary_built_from_frames(
     data = run_orbslam3(
         SequenceSpec(str(seq)),
         LabelsSegmenter(),
-        SemanticFilter(["person"], 5),
+        [SemanticFilter(["person"], 5)],
         OrbSlam3Config(vocabulary=str(vocab), repeats=2, realtime=False),
         EvalConfig(),
         out,
@@ -290,7 +291,7 @@ def test_orbslam3_tracks_with_a_vocabulary_built_from_frames(
     data = run_orbslam3(
         SequenceSpec(str(seq), max_frames=10),
         NoSegmenter(),
-        SemanticFilter(),
+        [SemanticFilter()],
         OrbSlam3Config(vocabulary=str(vocab), repeats=1, settings_file=str(own)),
         EvalConfig(),
         tmp_path / "plain",
@@ -303,7 +304,7 @@ def test_orbslam3_tracks_with_a_vocabulary_built_from_frames(
     data = run_orbslam3(
         SequenceSpec(str(seq), max_frames=10),
         LabelsSegmenter(),
-        SemanticFilter(["person"], 5),
+        [SemanticFilter(["person"], 5)],
         OrbSlam3Config(vocabulary=str(vocab), repeats=1, realtime=False, blank_fill="inpaint"),
         EvalConfig(),
         tmp_path / "inpaint",
@@ -318,7 +319,7 @@ def test_orbslam3_tracks_with_a_vocabulary_built_from_frames(
     data = run_orbslam3(
         SequenceSpec(str(seq), max_frames=6),
         LabelsSegmenter(),
-        SemanticFilter(["background", "person", "chair", "monitor"], 0),
+        [SemanticFilter(["background", "person", "chair", "monitor"], 0)],
         OrbSlam3Config(vocabulary=str(vocab), repeats=1, realtime=False),
         EvalConfig(),
         tmp_path / "blank",
@@ -357,8 +358,10 @@ def test_uss_slam_orbslam3_bad_inputs_are_one_line(synthetic_sequence, tmp_path:
     base = [f"sequence.path={seq}", "system=orbslam3", f"out_dir={tmp_path}", "progress=false"]
     with pytest.raises(UssSlamError, match=r"^system.vocabulary is not set: .*uss-vocab build"):
         run(_cfg(base))
-    with pytest.raises(UssSlamError, match=r"takes no harness filters"):
-        run(_cfg([*base, "system.vocabulary=v.txt", "segmenter=labels", "filters=[semantic]"]))
+    with pytest.raises(UssSlamError, match=r"filter 'geometry' cannot blank ORB-SLAM3's input"):
+        run(_cfg([*base, "system.vocabulary=v.txt", "segmenter=labels", "filters=[geometry]"]))
+    with pytest.raises(UssSlamError, match=r"filters=\['semantic'\] blank what a segmenter finds"):
+        run(_cfg([*base, "system.vocabulary=v.txt", "filters=[semantic]"]))
     with pytest.raises(UssSlamError, match=r"compare= is the harness's"):
         run(_cfg([*base, "system.vocabulary=v.txt", "compare=[[flow]]"]))
     with pytest.raises(UssSlamError, match=r"segment=keyframes applies to the harness only"):
@@ -406,7 +409,7 @@ def test_orbslam3_outputs_are_staged_until_every_repeat_is_done(
         return run_orbslam3(
             SequenceSpec(str(seq)),
             NoSegmenter(),
-            SemanticFilter(),
+            [SemanticFilter()],
             OrbSlam3Config(vocabulary=str(vocab), repeats=repeats, realtime=False),
             EvalConfig(),
             out,
