@@ -12,6 +12,7 @@ import math
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 from uss_slam.core.cli import interruptible, print_output, report_interrupt
 from uss_slam.core.errors import UssSlamError
@@ -68,36 +69,41 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="Exit codes: 0 ok, 1 bad input file, 2 bad arguments.",
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="{ate,rpe}")
+    _ate_parser(sub)
+    _rpe_parser(sub)
+    return parser
 
-    def common(p: argparse.ArgumentParser) -> None:
-        p.add_argument("gt", type=Path, metavar="GT", help="ground-truth trajectory (TUM format)")
-        p.add_argument("est", type=Path, metavar="EST", help="estimated trajectory (TUM format)")
-        p.add_argument(
-            "--max-diff",
-            type=_non_negative_float,
-            default=DEFAULT_MAX_DIFF,
-            metavar="S",
-            help="largest stamp difference of an associated pair, seconds, inclusive "
-            "(default: %(default)s)",
-        )
-        p.add_argument(
-            "--offset",
-            type=_finite_float,
-            default=0.0,
-            metavar="S",
-            help="seconds added to EST's stamps before association (default: %(default)s)",
-        )
-        p.add_argument(
-            "--json", action="store_true", help="print one JSON object instead of a table"
-        )
 
+def _common_arguments(p: argparse.ArgumentParser) -> None:
+    """The files, the association and the output format, shared by ``ate`` and ``rpe``."""
+    p.add_argument("gt", type=Path, metavar="GT", help="ground-truth trajectory (TUM format)")
+    p.add_argument("est", type=Path, metavar="EST", help="estimated trajectory (TUM format)")
+    p.add_argument(
+        "--max-diff",
+        type=_non_negative_float,
+        default=DEFAULT_MAX_DIFF,
+        metavar="S",
+        help="largest stamp difference of an associated pair, seconds, inclusive "
+        "(default: %(default)s)",
+    )
+    p.add_argument(
+        "--offset",
+        type=_finite_float,
+        default=0.0,
+        metavar="S",
+        help="seconds added to EST's stamps before association (default: %(default)s)",
+    )
+    p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
+
+
+def _ate_parser(sub: Any) -> None:
     p_ate = sub.add_parser(
         "ate",
         help="absolute trajectory error (translation, metres)",
         description="Absolute trajectory error: distance between aligned estimated and "
         "ground-truth positions (evo_ape, translation part).",
     )
-    common(p_ate)
+    _common_arguments(p_ate)
     p_ate.add_argument(
         "--align",
         choices=ALIGNMENTS,
@@ -122,6 +128,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p_ate.set_defaults(subparser=p_ate)
 
+
+def _rpe_parser(sub: Any) -> None:
     p_rpe = sub.add_parser(
         "rpe",
         help="relative pose error (translation metres, rotation degrees)",
@@ -130,7 +138,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--delta_unit f; seconds: every pose paired with the one nearest DELTA seconds later, "
         "as TUM's evaluate_rpe.py --fixed_delta (pairs across gaps are skipped and counted).",
     )
-    common(p_rpe)
+    _common_arguments(p_rpe)
     p_rpe.add_argument(
         "--delta",
         type=_finite_float,
@@ -142,7 +150,6 @@ def build_parser() -> argparse.ArgumentParser:
         "--unit", choices=DELTA_UNITS, default="frames", help="unit of --delta (default: frames)"
     )
     p_rpe.set_defaults(subparser=p_rpe)  # so that checks after parsing print this usage
-    return parser
 
 
 def _stats_lines(stats: ErrorStats, unit: str) -> list[str]:

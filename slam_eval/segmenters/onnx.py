@@ -125,29 +125,31 @@ class OnnxSegmenter(ImageSegmenter):
             raise UssSlamError(
                 f"segmenter.path {self.path}: no such file (an ONNX model written by uss-export)"
             )
-        if threads is not None and (
-            isinstance(threads, bool) or not isinstance(threads, int) or threads < 1
-            or threads > MAX_THREADS
-        ):  # fmt: skip
-            raise UssSlamError(
-                f"segmenter.threads must be a whole number in 1..{MAX_THREADS} (4 per CPU) or "
-                f"null, got {threads!r}"
-            )
-        if threshold is not None and (
-            isinstance(threshold, bool)
-            or not isinstance(threshold, int | float)
-            or not 0.0 < threshold < 1.0
-        ):
-            raise UssSlamError(
-                f"segmenter.threshold must be a probability in (0, 1) or null, got {threshold!r}"
-            )
+        _check_settings(threads, threshold, crf)
         self.threshold = None if threshold is None else float(threshold)
-        if not isinstance(crf, bool):
-            raise UssSlamError(f"segmenter.crf must be true or false, got {crf!r}")
         self.crf = DenseCrf.from_config(crf_params, "segmenter.crf_params") if crf else None
         if self.crf is not None:
             check_available()
         self._local = threading.local()
+        session = self._open(threads, providers)
+        self.metadata = SegmenterMetadata.from_props(
+            session.get_modelmeta().custom_metadata_map, self.path
+        )
+        self._check_io(session)
+        # The logits' channels checked against the class list: now when the graph declares
+        # them, else on the first frame (``_first_frame``).
+        self._first_frame = self._check_logits(session, crf)
+        self.session = session
+        self.providers = session.get_providers()
+        self.threads = None if threads is None else int(threads)
+        self.name = f"onnx:{self.path.name}"
+        self.dynamic_classes = self.metadata.dynamic_classes
+        self._map_classes()
+
+    def _open(
+        self, threads: int | None, providers: str | Sequence[str] | None
+    ) -> ort.InferenceSession:
+        """The onnxruntime session of :attr:`path`; a file it cannot load is one line."""
         options = ort.SessionOptions()
         if threads is not None:
             options.intra_op_num_threads = int(threads)
@@ -157,7 +159,7 @@ class OnnxSegmenter(ImageSegmenter):
         options.log_severity_level = 3
         resolved = resolve_providers(providers)
         try:
-            session = ort.InferenceSession(str(self.path), options, providers=resolved)
+            return ort.InferenceSession(str(self.path), options, providers=resolved)
         except Exception as error:  # onnxruntime raises its own exception types
             if _is_torch_checkpoint(self.path):
                 raise DataFormatError(
@@ -169,14 +171,11 @@ class OnnxSegmenter(ImageSegmenter):
             raise DataFormatError(
                 self.path, f"onnxruntime cannot load it as an ONNX model: {message}"
             ) from None
-        self.metadata = SegmenterMetadata.from_props(
-            session.get_modelmeta().custom_metadata_map, self.path
-        )
-        self._check_io(session)
+
+    def _check_logits(self, session: ort.InferenceSession, crf: bool) -> bool:
+        """Whether the model has the logits output (its channels checked against the class
+        list when the graph declares them); ``threshold`` and ``crf`` need it."""
         has_logits = OUTPUT_LOGITS in {o.name for o in session.get_outputs()}
-        # The logits' channels checked against the class list: now when the graph declares
-        # them, else on the first frame (``_first_frame``).
-        self._first_frame = has_logits
         if has_logits:
             logits = next(o for o in session.get_outputs() if o.name == OUTPUT_LOGITS)
             shape = list(logits.shape)
@@ -187,11 +186,11 @@ class OnnxSegmenter(ImageSegmenter):
                 raise DataFormatError(
                     self.path, f"segmenter.{key} needs the model's {OUTPUT_LOGITS!r} output"
                 )
-        self.session = session
-        self.providers = session.get_providers()
-        self.threads = None if threads is None else int(threads)
-        self.name = f"onnx:{self.path.name}"
-        self.dynamic_classes = self.metadata.dynamic_classes
+        return has_logits
+
+    def _map_classes(self) -> None:
+        """The model's classes as project class ids (:attr:`_lut`, None when they coincide)
+        and the model channels of its dynamic classes (for ``threshold``)."""
         unknown = [n for n in self.metadata.class_names if n not in CLASS_NAMES]
         if unknown:
             raise DataFormatError(
@@ -206,7 +205,6 @@ class OnnxSegmenter(ImageSegmenter):
             lut = np.zeros(256, np.uint8)
             lut[: len(ids)] = ids
             self._lut = lut
-        # Model channels of the dynamic classes (for ``threshold``).
         names = list(self.metadata.class_names)
         self._dynamic_channels = np.array(
             [names.index(n) for n in self.dynamic_classes if n in names], np.int64
@@ -337,3 +335,25 @@ def _is_torch_checkpoint(path: Path) -> bool:
             return any(name.endswith("data.pkl") for name in archive.namelist())
     except (OSError, zipfile.BadZipFile):
         return False
+
+
+def _check_settings(threads: object, threshold: object, crf: object) -> None:
+    """``segmenter.threads``, ``.threshold`` and ``.crf``: one line for a bad value."""
+    if threads is not None and (
+        isinstance(threads, bool) or not isinstance(threads, int) or threads < 1
+        or threads > MAX_THREADS
+    ):  # fmt: skip
+        raise UssSlamError(
+            f"segmenter.threads must be a whole number in 1..{MAX_THREADS} (4 per CPU) or "
+            f"null, got {threads!r}"
+        )
+    if threshold is not None and (
+        isinstance(threshold, bool)
+        or not isinstance(threshold, int | float)
+        or not 0.0 < threshold < 1.0
+    ):
+        raise UssSlamError(
+            f"segmenter.threshold must be a probability in (0, 1) or null, got {threshold!r}"
+        )
+    if not isinstance(crf, bool):
+        raise UssSlamError(f"segmenter.crf must be true or false, got {crf!r}")

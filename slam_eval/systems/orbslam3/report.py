@@ -41,8 +41,9 @@ def write_outputs(
     settings: dict[str, Any] | None,
 ) -> dict[str, Any]:
     """Write the outputs of ORB-SLAM3's ``results`` (every repeat) into ``out`` through
-    ``folder`` (staged until its commit), each file atomically: ``trajectory.txt`` (the median repeat's), ``metrics.json``, ``report.md`` and
-    the plots (``repeats.png`` holds every repeat). Returns the metrics dictionary."""
+    ``folder`` (staged until its commit), each file atomically: ``trajectory.txt`` (the median
+    repeat's), ``metrics.json``, ``report.md`` and the plots (``repeats.png`` holds every
+    repeat). Returns the metrics dictionary."""
     median = results[median_index([r.ate_rmse for r in results])]
     chosen = median.evaluation or Evaluation(None, None, None, "not evaluated")
     n = len(sequence)
@@ -55,17 +56,7 @@ def write_outputs(
         "sequence": str(sequence.path),
         "camera": sequence.camera_source,
         "segmenter": getattr(segmenter, "name", "none"),
-        "blanked": None
-        if mask_pass is None
-        else {
-            "filters": [f.name for f in masks],
-            **{k: v for f in masks for k, v in f.input_settings().items()},
-            "grey": config.blank_value,
-            "fill": config.blank_fill,
-            "fill_ms": mask_pass.fill_ms,
-            "fraction": mask_pass.blanked_fraction,
-            "segmentation_ms": mask_pass.segmentation_ms,
-        },
+        "blanked": None if mask_pass is None else _blanked(masks, config, mask_pass),
         "frames": n,
         "unmatched_rgb_frames": sequence.unmatched_rgb,
         "frames_tracked": median.state_counts.get("OK", 0),
@@ -80,20 +71,7 @@ def write_outputs(
             "evaluated": len(rmses),
         },
         "median_repeat": median.index,
-        "repeats": [
-            {
-                "index": r.index,
-                "trajectory": str(r.trajectory_path.relative_to(out)),
-                "ate_rmse": r.ate_rmse,
-                "ate_error": r.evaluation.error if r.evaluation else None,
-                "poses": len(r.trajectory),
-                "tracking_states": r.state_counts,
-                "track_s": r.track_s,
-                "fps": n / r.track_s if r.track_s > 0 else None,
-                "vocabulary_load_s": r.load_s,
-            }
-            for r in results
-        ],
+        "repeats": [_repeat(r, out, n) for r in results],
         "fps": float(np.median([n / r.track_s for r in results if r.track_s > 0] or [0.0])),
         "orbslam3": {
             "settings_file": str(info.path),
@@ -124,6 +102,37 @@ def write_outputs(
         repeats=repeats,
     )
     return data
+
+
+def _blanked(
+    masks: Sequence[DynamicFilter], config: OrbSlam3Config, mask_pass: MaskPass
+) -> dict[str, Any]:
+    """What was blanked in ORB-SLAM3's input: the filters, their settings, the fill, the
+    blanked fraction and the segmentation's cost."""
+    return {
+        "filters": [f.name for f in masks],
+        **{k: v for f in masks for k, v in f.input_settings().items()},
+        "grey": config.blank_value,
+        "fill": config.blank_fill,
+        "fill_ms": mask_pass.fill_ms,
+        "fraction": mask_pass.blanked_fraction,
+        "segmentation_ms": mask_pass.segmentation_ms,
+    }
+
+
+def _repeat(r: RepeatResult, out: Path, n: int) -> dict[str, Any]:
+    """One repeat's entry of ``metrics.json`` (``n`` frames in the sequence)."""
+    return {
+        "index": r.index,
+        "trajectory": str(r.trajectory_path.relative_to(out)),
+        "ate_rmse": r.ate_rmse,
+        "ate_error": r.evaluation.error if r.evaluation else None,
+        "poses": len(r.trajectory),
+        "tracking_states": r.state_counts,
+        "track_s": r.track_s,
+        "fps": n / r.track_s if r.track_s > 0 else None,
+        "vocabulary_load_s": r.load_s,
+    }
 
 
 def _package_version(name: str) -> str | None:

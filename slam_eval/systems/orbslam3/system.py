@@ -68,7 +68,7 @@ from .config import INSTALL_HINT, OrbSlam3Config, check_vocabulary
 from .masking import check_masks, compute_masks
 from .repeats import RepeatResult, read_estimate
 from .report import write_outputs
-from .settings import check_settings, frame_rate, settings_yaml
+from .settings import SettingsInfo, check_settings, frame_rate, settings_yaml
 from .worker import Job, run_worker
 
 log = logging.getLogger(__name__)
@@ -134,15 +134,7 @@ def run_orbslam3(
     out = Path(out_dir).absolute()
     fps = config.fps or frame_rate(sequence.stamps)
     with RunFolder.start(out) as folder, tempfile.TemporaryDirectory(prefix="uss-orbslam3-") as tmp:
-        if config.settings_file:
-            info = check_settings(Path(config.settings_file).expanduser(), sequence.image_size)
-            staged_settings = info.path
-        else:
-            final = out / "orbslam3_settings.yaml"
-            with folder.writing(final) as staged:
-                staged.write_text(settings_yaml(sequence.camera, config, fps))
-            staged_settings = folder.current(final)
-            info = replace(check_settings(staged_settings, sequence.image_size), path=final)
+        info, staged_settings = _settings_file(folder, out, sequence, config, fps)
         workdir = Path(tmp)
         masks_file = None
         mask_pass = None
@@ -152,46 +144,23 @@ def run_orbslam3(
             mask_pass = compute_masks(sequence, segmenter, masks, progress, fill_dir)
             masks_file = workdir / "masks.npy"
             np.save(masks_file, mask_pass.packed)
-        results: list[RepeatResult] = []
-        for i in range(config.repeats):
-            final_trajectory = out / "repeats" / f"trajectory_{i}.txt"
-            with (
-                folder.placing(final_trajectory) as trajectory_path,
-                folder.placing(out / "repeats" / f"orbslam3_{i}.log") as log_path,
-            ):
-                job = Job(
-                    sequence=asdict(spec),
-                    vocabulary=str(vocabulary.resolve()),
-                    settings=str(staged_settings.resolve()),
-                    depth_factor=info.depth_factor,
-                    rgb=info.rgb,
-                    masks=None if masks_file is None else str(masks_file),
-                    blank_value=config.blank_value,
-                    filled=None if fill_dir is None else str(fill_dir),
-                    realtime=config.realtime,
-                    trajectory=str(trajectory_path),
-                    result=str(workdir / f"result_{i}.json"),
-                )
-                try:
-                    raw = run_worker(job, log_path, workdir, i)
-                except UssSlamError:
-                    keep_failed_log(log_path, out / FAILED_LOG)
-                    raise
-            trajectory = read_estimate(trajectory_path)
-            result = RepeatResult(
-                i, final_trajectory, trajectory, raw["states"], raw["track_s"], raw["load_s"]
-            )
-            result.evaluation = evaluate(trajectory, sequence.groundtruth, evaluation)
-            results.append(result)
-            log.info(
-                "orbslam3 repeat %d/%d: ATE RMSE %s m, %d/%d frames OK, %.1f frames/s",
-                i + 1,
-                config.repeats,
-                "n/a" if result.ate_rmse is None else f"{result.ate_rmse:.4f}",
-                result.state_counts.get("OK", 0),
-                len(sequence),
-                len(sequence) / result.track_s if result.track_s > 0 else 0.0,
-            )
+        job = Job(
+            sequence=asdict(spec),
+            vocabulary=str(vocabulary.resolve()),
+            settings=str(staged_settings.resolve()),
+            depth_factor=info.depth_factor,
+            rgb=info.rgb,
+            masks=None if masks_file is None else str(masks_file),
+            blank_value=config.blank_value,
+            filled=None if fill_dir is None else str(fill_dir),
+            realtime=config.realtime,
+            trajectory="",
+            result="",
+        )
+        results = [
+            _repeat(folder, out, job, workdir, i, sequence, evaluation, config.repeats)
+            for i in range(config.repeats)
+        ]
         data = write_outputs(
             folder, out, sequence, segmenter, masks, config, evaluation, info, fps,
             vocabulary, mask_pass, results, settings,
@@ -200,6 +169,65 @@ def run_orbslam3(
         folder.commit(system="orbslam3", sequence=str(sequence.path), **extra)
     (out / FAILED_LOG).unlink(missing_ok=True)  # the run that failed before is redone
     return data
+
+
+def _settings_file(
+    folder: RunFolder, out: Path, sequence: TumSequence, config: OrbSlam3Config, fps: int
+) -> tuple[SettingsInfo, Path]:
+    """The checked settings file (the user's ``system.settings_file``, else one written from
+    the sequence's camera into ``out``, staged) and the path ORB-SLAM3 reads it from."""
+    if config.settings_file:
+        info = check_settings(Path(config.settings_file).expanduser(), sequence.image_size)
+        return info, info.path
+    final = out / "orbslam3_settings.yaml"
+    with folder.writing(final) as staged:
+        staged.write_text(settings_yaml(sequence.camera, config, fps))
+    staged_settings = folder.current(final)
+    return replace(
+        check_settings(staged_settings, sequence.image_size), path=final
+    ), staged_settings
+
+
+def _repeat(
+    folder: RunFolder,
+    out: Path,
+    job: Job,
+    workdir: Path,
+    i: int,
+    sequence: TumSequence,
+    evaluation: EvalConfig,
+    repeats: int,
+) -> RepeatResult:
+    """Repeat ``i`` of ``repeats``: ``job`` in a fresh worker process, its trajectory and log
+    placed under ``out/repeats/`` (staged), scored; a failed repeat's log is kept."""
+    final_trajectory = out / "repeats" / f"trajectory_{i}.txt"
+    with (
+        folder.placing(final_trajectory) as trajectory_path,
+        folder.placing(out / "repeats" / f"orbslam3_{i}.log") as log_path,
+    ):
+        mine = replace(
+            job, trajectory=str(trajectory_path), result=str(workdir / f"result_{i}.json")
+        )
+        try:
+            raw = run_worker(mine, log_path, workdir, i)
+        except UssSlamError:
+            keep_failed_log(log_path, out / FAILED_LOG)
+            raise
+    trajectory = read_estimate(trajectory_path)
+    result = RepeatResult(
+        i, final_trajectory, trajectory, raw["states"], raw["track_s"], raw["load_s"]
+    )
+    result.evaluation = evaluate(trajectory, sequence.groundtruth, evaluation)
+    log.info(
+        "orbslam3 repeat %d/%d: ATE RMSE %s m, %d/%d frames OK, %.1f frames/s",
+        i + 1,
+        repeats,
+        "n/a" if result.ate_rmse is None else f"{result.ate_rmse:.4f}",
+        result.state_counts.get("OK", 0),
+        len(sequence),
+        len(sequence) / result.track_s if result.track_s > 0 else 0.0,
+    )
+    return result
 
 
 FAILED_LOG = "orbslam3_failed.log"
