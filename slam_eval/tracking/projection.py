@@ -5,16 +5,36 @@ map points with the frustum, distance and viewing-angle tests of ``MapPoint::isI
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import Any
+
 import numpy as np
 
 from ..frontend.matching import Matches, guided_match
 from ..frontend.orb import Features
 from ..geometry import invert, project, transform
 from ..map.slam_map import SlamMap
-from .config import TrackerConfig
 
 ROTATION_BINS = 30
 """Bins of the rotation histogram (ORB-SLAM2's ``HISTO_LENGTH``)."""
+
+
+@dataclass(frozen=True)
+class MatchThresholds:
+    """What a projection match must pass (ORB-SLAM2's ``ORBmatcher`` settings): the best
+    keypoint within ``max_hamming`` bits and below ``ratio`` × the second best's distance, and
+    with ``check_orientation`` a consistent image rotation (:func:`rotation_consistent`)."""
+
+    max_hamming: int = 100
+    ratio: float = 0.8
+    check_orientation: bool = True
+
+    @classmethod
+    def of(cls, settings: Any) -> MatchThresholds:
+        """The thresholds of a settings object with these fields (the tracker's)."""
+        return cls(
+            int(settings.max_hamming), float(settings.ratio), bool(settings.check_orientation)
+        )
 
 
 def rotation_consistent(reference_angle: np.ndarray, angle: np.ndarray) -> np.ndarray:
@@ -39,7 +59,7 @@ class ProjectionMatcher:
 
     def __init__(
         self,
-        config: TrackerConfig,
+        config: MatchThresholds,
         slam_map: SlamMap,
         k: np.ndarray,
         size: tuple[int, int],

@@ -1,19 +1,45 @@
 """Pose hypotheses from 2D–3D matches and their refinement: PnP-RANSAC (``cv2.solvePnPRansac``,
 AP3P minimal sets, or EPnP seeded with a predicted pose) or PROSAC (OpenCV's USAC sampling the
-matches in order of descriptor distance, ``TrackerConfig.sampler``), then the RGB-D refinement
+matches in order of descriptor distance, ``SamplingSettings.sampler``), then the RGB-D refinement
 alternated with re-classifying inliers by ORB-SLAM2's χ² test (5.991 / 7.815 × the level's
 variance), and ORB-SLAM2's ``PoseOptimization`` for the motion model (:meth:`optimise_all`).
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import Any
+
 import cv2
 import numpy as np
 
 from ..frontend.orb import Features
 from ..geometry import from_rvec, to_rvec
-from .config import TrackerConfig
 from .pose import CHI2_MONO, CHI2_STEREO, chi2, observations, optimise_pose
+
+
+@dataclass(frozen=True)
+class SamplingSettings:
+    """How pose hypotheses are drawn and refined: ``sampler`` ``ransac`` | ``prosac``,
+    ``ransac_iterations``, ``ransac_threshold`` (px), ``refine_rounds`` of the refinement,
+    ``rgbd_refinement`` (depth residuals too)."""
+
+    sampler: str = "ransac"
+    ransac_iterations: int = 100
+    ransac_threshold: float = 3.0
+    refine_rounds: int = 4
+    rgbd_refinement: bool = True
+
+    @classmethod
+    def of(cls, settings: Any) -> SamplingSettings:
+        """The settings of an object with these fields (the tracker's)."""
+        return cls(
+            str(settings.sampler),
+            int(settings.ransac_iterations),
+            float(settings.ransac_threshold),
+            int(settings.refine_rounds),
+            bool(settings.rgbd_refinement),
+        )
 
 
 class PoseSampler:
@@ -27,7 +53,7 @@ class PoseSampler:
 
     def __init__(
         self,
-        config: TrackerConfig,
+        config: SamplingSettings,
         k: np.ndarray,
         sigma2: np.ndarray,
         bf: float,

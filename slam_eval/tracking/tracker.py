@@ -50,10 +50,10 @@ from ..map.slam_map import KeyFrame, SlamMap
 from .config import SAMPLERS, TrackerConfig
 from .keyframes import nearest_close, need_keyframe, new_points
 from .place_matching import PlaceMatching
-from .projection import ProjectionMatcher
+from .projection import MatchThresholds, ProjectionMatcher
 from .relocalisation import match_keyframe, relocalise
 from .rolling_shutter import readout_of, twist, unroll
-from .sampling import PoseSampler
+from .sampling import PoseSampler, SamplingSettings
 
 
 class TrackingState(str, Enum):
@@ -95,10 +95,11 @@ class Tracker(PlaceMatching):
         self.size = (extractor.camera.width, extractor.camera.height)
         self.sigma2 = extractor.sigma2
         self.bf = extractor.camera.fx * config.virtual_baseline
-        self.sampler = PoseSampler(config, self.k, self.sigma2, self.bf, rng)
+        self.sampler = PoseSampler(SamplingSettings.of(config), self.k, self.sigma2, self.bf, rng)
         """PnP hypotheses and pose refinement (:mod:`.sampling`)."""
         self.map = SlamMap(extractor.config.scale_factor, extractor.config.n_levels)
-        self.projection = ProjectionMatcher(config, self.map, self.k, self.size, extractor.scales)
+        matching = MatchThresholds.of(config)
+        self.projection = ProjectionMatcher(matching, self.map, self.k, self.size, extractor.scales)
         """Matching by projection (:mod:`.projection`)."""
         self.state = TrackingState.NOT_INITIALIZED
         self.velocity: np.ndarray | None = None
