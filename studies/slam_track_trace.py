@@ -10,8 +10,8 @@ from __future__ import annotations
 import sys
 
 from uss_slam.slam_eval import run
+from uss_slam.slam_eval.matching.projection import ProjectionMatcher
 from uss_slam.slam_eval.tracking import tracker as tr
-from uss_slam.slam_eval.tracking.projection import ProjectionMatcher
 
 
 def log(msg: str) -> None:

@@ -4,7 +4,7 @@ A keypoint with a depth measurement ``z`` is a stereo observation ``(u, v, u_r)`
 right-image coordinate ``u_r = u - bf / z`` (``bf`` = fx × virtual baseline, as ORB-SLAM2's RGB-D
 mode); one without depth is a plain ``(u, v)`` observation. Errors are weighted by the keypoint
 level's inverse variance and tested against the 95% χ² quantiles (:data:`CHI2_MONO`,
-:data:`CHI2_STEREO`). The pose-only optimisation of tracking (:mod:`..tracking.pose`) and the
+:data:`CHI2_STEREO`). The pose-only optimisation of tracking (:mod:`..optim.pose`) and the
 bundle adjustment of the back end (:mod:`..mapping.local_mapping`) both use it.
 """
 

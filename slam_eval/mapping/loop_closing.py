@@ -44,10 +44,10 @@ import numpy as np
 
 from uss_slam.core.schema import check_fields, ranged
 
-from ..frontend.matching import Matches
 from ..frontend.orb import Features
 from ..geometry import invert, rotation_angle_deg
 from ..map.slam_map import KeyFrame, SlamMap
+from ..matching.descriptor import Matches
 from .local_mapping import FIXED_SIGMA, BundleAdjuster, pose_key
 
 

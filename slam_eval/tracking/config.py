@@ -75,7 +75,7 @@ class TrackerConfig:
     check_orientation: bool = True
     """Keep only matches of a consistent image rotation when matching the last frame by
     projection, the reference keyframe and relocalisation candidates by descriptor (ORB-SLAM2's
-    ``mbCheckOrientation`` rotation histogram, :func:`.projection.rotation_consistent`)."""
+    ``mbCheckOrientation`` rotation histogram, :func:`~..matching.projection.rotation_consistent`)."""
     local_keyframes: int = ranged(10, min=1)
     keyframe_ratio: float = ranged(0.75, gt=0, max=1)
     """New keyframe when inliers < this × the reference keyframe's tracked points (ORB-SLAM2 RGB-D)."""

@@ -6,12 +6,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..frontend.matching import Matches
 from ..frontend.orb import Features
 from ..map.slam_map import KeyFrame, SlamMap
-from .projection import ProjectionMatcher
-from .relocalisation import match_keyframe
-from .sampling import PoseSampler
+from ..matching.descriptor import Matches
+from ..matching.keyframe import match_keyframe
+from ..matching.projection import ProjectionMatcher
+from ..matching.sampling import PoseSampler
 
 
 class PlaceMatching:
@@ -31,7 +31,7 @@ class PlaceMatching:
         max_hamming: int,
         min_points: int,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-        """:func:`.relocalisation.match_keyframe` on this tracker's map."""
+        """:func:`~..matching.keyframe.match_keyframe` on this tracker's map."""
         return match_keyframe(self.map, features, query, kf, ratio, max_hamming, min_points)
 
     def match_projected(

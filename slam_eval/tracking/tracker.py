@@ -10,7 +10,7 @@ Per frame, as ORB-SLAM2's RGB-D ``Tracking``:
    keyframe) are projected with the prediction and matched in a window of ``search_radius`` ×
    the level's scale (doubled once when too few matches are found). ``motion_ransac`` (on by
    default, not ORB-SLAM2's) seeds the pose optimisation with PnP-RANSAC on those matches
-   (:mod:`.sampling`); the pose is then optimised with the robust χ² rounds of
+   (:mod:`..matching.sampling`); the pose is then optimised with the robust χ² rounds of
    ``PoseOptimization``. Without a motion model (the second frame, the first after a
    relocalisation) the frame is matched to its reference keyframe by descriptor, as
    ORB-SLAM2's ``TrackReferenceKeyFrame`` (``reference_keyframe``); failing that, the frame is
@@ -43,17 +43,17 @@ from functools import partial
 
 import numpy as np
 
-from ..frontend.matching import hamming
 from ..frontend.orb import Features, OrbExtractor
 from ..geometry import invert, transform
 from ..map.slam_map import KeyFrame, SlamMap
+from ..matching.keyframe import match_keyframe
+from ..matching.projection import MatchThresholds, ProjectionMatcher
+from ..matching.sampling import PoseSampler, SamplingSettings
 from .config import SAMPLERS, TrackerConfig
 from .keyframes import nearest_close, need_keyframe, new_points
 from .place_matching import PlaceMatching
-from .projection import MatchThresholds, ProjectionMatcher
-from .relocalisation import match_keyframe, relocalise
+from .relocalisation import relocalise
 from .rolling_shutter import readout_of, twist, unroll
-from .sampling import PoseSampler, SamplingSettings
 
 
 class TrackingState(str, Enum):
@@ -96,11 +96,11 @@ class Tracker(PlaceMatching):
         self.sigma2 = extractor.sigma2
         self.bf = extractor.camera.fx * config.virtual_baseline
         self.sampler = PoseSampler(SamplingSettings.of(config), self.k, self.sigma2, self.bf, rng)
-        """PnP hypotheses and pose refinement (:mod:`.sampling`)."""
+        """PnP hypotheses and pose refinement (:mod:`..matching.sampling`)."""
         self.map = SlamMap(extractor.config.scale_factor, extractor.config.n_levels)
         matching = MatchThresholds.of(config)
         self.projection = ProjectionMatcher(matching, self.map, self.k, self.size, extractor.scales)
-        """Matching by projection (:mod:`.projection`)."""
+        """Matching by projection (:mod:`..matching.projection`)."""
         self.state = TrackingState.NOT_INITIALIZED
         self.velocity: np.ndarray | None = None
         self.velocity_dt = 0.0
@@ -597,4 +597,4 @@ class Tracker(PlaceMatching):
         return pose_cw, matched
 
 
-__all__ = ["SAMPLERS", "TrackResult", "Tracker", "TrackerConfig", "TrackingState", "hamming"]
+__all__ = ["SAMPLERS", "TrackResult", "Tracker", "TrackerConfig", "TrackingState"]

@@ -82,6 +82,14 @@ def test_scoring_reads_the_map_products_not_the_back_end() -> None:
     assert "mapping" not in graph["products"], "slam_eval/products imports slam_eval/mapping"
 
 
+def test_matching_and_optimisation_sit_below_tracking_and_the_back_end() -> None:
+    graph = sub_package_graph()
+    assert "matching" in graph["tracking"] and "optim" in graph["matching"]
+    for low in ("matching", "optim"):
+        for high in ("tracking", "mapping", "systems", "filters"):
+            assert high not in graph[low], f"slam_eval/{low} imports slam_eval/{high}"
+
+
 def test_no_import_cycle_between_sub_packages() -> None:
     cycle = import_cycle(sub_package_graph())
     assert cycle is None, "import cycle between slam_eval sub-packages: " + " -> ".join(cycle)

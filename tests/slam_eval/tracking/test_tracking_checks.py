@@ -13,11 +13,11 @@ import pytest
 
 from uss_slam.slam_eval.filters.build import build_filters
 from uss_slam.slam_eval.frontend.orb import Features, OrbConfig, OrbExtractor
+from uss_slam.slam_eval.matching.keyframe import match_keyframe
+from uss_slam.slam_eval.matching.projection import rotation_consistent
 from uss_slam.slam_eval.segmenters.base import NoSegmenter
 from uss_slam.slam_eval.sequence import TumSequence
 from uss_slam.slam_eval.systems.harness import SlamPipeline
-from uss_slam.slam_eval.tracking.projection import rotation_consistent
-from uss_slam.slam_eval.tracking.relocalisation import match_keyframe
 from uss_slam.slam_eval.tracking.tracker import Tracker, TrackerConfig, TrackingState
 
 

@@ -7,7 +7,7 @@ import numpy as np
 
 from uss_slam.core.tum_io import TUM_CAMERAS
 from uss_slam.slam_eval.geometry import invert, project, transform
-from uss_slam.slam_eval.tracking.pose import (
+from uss_slam.slam_eval.optim.pose import (
     CHI2_MONO,
     CHI2_STEREO,
     chi2,

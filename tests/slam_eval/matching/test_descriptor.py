@@ -5,7 +5,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from uss_slam.slam_eval.frontend.matching import guided_match, hamming, radius_pairs
+from uss_slam.slam_eval.matching.descriptor import guided_match, hamming, radius_pairs
 
 
 def test_hamming_matches_opencv() -> None:

@@ -1,5 +1,5 @@
 """Matching by projection, ORB-SLAM2's ``SearchByProjection``: points projected with a pose
-and matched to the keypoints near their projection (:func:`~..frontend.matching.guided_match`),
+and matched to the keypoints near their projection (:func:`~.descriptor.guided_match`),
 map points with the frustum, distance and viewing-angle tests of ``MapPoint::isInFrustum``.
 """
 
@@ -10,10 +10,10 @@ from typing import Any
 
 import numpy as np
 
-from ..frontend.matching import Matches, guided_match
 from ..frontend.orb import Features
 from ..geometry import invert, project, transform
 from ..map.slam_map import SlamMap
+from .descriptor import Matches, guided_match
 
 ROTATION_BINS = 30
 """Bins of the rotation histogram (ORB-SLAM2's ``HISTO_LENGTH``)."""

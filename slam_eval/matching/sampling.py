@@ -15,7 +15,7 @@ import numpy as np
 
 from ..frontend.orb import Features
 from ..geometry import from_rvec, to_rvec
-from .pose import CHI2_MONO, CHI2_STEREO, chi2, observations, optimise_pose
+from ..optim.pose import CHI2_MONO, CHI2_STEREO, chi2, observations, optimise_pose
 
 
 @dataclass(frozen=True)
@@ -190,7 +190,7 @@ class PoseSampler:
         """Refine a pose on matches ``world[i] <-> keypoint kp[i]``; returns ``(pose_cw, inliers)``.
 
         ``refine_rounds`` rounds, each re-classifying inliers by the χ² test (ORB-SLAM2): with
-        ``rgbd_refinement`` the RGB-D Gauss–Newton of :mod:`.pose` (depth as a virtual stereo
+        ``rgbd_refinement`` the RGB-D Gauss–Newton of :mod:`..optim.pose` (depth as a virtual stereo
         coordinate), else OpenCV's ``solvePnPRefineLM`` on the reprojection error alone.
         """
         cfg = self.config

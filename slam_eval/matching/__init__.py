@@ -1,0 +1,7 @@
+"""ORB-SLAM2's ``ORBmatcher`` and the pose hypotheses drawn from its matches, shared by tracking
+and loop closing: descriptor matching in a radius (:mod:`.descriptor`), matching by projection
+(:mod:`.projection`, with its :class:`~.projection.MatchThresholds`), matching to a keyframe's
+map points (:mod:`.keyframe`) and PnP sampling (:mod:`.sampling`, with its
+:class:`~.sampling.SamplingSettings`). Reads the shared map (:mod:`..map`); the pose refinement
+it ends with is :mod:`..optim`.
+"""
