@@ -24,7 +24,8 @@ everything; a stage that was interrupted is redone):
 6. ``report``: one table (printed) with what its numbers say (:mod:`.demo_report`), and
    ``OUT/report.md`` with ``ate_rmse.png`` (ATE per variant), ``trajectories.png`` (every
    aligned estimate vs ground truth) and each run's own plots; ``OUT/summary.json`` holds the
-   table's numbers.
+   table's numbers. It ends with ``uss-eval compare`` of the three models on the sequence
+   (validators, mask agreement, 20 labelled frames' intervals and verdict) in ``OUT/compare/``.
 
 Example: ``uss-demo --out outputs/demo`` (what ``make demo`` runs); ``uss-demo --until data``
 renders only the data set.
@@ -422,7 +423,29 @@ def stage_report(
     for finding in findings:
         print(finding)
     print(f"\n{demo_report.CAVEAT}\n")
-    return f"{out / 'report.md'} ({len(plots)} plots)"
+    verdict = demo_compare(out, sequence)
+    return f"{out / 'report.md'} ({len(plots)} plots); {out / 'compare' / 'report.md'}: {verdict}"
+
+
+COMPARE_LABELS = 20
+"""Labelled frames of the SLAM sequence the closing ``uss-eval compare`` uses (its verdict)."""
+
+
+def demo_compare(out: Path, sequence: Path) -> str:
+    """The closing report: ``uss-eval compare`` of the three exported models on the SLAM
+    sequence (validators, mask agreement, contact sheet) with ``COMPARE_LABELS`` of its labelled
+    frames, into ``OUT/compare/`` (printed); returns its last line, the verdict."""
+    from .evaluate.compare_cli import compare, plan_compare
+
+    models = [out / "exports" / f"{name}.onnx" for name in MODELS]
+    source = next((out / "data" / "voc").rglob("JPEGImages"), None)
+    plan = plan_compare(
+        models, [sequence], labels=[sequence / "labels"], label_frames=COMPARE_LABELS, source=source
+    )
+    print(f"uss-eval compare {' '.join(str(m) for m in models)} --sequence {sequence} --labels "
+          f"{sequence / 'labels'} --label-frames {COMPARE_LABELS}" + (f" --source {source}" if source else ""))  # fmt: skip
+    # the tables are in OUT/compare/report.md; the demo's own table stays the one printed
+    return compare(plan, out / "compare", quiet=True, tables=False)["verdict"]
 
 
 # ------------------------------------------------------------------------------- main

@@ -63,7 +63,8 @@ def train_runs(data: Path, out: Path, methods: list[str], seeds: list[int], ever
                 f"paths.data_dir={data}", f"run_name=calib_{method}_s{seed}",
                 f"model.net.weights_path={demo_init_path()}",
                 f"data.iterations_per_epoch={every}", "num_threads=1", "logger=none",
-                "callbacks.image_logger=null", "++trainer.enable_progress_bar=false",
+                "callbacks.image_logger=null", "callbacks.target_validators=null",
+                "++trainer.enable_progress_bar=false",
                 "callbacks.model_checkpoint.save_top_k=-1", "callbacks.model_checkpoint.monitor=null",
                 "callbacks.model_checkpoint.filename='iter{iteration:05.0f}'",
             ])  # fmt: skip

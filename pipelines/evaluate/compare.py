@@ -325,6 +325,16 @@ def _thumb(image: np.ndarray, interpolation: int) -> np.ndarray:
     )
 
 
+def spread(candidates: list, count: int, gap: int) -> list:
+    """Up to ``count`` of ``(differ, frame index, ...)`` candidates, most differing first, none
+    within ``gap`` frames of one already chosen (neighbouring frames show the same thing)."""
+    chosen: list = []
+    for item in sorted(candidates, key=lambda t: (-t[0], t[1])):
+        if len(chosen) < count and all(abs(item[1] - c[1]) >= gap for c in chosen):
+            chosen.append(item)
+    return chosen
+
+
 def run_compare(plan: ComparePlan, progress: Any = None) -> CompareResult:
     """Run every model on every frame, one batch at a time (see the module docstring)."""
     t0 = time.perf_counter()
@@ -365,7 +375,7 @@ def run_compare(plan: ComparePlan, progress: Any = None) -> CompareResult:
                 worst = max(worst, counters[(a, b)].differ[-1])
             item = (worst, index, _thumb(images[k], cv2.INTER_AREA),
                     [_thumb(lab[k], cv2.INTER_NEAREST) for lab in labels])  # fmt: skip
-            if len(contact) < plan.contact:
+            if len(contact) < 4 * plan.contact:  # candidates: spread out at the end
                 heapq.heappush(contact, item)
             elif worst > contact[0][0]:
                 heapq.heapreplace(contact, item)
@@ -386,6 +396,6 @@ def run_compare(plan: ComparePlan, progress: Any = None) -> CompareResult:
         agreement={p: c.result() for p, c in counters.items()},
         matrices=np.stack(matrices, axis=1) if matrices else None,
         clusters=clusters,
-        contact=sorted(contact, key=lambda t: (-t[0], t[1])),
+        contact=spread(contact, plan.contact, max(1, len(plan.frames) // (4 * plan.contact))),
         seconds=time.perf_counter() - t0,
     )

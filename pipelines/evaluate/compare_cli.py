@@ -26,6 +26,7 @@ from .compare import (
     run_compare,
     source_images,
 )
+from .compare_slam import SlamPlan, check_slam, run_slam_rows, slam_markdown
 from .frames import CONFIG_DIR
 
 PROG = "uss-eval"
@@ -85,8 +86,15 @@ def plan_compare(
     return ComparePlan(checked, frames, seq_names, tuple(dynamic), names, params, src, batch)
 
 
-def compare(plan: ComparePlan, out: Path, quiet: bool = False) -> dict[str, Any]:
-    """Run ``plan``, write the report into ``out``, print the table; returns ``compare.json``."""
+def compare(
+    plan: ComparePlan,
+    out: Path,
+    quiet: bool = False,
+    slam: SlamPlan | None = None,
+    tables: bool = True,
+) -> dict[str, Any]:
+    """Run ``plan`` (and ``slam``'s SLAM rows), write the report into ``out``, print the table
+    (``tables``), the findings and the verdict; returns ``compare.json``."""
     progress = None
     if not quiet and sys.stderr.isatty():
 
@@ -101,8 +109,17 @@ def compare(plan: ComparePlan, out: Path, quiet: bool = False) -> dict[str, Any]
         note = compare_report.small_label_warning(result, stats)
         if note:
             warning(note)
-        compare_report.write_report(out, result, stats, lines, last)
-    print(compare_report.table(result, stats))
+        extra, data = "", {}
+        if slam is not None:
+            rows = run_slam_rows(plan, slam, out)
+            extra, slam_findings = slam_markdown(rows, slam.static)
+            lines += slam_findings
+            data = {"slam": rows, "static": list(slam.static), "repeats": slam.repeats}
+        compare_report.write_report(out, result, stats, lines, last, extra, data)
+    if tables:
+        print(compare_report.table(result, stats))
+        if extra:
+            print(extra)
     for line in lines:
         print(line)
     print(f"{COMMAND}: {len(plan.models)} models x {len(plan.frames)} frames in "
@@ -150,6 +167,13 @@ def build_parser() -> argparse.ArgumentParser:
                         help=f"classes of the dynamic mask (default: {','.join(DYNAMIC_CLASSES)})")  # fmt: skip
     parser.add_argument("--out", type=Path, default=None,
                         help="report folder (default: outputs/compare/<model stems>)")  # fmt: skip
+    parser.add_argument("--slam", action="store_true",
+                        help="also run the SLAM harness on each sequence: no filter and each "
+                             "model's semantic filter, --repeats runs per row")  # fmt: skip
+    parser.add_argument("--repeats", type=int, default=3, help="SLAM runs per row (default: 3)")
+    parser.add_argument("--static", action="append", default=[], metavar="NAME",
+                        help="a compared sequence (folder name) in which nothing moves: the "
+                             "report gives each filter's cost there (with --slam; repeatable)")  # fmt: skip
     parser.add_argument("--batch", type=int, default=4, help="frames per inference (default: 4)")
     parser.add_argument(
         "--threads", type=int, default=None, help="inference threads (default: all)"
@@ -170,5 +194,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             dynamic=[c.strip() for c in args.dynamic.split(",") if c.strip()],
             batch=args.batch, threads=args.threads,
         )  # fmt: skip
-        compare(plan, out, quiet=args.quiet)
+        if args.static and not args.slam:
+            raise UssSlamError(
+                "--static needs --slam (it names where a filter's SLAM cost is measured)"
+            )
+        slam = check_slam(plan, args.sequence, args.static, args.repeats) if args.slam else None
+        compare(plan, out, quiet=args.quiet, slam=slam)
     return 0

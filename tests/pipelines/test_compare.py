@@ -145,6 +145,9 @@ def _bad_sequence(tmp_path: Path, seq: Path, what: str) -> Path:
         ("label_count", "--label-frames 50: the --labels folders hold 6 label files"),
         ("unknown_validator", "--validators: unknown validator 'bogus'"),
         ("probe_no_source", "--validators probe: needs --source FOLDER"),
+        ("static_unknown", "--static nope: not a compared sequence; expected one of walking_xyz_6"),
+        ("static_no_slam", "--static needs --slam"),
+        ("one_repeat", "--repeats: expected an integer >= 2"),
     ],
 )
 def test_bad_inputs_one_line_before_any_work(
@@ -175,6 +178,12 @@ def test_bad_inputs_one_line_before_any_work(
         extra = ["--validators", "entropy,bogus"]
     elif case == "probe_no_source":
         extra = ["--validators", "probe"]
+    elif case == "static_unknown":
+        extra = ["--slam", "--static", "nope"]
+    elif case == "static_no_slam":
+        extra = ["--static", seq.name]
+    elif case == "one_repeat":
+        extra = ["--slam", "--repeats", "1"]
     with pytest.raises(SystemExit) as stop:
         main(["compare", *chosen, "--sequence", str(seq), "--out", str(out), *extra])
     code = stop.value.code
@@ -195,3 +204,23 @@ def test_probe_with_source_images(tmp_path: Path, synthetic_sequence, models, ca
     for name in ("low", "mid"):
         assert 0.0 <= result["validators"][name]["probe"] <= 1.0
     assert CLASS_NAMES[1] == "person"
+
+
+@pytest.mark.slow
+def test_slam_rows_one_rule_and_static_cost(tmp_path: Path, synthetic_sequence, models, capsys) -> None:
+    walking = synthetic_sequence(preset="walking_xyz", frames=30, size=(160, 120))
+    static = synthetic_sequence(preset="static_xyz", frames=30, size=(160, 120))
+    out = tmp_path / "report"
+    code = main(["compare", str(models[0]), str(models[1]), "--sequence", str(walking),
+                 "--sequence", str(static), "--slam", "--repeats", "2", "--static", static.name,
+                 "--validators", "entropy", "--out", str(out)])  # fmt: skip
+    assert code == 0
+    result = json.loads((out / "compare.json").read_text())
+    for seq in (walking.name, static.name):
+        rows = result["slam"][seq]
+        assert [r["row"] for r in rows] == ["no filter", "low", "mid"]
+        for r in rows:
+            assert r["min"] is None or r["min"] <= r["median"] <= r["max"]
+    costs = [f for f in result["findings"] if f.startswith(f"{static.name} (static): ")]
+    assert len(costs) == 2
+    assert "## SLAM (ATE RMSE" in (out / "report.md").read_text()
