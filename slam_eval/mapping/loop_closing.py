@@ -37,17 +37,17 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Protocol
 
 import gtsam
 import numpy as np
 
 from uss_slam.core.schema import check_fields, ranged
 
-from ..frontend.orb import Features
 from ..geometry import invert, rotation_angle_deg
 from ..map.slam_map import KeyFrame, SlamMap
-from ..matching.descriptor import Matches
+from ..matching.keyframe import match_keyframe
+from ..matching.projection import ProjectionMatcher
+from ..matching.sampling import PoseSampler
 from .local_mapping import FIXED_SIGMA, BundleAdjuster, pose_key
 
 
@@ -128,52 +128,24 @@ class _Match:
     matched: np.ndarray
 
 
-class PlaceMatcher(Protocol):
-    """What loop closing asks of the tracker (:class:`~..tracking.tracker.Tracker`): its map and
-    the matching and pose estimation it tracks with, so that a loop is verified as a frame is
-    tracked. Loop closing depends on this interface, not on the tracking package."""
-
-    @property
-    def map(self) -> SlamMap: ...
-
-    def match_keyframe(
-        self,
-        features: Features,
-        query: np.ndarray,
-        kf: KeyFrame,
-        ratio: float,
-        max_hamming: int,
-        min_points: int,
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None: ...
-
-    def pnp_global(
-        self, world: np.ndarray, features: Features, kp: np.ndarray, distance: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray] | None: ...
-
-    def match_projected(
-        self,
-        point_ids: np.ndarray,
-        pose_cw: np.ndarray,
-        features: Features,
-        available: np.ndarray,
-        radius: float,
-        local: bool = False,
-    ) -> tuple[np.ndarray, Matches]: ...
-
-    def refine_pose(
-        self, world: np.ndarray, features: Features, kp: np.ndarray, pose_cw: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray]: ...
-
-
 class LoopCloser:
-    """Detects and closes loops on the keyframes of a tracker's map (feed :meth:`process` each
-    new keyframe after local mapping)."""
+    """Detects and closes loops on the keyframes of the shared map (feed :meth:`process` each
+    new keyframe after local mapping). A loop is verified as a frame is tracked: with the
+    ``projection`` matching and the ``sampler``'s pose estimation that tracking uses (the same
+    objects, so that a seeded repeat draws from one random stream)."""
 
     def __init__(
-        self, config: LoopClosingConfig, tracker: PlaceMatcher, adjuster: BundleAdjuster
+        self,
+        config: LoopClosingConfig,
+        slam_map: SlamMap,
+        projection: ProjectionMatcher,
+        sampler: PoseSampler,
+        adjuster: BundleAdjuster,
     ) -> None:
         self.config = config
-        self.tracker = tracker
+        self.map = slam_map
+        self.projection = projection
+        self.sampler = sampler
         self.adjuster = adjuster
         self.closures: list[LoopClosure] = []
         self.loop_edges: list[tuple[int, int]] = []
@@ -183,10 +155,6 @@ class LoopCloser:
         self.rejected = 0
         """Consistent candidates that failed the geometric verification or whose correction
         did not fit the motion since the loop keyframe (:meth:`fits_motion`)."""
-
-    @property
-    def map(self) -> SlamMap:
-        return self.tracker.map
 
     # ------------------------------------------------------------------ detection
 
@@ -228,8 +196,8 @@ class LoopCloser:
         for other in self.map.keyframes:
             if other.bad or other.id in near:
                 continue
-            found = self.tracker.match_keyframe(
-                kf.features, query, other, cfg.ratio, cfg.max_hamming, cfg.min_matches
+            found = match_keyframe(
+                self.map, kf.features, query, other, cfg.ratio, cfg.max_hamming, cfg.min_matches
             )
             if found is not None and len(found[0]) >= cfg.min_matches:
                 scored.append((len(found[0]), other.id, *found))
@@ -261,22 +229,21 @@ class LoopCloser:
         self, kf: KeyFrame, loop_id: int, kp: np.ndarray, pid: np.ndarray, distance: np.ndarray
     ) -> _Match | None:
         cfg = self.config
-        tracker = self.tracker
         pts = self.map.points
         features = kf.features
-        found = tracker.pnp_global(pts.position.view[pid], features, kp, distance)
+        found = self.sampler.pnp_global(pts.position.view[pid], features, kp, distance)
         if found is None or found[1].sum() < cfg.min_inliers:
             return None
         pose_cw = found[0]
         group = np.union1d(self.map.covisible(loop_id, cfg.covisibility), [loop_id])
         loop_points = self.map.points_of(group.astype(np.int64))
         available = ~kf.dynamic
-        ids, m = tracker.match_projected(
+        ids, m = self.projection.match_map_points(
             loop_points, pose_cw, features, available, cfg.search_radius
         )
         if len(m) < cfg.min_projected:
             return None
-        pose_cw, inl = tracker.refine_pose(
+        pose_cw, inl = self.sampler.refine_pose(
             pts.position.view[ids[m.query]], features, m.keypoint, pose_cw
         )
         if inl.sum() < cfg.min_projected:
@@ -390,7 +357,7 @@ class LoopCloser:
         if kf.bad or len(loop_points) == 0:
             return 0
         loop_points = loop_points[~self.map.points.bad.view[loop_points]]
-        ids, m = self.tracker.match_projected(
+        ids, m = self.projection.match_map_points(
             loop_points, kf.pose_cw, kf.features, ~kf.dynamic, self.config.fuse_radius
         )
         matched = np.full(len(kf.features), -1, np.int64)

@@ -68,6 +68,7 @@ from ..filters.chain import FilterChain
 from ..frontend import process as frontend_process
 from ..frontend.orb import OrbConfig, OrbExtractor
 from ..geometry import invert
+from ..map.slam_map import SlamMap
 from ..mapping.local_mapping import BundleAdjuster, LocalMapping, LocalMappingConfig, depth_noise_of
 from ..mapping.loop_closing import LoopCloser, LoopClosingConfig
 from ..products.builder import MapProducts
@@ -226,12 +227,15 @@ class SlamPipeline:
     def _frame_loop(self, timer: Timer) -> FrameLoop:
         """The run's tracker, filter chain, map products and back end, in a frame loop."""
         extractor = self.extractor
-        tracker = Tracker(self.tracker_config, extractor, self.sampling_seed)
+        slam_map = SlamMap(extractor.config.scale_factor, extractor.config.n_levels)
+        tracker = Tracker(self.tracker_config, extractor, self.sampling_seed, slam_map)
         adjuster = BundleAdjuster(tracker.k, tracker.bf, extractor.sigma2, self.depth_noise[0])
         mapper = LocalMapping(self.local_ba_params, adjuster) if self.local_ba else None
-        closer = (
-            LoopCloser(self.loop_closing_params, tracker, adjuster) if self.loop_closing else None
-        )
+        closer = None
+        if self.loop_closing:
+            closer = LoopCloser(
+                self.loop_closing_params, slam_map, tracker.projection, tracker.sampler, adjuster
+            )
         backend = mapper is not None or closer is not None
         products = MapProducts(self.map_config, extractor, placed_at_end=backend)
         segment_now = self._segment_timed if self.segment == "keyframes" else None

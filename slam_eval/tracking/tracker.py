@@ -51,7 +51,6 @@ from ..matching.projection import MatchThresholds, ProjectionMatcher
 from ..matching.sampling import PoseSampler, SamplingSettings
 from .config import SAMPLERS, TrackerConfig
 from .keyframes import nearest_close, need_keyframe, new_points
-from .place_matching import PlaceMatching
 from .relocalisation import relocalise
 from .rolling_shutter import readout_of, twist, unroll
 
@@ -78,15 +77,17 @@ class TrackResult:
     new_keyframe: KeyFrame | None = None
 
 
-class Tracker(PlaceMatching):
+class Tracker:
     """Frame-to-local-map RGB-D tracker. Feed frames in order with :meth:`track`."""
 
     def __init__(
-        self, config: TrackerConfig, extractor: OrbExtractor, sampling_seed: int | None = None
-    ) -> None:
+        self, config: TrackerConfig, extractor: OrbExtractor, sampling_seed: int | None = None,
+        slam_map: SlamMap | None = None,
+    ) -> None:  # fmt: skip
         """``sampling_seed``: None = RANSAC draws its samples as OpenCV does for the given
         matches (deterministic); an integer perturbs the sampling reproducibly, for repeated
-        runs (:meth:`.PoseSampler.sampling_order`)."""
+        runs (:meth:`.PoseSampler.sampling_order`). ``slam_map``: the map shared with the back
+        end and the filters, built by the harness (None: one of its own)."""
         self.config = config
         rng = None if sampling_seed is None else np.random.default_rng(sampling_seed)
         self.extractor = extractor
@@ -96,11 +97,10 @@ class Tracker(PlaceMatching):
         self.sigma2 = extractor.sigma2
         self.bf = extractor.camera.fx * config.virtual_baseline
         self.sampler = PoseSampler(SamplingSettings.of(config), self.k, self.sigma2, self.bf, rng)
-        """PnP hypotheses and pose refinement (:mod:`..matching.sampling`)."""
-        self.map = SlamMap(extractor.config.scale_factor, extractor.config.n_levels)
+        orb = extractor.config
+        self.map = SlamMap(orb.scale_factor, orb.n_levels) if slam_map is None else slam_map
         matching = MatchThresholds.of(config)
         self.projection = ProjectionMatcher(matching, self.map, self.k, self.size, extractor.scales)
-        """Matching by projection (:mod:`..matching.projection`)."""
         self.state = TrackingState.NOT_INITIALIZED
         self.velocity: np.ndarray | None = None
         self.velocity_dt = 0.0

@@ -90,6 +90,15 @@ def test_matching_and_optimisation_sit_below_tracking_and_the_back_end() -> None
             assert high not in graph[low], f"slam_eval/{low} imports slam_eval/{high}"
 
 
+def test_loop_closing_borrows_no_tracker() -> None:
+    """The back end works on the map it is handed and on the matching package, with no
+    interface of the tracker's (no Protocol, no mixin)."""
+    for path in sorted((SLAM_EVAL / "mapping").rglob("*.py")):
+        text = path.read_text()
+        assert "Protocol" not in text and "tracker" not in _imports(path), path.name
+    assert not (SLAM_EVAL / "tracking" / "place_matching.py").exists()
+
+
 def test_no_import_cycle_between_sub_packages() -> None:
     cycle = import_cycle(sub_package_graph())
     assert cycle is None, "import cycle between slam_eval sub-packages: " + " -> ".join(cycle)

@@ -108,7 +108,10 @@ class _LoopWorld:
 
 def _closer(world: _LoopWorld, **kwargs) -> LoopCloser:
     adjuster = BundleAdjuster(world.tracker.k, world.tracker.bf, world.ex.sigma2, 0.0019)
-    return LoopCloser(LoopClosingConfig(**kwargs), world.tracker, adjuster)
+    tracker = world.tracker
+    return LoopCloser(
+        LoopClosingConfig(**kwargs), world.map, tracker.projection, tracker.sampler, adjuster
+    )
 
 
 def test_a_drifting_loop_is_detected_verified_and_closed() -> None:

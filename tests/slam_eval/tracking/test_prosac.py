@@ -64,7 +64,7 @@ def test_pose_from_matches_with_each_sampler(sampler: str, monkeypatch) -> None:
 
     monkeypatch.setattr(cv2, "solvePnPRansac", spy)
     tracker = Tracker(TrackerConfig(sampler=sampler), ex)
-    found = tracker.pnp_global(world, features, kp, distance)
+    found = tracker.sampler.pnp_global(world, features, kp, distance)
     assert found is not None
     estimate, inliers = found
     error = invert(pose_cw) @ estimate
