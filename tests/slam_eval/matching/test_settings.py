@@ -1,0 +1,21 @@
+"""The matching package's own settings hold the tracker's defaults, and the tracker hands its
+configured values to them."""
+
+from __future__ import annotations
+
+from uss_slam.core.tum_io import TUM_CAMERAS
+from uss_slam.slam_eval.frontend.orb import OrbConfig, OrbExtractor
+from uss_slam.slam_eval.matching.projection import MatchThresholds
+from uss_slam.slam_eval.matching.sampling import SamplingSettings
+from uss_slam.slam_eval.tracking.tracker import Tracker, TrackerConfig
+
+
+def test_the_matching_settings_are_the_trackers() -> None:
+    assert MatchThresholds.of(TrackerConfig()) == MatchThresholds()
+    assert SamplingSettings.of(TrackerConfig()) == SamplingSettings()
+    ex = OrbExtractor(OrbConfig(), TUM_CAMERAS["fr3"].scaled(320, 240))
+    config = TrackerConfig(max_hamming=64, ratio=0.6, sampler="prosac", refine_rounds=2)
+    tracker = Tracker(config, ex)
+    assert tracker.projection.config == MatchThresholds(64, 0.6, True)
+    assert tracker.sampler.config == SamplingSettings("prosac", 100, 3.0, 2, True)
+    assert tracker.projection.map is tracker.map
