@@ -142,11 +142,8 @@ class LoopCloser:
         sampler: PoseSampler,
         adjuster: BundleAdjuster,
     ) -> None:
-        self.config = config
-        self.map = slam_map
-        self.projection = projection
-        self.sampler = sampler
-        self.adjuster = adjuster
+        self.config, self.adjuster = config, adjuster
+        self.map, self.projection, self.sampler = slam_map, projection, sampler
         self.closures: list[LoopClosure] = []
         self.loop_edges: list[tuple[int, int]] = []
         self._groups: list[tuple[set[int], int]] = []

@@ -6,7 +6,6 @@ map points with the frustum, distance and viewing-angle tests of ``MapPoint::isI
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
@@ -28,13 +27,6 @@ class MatchThresholds:
     max_hamming: int = 100
     ratio: float = 0.8
     check_orientation: bool = True
-
-    @classmethod
-    def of(cls, settings: Any) -> MatchThresholds:
-        """The thresholds of a settings object with these fields (the tracker's)."""
-        return cls(
-            int(settings.max_hamming), float(settings.ratio), bool(settings.check_orientation)
-        )
 
 
 def rotation_consistent(reference_angle: np.ndarray, angle: np.ndarray) -> np.ndarray:

@@ -8,7 +8,6 @@ variance), and ORB-SLAM2's ``PoseOptimization`` for the motion model (:meth:`opt
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import cv2
 import numpy as np
@@ -29,17 +28,6 @@ class SamplingSettings:
     ransac_threshold: float = 3.0
     refine_rounds: int = 4
     rgbd_refinement: bool = True
-
-    @classmethod
-    def of(cls, settings: Any) -> SamplingSettings:
-        """The settings of an object with these fields (the tracker's)."""
-        return cls(
-            str(settings.sampler),
-            int(settings.ransac_iterations),
-            float(settings.ransac_threshold),
-            int(settings.refine_rounds),
-            bool(settings.rgbd_refinement),
-        )
 
 
 class PoseSampler:

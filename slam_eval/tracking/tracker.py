@@ -46,6 +46,7 @@ import numpy as np
 from ..frontend.orb import Features, OrbExtractor
 from ..geometry import invert, transform
 from ..map.slam_map import KeyFrame, SlamMap
+from ..matching import settings_of
 from ..matching.keyframe import match_keyframe
 from ..matching.projection import MatchThresholds, ProjectionMatcher
 from ..matching.sampling import PoseSampler, SamplingSettings
@@ -84,10 +85,9 @@ class Tracker:
         self, config: TrackerConfig, extractor: OrbExtractor, sampling_seed: int | None = None,
         slam_map: SlamMap | None = None,
     ) -> None:  # fmt: skip
-        """``sampling_seed``: None = RANSAC draws its samples as OpenCV does for the given
-        matches (deterministic); an integer perturbs the sampling reproducibly, for repeated
-        runs (:meth:`.PoseSampler.sampling_order`). ``slam_map``: the map shared with the back
-        end and the filters, built by the harness (None: one of its own)."""
+        """``sampling_seed``: None = RANSAC samples as OpenCV does (deterministic); an integer
+        perturbs the sampling reproducibly, for repeats (:meth:`.PoseSampler.sampling_order`).
+        ``slam_map``: the map shared with the back end and the filters (None: one of its own)."""
         self.config = config
         rng = None if sampling_seed is None else np.random.default_rng(sampling_seed)
         self.extractor = extractor
@@ -96,10 +96,10 @@ class Tracker:
         self.size = (extractor.camera.width, extractor.camera.height)
         self.sigma2 = extractor.sigma2
         self.bf = extractor.camera.fx * config.virtual_baseline
-        self.sampler = PoseSampler(SamplingSettings.of(config), self.k, self.sigma2, self.bf, rng)
-        orb = extractor.config
-        self.map = SlamMap(orb.scale_factor, orb.n_levels) if slam_map is None else slam_map
-        matching = MatchThresholds.of(config)
+        sampling = settings_of(SamplingSettings, config)
+        self.sampler = PoseSampler(sampling, self.k, self.sigma2, self.bf, rng)
+        self.map = slam_map or SlamMap(extractor.config.scale_factor, extractor.config.n_levels)
+        matching = settings_of(MatchThresholds, config)
         self.projection = ProjectionMatcher(matching, self.map, self.k, self.size, extractor.scales)
         self.state = TrackingState.NOT_INITIALIZED
         self.velocity: np.ndarray | None = None

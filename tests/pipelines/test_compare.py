@@ -207,7 +207,9 @@ def test_probe_with_source_images(tmp_path: Path, synthetic_sequence, models, ca
 
 
 @pytest.mark.slow
-def test_slam_rows_one_rule_and_static_cost(tmp_path: Path, synthetic_sequence, models, capsys) -> None:
+def test_slam_rows_one_rule_and_static_cost(
+    tmp_path: Path, synthetic_sequence, models, capsys
+) -> None:
     walking = synthetic_sequence(preset="walking_xyz", frames=30, size=(160, 120))
     static = synthetic_sequence(preset="static_xyz", frames=30, size=(160, 120))
     out = tmp_path / "report"

@@ -5,14 +5,15 @@ from __future__ import annotations
 
 from uss_slam.core.tum_io import TUM_CAMERAS
 from uss_slam.slam_eval.frontend.orb import OrbConfig, OrbExtractor
+from uss_slam.slam_eval.matching import settings_of
 from uss_slam.slam_eval.matching.projection import MatchThresholds
 from uss_slam.slam_eval.matching.sampling import SamplingSettings
 from uss_slam.slam_eval.tracking.tracker import Tracker, TrackerConfig
 
 
 def test_the_matching_settings_are_the_trackers() -> None:
-    assert MatchThresholds.of(TrackerConfig()) == MatchThresholds()
-    assert SamplingSettings.of(TrackerConfig()) == SamplingSettings()
+    assert settings_of(MatchThresholds, TrackerConfig()) == MatchThresholds()
+    assert settings_of(SamplingSettings, TrackerConfig()) == SamplingSettings()
     ex = OrbExtractor(OrbConfig(), TUM_CAMERAS["fr3"].scaled(320, 240))
     config = TrackerConfig(max_hamming=64, ratio=0.6, sampler="prosac", refine_rounds=2)
     tracker = Tracker(config, ex)
