@@ -48,7 +48,7 @@ from ..map.slam_map import KeyFrame, SlamMap
 from ..matching.keyframe import match_keyframe
 from ..matching.projection import ProjectionMatcher
 from ..matching.sampling import PoseSampler
-from .local_mapping import FIXED_SIGMA, BundleAdjuster, pose_key
+from ..optim.local_ba import FIXED_SIGMA, BundleAdjuster, pose_key
 
 
 @dataclass(frozen=True)

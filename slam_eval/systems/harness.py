@@ -69,8 +69,9 @@ from ..frontend import process as frontend_process
 from ..frontend.orb import OrbConfig, OrbExtractor
 from ..geometry import invert
 from ..map.slam_map import SlamMap
-from ..mapping.local_mapping import BundleAdjuster, LocalMapping, LocalMappingConfig, depth_noise_of
+from ..mapping.local_mapping import LocalMapping, LocalMappingConfig, depth_noise_of
 from ..mapping.loop_closing import LoopCloser, LoopClosingConfig
+from ..optim.local_ba import BundleAdjuster
 from ..products.builder import MapProducts
 from ..products.octomap import load_pyoctomap
 from ..products.semantic_map import MapConfig

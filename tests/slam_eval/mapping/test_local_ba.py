@@ -18,14 +18,11 @@ from uss_slam.slam_eval.frontend.orb import Features, OrbConfig, OrbExtractor
 from uss_slam.slam_eval.geometry import from_rvec, invert
 from uss_slam.slam_eval.map.slam_map import SlamMap
 from uss_slam.slam_eval.mapping.local_mapping import (
-    BundleAdjuster,
     LocalMapping,
     LocalMappingConfig,
     depth_noise_of,
-    point_keys,
-    pose_key,
-    pose_keys,
 )
+from uss_slam.slam_eval.optim.local_ba import BundleAdjuster, point_keys, pose_key, pose_keys
 from uss_slam.slam_eval.run import run
 from uss_slam.slam_eval.scoring.metrics import ate
 from uss_slam.slam_eval.segmenters.base import NoSegmenter

@@ -10,8 +10,8 @@ from uss_slam.core.tum_io import TUM_CAMERAS
 from uss_slam.slam_eval.filters.build import build_filters
 from uss_slam.slam_eval.frontend.orb import Features, OrbConfig, OrbExtractor
 from uss_slam.slam_eval.geometry import from_rvec, invert, rotation_angle_deg
-from uss_slam.slam_eval.mapping.local_mapping import BundleAdjuster
 from uss_slam.slam_eval.mapping.loop_closing import LoopCloser, LoopClosingConfig
+from uss_slam.slam_eval.optim.local_ba import BundleAdjuster
 from uss_slam.slam_eval.scoring.metrics import ate
 from uss_slam.slam_eval.segmenters.base import LabelsSegmenter
 from uss_slam.slam_eval.sequence import TumSequence
