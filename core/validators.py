@@ -170,21 +170,22 @@ class SoftNeighborhoodDensity(Validator):
     similarity between the samples' probability vectors, each row without its own entry, a
     softmax over the row at temperature ``temperature`` (0.05), and the mean entropy of the rows.
     Higher is better (dense neighbourhoods: target samples cluster). The similarity is computed
-    in blocks of ``block`` rows (memory ``block x samples``)."""
+    in blocks of ``block`` rows (memory ``block x samples``); beyond ``max_samples`` samples a
+    seeded subset of that many is scored (time and memory bounded whatever the frame count)."""
 
     name = "snd"
 
     def __init__(
         self, pixels_per_image: int = 32, temperature: float = 0.05, seed: int = 0,
-        block: int = 1024,
+        block: int = 256, max_samples: int = 8192,
     ) -> None:  # fmt: skip
-        if pixels_per_image < 1 or temperature <= 0:
+        if pixels_per_image < 1 or temperature <= 0 or max_samples < 2:
             raise UssSlamError(
-                f"snd: expected pixels_per_image >= 1 and temperature > 0, got "
-                f"{pixels_per_image} and {temperature}"
+                f"snd: expected pixels_per_image >= 1, temperature > 0 and max_samples >= 2, "
+                f"got {pixels_per_image}, {temperature} and {max_samples}"
             )
         self.pixels_per_image, self.temperature = int(pixels_per_image), float(temperature)
-        self.seed, self.block = seed, block
+        self.seed, self.block, self.max_samples = seed, block, int(max_samples)
         self.reset()
 
     def reset(self) -> None:
@@ -205,6 +206,11 @@ class SoftNeighborhoodDensity(Validator):
         feats = np.concatenate(self._samples).astype(np.float32)
         if len(feats) < 2:
             return float("nan")
+        if len(feats) > self.max_samples:  # a seeded subset: time and memory stay bounded
+            keep = np.random.default_rng(self.seed + 1).choice(
+                len(feats), self.max_samples, replace=False
+            )
+            feats = feats[np.sort(keep)]
         feats = feats / np.maximum(np.linalg.norm(feats, axis=1, keepdims=True), EPS)
         total, m = 0.0, len(feats)
         for start in range(0, m, self.block):
@@ -214,7 +220,7 @@ class SoftNeighborhoodDensity(Validator):
             sim -= sim.max(axis=1, keepdims=True)
             p = np.exp(sim)
             p /= p.sum(axis=1, keepdims=True)
-            total += float(entropy_rows(p.astype(np.float64)).sum())
+            total += float(-(p * np.log(p + EPS)).sum(axis=1, dtype=np.float64).sum())
         return total / m
 
 
