@@ -21,7 +21,11 @@ when given, the discriminators' accuracy over training (``gap_study.py dacc``), 
 ::
 
     python studies/gap_figures.py docs/results/gap_main/confusion.csv \\
-        [--dacc docs/results/gap_main/d_acc.csv] [--markdown FILE] [--role eval|pilot]
+        [--dacc docs/results/gap_main/d_acc.csv] [--markdown FILE] [--role eval|pilot] \\
+        [--power RENDERS SEEDS]
+
+``--power 24 8`` adds, per comparison, the minimum detectable effect at 24 renders × 8 seeds from
+this file's variance components (the pilot's power computation).
 """
 
 from __future__ import annotations
@@ -134,6 +138,31 @@ def variance_split(a: dict, b: dict, key: str) -> dict[str, float] | None:
             "residual": float(ms_e), "renders": nr, "seeds": ns}  # fmt: skip
 
 
+def projected_mde(split: dict[str, float], renders: int, seeds: int) -> float:
+    """MDE (points) of a comparison paired across ``renders`` renders, each the mean of
+    ``seeds`` seeds, from variance components: s² = render + (seed + residual) / seeds."""
+    from scipy.stats import t
+
+    sd = (split["render"] + (split["seed"] + split["residual"]) / seeds) ** 0.5
+    return float((t.ppf(0.975, renders - 1) + t.ppf(0.80, renders - 1)) * sd / renders**0.5)
+
+
+def power_lines(scores: dict, renders: int, seeds: int) -> list[str]:
+    """Per comparison and figure: the variance components and the MDE they give at
+    ``renders`` renders × ``seeds`` seeds."""
+    out = [f"Power at {renders} renders × {seeds} seeds (MDE, points, from these variance "
+           "components):", "", "| comparison | person IoU MDE | mIoU MDE |", "|---|---|---|"]  # fmt: skip
+    for label, row, against in COMPARISONS:
+        if row not in scores or against not in scores:
+            continue
+        cells = []
+        for key in ("person", "mIoU"):
+            split = variance_split(scores[row], scores[against], key)
+            cells.append("—" if split is None else f"{projected_mde(split, renders, seeds):.2f}")
+        out.append(f"| {label}: {row} − {against} | {cells[0]} | {cells[1]} |")
+    return out
+
+
 def paired(scores: dict, row: str, against: str, key: str) -> dict:
     a, b = render_means(scores[row], key), render_means(scores[against], key)
     renders = sorted(set(a) & set(b))
@@ -242,12 +271,16 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--dacc", type=Path, help="gap_study.py dacc's CSV")
     parser.add_argument("--role", choices=("pilot", "eval"), help="keep only these rows")
     parser.add_argument("--markdown", type=Path, help="also write the tables to this file")
+    parser.add_argument("--power", nargs=2, type=int, metavar=("RENDERS", "SEEDS"),
+                        help="also the MDE of each comparison at this design")  # fmt: skip
     args = parser.parse_args(argv)
     for path in (args.confusion, args.dacc):
         if path is not None and not path.is_file():
             sys.exit(f"gap_figures: error: {path}: no such file")
     scores = read_scores(args.confusion, args.role)
     lines = tables(scores, read_dacc(args.dacc) if args.dacc else None)
+    if args.power:
+        lines += ["", *power_lines(scores, *args.power)]
     text = "\n".join(lines) + "\n"
     print(text, end="")
     if args.markdown:

@@ -119,6 +119,11 @@ def test_figures_pair_across_renders_and_split_the_variance(tmp_path: Path) -> N
     split = figures.variance_split(scores["adabn_bntrained"], scores["source_only_bntrained"],
                                    "person")  # fmt: skip
     assert split["render"] > 50 and split["seed"] < 0.01
+    # more renders, smaller MDE; more seeds do not help against a render-borne variance
+    assert figures.projected_mde(split, 24, 8) < figures.projected_mde(split, 6, 8)
+    assert figures.projected_mde(split, 24, 8) == pytest.approx(
+        figures.projected_mde(split, 24, 80), rel=0.01
+    )
     c = figures.closure(scores, "adabn_bntrained")
     assert c[0] == pytest.approx(20 / 40, abs=0.02)
     text = "\n".join(figures.tables(scores, None))
