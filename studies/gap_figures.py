@@ -236,7 +236,8 @@ def tables(scores: dict, dacc: dict | None) -> list[str]:
         for key in ("person", "mIoU"):
             values = list(render_means(scores[row], key).values())
             p = paired_interval(values)
-            cells.append(interval_text(p, mde=False).lstrip("+"))
+            lo, hi = p["interval"] or (p["mean"], p["mean"])
+            cells.append(f"{p['mean']:.1f} [{lo:.1f}, {hi:.1f}]")
         out.append(f"| {ROWS.get(row, row)} | {cells[0]} | {cells[1]} | {marks.get(row, '')} |")
     out += ["", "Paired across renders (per render the mean over seeds), points:", "",
             "| comparison | person IoU | mIoU | variance split of person IoU (render / seed / residual) |",

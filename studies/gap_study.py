@@ -167,9 +167,13 @@ def export_init(study: Path) -> list[Path]:
     from uss_slam.pipelines.experiments.plan import ADABN_BATCH_SIZE, ADABN_IMAGES
     from uss_slam.train.precise_bn import adabn
 
-    ckpt = study / "data" / "init" / "i0" / "init.ckpt"
-    if not ckpt.is_file():
-        raise StudyError(f"{ckpt}: no init; run the study's data stage first")
+    # init.ckpt is a copy of the run's last.ckpt, whose .hydra/ the export reads the net from
+    init = study / "data" / "init" / "i0" / "init.ckpt"
+    ckpt = init.parent / "checkpoints" / "last.ckpt"
+    if not init.is_file() or not ckpt.is_file():
+        raise StudyError(f"{init}: no init; run the study's data stage first")
+    if init.read_bytes() != ckpt.read_bytes():
+        raise StudyError(f"{ckpt}: differs from {init}; the init's run was changed after it")
     folders = target_frames(study)
 
     def prepare(net: object) -> None:

@@ -128,7 +128,9 @@ def test_figures_pair_across_renders_and_split_the_variance(tmp_path: Path) -> N
     assert c[0] == pytest.approx(20 / 40, abs=0.02)
     text = "\n".join(figures.tables(scores, None))
     assert "headroom: oracle − source_only_bntrained | +40.0 [" in text
-    assert "| the init as is | 20.0 [" in text  # rows without seeds: one value per render
+    assert (
+        "| the init as is | 20.0 [20.0, 20.0] |" in text
+    )  # rows without seeds: one value per render
 
 
 def test_d_at_chance_is_marked() -> None:
