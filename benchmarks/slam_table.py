@@ -194,14 +194,14 @@ def vocabulary(out: Path, seq: Sequence, force: bool) -> Path:
 
 
 def cell_command(seq: Sequence, stride: int, system: str, repeats: int, run_dir: Path,
-                 vocab: Path | None) -> list[str]:  # fmt: skip
+                 vocab: Path | None, overrides: list[str] = ()) -> list[str]:  # fmt: skip
     cmd = [tool("uss-slam"), f"sequence.path={seq.path}", f"sequence.stride={stride}"]
     if seq.camera is not None:
         cmd.append(f"sequence.camera={seq.camera}")
     if system == "orbslam3":
         cmd += ["system=orbslam3", f"system.vocabulary={vocab}", f"system.repeats={repeats}"]
     else:
-        cmd += [f"slam.repeats={repeats}", *SYSTEMS[system][1]]
+        cmd += [f"slam.repeats={repeats}", *SYSTEMS[system][1], *overrides]
     return cmd + ["progress=false", f"out_dir={run_dir}"]
 
 
@@ -379,6 +379,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="uss-synth --timing of the synthetic sequences")  # fmt: skip
     parser.add_argument("--out", type=Path, default=Path("outputs/bench/slam_table"))
     parser.add_argument("--force", action="store_true", help="rerun finished cells")
+    parser.add_argument("--override", action="append", default=[], metavar="KEY=VALUE",
+                        help="a uss-slam override for the harness cells (repeatable), e.g. "
+                        "slam.tracker.start_as_relocalisation=false")  # fmt: skip
     parser.add_argument("--json", action="store_true", help="print the table as JSON")
     args = parser.parse_args(argv)
     try:
@@ -394,6 +397,9 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def run(args: argparse.Namespace, command: str) -> int:
+    bad = [o for o in args.override if "=" not in o or not o.startswith("slam.")]
+    if bad:
+        raise TableError(f"--override: expected slam.KEY=VALUE, got {bad[0]!r}")
     if args.repeats < 1:
         raise TableError(f"--repeats: expected an integer >= 1, got {args.repeats}")
     if args.synthetic_frames < 2:
@@ -429,7 +435,9 @@ def run(args: argparse.Namespace, command: str) -> int:
     cells: dict[tuple[str, int], dict] = {}
     for seq, stride, system in tqdm(jobs, desc="cells", unit="cell", file=sys.stderr):
         run_dir = out / "runs" / slug(seq.name) / f"stride{stride}" / system
-        cmd = cell_command(seq, stride, system, args.repeats, run_dir, vocabs.get(seq.name))
+        cmd = cell_command(
+            seq, stride, system, args.repeats, run_dir, vocabs.get(seq.name), args.override
+        )
         slot = cells.setdefault((seq.name, stride), {})
         if args.force or not finished(run_dir, args.repeats):
             run_dir.parent.mkdir(parents=True, exist_ok=True)
@@ -449,6 +457,7 @@ def run(args: argparse.Namespace, command: str) -> int:
         "load_average_start": load_start,
         "load_average_end": os.getloadavg(),
         "repeats": args.repeats,
+        "overrides": args.override,
         "strides": strides,
         "systems": systems,
         "synthetic": {"presets": presets, "timings": timings,

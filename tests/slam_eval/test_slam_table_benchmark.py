@@ -55,6 +55,8 @@ def test_bad_inputs_are_one_line_each(tmp_path: Path, capsys) -> None:
     assert "--synthetic-timings" in line
     line = _error(capsys, ["--synthetic-presets", "walking_xyz", "--no-real", *out])
     assert "--synthetic-presets: expected a comma-separated subset of handheld_rpy," in line
+    line = _error(capsys, ["--override", "tracker.readout=0", "--no-real", *out])
+    assert "--override: expected slam.KEY=VALUE, got 'tracker.readout=0'" in line
     assert not (tmp_path / "out" / "table.md").exists()
 
 
