@@ -115,7 +115,8 @@ class Tracker:
         self._previous_tracked = False
         self.relocalisations = 0
         self.last_relocalisation: int | None = None
-        """Frame index of the latest relocalisation."""
+        """Frame index of the latest relocalisation (or of the first keyframe, with
+        ``start_as_relocalisation``)."""
         self.lost_events = 0
         self._current_index = 0
         self._last_frame_keypoints = np.zeros(0, np.int64)
@@ -145,6 +146,8 @@ class Tracker:
             self._accept(invert(pose_wc), stamp, kf.point_ids[close], kf)
             self._last_frame = (features, kf.point_ids, np.zeros(n, bool))
             self.state = TrackingState.OK
+            if self.config.start_as_relocalisation:  # ORB-SLAM2: mnLastRelocFrameId = 0
+                self.last_relocalisation = frame_index
             return TrackResult(
                 self.state, pose_wc, kf.point_ids.copy(), int(close.sum()), False, kf
             )

@@ -185,6 +185,41 @@ def test_more_inliers_needed_right_after_a_relocalisation(synthetic_sequence) ->
     assert r_later.inliers == n and later.lost_events == 1
 
 
+def test_start_as_relocalisation_holds_the_first_frames_to_fifty_inliers(
+    synthetic_sequence,
+) -> None:
+    # slam.tracker.start_as_relocalisation=true: as ORB-SLAM2 (mnLastRelocFrameId starts at
+    # frame 0), the first frames need reloc_min_inliers, as after a relocalisation. A weak frame
+    # (left quarter of the view) early on is refused; by default, or 30 frames later, it is not.
+    seq = TumSequence(synthetic_sequence(preset="static_xyz", frames=12))
+    ex = OrbExtractor(OrbConfig(), seq.camera)
+    frames = [seq.load(i) for i in range(len(seq))]
+    feats = [ex(f.gray, f.depth) for f in frames]
+    hidden = feats[6].xy[:, 0] >= 0.25 * seq.camera.width
+
+    def run(config: TrackerConfig, offset: int = 0):
+        tracker = Tracker(config, ex)
+        for i in range(7):
+            dyn = hidden if i == 6 else np.zeros(len(feats[i]), bool)
+            index = i + offset if i > 0 else 0
+            r = tracker.track(index, frames[i].stamp, feats[i], dyn)
+            tracker.finish_frame(index, frames[i].stamp, r, feats[i], dyn)
+        return tracker, r
+
+    off, r_off = run(TrackerConfig())
+    n = r_off.inliers
+    assert r_off.state is TrackingState.OK and n >= TrackerConfig().min_inliers
+    assert off.last_relocalisation is None and off.lost_events == 0
+    strict = TrackerConfig(start_as_relocalisation=True, reloc_min_inliers=n + 1)
+    on, r_on = run(strict)
+    assert r_on.pose_wc is None or r_on.relocalised  # not accepted from the motion model
+    assert on.lost_events == 1
+    assert on.last_relocalisation == (6 if r_on.relocalised else 0)
+    later, r_later = run(strict, offset=30)  # the same frames once the window has passed
+    assert r_later.state is TrackingState.OK and r_later.inliers == n
+    assert later.lost_events == 0
+
+
 def _orbslam2_local_radius(frame_id: int, last_reloc_id: int | None) -> float:
     """ORB-SLAM2's Tracking::SearchLocalPoints for RGB-D, restated: ``th = 3;
     if (mCurrentFrame.mnId < mnLastRelocFrameId + 2) th = 5;`` and the window
