@@ -49,6 +49,8 @@ class KeyFrame:
     """Culled as redundant: observes nothing any more; its pose follows ``parent``."""
     pose_in_parent: np.ndarray | None = None
     """For a culled keyframe: ``T_kf,parent`` (4, 4), its pose relative to its parent's camera."""
+    inliers: int | None = None
+    """Map-point inliers of the tracked frame it was made from (None: the first keyframe)."""
 
     @property
     def center(self) -> np.ndarray:

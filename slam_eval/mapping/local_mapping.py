@@ -53,6 +53,10 @@ class LocalMappingConfig:
     """A keyframe is redundant when more than this fraction of its close points are seen by
     ``redundant_observers`` other keyframes (ORB-SLAM2: 0.9)."""
     redundant_observers: int = ranged(3, min=1)
+    doubt_inliers: int = ranged(0, min=0)
+    """A new keyframe tracked with fewer map-point inliers than this is doubted: its local BA
+    frees it alone (its covisible keyframes stay fixed), so the map corrects its pose and it
+    moves no other keyframe; 0 = off (ORB-SLAM2 frees every covisible keyframe)."""
 
     def __post_init__(self) -> None:
         check_fields(self)
@@ -100,8 +104,11 @@ class LocalMapping:
         self.stats = LocalMappingStats()
 
     def local_keyframes(self, slam_map: SlamMap, keyframe_id: int) -> np.ndarray:
-        """The new keyframe and its covisible keyframes (most shared points first if capped)."""
+        """The new keyframe and its covisible keyframes (most shared points first if capped);
+        a :meth:`doubted` keyframe alone."""
         cfg = self.config
+        if self.doubted(slam_map, keyframe_id):
+            return np.array([keyframe_id], np.int64)
         ids = slam_map.keyframes[keyframe_id].point_ids
         ids = ids[ids >= 0]
         counts = slam_map.covisibility(ids[~slam_map.points.bad.view[ids]])
@@ -111,6 +118,11 @@ class LocalMapping:
         if cfg.max_keyframes:
             order = order[: cfg.max_keyframes]
         return np.union1d(order, [keyframe_id]).astype(np.int64)
+
+    def doubted(self, slam_map: SlamMap, keyframe_id: int) -> bool:
+        """Was the keyframe tracked with fewer map-point inliers than ``doubt_inliers``?"""
+        inliers = slam_map.keyframes[keyframe_id].inliers
+        return inliers is not None and inliers < self.config.doubt_inliers
 
     def process(self, slam_map: SlamMap, keyframe_id: int) -> tuple[Adjustment, list[int]]:
         """Local BA around ``keyframe_id``, then culling of its redundant covisible keyframes;

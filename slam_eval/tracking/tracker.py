@@ -312,6 +312,7 @@ class Tracker:
             kf = self.map.add_keyframe(
                 frame_index, stamp, result.pose_wc, features, matched, dynamic, create
             )
+            kf.inliers = int(good.sum())
             self.map.cull(self.config.min_found_ratio, self.config.min_observations)
             self.frames_since_keyframe = 0
             result.new_keyframe = kf

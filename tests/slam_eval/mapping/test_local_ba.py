@@ -137,6 +137,27 @@ def test_keyframes_that_are_not_covisible_stay_fixed() -> None:
     assert len(capped.local_keyframes(slam_map, 4)) == 3
 
 
+def test_a_doubted_keyframe_is_adjusted_alone_and_moves_no_other() -> None:
+    """slam.local_ba_params.doubt_inliers: a keyframe tracked with fewer map-point inliers is
+    freed alone; the map (the other keyframes fixed) corrects its pose, and no other moves."""
+    slam_map, truth = _drifted_map()
+    others = [kf.pose_wc.copy() for kf in slam_map.keyframes[:5]]
+    slam_map.keyframes[5].inliers = 40
+    mapping = LocalMapping(LocalMappingConfig(culling=False, doubt_inliers=50), _adjuster())
+    assert mapping.doubted(slam_map, 5) and mapping.local_keyframes(slam_map, 5).tolist() == [5]
+    before = _errors_mm(slam_map, truth)[5]
+    adjustment, _ = mapping.process(slam_map, 5)
+    assert adjustment.free.tolist() == [5] and adjustment.fixed.tolist() == [0, 1, 2, 3, 4]
+    for kf, pose in zip(slam_map.keyframes, others, strict=False):
+        np.testing.assert_array_equal(kf.pose_wc, pose)
+    assert _errors_mm(slam_map, truth)[5] < before
+    slam_map.keyframes[5].inliers = 50  # enough: adjusted with its covisible keyframes
+    assert not mapping.doubted(slam_map, 5) and len(mapping.local_keyframes(slam_map, 5)) > 1
+    off = LocalMapping(LocalMappingConfig(culling=False), _adjuster())  # 0 = off
+    slam_map.keyframes[5].inliers = 1
+    assert not off.doubted(slam_map, 5)
+
+
 def test_outlier_observations_are_erased() -> None:
     slam_map, truth = _drifted_map()
     kf = slam_map.keyframes[3]
