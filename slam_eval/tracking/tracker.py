@@ -23,13 +23,11 @@ Per frame, as ORB-SLAM2's RGB-D ``Tracking``:
    relocalises and the next, as ORB-SLAM2's ``SearchLocalPoints``, :meth:`Tracker.local_window`),
    and the pose refined on all matches. Tracking succeeds with ``min_inliers``
    (``reloc_min_inliers`` during the ``reloc_recent_frames`` frames after a relocalisation, as
-   ORB-SLAM2). A pose that fails a later inlier check (too few inliers
-   left once the post-pose filters drop keypoints) is taken back: the frame is lost
-   (:meth:`Tracker.mark_lost`), never added to the map.
+   ORB-SLAM2). A pose that fails a later inlier check (too few inliers left once the post-pose
+   filters drop keypoints) is taken back: lost (:meth:`Tracker.mark_lost`), never in the map.
 3. **Keyframes** follow ``NeedNewKeyFrame`` and create map points from their close keypoints
    as ``CreateNewKeyFrame`` (:mod:`.keyframes`); recent points that are rarely found are culled.
-4. **Relocalisation** when lost (:mod:`.relocalisation`): descriptor matching against every
-   keyframe, the best-matching ones tried with PnP-RANSAC, then local-map tracking.
+4. **Relocalisation** when lost (:mod:`.relocalisation`): descriptor matches, PnP, local map.
 
 Keypoints flagged dynamic are never matched and never create map points. Unfiltered walkers
 fool this tracking about as much as they fool ORB-SLAM3.
@@ -115,8 +113,7 @@ class Tracker:
         self._previous_tracked = False
         self.relocalisations = 0
         self.last_relocalisation: int | None = None
-        """Frame index of the latest relocalisation (or of the first keyframe, with
-        ``start_as_relocalisation``)."""
+        """Frame of the last relocalisation (or first keyframe: ``start_as_relocalisation``)."""
         self.lost_events = 0
         self._current_index = 0
         self._last_frame_keypoints = np.zeros(0, np.int64)
@@ -146,8 +143,7 @@ class Tracker:
             self._accept(invert(pose_wc), stamp, kf.point_ids[close], kf)
             self._last_frame = (features, kf.point_ids, np.zeros(n, bool))
             self.state = TrackingState.OK
-            if self.config.start_as_relocalisation:  # ORB-SLAM2: mnLastRelocFrameId = 0
-                self.last_relocalisation = frame_index
+            self.last_relocalisation = frame_index if self.config.start_as_relocalisation else None
             return TrackResult(
                 self.state, pose_wc, kf.point_ids.copy(), int(close.sum()), False, kf
             )
