@@ -144,3 +144,10 @@ def test_d_at_chance_is_marked() -> None:
     )
     assert marks == {"adaptsegnet_n5_bnreference": "D at chance on 1/2 seeds"}
     assert any(line.endswith("D at chance |") for line in lines)
+
+
+def test_first_frames_then_every_nth(tmp_path: Path) -> None:
+    lines = ["# color images"] + [f"{i}.0 rgb/{i}.png" for i in range(300)]
+    (tmp_path / "rgb.txt").write_text("\n".join(lines) + "\n")
+    assert study.frame_files(tmp_path, 10, 100) == [f"rgb/{i}.png" for i in range(0, 100, 10)]
+    assert len(study.frame_files(tmp_path, 5)) == 60
