@@ -26,6 +26,7 @@ import logging
 import statistics
 import time
 from collections.abc import Callable
+from typing import Any
 
 import torch
 
@@ -40,14 +41,25 @@ NETS: dict[str, Callable[[bool], torch.nn.Module]] = {
     "deeplab_small": lambda freeze: DeepLabV2(4, "resnet_small", freeze_bn=freeze),
     "pspnet_small": lambda freeze: PSPNet(4, "resnet_small", freeze_bn=freeze),
 }
-METHODS: dict[str, Callable[[torch.nn.Module], Method]] = {
-    "source_only": lambda net: SourceOnly(),
-    "adaptsegnet": lambda net: AdaptSegNet(),
-    "advent": lambda net: AdvEnt(),
-    "minent": lambda net: MinEnt(),
-    "self_training": lambda net: SelfTraining(copy.deepcopy(net)),
+
+
+def discriminators(ndf: int) -> dict[str, Any]:
+    """AdaptSegNet's / ADVENT's discriminators (depth 5, width ``ndf``) and their Adam."""
+    return {
+        "discriminator": functools.partial(PatchDiscriminator, 4, 5, ndf),
+        "d_optimizer": functools.partial(torch.optim.Adam, lr=1e-4, betas=(0.9, 0.99)),
+    }
+
+
+METHODS: dict[str, Callable[[torch.nn.Module, int], Method]] = {
+    "source_only": lambda net, ndf: SourceOnly(),
+    "adaptsegnet": lambda net, ndf: AdaptSegNet(**discriminators(ndf)),
+    "advent": lambda net, ndf: AdvEnt(
+        **discriminators(ndf), lambda_adv_aux=0.0002, lambda_adv_main=0.001
+    ),
+    "minent": lambda net, ndf: MinEnt(),
+    "self_training": lambda net, ndf: SelfTraining(copy.deepcopy(net)),
 }
-ADVENT_WEIGHTS = LossWeights(lambda_adv_aux=0.0002, lambda_adv_main=0.001)
 
 
 def build(net_name: str, method: str, freeze_bn: bool, ndf: int) -> AdversarialSegmentation:
@@ -55,13 +67,11 @@ def build(net_name: str, method: str, freeze_bn: bool, ndf: int) -> AdversarialS
     net = NETS[net_name](freeze_bn)
     module = AdversarialSegmentation(
         net=net,
-        discriminator=functools.partial(PatchDiscriminator, 4, 5, ndf),
         optimizer=functools.partial(
             torch.optim.SGD, lr=2.5e-4, momentum=0.9, nesterov=True, weight_decay=1e-4
         ),
-        d_optimizer=functools.partial(torch.optim.Adam, lr=1e-4, betas=(0.9, 0.99)),
-        method=METHODS[method](net),
-        loss=ADVENT_WEIGHTS if method == "advent" else LossWeights(),
+        method=METHODS[method](net, ndf),
+        loss=LossWeights(),
         max_iters=10_000,
         channels_last=True,
     )

@@ -55,6 +55,7 @@ from torch import Tensor
 
 from uss_slam.models import DeepLabV2
 from uss_slam.testing.reference_step import (
+    PaperWeights,
     PlainState,
     build_module,
     calibrate_batchnorm,
@@ -62,9 +63,9 @@ from uss_slam.testing.reference_step import (
     plain_iteration,
     plain_state_from,
     random_batch,
+    weights_of,
 )
 from uss_slam.testing.step_timing import FAST_CPU, Speed, time_lightning
-from uss_slam.train.losses import LossWeights
 from uss_slam.train.module import AdversarialSegmentation
 from uss_slam.train.speed import BF16_FLAGS, cpu_flags
 
@@ -73,7 +74,7 @@ clock = time.perf_counter
 progress_bar = False
 
 
-def time_plain(state: PlainState, batch: dict, iters: int, weights: LossWeights) -> list[float]:
+def time_plain(state: PlainState, batch: dict, iters: int, weights: PaperWeights) -> list[float]:
     times = []
     for _ in range(iters):
         start = clock()
@@ -154,7 +155,7 @@ def cases(args: argparse.Namespace) -> list[Case]:
 
 def run(case: Case, compare: type[AdversarialSegmentation] | None = None) -> None:
     module, batch = case.start()
-    weights = module.loss_weights
+    weights = weights_of(module)
     results: dict[str, list[float]] = {"plain": [], **{name: [] for name in VARIANTS}}
     if compare is not None:
         results[COMPARED] = []
@@ -231,7 +232,7 @@ def _restart(variant: AdversarialSegmentation, start: AdversarialSegmentation) -
 
 def run_speed(case: Case, variants: list[str] | None = None) -> None:
     module, batch = case.start()
-    weights = module.loss_weights
+    weights = weights_of(module)
     speeds = {name: SPEED_VARIANTS[name] for name in variants or SPEED_VARIANTS}
     # One instance per variant for the whole run: compiled networks compile in its first fit.
     instances = {name: speed_variant(module, speed) for name, speed in speeds.items()}

@@ -26,8 +26,8 @@ from hydra import compose, initialize_config_dir
 from hydra.utils import instantiate
 
 from uss_slam.synthetic import render_sequence, render_voc
+from uss_slam.train.losses import entropy_loss
 from uss_slam.train.methods import MinEnt, SourceSegmentation
-from uss_slam.train.methods.minent import entropy_loss
 from uss_slam.train.module import AdversarialSegmentation
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"

@@ -92,10 +92,10 @@ def knob_overrides(row: str) -> list[str]:
                              f"{', '.join(FLAGS)}, adv<k>, dlr<k>, lr<k>, ent<k>, thr<p>")  # fmt: skip
         k = float(match["factor"])
         if match["knob"] == "adv":
-            out += [f"model.loss.lambda_adv_aux={ADV[0] * k:g}",
-                    f"model.loss.lambda_adv_main={ADV[1] * k:g}"]  # fmt: skip
+            out += [f"model.method.lambda_adv_aux={ADV[0] * k:g}",
+                    f"model.method.lambda_adv_main={ADV[1] * k:g}"]  # fmt: skip
         elif match["knob"] == "dlr":
-            out += [f"model.d_optimizer.lr={D_LR * k:g}"]
+            out += [f"model.method.d_optimizer.lr={D_LR * k:g}"]
         elif match["knob"] == "lr":
             out += [f"model.optimizer.lr={LR * k:g}"]
         elif match["knob"] == "thr":
@@ -116,9 +116,16 @@ def train_overrides(
     iters: int,
     threads: int,
     logger: str = "none",
+    init: Path | None = None,
 ) -> list[str]:
+    start = (
+        # the demo's warm start: its rate and BatchNorm handling, from the given init
+        ["experiment=demo", f"model.net.weights_path={init}"]
+        if init is not None
+        else ["experiment=demo_scratch"]  # the from-scratch runs of docs/results/shifts.md
+    )
     common = [
-        "experiment=demo_scratch",  # the from-scratch runs its figures come from
+        *start,
         f"num_threads={threads}",
         f"paths.data_dir={data}",
         f"seed={seed}",
@@ -320,6 +327,13 @@ def main() -> None:
                         help="model.max_iters of every training (default: 1200)")  # fmt: skip
     parser.add_argument("--stride", type=int, default=5, help="every N-th test frame")
     parser.add_argument(
+        "--init",
+        type=Path,
+        default=None,
+        help="train every row from this pretrained segmenter (a checkpoint or weights file) "
+        "with experiment=demo's settings, instead of from scratch (experiment=demo_scratch)",
+    )
+    parser.add_argument(
         "--logger",
         default="none",
         help="uss-train's logger of every training (default none; csv keeps train/d_acc_* "
@@ -370,7 +384,14 @@ def main() -> None:
             cpu = train(
                 run,
                 train_overrides(
-                    args.data, spec, method, seed, args.iters, args.threads, args.logger
+                    args.data,
+                    spec,
+                    method,
+                    seed,
+                    args.iters,
+                    args.threads,
+                    args.logger,
+                    args.init.resolve() if args.init else None,
                 ),
             )
             rows = {method: load_checkpoint(run / "checkpoints" / "last.ckpt").segmenter.eval()}

@@ -19,7 +19,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from uss_slam.models import DeepLabV2, PatchDiscriminator
-from uss_slam.train.losses import LossWeights
+from uss_slam.train.methods import AdaptSegNet
 from uss_slam.train.module import AdversarialSegmentation
 from uss_slam.train.schedules import PolyLR
 
@@ -29,12 +29,12 @@ class PlainState:
     """Everything a plain training loop owns."""
 
     segmenter: DeepLabV2
-    d_aux: nn.Module
-    d_main: nn.Module
+    d_aux: nn.Module | None
+    d_main: nn.Module | None
     opt_seg: torch.optim.Optimizer
-    opt_d: torch.optim.Optimizer
+    opt_d: torch.optim.Optimizer | None
     sched_seg: PolyLR
-    sched_d: PolyLR
+    sched_d: PolyLR | None
 
 
 def _up(logits: Tensor, size: torch.Size) -> Tensor:
@@ -46,7 +46,7 @@ def _bce(logits: Tensor, label: float) -> Tensor:
 
 
 def source_loss(
-    segmenter: nn.Module, batch: dict, weights: LossWeights, out_src: Any = None
+    segmenter: nn.Module, batch: dict, weights: PaperWeights, out_src: Any = None
 ) -> tuple[Tensor, Tensor, Tensor]:
     """The weighted cross-entropy of both heads on the source images, and the two heads' logits
     upsampled to the labels (``aux``, ``main``); ``out_src``: the segmenter's output on the
@@ -64,7 +64,7 @@ def source_loss(
 def plain_iteration(
     state: PlainState,
     batch: dict,
-    weights: LossWeights,
+    weights: PaperWeights,
     adaptation: bool = True,
     domain_batch_norm: str = "separate",
 ) -> None:
@@ -122,25 +122,53 @@ def plain_iteration(
     state.sched_seg.step()
 
 
-def _params(*modules: nn.Module) -> Iterator[nn.Parameter]:
+@dataclass(frozen=True)
+class PaperWeights:
+    """The four λ of Algorithm 1 (paper §3.3 defaults), as the plain loop reads them."""
+
+    lambda_seg_aux: float = 0.1
+    lambda_seg_main: float = 1.0
+    lambda_adv_aux: float = 0.002
+    lambda_adv_main: float = 0.01
+
+
+def weights_of(module: AdversarialSegmentation) -> PaperWeights:
+    """The module's source-loss weights and its method's adversarial ones."""
+    seg = module.loss_weights
+    method = module.method
+    return PaperWeights(
+        seg.lambda_seg_aux,
+        seg.lambda_seg_main,
+        getattr(method, "lambda_adv_aux", 0.0),
+        getattr(method, "lambda_adv_main", 0.0),
+    )
+
+
+def _params(*modules: nn.Module | None) -> Iterator[nn.Parameter]:
     for module in modules:
-        yield from module.parameters()
+        if module is not None:
+            yield from module.parameters()
 
 
 def plain_state_from(module: AdversarialSegmentation) -> PlainState:
     """Deep copies of the module's networks with freshly built optimisers and schedules."""
     seg = copy.deepcopy(module.segmenter)
-    d_aux, d_main = copy.deepcopy(module.d_aux), copy.deepcopy(module.d_main)
     lr = module.optimizer_factory.keywords["lr"]
     opt_seg = module.optimizer_factory(params=seg.param_groups(lr, module.head_lr_mult))
-    opt_d = module.d_optimizer_factory(params=list(d_aux.parameters()) + list(d_main.parameters()))
+    sched_seg = PolyLR(opt_seg, module.poly_total_iters, module.poly_power)
+    if module.method.discriminators is None:  # a method without discriminators
+        return PlainState(seg, None, None, opt_seg, None, sched_seg, None)
+    d_aux, d_main = copy.deepcopy(module.method.d_aux), copy.deepcopy(module.method.d_main)
+    opt_d = module.method.d_optimizer_factory(
+        params=list(d_aux.parameters()) + list(d_main.parameters())
+    )
     return PlainState(
         seg,
         d_aux,
         d_main,
         opt_seg,
         opt_d,
-        PolyLR(opt_seg, module.poly_total_iters, module.poly_power),
+        sched_seg,
         PolyLR(opt_d, module.poly_total_iters, module.poly_power),
     )
 
@@ -150,13 +178,16 @@ def build_module(
 ) -> AdversarialSegmentation:
     """The module with the paper's optimisers (SGD 2.5e-4 Nesterov, Adam 1e-4) on a 4-class
     DeepLab-v2 of ``backbone`` and discriminators of ``n_layers`` layers and width ``ndf``."""
+    net = DeepLabV2(num_classes=4, backbone=backbone, freeze_bn=freeze_bn)
     return AdversarialSegmentation(
-        net=DeepLabV2(num_classes=4, backbone=backbone, freeze_bn=freeze_bn),
-        discriminator=functools.partial(PatchDiscriminator, 4, n_layers, ndf),
+        net=net,
         optimizer=functools.partial(
             torch.optim.SGD, lr=2.5e-4, momentum=0.9, nesterov=True, weight_decay=1e-4
         ),
-        d_optimizer=functools.partial(torch.optim.Adam, lr=1e-4, betas=(0.9, 0.99)),
+        method=AdaptSegNet(
+            discriminator=functools.partial(PatchDiscriminator, 4, n_layers, ndf),
+            d_optimizer=functools.partial(torch.optim.Adam, lr=1e-4, betas=(0.9, 0.99)),
+        ),
         max_iters=max_iters,
     )
 

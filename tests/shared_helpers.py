@@ -45,10 +45,15 @@ def data_overrides(data: dict[str, Path]) -> list[str]:
 
 def compose_train(overrides: Sequence[str], output_dir: Path) -> DictConfig:
     """The real ``train.yaml`` composed with ``overrides``; outputs go to ``output_dir`` (set as
-    Hydra's runtime output folder, as in a ``uss-train`` run)."""
+    Hydra's runtime output folder, as in a ``uss-train`` run). As ``uss-train`` does before
+    building the model, ``model.method`` keeps only its method's own settings (an experiment's
+    discriminator width is dropped for ``source_only``)."""
+    from uss_slam.train.train import drop_unused_method_settings
+
     GlobalHydra.instance().clear()
     with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
         cfg = compose("train", overrides=list(overrides), return_hydra_config=True)
+    drop_unused_method_settings(cfg)
     with open_dict(cfg):
         cfg.hydra.runtime.output_dir = str(output_dir)
         cfg.hydra.job.num = 0

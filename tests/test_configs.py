@@ -226,7 +226,7 @@ def test_train_outputs_land_in_the_redirected_folder(tmp_path: Path) -> None:
 BUILT_BY_GROUP = {
     "model": "model",
     "model/net": "model.net",
-    "model/discriminator": "model.discriminator",
+    "model/method/discriminator": "model.method.discriminator",
     "model/method": "model.method",
     "callbacks": "callbacks",
     "logger": "logger",

@@ -100,7 +100,7 @@ def test_a_new_method_joins_the_list_and_trains(
     cfg = compose_train(overrides, tmp_path / "run")
     model = instantiate(cfg.model)
     assert isinstance(model.method, TargetEntropy) and model.method.weight == 0.5
-    assert model.discriminators is None
+    assert model.method.discriminators is None
     before = {k: v.clone() for k, v in model.segmenter.state_dict().items()}
     trainer = Trainer(
         accelerator="cpu", max_epochs=1, limit_val_batches=0, logger=False, log_every_n_steps=1,

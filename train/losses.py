@@ -7,6 +7,7 @@ weights, and the published weights (0.1 / 1.0 / 0.002 / 0.01) are those of mean-
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
@@ -23,12 +24,12 @@ TARGET_LABEL = 1.0
 
 @dataclass(frozen=True)
 class LossWeights:
-    """λ of the four weighted terms (paper §3.3 defaults)."""
+    """λ of the source segmentation loss of both heads (paper §3.3 defaults), ``model.loss``;
+    every method trains with it. A method's own terms carry their weights on the method
+    (``model.method.lambda_adv_*``, ``model.method.lambda_ent_*``)."""
 
     lambda_seg_aux: float = ranged(0.1, min=0)
     lambda_seg_main: float = ranged(1.0, min=0)
-    lambda_adv_aux: float = ranged(0.002, min=0)
-    lambda_adv_main: float = ranged(0.01, min=0)
 
 
 def upsample(logits: Tensor, size: tuple[int, int]) -> Tensor:
@@ -64,3 +65,26 @@ def domain_accuracy(d_logits: Tensor, domain: float) -> Tensor:
     """Share of discriminator patches that classify their domain correctly (logit > 0 = target)."""
     predicted_target = d_logits > 0
     return (predicted_target if domain == TARGET_LABEL else ~predicted_target).float().mean()
+
+
+def self_information(log_probs: Tensor) -> Tensor:
+    """ADVENT's weighted self-information map ``-P·log P / log C`` of ``(N, C, H, W)``
+    log-probabilities, same shape, values in ``[0, 1/(e·ln C)]``; its sum over classes is the
+    entropy normalised to ``[0, 1]``. From log-probabilities (not ``P + ε``): exact where
+    ``P`` underflows (``0·log 0 = 0``)."""
+    classes = log_probs.shape[1]
+    if classes < 2:
+        raise ValueError(f"self-information needs at least 2 classes, got {classes}")
+    return -(log_probs.exp() * log_probs) / math.log(classes)
+
+
+def normalised_entropy(logits: Tensor, size: tuple[int, int]) -> Tensor:
+    """Per-pixel entropy normalised by ``log C`` (0..1), ``(N, H, W)``, of the softmax of
+    ``(N, C, h, w)`` logits upsampled to ``size = (H, W)``."""
+    return self_information(F.log_softmax(upsample(logits, size), dim=1)).sum(dim=1)
+
+
+def entropy_loss(logits: Tensor, size: tuple[int, int]) -> Tensor:
+    """Mean normalised entropy (0..1) of the softmax of ``(N, C, h, w)`` logits upsampled to
+    ``size = (H, W)``: ``mean_{n,h,w} sum_c -P log P / log C`` (ADVENT's ``entropy_loss``)."""
+    return normalised_entropy(logits, size).mean()

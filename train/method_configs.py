@@ -10,11 +10,16 @@ class.
 from __future__ import annotations
 
 import functools
+import inspect
+import logging
 from pathlib import Path
+from typing import Any
 
 import yaml
 
 from uss_slam.core.errors import DataFormatError, UssSlamError
+
+log = logging.getLogger(__name__)
 
 METHOD_GROUP = Path(__file__).resolve().parents[1] / "configs" / "model" / "method"
 """The config group's folder: one ``<name>.yaml`` per method."""
@@ -56,3 +61,54 @@ def method_class(name: str) -> type:
 def trains_discriminators(name: str) -> bool:
     """Whether ``model/method=<name>`` trains the two discriminators (its class says so)."""
     return bool(method_class(name).trains_discriminators)
+
+
+def method_parameters(target: str) -> tuple[str, ...]:
+    """The settings a method class takes (its ``__init__``'s keyword parameters)."""
+    from hydra.utils import get_class
+
+    signature = inspect.signature(get_class(target).__init__)
+    return tuple(
+        name
+        for name, p in signature.parameters.items()
+        if name != "self" and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)
+    )
+
+
+def unused_method_settings(node: Any) -> list[str]:
+    """Check the keys of the ``model.method`` config node against its method's settings.
+
+    A key that another shipped method takes (an experiment that sets
+    ``model.method.discriminator.ndf`` for whichever method runs, applied to ``source_only``) is
+    accepted but changes nothing: it is returned (and logged as a warning) for the caller to
+    drop. A key no shipped method takes is a typo: one line naming it and the accepted ones.
+
+    Args:
+        node: the ``model.method`` mapping (a ``DictConfig`` or dict) with its ``_target_``.
+
+    Returns:
+        The keys to drop before instantiating.
+    """
+    target = node.get("_target_") if hasattr(node, "get") else None
+    if not isinstance(target, str):
+        return []
+    own = set(method_parameters(target))
+    known = {k for name in method_names() for k in method_parameters(method_target(name))}
+    chosen = next((n for n in method_names() if method_target(n) == target), target)
+    unused = []
+    for key in node:
+        if str(key).startswith("_") or key in own:
+            continue
+        if key not in known:
+            accepted = ", ".join(sorted(own)) or "none"
+            raise UssSlamError(
+                f"model.method.{key}: not a setting of model/method={chosen}; its settings: "
+                f"{accepted}"
+            )
+        log.warning(
+            "model.method.%s: model/method=%s has no such setting (another method's); ignored",
+            key,
+            chosen,
+        )
+        unused.append(str(key))
+    return unused

@@ -13,10 +13,11 @@ iteration computes is the *method*'s (config group ``model/method``,
 - ``self_training``: mean-teacher pseudo-labels with ClassMix (DACS / DAFormer);
 - ``source_only``: the "without ATL" baseline.
 
-The method says what it trains: the two PatchGAN discriminators ``d_aux`` / ``d_main`` and their
-Adam optimiser (with its own poly schedule) exist only for the methods that train them
-(``adaptsegnet``, ``advent``). Checkpoints of runs whose method has none but that were written
-with discriminators load all the same (the unused networks and optimiser state are dropped).
+The method owns what it trains besides the segmenter: the two PatchGAN discriminators of
+``adaptsegnet`` / ``advent``, their optimiser and the adversarial weights are the method's
+(``model.method.*``, saved under ``method.`` in checkpoints); this module builds the optimisers
+the method declares, after the segmenter's, each with its poly schedule. Checkpoints written
+when the module held the discriminators (``d_aux.*`` / ``d_main.*``) load all the same.
 
 Speed options that leave the computation unchanged (tested against the eager step):
 ``compile`` (``torch.compile`` of the segmenter and both discriminators), ``channels_last``,
@@ -27,17 +28,15 @@ float32 under it (:mod:`uss_slam.train.losses`).
 
 from __future__ import annotations
 
-import contextlib
-import itertools
 import logging
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import asdict
 from typing import Any, Literal, get_args
 
 import torch
 from lightning.pytorch import LightningModule
-from torch import Tensor, nn
+from torch import Tensor
 from torch.optim import Optimizer
 from torchmetrics.classification import MulticlassConfusionMatrix
 
@@ -46,19 +45,18 @@ from uss_slam.core.errors import UssSlamError
 from uss_slam.core.seg_metrics import iou_per_class
 from uss_slam.models.deeplab import DeepLabV2, SegmenterOutput
 from uss_slam.train.losses import LossWeights, upsample
-from uss_slam.train.methods import AdaptSegNet, Method, StepValues, TrainBatch, frozen
-from uss_slam.train.methods.base import NonFiniteLossError
+from uss_slam.train.methods import Method, StepValues, TrainBatch
+from uss_slam.train.methods.base import NonFiniteLossError, OptimizerFactory
 from uss_slam.train.schedules import PolyLR, poly_horizon
 
 log = logging.getLogger(__name__)
-
-OptimizerFactory = Callable[..., Optimizer]
 
 RESUME_IGNORED = ("backbone", "adaptation")
 """``hyper_parameters`` not compared on resume: the architecture is checked weight by weight,
 ``adaptation`` follows from ``method``."""
 RESUME_KEYS = {"method": "model/method"}
-"""``hyper_parameters`` key -> the config key a user changes (others: ``model.<key>``)."""
+"""``hyper_parameters`` key -> the config key a user changes (others: ``model.<key>``; the
+method's own settings, ``method_settings.<key>``: ``model.method.<key>``)."""
 
 
 def factory_settings(factory: Any) -> dict[str, Any] | None:
@@ -103,7 +101,9 @@ def resume_differences(saved: dict[str, Any], current: dict[str, Any]) -> list[s
             continue
         if isinstance(value, (list, tuple)) and list(value) == list(theirs[key] or []):
             continue
-        shown = RESUME_KEYS.get(key, f"model.{key}")
+        shown = RESUME_KEYS.get(key, f"model.{key}").replace(
+            "model.method_settings.", "model.method."
+        )
         differences.append(f"{shown} ({theirs[key]!r} -> {value!r})")
     return differences
 
@@ -114,27 +114,23 @@ DomainBatchNorm = Literal["separate", "joint", "running"]
 COMPILE_MODES = ("default", "reduce-overhead", "max-autotune", "max-autotune-no-cudagraphs")
 """``torch.compile`` modes of the inductor backend."""
 
-DISCRIMINATOR_PREFIXES = ("d_aux.", "d_main.")
-"""State-dict key prefixes of the discriminators."""
+LEGACY_METHOD_PREFIXES = ("d_aux.", "d_main.")
+"""State-dict key prefixes of the discriminators in checkpoints written when the module held
+them (now ``method.d_aux.`` / ``method.d_main.``)."""
 
 __all__ = ["AdversarialSegmentation", "NonFiniteLossError"]
 
 
 class AdversarialSegmentation(LightningModule):
-    """A two-head segmenter and an adaptation method (with the two PatchGAN discriminators of the
-    methods that train them), trained with manual optimisation.
+    """A two-head segmenter trained by an adaptation method, with manual optimisation.
 
     Args:
         net: the segmenter; ``net(images)`` returns ``(aux, main)`` logits and
             ``net.param_groups(lr, head_lr_mult)`` its optimiser groups.
-        discriminator: factory called twice (``d_aux``, ``d_main``) when the method trains
-            discriminators, e.g. a Hydra ``_partial_`` :class:`~uss_slam.models.PatchDiscriminator`
-            with ``in_channels = num_classes``; unused (may be ``None``) otherwise.
         optimizer: segmenter optimiser factory taking ``params`` (SGD, with ``lr``).
-        d_optimizer: discriminator optimiser factory taking ``params`` (Adam); unused (may be
-            ``None``) when the method trains no discriminators.
-        method: what one iteration computes (default :class:`~uss_slam.train.methods.AdaptSegNet`).
-        loss: the four loss weights.
+        method: what one iteration computes and what else it trains
+            (:class:`~uss_slam.train.methods.Method`, config group ``model/method``).
+        loss: the weights of the source segmentation loss (both heads).
         max_iters: training iterations (own counter: ``global_step`` counts optimiser steps);
             training stops there.
         poly_power: exponent of the poly schedules.
@@ -175,10 +171,8 @@ class AdversarialSegmentation(LightningModule):
     def __init__(
         self,
         net: DeepLabV2,
-        discriminator: Callable[[], nn.Module] | None,
         optimizer: OptimizerFactory,
-        d_optimizer: OptimizerFactory | None,
-        method: Method | None = None,
+        method: Method,
         loss: LossWeights | None = None,
         max_iters: int = 250_000,
         poly_power: float = 0.9,
@@ -205,19 +199,8 @@ class AdversarialSegmentation(LightningModule):
             )
         self.automatic_optimization = False
         self.segmenter = net
-        self.method = self._check_method(method if method is not None else AdaptSegNet())
-        self.d_aux: nn.Module | None = None
-        self.d_main: nn.Module | None = None
-        if self.method.trains_discriminators:
-            if discriminator is None or d_optimizer is None:
-                raise UssSlamError(
-                    f"model/method={self.method.name} trains discriminators: model.discriminator "
-                    "and model.d_optimizer must be set"
-                )
-            self.d_aux = discriminator()
-            self.d_main = discriminator()
+        self.method = self._check_method(method)
         self.optimizer_factory = optimizer
-        self.d_optimizer_factory = d_optimizer
         self.loss_weights = loss if loss is not None else LossWeights()
         self.max_iters = max_iters
         self.poly_power = poly_power
@@ -276,7 +259,10 @@ class AdversarialSegmentation(LightningModule):
                 "class_names": list(self.class_names),
                 "backbone": getattr(net, "backbone_name", type(net).__name__),
                 "optimizer": factory_settings(optimizer),
-                "d_optimizer": factory_settings(d_optimizer) if self.discriminators else None,
+                "method_settings": {
+                    key: factory_settings(value) if callable(value) else value
+                    for key, value in self.method.settings().items()
+                },
             },
             logger=False,
         )
@@ -315,15 +301,9 @@ class AdversarialSegmentation(LightningModule):
 
     # ------------------------------------------------------------------ optimisers
 
-    @property
-    def discriminators(self) -> tuple[nn.Module, nn.Module] | None:
-        """``(d_aux, d_main)``, or ``None`` when the method trains no discriminators."""
-        if self.d_aux is None or self.d_main is None:
-            return None
-        return self.d_aux, self.d_main
-
     def configure_optimizers(self) -> tuple[list[Optimizer], list[PolyLR]]:
-        """The segmenter's optimiser and, with discriminators, theirs; one poly schedule each."""
+        """The segmenter's optimiser, then those the method declares for its own networks
+        (:meth:`~uss_slam.train.methods.Method.optimizers`); one poly schedule each."""
         lr = getattr(self.optimizer_factory, "keywords", {}).get("lr")
         if lr is None:
             raise UssSlamError("model.optimizer must set lr (the backbone learning rate)")
@@ -332,11 +312,9 @@ class AdversarialSegmentation(LightningModule):
                 self.optimizer_factory, self.segmenter.param_groups(lr, self.head_lr_mult)
             )
         ]
-        if self.discriminators is not None:
-            if self.d_optimizer_factory is None:
-                raise UssSlamError("model.d_optimizer must be set to train the discriminators")
-            params = list(itertools.chain(*(d.parameters() for d in self.discriminators)))
-            optimizers.append(self._optimizer(self.d_optimizer_factory, params))
+        optimizers += [
+            self._optimizer(factory, params) for factory, params in self.method.optimizers()
+        ]
         schedules = [PolyLR(opt, self.poly_total_iters, self.poly_power) for opt in optimizers]
         return optimizers, schedules
 
@@ -348,15 +326,15 @@ class AdversarialSegmentation(LightningModule):
         """The segmenter's (Lightning-wrapped) optimiser."""
         return self._optimizers()[0]
 
-    def discriminator_optimizer(self) -> Any:
-        """The discriminators' (Lightning-wrapped) optimiser."""
-        optimizers = self._optimizers()
-        if len(optimizers) < 2:
+    def method_optimizer(self, index: int) -> Any:
+        """The (Lightning-wrapped) optimiser ``index`` of those the method declares."""
+        optimizers = self._optimizers()[1:]
+        if not 0 <= index < len(optimizers):
             raise UssSlamError(
-                f"model/method={self.method.name}: this module was built without discriminators "
-                "(its method at construction trains none)"
+                f"model/method={self.method.name} declares {len(optimizers)} optimiser(s) of its "
+                f"own, asked for number {index}"
             )
-        return optimizers[1]
+        return optimizers[index]
 
     def _optimizer(self, factory: OptimizerFactory, params: list[Any]) -> Optimizer:
         """``factory(params)`` with the kernels of ``optimizer_kernels``."""
@@ -371,18 +349,11 @@ class AdversarialSegmentation(LightningModule):
 
     # ------------------------------------------------------------------ training
 
-    def discriminators_frozen(self) -> contextlib.AbstractContextManager[None]:
-        """``requires_grad=False`` on the discriminators' parameters while the segmenter trains
-        (restored afterwards, also on errors). Lightning's ``toggle_optimizer`` does the same
-        over every parameter of every optimiser at each call; the discriminator step needs no
-        freezing at all since its inputs are detached. A no-op without discriminators."""
-        return frozen(*(self.discriminators or ()))
-
     def forward(self, images: Tensor) -> SegmenterOutput:
         return self.segmenter(images)
 
     def setup(self, stage: str) -> None:
-        nets = (self.segmenter, *(self.discriminators or ()))
+        nets = (self.segmenter, *(self.method.discriminators or ()))
         if self.channels_last:
             for net in nets:
                 net.to(memory_format=torch.channels_last)
@@ -407,10 +378,9 @@ class AdversarialSegmentation(LightningModule):
         # logging steps (see on_train_batch_end).
         step = self.method.training_step(self, prepared)
         schedules = self.lr_schedulers()
-        sched_seg, *sched_d = schedules if isinstance(schedules, list) else [schedules]
-        if self.method.trains_discriminators:
-            for schedule in sched_d:
-                schedule.step()
+        sched_seg, *sched_method = schedules if isinstance(schedules, list) else [schedules]
+        for schedule in sched_method:
+            schedule.step()
         sched_seg.step()
         self.iteration += 1
         self._step_values = (step, batch["source"]["image"].shape[0])
@@ -506,28 +476,34 @@ class AdversarialSegmentation(LightningModule):
             checkpoint["state_dict"] = self.loadable_state(
                 checkpoint["state_dict"], checkpoint.get("hyper_parameters", {}).get("method")
             )
-        if self.discriminators is None:
-            # Written when every method built discriminators: their optimiser and schedule were
-            # saved second, after the segmenter's; this module has only the segmenter's.
-            for entry in ("optimizer_states", "lr_schedulers"):
-                if entry in checkpoint:
-                    checkpoint[entry] = checkpoint[entry][:1]
+        # Checkpoints written when every method built discriminators saved their optimiser and
+        # schedule after the segmenter's; a method with fewer optimisers of its own keeps those
+        # it declares.
+        kept = 1 + len(self.method.optimizers())
+        for entry in ("optimizer_states", "lr_schedulers"):
+            if entry in checkpoint:
+                checkpoint[entry] = checkpoint[entry][:kept]
 
     def loadable_state(self, state: dict[str, Any], method: str | None = None) -> dict[str, Any]:
-        """A checkpoint's ``state_dict`` as this module loads it: without the discriminators'
-        entries when the method trains none (earlier versions built them for every method).
+        """A checkpoint's ``state_dict`` as this module loads it. Discriminators saved by the
+        module of earlier versions (``d_aux.*`` / ``d_main.*``) become the method's
+        (``method.d_aux.*``), or are dropped when the method trains none.
 
         Raises:
             UssSlamError: the method trains discriminators and the checkpoint (of ``method``,
                 from its hyper-parameters) has none.
         """
-        has_discriminators = any(key.startswith(DISCRIMINATOR_PREFIXES) for key in state)
-        if self.discriminators is None:
-            return {k: v for k, v in state.items() if not k.startswith(DISCRIMINATOR_PREFIXES)}
-        if state and not has_discriminators:
+        renamed = {
+            (f"method.{k}" if k.startswith(LEGACY_METHOD_PREFIXES) else k): v
+            for k, v in state.items()
+        }
+        wanted = tuple(f"method.{p}" for p in LEGACY_METHOD_PREFIXES)
+        if self.method.discriminators is None:
+            return {k: v for k, v in renamed.items() if not k.startswith(wanted)}
+        if renamed and not any(k.startswith(wanted) for k in renamed):
             raise UssSlamError(
                 f"checkpoint of model/method={method or 'unknown'} has no discriminators, which "
                 f"model/method={self.method.name} trains: start a new run from its segmenter "
                 "with model.net.weights_path=<checkpoint> instead of resuming it"
             )
-        return state
+        return renamed

@@ -4,7 +4,7 @@ Examples::
 
     uss-train experiment=demo
     uss-train experiment=demo ckpt_path=last          # resume the newest demo run
-    uss-train -m experiment=demo model.discriminator.n_layers=4,5,6,7
+    uss-train -m experiment=demo model.method.discriminator.n_layers=4,5,6,7
 
 Returns the value of ``optimized_metric`` (``val/mIoU``) so Hydra sweepers can optimise it.
 """
@@ -21,7 +21,7 @@ import hydra
 import lightning as L
 import torch
 from hydra.errors import InstantiationException
-from hydra.utils import instantiate
+from hydra.utils import get_class, instantiate
 from lightning.pytorch import Callback, LightningDataModule, LightningModule, Trainer
 from lightning.pytorch.callbacks import LearningRateMonitor, ProgressBar
 from lightning.pytorch.loggers import Logger
@@ -35,6 +35,7 @@ from uss_slam.core.schema import check_targets, ranged, validate
 from uss_slam.models.checkpoint import CheckpointInfo, read_checkpoint
 from uss_slam.train.callbacks import LogProgressBar
 from uss_slam.train.checkpoint_io import AtomicCheckpointIO
+from uss_slam.train.method_configs import unused_method_settings
 from uss_slam.train.module import AdversarialSegmentation, resume_differences
 from uss_slam.train.speed import resolve_precision
 
@@ -171,35 +172,102 @@ def check_architecture(model: LightningModule, info: CheckpointInfo) -> None:
         if key not in theirs:
             raise UssSlamError(
                 f"ckpt_path {info.path}: has no {key} (trained with another architecture than "
-                "the configured model.net / model.discriminator?)"
+                "the configured model.net / model.method.discriminator?)"
             )
         if tuple(theirs[key].shape) != tuple(value.shape):
             raise UssSlamError(
                 f"ckpt_path {info.path}: {key} has shape {tuple(theirs[key].shape)}, the "
                 f"configured model {tuple(value.shape)} (another model.net / "
-                "model.discriminator?)"
+                "model.method.discriminator?)"
             )
     extra = sorted(set(theirs) - set(mine))
     if extra:
         raise UssSlamError(
             f"ckpt_path {info.path}: holds {extra[0]} that the configured model does not have "
-            "(another model.net / model.discriminator?)"
+            "(another model.net / model.method.discriminator?)"
         )
+
+
+MOVED_KEYS = {
+    "model.discriminator": "model.method.discriminator",
+    "model.d_optimizer": "model.method.d_optimizer",
+    "model.loss.lambda_adv_aux": "model.method.lambda_adv_aux",
+    "model.loss.lambda_adv_main": "model.method.lambda_adv_main",
+}
+"""Keys of earlier versions -> where the setting is now (the adversarial methods own their
+discriminators, their optimiser and their weights)."""
+
+
+def check_moved_keys(cfg: DictConfig) -> None:
+    """A key of an earlier version (``model.discriminator.n_layers=4``) is one line naming
+    where the setting is now, instead of an unknown-key error listing the model's keys."""
+    for old, new in MOVED_KEYS.items():
+        if OmegaConf.select(cfg, old, default=None) is not None:
+            raise UssSlamError(
+                f"{old}: moved to {new} (the adversarial methods own their discriminators, "
+                f"their optimiser and their weights); set {new} instead"
+            )
+
+
+def drop_unused_method_settings(cfg: DictConfig) -> None:
+    """Remove from ``model.method`` the keys its method does not take but another method does
+    (each logged as a warning); a key no method takes is one line naming it."""
+    node = cfg.model.get("method")
+    if not isinstance(node, DictConfig):
+        return
+    unused = unused_method_settings(node)
+    with open_dict(cfg):
+        for key in unused:
+            del cfg.model.method[key]
+
+
+def check_method_data(cfg: DictConfig) -> None:
+    """What the method needs of the data, before anything is built: target frames for a
+    method that adapts (``Method.adapts``), source and target crops of one size for a method
+    that combines them pixel by pixel (``Method.needs_equal_crops``)."""
+    node = cfg.model.get("method")
+    target = node.get("_target_") if isinstance(node, DictConfig) else None
+    if not isinstance(target, str):
+        return
+    method = get_class(target)
+    name = getattr(method, "name", target)
+    data_target = cfg.data.get("target")
+    if getattr(method, "adapts", False) and (
+        data_target is None or data_target.get("roots", None) in ([], None)
+    ):
+        raise UssSlamError(
+            f"model/method={name} trains on target frames: data.target is empty; set "
+            "data.target.roots to the target sequences (or use model/method=source_only)"
+        )
+    if getattr(method, "needs_equal_crops", False):
+        sizes = [
+            OmegaConf.select(cfg, f"data.{domain}.transform.crop_size", default=None)
+            for domain in ("source", "target")
+        ]
+        if None not in sizes and sizes[0] != sizes[1]:
+            raise UssSlamError(
+                f"model/method={name} combines source and target crops pixel by pixel: "
+                f"data.source.transform.crop_size ({sizes[0]}) and "
+                f"data.target.transform.crop_size ({sizes[1]}) must be equal"
+            )
 
 
 def check_optimizers(cfg: DictConfig) -> None:
     """Build each configured optimiser on a dummy parameter: a value torch rejects
     (``model.optimizer.lr=-1``, Adam betas outside [0, 1)) is one line naming the key before
     anything is built or written, not a traceback once training started."""
-    for key in ("optimizer", "d_optimizer"):
-        node = cfg.model.get(key)
+    method = cfg.model.get("method")
+    nodes = {"model.optimizer": cfg.model.get("optimizer")}
+    if isinstance(method, DictConfig):
+        nodes["model.method.d_optimizer"] = method.get("d_optimizer")
+    for key, node in nodes.items():
         if not isinstance(node, DictConfig) or "_target_" not in node:
             continue
         factory = instantiate(node)
         try:
             factory(params=[torch.nn.Parameter(torch.zeros(1))])
         except ValueError as error:
-            raise UssSlamError(f"model.{key}: {error}") from None
+            raise UssSlamError(f"{key}: {error}") from None
 
 
 def check_accelerator(cfg: DictConfig) -> None:
@@ -254,7 +322,7 @@ def check_resumed_settings(model: LightningModule, info: CheckpointInfo) -> None
 
 def build(cfg: DictConfig, key: str) -> Any:
     """``instantiate(cfg[key])``; a ``ValueError`` its constructors raise for a value out of
-    range (``data.batch_size=0``, ``model.discriminator.n_layers=0``) becomes one line naming
+    range (``data.batch_size=0``, ``model.method.discriminator.n_layers=0``) becomes one line naming
     ``key`` (Hydra wraps it with the target's name and no key)."""
     try:
         return instantiate(cfg[key])
@@ -307,6 +375,8 @@ def train(cfg: DictConfig) -> dict[str, float]:
     config, the checkpoint to resume, the output folders), so that a bad run leaves no
     checkpoints or logs behind.
     """
+    check_moved_keys(cfg)
+    drop_unused_method_settings(cfg)
     settings = check_config(cfg)
     check_optimizers(cfg)
     check_accelerator(cfg)
@@ -320,6 +390,7 @@ def train(cfg: DictConfig) -> dict[str, float]:
         check_writable(Path(folder).absolute(), key, create=False)
     check_no_earlier_checkpoints(cfg, ckpt_path)
 
+    check_method_data(cfg)
     datamodule: LightningDataModule = build(cfg, "data")
     model: LightningModule = build(cfg, "model")
     if checkpoint is not None:

@@ -73,6 +73,15 @@ DEPTH_SWEEP = (ADAPTED,)
 """``grid.depth_sweep`` when not given: the paper sweeps the depth of AdaptSegNet's
 discriminators; the other methods are compared at the tables' depth."""
 ADVERSARIAL_LOSS_KEYS = ("lambda_adv_aux", "lambda_adv_main")
+"""The weights of ``grid.loss`` that are the adversarial methods' own (``model.method.<key>``);
+the others weight the source loss of every method (``model.loss.<key>``)."""
+
+
+def loss_key(key: str) -> str:
+    """The ``uss-train`` key of a ``grid.loss`` weight."""
+    return f"model.method.{key}" if key in ADVERSARIAL_LOSS_KEYS else f"model.loss.{key}"
+
+
 N_LAYERS_RANGE = range(1, 9)
 """Discriminator depths the grid accepts (the paper sweeps 4..7)."""
 
@@ -93,12 +102,12 @@ PRESET_METHOD_OVERRIDES: dict[str, dict[str, tuple[str, ...]]] = {
     "appearance": {
         "adaptsegnet": (
             "model.domain_batch_norm=running",
-            "model.loss.lambda_adv_aux=0.02",
-            "model.loss.lambda_adv_main=0.1",
+            "model.method.lambda_adv_aux=0.02",
+            "model.method.lambda_adv_main=0.1",
         ),
     },
     "tum_like": {
-        "adaptsegnet": ("model.loss.lambda_adv_aux=0.02", "model.loss.lambda_adv_main=0.1"),
+        "adaptsegnet": ("model.method.lambda_adv_aux=0.02", "model.method.lambda_adv_main=0.1"),
     },
     "full": {},
 }
@@ -209,8 +218,8 @@ class TrainCell(_ModelNames):
         method = METHODS.get(self.method) or REFERENCE_METHODS[self.method]
         out = [*method, *self.settings, f"seed={self.seed}", f"run_name={self.model}"]
         if self.n_layers is not None:
-            out.append(f"model.discriminator.n_layers={self.n_layers}")
-        out += [f"model.loss.{k}={_short(v)}" for k, v in self.loss]
+            out.append(f"model.method.discriminator.n_layers={self.n_layers}")
+        out += [f"{loss_key(k)}={_short(v)}" for k, v in self.loss]
         if self.batchnorm is not None:
             out.append(f"model.net.batchnorm={self.batchnorm}")
         return out

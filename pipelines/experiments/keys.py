@@ -11,7 +11,8 @@ from typing import Any
 from uss_slam.core.errors import UssSlamError
 
 LOSS_KEYS = ("lambda_seg_aux", "lambda_seg_main", "lambda_adv_aux", "lambda_adv_main")
-"""The loss weights ``grid.loss`` may vary (``model.loss.<key>``)."""
+"""The loss weights ``grid.loss`` may vary (``model.loss.<key>``; the adversarial ones
+``model.method.<key>``)."""
 
 
 def choose(key: str, value: Any, accepted: Iterable[str]) -> str:

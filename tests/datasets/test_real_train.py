@@ -106,7 +106,7 @@ def test_paper_experiment_composes_the_three_source_sets(
     assert source.selection.classes == ["person", "chair", "monitor"]
     assert source.selection.require == "all" and source.selection.exclude_voc_val
     assert OmegaConf.to_container(source.coco.categories)["monitor"][:2] == ["tv", "tv/monitor"]
-    assert cfg.model.net.backbone == "resnet_small" and cfg.model.discriminator.n_layers == 5
+    assert cfg.model.net.backbone == "resnet_small" and cfg.model.method.discriminator.n_layers == 5
     data = instantiate(cfg.data)
     sources = data.source
     assert isinstance(sources, SelectedSources)

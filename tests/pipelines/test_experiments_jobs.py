@@ -17,6 +17,7 @@ from uss_slam.core.errors import DataFormatError, UssSlamError
 from uss_slam.core.files import write_json_atomic
 from uss_slam.pipelines.experiments import data, experiment, jobs, launch, plan
 from uss_slam.pipelines.runs import SlamJob
+from uss_slam.train.method_configs import method_names
 
 CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
 PROG = [sys.executable, "-m", "uss_slam.pipelines.experiments.cli"]
@@ -327,8 +328,8 @@ def test_missing_launcher_key_is_named_before_launching(tmp_path: Path) -> None:
         ),
         (
             ["grid.methods=[source_only,dann]"],
-            "uss-experiments: error: grid.methods[1]: expected one of source_only, adaptsegnet, "
-            "advent, minent, self_training, got 'dann'",
+            "uss-experiments: error: grid.methods[1]: expected one of "
+            f"{', '.join(method_names())}, got 'dann'",
         ),
         (
             ["train.experiment=nope"],

@@ -50,7 +50,7 @@ def test_methods_axis_trainings() -> None:
         "model/method=advent",
         "seed=0",
         "run_name=advent_n5_s0",
-        "model.discriminator.n_layers=5",
+        "model.method.discriminator.n_layers=5",
     ]
     assert cells[-1].overrides() == [
         "model/method=self_training",
@@ -197,11 +197,11 @@ def test_more_methods_and_crf_variants_keep_every_job_key(tmp_path: Path) -> Non
         "callbacks.image_logger=null",
         "++trainer.enable_progress_bar=false",
         "model/method=adaptsegnet",
-        "model.loss.lambda_adv_aux=0.02",  # tum_like's tuned settings (grid.method_overrides)
-        "model.loss.lambda_adv_main=0.1",
+        "model.method.lambda_adv_aux=0.02",  # tum_like's tuned settings (grid.method_overrides)
+        "model.method.lambda_adv_main=0.1",
         "seed=0",
         "run_name=adaptsegnet_n5_s0",
-        "model.discriminator.n_layers=5",
+        "model.method.discriminator.n_layers=5",
     ]
     assert base["segeval/adaptsegnet_n5_s0"] == {
         "model": "sha256-of-adaptsegnet_n5_s0",
@@ -301,7 +301,7 @@ def test_method_overrides_go_into_that_methods_trainings_only() -> None:
         "model.domain_batch_norm=running",
         "seed=0",
         "run_name=adaptsegnet_n5_s0",
-        "model.discriminator.n_layers=5",
+        "model.method.discriminator.n_layers=5",
     ]
     # the config name (and so the tables' row and the folder) stays the method's
     assert [c.model for c in cells] == ["source_only_s0", "adaptsegnet_n5_s0"]
@@ -314,9 +314,11 @@ def test_each_shift_preset_trains_with_its_tuned_settings(tmp_path: Path) -> Non
     # tum_like (the default): ten times the adversarial weights, the BatchNorm mode unchanged
     assert "model.domain_batch_norm=running" not in tum["train/adaptsegnet_n5_s0"]["overrides"]
     assert list(PRESET_METHOD_OVERRIDES["tum_like"]["adaptsegnet"]) == [
-        o for o in tum["train/adaptsegnet_n5_s0"]["overrides"] if o.startswith("model.loss.")
+        o
+        for o in tum["train/adaptsegnet_n5_s0"]["overrides"]
+        if o.startswith("model.method.lambda")
     ]
-    assert not any(o.startswith("model.loss.") for o in tum["train/source_only_s0"]["overrides"])
+    assert not any("lambda_adv" in o for o in tum["train/source_only_s0"]["overrides"])
     app = _job_keys(tmp_path, "scale=standard", "data.synthetic.shift=appearance")
     tuned = list(PRESET_METHOD_OVERRIDES["appearance"]["adaptsegnet"])
     assert tuned and all(t in app["train/adaptsegnet_n5_s0"]["overrides"] for t in tuned)

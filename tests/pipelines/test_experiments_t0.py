@@ -26,6 +26,7 @@ from uss_slam.pipelines.experiments import cli, experiment, grid, jobs, launch, 
 from uss_slam.pipelines.experiments import tables as tbl
 from uss_slam.pipelines.experiments.data import Data
 from uss_slam.pipelines.runs import compose_config
+from uss_slam.train.method_configs import method_names
 
 CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
 PROG = [sys.executable, "-m", "uss_slam.pipelines.experiments.cli"]
@@ -481,13 +482,11 @@ def test_stat_standard_error() -> None:
         (["grid.adabn=1"], "grid.adabn: expected true or false, got 1"),
         (
             ["grid.adabn_methods=[mystery]"],
-            "grid.adabn_methods[0]: expected one of source_only, adaptsegnet, "
-            "advent, minent, self_training, got 'mystery'",
+            f"grid.adabn_methods[0]: expected one of {', '.join(method_names())}, got 'mystery'",
         ),
         (
             ["grid.adabn_methods=[]"],
-            "grid.adabn_methods: expected a non-empty list of source_only, adaptsegnet, advent, "
-            "minent, self_training, got []",
+            f"grid.adabn_methods: expected a non-empty list of {', '.join(method_names())}, got []",
         ),
         (
             ["segeval.source_val_stride=0"],

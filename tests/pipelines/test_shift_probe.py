@@ -17,10 +17,13 @@ knob_overrides = shift_probe.knob_overrides
 def test_knob_rows_scale_the_methods_defaults() -> None:
     assert knob_overrides("adaptsegnet+adv30") == [
         "model/method=adaptsegnet",
-        "model.loss.lambda_adv_aux=0.06",
-        "model.loss.lambda_adv_main=0.3",
+        "model.method.lambda_adv_aux=0.06",
+        "model.method.lambda_adv_main=0.3",
     ]
-    assert knob_overrides("advent+dlr10") == ["model/method=advent", "model.d_optimizer.lr=0.001"]
+    assert knob_overrides("advent+dlr10") == [
+        "model/method=advent",
+        "model.method.d_optimizer.lr=0.001",
+    ]
     assert knob_overrides("source_only+lr3") == [
         "model/method=source_only",
         "model.optimizer.lr=0.03",
@@ -34,8 +37,8 @@ def test_knob_rows_scale_the_methods_defaults() -> None:
     assert knob_overrides("adaptsegnet+running+adv10") == [
         "model/method=adaptsegnet",
         "model.domain_batch_norm=running",
-        "model.loss.lambda_adv_aux=0.02",
-        "model.loss.lambda_adv_main=0.1",
+        "model.method.lambda_adv_aux=0.02",
+        "model.method.lambda_adv_main=0.1",
     ]
 
 
@@ -66,11 +69,14 @@ def test_knob_bases_are_the_configs_defaults(tmp_path) -> None:
     ent = compose_train(["experiment=demo_scratch", "model/method=minent"], tmp_path / "m")
     one = knob_overrides("adaptsegnet+adv1") + knob_overrides("minent+ent1")[1:]
     values = {o.split("=")[0]: float(o.split("=")[1]) for o in one if "=" in o and "." in o}
-    assert values["model.loss.lambda_adv_aux"] == adv.model.loss.lambda_adv_aux
-    assert values["model.loss.lambda_adv_main"] == adv.model.loss.lambda_adv_main
+    assert values["model.method.lambda_adv_aux"] == adv.model.method.lambda_adv_aux
+    assert values["model.method.lambda_adv_main"] == adv.model.method.lambda_adv_main
     assert values["model.method.lambda_ent_aux"] == ent.model.method.lambda_ent_aux
     assert values["model.method.lambda_ent_main"] == ent.model.method.lambda_ent_main
-    assert float(knob_overrides("adaptsegnet+dlr1")[1].split("=")[1]) == adv.model.d_optimizer.lr
+    assert (
+        float(knob_overrides("adaptsegnet+dlr1")[1].split("=")[1])
+        == adv.model.method.d_optimizer.lr
+    )
     assert float(knob_overrides("source_only+lr1")[1].split("=")[1]) == adv.model.optimizer.lr
 
 

@@ -11,9 +11,11 @@ from typing import ClassVar
 import pytest
 import torch
 import torch.nn.functional as F
+from hydra import compose, initialize_config_dir
+from hydra.core.global_hydra import GlobalHydra
 from hydra.errors import ConfigCompositionException
 from hydra.utils import instantiate
-from shared_helpers import compose_train, data_overrides
+from shared_helpers import CONFIG_DIR, compose_train, data_overrides
 from torch import Tensor, nn
 from train_helpers import fit_repeated, quiet_trainer
 
@@ -37,6 +39,7 @@ from uss_slam.train.methods import (
     StepValues,
     TrainBatch,
     can_batch_domains,
+    segmenter_step,
 )
 from uss_slam.train.module import AdversarialSegmentation
 from uss_slam.train.train import check_architecture, train
@@ -98,12 +101,13 @@ def test_a_method_owns_what_it_trains(method: str, tmp_path: Path) -> None:
     model = instantiate(_compose(tmp_path, f"model/method={method}").model)
     assert type(model.method) is method_class(method) and model.method.name == method
     trains = method_class(method).trains_discriminators
-    own = {"method"} if model.method.state_dict() else set()  # e.g. a teacher and its counts
-    networks = {"segmenter"} | ({"d_aux", "d_main"} if trains else set()) | own
-    assert {key.split(".")[0] for key in model.state_dict()} == networks
+    own = {"method"} if model.method.state_dict() else set()  # e.g. a teacher, discriminators
+    assert {key.split(".")[0] for key in model.state_dict()} == {"segmenter"} | own
+    children = {key.split(".")[1] for key in model.state_dict() if key.startswith("method.")}
+    assert ({"d_aux", "d_main"} <= children) is trains
     optimizers, schedules = model.configure_optimizers()
     assert len(optimizers) == len(schedules) == (2 if trains else 1)
-    assert (model.discriminators is not None) is trains
+    assert (model.method.discriminators is not None) is trains
 
 
 def test_the_shipped_methods_are_the_config_group() -> None:
@@ -144,9 +148,7 @@ def _source_only_module() -> AdversarialSegmentation:
     net = bench.build_module("resnet_small", max_iters=4).segmenter
     return AdversarialSegmentation(
         net=net,
-        discriminator=None,
         optimizer=functools.partial(torch.optim.SGD, lr=2.5e-4, momentum=0.9, nesterov=True),
-        d_optimizer=None,
         method=SourceOnly(),
         max_iters=4,
     )
@@ -160,17 +162,24 @@ def test_checkpoints_with_unused_discriminators_still_resume(tmp_path: Path) -> 
     old.optimizer_factory = functools.partial(
         torch.optim.SGD, lr=2.5e-4, momentum=0.9, nesterov=True
     )
-    old.method = SourceOnly()  # the earlier layout: discriminators built for every method
+    # The earlier layout: the module built discriminators (d_aux.*, d_main.*) and their
+    # optimiser for every method, source-only included.
+    old.method.training_step = lambda module, batch: segmenter_step(module, batch["source"]).values
+    old.method.train_scalars = functools.partial(Method.train_scalars, old.method)
     batch = bench.random_batch(33, 2)
     _resume(old, batch, None, tmp_path)
     ckpt = tmp_path / "old.ckpt"
     old.trainer.save_checkpoint(ckpt)
     saved = torch.load(ckpt, weights_only=True)
+    saved["state_dict"] = {k.removeprefix("method."): v for k, v in saved["state_dict"].items()}
+    saved["hyper_parameters"]["method"] = "source_only"
+    del saved["hyper_parameters"]["method_settings"]
+    torch.save(saved, ckpt)
     assert any(k.startswith("d_main.") for k in saved["state_dict"])
     assert len(saved["optimizer_states"]) == len(saved["lr_schedulers"]) == 2
 
     new = _source_only_module()
-    assert new.discriminators is None
+    assert new.method.discriminators is None
     check_architecture(new, read_checkpoint(ckpt))  # uss-train's check before resuming
     _resume(new, batch, ckpt, tmp_path)
     _resume(old, batch, ckpt, tmp_path)  # the reference: the old layout resumed
@@ -308,7 +317,7 @@ def test_a_new_method_plugs_in_by_config(uda_data: dict[str, Path], tmp_path: Pa
 
     # Two iterations through the module: the segmenter learns (no discriminators are built),
     # the toy's own value is what gets logged.
-    assert model.discriminators is None
+    assert model.method.discriminators is None
     seg_before = copy.deepcopy(model.segmenter.state_dict())
     datamodule = instantiate(cfg.data)
     trainer = quiet_trainer(limit_val_batches=0)
@@ -324,3 +333,44 @@ def test_a_new_method_plugs_in_by_config(uda_data: dict[str, Path], tmp_path: Pa
     metrics = train(_compose(tmp_path, *overrides, "+trainer.fast_dev_run=true"))
     assert {"train/loss_seg_src_main", "train/loss_ent_trg_main"} <= set(metrics)
     assert not any(k.startswith(("train/loss_adv", "train/loss_d")) for k in metrics)
+
+
+@pytest.mark.parametrize(
+    ("override", "new"),
+    [
+        ("+model.discriminator.n_layers=4", "model.method.discriminator"),
+        ("+model.d_optimizer.lr=0.1", "model.method.d_optimizer"),
+        ("+model.loss.lambda_adv_main=0.1", "model.method.lambda_adv_main"),
+    ],
+)
+def test_a_key_of_an_earlier_version_names_where_it_moved(
+    override: str, new: str, tmp_path: Path
+) -> None:
+    from uss_slam.train.train import check_moved_keys
+
+    GlobalHydra.instance().clear()
+    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
+        cfg = compose("train", overrides=["experiment=ci", override])
+    with pytest.raises(UssSlamError, match=f"moved to {new} "):
+        check_moved_keys(cfg)
+    check_moved_keys(_compose(tmp_path))
+
+
+def test_another_methods_setting_is_dropped_with_a_warning_and_a_typo_refused(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    from uss_slam.train.method_configs import unused_method_settings
+
+    def raw(*overrides: str):  # composed without uss-train's pruning
+        GlobalHydra.instance().clear()
+        with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
+            return compose("train", overrides=["experiment=ci", *overrides])
+
+    cfg = raw("model/method=minent", "+model.method.lambda_adv_main=0.1")
+    with caplog.at_level("WARNING"):
+        assert unused_method_settings(cfg.model.method) == ["discriminator", "lambda_adv_main"]
+    assert "model.method.lambda_adv_main: model/method=minent has no such setting" in caplog.text
+    cfg = raw("model/method=minent", "+model.method.lamda_ent_main=0.1")
+    with pytest.raises(UssSlamError, match="model.method.lamda_ent_main: not a setting of "
+                       "model/method=minent; its settings: lambda_ent_aux, lambda_ent_main"):  # fmt: skip
+        unused_method_settings(cfg.model.method)

@@ -26,7 +26,7 @@ def test_multirun_sweeps_discriminator_depth(uda_data: dict[str, Path], tmp_path
     _uss_train(
         "-m",
         "experiment=ci",
-        "model.discriminator.n_layers=4,5",
+        "model.method.discriminator.n_layers=4,5",
         *data_overrides(uda_data),
         "logger=none",
         "model.max_iters=2",
@@ -35,7 +35,7 @@ def test_multirun_sweeps_discriminator_depth(uda_data: dict[str, Path], tmp_path
     )
     for job, n_layers in (("0", 4), ("1", 5)):
         overrides = yaml.safe_load((sweep / job / ".hydra" / "overrides.yaml").read_text())
-        assert f"model.discriminator.n_layers={n_layers}" in overrides
+        assert f"model.method.discriminator.n_layers={n_layers}" in overrides
         state = torch.load(sweep / job / "checkpoints" / "last.ckpt", weights_only=True)
         convs = [k for k in state["state_dict"] if k.startswith("d_main.") and k.endswith("weight")]
         assert len(convs) == n_layers

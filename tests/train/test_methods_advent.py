@@ -19,12 +19,11 @@ from torch import Tensor
 from train_helpers import ADVERSARIAL_SCALARS, assert_weights_match_reference, fit_repeated
 
 from uss_slam.testing import reference_step as bench
-from uss_slam.train.losses import LossWeights
+from uss_slam.train.losses import LossWeights, self_information
 from uss_slam.train.methods import AdvEnt
 from uss_slam.train.methods import advent as advent_module
-from uss_slam.train.methods.advent import self_information
 
-ADVENT_WEIGHTS = LossWeights(lambda_adv_aux=0.0002, lambda_adv_main=0.001)
+ADVENT_WEIGHTS = bench.PaperWeights(lambda_adv_aux=0.0002, lambda_adv_main=0.001)
 
 
 def _up(logits: Tensor, size: torch.Size) -> Tensor:
@@ -41,7 +40,7 @@ def prob_2_entropy(prob: Tensor) -> Tensor:
     return -torch.mul(prob, torch.log2(prob + 1e-30)) / np.log2(c)
 
 
-def plain_advent_iteration(state, batch: dict, w: LossWeights) -> None:  # noqa: ANN001
+def plain_advent_iteration(state, batch: dict, w: bench.PaperWeights) -> None:  # noqa: ANN001
     """One ADVENT iteration written out (the discriminator losses not halved, as this
     project's shared discriminator step)."""
     seg, d_aux, d_main = state.segmenter, state.d_aux, state.d_main
@@ -74,8 +73,14 @@ def plain_advent_iteration(state, batch: dict, w: LossWeights) -> None:  # noqa:
 def _module(batch_domains: bool):  # noqa: ANN202
     torch.manual_seed(0)
     module = bench.build_module("resnet_small", max_iters=10, n_layers=5, ndf=8)
-    module.method = AdvEnt()
-    module.loss_weights = ADVENT_WEIGHTS
+    adaptsegnet = module.method
+    module.method = AdvEnt(
+        discriminator=lambda: None,
+        d_optimizer=adaptsegnet.d_optimizer_factory,
+        lambda_adv_aux=ADVENT_WEIGHTS.lambda_adv_aux,
+        lambda_adv_main=ADVENT_WEIGHTS.lambda_adv_main,
+    )
+    module.method.d_aux, module.method.d_main = adaptsegnet.d_aux, adaptsegnet.d_main
     module.batch_domains = batch_domains
     return module
 
@@ -109,25 +114,27 @@ def test_advent_matches_plain_pytorch_reference(batch_domains: bool) -> None:
     other = bench.plain_state_from(_module(batch_domains))
     for _ in range(3):
         bench.plain_iteration(other, batch, ADVENT_WEIGHTS)
-    assert not torch.allclose(other.d_main.layers[0].weight, module.d_main.layers[0].weight)
+    assert not torch.allclose(other.d_main.layers[0].weight, module.method.d_main.layers[0].weight)
 
 
 def test_advent_config_sets_advents_weights_and_keeps_the_depth_sweep(tmp_path: Path) -> None:
     cfg = compose_train(
-        ["experiment=ci", "model/method=advent", "model.discriminator.n_layers=6"], tmp_path / "r"
+        ["experiment=ci", "model/method=advent", "model.method.discriminator.n_layers=6"],
+        tmp_path / "r",
     )
     model = instantiate(cfg.model)
     assert isinstance(model.method, AdvEnt) and model.hparams["method"] == "advent"
-    assert model.loss_weights == LossWeights(0.1, 1.0, 0.0002, 0.001)
-    assert model.d_main.n_layers == 6 and model.d_aux.n_layers == 6
+    assert model.loss_weights == LossWeights(0.1, 1.0)
+    assert (model.method.lambda_adv_aux, model.method.lambda_adv_main) == (0.0002, 0.001)
+    assert model.method.d_main.n_layers == 6 and model.method.d_aux.n_layers == 6
     # An explicit weight wins over the method's default; other methods keep the paper's.
     cfg = compose_train(
-        ["experiment=ci", "model/method=advent", "model.loss.lambda_adv_main=0.005"],
+        ["experiment=ci", "model/method=advent", "model.method.lambda_adv_main=0.005"],
         tmp_path / "r",
     )
-    assert cfg.model.loss.lambda_adv_main == 0.005 and cfg.model.loss.lambda_adv_aux == 0.0002
+    assert cfg.model.method.lambda_adv_main == 0.005 and cfg.model.method.lambda_adv_aux == 0.0002
     cfg = compose_train(["experiment=ci"], tmp_path / "r")
-    assert (cfg.model.loss.lambda_adv_aux, cfg.model.loss.lambda_adv_main) == (0.002, 0.01)
+    assert (cfg.model.method.lambda_adv_aux, cfg.model.method.lambda_adv_main) == (0.002, 0.01)
 
 
 class _Scalars(Callback):
@@ -141,10 +148,12 @@ class _Scalars(Callback):
 
 def test_advent_logs_adaptsegnets_keys_and_trains_the_discriminators() -> None:
     module = _module(True)
-    d_before = copy.deepcopy(module.d_main.state_dict())
+    d_before = copy.deepcopy(module.method.d_main.state_dict())
     probe = _Scalars()
     fit_repeated(module, bench.random_batch(41, 1), 1, [probe])
-    assert not all(torch.equal(v, d_before[k]) for k, v in module.d_main.state_dict().items())
+    assert not all(
+        torch.equal(v, d_before[k]) for k, v in module.method.d_main.state_dict().items()
+    )
     assert probe.keys == [ADVERSARIAL_SCALARS]
     sched_seg, sched_d = module.lr_schedulers()
     assert (sched_seg.last_epoch, sched_d.last_epoch) == (1, 1)
@@ -161,8 +170,8 @@ def test_advent_weights_are_documented_as_adaptsegnets(tmp_path: Path) -> None:
     adaptsegnet defaults (the USS-SLAM paper's) are ten times both."""
     advent = instantiate(compose_train(["experiment=ci", "model/method=advent"], tmp_path).model)
     paper = instantiate(compose_train(["experiment=ci"], tmp_path).model)
-    advent_weights = (advent.loss_weights.lambda_adv_aux, advent.loss_weights.lambda_adv_main)
-    paper_weights = (paper.loss_weights.lambda_adv_aux, paper.loss_weights.lambda_adv_main)
+    advent_weights = (advent.method.lambda_adv_aux, advent.method.lambda_adv_main)
+    paper_weights = (paper.method.lambda_adv_aux, paper.method.lambda_adv_main)
     assert advent_weights == ADAPTSEGNET_MULTI_LEVEL
     assert paper_weights == pytest.approx(tuple(10 * w for w in ADAPTSEGNET_MULTI_LEVEL))
     doc = " ".join((advent_module.__doc__ or "").split())

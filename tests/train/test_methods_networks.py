@@ -30,7 +30,7 @@ def test_one_iteration_of_every_method_on_every_network(
     assert isinstance(model.segmenter, SEGMENTERS)
     assert type(model.segmenter).__name__ == NETS[net] and model.method.name == method
     seg_before = copy.deepcopy(model.segmenter.state_dict())
-    discriminators = model.discriminators
+    discriminators = model.method.discriminators
     assert (discriminators is not None) is model.method.trains_discriminators
     d_before = copy.deepcopy(discriminators[1].state_dict()) if discriminators else None
     fit_repeated(model, bench.random_batch(33, 2), 1)
@@ -39,4 +39,6 @@ def test_one_iteration_of_every_method_on_every_network(
     assert all(torch.isfinite(v).all() for v in after.values() if v.is_floating_point())
     assert not all(torch.equal(v, seg_before[k]) for k, v in after.items())
     if d_before is not None:
-        assert not all(torch.equal(v, d_before[k]) for k, v in model.d_main.state_dict().items())
+        assert not all(
+            torch.equal(v, d_before[k]) for k, v in model.method.d_main.state_dict().items()
+        )

@@ -13,7 +13,7 @@ from lightning.pytorch import Callback, LightningModule, Trainer
 from train_helpers import ADVERSARIAL_SCALARS, assert_weights_match_reference, fit_repeated
 
 from uss_slam.testing import reference_step as bench
-from uss_slam.train.methods import SourceOnly
+from uss_slam.train.methods import SourceOnly, frozen
 from uss_slam.train.module import AdversarialSegmentation
 
 
@@ -50,27 +50,25 @@ class Probe(Callback):
     def on_before_optimizer_step(
         self, trainer: Trainer, pl_module: LightningModule, optimizer: torch.optim.Optimizer
     ) -> None:
+        discriminators = pl_module.method.discriminators or ()
         self.steps.append(
             {
                 "optimizer": trainer.optimizers.index(optimizer),
-                "d_grads": [
-                    p.grad is not None
-                    for d in (pl_module.d_aux, pl_module.d_main)
-                    for p in d.parameters()
-                ],
+                "d_grads": [p.grad is not None for d in discriminators for p in d.parameters()],
                 "seg_grads": [
                     p.grad is not None for p in pl_module.segmenter.parameters() if p.requires_grad
                 ],
                 "segmenter": _params(pl_module.segmenter),
-                "discriminators": _params(pl_module.d_main),
+                "discriminators": _params(discriminators[-1]) if discriminators else {},
             }
         )
 
     def on_train_batch_end(self, trainer: Trainer, pl_module: LightningModule, *_: Any) -> None:
         if not self.after:
+            discriminators = pl_module.method.discriminators or ()
             self.after = {
                 "segmenter": _params(pl_module.segmenter),
-                "discriminators": _params(pl_module.d_main),
+                "discriminators": _params(discriminators[-1]) if discriminators else {},
             }
 
 
@@ -81,7 +79,10 @@ def _equal(a: dict[str, torch.Tensor], b: dict[str, torch.Tensor]) -> bool:
 @pytest.mark.parametrize("batch_domains", [True, False])
 def test_segmenter_step_leaves_discriminators_without_gradients(batch_domains: bool) -> None:
     module = _module(batch_domains=batch_domains)
-    before = {"segmenter": _params(module.segmenter), "discriminators": _params(module.d_main)}
+    before = {
+        "segmenter": _params(module.segmenter),
+        "discriminators": _params(module.method.d_main),
+    }
     bn_before = module.segmenter.backbone.bn1.running_mean.clone()
     probe = Probe()
     fit_repeated(module, bench.random_batch(41, 2), 1, [probe])
@@ -115,25 +116,20 @@ def test_module_matches_plain_pytorch_reference(
     batch = bench.random_batch(41, 2)
     fit_repeated(module, batch, 3)
     for _ in range(3):
-        bench.plain_iteration(state, batch, module.loss_weights, adaptation=adaptation)
+        bench.plain_iteration(state, batch, bench.weights_of(module), adaptation=adaptation)
     assert_weights_match_reference(module, state)
     lrs = [g["lr"] for g in module.trainer.optimizers[0].param_groups]
     assert lrs == [g["lr"] for g in state.opt_seg.param_groups]
     assert lrs[1] == pytest.approx(10 * lrs[0])
 
 
-def test_source_only_never_touches_the_discriminators() -> None:
+def test_source_only_trains_the_segmenter_only() -> None:
     module = _module(adaptation=False)
-    d_before = copy.deepcopy([module.d_aux.state_dict(), module.d_main.state_dict()])
     probe = Probe()
     fit_repeated(module, bench.random_batch(41, 2), 2, [probe])
     assert [s["optimizer"] for s in probe.steps] == [0, 0]  # only the segmenter steps
     assert probe.segmenter_forwards == 2  # source only, two iterations
-    for d, before in zip((module.d_aux, module.d_main), d_before, strict=True):
-        assert _equal(d.state_dict(), before)
-        assert all(p.grad is None for p in d.parameters())
-    opt_d = module.trainer.optimizers[1]
-    assert len(opt_d.state) == 0
+    assert module.method.discriminators is None and len(module.trainer.optimizers) == 1
     assert module.iteration == 2
 
 
@@ -149,7 +145,9 @@ def test_non_finite_loss_stops_before_the_step() -> None:
     after = _params(module.segmenter)
     assert all(torch.equal(before[k], after[k]) for k in before if "main.branches.0" not in k)
     # The discriminators were frozen when the error was raised; they are trainable again.
-    assert all(p.requires_grad for d in (module.d_aux, module.d_main) for p in d.parameters())
+    assert all(
+        p.requires_grad for d in (module.method.d_aux, module.method.d_main) for p in d.parameters()
+    )
 
 
 class StepValues(Callback):
@@ -164,7 +162,9 @@ class StepValues(Callback):
         self.scalars.append({k: float(v) for k, v in pl_module._train_scalars(step).items()})
         self.d_requires_grad.append(
             all(
-                p.requires_grad for d in (pl_module.d_aux, pl_module.d_main) for p in d.parameters()
+                p.requires_grad
+                for d in (pl_module.method.discriminators or ())
+                for p in d.parameters()
             )
         )
 
@@ -216,15 +216,18 @@ def test_scalars_reach_tensorboard_on_logging_steps_only(adaptation: bool, tmp_p
 
 def test_discriminators_frozen_restores_on_error() -> None:
     module = _module()
-    module.d_main.layers[0].weight.requires_grad_(False)  # a user-frozen parameter stays frozen
-    with pytest.raises(RuntimeError, match="inside"), module.discriminators_frozen():
+    # A user-frozen parameter stays frozen.
+    module.method.d_main.layers[0].weight.requires_grad_(False)
+    with pytest.raises(RuntimeError, match="inside"), frozen(*module.method.discriminators):
         assert not any(
-            p.requires_grad for d in (module.d_aux, module.d_main) for p in d.parameters()
+            p.requires_grad
+            for d in (module.method.d_aux, module.method.d_main)
+            for p in d.parameters()
         )
         assert all(p.requires_grad for p in module.segmenter.heads().parameters())
         raise RuntimeError("inside")
-    assert not module.d_main.layers[0].weight.requires_grad
-    rest = [p for d in (module.d_aux, module.d_main) for p in d.parameters()]
+    assert not module.method.d_main.layers[0].weight.requires_grad
+    rest = [p for d in (module.method.d_aux, module.method.d_main) for p in d.parameters()]
     assert sum(not p.requires_grad for p in rest) == 1
 
 
@@ -243,7 +246,7 @@ def test_trained_batch_norm_matches_plain_reference_in_every_domain_mode(mode: s
     batch = bench.random_batch(41, 2)
     fit_repeated(module, batch, 2)
     for _ in range(2):
-        bench.plain_iteration(state, batch, module.loss_weights, domain_batch_norm=mode)
+        bench.plain_iteration(state, batch, bench.weights_of(module), domain_batch_norm=mode)
     assert_weights_match_reference(module, state)
     # what the first BatchNorm saw per iteration: (crops, batch statistics?)
     expected = {
@@ -281,9 +284,7 @@ def test_domain_batch_norm_rejects_other_values() -> None:
     ):
         AdversarialSegmentation(
             net=DeepLabV2(num_classes=4, backbone="resnet_small", freeze_bn=False),
-            discriminator=None,
             optimizer=functools.partial(torch.optim.SGD, lr=0.1),
-            d_optimizer=None,
             method=SourceOnly(),
             domain_batch_norm="x",
         )
@@ -316,7 +317,7 @@ def test_reference_batch_norm_matches_a_plain_restatement_of_adaptsegnet() -> No
     net.backbone.bn1.register_forward_pre_hook(lambda m, x: seen.append((len(x[0]), m.training)))
     batch = bench.random_batch(41, 2)
     fit_repeated(module, batch, 1)
-    bench.plain_iteration(state, batch, module.loss_weights, domain_batch_norm="separate")
+    bench.plain_iteration(state, batch, bench.weights_of(module), domain_batch_norm="separate")
     assert_weights_match_reference(module, state)  # parameters and running statistics
     assert seen == [(2, True), (2, True)]  # source, then target: batch statistics each
     after = _params(net)
@@ -343,9 +344,7 @@ def test_reference_batch_norm_needs_separate_domain_forwards() -> None:
         ):
             AdversarialSegmentation(
                 net=DeepLabV2(4, "resnet_small", batchnorm="reference"),
-                discriminator=None,
                 optimizer=functools.partial(torch.optim.SGD, lr=0.1),
-                d_optimizer=None,
                 method=SourceOnly(),
                 domain_batch_norm=mode,
             )

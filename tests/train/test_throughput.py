@@ -52,7 +52,8 @@ def _fit(module: LightningModule, iters: int, logger: Any = False, **trainer: An
 
 def _assert_weights_close(mine: LightningModule, ref: LightningModule, seg: float, d: float):
     for name, atol in (("segmenter", seg), ("d_aux", d), ("d_main", d)):
-        ours, theirs = getattr(mine, name).state_dict(), getattr(ref, name).state_dict()
+        ours = (mine.segmenter if name == "segmenter" else getattr(mine.method, name)).state_dict()
+        theirs = (ref.segmenter if name == "segmenter" else getattr(ref.method, name)).state_dict()
         assert list(ours) == list(theirs)
         for key, value in ours.items():
             torch.testing.assert_close(value, theirs[key], rtol=0, atol=atol, msg=f"{name}.{key}")
@@ -86,7 +87,7 @@ def test_optimizer_kernels_match_the_default_step(kernels: str) -> None:
 
 def test_fused_falls_back_to_foreach_where_the_optimizer_has_no_fused_kernel() -> None:
     module = _module(optimizer_kernels="fused")
-    module.d_optimizer_factory = _no_fused(torch.optim.Adamax, lr=1e-4)
+    module.method.d_optimizer_factory = _no_fused(torch.optim.Adamax, lr=1e-4)
     _fit(module, 1)
     opt_seg, opt_d = module.trainer.optimizers
     assert opt_seg.defaults["fused"] is True
@@ -122,14 +123,17 @@ def test_bad_speed_options_name_the_key(key: str, value: str, message: str) -> N
     import functools
 
     from uss_slam.models import DeepLabV2, PatchDiscriminator
+    from uss_slam.train.methods import AdaptSegNet
     from uss_slam.train.module import AdversarialSegmentation
 
     with pytest.raises(UssSlamError, match=message):
         AdversarialSegmentation(
             net=DeepLabV2(num_classes=4, backbone="resnet_small"),
-            discriminator=functools.partial(PatchDiscriminator, 4, 3, 8),
             optimizer=functools.partial(torch.optim.SGD, lr=0.1),
-            d_optimizer=functools.partial(torch.optim.Adam, lr=0.1),
+            method=AdaptSegNet(
+                discriminator=functools.partial(PatchDiscriminator, 4, 3, 8),
+                d_optimizer=functools.partial(torch.optim.Adam, lr=0.1),
+            ),
             **{key: value},
         )
 

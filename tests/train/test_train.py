@@ -62,10 +62,13 @@ def test_every_experiment_composes_and_instantiates(
     assert isinstance(model, AdversarialSegmentation) and isinstance(model.segmenter, DeepLabV2)
     assert len(datamodule.source) > 0 and len(datamodule.target) > 0
     if experiment == "pretrain":  # source-only on labelled photos: no discriminators
-        assert model.method.name == "source_only" and model.d_aux is None
+        assert model.method.name == "source_only" and model.method.discriminators is None
         assert datamodule.val is not None and len(datamodule.val) > 0
         return
-    assert isinstance(model.d_aux, PatchDiscriminator) and model.d_aux is not model.d_main
+    assert (
+        isinstance(model.method.d_aux, PatchDiscriminator)
+        and model.method.d_aux is not model.method.d_main
+    )
     assert len(datamodule.source) > 0 and len(datamodule.target) > 0
     (opt_seg, opt_d), _ = model.configure_optimizers()
     assert isinstance(opt_seg, torch.optim.SGD) and isinstance(opt_d, torch.optim.Adam)
@@ -80,9 +83,9 @@ def test_every_experiment_composes_and_instantiates(
         assert (
             model.loss_weights.lambda_seg_aux == 0.1 and model.loss_weights.lambda_seg_main == 1.0
         )
-        assert model.loss_weights.lambda_adv_aux == 0.002
-        assert model.loss_weights.lambda_adv_main == 0.01
-        assert model.d_main.n_layers == 5 and model.poly_power == 0.9
+        assert model.method.lambda_adv_aux == 0.002
+        assert model.method.lambda_adv_main == 0.01
+        assert model.method.d_main.n_layers == 5 and model.poly_power == 0.9
         assert cfg.data.source.transform.crop_size == 321
 
 
@@ -91,15 +94,15 @@ def test_every_experiment_composes_and_instantiates(
 def test_documented_depth_sweep_fits_the_experiment_crops(
     experiment: str, n_layers: int, tmp_path: Path
 ) -> None:
-    # `uss-train -m experiment=ci|demo model.discriminator.n_layers=4,5,6,7` must run every job:
+    # `uss-train -m experiment=ci|demo model.method.discriminator.n_layers=4,5,6,7` must run every job:
     # the crop must survive n stride-2 convolutions (a 65-pixel crop breaks n = 7).
     cfg = compose_train(
-        [f"experiment={experiment}", f"model.discriminator.n_layers={n_layers}"], tmp_path
+        [f"experiment={experiment}", f"model.method.discriminator.n_layers={n_layers}"], tmp_path
     )
     crops = {cfg.data.source.transform.crop_size, cfg.data.target.transform.crop_size}
     assert len(crops) == 1
     crop = crops.pop()
-    d = instantiate(cfg.model.discriminator)()
+    d = instantiate(cfg.model.method.discriminator)()
     with torch.no_grad():
         out = d(torch.rand(1, cfg.model.net.num_classes, crop, crop))
     assert out.shape == (1, 1, crop // 2**n_layers, crop // 2**n_layers)
@@ -164,7 +167,8 @@ def test_ci_run_logs_validates_and_checkpoints(uda_data: dict[str, Path], tmp_pa
     assert len(last["optimizer_states"]) == 2 and len(last["lr_schedulers"]) == 2
     assert last["lr_schedulers"][0]["last_epoch"] == 4
     prefixes = {k.split(".")[0] for k in last["state_dict"]}
-    assert {"segmenter", "d_aux", "d_main"} <= prefixes
+    assert {"segmenter", "method"} <= prefixes
+    assert any(k.startswith("method.d_main.") for k in last["state_dict"])
 
 
 def _final_state(path: Path) -> dict:

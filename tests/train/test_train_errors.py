@@ -85,7 +85,7 @@ def _bad_checkpoint(kind: str, tmp_path: Path) -> tuple[Path, str]:
         overrides = ["model.net.num_classes=3", "model.class_names=[background,person,chair]"]
         return _checkpoint(tmp_path, "three.ckpt", overrides), "checkpoint has 3 classes"
     if kind == "architecture":
-        overrides = ["model.discriminator.n_layers=5"]
+        overrides = ["model.method.discriminator.n_layers=5"]
         return _checkpoint(tmp_path, "deeper.ckpt", overrides), "d_aux.layers"
     raise AssertionError(kind)
 
@@ -252,9 +252,9 @@ def test_resume_with_the_same_model_settings_passes_the_check(
     saved = dict(instantiate(cfg.model).hparams)
     again = compose_train(["experiment=ci", "trainer.max_epochs=7", "num_threads=1"], tmp_path)
     assert resume_differences(saved, dict(instantiate(again.model).hparams)) == []
-    other = compose_train(["experiment=ci", "model.loss.lambda_adv_main=0.5"], tmp_path / "b")
+    other = compose_train(["experiment=ci", "model.method.lambda_adv_main=0.5"], tmp_path / "b")
     assert resume_differences(saved, dict(instantiate(other.model).hparams)) == [
-        "model.loss.lambda_adv_main (0.01 -> 0.5)"
+        "model.method.lambda_adv_main (0.01 -> 0.5)"
     ]
 
 

@@ -15,6 +15,7 @@ from torchmetrics.classification import MulticlassConfusionMatrix, MulticlassJac
 from uss_slam.core.classes import CLASS_NAMES, IGNORE_INDEX
 from uss_slam.models import DeepLabV2, PatchDiscriminator
 from uss_slam.train.losses import upsample
+from uss_slam.train.methods import AdaptSegNet
 from uss_slam.train.module import AdversarialSegmentation
 
 
@@ -22,9 +23,11 @@ def _module() -> AdversarialSegmentation:
     torch.manual_seed(0)
     return AdversarialSegmentation(
         net=DeepLabV2(num_classes=len(CLASS_NAMES), backbone="resnet_small", freeze_bn=True),
-        discriminator=functools.partial(PatchDiscriminator, len(CLASS_NAMES), 4, 8),
         optimizer=functools.partial(torch.optim.SGD, lr=1e-3),
-        d_optimizer=functools.partial(torch.optim.Adam, lr=1e-4),
+        method=AdaptSegNet(
+            discriminator=functools.partial(PatchDiscriminator, len(CLASS_NAMES), 4, 8),
+            d_optimizer=functools.partial(torch.optim.Adam, lr=1e-4),
+        ),
         max_iters=10,
     )
 

@@ -14,39 +14,27 @@ One iteration:
    with the discriminators frozen; one SGD step of the segmenter;
 3. + 4. discriminators on the detached source (label 0) and target (label 1) maps ``I``.
 
-ADVENT's weights (``configs/model/method/advent.yaml`` sets them as ``model.loss``): ``λ_adv_main
+ADVENT's weights (``configs/model/method/advent.yaml``, ``model.method.lambda_adv_*``): ``λ_adv_main
 0.001, λ_adv_aux 0.0002`` (its ``LAMBDA_ADV_MAIN`` / ``LAMBDA_ADV_AUX``), equal to AdaptSegNet's
 multi-level ones (its code's ``LAMBDA_ADV_TARGET2`` / ``LAMBDA_ADV_TARGET1``). The USS-SLAM paper's
-weights, this project's ``model.loss`` defaults for ``adaptsegnet`` (``0.01`` / ``0.002``), are ten
-times both. Unlike ADVENT's code the discriminator losses are not halved (Adam is invariant to that
+weights, this project's defaults for ``adaptsegnet`` (``0.01`` / ``0.002``), are ten times both. Unlike ADVENT's code the discriminator losses are not halved (Adam is invariant to that
 scale) and the optimisers are the project's (ADVENT: SGD without Nesterov, weight decay 5e-4).
 """
 
 from __future__ import annotations
 
-import math
 from typing import ClassVar
 
 import torch.nn.functional as F
 from torch import Tensor
 
-from uss_slam.train.methods.adaptsegnet import AdaptSegNet
+from uss_slam.train.losses import self_information
+from uss_slam.train.methods.adversarial import AdversarialMethod
 
 
-def self_information(log_probs: Tensor) -> Tensor:
-    """ADVENT's weighted self-information map ``-P·log P / log C`` of ``(N, C, H, W)``
-    log-probabilities, same shape, values in ``[0, 1/(e·ln C)]``; its sum over classes is the
-    entropy normalised to ``[0, 1]``. From log-probabilities (not ``P + ε``): exact where
-    ``P`` underflows (``0·log 0 = 0``)."""
-    classes = log_probs.shape[1]
-    if classes < 2:
-        raise ValueError(f"self-information needs at least 2 classes, got {classes}")
-    return -(log_probs.exp() * log_probs) / math.log(classes)
-
-
-class AdvEnt(AdaptSegNet):
+class AdvEnt(AdversarialMethod):
     """``model/method=advent``: AdaptSegNet's iteration with the discriminators on the weighted
-    self-information maps; loss weights are ``model.loss`` (ADVENT's by default). The same
+    self-information maps; loss weights ``model.method.lambda_adv_*`` (ADVENT's by default). The same
     logged keys as AdaptSegNet (``train/loss_adv_trg_*``, ``train/loss_d_*``, ``train/d_acc_*``)."""
 
     name: ClassVar[str] = "advent"

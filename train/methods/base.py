@@ -1,11 +1,13 @@
 """What every adaptation method shares: the :class:`Method` interface, the two-domain forward /
-backward (:class:`DomainPass`), the segmenter's step on the source loss plus a method's target
-term (:func:`segmenter_step`) and the discriminator update (:func:`discriminator_step`).
+backward (:class:`DomainPass`) and the segmenter's step on the source loss plus a method's
+target term (:func:`segmenter_step`).
 
 A method computes the losses of one training iteration and steps the optimisers of the
 :class:`~uss_slam.train.module.AdversarialSegmentation` it is given (Lightning manual
-optimisation); the module owns the networks, the optimisers, the poly schedules, the iteration
-counter, logging and checkpoints. The segmenter stays a plain network that never sees domains.
+optimisation). The module owns the segmenter, its optimiser, the poly schedules, the iteration
+counter, logging and checkpoints; a method owns whatever else it trains (discriminators, a
+teacher), declares their optimisers (:meth:`Method.optimizers`) and its weights. The segmenter
+stays a plain network that never sees domains.
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ import functools
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, ClassVar, Generic, TypeVar
+from typing import Any, ClassVar, Generic, Protocol, TypeVar
 
 import torch
 import torch.nn.functional as F
@@ -23,23 +25,37 @@ from torch import Tensor, nn
 
 from uss_slam.core.errors import UssSlamError
 from uss_slam.models.deeplab import SegmenterOutput
-from uss_slam.train.losses import (
-    SOURCE_LABEL,
-    TARGET_LABEL,
-    LossWeights,
-    domain_accuracy,
-    domain_loss,
-    segmentation_loss,
-    upsample,
-)
-
-if TYPE_CHECKING:
-    from uss_slam.train.module import AdversarialSegmentation
+from uss_slam.train.losses import LossWeights, segmentation_loss, upsample
 
 TrainBatch = dict[str, dict[str, Any]]
 """``{"source": {"image" (N, 3, H, W), "label" (N, H, W) int64, ...}, "target": {"image", ...}}``."""
 StepValues = dict[str, Tensor]
 """Detached values of one iteration, named like the logged keys without ``train/``."""
+OptimizerFactory = Callable[..., torch.optim.Optimizer]
+"""An optimiser class with its settings bound (a Hydra ``_partial_``), taking ``params``."""
+
+
+class TrainingModule(Protocol):
+    """What a method uses of the LightningModule that trains it
+    (:class:`~uss_slam.train.module.AdversarialSegmentation`): its segmenter and optimisers,
+    the source loss weights, the iteration counter and budget, the BatchNorm and batching options, and
+    Lightning's ``manual_backward``."""
+
+    segmenter: nn.Module
+    loss_weights: LossWeights
+    iteration: int
+    max_iters: int
+    batch_domains: bool
+    domain_batch_norm: str
+    channels_last: bool
+    global_rank: int
+
+    def segmenter_optimizer(self) -> Any: ...
+
+    def method_optimizer(self, index: int) -> Any: ...
+
+    def manual_backward(self, loss: Tensor, *args: Any, **kwargs: Any) -> None: ...
+
 
 In = TypeVar("In")
 Out = TypeVar("Out")
@@ -47,6 +63,13 @@ Out = TypeVar("Out")
 
 class NonFiniteLossError(UssSlamError):
     """A loss became NaN or infinite; raised before any optimiser step applies it."""
+
+
+def check_weight(key: str, value: object) -> float:
+    """``value`` as a float when it is a number ``>= 0``, else one line naming ``key``."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not value >= 0:
+        raise UssSlamError(f"{key}: expected a number >= 0, got {value!r}")
+    return float(value)
 
 
 def check_finite(iteration: int, **losses: Tensor) -> None:
@@ -77,7 +100,7 @@ def uses_batch_statistics(net: nn.Module) -> bool:
     return any(m.training for m in net.modules() if isinstance(m, BATCH_NORM_LAYERS))
 
 
-def can_batch_domains(module: AdversarialSegmentation, source: Tensor, target: Tensor) -> bool:
+def can_batch_domains(module: TrainingModule, source: Tensor, target: Tensor) -> bool:
     """Source and target through one forward: when every layer treats samples independently
     (frozen BN), the module allows it (``batch_domains``) and the crops have one size (the same
     numbers, better CPU/GPU use); with BatchNorm in train mode only under
@@ -309,7 +332,7 @@ class SegmenterStep:
 
 
 def segmenter_step(
-    module: AdversarialSegmentation,
+    module: TrainingModule,
     source: dict[str, Tensor],
     target: Tensor | None = None,
     target_loss: Callable[[SegmenterOutput], TargetLoss] | None = None,
@@ -351,90 +374,51 @@ def segmenter_step(
     return SegmenterStep(src, term, batched)
 
 
-def discriminator_step(
-    module: AdversarialSegmentation,
-    source: tuple[Tensor, Tensor],
-    target: tuple[Tensor, Tensor],
-    batched: bool,
-) -> StepValues:
-    """Steps (3) + (4) of Algorithm 1: ``d_aux`` / ``d_main`` learn to tell the detached source
-    maps (label 0) from the target maps (label 1); one step of the discriminator optimiser.
-
-    ``source`` and ``target`` are ``(aux, main)`` maps ``(N, C, H, W)`` (detached here; the
-    segmenter needs no freezing). Returns the detached losses and discriminator logits
-    (``loss_d_src_aux``, ``d_trg_main``, ...) for :func:`discriminator_scalars`.
-    """
-    opt_d = module.discriminator_optimizer()
-    opt_d.zero_grad()
-
-    def both(maps: tuple[Tensor, Tensor]) -> tuple[Tensor, Tensor]:
-        return module.d_aux(maps[0]), module.d_main(maps[1])
-
-    src = (source[0].detach(), source[1].detach())
-    trg = (target[0].detach(), target[1].detach())
-    with DomainPass(both, src, trg, module.manual_backward, batched) as d:
-        d_src_aux, d_src_main = d.source()
-        loss_src_aux = domain_loss(d_src_aux, SOURCE_LABEL)
-        loss_src_main = domain_loss(d_src_main, SOURCE_LABEL)
-        check_finite(module.iteration, loss_d_src_aux=loss_src_aux, loss_d_src_main=loss_src_main)
-        d.backward(loss_src_aux + loss_src_main)
-        d_trg_aux, d_trg_main = d.target()
-        loss_trg_aux = domain_loss(d_trg_aux, TARGET_LABEL)
-        loss_trg_main = domain_loss(d_trg_main, TARGET_LABEL)
-        check_finite(module.iteration, loss_d_trg_aux=loss_trg_aux, loss_d_trg_main=loss_trg_main)
-        d.backward(loss_trg_aux + loss_trg_main)
-    opt_d.step()
-    return {
-        "loss_d_src_aux": loss_src_aux.detach(),
-        "loss_d_trg_aux": loss_trg_aux.detach(),
-        "loss_d_src_main": loss_src_main.detach(),
-        "loss_d_trg_main": loss_trg_main.detach(),
-        "d_src_aux": d_src_aux.detach(),
-        "d_trg_aux": d_trg_aux.detach(),
-        "d_src_main": d_src_main.detach(),
-        "d_trg_main": d_trg_main.detach(),
-    }
-
-
-@torch.no_grad()
-def discriminator_scalars(step: StepValues) -> dict[str, Tensor]:
-    """``train/loss_d_<head>`` (source + target loss) and ``train/d_acc_<head>`` (share of
-    patches whose domain the discriminator gets right) from :func:`discriminator_step`'s values."""
-    scalars = {}
-    for head in ("aux", "main"):
-        scalars[f"train/loss_d_{head}"] = step[f"loss_d_src_{head}"] + step[f"loss_d_trg_{head}"]
-        scalars[f"train/d_acc_{head}"] = 0.5 * (
-            domain_accuracy(step[f"d_src_{head}"], SOURCE_LABEL)
-            + domain_accuracy(step[f"d_trg_{head}"], TARGET_LABEL)
-        )
-    return scalars
-
-
 class Method(nn.Module, ABC):
     """One adaptation method: the losses and optimiser steps of a training iteration.
 
-    Subclasses set the class attributes and implement :meth:`training_step`; a method with
-    state of its own (e.g. a teacher network) registers it as submodules or buffers, which then
-    move with the LightningModule and are saved in its checkpoints (under ``method.``).
+    Subclasses set the class attributes and implement :meth:`training_step`. What a method
+    trains besides the segmenter (discriminators, a teacher) it registers as its own submodules
+    or buffers, which then move with the LightningModule and are saved in its checkpoints (under
+    ``method.``); their optimisers it declares in :meth:`optimizers`, and the module builds them
+    (with their poly schedules) after the segmenter's.
 
     Attributes:
         name: the option of the config group ``model/method`` (stored in checkpoints).
         adapts: the method trains on target frames (callbacks that pick a domain, such as
             ``PreciseBatchNorm(domain="auto")``, then pick the target).
-        trains_discriminators: the method trains the two discriminators: the module builds
-            ``d_aux`` / ``d_main``, their optimiser and its poly schedule only then.
+        trains_discriminators: the method trains two domain discriminators (the experiment grid
+            trains it at every discriminator depth it sweeps).
+        needs_equal_crops: the method combines source and target crops pixel by pixel:
+            ``uss-train`` refuses unequal ``data.*.transform.crop_size`` before any work.
     """
 
     name: ClassVar[str]
     adapts: ClassVar[bool]
-    trains_discriminators: ClassVar[bool]
+    trains_discriminators: ClassVar[bool] = False
+    needs_equal_crops: ClassVar[bool] = False
 
     @abstractmethod
-    def training_step(self, module: AdversarialSegmentation, batch: TrainBatch) -> StepValues:
+    def training_step(self, module: TrainingModule, batch: TrainBatch) -> StepValues:
         """Compute the losses of one iteration, back-propagate them and step the optimisers
-        (:func:`segmenter_step` first, then :func:`discriminator_step` when
-        :attr:`trains_discriminators`). The images are already on the module's device and memory
-        format. Returns detached values for :meth:`train_scalars`."""
+        (:func:`segmenter_step` first, then the method's own through
+        ``module.method_optimizer(i)``). The images are already on the module's device and
+        memory format. Returns detached values for :meth:`train_scalars`."""
+
+    def optimizers(self) -> list[tuple[OptimizerFactory, list[nn.Parameter]]]:
+        """``(factory, params)`` of each optimiser of the method's own networks, in the order
+        ``module.method_optimizer(i)`` returns them (none by default)."""
+        return []
+
+    def settings(self) -> dict[str, Any]:
+        """The method's settings a checkpoint keeps (its weights, its optimisers' factories), so
+        that a resume with other values is noticed (``model.method.<key>``)."""
+        return {}
+
+    @property
+    def discriminators(self) -> tuple[nn.Module, ...] | None:
+        """The domain discriminators the method trains, or ``None``."""
+        return None
 
     def train_scalars(self, step: StepValues) -> dict[str, Tensor]:
         """The logged ``train/*`` scalars of one iteration (only computed on logging steps);

@@ -22,32 +22,19 @@ model.method.lambda_ent_aux=0.0002``).
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, ClassVar
+from typing import ClassVar
 
-import torch.nn.functional as F
-from torch import Tensor
-
-from uss_slam.core.errors import UssSlamError
 from uss_slam.models.deeplab import SegmenterOutput
-from uss_slam.train.losses import upsample
-from uss_slam.train.methods.advent import self_information
+from uss_slam.train.losses import entropy_loss
 from uss_slam.train.methods.base import (
     Method,
     StepValues,
     TargetLoss,
     TrainBatch,
+    TrainingModule,
+    check_weight,
     segmenter_step,
 )
-
-if TYPE_CHECKING:
-    from uss_slam.train.module import AdversarialSegmentation
-
-
-def entropy_loss(logits: Tensor, size: tuple[int, int]) -> Tensor:
-    """Mean normalised entropy (0..1) of the softmax of ``(N, C, h, w)`` logits upsampled to
-    ``size = (H, W)``: ``mean_{n,h,w} sum_c -P log P / log C``."""
-    info = self_information(F.log_softmax(upsample(logits, size), dim=1))
-    return info.sum(dim=1).mean()
 
 
 class MinEnt(Method):
@@ -62,20 +49,16 @@ class MinEnt(Method):
 
     name: ClassVar[str] = "minent"
     adapts: ClassVar[bool] = True
-    trains_discriminators: ClassVar[bool] = False
 
     def __init__(self, lambda_ent_aux: float = 0.01, lambda_ent_main: float = 0.05) -> None:
         super().__init__()
-        for key, value in (
-            ("lambda_ent_aux", lambda_ent_aux),
-            ("lambda_ent_main", lambda_ent_main),
-        ):
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or value < 0:
-                raise UssSlamError(f"model.method.{key} must be a number >= 0, got {value!r}")
-        self.lambda_ent_aux = float(lambda_ent_aux)
-        self.lambda_ent_main = float(lambda_ent_main)
+        self.lambda_ent_aux = check_weight("model.method.lambda_ent_aux", lambda_ent_aux)
+        self.lambda_ent_main = check_weight("model.method.lambda_ent_main", lambda_ent_main)
 
-    def training_step(self, module: AdversarialSegmentation, batch: TrainBatch) -> StepValues:
+    def settings(self) -> dict[str, float]:
+        return {"lambda_ent_aux": self.lambda_ent_aux, "lambda_ent_main": self.lambda_ent_main}
+
+    def training_step(self, module: TrainingModule, batch: TrainBatch) -> StepValues:
         images_trg = batch["target"]["image"]
         size = images_trg.shape[-2:]
 

@@ -41,7 +41,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, ClassVar
+from typing import ClassVar
 
 import numpy as np
 import torch
@@ -54,17 +54,16 @@ from uss_slam.core.classes import IGNORE_INDEX
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.normalization import IMAGENET_MEAN, IMAGENET_STD
 from uss_slam.models.deeplab import SegmenterOutput
+from uss_slam.train.image_space import from_rgb, to_rgb
 from uss_slam.train.losses import upsample
 from uss_slam.train.methods.base import (
     Method,
     StepValues,
     TargetLoss,
     TrainBatch,
+    TrainingModule,
     segmenter_step,
 )
-
-if TYPE_CHECKING:
-    from uss_slam.train.module import AdversarialSegmentation
 
 
 def ema_decay(updates: int, alpha: float) -> float:
@@ -156,9 +155,7 @@ class StrongAugmentation:
         blur = self.blur and float(torch.rand(())) > 0.5
         if not (jitter or blur):
             return images
-        mean = torch.tensor(self.mean, dtype=images.dtype, device=images.device).view(1, 3, 1, 1)
-        std = torch.tensor(self.std, dtype=images.dtype, device=images.device).view(1, 3, 1, 1)
-        rgb = (images * std + mean).clamp(0.0, 1.0)
+        rgb = to_rgb(images, self.mean, self.std).clamp(0.0, 1.0)
         if blur:
             h, w = images.shape[-2:]
             blurrer = v2.GaussianBlur([self.kernel_size(w), self.kernel_size(h)], (0.15, 1.15))
@@ -169,7 +166,7 @@ class StrongAugmentation:
             if blur:
                 image = blurrer(image)
             out.append(image)
-        return (torch.stack(out) - mean) / std
+        return from_rgb(torch.stack(out), self.mean, self.std)
 
 
 def iteration_seed(seed: int, rank: int, iteration: int) -> int:
@@ -205,7 +202,7 @@ class SelfTraining(Method):
 
     name: ClassVar[str] = "self_training"
     adapts: ClassVar[bool] = True
-    trains_discriminators: ClassVar[bool] = False
+    needs_equal_crops: ClassVar[bool] = True
 
     def __init__(
         self,
@@ -288,7 +285,7 @@ class SelfTraining(Method):
         weight = (confidence > self.pseudo_threshold).float().mean()
         return labels, weight
 
-    def training_step(self, module: AdversarialSegmentation, batch: TrainBatch) -> StepValues:
+    def training_step(self, module: TrainingModule, batch: TrainBatch) -> StepValues:
         w = module.loss_weights
         images_src, labels_src = batch["source"]["image"], batch["source"]["label"]
         images_trg = batch["target"]["image"]

@@ -1,14 +1,17 @@
 """Source-only training: the segmentation loss on labelled source images, nothing on the
-target (the paper's "without ATL" baseline). The discriminators are never used."""
+target (the paper's "without ATL" baseline)."""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, ClassVar
+from typing import ClassVar
 
-from uss_slam.train.methods.base import Method, StepValues, TrainBatch, segmenter_step
-
-if TYPE_CHECKING:
-    from uss_slam.train.module import AdversarialSegmentation
+from uss_slam.train.methods.base import (
+    Method,
+    StepValues,
+    TrainBatch,
+    TrainingModule,
+    segmenter_step,
+)
 
 
 class SourceOnly(Method):
@@ -16,7 +19,6 @@ class SourceOnly(Method):
 
     name: ClassVar[str] = "source_only"
     adapts: ClassVar[bool] = False
-    trains_discriminators: ClassVar[bool] = False
 
-    def training_step(self, module: AdversarialSegmentation, batch: TrainBatch) -> StepValues:
+    def training_step(self, module: TrainingModule, batch: TrainBatch) -> StepValues:
         return segmenter_step(module, batch["source"]).values
