@@ -11,9 +11,10 @@ channel among R, G, B (+1): :func:`colour_labels`.
 
 from __future__ import annotations
 
+import ast
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 import onnx
@@ -298,6 +299,45 @@ def drop_in_weakref_callback(error: BaseException) -> None:
     del thing
     gc.collect()
     assert ref() is None
+
+
+class ImportLine(NamedTuple):
+    """One ``import`` / ``from ... import`` statement: its line, the absolute module it reads
+    and the names it takes from it (empty for ``import x``)."""
+
+    line: int
+    module: str
+    names: tuple[str, ...]
+
+    def modules(self) -> set[str]:
+        """The module and ``module.<name>`` for each name (a name may be a sub-module)."""
+        return {self.module} | {f"{self.module}.{name}" for name in self.names}
+
+
+def read_imports(source: str, module: str, is_package: bool = False) -> list[ImportLine]:
+    """The one import reader of the architecture tests: every import of ``source`` (those
+    inside functions and ``TYPE_CHECKING`` blocks included), relative ones made absolute.
+
+    Args:
+        source: the file's text.
+        module: the file's module name (``uss_slam.core.tum_io``; for a package's
+            ``__init__.py`` the package, with ``is_package``).
+        is_package: the file is the package's ``__init__.py`` (``from . import x`` stays in it).
+    """
+    package = module if is_package else module.rpartition(".")[0]
+    found: list[ImportLine] = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Import):
+            found += [ImportLine(node.lineno, alias.name, ()) for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level == 0:
+                base = node.module or ""
+            else:
+                parts = package.split(".")
+                kept = parts[: len(parts) - node.level + 1]
+                base = ".".join(kept + ([node.module] if node.module else []))
+            found.append(ImportLine(node.lineno, base, tuple(a.name for a in node.names)))
+    return sorted(found)
 
 
 def import_cycle(graph: Mapping[str, set[str]]) -> list[str] | None:

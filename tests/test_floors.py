@@ -9,7 +9,6 @@ not load torch.
 
 from __future__ import annotations
 
-import ast
 import re
 import subprocess
 import sys
@@ -18,6 +17,7 @@ from pathlib import Path
 from typing import NamedTuple
 
 import pytest
+from shared_helpers import read_imports
 
 REPO = Path(__file__).resolve().parents[1]
 README = REPO / "README.md"
@@ -51,28 +51,16 @@ DATA_PACKAGES = frozenset({"configs"})
 KNOWN_VIOLATIONS: dict[tuple[str, str], str] = {}
 
 
-def _absolute(node: ast.ImportFrom, module: str) -> str:
-    """The absolute module a ``from ... import`` reads, for a file whose module is ``module``."""
-    if node.level == 0:
-        return node.module or ""
-    parts = module.split(".")
-    base = parts[: len(parts) - node.level]
-    return ".".join(base + ([node.module] if node.module else []))
-
-
 def imported_modules(source: str, module: str) -> list[tuple[int, str]]:
     """``(line, absolute module)`` for every import in ``source`` (the file of ``module``,
-    e.g. ``uss_slam.core.tum_io``; a package's ``__init__`` is the package itself)."""
+    e.g. ``uss_slam.core.tum_io``; a package's ``__init__`` is ``<package>.__init__``)."""
+    package = module.removesuffix(".__init__")
     found: list[tuple[int, str]] = []
-    for node in ast.walk(ast.parse(source)):
-        if isinstance(node, ast.Import):
-            found += [(node.lineno, alias.name) for alias in node.names]
-        elif isinstance(node, ast.ImportFrom):
-            base = _absolute(node, module)
-            if base == "uss_slam":  # `from uss_slam import datasets` imports the sub-package
-                found += [(node.lineno, f"uss_slam.{alias.name}") for alias in node.names]
-            else:
-                found.append((node.lineno, base))
+    for line in read_imports(source, package, is_package=module.endswith(".__init__")):
+        if line.module == "uss_slam" and line.names:  # `from uss_slam import datasets`
+            found += [(line.line, f"uss_slam.{name}") for name in line.names]
+        else:
+            found.append((line.line, line.module))
     return sorted(found)
 
 

@@ -4,10 +4,9 @@ from Python, not from a reader)."""
 
 from __future__ import annotations
 
-import ast
 from pathlib import Path
 
-from shared_helpers import import_cycle
+from shared_helpers import import_cycle, read_imports
 
 PIPELINES = Path(__file__).resolve().parents[2] / "pipelines"
 PACKAGE = "uss_slam.pipelines"
@@ -23,19 +22,8 @@ def _imports(path: Path, modules: set[str]) -> set[str]:
     """The modules of ``pipelines/`` that the file imports (a package counts as its
     ``__init__``; ``from . import x`` counts as module ``x`` when it is one)."""
     name = _module(path)
-    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
-    found: set[str] = set()
-    for node in ast.walk(ast.parse(path.read_text(), str(path))):
-        if isinstance(node, ast.Import):
-            found |= {alias.name for alias in node.names}
-        elif isinstance(node, ast.ImportFrom):
-            if node.level:
-                base = package.split(".")[: len(package.split(".")) - node.level + 1]
-                base = ".".join(base + ([node.module] if node.module else []))
-            else:
-                base = node.module or ""
-            found.add(base)
-            found |= {f"{base}.{alias.name}" for alias in node.names}
+    lines = read_imports(path.read_text(), name, path.name == "__init__.py")
+    found = set().union(*(line.modules() for line in lines))
     return {m for m in found if m in modules and m != name}
 
 

@@ -4,10 +4,9 @@ them, and tracking and mapping never import each other (both sit on the shared m
 
 from __future__ import annotations
 
-import ast
 from pathlib import Path
 
-from shared_helpers import import_cycle
+from shared_helpers import import_cycle, read_imports
 
 SLAM_EVAL = Path(__file__).resolve().parents[2] / "slam_eval"
 PACKAGE = "uss_slam.slam_eval"
@@ -23,22 +22,8 @@ def _module_name(path: Path) -> str:
 def _imports(path: Path) -> set[str]:
     """Absolute names of every module ``path`` imports (``TYPE_CHECKING`` and function-level
     imports included)."""
-    module = _module_name(path)
-    is_package = path.name == "__init__.py"
-    found: set[str] = set()
-    for node in ast.walk(ast.parse(path.read_text(), str(path))):
-        if isinstance(node, ast.Import):
-            found |= {alias.name for alias in node.names}
-        elif isinstance(node, ast.ImportFrom):
-            if node.level == 0:
-                base = node.module or ""
-            else:
-                parts = module.split(".")
-                keep = len(parts) - node.level + (1 if is_package else 0)
-                base = ".".join(parts[:keep] + ([node.module] if node.module else []))
-            found.add(base)
-            found |= {f"{base}.{alias.name}" for alias in node.names}
-    return found
+    lines = read_imports(path.read_text(), _module_name(path), path.name == "__init__.py")
+    return set().union(*(line.modules() for line in lines))
 
 
 def _sub_package(module: str) -> str | None:
