@@ -34,6 +34,9 @@ from typing import Any, TypeVar
 
 from uss_slam.core.errors import NoSpaceError, UssSlamError
 from uss_slam.core.files import no_space_errno
+from uss_slam.core.run_folders import RefusedRunFolder, RunFolderCheck, release_run_folders
+
+__all__ = ["RefusedRunFolder", "RunFolderCheck"]  # (configs name core.cli.RunFolderCheck)
 
 T = TypeVar("T")
 
@@ -472,8 +475,7 @@ def hydra_error_line(error: BaseException) -> str | None:
                 return f"{group}: unknown option {name!r}; expected one of {expected}"
             return f"{item.missing_cfg_file}: no such config"
         if isinstance(item, OverrideParseException):
-            message = (item.message.strip().splitlines() or [type(item).__name__])[0]
-            return f"{item.override}: {message}"
+            return override_parse_line(item.override, item.message)
     for item in chain:
         if isinstance(item, OmegaConfBaseException):
             return omegaconf_error_line(item)
@@ -482,6 +484,23 @@ def hydra_error_line(error: BaseException) -> str | None:
             lines = [line.strip().rstrip(".") for line in str(item).splitlines() if line.strip()]
             return "; ".join(lines) or type(item).__name__
     return None
+
+
+def override_parse_line(override: str, message: str) -> str:
+    """``<override>: <the parser's message>``; for a value holding characters Hydra reads only
+    quoted (spaces, non-ASCII letters such as in ``out_dir=/data/résumé``), the quoted form to
+    use instead of the lexer's text."""
+    key, sep, value = override.partition("=")
+    if sep and value and not value.startswith(("'", '"', "[", "{")):
+        from uss_slam.core.paths import hydra_quoted
+
+        quoted = hydra_quoted(value)
+        if quoted != value and any(ord(c) > 127 or c.isspace() for c in value):
+            return (
+                f"{key}: the value {value!r} must be quoted for Hydra (it holds spaces or "
+                f'non-ASCII characters); write {key}={quoted} (in a shell: "{key}={quoted}")'
+            )
+    return f"{override}: {(message.strip().splitlines() or ['cannot be parsed'])[0]}"
 
 
 def output_folder_line(error: OSError) -> str:
@@ -504,58 +523,6 @@ def output_folder_line(error: OSError) -> str:
     else:
         why = error.strerror or type(error).__name__
     return f"cannot create the output folder {path} ({why})"
-
-
-class RefusedRunFolder(BaseException):
-    """A Hydra app's run folder refused before Hydra writes into it (:class:`RunFolderCheck`).
-
-    A ``BaseException``: Hydra turns an ``Exception`` of a callback into a warning and goes
-    on; :func:`run_hydra_app` prints the one line of :attr:`error` and exits."""
-
-    def __init__(self, error: UssSlamError) -> None:
-        super().__init__(str(error))
-        self.error = error
-
-
-class RunFolderCheck:
-    """Hydra callback (``hydra.callbacks``, ``_target_`` this class, ``prog`` the app): before
-    Hydra creates the run folder and writes its record (``.hydra/``, the log file) into it,
-    refuse a folder that holds another console script's outputs
-    (:func:`uss_slam.core.files.check_output_owner`) or whose path the system cannot create.
-    Multirun job folders are Hydra's own fresh sweep folders and are not checked."""
-
-    def __init__(self, prog: str, key: str = "hydra.run.dir") -> None:
-        self.prog = prog
-        self.key = key  # the key the line names (uss-experiments: out_dir, its run folder)
-
-    def on_run_start(self, config: Any, **kwargs: Any) -> None:
-        from uss_slam.core.files import check_name_lengths, check_output_owner
-
-        folder = str(config.hydra.run.dir)
-        try:
-            check_name_lengths(folder, self.key)
-            check_output_owner(folder, self.prog, self.key)
-        except UssSlamError as error:
-            raise RefusedRunFolder(error) from None
-
-    # Hydra calls every hook of a callback (its base class would import Hydra here)
-    def on_run_end(self, config: Any, **kwargs: Any) -> None:
-        pass
-
-    def on_multirun_start(self, config: Any, **kwargs: Any) -> None:
-        pass
-
-    def on_multirun_end(self, config: Any, **kwargs: Any) -> None:
-        pass
-
-    def on_job_start(self, config: Any, **kwargs: Any) -> None:
-        pass
-
-    def on_job_end(self, config: Any, job_return: Any, **kwargs: Any) -> None:
-        pass
-
-    def on_compose_config(self, config: Any, **kwargs: Any) -> None:
-        pass
 
 
 def run_hydra_app(prog: str, app: Callable[[], object]) -> None:
@@ -585,6 +552,7 @@ def run_hydra_app(prog: str, app: Callable[[], object]) -> None:
         print(f"{prog}: error: {line}", file=sys.stderr)
         sys.exit(1)
     finally:
+        release_run_folders()
         if previous is None:
             os.environ.pop("HYDRA_FULL_ERROR", None)
         else:

@@ -33,6 +33,10 @@ class DataFormatError(UssSlamError, ValueError):
         where = self.path if line is None else f"{self.path}:{line}"
         super().__init__(f"{where}: {message}")
 
+    def __reduce__(self) -> tuple[object, ...]:
+        # rebuilt from its fields in another process (a worker's error): not from the message
+        return (type(self), (self.path, self.detail, self.line))
+
 
 NO_SPACE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT})
 """``errno`` values of a full file system (ENOSPC) or an exhausted disk quota (EDQUOT)."""
@@ -52,6 +56,11 @@ class NoSpaceError(UssSlamError):
         if code == errno.EDQUOT:
             why += " (disk quota exceeded)"
         super().__init__(f"{why} while writing {self.path or 'an output file'}")
+
+    def __reduce__(self) -> tuple[object, ...]:
+        # rebuilt from its fields in another process (a rendering worker's full disk), not
+        # from the message, which would name it twice
+        return (type(self), (self.path, self.errno))
 
 
 class OutputInUseError(UssSlamError):

@@ -16,7 +16,6 @@ import logging
 import os
 import re
 import socket
-import tempfile
 import threading
 import time
 import uuid
@@ -108,8 +107,8 @@ def no_space_errno(error: BaseException | None) -> int | None:
     seen: set[int] = set()
     while error is not None and id(error) not in seen:
         seen.add(id(error))
-        if isinstance(error, OSError) and error.errno in NO_SPACE_ERRNOS:
-            return int(error.errno)
+        if isinstance(error, OSError | NoSpaceError) and error.errno in NO_SPACE_ERRNOS:
+            return int(error.errno)  # (a NoSpaceError that crossed a process has no cause)
         error = error.__cause__ or error.__context__
     return None
 
@@ -256,62 +255,25 @@ def check_writable(
 ) -> Path:
     """Create ``folder`` (with parents) and prove a file can be created in it; otherwise raise a
     one-line :class:`UssSlamError` naming the folder (as ``key=folder`` when ``key``, the option
-    that chose it, is given).
+    that chose it, is given): :func:`uss_slam.core.paths.output_folder`.
 
     ``create=False`` creates nothing (for a check long before the first output is written):
     the nearest existing folder on the way to ``folder`` must be a folder that can be written.
     """
-    path = Path(folder)
-    where = str(path) if key is None else f"{key}={path}"
-    check_name_lengths(path, key)
-    if path.exists() and not path.is_dir():
-        raise UssSlamError(f"{where}: output folder is a file, not a folder")
-    probe = path  # the nearest existing folder on the way to it
-    while not probe.exists() and probe != probe.parent:
-        probe = probe.parent
-    if probe.exists() and not probe.is_dir():
-        raise UssSlamError(f"{where}: cannot create the output folder ({probe} is a file)")
-    try:
-        if create:
-            path.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryFile(dir=path if create else probe, prefix=".uss-slam-probe."):
-            pass
-    except OSError as error:
-        reason = error.strerror or type(error).__name__
-        raise UssSlamError(f"{where}: cannot write to the output folder ({reason})") from None
-    return path
+    from uss_slam.core.paths import output_folder
+
+    return output_folder(folder, key, create=create)
 
 
 def check_name_lengths(path: str | PathLike[str], key: str | None = None) -> None:
     """Refuse (one line naming ``key=path``) a path the system cannot create: a name in it
     longer than ``NAME_MAX`` bytes (255 on Linux file systems) or the whole longer than
     ``PATH_MAX`` (4096); ``os.stat`` and ``mkdir`` would raise ``ENAMETOOLONG`` on it."""
-    path = Path(path)
-    where = str(path) if key is None else f"{key}={path}"
-    name_max, path_max = _limit("PC_NAME_MAX", 255), _limit("PC_PATH_MAX", 4096)
-    for part in path.parts:
-        size = len(os.fsencode(part))
-        if size > name_max and part != path.anchor:
-            shown = part if len(part) <= 40 else part[:20] + "..." + part[-10:]
-            raise UssSlamError(
-                f"{where}: the name {shown!r} is {size} bytes; expected at most {name_max} "
-                "(the longest name the file system allows)"
-            )
-    size = len(os.fsencode(str(path.absolute())))
-    if size >= path_max:
-        raise UssSlamError(
-            f"{where}: the path is {size} bytes; expected fewer than {path_max} (the longest "
-            "path the system allows)"
-        )
+    from uss_slam.core.paths import too_long, where
 
-
-def _limit(name: str, default: int) -> int:
-    """``os.pathconf("/", name)``, or ``default`` where the system does not say."""
-    try:
-        value = os.pathconf("/", name)
-    except (OSError, ValueError, AttributeError):
-        return default
-    return value if value > 0 else default
+    reason = too_long(path)
+    if reason:
+        raise UssSlamError(f"{where(path, key)}: {reason}")
 
 
 # ------------------------------------------------------------------------------ output locks

@@ -14,6 +14,7 @@ import numpy as np
 import yaml
 
 from .errors import DataFormatError, UssSlamError
+from .paths import read_text
 
 DEPTH_SCALE = 5000.0
 """Depth PNG units per metre."""
@@ -91,12 +92,9 @@ class CameraIntrinsics:
         finite and > 0, ``width`` / ``height`` whole numbers > 0, the principal point inside the
         image, 4, 5 or 8 finite distortion coefficients; errors name the file and the key."""
         path = Path(path)
+        text = read_text(path, "expected an intrinsics YAML file")
         try:
-            data = yaml.safe_load(path.read_text())
-        except FileNotFoundError:
-            raise DataFormatError(path, "file not found") from None
-        except (OSError, UnicodeDecodeError) as err:
-            raise DataFormatError(path, f"cannot read the file ({err})") from None
+            data = yaml.safe_load(text)
         except yaml.YAMLError as err:
             mark = getattr(err, "problem_mark", None)
             problem = getattr(err, "problem", None) or "syntax error"

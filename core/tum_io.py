@@ -23,6 +23,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from .errors import DataFormatError
+from .paths import input_folder, read_text
 from .tum_camera import DEPTH_SCALE as DEPTH_SCALE
 from .tum_camera import INTRINSICS_FILE as INTRINSICS_FILE
 from .tum_camera import INTRINSICS_KEYS as INTRINSICS_KEYS
@@ -65,14 +66,7 @@ def matrix_to_quat(r: np.ndarray) -> np.ndarray:
 
 def _data_lines(path: Path) -> list[tuple[int, list[str]]]:
     """``(line number, fields)`` of every non-comment, non-blank line; fields split on spaces/commas."""
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise DataFormatError(path, "file not found") from None
-    except UnicodeDecodeError:
-        raise DataFormatError(path, "not a text file") from None
-    except OSError as err:  # a directory, no permission, ...
-        raise DataFormatError(path, f"cannot read the file ({err.strerror})") from None
+    text = read_text(path)
     rows = []
     for number, raw in enumerate(text.splitlines(), start=1):
         line = raw.strip()
@@ -376,10 +370,7 @@ def read_tum_folder(
     """
     root = Path(root).expanduser()
     needed = f"{RGB_LIST} and {DEPTH_LIST}" if depth else RGB_LIST
-    if not root.is_dir():
-        raise DataFormatError(
-            root, f"TUM sequence folder not found (expected a folder with {needed})"
-        )
+    input_folder(root, None, f"expected a TUM sequence folder with {needed}")
     lists = [RGB_LIST, DEPTH_LIST] if depth else [RGB_LIST]
     for name in lists:
         if not (root / name).is_file():

@@ -28,6 +28,7 @@ from torchvision import tv_tensors
 
 from uss_slam.core.classes import IGNORE_INDEX, NUM_CLASSES
 from uss_slam.core.errors import DataFormatError
+from uss_slam.core.images import image_problem
 from uss_slam.datasets.transforms import eval_transform
 
 log = logging.getLogger(__name__)
@@ -154,7 +155,7 @@ def read_image(path: Path) -> tv_tensors.Image:
         raise DataFormatError(path, "image file not found") from None
     except OSError as error:
         raise DataFormatError(path, f"cannot read image ({error.strerror})") from error
-    reason = _truncation(path, data[:16].tobytes(), data[-64:].tobytes())
+    reason = image_problem(data.tobytes())  # before the decoder: it would print its own line
     if reason:
         raise DataFormatError(path, reason)
     rgb = cv2.imdecode(data, cv2.IMREAD_COLOR_RGB) if data.size else None
@@ -170,10 +171,7 @@ def read_label_values(path: Path) -> np.ndarray:
     """
     try:
         with open(path, "rb") as file:
-            head = file.read(16)
-            file.seek(0, 2)
-            file.seek(max(0, file.tell() - 64))
-            reason = _truncation(path, head, file.read())
+            reason = image_problem(file.read())
         if reason:
             raise DataFormatError(path, reason)
         with PILImage.open(path) as image:

@@ -24,6 +24,7 @@ from omegaconf import DictConfig, OmegaConf
 from uss_slam.core.cli import hydra_task, run_hydra_app
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.onnx_contract import HEADS
+from uss_slam.core.paths import input_file, input_folder, output_file, output_folder
 from uss_slam.core.schema import check, ranged
 from uss_slam.export.checkpoint import run_name
 from uss_slam.export.onnx import check_options, export_checkpoint
@@ -99,7 +100,7 @@ class ExportOptions:
         ckpt = _value(cfg, "ckpt_path")
         if ckpt is None or ckpt == "":
             raise UssSlamError("ckpt_path=PATH is required (a uss-train .ckpt)")
-        ckpt_path = Path(str(ckpt))
+        ckpt_path = input_file(str(ckpt), "ckpt_path", "expected a uss-train checkpoint (.ckpt)")
         head = _value(cfg, "head")
         net_config = _value(cfg, "net_config")
         if net_config is not None and not isinstance(net_config, (str, dict)):
@@ -113,6 +114,7 @@ class ExportOptions:
                 "int8=true needs calibration.root=<TUM RGB-D folder of target frames>"
             )
         out = _value(cfg, "out")
+        out_key = "out" if out is not None else "out_dir" if _value(cfg, "name") is None else "name"
         if out is None:
             name = _value(cfg, "name")
             if name is None:
@@ -120,6 +122,11 @@ class ExportOptions:
                 if head != "main":
                     name = f"{name}_{head}"
             out = str(Path(str(_value(cfg, "out_dir"))) / f"{name}.onnx")
+        if out_key == "out_dir":
+            output_folder(Path(str(out)).parent, "out_dir")
+        output_file(str(out), out_key, "expected an .onnx file to write")
+        if int8:
+            input_folder(str(root), "calibration.root", "expected a TUM RGB-D folder with rgb.txt")
         max_diff, agreement = _value(cfg, "max_logit_diff"), _value(cfg, "min_label_agreement")
         experiment = _value(cfg, "experiment")
         return cls(

@@ -14,7 +14,6 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 import onnx
 import onnxruntime as ort
@@ -22,6 +21,7 @@ import onnxruntime as ort
 from uss_slam.core.cli import warning
 from uss_slam.core.errors import DataFormatError, UssSlamError
 from uss_slam.core.files import StagedFiles
+from uss_slam.core.images import read_colour
 from uss_slam.core.onnx_contract import INPUT_NAME, OUTPUT_LABELS
 from uss_slam.core.tum_io import read_file_list
 from uss_slam.export.outputs import INT8_SUFFIX, ExportResult, sidecar
@@ -65,9 +65,7 @@ def read_calibration_frames(
     images: list[np.ndarray] = []
     for index in picked:
         path = listing.resolve(int(index))
-        bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
-        if bgr is None:
-            raise DataFormatError(path, "not a readable image (listed in rgb.txt)")
+        bgr = read_colour(path)
         images.append(np.ascontiguousarray(bgr[:, :, ::-1]))
     if count < 2 * frames:  # after the reads: a bad folder is one error line, no warning
         warning(

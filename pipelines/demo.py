@@ -47,12 +47,12 @@ from uss_slam.core.cli import exit_on_user_error
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.files import (
     check_output_owner,
-    check_writable,
     content_key,
     file_sha256,
     output_lock,
     write_json_atomic,
 )
+from uss_slam.core.paths import input_folder, output_folder, path_override
 from uss_slam.slam_eval.filters.build import filter_classes
 from uss_slam.slam_eval.variants import check_filters
 from uss_slam.slam_eval.variants import read_table as read_variants
@@ -70,7 +70,7 @@ from .runs import (
     select_checkpoint,
     slam_defaults_key,
 )
-from .stages import Progress, Stage, run_stage
+from .stages import TRAINING_OUTPUTS, Progress, Stage, run_stage
 from .synthetic_data import DemoData
 
 MIOU_STRIDE = 10
@@ -192,7 +192,7 @@ def train_overrides(
     return [
         f"experiment={plan.experiment}",
         f"model/method={TRAININGS[name]}",
-        f"paths.data_dir={data}",
+        path_override("paths.data_dir", data),
         f"run_name={plan.experiment}_{name}",
         f"model.net.weights_path={hydra_value(str(init))}",
         *plan.data.train_overrides(data),  # the data set's folders, where not the shipped ones
@@ -227,7 +227,7 @@ def stage_train(
             "data": data_key,
             "init": file_sha256(init),
         },
-        outputs=(Path("checkpoints/*.ckpt"), Path("metrics.json")),
+        outputs=(*map(Path, TRAINING_OUTPUTS), Path("metrics.json")),
         resume_from=RESUME_FROM,
     )
     return run_stage(stage, lambda: _train(run_dir, overrides), force)
@@ -507,25 +507,22 @@ def run_demo(
         raise UssSlamError(f"--train-threads must be >= 1, got {train_threads}")
     if until not in STAGES:
         raise UssSlamError(f"--until {until}: not a stage ({', '.join(STAGES)})")
-    if out.exists() and not out.is_dir():
-        raise UssSlamError(f"--out {out}: exists and is not a folder")
-    check_writable(out, "--out", create=False)
+    output_folder(out, "--out")
     check_output_owner(out, "uss-demo", "--out")  # a uss-slam run's report.md, ...
     check_filters({v.name: v for v in VARIANTS}, list(filter_classes()))
     data = out / "data"
     # A bad --sequence fails here, before any work: a folder is checked now, a name after the
     # data stage made it.
-    if Path(sequence).is_dir():
-        seq_path = Path(sequence)
-        if until != "data":
-            check_sequence(seq_path, f"--sequence {sequence}")
-    elif sequence in synthetic_data.SLAM_PRESETS:
+    if sequence in synthetic_data.SLAM_PRESETS and not Path(sequence).is_dir():
         seq_path = data / "slam" / sequence
     else:
-        raise UssSlamError(
-            f"--sequence {sequence}: not a folder, nor one of the demo's SLAM sequences "
-            f"({', '.join(synthetic_data.SLAM_PRESETS)}, under {data / 'slam'})"
-        )
+        presets = ", ".join(synthetic_data.SLAM_PRESETS)
+        seq_path = input_folder(
+            sequence, "--sequence",
+            f"expected a TUM sequence folder or one of the demo's SLAM sequences ({presets})",
+        )  # fmt: skip
+        if until != "data":
+            check_sequence(seq_path, f"--sequence {sequence}")
     with output_lock(out, "--out"):
         return _run_stages(out, plan, data, seq_path, sequence, force, quiet, train_threads, until)
 

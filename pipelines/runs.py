@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from uss_slam.core.errors import UssSlamError
+from uss_slam.core.paths import path_override
 from uss_slam.slam_eval.variants import Variant
 
 if TYPE_CHECKING:
@@ -224,10 +225,10 @@ def run_training(run_dir: Path, overrides: Sequence[str], resume: bool = False) 
 
     from uss_slam.train.train import train
 
-    every = [*overrides, f"paths.output_dir={run_dir}"]
+    every = [*overrides, path_override("paths.output_dir", run_dir)]
     start = resume_point(run_dir) if resume else None
     if start is not None:
-        every.append(f"ckpt_path={run_dir / RESUME_FROM}")
+        every.append(path_override("ckpt_path", run_dir / RESUME_FROM))
     cfg = compose_config("train", every)
     hydra_dir = run_dir / ".hydra"
     hydra_dir.mkdir(parents=True, exist_ok=True)
@@ -293,7 +294,7 @@ class Segmenter:
         """The overrides choosing the segmenter."""
         if self.path is None:
             return [f"segmenter={self.kind}"]
-        return ["segmenter=onnx", f"segmenter.path={self.path}"]
+        return ["segmenter=onnx", path_override("segmenter.path", self.path)]
 
     def refinement(self) -> list[str]:
         """The overrides of the dense CRF (none without it)."""
@@ -330,7 +331,7 @@ class SlamJob:
 
     def overrides(self) -> list[str]:
         """The ``uss-slam`` overrides of this run (without ``out_dir`` / ``progress``)."""
-        out = [f"sequence.path={self.sequence}", *self.segmenter.choice()]
+        out = [path_override("sequence.path", self.sequence), *self.segmenter.choice()]
         if self.orbslam3 is None:
             out.append(f"filters=[{','.join(self.filters)}]")
         out += self.segmenter.refinement()
@@ -340,7 +341,7 @@ class SlamJob:
             out += [
                 "filters=[]",
                 "system=orbslam3",
-                f"system.vocabulary={orb.vocabulary}",
+                path_override("system.vocabulary", orb.vocabulary),
                 f"system.repeats={orb.repeats}",
                 *orb.overrides,
             ]

@@ -30,6 +30,11 @@ from typing import Any
 
 from uss_slam.core.files import write_json_atomic
 
+TRAINING_OUTPUTS = ("checkpoints/last.ckpt",)
+"""What a finished training stage holds: ``last.ckpt``, which every checkpoint policy falls
+back to and every training writes (a ``best_*.ckpt`` alone is not a finished training: with
+``last.ckpt`` deleted the stage is trained again, not reused)."""
+
 STAMP = ".uss-demo.json"
 """Name of the completion stamp in a stage folder (JSON of the stage's key)."""
 

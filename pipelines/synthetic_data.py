@@ -48,6 +48,7 @@ from PIL import Image
 
 from uss_slam.core.classes import CLASS_NAMES, voc_lut
 from uss_slam.core.errors import UssSlamError
+from uss_slam.core.paths import path_override
 from uss_slam.core.processes import pool_ending_with_parent
 from uss_slam.core.progress import progress_bar
 from uss_slam.core.tum_io import read_file_list
@@ -180,9 +181,9 @@ class DemoData:
         config's)."""
         if self.shift != "appearance":
             return []
-        target = ",".join(str(Path(root) / f) for f in self.target_folders())
-        val = ",".join(str(Path(root) / f) for f in self.val_folders())
-        return [f"data.target.roots=[{target}]", f"data.val.roots=[{val}]"]
+        target = [Path(root) / f for f in self.target_folders()]
+        val = [Path(root) / f for f in self.val_folders()]
+        return [path_override("data.target.roots", target), path_override("data.val.roots", val)]
 
     def record(self) -> dict[str, Any]:
         """The content of ``demo.yaml`` (same keys and order as ever: old data sets match;

@@ -19,6 +19,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from uss_slam.core.cli import hydra_task, run_hydra_app
 from uss_slam.core.files import check_output_owner, check_writable, output_lock
+from uss_slam.core.paths import input_folder
 
 from .compare_sets import checked_runs
 from .config import check, register_configs, removed_override, run_name
@@ -85,6 +86,7 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     :mod:`.scoring.run_folder`): a failure, Ctrl-C or a full disk before that, in a comparison
     too, leaves the earlier run as it was.
     """
+    input_folder(str(cfg.sequence.path), "sequence.path", "expected a TUM RGB-D sequence folder")
     plan = check(cfg)
     out = check_writable(output_dir(cfg), "out_dir")
     if _own_hydra() is not None:  # inside uss-experiments, its job folder is that app's

@@ -22,6 +22,8 @@ import cv2
 import numpy as np
 
 from uss_slam.core.errors import DataFormatError, UssSlamError
+from uss_slam.core.images import read_colour, read_depth, read_grey
+from uss_slam.core.images import read_labels as read_label_image
 from uss_slam.core.tum_io import (
     StrPath,
     Trajectory,
@@ -121,9 +123,7 @@ class TumSequence:
             FrameRecord(k, f.stamp, f.rgb, f.depth_stamp, f.depth, f.labels)
             for k, f in enumerate(selected)
         ]
-        first = cv2.imread(str(self.records[0].rgb_path), cv2.IMREAD_GRAYSCALE)
-        if first is None:
-            raise DataFormatError(self.records[0].rgb_path, "not a readable image")
+        first = read_grey(self.records[0].rgb_path)
         self.image_size: tuple[int, int] = (first.shape[1], first.shape[0])
         """``(width, height)`` of every frame, pixels."""
         self.camera, self.camera_source = resolve_camera(
@@ -145,12 +145,8 @@ class TumSequence:
         """Read frame ``index`` from disk, checking formats and sizes (errors name the file)."""
         wall, cpu = time.perf_counter(), time.thread_time()
         record = self.records[index]
-        bgr = cv2.imread(str(record.rgb_path), cv2.IMREAD_COLOR)
-        if bgr is None:
-            raise DataFormatError(record.rgb_path, "not a readable image")
-        raw = cv2.imread(str(record.depth_path), cv2.IMREAD_UNCHANGED)
-        if raw is None:
-            raise DataFormatError(record.depth_path, "not a readable image")
+        bgr = read_colour(record.rgb_path)
+        raw = read_depth(record.depth_path)
         if raw.dtype != np.uint16 or raw.ndim != 2:
             raise DataFormatError(
                 record.depth_path,
@@ -249,16 +245,9 @@ def _identity(frame: Frame) -> Frame:
 
 def read_labels(path: Path, shape: tuple[int, ...], image_name: str) -> np.ndarray:
     """The uint8 class-id PNG ``path`` of colour image ``image_name`` of ``(H, W)`` ``shape``,
-    checked (errors name the file and what was expected)."""
-    labels = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if labels is None:
-        raise DataFormatError(path, "not a readable image")
-    if labels.dtype != np.uint8 or labels.ndim != 2:
-        raise DataFormatError(
-            path,
-            f"expected a single-channel uint8 class-id PNG, got {labels.dtype} "
-            f"with shape {labels.shape}",
-        )
+    checked (errors name the file and what was expected; a value that is not a class id or
+    255 too)."""
+    labels = read_label_image(path)
     if labels.shape != tuple(shape):
         raise DataFormatError(
             path,

@@ -14,7 +14,7 @@ import cv2
 from uss_slam.core.classes import CLASS_NAMES
 from uss_slam.core.cli import program, report_interrupt, signals_as_interrupts
 from uss_slam.core.errors import UssSlamError
-from uss_slam.core.files import check_name_lengths, check_writable
+from uss_slam.core.paths import output_folder
 
 from .motion import PRESETS
 from .output import (
@@ -238,9 +238,8 @@ def _render(args: argparse.Namespace) -> int:
     cv2.setNumThreads(1)
     start = time.perf_counter()
     try:
-        check_name_lengths(args.out, "--out")  # before a stat of it raises ENAMETOOLONG
+        output_folder(args.out, "--out")  # before rendering, not after
         check_output(args.out, args.overwrite)
-        check_writable(args.out, "--out", create=False)  # before rendering, not after
         for folder in clean_stale_partials(args.out):
             print(f"uss-synth: removed {folder} (left by a killed run)", file=sys.stderr)
         if args.command == "sequence":

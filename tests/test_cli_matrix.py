@@ -277,8 +277,8 @@ CASES = [
          "sequence --preset walking_xyz --frames 2 --size 32x24 --out {afile}/seq --quiet", 1,
          "--out={afile}/seq", "cannot create the output folder ({afile} is a file)",
          setup=(afile,)),
-    case("synth-out-is-a-file", "uss-synth", "voc --images 1 --size 32x24 --out {afile}", 2,
-         "{afile}: exists and is not a folder", setup=(afile,)),
+    case("synth-out-is-a-file", "uss-synth", "voc --images 1 --size 32x24 --out {afile}", 1,
+         "--out={afile}: is a file; expected a folder", setup=(afile,)),
     case("synth-seed-not-a-number", "uss-synth",
          "voc --images 1 --seed one --out {tmp}/voc", 2, "--seed", "invalid int value: 'one'"),
     case("synth-frames-above-the-bound", "uss-synth",
@@ -297,18 +297,20 @@ CASES = [
          f"--out={{tmp}}/{LONG}: the name", "is 300 bytes; expected at most 255"),
     # ---------------------------------------------------------------- uss-traj (argparse)
     case("traj-png-as-trajectory", "uss-traj", "ate {gt} {png}", 1,
-         "{png}: not a text file", setup=(write("png", png_bytes),)),
+         "{png}:1: not a text file: byte 0x89 at column 1 is not UTF-8",
+         setup=(write("png", png_bytes),)),
     case("traj-truncated-groundtruth", "uss-traj", "ate {gt} {cut}", 1,
          "{cut}:", "expected 8 columns", setup=(write("cut", lambda p: p["gt"].read_bytes()[:200]),)),
-    case("traj-latin1-garbage", "uss-traj", "rpe {bad} {gt}", 1, "{bad}: not a text file",
+    case("traj-latin1-garbage", "uss-traj", "rpe {bad} {gt}", 1,
+         "{bad}:1: not a text file: byte 0xff at column 1 is not UTF-8",
          setup=(write("bad", b"\xff\xfe\x00 caf\xe9\n"),)),
     case("traj-zero-quaternion", "uss-traj", "ate {gt} {zq}", 1,
          "{zq}:1:", "unit norm, got norm 0.000000",
          setup=(write("zq", "1 0 0 0 0 0 0 0\n2 0 0 0 0 0 0 1\n3 0 0 0 0 0 0 1\n"),)),
     case("traj-plot-under-a-file", "uss-traj", "ate {gt} {gt} --plot {afile}/ate.png", 1,
-         "--plot {afile}/ate.png", "{afile} is not a folder", setup=(afile,)),
+         "--plot={afile}/ate.png", "({afile} is a file)", setup=(afile,)),
     case("traj-plot-is-a-folder", "uss-traj", "ate {gt} {gt} --plot {plots}", 1,
-         "--plot {plots}: is a folder", setup=(folder("plots", ".png"),)),
+         "--plot={plots}: is a folder; expected a file", setup=(folder("plots", ".png"),)),
     case("traj-offset-nan", "uss-traj", "ate {gt} {gt} --offset nan", 2,
          "argument --offset", "expected a finite number, got 'nan'"),
     case("traj-delta-finer-than-sampling", "uss-traj",
@@ -319,17 +321,18 @@ CASES = [
          interrupt=("uss_slam.slam_eval.scoring.traj_cli:plot_ate", 0)),
     # ---------------------------------------------------------------- uss-vocab (argparse)
     case("vocab-build-not-a-sequence", "uss-vocab", "build {voc} --out {tmp}/v.txt", 1,
-         "{voc}/rgb.txt: file not found"),
+         "{voc}/rgb.txt: does not exist"),
     case("vocab-build-out-under-a-file", "uss-vocab",
          "build {seq} --out {afile}/v.txt -k 3 -L 2", 1,
-         "{afile}: output folder is a file", setup=(afile,)),
+         "--out={afile}/v.txt: cannot create the output folder ({afile} is a file)",
+         setup=(afile,)),
     case("vocab-build-out-is-a-folder", "uss-vocab",
          "build {seq} --out {vocab} --overwrite -k 3 -L 2", 1,
-         "--out {vocab}: is a folder; expected a vocabulary file", setup=(folder("vocab"),)),
+         "--out={vocab}: is a folder; expected a file", setup=(folder("vocab"),)),
     case("vocab-build-k-too-large", "uss-vocab", "build {seq} --out {tmp}/v.txt -k 21", 2,
          "argument -k/--branching", "expected an integer in 2..20, got 21"),
     case("vocab-build-missing-frame", "uss-vocab", "build {s} --out {tmp}/v.txt --stride 1",
-         1, "{s}/rgb/", "not a readable image",
+         1, "{s}/rgb/", "empty file; expected a colour image",
          setup=(seq_copy(corrupt("rgb", 0, b"")),)),
     case("vocab-build-overwrite-a-non-vocabulary", "uss-vocab",
          "build {seq} --out {png} --overwrite -k 3 -L 2", 1,
@@ -343,7 +346,8 @@ CASES = [
          "{v}:3: expected 'parent is_leaf' + 32 descriptor bytes + 'weight' (35 fields)",
          setup=(write("v", vocabulary_text(3)[:120]),)),
     case("vocab-info-binary", "uss-vocab", "info {png}", 1,
-         "{png}: not a DBoW2 text vocabulary", setup=(write("png", png_bytes),)),
+         "{png}:1: not a text file: byte 0x89 at column 1 is not ASCII; expected a DBoW2 text "
+         "vocabulary file", setup=(write("png", png_bytes),)),
     case("vocab-ctrl-c-while-clustering", "uss-vocab",
          "build {seq} --out {tmp}/v.txt -k 3 -L 2 --max-frames 2", 130,
          "uss-vocab: interrupted",
@@ -377,7 +381,7 @@ CASES = [
     case("eval-data-value-type", "uss-eval", "{m} data.val.stride=abc --out {tmp}/eval", 1,
          "data.val.stride: expected an integer, got 'abc'", setup=(write("m", "not read", ".onnx"),)),
     case("eval-corrupt-label-png", "uss-eval", "{ckpt} --sequence {s} --out {tmp}/eval", 1,
-         "{s}/labels/", "not a readable image", setup=(seq_copy(corrupt("labels", 3)),)),
+         "{s}/labels/", "truncated PNG", setup=(seq_copy(corrupt("labels", 3)),)),
     case("eval-threads-zero", "uss-eval", "{m} --sequence {seq} --threads 0 --out {tmp}/e", 1,
          "--threads must be >= 1, got 0", setup=(write("m", "not read", ".onnx"),)),
     case("eval-ctrl-c-while-inferring", "uss-eval",
@@ -430,7 +434,8 @@ CASES = [
          setup=(earlier_slam_run,)),
     case("slam-out-dir-under-a-file", "uss-slam",
          "sequence.path={seq} out_dir={afile}/run progress=false", 1,
-         "cannot create the output folder {afile}/run ({afile} is a file)", setup=(afile,)),
+         "out_dir={afile}/run: cannot create the output folder ({afile} is a file)",
+         setup=(afile,)),
     case("slam-unknown-system", "uss-slam", f"{SLAM} system=orbslam2", 1,
          "system: unknown option 'orbslam2'; expected one of harness, orbslam3", setup=(earlier_slam_run,)),
     case("slam-garbage-groundtruth", "uss-slam", SLAM_S, 1,
@@ -455,7 +460,7 @@ CASES = [
                 earlier_slam_run)),
     case("slam-corrupt-label-png-mid-run", "uss-slam",
          f"{SLAM_S} segmenter=labels filters=[semantic]", 1, "{s}/labels/",
-         "not a readable image",
+         "truncated PNG",
          setup=(seq_copy(corrupt("labels", 5)), earlier_slam_run)),
     case("slam-truncated-onnx", "uss-slam",
          f"{SLAM} segmenter=onnx segmenter.path={{m}} filters=[semantic]", 1,
@@ -485,7 +490,7 @@ CASES = [
          interrupt=("uss_slam.slam_eval.systems.harness:SlamPipeline.run", 2)),
     case("slam-out-dir-name-too-long", "uss-slam",
          f"sequence.path={{seq}} out_dir={{tmp}}/{LONG} progress=false", 1,
-         "cannot create the output folder", "is 300 bytes; expected at most 255"),
+         f"out_dir={{tmp}}/{LONG}: the name", "is 300 bytes; expected at most 255"),
     # ---------------------------------------------------------------- uss-train (Hydra)
     case("train-negative-learning-rate", "uss-train", f"{TRAIN} model.optimizer.lr=-1", 1,
          "model.optimizer: Invalid learning rate: -1"),
@@ -504,7 +509,7 @@ CASES = [
     case("train-source-is-a-sequence", "uss-train", f"{TRAIN} data.source.root={{seq}}", 1,
          "{seq}: not a VOC tree"),
     case("train-resume-from-a-folder", "uss-train", f"{TRAIN} ckpt_path={{tmp}}", 1,
-         "ckpt_path {tmp} does not exist"),
+         "ckpt_path={tmp}: is a folder; expected a file"),
     case("train-second-run-into-a-used-folder", "uss-train", TRAIN, 1,
          "callbacks.model_checkpoint.dirpath={tmp}/run/checkpoints: holds checkpoints of an "
          "earlier run (last.ckpt, 1 in all); resume it with "
@@ -535,7 +540,8 @@ CASES = [
          "trace_size=[1: no viable alternative at input '[1'"),
     case("export-hydra-dir-under-a-file", "uss-export",
          "ckpt_path={ckpt} out_dir={tmp}/exports hydra.run.dir={afile}/hydra", 1,
-         "cannot create the output folder {afile}/hydra ({afile} is a file)", setup=(afile,)),
+         "hydra.run.dir={afile}/hydra: cannot create the output folder ({afile} is a file)",
+         setup=(afile,)),
     case("export-label-agreement-above-one", "uss-export", f"{EXPORT} min_label_agreement=2",
          1, "min_label_agreement: expected a number > 0 and <= 1 or null, got 2"),
     case("export-one-pixel-verification", "uss-export", f"{EXPORT} verify_size=[1,1]", 1,
@@ -551,7 +557,7 @@ CASES = [
          setup=(write("m", plain_onnx, ".onnx"), earlier_export)),
     case("export-checkpoint-is-a-folder", "uss-export",
          "ckpt_path={tmp} out_dir={exports} hydra.run.dir={tmp}/hydra", 1,
-         "{tmp}: is not a file (expected a uss-train .ckpt)", setup=(earlier_export,)),
+         "ckpt_path={tmp}: is a folder; expected a file", setup=(earlier_export,)),
     case("export-net-config-without-target", "uss-export",
          f"{EXPORT} net_config={{y}}", 1, "net config {y} has no _target_",
          setup=(write("y", "num_classes: 4\n"),)),
@@ -559,7 +565,8 @@ CASES = [
          "dynamic_classes ['ghost'] are not among"),
     case("export-out-under-a-file", "uss-export",
          "ckpt_path={ckpt} out={afile}/m.onnx hydra.run.dir={tmp}/hydra", 1,
-         "{afile}: output folder is a file, not a folder", setup=(afile,)),
+         "out={afile}/m.onnx: cannot create the output folder ({afile} is a file)",
+         setup=(afile,)),
     case("export-ctrl-c-while-writing", "uss-export",
          "ckpt_path={ckpt} out_dir={exports} hydra.run.dir={tmp}/hydra", 130,
          "uss-export: interrupted", setup=(earlier_export,),
@@ -697,9 +704,12 @@ def test_every_console_script_is_in_the_matrix() -> None:
     import tomllib
 
     scripts = tomllib.loads((TESTS.parent / "pyproject.toml").read_text())["project"]["scripts"]
-    assert set(scripts) == set(ENTRY_POINTS)
+    from uss_slam.core.launch import SCRIPTS
+
+    assert set(scripts) == set(ENTRY_POINTS) == set(SCRIPTS)
     for prog, target in scripts.items():
-        assert target == f"{ENTRY_POINTS[prog][0]}:main"
+        assert target == f"uss_slam.core.launch:{prog.replace('-', '_')}"
+        assert SCRIPTS[prog] == ENTRY_POINTS[prog][0]
         assert sum(c.prog == prog for c in CASES) >= 4, prog
     assert len(CASES) >= 60
 

@@ -31,6 +31,7 @@ from omegaconf import DictConfig, OmegaConf, open_dict
 from uss_slam.core.cli import hydra_task, run_hydra_app
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.files import check_writable
+from uss_slam.core.paths import input_file, input_roots
 from uss_slam.core.schema import check_targets, ranged, validate
 from uss_slam.models.checkpoint import CheckpointInfo, read_checkpoint
 from uss_slam.train.callbacks import LogProgressBar
@@ -57,10 +58,8 @@ def resolve_ckpt_path(cfg: DictConfig) -> str | None:
     if value is None:
         return None
     if str(value) != "last":
-        path = Path(str(value))
-        if not path.is_file():
-            raise UssSlamError(f"ckpt_path {path} does not exist")
-        return str(path)
+        expected = "expected a uss-train checkpoint (.ckpt), or last"
+        return str(input_file(str(value), "ckpt_path", expected))
     runs = Path(cfg.paths.log_dir) / cfg.task_name / "runs" / str(cfg.run_name)
     output_dir = Path(cfg.paths.output_dir).resolve()
     candidates = [
@@ -384,6 +383,8 @@ def train(cfg: DictConfig) -> dict[str, float]:
         torch.set_num_threads(settings.num_threads)
     if settings.seed is not None:
         L.seed_everything(settings.seed, workers=True, verbose=False)
+    data = OmegaConf.to_container(cfg.data, resolve=True, throw_on_missing=False)
+    input_roots(data, "data")  # before the data module reads them
     ckpt_path = resolve_ckpt_path(cfg)
     checkpoint = check_checkpoint(ckpt_path, cfg) if ckpt_path is not None else None
     for key, folder in _output_folders(cfg):

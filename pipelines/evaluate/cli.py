@@ -14,11 +14,11 @@ from uss_slam.core.cli import exit_on_user_error, warning
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.files import (
     check_output_owner,
-    check_writable,
     output_lock,
     write_json_atomic,
     write_text_atomic,
 )
+from uss_slam.core.paths import output_folder
 from uss_slam.core.seg_metrics import iou_report, mask_metrics
 
 from .frames import FrameSource, config_val_frames, sequence_frames
@@ -62,9 +62,7 @@ def evaluate(
         raise UssSlamError(
             "give either --sequence folders or data-config overrides (the val set), not both"
         )
-    if out.exists() and not out.is_dir():
-        raise UssSlamError(f"--out {out}: exists and is not a folder")
-    check_writable(out, "--out", create=False)
+    output_folder(out, "--out")
     check_output_owner(out, PROG, "--out")  # a uss-slam run, a uss-demo output, ...
     source = sequence_frames(sequences, stride) if sequences else config_val_frames(overrides)
     if source.count == 0:

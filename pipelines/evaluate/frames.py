@@ -13,6 +13,8 @@ import numpy as np
 
 from uss_slam.core.cli import hydra_error_line
 from uss_slam.core.errors import DataFormatError, UssSlamError
+from uss_slam.core.images import read_colour
+from uss_slam.core.paths import input_folder
 
 CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
 
@@ -47,8 +49,7 @@ def sequence_frames(roots: Sequence[Path], stride: int) -> FrameSource:
     seen: dict[Path, Path] = {}
     folders = []
     for root in roots:
-        if not root.is_dir():
-            raise UssSlamError(f"--sequence {root}: not a folder")
+        input_folder(root, "--sequence", "expected a TUM sequence folder with labels/")
         resolved = root.resolve()
         if resolved in seen:
             raise UssSlamError(
@@ -82,9 +83,7 @@ def _read_pair(frame: Any) -> tuple[np.ndarray, np.ndarray]:
     """The colour image (RGB) and the labels of ``frame``, checked (errors name the file)."""
     from uss_slam.slam_eval.sequence import read_labels
 
-    bgr = cv2.imread(str(frame.rgb), cv2.IMREAD_COLOR)
-    if bgr is None:
-        raise DataFormatError(frame.rgb, "not a readable image")
+    bgr = read_colour(frame.rgb)
     labels = read_labels(frame.labels, bgr.shape[:2], frame.rgb.name)
     return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), labels
 

@@ -13,6 +13,7 @@ from uss_slam.core.classes import CLASS_NAMES
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.files import file_sha256
 from uss_slam.core.onnx_contract import check_label_ids, check_logit_channels
+from uss_slam.core.paths import input_file
 
 MODEL_KINDS = {".ckpt": "checkpoint", ".onnx": "onnx"}
 
@@ -74,13 +75,11 @@ class CheckpointSegmenter:
 def model_kind(path: Path) -> str:
     """``checkpoint`` or ``onnx`` by the file's extension; an error for anything else or a
     missing file."""
+    expected = "expected a uss-train checkpoint (.ckpt) or an exported model (.onnx)"
+    input_file(path, None, expected)
     kind = MODEL_KINDS.get(path.suffix.lower())
     if kind is None:
-        raise UssSlamError(
-            f"{path}: expected a uss-train checkpoint (.ckpt) or an exported model (.onnx)"
-        )
-    if not path.is_file():
-        raise UssSlamError(f"{path}: no such file")
+        raise UssSlamError(f"{path}: {expected}")
     return kind
 
 

@@ -15,6 +15,7 @@ from typing import Any
 from omegaconf import DictConfig, OmegaConf
 
 from uss_slam.core.errors import UssSlamError
+from uss_slam.core.paths import input_file, input_folder
 from uss_slam.core.schema import check as check_schema
 
 from .grid import (
@@ -198,13 +199,10 @@ def check_init(plain: Mapping[str, Any], synthetic: bool, sequences: Sequence[st
     if kind == "scratch":
         return Init(kind)
     if init.get("path") is not None:
-        path = Path(str(init["path"])).expanduser().resolve()
-        if not path.is_file():
-            raise UssSlamError(
-                f"init.path: no such file {path}; expected a pretrained weights file (a "
-                "DeepLab-v2 Caffe init, a torchvision ResNet state dict or a uss-train checkpoint)"
-            )
-        return Init(kind, path=path)
+        expected = ("expected a pretrained weights file (a DeepLab-v2 Caffe init, a torchvision "
+                    "ResNet state dict or a uss-train checkpoint)")  # fmt: skip
+        path = input_file(Path(str(init["path"])).expanduser(), "init.path", expected)
+        return Init(kind, path=path.resolve())
     if not synthetic:
         return Init(kind)  # no init: an error after the data checks (check_real_init)
     seeds = list(init["seeds"])
@@ -383,6 +381,7 @@ def check(cfg: DictConfig) -> Experiment:
                     f"data.real.{key}: missing; data.kind=real needs the {key.upper()} folder "
                     f"(data.real.{key}=PATH)"
                 )
+            input_folder(Path(str(real[key])).expanduser(), f"data.real.{key}")
         if not real.get("target"):
             raise UssSlamError(
                 "data.real.target: missing; data.kind=real needs a non-empty list of the TUM "

@@ -3,19 +3,9 @@ hand to ``uss-train`` and the job runner."""
 
 from __future__ import annotations
 
-import re
 from typing import Any
 
-
-def _typed(text: str) -> bool:
-    """True when Hydra would read ``text`` unquoted as a number, boolean or null."""
-    if text.lower() in ("true", "false", "null"):
-        return True
-    try:
-        float(text)
-    except ValueError:
-        return False
-    return True
+from uss_slam.core.paths import hydra_quoted
 
 
 def hydra_value(value: Any) -> str:
@@ -30,11 +20,7 @@ def hydra_value(value: Any) -> str:
         return "[" + ",".join(hydra_value(v) for v in value) + "]"
     if isinstance(value, dict):
         return "{" + ",".join(f"{k}:{hydra_value(v)}" for k, v in value.items()) + "}"
-    text = str(value)
-    if re.fullmatch(r"[A-Za-z0-9_\-./+@%]+", text) and not _typed(text):
-        return text  # a plain Hydra string: no quotes needed
-    text = text.replace("\\", "\\\\").replace("'", "\\'")
-    return f"'{text}'"
+    return hydra_quoted(str(value))
 
 
 def config_error_line(error: Exception, what: str) -> str | None:

@@ -11,6 +11,7 @@ from typing import Any
 
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.files import file_sha256
+from uss_slam.core.paths import path_override
 from uss_slam.pipelines.runs import (
     OrbSlam3,
     Segmenter,
@@ -18,7 +19,7 @@ from uss_slam.pipelines.runs import (
     select_checkpoint,
     slam_defaults_key,
 )
-from uss_slam.pipelines.stages import Stage
+from uss_slam.pipelines.stages import TRAINING_OUTPUTS, Stage
 
 from .data import Data, synthetic_data_spec
 from .experiment import Experiment
@@ -102,19 +103,19 @@ def train_key(
 def common_overrides(exp: Experiment, data: Data) -> list[str]:
     """The overrides every training starts with (experiment, data, ``train.overrides``)."""
     cfg = exp.cfg
-    base = [f"experiment={cfg['train']['experiment']}", f"paths.log_dir={exp.out}"]
+    base = [f"experiment={cfg['train']['experiment']}", path_override("paths.log_dir", exp.out)]
     if exp.synthetic:
         assert data.train_dir is not None
-        base.append(f"paths.data_dir={data.train_dir}")
+        base.append(path_override("paths.data_dir", data.train_dir))
         # the appearance shift's target folders are not the shipped data config's
         base += synthetic_data_spec(exp).train_overrides(data.train_dir)
     else:
         real = cfg["data"]["real"]
         base += [
-            f"data.source.voc.root={real['voc']}",
-            f"data.source.sbd.root={real['sbd']}",
-            f"data.source.coco.root={real['coco']}",
-            f"data.target.roots=[{','.join(str(t) for t in data.target)}]",
+            path_override("data.source.voc.root", str(real["voc"])),
+            path_override("data.source.sbd.root", str(real["sbd"])),
+            path_override("data.source.coco.root", str(real["coco"])),
+            path_override("data.target.roots", list(data.target)),
         ]
     base += [str(o) for o in cfg["train"].get("overrides") or []]
     if exp.fast:
@@ -175,7 +176,7 @@ def plan_train(exp: Experiment, data: Data) -> list[Job]:
             "kind": "train",
             "overrides": [*overrides, *runtime],
             "key": train_key(exp, data, cell, overrides),
-            "outputs": ["checkpoints/*.ckpt"],
+            "outputs": list(TRAINING_OUTPUTS),
             "checkpoint": checkpoint_policy(exp),  # which one is reported (not in the key)
         }
         jobs.append(Job(cell.id, spec, {"kind": "train", **cell.describe()}))

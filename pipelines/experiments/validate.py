@@ -15,6 +15,7 @@ import functools
 from pathlib import Path
 
 from uss_slam.core.errors import UssSlamError
+from uss_slam.core.paths import path_override
 
 from .data import Data
 from .experiment import Experiment
@@ -49,7 +50,7 @@ def check_job_configs(exp: Experiment, data: Data) -> tuple[int, int]:
 
 
 def _output_dir(exp: Experiment) -> str:
-    return f"paths.output_dir={exp.out / '.config-check'}"
+    return path_override("paths.output_dir", exp.out / ".config-check")
 
 
 def _check_training(exp: Experiment, data: Data, cell: TrainCell, job: Job) -> tuple[str, ...]:

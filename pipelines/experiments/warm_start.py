@@ -19,7 +19,7 @@ from pathlib import Path
 
 from uss_slam.core.errors import DataFormatError, UssSlamError
 from uss_slam.core.files import file_sha256
-from uss_slam.pipelines.stages import Stage
+from uss_slam.pipelines.stages import TRAINING_OUTPUTS, Stage
 
 from .data import Data
 from .experiment import Experiment
@@ -93,7 +93,7 @@ def init_jobs(exp: Experiment, pretrain: Stage) -> list[Job]:
             "kind": "train",
             "overrides": [*overrides, *runtime_overrides(exp)],
             "key": {"overrides": _portable(overrides, exp.out), "pretrain": dict(pretrain.key)},
-            "outputs": ["checkpoints/*.ckpt", INIT_FILE],
+            "outputs": [*TRAINING_OUTPUTS, INIT_FILE],
             "checkpoint": "last",
             "init": INIT_FILE,
         }

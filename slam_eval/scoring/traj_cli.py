@@ -16,7 +16,7 @@ from typing import Any
 
 from uss_slam.core.cli import interruptible, print_output, report_interrupt
 from uss_slam.core.errors import UssSlamError
-from uss_slam.core.files import check_writable
+from uss_slam.core.paths import input_file, output_file
 from uss_slam.core.tum_io import read_trajectory
 
 from .metrics import (
@@ -203,13 +203,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.unit == "frames" and not float(args.delta).is_integer():
             args.subparser.error(f"--delta must be a whole number of frames, got {args.delta:g}")
     try:
-        if args.command == "ate" and args.plot is not None:
-            check_plot_path(args.plot)  # before any work
-            if args.plot.is_dir():
-                raise UssSlamError(f"--plot {args.plot}: is a folder; expected a file name")
-            if not args.plot.parent.is_dir():
-                raise UssSlamError(f"--plot {args.plot}: {args.plot.parent} is not a folder")
-            check_writable(args.plot.parent, create=False)
+        for path in (args.gt, args.est):
+            input_file(path, None, "expected a trajectory file (TUM format)")
+        if args.command == "ate" and args.plot is not None:  # before any work
+            output_file(args.plot, "--plot", "expected an image file name")
+            check_plot_path(args.plot)
         gt = read_trajectory(args.gt)
         est = read_trajectory(args.est)
         if args.command == "ate":

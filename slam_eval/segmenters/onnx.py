@@ -57,6 +57,7 @@ from uss_slam.core.onnx_contract import (
     check_label_ids,
     check_logit_channels,
 )
+from uss_slam.core.paths import input_file
 from uss_slam.core.schema import MAX_THREADS, THREADS
 
 from .base import ImageSegmenter
@@ -121,10 +122,7 @@ class OnnxSegmenter(ImageSegmenter):
         crf_params: Mapping[str, Any] | None = None,
     ) -> None:
         self.path = Path(path)
-        if not self.path.is_file():
-            raise UssSlamError(
-                f"segmenter.path {self.path}: no such file (an ONNX model written by uss-export)"
-            )
+        input_file(self.path, "segmenter.path", "expected an ONNX model written by uss-export")
         _check_settings(threads, threshold, crf)
         self.threshold = None if threshold is None else float(threshold)
         self.crf = DenseCrf.from_config(crf_params, "segmenter.crf_params") if crf else None

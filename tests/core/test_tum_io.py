@@ -125,7 +125,7 @@ def test_bad_file_list_and_missing_file(tmp_path: Path) -> None:
     (tmp_path / "rgb.txt").write_text("# x\n1.0 rgb/a.png extra\n")
     with pytest.raises(DataFormatError, match=r"rgb.txt:2: expected 'timestamp filename'"):
         read_file_list(tmp_path / "rgb.txt")
-    with pytest.raises(DataFormatError, match="file not found"):
+    with pytest.raises(DataFormatError, match="does not exist"):
         read_file_list(tmp_path / "missing.txt")
 
 
@@ -240,7 +240,7 @@ def test_tum_folder_associates_and_finds_missing_files(tmp_path: Path) -> None:
 
 def test_tum_folder_errors_name_the_path(tmp_path: Path) -> None:
     with pytest.raises(
-        DataFormatError, match=r"nope: TUM sequence folder not found \(expected a folder with"
+        DataFormatError, match=r"nope: does not exist; expected a TUM sequence folder with"
     ):
         read_tum_folder(tmp_path / "nope")
     root = _folder(tmp_path / "seq", depth_offset=0.5)

@@ -296,14 +296,17 @@ def test_output_folder_that_cannot_be_written(
     blocker = tmp_path / "blocker"
     blocker.write_text("a file where the folder should be\n")
     code, _, err = uss_export(f"ckpt_path={runs['a']}", f"out_dir={blocker}")
-    _assert_one_line(code, err, f"{blocker}: output folder is a file, not a folder")
+    _assert_one_line(code, err, f"out_dir={blocker}: is a file; expected a folder")
     code, _, err = uss_export(f"ckpt_path={runs['a']}", f"out_dir={blocker / 'sub'}")
     _assert_one_line(
-        code, err, f"{blocker / 'sub'}: cannot create the output folder ({blocker} is a file)"
+        code,
+        err,
+        f"out_dir={blocker / 'sub'}: cannot create the output folder ({blocker} is a file); "
+        "expected a folder to write into",
     )
     (tmp_path / "taken.onnx").mkdir()
     code, _, err = uss_export(f"ckpt_path={runs['a']}", "out=taken.onnx")
-    _assert_one_line(code, err, "out taken.onnx is a folder; expected a file name ending in .onnx")
+    _assert_one_line(code, err, "out=taken.onnx: is a folder; expected a file")
     assert blocker.read_text() == "a file where the folder should be\n"
     assert not any((tmp_path / "taken.onnx").iterdir())
 
@@ -317,7 +320,12 @@ def test_read_only_output_folder(runs: dict[str, Path], uss_export: Runner, tmp_
         code, _, err = uss_export(f"ckpt_path={runs['a']}", f"out_dir={locked}")
     finally:
         locked.chmod(0o755)
-    _assert_one_line(code, err, f"{locked}: cannot write to the output folder (Permission denied)")
+    _assert_one_line(
+        code,
+        err,
+        f"out_dir={locked}: cannot write to {locked} (Permission denied); expected a folder to "
+        "write into",
+    )
     assert not any(locked.iterdir())
 
 
@@ -334,7 +342,7 @@ def _bad_checkpoint(kind: str, folder: Path, good: Path) -> tuple[Path, list[str
     unreadable = "not a readable checkpoint: truncated, corrupt or not a uss-train .ckpt ("
     if kind == "missing":
         ckpt.unlink()
-        return ckpt, [], "checkpoint not found"
+        return ckpt, [], "does not exist; expected a uss-train checkpoint (.ckpt)"
     if kind == "empty":
         ckpt.write_bytes(b"")
         return ckpt, [], "empty file (expected a uss-train .ckpt)"
@@ -384,7 +392,8 @@ def test_bad_checkpoint_is_one_line(
     code, _, err = uss_export(f"ckpt_path={ckpt}", *overrides)
     assert code == 1
     (line,) = err.splitlines()
-    assert line.startswith(f"uss-export: error: {ckpt}: {expected}")
+    named = f"ckpt_path={ckpt}" if kind == "missing" else str(ckpt)  # the path layer's form
+    assert line.startswith(f"uss-export: error: {named}: {expected}")
     assert not (tmp_path / "exports").exists()
 
 

@@ -303,7 +303,9 @@ def test_uss_export_on_a_ci_run(uda_data: dict[str, Path], tmp_path: Path) -> No
         timeout=600,
     )
     assert missing.returncode == 1
-    assert missing.stderr.strip().endswith("none.ckpt: checkpoint not found")
+    assert missing.stderr.strip().endswith(
+        "none.ckpt: does not exist; expected a uss-train checkpoint (.ckpt)"
+    )
 
 
 def test_int8_model_from_target_frames(

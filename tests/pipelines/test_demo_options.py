@@ -84,7 +84,7 @@ def test_out_that_is_a_file_is_one_line(tmp_path: Path, capsys) -> None:
     out = tmp_path / "file"
     out.write_text("x")
     err = _one_line_error(["--out", str(out)], capsys)
-    assert err == f"uss-demo: error: --out {out}: exists and is not a folder"
+    assert err == f"uss-demo: error: --out={out}: is a file; expected a folder"
 
 
 def test_both_trainings_start_from_the_init_with_the_same_budget(tmp_path: Path) -> None:

@@ -217,7 +217,8 @@ def test_bad_inputs_are_one_line(tmp_path: Path, synthetic_sequence, capsys) -> 
     out = ["--out", str(tmp_path / "out")]
     missing = tmp_path / "none.onnx"
     assert _error([str(missing), "--sequence", str(seq), *out], capsys) == (
-        f"uss-eval: error: {missing}: no such file"
+        f"uss-eval: error: {missing}: does not exist; expected a uss-train checkpoint (.ckpt) "
+        "or an exported model (.onnx)"
     )
     weights = tmp_path / "model.pt"
     weights.write_bytes(b"")

@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 
 from uss_slam.core.files import atomic_path, write_json_atomic
-from uss_slam.pipelines.stages import STAMP, Progress, Stage, run_stage
+from uss_slam.pipelines.stages import STAMP, TRAINING_OUTPUTS, Progress, Stage, run_stage
 
 
 def _work(folder: Path, calls: list[str], text: str = "done") -> str:
@@ -85,6 +85,26 @@ def test_outputs_outside_the_folder(tmp_path: Path) -> None:
     assert stage.complete()
     model.unlink()
     assert not stage.complete()
+
+
+def test_a_training_whose_last_checkpoint_was_deleted_is_trained_again(tmp_path: Path) -> None:
+    """A finished training stage (uss-experiments, uss-demo) is complete only while its
+    ``last.ckpt`` exists: a ``best_*.ckpt`` left alone is not a result to reuse."""
+    folder = tmp_path / "train"
+    stage = Stage(folder, {"k": 1}, outputs=tuple(map(Path, TRAINING_OUTPUTS)))
+
+    def train() -> str:
+        (folder / "checkpoints").mkdir(parents=True, exist_ok=True)
+        for name in ("best_iter0000010_miou0.5000.ckpt", "last.ckpt"):
+            (folder / "checkpoints" / name).write_bytes(b"weights")
+        return "trained"
+
+    assert run_stage(stage, train) == "trained"
+    assert run_stage(stage, train) == "reused"
+    (folder / "checkpoints" / "last.ckpt").unlink()
+    assert stage.stale() == f"{folder / 'checkpoints' / 'last.ckpt'} missing"
+    assert run_stage(stage, train).endswith("trained")
+    assert (folder / "checkpoints" / "last.ckpt").is_file()
 
 
 def test_interrupted_work_leaves_no_stamp(tmp_path: Path) -> None:

@@ -244,7 +244,7 @@ def test_batchnorm_modes_are_rows_of_their_own(tmp_path: Path) -> None:
     ("overrides", "message"),
     [
         (["init.kind=imagenet"], "init.kind: expected one of 'scratch', 'pretrained', got 'imagenet'"),
-        (["init.path=/nonexistent/coco.pth"], "init.path: no such file /nonexistent/coco.pth"),
+        (["init.path=/nonexistent/coco.pth"], "init.path=/nonexistent/coco.pth: does not exist"),
         (["init.render_seed=3"], "init.render_seed: 3 is a seed of the source set or of a sequence"),
         (["init.render_seed=1000"], "init.render_seed: 1000 is a seed of the source set or of a"),
         (["init.seeds=[0,0]"], "init.seeds: a seed is listed twice"),

@@ -190,7 +190,7 @@ def test_out_dir_that_cannot_be_created(earlier, tmp_path: Path, monkeypatch, ca
     assert code == 1
     lines = err.strip().splitlines()
     assert len(lines) == 1 and str(blocker / "run") in lines[0]
-    assert lines[0].startswith("uss-slam: error: cannot create the output folder")
+    assert lines[0].startswith(f"uss-slam: error: out_dir={blocker / 'run'}: cannot create the ")
     assert blocker.read_text() == "a file, not a folder"
 
 

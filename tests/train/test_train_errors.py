@@ -148,9 +148,9 @@ def test_unwritable_output_folder_is_one_line(
     code, err = _uss_train([*_common(uda_data, tmp_path), f"{key}={target}"], monkeypatch, capsys)
     assert code == 1 and len(err) == 1, err
     if key == "hydra.run.dir":
-        assert (
-            err[0]
-            == f"uss-train: error: cannot create the output folder {target} ({blocker} is a file)"
+        assert err[0] == (
+            f"uss-train: error: hydra.run.dir={target}: cannot create the output folder "
+            f"({blocker} is a file); expected a folder to write into"
         )
     else:
         assert (

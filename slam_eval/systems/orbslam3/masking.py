@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 
 from uss_slam.core.errors import UssSlamError
+from uss_slam.core.images import read_colour
 from uss_slam.core.progress import progress_bar
 
 from ...filters.base import DynamicFilter
@@ -100,9 +101,7 @@ def read_filled(folder: str | Path, index: int) -> np.ndarray | None:
     path = filled_path(folder, index)
     if not path.is_file():
         return None
-    bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if bgr is None:
-        raise UssSlamError(f"{path}: not a readable PNG (the inpainted frame)")
+    bgr = read_colour(path)
     return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
 
 

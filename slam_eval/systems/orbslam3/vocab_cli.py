@@ -14,7 +14,8 @@ from pathlib import Path
 
 from uss_slam.core.cli import exit_code, interruptible, report_interrupt
 from uss_slam.core.errors import UssSlamError
-from uss_slam.core.files import check_writable, output_lock
+from uss_slam.core.files import output_lock
+from uss_slam.core.paths import input_file, input_folder, output_file
 
 from .vocabulary import (
     MAX_BRANCHING,
@@ -124,12 +125,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         if args.command == "build":
+            for folder in args.sequences:
+                input_folder(folder, None, "expected a TUM sequence with rgb.txt")
             args.sequences = unique_sequences(args.sequences)
-            check_writable(args.out.parent, create=False)  # before the lock and the clustering
+            output_file(args.out, "--out", "expected a vocabulary file")  # before the lock
             # a second build into the same file stops at once (exit code 2), naming the first
             with output_lock(args.out, "--out"):
                 _build(args)
         else:
+            input_file(args.vocabulary, None, "expected a DBoW2 text vocabulary file")
             vocab = read_vocabulary(args.vocabulary)
             print(
                 f"{args.vocabulary}: k={vocab.k} L={vocab.levels} scoring={vocab.scoring} "
@@ -163,8 +167,6 @@ def unique_sequences(sequences: Sequence[Path]) -> list[Path]:
 
 def _build(args: argparse.Namespace) -> None:
     """``uss-vocab build``: the checks of ``--out``, the clustering, the summary line."""
-    if args.out.is_dir():
-        raise UssSlamError(f"--out {args.out}: is a folder; expected a vocabulary file")
     if args.out.exists() and not args.overwrite:
         raise UssSlamError(f"{args.out}: exists; pass --overwrite to replace it")
     if args.out.exists():  # --overwrite replaces a vocabulary, never another file

@@ -46,6 +46,8 @@ import numpy as np
 
 from uss_slam.core.errors import DataFormatError, UssSlamError
 from uss_slam.core.files import write_text_atomic
+from uss_slam.core.images import read_colour
+from uss_slam.core.paths import input_file, read_text
 from uss_slam.core.tum_io import StrPath, read_file_list
 
 DESCRIPTOR_BYTES = 32
@@ -309,20 +311,20 @@ def max_nodes(k: int, levels: int) -> int:
     return (k ** (levels + 1) - 1) // (k - 1)
 
 
+VOCABULARY_FILE = "expected a DBoW2 text vocabulary file"
+
+
 def read_header(path: StrPath) -> tuple[int, int, int, int]:
     """``(k, L, scoring, weighting)`` of a vocabulary text file, checked as ORB-SLAM3's loader
     does (it exits the process on a bad header, so this runs first)."""
     path = Path(path)
+    input_file(path, None, VOCABULARY_FILE)
     try:
         with open(path, encoding="ascii") as fh:
             first = fh.readline()
             nodes = [fh.readline() for _ in range(HEADER_NODES_CHECKED)]
-    except FileNotFoundError:
-        raise DataFormatError(path, "file not found") from None
-    except IsADirectoryError:
-        raise DataFormatError(path, "is a folder; expected a DBoW2 text vocabulary file") from None
-    except (OSError, UnicodeDecodeError) as err:
-        raise DataFormatError(path, f"not a DBoW2 text vocabulary ({err})") from None
+    except (OSError, UnicodeDecodeError):
+        raise DataFormatError(path, f"not a DBoW2 text vocabulary; {VOCABULARY_FILE}") from None
     header = _parse_header(path, first)
     for number, line in enumerate(nodes, start=2):
         if line.strip():
@@ -381,14 +383,7 @@ def read_vocabulary(path: StrPath) -> Vocabulary:
     :func:`max_nodes` nodes. Errors name the line. One final newline is accepted.
     """
     path = Path(path)
-    try:
-        text = path.read_text(encoding="ascii")
-    except FileNotFoundError:
-        raise DataFormatError(path, "file not found") from None
-    except IsADirectoryError:
-        raise DataFormatError(path, "is a folder; expected a DBoW2 text vocabulary file") from None
-    except (OSError, UnicodeDecodeError) as err:
-        raise DataFormatError(path, f"not a DBoW2 text vocabulary ({err})") from None
+    text = read_text(path, "expected a DBoW2 text vocabulary file", encoding="ascii")
     lines = text.split("\n")
     if len(lines) > 1 and lines[-1] == "":
         lines.pop()
@@ -486,9 +481,7 @@ def orb_descriptors(images: Sequence[StrPath], n_features: int = 1000) -> list[n
     orb.setScoreType(cv2.ORB_FAST_SCORE)  # ORB-SLAM ranks corners by FAST response
     sets = []
     for image in images:
-        bgr = cv2.imread(str(image), cv2.IMREAD_COLOR)
-        if bgr is None:
-            raise DataFormatError(image, "not a readable image")
+        bgr = read_colour(image)
         gray = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
         _, desc = orb.detectAndCompute(gray, None)
         sets.append(np.empty((0, DESCRIPTOR_BYTES), np.uint8) if desc is None else desc)

@@ -1,0 +1,173 @@
+"""The one image reader: colour, depth and label images of every tool go through
+:func:`read_image` (and its three faces :func:`read_colour`, :func:`read_depth`,
+:func:`read_labels`), which refuses a file that is not whole before a decoder sees it.
+
+Decoders are lenient: OpenCV decodes a truncated JPEG with its missing rows grey and says so
+only on stderr ("Premature end of JPEG file"), and libpng prints its own line ("libpng error:
+Read Error") before OpenCV returns nothing. So the file's structure is checked first, in
+Python, from its bytes (cheap next to decoding):
+
+- PNG: the signature, every chunk whole with its CRC-32 right, and an ``IEND`` chunk;
+- JPEG: start-of-image, every marker segment whole, each scan's entropy-coded data followed by
+  a marker, and an end-of-image marker (bytes after it are allowed, as cameras append them).
+
+A damaged file is one :class:`DataFormatError` naming the file and what is wrong, and the
+decoders never print. (A changed byte inside a JPEG's compressed data cannot be found this
+way: JPEG has no checksum.) Torch-free (floor 0).
+"""
+
+from __future__ import annotations
+
+import zlib
+from os import PathLike
+
+import cv2
+import numpy as np
+
+from uss_slam.core.classes import CLASS_NAMES, IGNORE_INDEX
+from uss_slam.core.errors import DataFormatError
+from uss_slam.core.paths import input_file
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+JPEG_SOI = b"\xff\xd8"
+_STANDALONE = {0x01, *range(0xD0, 0xD8)}  # TEM, RST0..RST7: markers without a length
+
+
+def png_problem(data: bytes) -> str | None:
+    """Why the PNG bytes ``data`` are not a whole PNG file, else None."""
+    pos = len(PNG_SIGNATURE)
+    while pos + 8 <= len(data):
+        length = int.from_bytes(data[pos : pos + 4], "big")
+        kind = data[pos + 4 : pos + 8]
+        end = pos + 12 + length
+        name = kind.decode("latin-1")
+        if not kind.isalpha():
+            return f"corrupt PNG: no chunk at byte {pos} (expected a 4-letter chunk type)"
+        if end > len(data):
+            return f"truncated PNG: it ends inside its {name} chunk at byte {pos} (no IEND chunk)"
+        crc = int.from_bytes(data[end - 4 : end], "big")
+        if zlib.crc32(data[pos + 4 : end - 4]) != crc:
+            return f"corrupt PNG: the CRC of its {name} chunk at byte {pos} does not match"
+        if kind == b"IEND":
+            return None
+        pos = end
+    return "truncated PNG: no IEND chunk at the end of the file"
+
+
+def _scan_end(data: bytes, pos: int) -> int:
+    """The offset of the marker that ends the entropy-coded data starting at ``pos`` (a 0xFF
+    not followed by a stuffed 0x00 or a restart marker), or -1 when the data ends first."""
+    while True:
+        pos = data.find(b"\xff", pos)
+        if pos < 0 or pos + 1 >= len(data):
+            return -1
+        following = data[pos + 1]
+        if following == 0x00 or 0xD0 <= following <= 0xD7 or following == 0xFF:
+            pos += 1 if following == 0xFF else 2
+            continue
+        return pos
+
+
+def jpeg_problem(data: bytes) -> str | None:
+    """Why the JPEG bytes ``data`` are not a whole JPEG file (walked marker by marker up to
+    its end-of-image marker), else None."""
+    pos = len(JPEG_SOI)
+    while True:
+        while (
+            pos < len(data) and data[pos] == 0xFF and pos + 1 < len(data) and data[pos + 1] == 0xFF
+        ):
+            pos += 1  # fill bytes before a marker
+        if pos + 2 > len(data):
+            return "truncated JPEG: no end-of-image marker (FFD9)"
+        if data[pos] != 0xFF:
+            return f"corrupt JPEG: expected a marker at byte {pos}, found 0x{data[pos]:02x}"
+        marker = data[pos + 1]
+        if marker == 0xD9:
+            return None
+        if marker in _STANDALONE:
+            pos += 2
+            continue
+        if pos + 4 > len(data):
+            return "truncated JPEG: it ends inside a marker segment (no end-of-image marker)"
+        end = pos + 2 + int.from_bytes(data[pos + 2 : pos + 4], "big")
+        if end > len(data):
+            return f"truncated JPEG: it ends inside its 0xff{marker:02x} segment at byte {pos}"
+        pos = _scan_end(data, end) if marker == 0xDA else end
+        if pos < 0:
+            return "truncated JPEG: its image data ends without an end-of-image marker (FFD9)"
+
+
+def image_problem(data: bytes) -> str | None:
+    """Why ``data`` (a file's bytes) is an incomplete or damaged PNG / JPEG, else None (other
+    formats are left to the decoder)."""
+    if data.startswith(PNG_SIGNATURE):
+        return png_problem(data)
+    if data.startswith(JPEG_SOI):
+        return jpeg_problem(data)
+    return None
+
+
+def read_image(path: str | PathLike[str], flags: int, what: str = "an image") -> np.ndarray:
+    """The pixels of the image file ``path`` as ``cv2.imdecode(..., flags)`` gives them, after
+    :func:`image_problem`'s check; :class:`DataFormatError` naming the file for one that is
+    missing, unreadable, damaged or not an image (``what``: what was expected)."""
+    checked = input_file(path, None, f"expected {what}")
+    try:
+        data = checked.read_bytes()
+    except OSError as error:
+        raise DataFormatError(path, f"cannot read it ({error.strerror}); expected {what}") from None
+    problem = image_problem(data) if data else "empty file"
+    if problem:
+        raise DataFormatError(path, f"{problem}; expected {what}")
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), flags)
+    if image is None:
+        raise DataFormatError(path, f"not a readable image; expected {what}")
+    return image
+
+
+def read_colour(path: str | PathLike[str]) -> np.ndarray:
+    """A colour image as ``(H, W, 3)`` uint8 BGR (any channel count in the file)."""
+    return read_image(path, cv2.IMREAD_COLOR, "a colour image (PNG or JPEG)")
+
+
+def read_grey(path: str | PathLike[str]) -> np.ndarray:
+    """A colour image as ``(H, W)`` uint8 grey."""
+    return read_image(path, cv2.IMREAD_GRAYSCALE, "a colour image (PNG or JPEG)")
+
+
+def read_depth(path: str | PathLike[str]) -> np.ndarray:
+    """A depth image as stored (``(H, W)`` uint16 for TUM's 5000-per-metre PNGs; checking the
+    type is the caller's)."""
+    return read_image(path, cv2.IMREAD_UNCHANGED, "a 16-bit depth PNG")
+
+
+def read_labels(path: str | PathLike[str], num_classes: int = len(CLASS_NAMES)) -> np.ndarray:
+    """A label image of class ids: ``(H, W)`` uint8, every value a class id
+    (``0..num_classes-1``) or the ignore label 255; anything else names the file, the first
+    values outside them and the accepted ones."""
+    labels = read_image(path, cv2.IMREAD_UNCHANGED, "a single-channel uint8 class-id PNG")
+    if labels.dtype != np.uint8 or labels.ndim != 2:
+        raise DataFormatError(
+            path,
+            f"expected a single-channel uint8 class-id PNG, got {labels.dtype} "
+            f"with shape {labels.shape}",
+        )
+    check_label_values(path, labels, num_classes)
+    return labels
+
+
+def check_label_values(
+    path: str | PathLike[str], labels: np.ndarray, num_classes: int = len(CLASS_NAMES)
+) -> None:
+    """Refuse label values other than the class ids ``0..num_classes-1`` and 255 (ignore)."""
+    counts = np.bincount(labels.reshape(-1), minlength=256)
+    counts[:num_classes] = 0
+    counts[IGNORE_INDEX] = 0
+    bad = np.flatnonzero(counts)
+    if bad.size:
+        shown = ", ".join(str(v) for v in bad[:5]) + (", ..." if bad.size > 5 else "")
+        raise DataFormatError(
+            path,
+            f"label values {shown} are not class ids; expected 0..{num_classes - 1} "
+            f"({', '.join(CLASS_NAMES[:num_classes])}) or {IGNORE_INDEX} (ignore)",
+        )

@@ -1,0 +1,138 @@
+"""The console scripts' entry points (``[project.scripts]`` in pyproject.toml): each imports
+its script's module and calls its ``main``, so that what the machine lacks is one line too:
+
+- a required package that is not installed (the script's module cannot be imported):
+  ``<prog>: error: the required package <dist> (import <name>) is not installed ...`` with the
+  command that installs it, as the optional packages' errors give theirs (exit code 1);
+- memory (``MemoryError``: the machine's, or a limit such as ``ulimit -v``):
+  ``<prog>: error: out of memory ...`` (exit code 1) after the script's own cleanup ran (its
+  temporary and partial outputs removed as after any error).
+
+Imports nothing outside the standard library before the script's module.
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+from collections.abc import Callable
+from importlib import metadata
+
+SCRIPTS = {
+    "uss-synth": "uss_slam.synthetic.cli",
+    "uss-traj": "uss_slam.slam_eval.scoring.traj_cli",
+    "uss-slam": "uss_slam.slam_eval.run",
+    "uss-vocab": "uss_slam.slam_eval.systems.orbslam3.vocab_cli",
+    "uss-train": "uss_slam.train.train",
+    "uss-export": "uss_slam.export.cli",
+    "uss-demo": "uss_slam.pipelines.demo",
+    "uss-eval": "uss_slam.pipelines.evaluate",
+    "uss-experiments": "uss_slam.pipelines.experiments.cli",
+}
+"""Console script -> the module whose ``main`` it runs."""
+
+REQUIRED = {
+    "numpy": "numpy", "cv2": "opencv-python-headless", "yaml": "pyyaml", "PIL": "pillow",
+    "tqdm": "tqdm", "torch": "torch", "torchvision": "torchvision", "lightning": "lightning",
+    "torchmetrics": "torchmetrics", "hydra": "hydra-core", "omegaconf": "hydra-core",
+    "tensorboard": "tensorboard", "onnx": "onnx", "onnxruntime": "onnxruntime",
+    "matplotlib": "matplotlib", "scipy": "scipy", "pycocotools": "pycocotools", "gtsam": "gtsam",
+}  # fmt: skip
+"""Import name -> distribution of every required dependency (pyproject's ``dependencies``)."""
+
+
+def _requirement(dist: str) -> str:
+    """``dist`` with the version range uss-slam's metadata asks for (``'torch>=2.6'``)."""
+    try:
+        for line in metadata.requires("uss-slam") or []:
+            name = line.split(";")[0].strip()
+            if name.lower().replace("_", "-").startswith(dist) and "extra ==" not in line:
+                return f"'{name}'"
+    except metadata.PackageNotFoundError:
+        pass
+    return dist
+
+
+def missing_package_line(prog: str, error: ModuleNotFoundError) -> str | None:
+    """The one line for a required package that is not installed, else None."""
+    top = (error.name or "").split(".")[0]
+    dist = REQUIRED.get(top)
+    if dist is None:
+        return None
+    return (
+        f"{prog}: error: the required package {dist} (import {top}) is not installed in "
+        f"{sys.executable}; install it with: pip install {_requirement(dist)} (or reinstall "
+        "uss-slam with its dependencies)"
+    )
+
+
+MEMORY_LINE = (
+    "out of memory: this machine (or a memory limit such as ulimit -v) cannot hold what these "
+    "settings need; use smaller images, fewer frames or fewer workers"
+)
+
+
+def launch(prog: str) -> int | None:
+    """Run console script ``prog`` (its module's ``main``) with the two lines above."""
+    try:
+        main: Callable[[], int | None] = importlib.import_module(SCRIPTS[prog]).main
+    except ModuleNotFoundError as error:
+        line = missing_package_line(prog, error)
+        if line is None:
+            raise
+        print(line, file=sys.stderr)
+        return 1
+    except ImportError as error:  # a compiled library that cannot be loaded (mapped)
+        first = (str(error).strip().splitlines() or [type(error).__name__])[0]
+        print(
+            f"{prog}: error: cannot load a required library ({first}); too little memory (a "
+            "limit such as ulimit -v) or a broken installation",
+            file=sys.stderr,
+        )
+        return 1
+    try:
+        return main()
+    except Exception as error:
+        if not out_of_memory(error):
+            raise
+        print(f"{prog}: error: {MEMORY_LINE}", file=sys.stderr)
+        return 1
+
+
+def out_of_memory(error: BaseException) -> bool:
+    """Whether ``error`` (or one in its cause chain) is an allocation that failed: Python's
+    ``MemoryError``, or OpenCV's ``cv2.error`` with code ``StsNoMem`` (-4)."""
+    seen: set[int] = set()
+    current: BaseException | None = error
+    while current is not None and id(current) not in seen:
+        seen.add(id(current))
+        if isinstance(current, MemoryError):
+            return True
+        if type(current).__module__ == "cv2" and getattr(current, "code", None) == CV2_NO_MEMORY:
+            return True
+        current = current.__cause__ or current.__context__
+    return False
+
+
+CV2_NO_MEMORY = -4
+"""``cv2.Error.StsNoMem``: OpenCV could not allocate."""
+
+
+def _entry(prog: str) -> Callable[[], None]:
+    def run() -> None:
+        sys.exit(launch(prog))
+
+    run.__name__ = run.__qualname__ = prog.replace("-", "_")
+    run.__doc__ = f"``{prog}``: :func:`launch`."
+    return run
+
+
+uss_synth = _entry("uss-synth")
+uss_traj = _entry("uss-traj")
+uss_slam = _entry("uss-slam")
+uss_vocab = _entry("uss-vocab")
+uss_train = _entry("uss-train")
+uss_export = _entry("uss-export")
+uss_demo = _entry("uss-demo")
+uss_eval = _entry("uss-eval")
+uss_experiments = _entry("uss-experiments")

@@ -1,0 +1,323 @@
+"""The one path layer: every console script checks each input and output path it is given here,
+before any work, and says what is wrong with it in one line of one form:
+
+    <key>=<path>: <what is wrong>; expected <what the argument takes>
+
+(``<path>: ...`` for a positional argument, which has no key). What is checked, for every kind
+of path (:func:`input_file`, :func:`input_folder`, :func:`output_file`, :func:`output_folder`):
+
+- a name longer than the file system allows (255 bytes) or a path of 4096 bytes or more;
+- a symbolic link that loops (the path itself, or a folder on the way to it);
+- a symbolic link to nothing (a dangling link: ``mkdir`` would say "File exists");
+- a file where a folder is expected (the path, or a folder on the way to it), and a folder
+  where a file is expected;
+- a location that cannot be written (read-only, no permission, a read-only file system),
+  proved by creating a file there: an output is checked before any work, not after it.
+
+Pure Python (floor 0): every package may import it. The problems are found from ``os.stat`` /
+``os.lstat`` error numbers, never from an error's text.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import re
+import tempfile
+from os import PathLike
+from pathlib import Path
+
+from uss_slam.core.errors import DataFormatError, UssSlamError
+
+NAME_MAX_DEFAULT, PATH_MAX_DEFAULT = 255, 4096
+
+
+class PathError(DataFormatError):
+    """A path argument the system cannot use as asked (exit code 1); the message names the
+    key (or the path of a positional argument), the problem and what was expected. A
+    :class:`DataFormatError` (``path``, ``detail``) for the readers that catch those."""
+
+    def __init__(self, path: str | PathLike[str], key: str | None, message: str) -> None:
+        UssSlamError.__init__(self, f"{where(path, key)}: {message}")
+        self.path, self.key, self.line, self.detail = str(path), key, None, message
+
+    def __reduce__(self) -> tuple[object, ...]:
+        return (type(self), (self.path, self.key, self.detail))
+
+
+def where(path: str | PathLike[str], key: str | None) -> str:
+    """``key=path`` (``path`` for a positional argument): how an error line names it."""
+    return str(path) if key is None else f"{key}={path}"
+
+
+def _limit(name: str, default: int) -> int:
+    try:
+        value = os.pathconf("/", name)
+    except (OSError, ValueError, AttributeError):
+        return default
+    return value if value > 0 else default
+
+
+def too_long(path: str | PathLike[str]) -> str | None:
+    """Why the system cannot create ``path`` at all (a name over ``NAME_MAX`` bytes, the whole
+    over ``PATH_MAX``), else None."""
+    path = Path(path)
+    name_max = _limit("PC_NAME_MAX", NAME_MAX_DEFAULT)
+    path_max = _limit("PC_PATH_MAX", PATH_MAX_DEFAULT)
+    for part in path.parts:
+        size = len(os.fsencode(part))
+        if size > name_max and part != path.anchor:
+            shown = part if len(part) <= 40 else part[:20] + "..." + part[-10:]
+            return (
+                f"the name {shown!r} is {size} bytes; expected at most {name_max} (the longest "
+                "name the file system allows)"
+            )
+    size = len(os.fsencode(str(path.absolute())))
+    if size >= path_max:
+        return (
+            f"the path is {size} bytes; expected fewer than {path_max} (the longest path the "
+            "system allows)"
+        )
+    return None
+
+
+def _prefixes(path: Path) -> list[Path]:
+    """``path``'s folders from the top down, then ``path`` itself (``a``, ``a/b``, ``a/b/c``)."""
+    parts = path.parts
+    return [Path(*parts[: i + 1]) for i in range(len(parts))]
+
+
+def _stat_errno(path: Path) -> int | None:
+    try:
+        os.stat(path)
+    except OSError as error:
+        return error.errno
+    return None
+
+
+def _link_problem(link: Path) -> str | None:
+    """What is wrong with the symbolic link ``link`` (it loops, or points nowhere), else None."""
+    code = _stat_errno(link)
+    if code == errno.ELOOP:
+        return f"{link} is a symbolic link that loops (to {os.readlink(link)})"
+    if code == errno.ENOENT:
+        return f"{link} is a symbolic link to {os.readlink(link)}, which does not exist"
+    return None
+
+
+def structure_problem(
+    path: str | PathLike[str], *, folder: bool | None, output: bool = False
+) -> str | None:
+    """What keeps ``path`` from being used, found without writing anything: its length, a link
+    that loops or dangles (``path`` or a folder on the way), a file where a folder must be (on
+    the way, or ``path`` when ``folder`` is True), a folder where a file must be (``folder``
+    False); None when it exists as asked or does not exist (``missing`` is the caller's call).
+
+    The texts read after ``<key>=<path>: ``."""
+    path = Path(path)
+    reason = too_long(path)
+    if reason:
+        return reason
+    for prefix in _prefixes(path):
+        if os.path.islink(prefix):
+            problem = _link_problem(prefix)
+            if problem:
+                return problem.replace(f"{path} is ", "is ", 1) if prefix == path else problem
+        try:
+            os.stat(prefix)
+        except FileNotFoundError:
+            return None  # the rest does not exist
+        except OSError as error:
+            if error.errno == errno.ENOTDIR:
+                return None  # reported below by the prefix before it
+            return f"cannot look it up ({error.strerror or type(error).__name__})"
+        is_dir = os.path.isdir(prefix)
+        if prefix != path and not is_dir:
+            if output:
+                return f"cannot create the output folder ({prefix} is a file)"
+            return f"{prefix} is a file, not a folder"
+        if prefix == path and folder is True and not is_dir:
+            return "is a file; expected a folder"
+        if prefix == path and folder is False and is_dir:
+            return "is a folder; expected a file"
+    return None
+
+
+def _fail(path: str | PathLike[str], key: str | None, problem: str, expected: str) -> PathError:
+    tail = f"; {expected}" if expected and "; expected" not in problem else ""
+    return PathError(path, key, f"{problem}{tail}")
+
+
+def input_file(
+    path: str | PathLike[str], key: str | None = None, expected: str = "expected a file"
+) -> Path:
+    """An existing, readable file; else :class:`PathError` (``expected``: what the argument
+    takes, e.g. ``expected a uss-train checkpoint``)."""
+    problem = structure_problem(path, folder=False)
+    if problem is None and not os.path.lexists(path):
+        problem = "does not exist"
+    if problem is None and not os.access(path, os.R_OK):
+        problem = "cannot be read (permission denied)"
+    if problem:
+        raise _fail(path, key, problem, expected)
+    return Path(path)
+
+
+def input_folder(
+    path: str | PathLike[str], key: str | None = None, expected: str = "expected a folder"
+) -> Path:
+    """An existing folder that can be listed; else :class:`PathError`."""
+    problem = structure_problem(path, folder=True)
+    if problem is None and not os.path.lexists(path):
+        problem = "does not exist"
+    if problem is None and not os.access(path, os.R_OK | os.X_OK):
+        problem = "cannot be read (permission denied)"
+    if problem:
+        raise _fail(path, key, problem, expected)
+    return Path(path)
+
+
+def _nearest_existing(path: Path) -> Path:
+    probe = path
+    while not os.path.lexists(probe) and probe != probe.parent:
+        probe = probe.parent
+    return probe
+
+
+def _probe_write(folder: Path) -> str | None:
+    """Create (and remove) a file in ``folder``: why that fails, else None."""
+    try:
+        with tempfile.TemporaryFile(dir=folder, prefix=".uss-slam-probe."):
+            pass
+    except OSError as error:
+        return f"cannot write to {folder} ({error.strerror or type(error).__name__})"
+    return None
+
+
+def output_folder(
+    path: str | PathLike[str],
+    key: str | None = None,
+    *,
+    create: bool = False,
+    expected: str = "expected a folder to write into",
+) -> Path:
+    """A folder the script can write into (``create``: made now, with its parents; else only
+    proved creatable: the nearest existing folder on the way can be written); else
+    :class:`PathError`. An existing file, a dangling or looping link where the folder would be
+    are refused."""
+    path = Path(path)
+    problem = structure_problem(path, folder=True, output=True)
+    if problem is None:
+        existing = _nearest_existing(path)
+        if create:
+            try:
+                path.mkdir(parents=True, exist_ok=True)
+            except OSError as error:
+                problem = f"cannot create it ({error.strerror or type(error).__name__})"
+            existing = path
+        if problem is None:
+            problem = _probe_write(existing)
+    if problem:
+        raise _fail(path, key, problem, expected)
+    return path
+
+
+def output_file(
+    path: str | PathLike[str],
+    key: str | None = None,
+    expected: str = "expected a file to write",
+) -> Path:
+    """A file the script can write (its folder existing or creatable, and writable); else
+    :class:`PathError`. A folder, a dangling or looping link where the file would be are
+    refused (a link to a file is written through, as ``open()`` does)."""
+    path = Path(path)
+    problem = structure_problem(path, folder=False, output=True)
+    if problem is None:
+        problem = _probe_write(_nearest_existing(path.parent))
+    if problem:
+        raise _fail(path, key, problem, expected)
+    return path
+
+
+def read_text(
+    path: str | PathLike[str], expected: str = "expected a text file", encoding: str = "utf-8"
+) -> str:
+    """The text of an input file, read whole; every problem one :class:`DataFormatError`
+    naming the file: one that cannot be read (:func:`input_file`'s problems), and a byte the
+    encoding does not allow, with its line and column (1-based) and the byte (a Latin-1 ``é``
+    in a UTF-8 file, a PNG given as a trajectory)."""
+    checked = input_file(path, None, expected)
+    try:
+        data = checked.read_bytes()
+    except OSError as error:
+        raise PathError(path, None, f"cannot read it ({error.strerror}); {expected}") from None
+    try:
+        return data.decode(encoding)
+    except UnicodeDecodeError as error:
+        line = data.count(b"\n", 0, error.start) + 1
+        column = error.start - (data.rfind(b"\n", 0, error.start) + 1) + 1
+        byte = data[error.start]
+        raise DataFormatError(
+            path,
+            f"not a text file: byte 0x{byte:02x} at column {column} is not "
+            f"{encoding.upper()}; {expected}",
+            line,
+        ) from None
+
+
+ROOT_KEYS = ("root", "roots")
+"""Keys of a data config that name input folders (one, or a list): every data set's."""
+
+
+def input_roots(config: object, prefix: str) -> None:
+    """Check every input folder a plain data config names (``root: DIR``, ``roots: [DIR, ...]``
+    at any depth, e.g. ``data.source.root``, ``data.target.roots``) with :func:`input_folder`,
+    the error naming the full key; a value not yet given (``???``, None) is left to the
+    config's own check."""
+    if isinstance(config, dict):
+        for name, value in config.items():
+            key = f"{prefix}.{name}"
+            if name in ROOT_KEYS:
+                values = value if isinstance(value, list) else [value]
+                for folder in values:
+                    if isinstance(folder, str) and folder and folder != "???":
+                        input_folder(folder, key)
+            else:
+                input_roots(value, key)
+    elif isinstance(config, list):
+        for index, item in enumerate(config):
+            input_roots(item, f"{prefix}[{index}]")
+
+
+_PLAIN_OVERRIDE = re.compile(r"[A-Za-z0-9_\-./+@%]+")
+"""Characters a Hydra override value may hold unquoted (its lexer refuses others: spaces,
+non-ASCII letters, quotes, brackets, commas, ``=``)."""
+
+
+def hydra_quoted(text: str) -> str:
+    """``text`` as a Hydra override value that reads back as the same string: as it is when
+    Hydra reads it unquoted as that string, else single-quoted with ``\\`` and ``'`` escaped
+    (a path with spaces or non-ASCII letters: ``'/data/résumé 1'``)."""
+    if _PLAIN_OVERRIDE.fullmatch(text) and not _typed(text):
+        return text
+    return "'" + text.replace("\\", "\\\\").replace("'", "\\'") + "'"
+
+
+def _typed(text: str) -> bool:
+    """True when Hydra would read ``text`` unquoted as a number, boolean or null."""
+    if text.lower() in ("true", "false", "null"):
+        return True
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def path_override(key: str, value: str | PathLike[str] | list[str | PathLike[str]]) -> str:
+    """The Hydra override ``key=<value>`` for a path (or a list of paths) one tool hands
+    another (``uss-experiments`` and ``uss-demo`` to ``uss-train`` and ``uss-slam``), quoted
+    where Hydra needs it (:func:`hydra_quoted`): a path valid for the user is valid there."""
+    if isinstance(value, list):
+        return f"{key}=[" + ",".join(hydra_quoted(os.fspath(v)) for v in value) + "]"
+    return f"{key}={hydra_quoted(os.fspath(value))}"

@@ -1,0 +1,91 @@
+"""A Hydra app's run folder, checked and owned before Hydra writes into it.
+
+:class:`RunFolderCheck` is a Hydra callback (``hydra.callbacks``): when a run starts (before
+Hydra creates the run folder, writes its record ``.hydra/`` and opens its log file there) it
+refuses a folder that cannot be created or written (:func:`uss_slam.core.paths.output_folder`:
+its length, links that loop or point nowhere, a file in the way, a read-only location) or that
+holds another console script's outputs (:func:`uss_slam.core.files.check_output_owner`), and
+takes the folder's lock (:func:`uss_slam.core.files.output_lock`) for the whole run: a second
+run started into the same folder (two ``uss-train`` calls with one ``hydra.run.dir``) stops
+with exit code 2 and one line before it writes anything. The lock is released when the run
+ends (:func:`release_run_folders`, which :func:`uss_slam.core.cli.run_hydra_app` calls), and
+by the kernel when the process ends in any other way.
+"""
+
+from __future__ import annotations
+
+import os
+from contextlib import AbstractContextManager
+from typing import Any
+
+from uss_slam.core.errors import UssSlamError
+
+_held: list[AbstractContextManager[Any]] = []
+"""The run-folder locks this process holds (entered :func:`~uss_slam.core.files.output_lock`
+blocks), released by :func:`release_run_folders`."""
+
+
+class RefusedRunFolder(BaseException):
+    """A Hydra app's run folder refused before Hydra writes into it (:class:`RunFolderCheck`).
+
+    A ``BaseException``: Hydra turns an ``Exception`` of a callback into a warning and goes
+    on; :func:`uss_slam.core.cli.run_hydra_app` prints the one line of :attr:`error` and
+    exits with its code (2 for a folder another run holds)."""
+
+    def __init__(self, error: UssSlamError) -> None:
+        super().__init__(str(error))
+        self.error = error
+
+
+def release_run_folders() -> None:
+    """Release every run-folder lock this process took (last taken first)."""
+    while _held:
+        _held.pop().__exit__(None, None, None)
+
+
+class RunFolderCheck:
+    """Hydra callback (``_target_`` this class, ``prog`` the app, ``key`` the setting the error
+    line names: ``hydra.run.dir``, or ``out_dir`` where that sets the run folder) that checks
+    and locks the run folder when a single run starts. Multirun job folders are Hydra's own
+    fresh sweep folders and are not checked. Under DDP, the processes Lightning starts for the
+    other ranks (``LOCAL_RANK`` > 0) run in the folder rank 0 holds: they do not lock it."""
+
+    def __init__(self, prog: str, key: str = "hydra.run.dir", lock: bool = True) -> None:
+        self.prog = prog
+        self.key = key
+        self.lock = lock
+
+    def on_run_start(self, config: Any, **kwargs: Any) -> None:
+        from uss_slam.core.files import check_output_owner, output_lock
+        from uss_slam.core.paths import output_folder
+
+        folder = str(config.hydra.run.dir)
+        try:
+            output_folder(folder, self.key)  # before Hydra opens its log file in it
+            if self.lock and os.environ.get("LOCAL_RANK", "0") == "0":
+                held = output_lock(folder, self.key)
+                held.__enter__()
+                _held.append(held)
+            check_output_owner(folder, self.prog, self.key)
+        except UssSlamError as error:
+            release_run_folders()
+            raise RefusedRunFolder(error) from None
+
+    def on_run_end(self, config: Any, **kwargs: Any) -> None:
+        release_run_folders()
+
+    # Hydra calls every hook of a callback (its base class would import Hydra here)
+    def on_multirun_start(self, config: Any, **kwargs: Any) -> None:
+        pass
+
+    def on_multirun_end(self, config: Any, **kwargs: Any) -> None:
+        pass
+
+    def on_job_start(self, config: Any, **kwargs: Any) -> None:
+        pass
+
+    def on_job_end(self, config: Any, job_return: Any, **kwargs: Any) -> None:
+        pass
+
+    def on_compose_config(self, config: Any, **kwargs: Any) -> None:
+        pass

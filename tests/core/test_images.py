@@ -1,0 +1,109 @@
+"""The one image reader (``uss_slam.core.images``): whole files decode as OpenCV decodes them;
+truncated or damaged PNG and JPEG files are one :class:`DataFormatError` naming the file, and
+the decoders print nothing; label images hold class ids or 255 only."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from uss_slam.core.errors import DataFormatError
+from uss_slam.core.images import image_problem, read_colour, read_depth, read_labels
+from uss_slam.core.paths import read_text
+
+
+def _picture(seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return cv2.GaussianBlur(rng.integers(0, 256, (48, 64, 3), dtype=np.uint8), (5, 5), 1.5)
+
+
+ENCODINGS = {
+    "png": (".png", []),
+    "jpeg": (".jpg", []),
+    "jpeg-progressive": (".jpg", [cv2.IMWRITE_JPEG_PROGRESSIVE, 1]),
+    "jpeg-restart-markers": (".jpg", [cv2.IMWRITE_JPEG_RST_INTERVAL, 2]),
+}
+
+
+def _encoded(kind: str) -> bytes:
+    ext, params = ENCODINGS[kind]
+    ok, data = cv2.imencode(ext, _picture(), params)
+    assert ok
+    return data.tobytes()
+
+
+@pytest.mark.parametrize("kind", ENCODINGS)
+def test_a_whole_image_decodes_as_opencv_decodes_it(kind: str, tmp_path: Path) -> None:
+    path = tmp_path / f"x{ENCODINGS[kind][0]}"
+    path.write_bytes(_encoded(kind))
+    assert np.array_equal(read_colour(path), cv2.imread(str(path), cv2.IMREAD_COLOR))
+    path.write_bytes(_encoded(kind) + b"bytes a camera appended")
+    assert image_problem(path.read_bytes()) is None
+
+
+@pytest.mark.parametrize("kind", ENCODINGS)
+@pytest.mark.parametrize("keep", [0.1, 0.5, 0.9, -2])
+def test_a_truncated_image_is_one_error_and_the_decoder_prints_nothing(
+    kind: str, keep: float, tmp_path: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
+    data = _encoded(kind)
+    path = tmp_path / "frame.png"  # the name says PNG; the bytes decide
+    path.write_bytes(data[: int(len(data) * keep)] if keep > 0 else data[:keep])
+    with pytest.raises(DataFormatError) as caught:
+        read_colour(path)
+    assert str(caught.value).startswith(f"{path}: truncated ")
+    assert len(str(caught.value).splitlines()) == 1
+    assert capfd.readouterr().err == ""  # no "Premature end of JPEG file", no libpng line
+
+
+def test_a_png_with_a_changed_byte_is_refused_by_its_crc(
+    tmp_path: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
+    data = bytearray(_encoded("png"))
+    data[len(data) // 2] ^= 0x5A
+    path = tmp_path / "depth.png"
+    path.write_bytes(bytes(data))
+    with pytest.raises(DataFormatError, match=r"corrupt PNG: the CRC of its IDAT chunk"):
+        read_depth(path)
+    assert capfd.readouterr().err == ""
+
+
+@pytest.mark.parametrize(
+    ("data", "says"),
+    [(b"", "empty file"), (b"not an image at all", "not a readable image"),
+     (b"\xff\xd8\x00\x00", "corrupt JPEG: expected a marker at byte 2")],
+)  # fmt: skip
+def test_other_bad_bytes_are_one_error(data: bytes, says: str, tmp_path: Path) -> None:
+    path = tmp_path / "x.png"
+    path.write_bytes(data)
+    with pytest.raises(DataFormatError, match=says):
+        read_colour(path)
+
+
+def test_labels_outside_the_class_ids_are_refused(tmp_path: Path) -> None:
+    labels = np.zeros((8, 8), np.uint8)
+    labels[0, :3] = (1, 255, 3)
+    path = tmp_path / "labels.png"
+    cv2.imwrite(str(path), labels)
+    assert np.array_equal(read_labels(path), labels)
+    labels[5, 5], labels[6, 6] = 7, 200
+    cv2.imwrite(str(path), labels)
+    with pytest.raises(DataFormatError) as caught:
+        read_labels(path)
+    assert str(caught.value) == (
+        f"{path}: label values 7, 200 are not class ids; expected 0..3 (background, person, "
+        "chair, monitor) or 255 (ignore)"
+    )
+
+
+def test_a_latin1_byte_in_a_text_file_names_its_line(tmp_path: Path) -> None:
+    path = tmp_path / "groundtruth.txt"
+    path.write_bytes(b"# comment\n1.0 0 0 0 0 0 0 1\n2.0 caf\xe9\n")
+    with pytest.raises(DataFormatError) as caught:
+        read_text(path)
+    assert str(caught.value) == (
+        f"{path}:3: not a text file: byte 0xe9 at column 8 is not UTF-8; expected a text file"
+    )

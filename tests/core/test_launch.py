@@ -1,0 +1,80 @@
+"""The console scripts' entry points (``uss_slam.core.launch``): a required package that is
+missing and running out of memory are one line and exit code 1, in every script."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import pytest
+import tomllib
+
+from uss_slam.core import launch
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def test_every_required_dependency_has_its_import_name() -> None:
+    """Each distribution of pyproject's ``dependencies`` is named in :data:`launch.REQUIRED`
+    (a dependency added there must be added here, or its absence would be a traceback)."""
+    deps = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["dependencies"]
+    names = {dep.split(">")[0].split("<")[0].split("=")[0].strip().lower() for dep in deps}
+    assert names == set(launch.REQUIRED.values())
+
+
+@pytest.mark.parametrize("prog", ["uss-synth", "uss-traj", "uss-slam"])
+def test_a_missing_required_package_is_one_line(
+    prog: str, monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    """(Scripts whose modules import PyYAML when imported; every script runs through
+    :func:`launch.launch`, as ``tests/test_cli_matrix.py`` checks in pyproject.toml.)"""
+    module = launch.SCRIPTS[prog]
+    monkeypatch.delitem(sys.modules, module, raising=False)
+    monkeypatch.setitem(sys.modules, "yaml", None)  # "import yaml" raises ModuleNotFoundError
+    for name in [m for m in sys.modules if m.startswith("uss_slam.") and m != launch.__name__]:
+        monkeypatch.delitem(sys.modules, name)  # imported again: PyYAML is missing
+    assert launch.launch(prog) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    assert err[0].startswith(
+        f"{prog}: error: the required package pyyaml (import yaml) is not installed in "
+    )
+    assert "install it with: pip install 'pyyaml>=6.0'" in err[0]
+
+
+def _opencv_no_memory() -> BaseException:
+    """The ``cv2.error`` OpenCV raises when an allocation fails (``ulimit -v``)."""
+    import cv2
+
+    error = cv2.error("OpenCV(4) alloc.cpp:73: error: (-4:Insufficient memory) Failed to allocate")
+    error.code = -4  # cv2.Error.StsNoMem, as OpenCV sets it
+    return error
+
+
+def _wrapped_memory_error() -> BaseException:
+    error = RuntimeError("a library's own error")
+    error.__cause__ = MemoryError()
+    return error
+
+
+@pytest.mark.parametrize("make", [MemoryError, _wrapped_memory_error, _opencv_no_memory])
+def test_running_out_of_memory_is_one_line(make, monkeypatch: pytest.MonkeyPatch, capsys) -> None:
+    from uss_slam.synthetic import cli
+
+    def main() -> int:
+        raise make()
+
+    monkeypatch.setattr(cli, "main", main)
+    assert launch.launch("uss-synth") == 1
+    assert capsys.readouterr().err == f"uss-synth: error: {launch.MEMORY_LINE}\n"
+
+
+def test_other_errors_keep_their_traceback(monkeypatch: pytest.MonkeyPatch) -> None:
+    from uss_slam.synthetic import cli
+
+    def main() -> int:
+        raise ValueError("an internal error")
+
+    monkeypatch.setattr(cli, "main", main)
+    with pytest.raises(ValueError, match="an internal error"):
+        launch.launch("uss-synth")

@@ -1,0 +1,105 @@
+"""The path layer (``uss_slam.core.paths``) and the errors that cross processes."""
+
+from __future__ import annotations
+
+import errno
+import pickle
+from pathlib import Path
+
+import pytest
+
+from uss_slam.core.cli import override_parse_line
+from uss_slam.core.errors import DataFormatError, NoSpaceError
+from uss_slam.core.files import no_space_errno
+from uss_slam.core.paths import (
+    PathError,
+    hydra_quoted,
+    input_file,
+    input_folder,
+    output_file,
+    output_folder,
+    path_override,
+)
+
+
+@pytest.fixture
+def tree(tmp_path: Path) -> Path:
+    (tmp_path / "loop").symlink_to(tmp_path / "loop")
+    (tmp_path / "a").symlink_to(tmp_path / "b")
+    (tmp_path / "b").symlink_to(tmp_path / "a")
+    (tmp_path / "link").symlink_to(tmp_path / "gone")
+    (tmp_path / "file").write_text("x\n")
+    (tmp_path / "folder").mkdir()
+    (tmp_path / "to_file").symlink_to(tmp_path / "file")
+    return tmp_path
+
+
+@pytest.mark.parametrize(
+    ("check", "name", "says"),
+    [
+        (input_file, "loop", "k={t}/loop: is a symbolic link that loops (to {t}/loop); expected a file"),
+        (input_folder, "a/x", "k={t}/a/x: {t}/a is a symbolic link that loops (to {t}/b); expected a folder"),
+        (output_file, "link", "k={t}/link: is a symbolic link to {t}/gone, which does not exist; expected a file to write"),
+        (output_folder, "link/x", "k={t}/link/x: {t}/link is a symbolic link to {t}/gone, which does not exist; expected a folder to write into"),
+        (input_folder, "file", "k={t}/file: is a file; expected a folder"),
+        (output_folder, "file", "k={t}/file: is a file; expected a folder"),
+        (input_file, "folder", "k={t}/folder: is a folder; expected a file"),
+        (output_file, "folder", "k={t}/folder: is a folder; expected a file"),
+        (input_file, "file/x", "k={t}/file/x: {t}/file is a file, not a folder; expected a file"),
+        (output_file, "file/x", "k={t}/file/x: cannot create the output folder ({t}/file is a file); expected a file to write"),
+        (input_file, "none", "k={t}/none: does not exist; expected a file"),
+        (output_folder, "x" * 256, "k={t}/" + "x" * 256 + ": the name 'xxxxxxxxxxxxxxxxxxxx...xxxxxxxxxx' is 256 bytes; expected at most 255 (the longest name the file system allows)"),
+    ],
+)  # fmt: skip
+def test_each_problem_is_one_line_naming_the_key(check, name: str, says: str, tree: Path) -> None:
+    with pytest.raises(PathError) as caught:
+        check(tree / name, "k")
+    assert str(caught.value) == says.format(t=tree)
+
+
+@pytest.mark.parametrize(
+    ("check", "name"),
+    [(input_file, "file"), (input_file, "to_file"), (input_folder, "folder"),
+     (output_file, "to_file"), (output_file, "new.txt"), (output_folder, "folder"),
+     (output_folder, "new/deeper"), (output_folder, "résumé ü")],
+)  # fmt: skip
+def test_usable_paths_pass(check, name: str, tree: Path) -> None:
+    assert check(tree / name, "k") == tree / name
+    assert not (tree / "new").exists()  # nothing created (create=False)
+
+
+def test_output_folder_create_makes_it(tmp_path: Path) -> None:
+    assert output_folder(tmp_path / "a" / "b", "k", create=True).is_dir()
+
+
+@pytest.mark.parametrize(
+    ("text", "quoted"),
+    [("/data/run", "/data/run"), ("/data/résumé 1", "'/data/résumé 1'"), ("1.5", "'1.5'"),
+     ("it's", "'it\\'s'"), ("null", "'null'")],
+)  # fmt: skip
+def test_paths_handed_on_are_quoted_where_hydra_needs_it(text: str, quoted: str) -> None:
+    assert hydra_quoted(text) == quoted
+    assert path_override("k", [Path("/a b"), Path("/c")]) == "k=['/a b',/c]"
+
+
+def test_a_value_hydra_cannot_read_unquoted_gets_its_quoted_form() -> None:
+    assert override_parse_line("out_dir=/data/résumé", "LexerNoViableAltException: ...") == (
+        "out_dir: the value '/data/résumé' must be quoted for Hydra (it holds spaces or "
+        "non-ASCII characters); write out_dir='/data/résumé' (in a shell: "
+        "\"out_dir='/data/résumé'\")"
+    )
+
+
+def test_errors_cross_processes_whole() -> None:
+    """A worker's error is pickled to its parent: rebuilt from its fields, never from its
+    message (a full disk would name itself twice), and still a full disk there."""
+    for error in (
+        NoSpaceError("/out/data", errno.ENOSPC),
+        DataFormatError("/seq/groundtruth.txt", "expected 8 columns", 4),
+        PathError("/seq", "sequence.path", "does not exist; expected a folder"),
+    ):
+        again = pickle.loads(pickle.dumps(error))
+        assert type(again) is type(error) and str(again) == str(error)
+    assert (
+        no_space_errno(pickle.loads(pickle.dumps(NoSpaceError("/o", errno.EDQUOT)))) == errno.EDQUOT
+    )

@@ -1,0 +1,218 @@
+"""Every path family for every path argument of every console script (the "one path layer").
+
+A path argument is an input file, an input folder, an output file or an output folder of one
+console script (:data:`PATH_ARGS`); a family is a kind of bad path a user gives
+(:data:`FAMILIES`): a missing one, a name longer than the file system allows (300 bytes), a
+symbolic link that loops, one that points nowhere, a file where a folder is expected and a
+folder where a file is, a parent that is a file. Each (argument, family) pair is one case,
+held to the error contract of ``docs/errors.md``: exit code 1, one stderr line
+``<prog>: error: <key>=<path>: ...`` (positional inputs: ``<path>: ...``) naming the argument,
+no traceback, and nothing written under the case's folder.
+
+The cases run in this process (as ``tests/test_cli_matrix.py`` runs its cases). Those of the
+slow scripts (``uss-train``: it builds its data module first) are marked ``slow``. A new path
+argument is one row of :data:`PATH_ARGS`; every family applies to it by its kind.
+"""
+
+# ruff: noqa: F811  (world: the shared fixture, imported, then a parameter of the tests)
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+from hydra.core.global_hydra import GlobalHydra
+from hydra.core.hydra_config import HydraConfig
+from test_cli_matrix import (  # noqa: F401  (world: the fixture of the shared inputs)
+    EXPERIMENTS,
+    EXPORT,
+    SLAM,
+    TRAIN,
+    colour_onnx,
+    run_console_script,
+    snapshot,
+    world,
+)
+
+IN_FILE, IN_FOLDER, OUT_FILE, OUT_FOLDER = (
+    "input file",
+    "input folder",
+    "output file",
+    "output folder",
+)
+
+
+@dataclass(frozen=True)
+class PathArg:
+    """One path argument: ``argv`` is a template whose ``{P}`` is the path under test (the other
+    fields as in ``tests/test_cli_matrix.py``: ``{tmp}``, ``{seq}``, ``{m}`` a colour model);
+    ``key`` how the error line names it (None: a positional argument, named by its path)."""
+
+    prog: str
+    key: str | None
+    kind: str
+    argv: str
+    slow: bool = False
+
+    @property
+    def id(self) -> str:
+        first = self.argv.split()[0]  # a positional argument: by its subcommand
+        name = (self.key or ("model" if first == "{P}" else first)).strip("-").replace(".", "-")
+        return f"{self.prog.removeprefix('uss-')}-{name}"
+
+
+TRAIN_BASE = TRAIN.replace("hydra.run.dir={tmp}/run", "").replace("data.source.root={voc}", "")
+PATH_ARGS = [
+    PathArg("uss-synth", "--out", OUT_FOLDER, "voc --images 1 --size 32x24 --out {P} --quiet"),
+    PathArg("uss-traj", None, IN_FILE, "ate {P} {gt}"),
+    PathArg("uss-traj", "--plot", OUT_FILE, "ate {gt} {gt} --plot {P}"),
+    PathArg("uss-vocab", None, IN_FOLDER, "build {P} --out {tmp}/v.txt -k 3 -L 2"),
+    PathArg("uss-vocab", "--out", OUT_FILE, "build {seq} --out {P} -k 3 -L 2"),
+    PathArg("uss-vocab", None, IN_FILE, "info {P}"),
+    PathArg("uss-eval", None, IN_FILE, "{P} --sequence {seq} --out {tmp}/eval"),
+    PathArg("uss-eval", "--sequence", IN_FOLDER, "{m} --sequence {P} --out {tmp}/eval"),
+    PathArg("uss-eval", "--out", OUT_FOLDER, "{m} --sequence {seq} --out {P}"),
+    PathArg("uss-demo", "--out", OUT_FOLDER, "--out {P} --experiment ci --until data --quiet"),
+    PathArg("uss-demo", "--sequence", IN_FOLDER,
+            "--out {tmp}/demo --experiment ci --until data --sequence {P} --quiet"),
+    PathArg("uss-slam", "sequence.path", IN_FOLDER,
+            "sequence.path={P} out_dir={tmp}/out progress=false"),
+    PathArg("uss-slam", "out_dir", OUT_FOLDER,
+            "sequence.path={seq} out_dir={P} progress=false"),
+    PathArg("uss-slam", "segmenter.path", IN_FILE,
+            "sequence.path={seq} out_dir={tmp}/out progress=false segmenter=onnx "
+            "segmenter.path={P}"),
+    PathArg("uss-train", "hydra.run.dir", OUT_FOLDER,
+            f"{TRAIN_BASE} data.source.root={{voc}} hydra.run.dir={{P}}", slow=True),
+    PathArg("uss-train", "data.source.root", IN_FOLDER,
+            f"{TRAIN_BASE} data.source.root={{P}} hydra.run.dir={{tmp}}/run", slow=True),
+    PathArg("uss-train", "ckpt_path", IN_FILE,
+            f"{TRAIN_BASE} data.source.root={{voc}} hydra.run.dir={{tmp}}/run ckpt_path={{P}}",
+            slow=True),
+    PathArg("uss-export", "ckpt_path", IN_FILE, "ckpt_path={P} hydra.run.dir={tmp}/hydra"),
+    PathArg("uss-export", "out_dir", OUT_FOLDER, EXPORT.replace("{tmp}/exports", "{P}")),
+    PathArg("uss-export", "hydra.run.dir", OUT_FOLDER,
+            EXPORT.replace("hydra.run.dir={tmp}/hydra", "hydra.run.dir={P}")),
+    PathArg("uss-export", "calibration.root", IN_FOLDER,
+            f"{EXPORT} int8=true calibration.root={{P}}"),
+    PathArg("uss-experiments", "out_dir", OUT_FOLDER, "out_dir={P} dry_run=true"),
+    PathArg("uss-experiments", "data.real.tum", IN_FOLDER,
+            f"{EXPERIMENTS} data.kind=real data.real.voc={{tmp}} data.real.sbd={{tmp}} "
+            "data.real.coco={tmp} data.real.tum={P} data.real.target=[walking_xyz] "
+            "sequences=[walking_xyz]"),
+    PathArg("uss-experiments", "init.path", IN_FILE,
+            f"{EXPERIMENTS} init.kind=pretrained init.path={{P}}"),
+]  # fmt: skip
+
+
+# ------------------------------------------------------------------------------ families
+# A family makes the bad path in the case's folder ``tmp`` and returns it with the words its
+# error line must hold besides the argument's name (``{P}``: the path).
+
+Family = Callable[[Path, str], tuple[Path, tuple[str, ...]]]
+
+
+def missing(tmp: Path, kind: str) -> tuple[Path, tuple[str, ...]]:
+    return tmp / "nothing", ("does not exist",)
+
+
+def long_name(tmp: Path, kind: str) -> tuple[Path, tuple[str, ...]]:
+    return tmp / ("a" * 300), ("is 300 bytes; expected at most 255",)
+
+
+def symlink_loop(tmp: Path, kind: str) -> tuple[Path, tuple[str, ...]]:
+    (tmp / "loop").symlink_to(tmp / "loop")
+    return tmp / "loop", ("a symbolic link that loops",)
+
+
+def loop_on_the_way(tmp: Path, kind: str) -> tuple[Path, tuple[str, ...]]:
+    (tmp / "a").symlink_to(tmp / "b")
+    (tmp / "b").symlink_to(tmp / "a")
+    return tmp / "a" / "x", ("a symbolic link that loops",)
+
+
+def dangling(tmp: Path, kind: str) -> tuple[Path, tuple[str, ...]]:
+    (tmp / "link").symlink_to(tmp / "gone")
+    return tmp / "link", ("a symbolic link to", "which does not exist")
+
+
+def a_file(tmp: Path, kind: str) -> tuple[Path, tuple[str, ...]]:
+    (tmp / "afile").write_text("a file\n")
+    return tmp / "afile", ("is a file; expected a folder",)
+
+
+def a_folder(tmp: Path, kind: str) -> tuple[Path, tuple[str, ...]]:
+    (tmp / "afolder").mkdir()
+    (tmp / "afolder" / "inside.txt").write_text("the user's file\n")
+    return tmp / "afolder", ("is a folder; expected a file",)
+
+
+def under_a_file(tmp: Path, kind: str) -> tuple[Path, tuple[str, ...]]:
+    (tmp / "afile").write_text("a file\n")
+    return tmp / "afile" / "x", (f"{tmp / 'afile'} is a file",)
+
+
+FAMILIES: dict[str, tuple[Family, tuple[str, ...]]] = {
+    "missing": (missing, (IN_FILE, IN_FOLDER)),
+    "name-300-bytes": (long_name, (IN_FILE, IN_FOLDER, OUT_FILE, OUT_FOLDER)),
+    "symlink-loop": (symlink_loop, (IN_FILE, IN_FOLDER, OUT_FILE, OUT_FOLDER)),
+    "loop-on-the-way": (loop_on_the_way, (IN_FILE, IN_FOLDER, OUT_FILE, OUT_FOLDER)),
+    "dangling-link": (dangling, (IN_FILE, IN_FOLDER, OUT_FILE, OUT_FOLDER)),
+    "file-for-a-folder": (a_file, (IN_FOLDER, OUT_FOLDER)),
+    "folder-for-a-file": (a_folder, (IN_FILE, OUT_FILE)),
+    "under-a-file": (under_a_file, (IN_FILE, IN_FOLDER, OUT_FILE, OUT_FOLDER)),
+}
+"""Family name -> (how to make it, the kinds of argument it applies to)."""
+
+
+def _cases() -> list:
+    params = []
+    for arg in PATH_ARGS:
+        for name, (_, kinds) in FAMILIES.items():
+            if arg.kind in kinds:
+                marks = (pytest.mark.slow,) if arg.slow else ()
+                params.append(pytest.param(arg, name, id=f"{arg.id}-{name}", marks=marks))
+    return params
+
+
+@pytest.mark.parametrize(("arg", "family"), _cases())
+def test_path_family(
+    arg: PathArg,
+    family: str,
+    world: dict[str, Path],
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys,
+) -> None:
+    """One line naming the argument and the path, exit code 1, nothing written."""
+    make, _ = FAMILIES[family]
+    bad, says = make(tmp_path, arg.kind)
+    paths = {**world, "tmp": tmp_path, "P": bad}
+    if "{m}" in arg.argv:
+        paths["m"] = tmp_path / "m.onnx"
+        paths["m"].write_bytes(colour_onnx({"tmp": tmp_path}))
+    argv = [a.format(**paths) for a in arg.argv.split()]
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(logging, "raiseExceptions", False)
+    before = snapshot(tmp_path)
+    links = sorted(p for p in tmp_path.rglob("*") if p.is_symlink())
+    try:
+        code, _, err = run_console_script(arg.prog, argv, monkeypatch, capsys)
+    finally:
+        HydraConfig.instance().cfg = None
+        GlobalHydra.instance().clear()
+    lines = err.strip().splitlines()
+    assert "Traceback" not in err, err
+    assert code == 1 and len(lines) == 1, err
+    named = str(bad) if arg.key is None else f"{arg.key}={bad}"
+    assert lines[0].startswith(f"{arg.prog}: error: "), err
+    assert named in lines[0], (named, lines[0])
+    for text in says:
+        assert text.format(P=bad) in lines[0], (text, lines[0])
+    assert snapshot(tmp_path) == before
+    assert sorted(p for p in tmp_path.rglob("*") if p.is_symlink()) == links  # none replaced
+    assert all(os.path.lexists(p) for p in links)

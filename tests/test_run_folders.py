@@ -1,0 +1,74 @@
+"""Run folders owned by one run at a time, training included.
+
+``uss-train``'s run folder (``hydra.run.dir``) is locked before Hydra writes its record or log
+into it (:class:`uss_slam.core.run_folders.RunFolderCheck`): a second training started into a
+folder a first one is using stops with exit code 2 and one line naming the folder and the pid
+that holds it, and writes nothing there; the lock is held while the run works and gone after.
+"""
+
+# ruff: noqa: F811  (world: the shared fixture, imported, then a parameter of the tests)
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from hydra.core.global_hydra import GlobalHydra
+from hydra.core.hydra_config import HydraConfig
+from test_cli_matrix import (  # noqa: F401
+    TRAIN,
+    Holder,
+    run_console_script,
+    world,  # noqa: F401  (the fixture of the shared inputs)
+)
+
+from uss_slam.core.files import lock_held
+
+
+def _argv(world: dict[str, Path], tmp_path: Path) -> list[str]:
+    return [a.format(**world, tmp=tmp_path) for a in TRAIN.split()]
+
+
+def _clear() -> None:
+    HydraConfig.instance().cfg = None
+    GlobalHydra.instance().clear()
+
+
+def test_a_second_training_into_a_folder_in_use_stops(
+    world: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    run = tmp_path / "run"
+    holder = Holder(run)  # a first uss-train, working in run/
+    monkeypatch.chdir(tmp_path)
+    try:
+        code, _, err = run_console_script("uss-train", _argv(world, tmp_path), monkeypatch, capsys)
+    finally:
+        holder.release()
+        _clear()
+    lines = err.strip().splitlines()
+    assert code == 2 and len(lines) == 1, err
+    assert lines[0].startswith(
+        f"uss-train: error: hydra.run.dir={run} is in use by pid {holder.proc.pid} (started "
+    ), lines[0]
+    assert not run.exists()  # no .hydra/ record, no log file of the second run
+
+
+def test_a_training_holds_its_run_folder_while_it_runs(
+    world: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    run = tmp_path / "run"
+    seen: list[bool] = []
+
+    def task(cfg: object) -> dict[str, float]:  # stands for the training
+        seen.append(lock_held(run))
+        return {}
+
+    monkeypatch.setattr("uss_slam.train.train.train", task)
+    monkeypatch.chdir(tmp_path)
+    try:
+        code, _, err = run_console_script("uss-train", _argv(world, tmp_path), monkeypatch, capsys)
+    finally:
+        _clear()
+    assert code == 0, err
+    assert seen == [True]
+    assert not lock_held(run) and not list(tmp_path.glob(".*.lock"))
