@@ -76,6 +76,7 @@ PATH_ARGS = [
     PathArg("uss-eval", None, IN_FILE, "{P} --sequence {seq} --out {tmp}/eval"),
     PathArg("uss-eval", "--sequence", IN_FOLDER, "{m} --sequence {P} --out {tmp}/eval"),
     PathArg("uss-eval", "--out", OUT_FOLDER, "{m} --sequence {seq} --out {P}"),
+    PathArg("uss-eval", "data.val.roots", IN_FOLDER, "{m} data.val.roots=[{P}] --out {tmp}/eval"),
     PathArg("uss-demo", "--out", OUT_FOLDER, "--out {P} --experiment ci --until data --quiet"),
     PathArg("uss-demo", "--sequence", IN_FOLDER,
             "--out {tmp}/demo --experiment ci --until data --sequence {P} --quiet"),
@@ -102,7 +103,7 @@ PATH_ARGS = [
     PathArg("uss-experiments", "out_dir", OUT_FOLDER, "out_dir={P} dry_run=true"),
     PathArg("uss-experiments", "data.real.tum", IN_FOLDER,
             f"{EXPERIMENTS} data.kind=real data.real.voc={{tmp}} data.real.sbd={{tmp}} "
-            "data.real.coco={tmp} data.real.tum={P} data.real.target=[walking_xyz] "
+            "data.real.coco={tmp} data.real.tum={P} data.real.target=[walking_xyz] init.kind=scratch "
             "sequences=[walking_xyz]"),
     PathArg("uss-experiments", "init.path", IN_FILE,
             f"{EXPERIMENTS} init.kind=pretrained init.path={{P}}"),
@@ -216,3 +217,21 @@ def test_path_family(
     assert snapshot(tmp_path) == before
     assert sorted(p for p in tmp_path.rglob("*") if p.is_symlink()) == links  # none replaced
     assert all(os.path.lexists(p) for p in links)
+
+
+def test_export_name_too_long(
+    world: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    """``uss-export name=<300 bytes>``: the model's file name is one line naming ``name``."""
+    name = "a" * 300
+    argv = [a.format(**world, tmp=tmp_path) for a in EXPORT.split()] + [f"name={name}"]
+    monkeypatch.chdir(tmp_path)
+    try:
+        code, _, err = run_console_script("uss-export", argv, monkeypatch, capsys)
+    finally:
+        HydraConfig.instance().cfg = None
+        GlobalHydra.instance().clear()
+    assert code == 1 and len(err.strip().splitlines()) == 1, err
+    assert err.startswith(f"uss-export: error: name={tmp_path}/exports/{name}.onnx: the name "), err
+    assert "is 305 bytes; expected at most 255" in err
+    assert not (tmp_path / "exports").exists()

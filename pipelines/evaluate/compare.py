@@ -23,6 +23,7 @@ import numpy as np
 from uss_slam.core.classes import CLASS_NAMES, IGNORE_INDEX
 from uss_slam.core.errors import DataFormatError, UssSlamError
 from uss_slam.core.files import file_sha256
+from uss_slam.core.images import read_colour
 from uss_slam.core.onnx_contract import OUTPUT_LABELS, OUTPUT_LOGITS
 from uss_slam.core.seg_metrics import confusion_matrix
 from uss_slam.core.tum_io import read_tum_folder
@@ -268,10 +269,8 @@ def source_images(folder: Path, count: int) -> list[Path]:
 
 
 def read_rgb(path: Path) -> np.ndarray:
-    bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if bgr is None:
-        raise DataFormatError(path, "not a readable image")
-    return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+    """``(H, W, 3)`` uint8 RGB of a colour frame (:func:`uss_slam.core.images.read_colour`)."""
+    return cv2.cvtColor(read_colour(path), cv2.COLOR_BGR2RGB)
 
 
 def batches(paths: Sequence[Path], size: int) -> Iterator[tuple[int, np.ndarray]]:

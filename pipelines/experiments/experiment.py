@@ -381,13 +381,14 @@ def check(cfg: DictConfig) -> Experiment:
                     f"data.real.{key}: missing; data.kind=real needs the {key.upper()} folder "
                     f"(data.real.{key}=PATH)"
                 )
-            input_folder(Path(str(real[key])).expanduser(), f"data.real.{key}")
         if not real.get("target"):
             raise UssSlamError(
                 "data.real.target: missing; data.kind=real needs a non-empty list of the TUM "
                 "sequences of the target domain"
             )
         check_real_init(init, synthetic)
+        for key in ("voc", "sbd", "coco", "tum"):  # the folders themselves, once all are given
+            input_folder(Path(str(real[key])).expanduser(), f"data.real.{key}")
     out = Path(str(plain["out_dir"])).expanduser().resolve()
     return Experiment(
         plain,

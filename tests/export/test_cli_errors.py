@@ -117,7 +117,7 @@ def _bad_calibration(kind: str, root: Path) -> tuple[list[str], str]:
         )
     if kind == "missing":
         return [f"calibration.root={root}"], (
-            f"{root}: calibration.root is not a folder (expected a TUM RGB-D folder with rgb.txt)"
+            f"calibration.root={root}: does not exist; expected a TUM RGB-D folder with rgb.txt"
         )
     root.mkdir()
     if kind == "empty":
@@ -134,7 +134,7 @@ def _bad_calibration(kind: str, root: Path) -> tuple[list[str], str]:
     (root / "rgb.txt").write_text("1.0 rgb/1.png\n2.0 rgb/2.png\n")
     return [
         f"calibration.root={root}"
-    ], f"{root / 'rgb' / '1.png'}: not a readable image (listed in rgb.txt)"
+    ], f"{root / 'rgb' / '1.png'}: not a readable image; expected a colour image (PNG or JPEG)"
 
 
 @pytest.mark.parametrize("kind", ["unset", "missing", "empty", "no_frames", "broken_image"])
@@ -413,7 +413,7 @@ def test_console_script_prints_exactly_one_line(runs: dict[str, Path], tmp_path:
         ([f"ckpt_path={truncated}"], f"uss-export: error: {truncated}: not a readable checkpoint"),
         (
             [good, "int8=true", f"calibration.root={tmp_path / 'none'}"],
-            f"uss-export: error: {tmp_path / 'none'}: calibration.root is not a folder",
+            f"uss-export: error: calibration.root={tmp_path / 'none'}: does not exist",
         ),
     ]
     for overrides, expected in cases:

@@ -141,7 +141,7 @@ def _bad_sequence(tmp_path: Path, seq: Path, what: str) -> Path:
         ("empty", "rgb.txt: the sequence lists no images"),
         ("unreadable", ".png: not a readable image"),
         ("label_size", "labels are 5x5 but the colour image"),
-        ("label_ids", "class id 9 is not a class (expected 0..3 or 255)"),
+        ("label_ids", "label values 9 are not class ids; expected 0..3"),
         ("label_count", "--label-frames 50: the --labels folders hold 6 label files"),
         ("unknown_validator", "--validators: unknown validator 'bogus'"),
         ("probe_no_source", "--validators probe: needs --source FOLDER"),

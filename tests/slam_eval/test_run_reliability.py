@@ -94,7 +94,7 @@ BAD_CONFIGS = [
      "segmenter.model: unknown key; uss_slam.slam_eval.segmenters.base.LabelsSegmenter takes no "
      "parameters"),
     (["segmenter=onnx"], "segmenter.path: required by OnnxSegmenter"),
-    (["segmenter=onnx", "segmenter.path=missing.onnx"], "segmenter.path missing.onnx: no such"),
+    (["segmenter=onnx", "segmenter.path=missing.onnx"], "segmenter.path=missing.onnx: does not exist"),
     (["slam.orb.bogus=1"], "slam.orb.bogus: unknown key; expected one of n_features, scale_factor"),
     (["slam.tracker.policy=harness"], "slam.tracker.policy: the harness tracking policy was "
                                       "removed (ORB-SLAM2's is the only one); commit 0fea5f3"),
@@ -205,7 +205,7 @@ def _truncated_rgb(seq: Path) -> str:
     """A frame that only fails when it is decoded, half-way through the SLAM run."""
     victim = sorted((seq / "rgb").iterdir())[5]
     victim.write_bytes(b"truncated")
-    return f"{victim}: not a readable image"
+    return f"{victim}: not a readable image; expected a colour image (PNG or JPEG)"
 
 
 @pytest.mark.parametrize("damage", [_missing_depth, _truncated_rgb], ids=["opening", "mid_run"])

@@ -103,7 +103,9 @@ def test_camera_from_path_must_match_image_size(write_sequence, tmp_path: Path) 
 
 
 def test_not_a_folder(tmp_path: Path) -> None:
-    with pytest.raises(DataFormatError, match=r"nope: TUM sequence folder not found"):
+    with pytest.raises(
+        DataFormatError, match=r"nope: does not exist; expected a TUM sequence folder"
+    ):
         TumSequence(tmp_path / "nope")
 
 

@@ -155,7 +155,7 @@ def test_unwritable_output_folder_is_one_line(
     else:
         assert (
             err[0] == f"uss-train: error: {key}={target}: cannot create the output folder "
-            f"({blocker} is a file)"
+            f"({blocker} is a file); expected a folder to write into"
         )
         assert _left_behind(tmp_path / "run") == set()
     assert blocker.read_text() == "not a folder\n"

@@ -222,8 +222,8 @@ def test_missing_file_directory_and_empty_file(
     empty = tmp_path / "empty.txt"
     empty.write_text("# nothing here\n")
     cases = [
-        (tmp_path / "nope.txt", "file not found"),
-        (tmp_path, "cannot read the file"),
+        (tmp_path / "nope.txt", "does not exist"),
+        (tmp_path, "is a folder; expected a file"),
         (empty, "no poses"),
     ]
     for path, fragment in cases:

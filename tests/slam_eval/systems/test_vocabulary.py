@@ -191,4 +191,4 @@ def test_uss_vocab_build_and_info(write_sequence, texture, tmp_path: Path, capsy
     assert "pass --overwrite" in capsys.readouterr().err
     assert vocab_main(["build", str(tmp_path / "nope"), "--out", str(tmp_path / "x.txt")]) == 1
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "nope: not a folder" in err
+    assert err.count("\n") == 1 and "nope: does not exist; expected a TUM sequence" in err
