@@ -32,7 +32,7 @@ import logging
 import time
 from collections.abc import Sequence
 from dataclasses import asdict
-from typing import Any, Literal, get_args
+from typing import Annotated, Any, Literal
 
 import torch
 from lightning.pytorch import LightningModule
@@ -42,6 +42,7 @@ from torchmetrics.classification import MulticlassConfusionMatrix
 
 from uss_slam.core.classes import CLASS_NAMES, IGNORE_INDEX
 from uss_slam.core.errors import UssSlamError
+from uss_slam.core.schema import Range
 from uss_slam.core.seg_metrics import iou_per_class
 from uss_slam.models.deeplab import DeepLabV2, SegmenterOutput
 from uss_slam.train.losses import LossWeights, upsample
@@ -174,10 +175,10 @@ class AdversarialSegmentation(LightningModule):
         optimizer: OptimizerFactory,
         method: Method,
         loss: LossWeights | None = None,
-        max_iters: int = 250_000,
-        poly_power: float = 0.9,
-        poly_total_iters: int | None = None,
-        head_lr_mult: float = 10.0,
+        max_iters: Annotated[int, Range(min=1)] = 250_000,
+        poly_power: Annotated[float, Range(gt=0)] = 0.9,
+        poly_total_iters: Annotated[int | None, Range(min=1)] = None,
+        head_lr_mult: Annotated[float, Range(gt=0)] = 10.0,
         class_names: Sequence[str] = CLASS_NAMES,
         batch_domains: bool = True,
         domain_batch_norm: DomainBatchNorm = "separate",
@@ -188,9 +189,7 @@ class AdversarialSegmentation(LightningModule):
         compile_dynamic: bool | None = False,
         optimizer_kernels: OptimizerKernels = "default",
     ) -> None:
-        super().__init__()
-        if isinstance(max_iters, bool) or not isinstance(max_iters, int) or max_iters <= 0:
-            raise UssSlamError(f"model.max_iters must be a positive integer, got {max_iters!r}")
+        super().__init__()  # the values' types and ranges: the config's schema (uss-train)
         num_classes = getattr(net, "num_classes", None)
         if num_classes is not None and num_classes != len(class_names):
             raise UssSlamError(
@@ -208,11 +207,6 @@ class AdversarialSegmentation(LightningModule):
         self.head_lr_mult = head_lr_mult
         self.class_names = tuple(class_names)
         self.batch_domains = batch_domains
-        if domain_batch_norm not in get_args(DomainBatchNorm):
-            raise UssSlamError(
-                "model.domain_batch_norm must be separate, joint or running, got "
-                f"{domain_batch_norm!r}"
-            )
         if getattr(net, "batchnorm", None) == "reference" and domain_batch_norm != "separate":
             raise UssSlamError(
                 f"model.domain_batch_norm={domain_batch_norm} contradicts "
@@ -225,11 +219,6 @@ class AdversarialSegmentation(LightningModule):
         self.compile_options = self._check_compile_options(
             compile_mode, compile_backend, compile_dynamic
         )
-        if optimizer_kernels not in ("default", "foreach", "fused"):
-            raise UssSlamError(
-                "model.optimizer_kernels must be default, foreach or fused, got "
-                f"{optimizer_kernels!r}"
-            )
         self.optimizer_kernels = optimizer_kernels
         self._compiled = False
         # Host seconds of the first two iterations this process runs with compiled networks:

@@ -273,21 +273,32 @@ def test_joint_batch_norm_needs_crops_of_one_size() -> None:
     assert not can_batch_domains(module, src, trg)
 
 
-def test_domain_batch_norm_rejects_other_values() -> None:
-    import functools
+@pytest.mark.parametrize(
+    ("key", "value", "line"),
+    [
+        ("domain_batch_norm", "x",
+         "model.domain_batch_norm: expected one of 'separate', 'joint', 'running', got 'x'"),
+        ("optimizer_kernels", "turbo",
+         "model.optimizer_kernels: expected one of 'default', 'foreach', 'fused', got 'turbo'"),
+        ("max_iters", 0, "model.max_iters: expected an integer >= 1, got 0"),
+        ("poly_power", -1, "model.poly_power: expected a number > 0, got -1"),
+        ("poly_total_iters", 0, "model.poly_total_iters: expected an integer >= 1 or null, got 0"),
+        ("head_lr_mult", 0, "model.head_lr_mult: expected a number > 0, got 0"),
+    ],
+)  # fmt: skip
+def test_the_schema_of_the_module_refuses_values_out_of_range(
+    key: str, value: object, line: str
+) -> None:
+    """What uss-train checks before building anything (the module's annotated ranges)."""
+    from omegaconf import OmegaConf
 
-    from uss_slam.core.errors import UssSlamError
-    from uss_slam.models.deeplab import DeepLabV2
+    from uss_slam.core.schema import SchemaError, check_target
 
-    with pytest.raises(
-        UssSlamError, match="domain_batch_norm must be separate, joint or running, got 'x'"
-    ):
-        AdversarialSegmentation(
-            net=DeepLabV2(num_classes=4, backbone="resnet_small", freeze_bn=False),
-            optimizer=functools.partial(torch.optim.SGD, lr=0.1),
-            method=SourceOnly(),
-            domain_batch_norm="x",
-        )
+    node = OmegaConf.create({"_target_": "uss_slam.train.module.AdversarialSegmentation"})
+    node[key] = value
+    with pytest.raises(SchemaError) as info:
+        check_target(node, "model")
+    assert str(info.value) == line
 
 
 def test_reference_batch_norm_matches_a_plain_restatement_of_adaptsegnet() -> None:

@@ -116,7 +116,6 @@ def test_channels_last_matches_the_eager_step() -> None:
     [
         ("compile_mode", "fastest", "model.compile_mode must be one of default, reduce-overhead"),
         ("compile_backend", "nope", "model.compile_backend must be one of .*inductor"),
-        ("optimizer_kernels", "turbo", "model.optimizer_kernels must be default, foreach or fused"),
     ],
 )
 def test_bad_speed_options_name_the_key(key: str, value: str, message: str) -> None:
