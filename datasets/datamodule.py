@@ -18,13 +18,14 @@ import copy
 import multiprocessing
 from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 from lightning.pytorch import LightningDataModule
 from lightning.pytorch.utilities import CombinedLoader
 from torch.utils.data import DataLoader, Dataset
 
 from uss_slam.core.errors import UssSlamError
+from uss_slam.core.schema import MAX_THREADS, Range
 from uss_slam.datasets.sampling import SeededDataset, StreamSampler
 
 SOURCE_DOMAIN = 0
@@ -66,23 +67,15 @@ class UDADataModule(LightningDataModule):
         source: Dataset,
         target: Dataset,
         val: Dataset | None = None,
-        batch_size: int = 1,
-        iterations_per_epoch: int = 1000,
-        val_batch_size: int = 1,
-        num_workers: int = 0,
+        batch_size: Annotated[int, Range(min=1)] = 1,
+        iterations_per_epoch: Annotated[int, Range(min=1)] = 1000,
+        val_batch_size: Annotated[int, Range(min=1)] = 1,
+        num_workers: Annotated[int, Range(min=0, max=MAX_THREADS)] = 0,
         seed: int = 0,
         pin_memory: bool = False,
         manifest_dir: str | Path | None = None,
     ) -> None:
-        super().__init__()
-        for name, value, minimum in (
-            ("batch_size", batch_size, 1),
-            ("iterations_per_epoch", iterations_per_epoch, 1),
-            ("val_batch_size", val_batch_size, 1),
-            ("num_workers", num_workers, 0),
-        ):
-            if value < minimum:
-                raise ValueError(f"{name} must be >= {minimum}, got {value}")
+        super().__init__()  # the values' ranges: the config's schema (uss-train)
         self.source = source
         self.target = target
         self.val = val

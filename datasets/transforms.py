@@ -9,7 +9,7 @@ After the pipeline the image is float32, ImageNet-normalised.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import Annotated, Any
 
 import torch
 from torchvision import tv_tensors
@@ -18,6 +18,7 @@ from torchvision.transforms.v2 import functional as F
 
 from uss_slam.core.classes import IGNORE_INDEX
 from uss_slam.core.normalization import IMAGENET_MEAN, IMAGENET_STD
+from uss_slam.core.schema import Range
 
 
 class RandomScale(v2.Transform):
@@ -52,8 +53,13 @@ def _finish(mean: Sequence[float], std: Sequence[float]) -> list[v2.Transform]:
     return [v2.ToDtype(torch.float32, scale=True), v2.Normalize(list(mean), list(std))]
 
 
+MIN_CROP = 8
+"""The smallest crop side, px: the segmenter's output stride (8); a smaller crop leaves its
+last layers nothing to convolve."""
+
+
 def train_transform(
-    crop_size: int | Sequence[int] | None = 321,
+    crop_size: Annotated[int | Sequence[int] | None, Range(min=MIN_CROP)] = 321,
     scale_range: Sequence[float] | None = (0.5, 1.5),
     hflip: bool = True,
     resize: Sequence[int] | None = None,

@@ -25,7 +25,7 @@ from uss_slam.core.cli import hydra_task, run_hydra_app
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.onnx_contract import HEADS
 from uss_slam.core.paths import input_file, input_folder, output_file, output_folder
-from uss_slam.core.schema import check, ranged
+from uss_slam.core.schema import MAX_THREADS, check, ranged
 from uss_slam.export.checkpoint import run_name
 from uss_slam.export.onnx import check_options, export_checkpoint
 from uss_slam.export.outputs import ExportResult
@@ -64,7 +64,7 @@ class ExportSchema:
     verify_size: Any = field(default_factory=lambda: [120, 160])
     max_logit_diff: Optional[float] = ranged(None, gt=0)
     min_label_agreement: Optional[float] = ranged(None, gt=0, max=1)
-    num_threads: Optional[int] = ranged(None, min=1)
+    num_threads: Optional[int] = ranged(None, min=1, max=MAX_THREADS)
     int8: bool = False
     calibration: CalibrationSchema = field(default_factory=CalibrationSchema)
 

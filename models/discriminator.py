@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+from typing import Annotated
+
 from torch import Tensor, nn
+
+from uss_slam.core.schema import Range
 
 
 class PatchDiscriminator(nn.Module):
@@ -15,11 +19,13 @@ class PatchDiscriminator(nn.Module):
     """
 
     def __init__(
-        self, in_channels: int, n_layers: int = 5, ndf: int = 64, max_channels: int = 512
+        self,
+        in_channels: Annotated[int, Range(min=1)],
+        n_layers: Annotated[int, Range(min=1)] = 5,
+        ndf: Annotated[int, Range(min=1)] = 64,
+        max_channels: Annotated[int, Range(min=1)] = 512,
     ) -> None:
-        super().__init__()
-        if n_layers < 1:
-            raise ValueError(f"n_layers must be >= 1, got {n_layers}")
+        super().__init__()  # the values' ranges: the config's schema (uss-train)
         self.n_layers = n_layers
         layers: list[nn.Module] = []
         channels = in_channels

@@ -32,7 +32,15 @@ from uss_slam.core.cli import hydra_task, run_hydra_app
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.files import check_writable
 from uss_slam.core.paths import input_file, input_roots
-from uss_slam.core.schema import check_targets, ranged, validate
+from uss_slam.core.schema import (
+    MAX_THREADS,
+    Range,
+    SchemaError,
+    check_targets,
+    declare,
+    ranged,
+    validate,
+)
 from uss_slam.models.checkpoint import CheckpointInfo, read_checkpoint
 from uss_slam.train.callbacks import LogProgressBar
 from uss_slam.train.checkpoint_io import AtomicCheckpointIO
@@ -81,6 +89,24 @@ RESOLVED_LATER = {"trainer.precision": ("auto",)}
 """Values accepted besides the annotation's: resolved for the CPU or GPU when the run starts
 (:func:`~uss_slam.train.speed.resolve_precision`)."""
 
+GROUPS = (*TYPED_SECTIONS, "paths")
+"""The config groups of ``configs/train.yaml`` besides :class:`RunSettings`' keys: any other
+top-level key (``+unknown=1``) is refused."""
+
+# Ranges of library classes a config builds, whose annotations say only ``float`` / ``int``:
+# torch would refuse these values with its own text ("Invalid momentum value") once the
+# optimiser is built, Lightning would take a negative logging interval without a word.
+declare("torch.optim.SGD", lr=Range(min=0), momentum=Range(min=0), dampening=Range(min=0),
+        weight_decay=Range(min=0))  # fmt: skip
+declare("torch.optim.Adam", lr=Range(min=0), betas=Range(min=0, lt=1, length=2),
+        eps=Range(min=0), weight_decay=Range(min=0))  # fmt: skip
+declare("torch.optim.AdamW", lr=Range(min=0), betas=Range(min=0, lt=1, length=2),
+        eps=Range(min=0), weight_decay=Range(min=0))  # fmt: skip
+declare("lightning.pytorch.Trainer", log_every_n_steps=Range(min=1),
+        max_epochs=Range(min=-1), max_steps=Range(min=-1), min_epochs=Range(min=0),
+        num_sanity_val_steps=Range(min=-1), accumulate_grad_batches=Range(min=1),
+        check_val_every_n_epoch=Range(min=1), gradient_clip_val=Range(min=0))  # fmt: skip
+
 MAX_SEED = 2**32 - 1
 """The largest seed numpy (and so Lightning's ``seed_everything``) accepts."""
 
@@ -98,7 +124,7 @@ class RunSettings:
     seeding."""
     ckpt_path: Optional[str] = None  # noqa: UP045
     """Checkpoint to resume from: null, a ``.ckpt`` file, or ``last``."""
-    num_threads: Optional[int] = ranged(None, min=1)  # noqa: UP045
+    num_threads: Optional[int] = ranged(None, min=1, max=MAX_THREADS)  # noqa: UP045
     """``torch.set_num_threads``, or null for torch's default (0 would silently mean the
     default, -1 end in torch's traceback)."""
     optimized_metric: Optional[str] = "val/mIoU"  # noqa: UP045
@@ -110,10 +136,40 @@ def check_config(cfg: DictConfig) -> RunSettings:
     :class:`RunSettings`, every ``_target_`` node of :data:`TYPED_SECTIONS` against its
     target's parameter annotations (:mod:`uss_slam.core.schema`). A problem is one line
     ``<key>: expected ..., got ...``."""
-    values = {f.name: cfg[f.name] for f in fields(RunSettings) if f.name in cfg}
+    names = [f.name for f in fields(RunSettings)]
+    for key in cfg:
+        if key not in names and key not in GROUPS:
+            raise SchemaError(str(key), ", ".join([*names, *GROUPS]), unknown=True)
+    values = {name: cfg[name] for name in names if name in cfg}
     settings = validate(values, RunSettings)
     check_targets(cfg, TYPED_SECTIONS, opaque=(torch.Tensor,), also=RESOLVED_LATER)
+    check_crops(cfg)
     return settings
+
+
+def check_crops(cfg: DictConfig) -> None:
+    """The training crops fit the discriminators: each of their ``n_layers`` stride-2
+    convolutions halves its input, so a crop side below ``2 ** n_layers`` leaves them no output
+    (a traceback once training starts). Methods without discriminators need
+    :data:`~uss_slam.datasets.transforms.MIN_CROP` only (the schema's)."""
+    method = cfg.model.get("method")
+    if not isinstance(method, DictConfig):
+        return
+    depth = (method.get("discriminator") or {}).get("n_layers")
+    if not isinstance(depth, int) or isinstance(depth, bool):
+        return
+    target = method.get("_target_")
+    if not target or not getattr(get_class(str(target)), "trains_discriminators", False):
+        return
+    for domain in ("source", "target"):
+        crop = ((cfg.data.get(domain) or {}).get("transform") or {}).get("crop_size")
+        sides = [crop] if isinstance(crop, int) else list(crop or [])
+        if any(isinstance(s, int) and s < 2**depth for s in sides):
+            raise SchemaError(
+                f"data.{domain}.transform.crop_size",
+                f"at least {2**depth} px (2 ** model.method.discriminator.n_layers = {depth})",
+                OmegaConf.to_container(crop) if not isinstance(crop, int) else crop,
+            )
 
 
 def _output_folders(cfg: DictConfig) -> list[tuple[str, str]]:

@@ -217,8 +217,8 @@ def _check_repeats(
     seen: list[Any] = []
     for item in value:
         if item in seen:
-            raise SchemaError(where, f"{describe(tp, metadata)}, each item once "
-                              f"({item!r} is listed twice)", value)  # fmt: skip
+            expected = describe(tp, {**metadata, "unique": True})
+            raise SchemaError(where, f"{expected} ({item!r} is listed twice)", value)
         seen.append(item)
 
 

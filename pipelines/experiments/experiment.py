@@ -205,9 +205,7 @@ def check_init(plain: Mapping[str, Any], synthetic: bool, sequences: Sequence[st
         return Init(kind, path=path.resolve())
     if not synthetic:
         return Init(kind)  # no init: an error after the data checks (check_real_init)
-    seeds = list(init["seeds"])
-    if len(set(seeds)) != len(seeds):
-        raise UssSlamError(f"init.seeds: a seed is listed twice in {seeds}")
+    seeds = list(init["seeds"])  # each once: the schema's
     images = int(init["images"])
     size = _size("init.size", init.get("size"))
     render_seed = int(init["render_seed"])

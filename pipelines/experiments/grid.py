@@ -37,7 +37,6 @@ from uss_slam.train.method_configs import method_names, trains_discriminators
 from .keys import (
     check_sequences,
     choose,
-    flag,
     given,
     loss_combinations,
     non_empty_list,
@@ -387,16 +386,6 @@ def batchnorm_modes(values: Any) -> dict[str, tuple[str, ...]]:
     return out
 
 
-def adabn_method_list(values: Any) -> list[str]:
-    """``grid.adabn_methods``: the methods whose checkpoints (at ``tables.n_layers``) also get
-    an AdaBN export; source-only's is T0's AdaBN row."""
-    methods = [str(m) for m in non_empty_list("grid.adabn_methods", values)]
-    for m in methods:
-        choose("grid.adabn_methods", m, METHODS)
-    unique("grid.adabn_methods", methods)
-    return methods
-
-
 def _depth(key: str, n: Any, what: str = "integers") -> int:
     if isinstance(n, bool) or not isinstance(n, int) or n not in N_LAYERS_RANGE:
         raise UssSlamError(
@@ -412,29 +401,16 @@ def training_cells(
     ``loss``, ``batchnorm``), in table order: per method in the order listed, every BatchNorm
     mode of ``batchnorm``, every init of ``inits`` (``init.seeds``; ``None``: no init to tell
     apart), every seed. A method with discriminators is trained once per depth of ``n_layers``
-    when ``depth_sweep`` lists it, else at ``n_table`` (``tables.n_layers``) only."""
-    methods = non_empty_list("grid.methods", grid.get("methods"))
-    for m in methods:
-        choose("grid.methods", m, METHODS)
-    unique("grid.methods", methods)
-    sweep = grid.get("depth_sweep", list(DEPTH_SWEEP))
-    if isinstance(sweep, (str, bytes)) or not isinstance(sweep, Sequence):
-        raise UssSlamError(f"grid.depth_sweep: expected a list of methods, got {sweep!r}")
+    when ``depth_sweep`` lists it, else at ``n_table`` (``tables.n_layers``) only. The values
+    are the schema's (:class:`.schema.Grid`: methods, depths, seeds, each once); the rules
+    across keys are checked here."""
+    methods = [str(m) for m in grid["methods"]]
+    sweep = [str(m) for m in grid.get("depth_sweep", DEPTH_SWEEP)]
     with_discriminators = discriminator_methods()
-    for m in sweep:
-        choose("grid.depth_sweep", m, with_discriminators)
-    unique("grid.depth_sweep", list(sweep))
-    seeds = non_empty_list("grid.seeds", grid.get("seeds"))
-    for s in seeds:
-        if isinstance(s, bool) or not isinstance(s, int) or s < 0:
-            raise UssSlamError(f"grid.seeds: expected integers >= 0, got {s!r}")
-    unique("grid.seeds", seeds)
+    seeds = list(grid["seeds"])
     depths: list[int] = []
     if any(m in sweep for m in methods):
-        depths = non_empty_list("grid.n_layers", grid.get("n_layers"))
-        for n in depths:
-            _depth("grid.n_layers", n)
-        unique("grid.n_layers", depths)
+        depths = list(grid["n_layers"])
         if n_table is not None and n_table not in depths:
             raise UssSlamError(
                 f"tables.n_layers: {n_table!r} is not a depth of the grid; accepted: "
@@ -496,7 +472,7 @@ def expand(
     trainings = training_cells(cfg["grid"], n_table, inits)
     # T0's reference rows: the target oracle (one more training per seed) and AdaBN (an export
     # of each source-only training); absent keys = off (configs/experiments.yaml turns them on)
-    if flag("grid.oracle", cfg["grid"].get("oracle")):
+    if cfg["grid"].get("oracle"):
         oracle_settings = method_overrides(cfg["grid"].get("method_overrides")).get(ORACLE, ())
         trainings += [
             TrainCell(ORACLE, int(s), settings=oracle_settings, init=i, init_tag=len(inits) > 1)
@@ -504,24 +480,16 @@ def expand(
             for s in cfg["grid"]["seeds"]
         ]
     trainings = [replace(t, target_labels=target_label_uses(cfg, t)) for t in trainings]
-    adabn_methods = adabn_method_list(cfg["grid"].get("adabn_methods", ["source_only"]))
+    adabn_methods = [str(m) for m in cfg["grid"].get("adabn_methods", ["source_only"])]
     adabn = [
         AdaBNCell(t)
         for t in trainings
-        if t.method in adabn_methods
-        and t.n_layers in (None, n_table)
-        and flag("grid.adabn", cfg["grid"].get("adabn"))
+        if t.method in adabn_methods and t.n_layers in (None, n_table) and cfg["grid"].get("adabn")
     ]
     models: list[Model] = [*trainings, *adabn]
     sequences = check_sequences(cfg.get("sequences"), accepted_sequences)
-    systems = [str(s) for s in non_empty_list("systems", cfg.get("systems"))]
-    for s in systems:
-        choose("systems", s, SYSTEMS)
-    unique("systems", systems)
-    variants = [str(v) for v in non_empty_list("variants", cfg.get("variants"))]
-    for v in variants:
-        choose("variants", v, VARIANTS)
-    unique("variants", variants)
+    systems = [str(s) for s in cfg["systems"]]
+    variants = [str(v) for v in cfg["variants"]]
     if n_table is None and any(t.n_layers is not None for t in trainings):
         raise UssSlamError("tables.n_layers: missing; expected a depth of grid.n_layers")
     table_configs = list(

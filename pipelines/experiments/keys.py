@@ -1,6 +1,7 @@
-"""Checks of ``uss-experiments``' values that the schema (:mod:`.schema`) cannot express or that
-the grid needs when called on its own: a name among those of the data kind, a value listed twice,
-loss-weight lists; each fails with the one-line error that names the key."""
+"""Checks of ``uss-experiments``' values that the schema (:mod:`.schema`) cannot express: a
+sequence of the data kind, the keys and values of the user's own mappings (``grid.loss``,
+``grid.batchnorm``, ``grid.method_overrides``); each fails with the one-line error that names
+the key. Types, ranges, choices and repeats of the other keys are the schema's."""
 
 from __future__ import annotations
 
@@ -46,20 +47,11 @@ def given(values: Mapping[str, Any] | None) -> dict[str, Any]:
     return {k: v for k, v in (values or {}).items() if v is not None}
 
 
-def flag(key: str, value: Any) -> bool:
-    """A true / false option (absent = false); anything else is the one-line error."""
-    if value is None:
-        return False
-    if not isinstance(value, bool):
-        raise UssSlamError(f"{key}: expected true or false, got {value!r}")
-    return value
-
-
 def check_sequences(sequences: Any, accepted: Sequence[str]) -> list[str]:
-    names = [str(s) for s in non_empty_list("sequences", sequences)]
+    """``sequences`` (the schema's: known names, each once) of the data kind: ``accepted``."""
+    names = [str(s) for s in sequences]
     for s in names:
         choose("sequences", s, accepted)
-    unique("sequences", names)
     return names
 
 

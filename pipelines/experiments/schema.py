@@ -1,8 +1,9 @@
 """The typed schema of ``configs/experiments.yaml`` (and the ``scale`` configs that fill it in):
 every key ``uss-experiments`` reads, its type and its accepted values or range. Checked by
 :func:`uss_slam.core.schema.check` before anything else; a bad value or an unknown key is one
-line ``<key>: expected ..., got ...``. Rules across keys (a seed listed twice, a sequence of the
-other data kind, ``init.path`` for real data) are :mod:`.experiment`'s and :mod:`.grid`'s.
+line ``<key>: expected ..., got ...``; a list of names, seeds or depths takes each item once.
+Rules across keys (a sequence of the other data kind, ``init.path`` for real data, a table
+depth among the grid's) are :mod:`.experiment`'s and :mod:`.grid`'s.
 
 ``grid.loss``, ``grid.batchnorm`` and ``grid.method_overrides`` are the user's mappings (a loss
 weight, a method name as keys): open here, checked by the grid. ``launcher`` is a Hydra
@@ -16,7 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Optional
 
-from uss_slam.core.schema import ranged
+from uss_slam.core.schema import MAX_THREADS, ranged
 from uss_slam.pipelines.runs import CHECKPOINT_POLICIES
 from uss_slam.pipelines.synthetic_data import SHIFTS
 from uss_slam.synthetic.textures import WARDROBES
@@ -99,7 +100,7 @@ class Init:
     kind: str = ranged("scratch", choices=INIT_KINDS)
     style: str = ranged("source", choices=INIT_STYLES)
     regime: str = ranged("real", choices=INIT_REGIMES)
-    seeds: list[int] = ranged(default_factory=lambda: [0], min=0, nonempty=True)
+    seeds: list[int] = ranged(default_factory=lambda: [0], min=0, nonempty=True, unique=True)
     images: int = ranged(800, min=2)
     size: str = ranged("320x240", text=True)
     render_seed: int = ranged(900, min=0)
@@ -112,7 +113,7 @@ class Init:
 class Train:
     experiment: str = ranged("ci", choices=EXPERIMENTS)
     overrides: list[str] = field(default_factory=list)
-    num_threads: Optional[int] = ranged(None, min=1)
+    num_threads: Optional[int] = ranged(None, min=1, max=MAX_THREADS)
     checkpoint: str = ranged("last", choices=tuple(CHECKPOINT_POLICIES))
 
 
@@ -121,11 +122,13 @@ class Grid:
     methods: list[Method] = ranged(  # type: ignore[valid-type]
         default_factory=lambda: ["source_only", "adaptsegnet"], nonempty=True
     )
-    n_layers: list[int] = ranged(default_factory=lambda: [4, 5, 6, 7], nonempty=True, **DEPTHS)
+    n_layers: list[int] = ranged(
+        default_factory=lambda: [4, 5, 6, 7], nonempty=True, unique=True, **DEPTHS
+    )
     depth_sweep: list[DiscriminatorMethod] = field(  # type: ignore[valid-type]
         default_factory=lambda: ["adaptsegnet"]
     )
-    seeds: list[int] = ranged(default_factory=lambda: [0, 1, 2], min=0, nonempty=True)
+    seeds: list[int] = ranged(default_factory=lambda: [0, 1, 2], min=0, nonempty=True, unique=True)
     loss: dict[str, Any] = field(default_factory=dict)
     batchnorm: Optional[dict[str, Any]] = None
     method_overrides: Optional[dict[str, Any]] = None
@@ -167,7 +170,7 @@ class Slam:
 @dataclass
 class SegEval:
     stride: int = ranged(5, min=1)
-    threads: Optional[int] = ranged(1, min=1)
+    threads: Optional[int] = ranged(1, min=1, max=MAX_THREADS)
     source_val_stride: Optional[int] = ranged(1, min=1)
 
 

@@ -8,6 +8,7 @@ from typing import Any
 import pytest
 
 from uss_slam.core.errors import UssSlamError
+from uss_slam.core.schema import check
 from uss_slam.pipelines.experiments.grid import (
     SYNTHETIC_SEQUENCES,
     TrainCell,
@@ -15,6 +16,7 @@ from uss_slam.pipelines.experiments.grid import (
     loss_combinations,
     training_cells,
 )
+from uss_slam.pipelines.experiments.schema import ExperimentsSchema
 from uss_slam.train.method_configs import method_names
 
 ALL_VARIANTS = [
@@ -141,45 +143,37 @@ def test_orbslam3_gets_the_mask_variants_only() -> None:
 @pytest.mark.parametrize(
     ("changes", "message"),
     [
-        (
-            {"grid.methods": ["source_only", "dann"]},
-            f"grid.methods: unknown value 'dann'; accepted: {', '.join(method_names())}",
-        ),
-        (
-            {"sequences": ["walking_xyz", "office"]},
-            "sequences: unknown value 'office'; accepted: " + ", ".join(SYNTHETIC_SEQUENCES),
-        ),
-        (
-            {"variants": ["none", "flow"]},
-            "variants: unknown value 'flow'; accepted: none, geometry, semantic, semantic_crf, "
-            "semantic_geometry, semantic_geometry_crf, semantic_geometry_object, oracle",
-        ),
-        (
-            {"systems": ["orbslam2"]},
-            "systems: unknown value 'orbslam2'; accepted: harness, orbslam3",
-        ),
-        ({"grid.n_layers": [4, 9]}, "grid.n_layers: expected integers 1..8, got 9"),
-        ({"grid.seeds": []}, "grid.seeds: expected a non-empty list, got []"),
-        ({"grid.seeds": [0, 0]}, "grid.seeds: 0 is listed twice"),
-        (
-            {"grid.loss": {"lambda_gan": [1]}},
-            "grid.loss: unknown value 'lambda_gan'; accepted: lambda_seg_aux, lambda_seg_main, "
-            "lambda_adv_aux, lambda_adv_main",
-        ),
-        (
-            {"grid.loss": {"lambda_adv_main": ["big"]}},
-            "grid.loss.lambda_adv_main: expected a number, got 'big'",
-        ),
-        (
-            {"tables.n_layers": 3},
-            "tables.n_layers: 3 is not a depth of the grid; accepted: 4, 5, 6, 7",
-        ),
+        ({"grid.methods": ["source_only", "dann"]},
+         f"grid.methods[1]: expected one of {', '.join(method_names())}, got 'dann'"),
+        ({"grid.methods": ["adaptsegnet", "adaptsegnet"]},
+         "grid.methods: expected a non-empty list of source_only, "),
+        ({"sequences": ["walking_xyz", "office"]}, "sequences[1]: expected one of walking_xyz, "),
+        ({"sequences": ["walking_xyz", "sitting_xyz"]},
+         "sequences: unknown value 'sitting_xyz'; accepted: " + ", ".join(SYNTHETIC_SEQUENCES)),
+        ({"variants": ["none", "flow"]}, "variants[1]: expected one of none, "),
+        ({"systems": ["orbslam2"]}, "systems[0]: expected one of harness, orbslam3, got 'orbslam2'"),
+        ({"systems": ["harness", "harness"]}, "systems: expected a non-empty list of harness, "),
+        ({"grid.n_layers": [4, 9]}, "grid.n_layers[1]: expected an integer >= 1 and <= 8, got 9"),
+        ({"grid.seeds": []}, "grid.seeds: expected a non-empty list of integers >= 0, each once, "
+         "got []"),
+        ({"grid.seeds": [0, 0]}, "grid.seeds: expected a non-empty list of integers >= 0, each "
+         "once (0 is listed twice), got [0, 0]"),
+        ({"grid.loss": {"lambda_gan": [1]}},
+         "grid.loss: unknown value 'lambda_gan'; accepted: lambda_seg_aux, lambda_seg_main, "
+         "lambda_adv_aux, lambda_adv_main"),
+        ({"grid.loss": {"lambda_adv_main": ["big"]}},
+         "grid.loss.lambda_adv_main: expected a number, got 'big'"),
+        ({"tables.n_layers": 3}, "tables.n_layers: 3 is not a depth of the grid; accepted: 4, 5, 6, 7"),
     ],
-)
+)  # fmt: skip
 def test_bad_keys_are_one_line_naming_the_key(changes: dict[str, Any], message: str) -> None:
+    """The schema checks each key's values (as ``uss-experiments`` does first), the grid the
+    rules across keys and the user's own mappings."""
+    cfg = config(**changes)
     with pytest.raises(UssSlamError) as info:
-        expand(config(**changes), SYNTHETIC_SEQUENCES)
-    assert str(info.value) == message
+        check(cfg, ExperimentsSchema)
+        expand(cfg, SYNTHETIC_SEQUENCES)
+    assert str(info.value).startswith(message) and "\n" not in str(info.value)
 
 
 def test_train_cell_without_depth_is_source_only_shaped() -> None:

@@ -223,7 +223,7 @@ def test_launcher_overrides_merge_the_stage_section() -> None:
         ),
         (
             ["init.kind=pretrained", "init.seeds=[0,0]"],
-            "init.seeds: a seed is listed twice in [0, 0]",
+            "init.seeds: expected a non-empty list of integers >= 0, each once (0 is listed twice)",
         ),
     ],
 )

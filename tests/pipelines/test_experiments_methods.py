@@ -10,12 +10,14 @@ import pytest
 from hydra import compose, initialize_config_dir
 
 from uss_slam.core.errors import UssSlamError
+from uss_slam.core.schema import check
 from uss_slam.pipelines.experiments.grid import (
     METHODS,
     discriminator_methods,
     expand,
     training_cells,
 )
+from uss_slam.pipelines.experiments.schema import Grid
 
 CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
 ALL = ["source_only", "adaptsegnet", "advent", "minent", "self_training"]
@@ -83,13 +85,14 @@ def test_standard_scale_with_every_method_costs_24_trainings() -> None:
         (
             {"depth_sweep": ["minent"]},
             5,
-            "grid.depth_sweep: unknown value 'minent'; accepted: adaptsegnet, advent",
+            "grid.depth_sweep[0]: expected one of adaptsegnet, advent, got 'minent'",
         ),
-        ({"depth_sweep": "adaptsegnet"}, 5, "grid.depth_sweep: expected a list of methods"),
+        ({"depth_sweep": "adaptsegnet"}, 5, "grid.depth_sweep: expected a list of adaptsegnet"),
         (
             {"depth_sweep": ["advent", "advent"]},
             5,
-            "grid.depth_sweep: 'advent' is listed twice",
+            "grid.depth_sweep: expected a list of adaptsegnet, advent, each once ('advent' is "
+            "listed twice)",
         ),
         (
             {"depth_sweep": []},
@@ -100,7 +103,8 @@ def test_standard_scale_with_every_method_costs_24_trainings() -> None:
     ],
 )
 def test_bad_depth_sweep_is_one_line(changes: dict, n_table: object, message: str) -> None:
-    with pytest.raises(UssSlamError) as info:
+    with pytest.raises(UssSlamError) as info:  # the schema's values, then the grid's rules
+        check(_grid(**changes), Grid, "grid")
         training_cells(_grid(**changes), n_table)
     assert str(info.value).startswith(message) and "\n" not in str(info.value)
 

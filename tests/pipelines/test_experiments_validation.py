@@ -16,6 +16,7 @@ from hydra import compose, initialize_config_dir
 
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.files import write_json_atomic
+from uss_slam.core.schema import MAX_THREADS
 from uss_slam.pipelines.experiments import cli, jobs, launch
 from uss_slam.pipelines.experiments.plan import Job
 from uss_slam.pipelines.experiments.tables.failures import table_failures
@@ -45,11 +46,11 @@ BAD = [
     ),
     (
         'slam.overrides=["slam.orb.n_features=abc"]',
-        "slam.overrides: slam.orb.n_features: expected an integer, got 'abc'",
+        "slam.overrides: slam.orb.n_features: expected an integer >= 1, got 'abc'",
     ),
     (
         'slam.overrides=["slam.workers=0"]',
-        "slam.overrides: slam.workers: expected an integer >= 1, got 0",
+        f"slam.overrides: slam.workers: expected an integer >= 1 and <= {MAX_THREADS}, got 0",
     ),
     (
         'grid.method_overrides={adaptsegnet:["model.bogus=1"]}',

@@ -14,7 +14,7 @@ from hydra.core.global_hydra import GlobalHydra
 from omegaconf import DictConfig
 
 from uss_slam.core.cli import FailedJob, JobReport
-from uss_slam.core.schema import SchemaError
+from uss_slam.core.schema import MAX_THREADS, SchemaError
 from uss_slam.train.train import MAX_SEED, RunSettings, check_config
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
@@ -44,13 +44,31 @@ def test_the_shipped_config_passes_and_gives_the_run_settings() -> None:
         ("seed=-1", "seed: expected an integer >= 0 and <= 4294967295 or null, got -1"),
         (f"seed={MAX_SEED + 1}", f"seed: expected an integer >= 0 and <= {MAX_SEED} or null, "
                                  f"got {MAX_SEED + 1}"),
-        ("num_threads=0", "num_threads: expected an integer >= 1 or null, got 0"),
-        ("num_threads=x", "num_threads: expected an integer >= 1 or null, got 'x'"),
+        ("num_threads=0", f"num_threads: expected an integer >= 1 and <= {MAX_THREADS} or null, "
+                          "got 0"),
+        ("num_threads=100000", f"num_threads: expected an integer >= 1 and <= {MAX_THREADS} or "
+                               "null, got 100000"),
+        ("+unknown=1", "unknown: unknown key; expected one of task_name, run_name, "),
+        ("data.source.transform.crop_size=0",
+         "data.source.transform.crop_size: expected a number >= 8, got 0"),
+        ("data.target.transform.crop_size=8",
+         "data.target.transform.crop_size: expected at least 16 px (2 ** "
+         "model.method.discriminator.n_layers = 4), got 8"),
+        ("model.poly_power=-1", "model.poly_power: expected a number > 0, got -1"),
+        ("model.head_lr_mult=0", "model.head_lr_mult: expected a number > 0, got 0"),
+        ("model.max_iters=0", "model.max_iters: expected an integer >= 1, got 0"),
+        ("model.optimizer.momentum=-0.5", "model.optimizer.momentum: expected a number >= 0, "
+                                          "got -0.5"),
+        ("trainer.log_every_n_steps=-1", "trainer.log_every_n_steps: expected an integer >= 1 "),
+        ("model.class_names=[background,person,person,monitor]",
+         "model.class_names: expected a list of strings, each once ('person' is listed twice)"),
+        ("data.num_workers=100000", f"data.num_workers: expected an integer >= 0 and <= "
+                                    f"{MAX_THREADS}, got 100000"),
         ("tags=5", "tags: expected a list of strings, got 5"),
-        ("model.max_iters=abc", "model.max_iters: expected an integer, got 'abc'"),
+        ("model.max_iters=abc", "model.max_iters: expected an integer >= 1, got 'abc'"),
         ("trainer.precision=15", "trainer.precision: expected one of "),
         ("+model.optimizer.rate=1", "model.optimizer.rate: unknown key; expected one of "),
-        ("data.batch_size=2.5", "data.batch_size: expected an integer, got 2.5"),
+        ("data.batch_size=2.5", "data.batch_size: expected an integer >= 1, got 2.5"),
     ],
 )  # fmt: skip
 def test_a_bad_value_is_one_line_naming_its_key(override: str, line: str) -> None:
