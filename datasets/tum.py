@@ -19,9 +19,10 @@ import json
 import math
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
 from uss_slam.core.errors import DataFormatError
+from uss_slam.core.schema import Range
 from uss_slam.core.tum_io import read_tum_folder
 from uss_slam.datasets.base import (
     ImageItem,
@@ -127,7 +128,7 @@ class TUMFrames(SegmentationDataset):
 
     def __init__(
         self,
-        roots: str | Path | Sequence[str | Path],
+        roots: Annotated[str | Path | Sequence[str | Path], Range(unique=True)],
         labels: bool = False,
         transform: Transform | None = None,
         stride: int = 1,

@@ -1228,3 +1228,170 @@ def test_export_killed_while_writing_keeps_the_earlier_pair(
     assert _checkpoint_of_pair(exports) == {file_sha256(other)}
     assert "uss-export: warning: exports/fake.onnx: taking over the lock" in err
     assert not (exports / ".fake.onnx.lock").exists()
+
+
+# ------------------------------------------------------------- generated from the schemas
+# For every key of every Hydra script's schema (the dataclass schemas and the schemas of the
+# ``_target_`` nodes of the shipped config), the values :mod:`uss_slam.core.schema.cases`
+# makes up from its declarations: wrong type, each bound crossed, unknown choice, null, empty,
+# a name twice, an unknown key. Each is set on the composed config as a command-line
+# override would set it (OmegaConf's own refusal of a typed node becomes the line the console
+# script prints) and checked by the script's own check, in this process: one line starting
+# with the full key, no library text. A new key enters without an edit here. A sample of each
+# script's cases runs end to end above the matrix (``test_generated_sample_end_to_end``).
+
+LIBRARY_TEXT = ("Traceback", "omegaconf", "Invalid ", "Cannot merge", "object_type",
+                "full_key", "DictConfig", "ListConfig", "must be")  # fmt: skip
+"""Phrases of OmegaConf's, torch's and the old hand-written checks' messages."""
+
+
+def _compose(config: str, overrides: list[str]) -> Any:
+    from hydra import compose, initialize_config_module
+
+    GlobalHydra.instance().clear()
+    try:
+        with initialize_config_module("uss_slam.configs", version_base="1.3"):
+            return compose(config, overrides=overrides)
+    finally:
+        GlobalHydra.instance().clear()
+
+
+def _slam_checker() -> tuple[Any, Callable[[Any], Any], list[Any]]:
+    from uss_slam.core.schema import target_schema
+    from uss_slam.core.schema.cases import bad_values
+    from uss_slam.slam_eval.config import SlamEvalConfig, check, register_configs
+
+    register_configs()
+    cfg = _compose("slam_eval", ["sequence.path=/nonexistent/seq", "out_dir=/nonexistent/out",
+                                 "segmenter=onnx", "segmenter.path=/nonexistent/m.onnx"])  # fmt: skip
+    bad = list(bad_values(SlamEvalConfig))
+    for name in cfg.slam.filter_params:
+        schema = target_schema(str(cfg.slam.filter_params[name]._target_))
+        bad += list(bad_values(schema, f"slam.filter_params.{name}")) if schema else []
+    bad += [
+        b
+        for b in bad_values(target_schema(str(cfg.segmenter._target_)), "segmenter")
+        if b.key != "segmenter.path"
+    ]  # fmt: skip  (a path: the path layer's cases)
+    return cfg, check, bad
+
+
+def _train_checker() -> tuple[Any, Callable[[Any], Any], list[Any]]:
+    import torch
+
+    from uss_slam.core.schema import target_schema
+    from uss_slam.core.schema.cases import bad_values
+    from uss_slam.train.train import TYPED_SECTIONS, RunSettings, check_config
+
+    cfg = _compose("train", ["experiment=ci", "paths.output_dir=/nonexistent/out"])
+    bad = list(bad_values(RunSettings))
+    for key, node in _target_nodes(cfg, TYPED_SECTIONS):
+        schema = target_schema(str(node._target_), opaque=(torch.Tensor,))
+        if schema is not None:
+            bad += [b for b in bad_values(schema, key)
+                    if not b.key.endswith(".no_such_key") or not _loose(node)]  # fmt: skip
+    return cfg, check_config, bad
+
+
+def _loose(node: Any) -> bool:
+    from uss_slam.core.schema import takes_any_keyword
+
+    return takes_any_keyword(str(node._target_))
+
+
+def _target_nodes(cfg: Any, sections: tuple[str, ...]) -> list[tuple[str, Any]]:
+    """``(full key, node)`` of every ``_target_`` node under ``sections`` of ``cfg``."""
+    from omegaconf import DictConfig
+
+    found: list[tuple[str, Any]] = []
+
+    def walk(node: Any, key: str) -> None:
+        if not isinstance(node, DictConfig):
+            return
+        if "_target_" in node:
+            found.append((key, node))
+        for name in node:
+            if not str(name).startswith("_"):
+                walk(node._get_node(name), f"{key}.{name}")
+
+    for section in sections:
+        if section in cfg:
+            walk(cfg[section], section)
+    return found
+
+
+def _experiments_checker() -> tuple[Any, Callable[[Any], Any], list[Any]]:
+    from uss_slam.core.schema import check
+    from uss_slam.core.schema.cases import bad_values
+    from uss_slam.pipelines.experiments.schema import ExperimentsSchema
+
+    cfg = _compose("experiments", ["out_dir=/nonexistent/exp"])
+    bad = [b for b in bad_values(ExperimentsSchema) if not b.key.startswith("launcher")]
+    return (
+        cfg,
+        lambda c: check({k: v for k, v in c.items() if k != "hydra"}, ExperimentsSchema),
+        bad,
+    )
+
+
+def _export_checker() -> tuple[Any, Callable[[Any], Any], list[Any]]:
+    from omegaconf import OmegaConf
+
+    from uss_slam.core.schema import check
+    from uss_slam.core.schema.cases import bad_values
+    from uss_slam.export.cli import ExportSchema
+
+    cfg = _compose("export", ["ckpt_path=/nonexistent/x.ckpt"])
+    plain = lambda c: OmegaConf.create({k: v for k, v in c.items() if k != "hydra"})  # noqa: E731
+    return cfg, lambda c: check(plain(c), ExportSchema), list(bad_values(ExportSchema))
+
+
+CHECKERS = {"uss-slam": _slam_checker, "uss-train": _train_checker,
+            "uss-experiments": _experiments_checker, "uss-export": _export_checker}  # fmt: skip
+"""Each Hydra script: its composed config, its own check, and the generated bad values."""
+
+
+def refusal(cfg: Any, checker: Callable[[Any], Any], key: str, value: Any) -> str | None:
+    """The one line ``key=value`` ends in (None when it is accepted): OmegaConf's refusal on a
+    typed node as the console scripts print it, else the script's check's error."""
+    import copy
+
+    from omegaconf import OmegaConf, open_dict
+    from omegaconf.errors import OmegaConfBaseException
+
+    from uss_slam.core.errors import UssSlamError
+    from uss_slam.core.schema import omegaconf_error_line
+
+    cfg = copy.deepcopy(cfg)
+    try:
+        with open_dict(cfg):
+            OmegaConf.update(cfg, key, value, force_add=True)
+    except OmegaConfBaseException as error:
+        return omegaconf_error_line(error)
+    try:
+        checker(cfg)
+    except UssSlamError as error:
+        return str(error)
+    return None
+
+
+@pytest.fixture(scope="module")
+def checkers() -> dict[str, tuple[Any, Callable[[Any], Any], list[Any]]]:
+    return {prog: make() for prog, make in CHECKERS.items()}
+
+
+def test_the_generated_matrix_refuses_every_bad_value_naming_its_key(checkers) -> None:
+    """Every generated bad value of every key of the four Hydra scripts' schemas: refused, one
+    line, starting with its full key, no library text (docs/errors.md)."""
+    problems: list[str] = []
+    counts: dict[str, int] = {}
+    for prog, (cfg, checker, bad) in checkers.items():
+        counts[prog] = len(bad)
+        for b in bad:
+            line = refusal(cfg, checker, b.key, b.value)
+            if line is None:
+                problems.append(f"{prog} {b.id} ({b.kind}): accepted")
+            elif "\n" in line or not line.startswith(b.key) or any(t in line for t in LIBRARY_TEXT):
+                problems.append(f"{prog} {b.id} ({b.kind}): {line}")
+    assert problems == [], "\n".join(problems)
+    assert all(n >= 20 for n in counts.values()), counts

@@ -185,6 +185,8 @@ def _check_value(value: Any, tp: Any, metadata: dict[str, Any], where: str) -> N
         return
     if metadata.get("text") and not isinstance(value, (Mapping, list, tuple)):
         return  # a name: a number given on the command line is taken as its text
+    if inner is Any and isinstance(value, (list, tuple)):
+        _check_repeats(list(value), Any, metadata, tp, where)  # one item or a list of them
     if not _written_as(inner, value):
         if inner is float and isinstance(value, float):
             raise SchemaError(where, "a finite number", value)

@@ -7,10 +7,11 @@ import dataclasses
 import enum
 from typing import Optional
 
-from omegaconf import DictConfig
+from omegaconf import DictConfig, ListConfig
 from omegaconf.errors import (
     ConfigAttributeError,
     ConfigKeyError,
+    ConfigTypeError,
     KeyValidationError,
     MissingMandatoryValue,
     OmegaConfBaseException,
@@ -34,6 +35,11 @@ def omegaconf_error_line(error: OmegaConfBaseException) -> str:
             return str(SchemaError(key, ", ".join(names), unknown=True))
     if isinstance(error, MissingMandatoryValue):
         return f"{key}: expected a value (it is required and none was given)"
+    merged = isinstance(error, ConfigTypeError) and error.object_type in (list, dict)
+    if merged and isinstance(error.parent_node, ListConfig):
+        return f"{key}: expected a list, got a mapping"  # a mapping merged into a list node
+    if merged and isinstance(error.parent_node, DictConfig):
+        return f"{key}: expected a mapping, got a list"  # and back
     if isinstance(error, ValidationError) and not isinstance(error, KeyValidationError):
         expected = _expected_of(error)
         if expected is not None:

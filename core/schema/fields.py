@@ -170,6 +170,8 @@ def describe(tp: Any, metadata: Mapping[str, Any] | None = None) -> str:
         text = _describe(inner)
         if inner is Any and any(k in metadata for k in ("min", "max", "gt", "lt")):
             text = "a number"  # e.g. a size given as one number or a list
+        elif inner is Any and metadata.get("unique"):
+            text = "a list"  # e.g. folders given as one or a list
         bounds = [f"{op} {metadata[k]}" for k, op in (("min", ">="), ("gt", ">"), ("max", "<="),
                                                        ("lt", "<")) if k in metadata]  # fmt: skip
         if bounds:

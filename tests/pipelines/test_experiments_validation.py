@@ -34,7 +34,7 @@ def compose_experiments(*overrides: str):
 BAD = [
     (
         'train.overrides=["model.max_iters=abc"]',
-        "train.overrides: model.max_iters: expected an integer, got 'abc'",
+        "train.overrides: model.max_iters: expected an integer >= 1, got 'abc'",
     ),
     (
         'train.overrides=["bogus=1"]',
@@ -60,7 +60,7 @@ BAD = [
     ("train.num_threads=0", "train.num_threads: expected an integer >= 1 or null, got 0"),
     (
         'init.overrides=["model.max_iters=abc"]',
-        "init.overrides: model.max_iters: expected an integer, got 'abc'",
+        "init.overrides: model.max_iters: expected an integer >= 1, got 'abc'",
     ),
 ]
 
@@ -209,7 +209,7 @@ def test_console_script_rejects_a_bad_override_before_any_work(tmp_path: Path) -
     )
     assert proc.returncode == 1
     assert proc.stderr.strip() == (
-        "uss-experiments: error: train.overrides: model.max_iters: expected an integer, got 'abc'"
+        "uss-experiments: error: train.overrides: model.max_iters: expected an integer >= 1, got 'abc'"
     )
     assert not (out / "data").exists() and not (out / "train").exists()
 

@@ -109,7 +109,7 @@ def test_bad_checkpoint_is_one_line_before_the_trainer_starts(
 @pytest.mark.parametrize(
     ("override", "line"),
     [
-        ("model.max_iters=abc", "model.max_iters: expected an integer, got 'abc'"),
+        ("model.max_iters=abc", "model.max_iters: expected an integer >= 1, got 'abc'"),
         ("trainer.max_epochs=x", "trainer.max_epochs: expected an integer or null, got 'x'"),
         ("model.optimizer.lr=fast", "model.optimizer.lr: expected a number, got 'fast'"),
         ("model.net.num_classes=2.5", "model.net.num_classes: expected an integer, got 2.5"),
@@ -180,7 +180,7 @@ def test_train_multirun_jobs_fail_independently(
         f"paths.log_dir={tmp_path / 'logs'}",
     ]
     code, err = _uss_train(args, monkeypatch, capsys)
-    line = "uss-train: error: model.max_iters: expected an integer, got 'abc'"
+    line = "uss-train: error: model.max_iters: expected an integer >= 1, got 'abc'"
     assert code == 1
     assert err == [line, "uss-train: 1 of 2 jobs failed:", f"  #0 model.max_iters=abc: {line}"]
     # The bad job left nothing; the good one trained to the end.
