@@ -110,8 +110,12 @@ class SlamConfig:
     mapping, on GTSAM); false = the tracker alone, trajectories as without a back end."""
     loop_closing: bool = True
     """Loop detection, verification and essential-graph optimisation (ORB-SLAM2's loop closing)."""
-    local_ba_params: LocalMappingConfig = field(default_factory=LocalMappingConfig)
-    loop_closing_params: LoopClosingConfig = field(default_factory=LoopClosingConfig)
+    local_ba_params: LocalMappingConfig = ranged(
+        default_factory=LocalMappingConfig, needs="local_ba"
+    )
+    loop_closing_params: LoopClosingConfig = ranged(
+        default_factory=LoopClosingConfig, needs="loop_closing"
+    )
     repeats: int = ranged(1, min=1)
     """Runs per filter set: repeat 0 unperturbed, the others with a perturbed feature budget and
     RANSAC sampling; the outputs are the median run's, with the spread (:mod:`.scoring.repeats`)."""

@@ -20,9 +20,10 @@ from omegaconf import DictConfig, OmegaConf
 from uss_slam.core.cli import hydra_task, run_hydra_app
 from uss_slam.core.files import check_output_owner, check_writable, output_lock
 from uss_slam.core.paths import input_folder
+from uss_slam.core.schema import unused_settings
 
 from .compare_sets import checked_runs
-from .config import check, register_configs, removed_override, run_name
+from .config import SlamEvalConfig, check, register_configs, removed_override, run_name
 from .filters.build import build_filters
 from .scoring.evaluation import evaluate
 from .scoring.repeats import (
@@ -112,6 +113,8 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     )
     warn_if_groundtruth_misses(sequence)
     warn_if_prefetch_mode_unused(cfg.slam)
+    for line in unused_settings(cfg, SlamEvalConfig):
+        print(f"{PROG}: warning: {line}", file=sys.stderr)
     with output_lock(out, "out_dir"):
         return _run_harness(cfg, plan, segmenter, sequence, out)
 

@@ -211,3 +211,22 @@ def test_more_eval_overlays_than_frames_warns(
         "one per frame"
     ]
     assert len(json.loads((out / "eval.json").read_text())["overlays"]) == 8
+
+
+# ------------------------------------------------------------ declared in the schemas
+
+
+def test_a_setting_whose_switch_is_off_warns_naming_both_keys(
+    seq: Path, tmp_path: Path, monkeypatch, capsys
+) -> None:
+    """A setting declared ``needs=<switch>`` in its schema, set while the switch is off."""
+    code, warnings = slam(seq, tmp_path / "out", "slam.map.octomap_resolution=0.1",
+                          "slam.local_ba=false", "slam.local_ba_params.covisibility=5",
+                          monkeypatch=monkeypatch, capsys=capsys)  # fmt: skip
+    assert code == 0
+    assert warnings == [
+        "uss-slam: warning: slam.map.octomap_resolution is set but changes nothing while "
+        "slam.map.octomap is false",
+        "uss-slam: warning: slam.local_ba_params is set but changes nothing while "
+        "slam.local_ba is false",
+    ]

@@ -21,7 +21,7 @@ values), :mod:`.compose` (Hydra's ConfigStore, errors while composing), :mod:`.t
 (``_target_`` nodes).
 """
 
-from .checking import check, check_fields, validate
+from .checking import check, check_fields, unused_settings, validate
 from .compose import omegaconf_error_line, register
 from .fields import (
     MAX_THREADS,
@@ -56,6 +56,7 @@ __all__ = [
     "repeats_refused",
     "structured",
     "takes_any_keyword",
+    "unused_settings",
     "target_schema",
     "validate",
 ]

@@ -24,6 +24,7 @@ from omegaconf.errors import (
 from .fields import (
     _MAPPINGS,
     _SEQUENCES,
+    NEEDS,
     SchemaError,
     _describe,
     _hints,
@@ -261,3 +262,31 @@ def _check_range(value: Any, tp: Any, metadata: dict[str, Any], where: str) -> N
         or (below is not None and not value < below)
     ):
         raise SchemaError(where, describe(tp, metadata), value)
+
+
+def unused_settings(values: Any, schema: type, key: str = "") -> list[str]:
+    """One line per setting of ``values`` (a mapping or DictConfig checked against the
+    dataclass ``schema``) that is set to other than its default while the boolean field its
+    metadata ``needs`` is false: accepted, but it changes nothing (``slam.map.octomap_resolution``
+    without ``slam.map.octomap``)."""
+    plain = _plain(values) or {}
+    lines: list[str] = []
+    for f in dataclasses.fields(schema):
+        where = _join(key, f.name)
+        value = plain.get(f.name, MISSING)
+        needs = f.metadata.get(NEEDS)
+        if needs and plain.get(needs) is False and value is not MISSING and _changed(f, value):
+            lines.append(f"{where} is set but changes nothing while {_join(key, needs)} is false")
+        inner, _ = _optional(_hints(schema)[f.name])
+        if dataclasses.is_dataclass(inner) and isinstance(value, Mapping):
+            lines += unused_settings(value, inner, where)  # type: ignore[arg-type]
+    return lines
+
+
+def _changed(f: dataclasses.Field, value: Any) -> bool:
+    """Whether ``value`` differs from the default of ``f`` (a section: in any key it gives)."""
+    default = f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
+    if dataclasses.is_dataclass(default) and isinstance(value, Mapping):
+        defaults = _plain(dataclasses.asdict(default))  # type: ignore[arg-type]
+        return any(v != defaults.get(k) for k, v in value.items())
+    return bool(value != _plain(default))

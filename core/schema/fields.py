@@ -18,6 +18,9 @@ from omegaconf import MISSING, DictConfig, ListConfig, OmegaConf
 from uss_slam.core.errors import UssSlamError
 
 RANGE_KEYS = ("min", "max", "gt", "lt", "choices", "length", "text", "nonempty", "unique")
+NEEDS = "needs"
+"""Field metadata: the boolean sibling field without which the field changes nothing
+(:func:`~.checking.unused_settings` warns when it is set while that one is false)."""
 """Field metadata that :func:`validate` checks after the types (``text``: a string field that
 takes any scalar as its text, e.g. a run name given as a number; on a list field ``min``,
 ``max``, ``gt`` and ``lt`` bound each element, ``nonempty`` refuses an empty list,
@@ -97,11 +100,14 @@ def ranged(
     text: bool | None = None,
     nonempty: bool | None = None,
     unique: bool | None = None,
+    needs: str | None = None,
 ) -> Any:
     """A dataclass field with range metadata: ``n: int = ranged(1, min=1)``; on a list field
     the bounds are each element's: ``seeds: list[int] = ranged(..., min=0, nonempty=True)``."""
     metadata = Range(min=min, max=max, gt=gt, lt=lt, choices=choices, length=length, text=text,
                      nonempty=nonempty, unique=unique).metadata  # fmt: skip
+    if needs is not None:
+        metadata[NEEDS] = needs
     if default_factory is not None:
         return dataclasses.field(default_factory=default_factory, metadata=metadata)
     return dataclasses.field(default=default, metadata=metadata)

@@ -49,10 +49,10 @@ class LocalMappingConfig:
     """LM iterations after leaving the outliers out, without kernel (ORB-SLAM2: 10; 0 = skip)."""
     culling: bool = True
     """Remove redundant keyframes after each local bundle adjustment."""
-    redundancy: float = ranged(0.9, gt=0, max=1)
+    redundancy: float = ranged(0.9, gt=0, max=1, needs="culling")
     """A keyframe is redundant when more than this fraction of its close points are seen by
     ``redundant_observers`` other keyframes (ORB-SLAM2: 0.9)."""
-    redundant_observers: int = ranged(3, min=1)
+    redundant_observers: int = ranged(3, min=1, needs="culling")
     doubt_inliers: int = ranged(0, min=0)
     """A new keyframe tracked with fewer map-point inliers than this is doubted: its local BA
     frees it alone (its covisible keyframes stay fixed), so the map corrects its pose and it

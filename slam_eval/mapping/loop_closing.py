@@ -91,7 +91,7 @@ class LoopClosingConfig:
     correction_floor_deg: float = ranged(1.0, min=0)
     global_ba: bool = True
     """Bundle-adjust the whole map after each loop closure."""
-    global_ba_iterations: int = ranged(10, min=0)
+    global_ba_iterations: int = ranged(10, min=0, needs="global_ba")
 
     def __post_init__(self) -> None:
         check_fields(self)

@@ -36,7 +36,7 @@ class MapConfig:
     """Ignore depth beyond this (noisy), metres."""
     octomap: bool = False
     """Also build a semantic OctoMap (``octomap.ot``, :mod:`.octomap`; needs pyoctomap)."""
-    octomap_resolution: float = ranged(0.05, gt=0)
+    octomap_resolution: float = ranged(0.05, gt=0, needs="octomap")
     """Voxel size of the OctoMap, metres."""
 
     def __post_init__(self) -> None:

@@ -5,13 +5,14 @@ from __future__ import annotations
 import enum
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Literal, Optional
+from typing import Annotated, Any, Literal, Optional
 
 import pytest
 from omegaconf import OmegaConf
 
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.schema import (
+    Range,
     SchemaError,
     check,
     check_targets,
@@ -261,3 +262,95 @@ def test_a_dataclass_targets_declared_ranges_are_checked() -> None:
     assert str(caught.value) == "loss.weight: expected a number >= 0, got -1"
     check_targets(OmegaConf.create({"loss": {"_target_": f"{__name__}._Weights", "weight": 0}}),
                   ["loss"])  # fmt: skip
+
+
+def test_lists_of_names_take_each_item_once_and_vectors_may_repeat() -> None:
+    @dataclass
+    class Lists:
+        names: list[str] = field(default_factory=list)
+        mean: list[float] = field(default_factory=list)
+        seeds: list[int] = ranged(default_factory=list, unique=True)
+
+    assert validate({"names": ["a", "b"], "mean": [0.5, 0.5]}, Lists).mean == [0.5, 0.5]
+    with pytest.raises(SchemaError) as info:
+        validate({"names": ["a", "b", "a"]}, Lists, "sec")
+    assert str(info.value) == (
+        "sec.names: expected a list of strings, each once ('a' is listed twice), got ['a', 'b', 'a']"
+    )
+    with pytest.raises(SchemaError, match=r"^seeds: expected a list of integers, each once \(1 is"):
+        validate({"seeds": [1, 1]}, Lists)
+
+
+def test_settings_objects_check_themselves_and_errors_move_into_their_section() -> None:
+    from uss_slam.core.schema import check_fields
+
+    @dataclass(frozen=True)
+    class Settings:
+        n: int = ranged(1, min=1)
+
+        def __post_init__(self) -> None:
+            check_fields(self)
+
+    with pytest.raises(SchemaError) as info:
+        Settings(n=0)
+    assert str(info.value) == "n: expected an integer >= 1, got 0"
+    assert str(info.value.within("slam.x")) == "slam.x.n: expected an integer >= 1, got 0"
+
+
+def _annotated(count: Annotated[int, Range(min=2)] = 3, rate: float = 0.1) -> None:
+    """A stand-in target whose range is in its annotation."""
+
+
+def test_annotated_and_declared_ranges_of_targets() -> None:
+    from uss_slam.core.schema import declare
+
+    target = f"{__name__}._annotated"
+    declare(target, rate=Range(gt=0, lt=1))
+    with pytest.raises(SchemaError, match=r"^f\.count: expected an integer >= 2, got 1$"):
+        check_targets(OmegaConf.create({"f": {"_target_": target, "count": 1}}), ["f"])
+    with pytest.raises(SchemaError, match=r"^f\.rate: expected a number > 0 and < 1, got 1\.5$"):
+        check_targets(OmegaConf.create({"f": {"_target_": target, "rate": 1.5}}), ["f"])
+
+
+@dataclass
+class Switched:
+    on: bool = False
+    level: int = ranged(3, needs="on")
+
+
+@dataclass
+class Outer:
+    inner: Switched = field(default_factory=Switched)
+
+
+def test_a_setting_that_needs_a_switch_that_is_off_is_named() -> None:
+    from uss_slam.core.schema import unused_settings
+
+    assert unused_settings({"inner": {"on": False, "level": 3}}, Outer) == []
+    assert unused_settings({"inner": {"on": True, "level": 4}}, Outer) == []
+    assert unused_settings({"inner": {"on": False, "level": 4}}, Outer) == [
+        "inner.level is set but changes nothing while inner.on is false"
+    ]
+
+
+def test_generated_bad_values_cover_every_kind() -> None:
+    from uss_slam.core.schema.cases import bad_values
+
+    @dataclass
+    class Gen:
+        n: int = ranged(1, min=1, max=9)
+        names: list[str] = ranged(default_factory=lambda: ["a"], nonempty=True)
+        mode: str = ranged("x", choices=("x", "y"))
+
+    found = {(b.key, b.kind, repr(b.value)) for b in bad_values(Gen, "g")}
+    assert found == {
+        ("g.no_such_key", "unknown", "1"),
+        ("g.n", "empty", "None"), ("g.n", "type", "'abc'"), ("g.n", "range", "0"),
+        ("g.n", "range", "10"),
+        ("g.names", "empty", "None"), ("g.names", "type", "'abc'"), ("g.names", "empty", "[]"),
+        ("g.names", "duplicate", "['a', 'a']"),
+        ("g.mode", "empty", "None"), ("g.mode", "range", "'no_such_choice'"),
+    }  # fmt: skip
+    for b in bad_values(Gen, "g"):
+        with pytest.raises(SchemaError, match=rf"^{b.key}"):
+            validate({b.key.split(".")[1]: b.value}, Gen, "g")
