@@ -71,6 +71,13 @@ class SchemaError(UssSlamError, ValueError):
             message = f"{self.key}: expected {expected}, got {_show(got)}"
         super().__init__(message)
 
+    def as_flag(self) -> SchemaError:
+        """The same error naming the command-line flag of its key (``frame_iou`` ->
+        ``--frame-iou``), for a script whose options are checked against a schema."""
+        expected, got, unknown, owner = self._args
+        return SchemaError("--" + self.key.replace("_", "-"), expected, got, unknown=unknown,
+                           owner=owner)  # fmt: skip
+
     def within(self, section: str) -> SchemaError:
         """The same error with ``section`` (a dotted config path) before its key: a settings
         object built from a section names the field, the caller knows the section."""

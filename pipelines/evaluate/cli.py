@@ -4,10 +4,12 @@ frames, write ``eval.json``, ``eval.md`` and the overlays."""
 from __future__ import annotations
 
 import argparse
+import enum
 import sys
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Optional
 
 from uss_slam.core.classes import CLASS_NAMES, DYNAMIC_CLASSES
 from uss_slam.core.cli import exit_on_user_error, warning
@@ -19,6 +21,7 @@ from uss_slam.core.files import (
     write_text_atomic,
 )
 from uss_slam.core.paths import output_folder
+from uss_slam.core.schema import MAX_THREADS, SchemaError, ranged, validate
 from uss_slam.core.seg_metrics import iou_report, mask_metrics
 
 from .frames import FrameSource, config_val_frames, sequence_frames
@@ -28,6 +31,20 @@ from .models import load_segmenter, model_kind
 from .overlays import evenly_spaced, remove_stale_overlays, write_overlays
 
 PROG = "uss-eval"
+
+ClassName = enum.Enum("ClassName", {name: name for name in CLASS_NAMES})  # type: ignore[misc]
+
+
+@dataclass
+class EvalOptions:
+    """The ranges of ``uss-eval``'s numbers and lists (the same rules as the Hydra scripts'
+    schemas; an error names the flag: ``--frame-iou: expected a number > 0 and <= 1, got 0``)."""
+
+    stride: int = ranged(1, min=1)
+    overlays: int = ranged(0, min=0)
+    frame_iou: float = ranged(0.5, gt=0, max=1)
+    threads: Optional[int] = ranged(None, min=1, max=MAX_THREADS)  # noqa: UP045 (OmegaConf)
+    dynamic: list[ClassName] = ranged(default_factory=list, nonempty=True)  # type: ignore[valid-type]
 
 
 def evaluate(
@@ -45,19 +62,12 @@ def evaluate(
     """Evaluate ``model`` and write ``out/eval.json``, ``out/eval.md`` (and overlays); returns
     the content of ``eval.json``. Every argument is checked before the model runs."""
     model_kind(model)
-    if stride < 1:
-        raise UssSlamError(f"--stride must be >= 1, got {stride}")
-    if overlays < 0:
-        raise UssSlamError(f"--overlays must be >= 0, got {overlays}")
-    if not 0.0 < frame_iou <= 1.0:
-        raise UssSlamError(f"--frame-iou must be in (0, 1], got {frame_iou}")
-    if threads is not None and threads < 1:
-        raise UssSlamError(f"--threads must be >= 1, got {threads}")
-    unknown = [c for c in dynamic if c not in CLASS_NAMES]
-    if unknown or not dynamic:
-        raise UssSlamError(
-            f"--dynamic {','.join(dynamic)}: expected class names of {', '.join(CLASS_NAMES)}"
-        )
+    values = {"stride": stride, "overlays": overlays, "frame_iou": frame_iou,
+              "threads": threads, "dynamic": list(dynamic)}  # fmt: skip
+    try:
+        validate(values, EvalOptions)
+    except SchemaError as error:
+        raise error.as_flag() from None
     if sequences and overrides:
         raise UssSlamError(
             "give either --sequence folders or data-config overrides (the val set), not both"

@@ -233,13 +233,13 @@ def test_bad_inputs_are_one_line(tmp_path: Path, synthetic_sequence, capsys) -> 
                                                                  capsys)  # fmt: skip
     assert "not both" in _error([str(model), "data=synthetic", "--sequence", str(seq), *out],
                                 capsys)  # fmt: skip
-    assert "--overlays must be >= 0, got -1" in _error(
+    assert "--overlays: expected an integer >= 0, got -1" in _error(
         [str(model), "--sequence", str(seq), "--overlays", "-1", *out], capsys
     )
-    assert "--dynamic sky: expected class names" in _error(
+    assert "--dynamic[0]: expected one of background, person, chair, monitor, got 'sky'" in _error(
         [str(model), "--sequence", str(seq), "--dynamic", "sky", *out], capsys
     )
-    assert "--frame-iou must be in (0, 1]" in _error(
+    assert "--frame-iou: expected a number > 0 and <= 1, got 0" in _error(
         [str(model), "--sequence", str(seq), "--frame-iou", "0", *out], capsys
     )
     # a data config that does not compose, and one whose val set is missing: one line each
