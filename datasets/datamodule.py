@@ -25,7 +25,7 @@ from lightning.pytorch.utilities import CombinedLoader
 from torch.utils.data import DataLoader, Dataset
 
 from uss_slam.core.errors import UssSlamError
-from uss_slam.core.schema import MAX_THREADS, Range
+from uss_slam.core.ranges import MAX_THREADS, Range
 from uss_slam.datasets.sampling import SeededDataset, StreamSampler
 
 SOURCE_DOMAIN = 0

@@ -18,7 +18,7 @@ from torchvision.transforms.v2 import functional as F
 
 from uss_slam.core.classes import IGNORE_INDEX
 from uss_slam.core.normalization import IMAGENET_MEAN, IMAGENET_STD
-from uss_slam.core.schema import Range
+from uss_slam.core.ranges import Range
 
 
 class RandomScale(v2.Transform):

@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Annotated, Literal
 
 from uss_slam.core.errors import DataFormatError
-from uss_slam.core.schema import Range
+from uss_slam.core.ranges import Range
 from uss_slam.core.tum_io import read_tum_folder
 from uss_slam.datasets.base import (
     ImageItem,

@@ -6,7 +6,7 @@ from typing import Annotated
 
 from torch import Tensor, nn
 
-from uss_slam.core.schema import Range
+from uss_slam.core.ranges import Range
 
 
 class PatchDiscriminator(nn.Module):

@@ -42,7 +42,7 @@ from torchmetrics.classification import MulticlassConfusionMatrix
 
 from uss_slam.core.classes import CLASS_NAMES, IGNORE_INDEX
 from uss_slam.core.errors import UssSlamError
-from uss_slam.core.schema import Range
+from uss_slam.core.ranges import Range
 from uss_slam.core.seg_metrics import iou_per_class
 from uss_slam.models.deeplab import DeepLabV2, SegmenterOutput
 from uss_slam.train.losses import LossWeights, upsample

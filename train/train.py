@@ -89,9 +89,19 @@ RESOLVED_LATER = {"trainer.precision": ("auto",)}
 """Values accepted besides the annotation's: resolved for the CPU or GPU when the run starts
 (:func:`~uss_slam.train.speed.resolve_precision`)."""
 
-GROUPS = (*TYPED_SECTIONS, "paths")
-"""The config groups of ``configs/train.yaml`` besides :class:`RunSettings`' keys: any other
-top-level key (``+unknown=1``) is refused."""
+
+def config_groups() -> list[str]:
+    """The config groups in ``configs/train.yaml``'s defaults list (``data``, ``model``, ...,
+    a group added there included): with :class:`RunSettings`' keys, the top-level keys a run's
+    config may have; any other (``+unknown=1``) is refused."""
+    import yaml
+
+    import uss_slam.configs
+
+    text = (Path(uss_slam.configs.__file__).parent / "train.yaml").read_text(encoding="utf-8")
+    defaults = yaml.safe_load(text).get("defaults") or []
+    return [str(k).split()[-1] for d in defaults if isinstance(d, dict) for k in d]
+
 
 # Ranges of library classes a config builds, whose annotations say only ``float`` / ``int``:
 # torch would refuse these values with its own text ("Invalid momentum value") once the
@@ -137,9 +147,10 @@ def check_config(cfg: DictConfig) -> RunSettings:
     target's parameter annotations (:mod:`uss_slam.core.schema`). A problem is one line
     ``<key>: expected ..., got ...``."""
     names = [f.name for f in fields(RunSettings)]
+    groups = [g for g in config_groups() if g != "hydra"]
     for key in cfg:
-        if key not in names and key not in GROUPS:
-            raise SchemaError(str(key), ", ".join([*names, *GROUPS]), unknown=True)
+        if key not in names and key not in groups:
+            raise SchemaError(str(key), ", ".join([*names, *groups]), unknown=True)
     values = {name: cfg[name] for name in names if name in cfg}
     settings = validate(values, RunSettings)
     check_targets(cfg, TYPED_SECTIONS, opaque=(torch.Tensor,), also=RESOLVED_LATER)

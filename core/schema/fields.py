@@ -7,7 +7,6 @@ from __future__ import annotations
 import dataclasses
 import enum
 import functools
-import os
 import types
 import typing
 from collections.abc import Callable, Mapping, Sequence
@@ -16,31 +15,17 @@ from typing import Any, Literal, Union
 from omegaconf import MISSING, DictConfig, ListConfig, OmegaConf
 
 from uss_slam.core.errors import UssSlamError
+from uss_slam.core.ranges import MAX_THREADS, THREADS, Range, machine_threads  # noqa: F401
 
 RANGE_KEYS = ("min", "max", "gt", "lt", "choices", "length", "text", "nonempty", "unique")
-NEEDS = "needs"
-"""Field metadata: the boolean sibling field without which the field changes nothing
-(:func:`~.checking.unused_settings` warns when it is set while that one is false)."""
 """Field metadata that :func:`validate` checks after the types (``text``: a string field that
 takes any scalar as its text, e.g. a run name given as a number; on a list field ``min``,
 ``max``, ``gt`` and ``lt`` bound each element, ``nonempty`` refuses an empty list,
 ``unique`` its duplicate policy: :func:`repeats_refused`)."""
+NEEDS = "needs"
+"""Field metadata: the boolean sibling field without which the field changes nothing
+(:func:`~.checking.unused_settings` warns when it is set while that one is false)."""
 
-
-def machine_threads() -> int:
-    """The CPUs this process may run on (its affinity mask; ``os.cpu_count`` elsewhere)."""
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:  # not Linux
-        return max(1, os.cpu_count() or 1)
-
-
-THREADS_PER_CPU = 4
-"""A thread count is bounded by the machine: at most this many threads per CPU it has. More
-only take turns on the cores (and each one holds its own buffers): ``segmenter.threads=100000``
-would spend minutes and gigabytes creating threads before the first frame."""
-MAX_THREADS = THREADS_PER_CPU * machine_threads()
-"""The largest thread count a setting takes on this machine (:data:`THREADS_PER_CPU` per CPU)."""
 
 _SCALARS: dict[Any, str] = {int: "an integer", float: "a number", bool: "true or false",
                             str: "a string"}  # fmt: skip
@@ -118,32 +103,6 @@ def ranged(
     if default_factory is not None:
         return dataclasses.field(default_factory=default_factory, metadata=metadata)
     return dataclasses.field(default=default, metadata=metadata)
-
-
-@dataclasses.dataclass(frozen=True)
-class Range:
-    """The same metadata as :func:`ranged`, for a constructor parameter built from a config
-    (``max_iters: Annotated[int, Range(min=1)] = 250_000``): :func:`~.targets.target_schema`
-    reads it from the annotation. Fields left None are not set."""
-
-    min: float | None = None  # noqa: A003
-    max: float | None = None  # noqa: A003
-    gt: float | None = None
-    lt: float | None = None
-    choices: Sequence[Any] | None = None
-    length: int | None = None
-    text: bool | None = None
-    nonempty: bool | None = None
-    unique: bool | None = None
-
-    @property
-    def metadata(self) -> dict[str, Any]:
-        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
-                if getattr(self, f.name) is not None}  # fmt: skip
-
-
-THREADS = Range(min=1, max=MAX_THREADS)
-"""The range of every thread count (:data:`MAX_THREADS`)."""
 
 
 def repeats_refused(element: Any, metadata: Mapping[str, Any]) -> bool:

@@ -58,7 +58,7 @@ from uss_slam.core.onnx_contract import (
     check_logit_channels,
 )
 from uss_slam.core.paths import input_file
-from uss_slam.core.schema import MAX_THREADS, THREADS
+from uss_slam.core.ranges import MAX_THREADS, THREADS
 
 from .base import ImageSegmenter
 from .crf import DenseCrf, check_available, softmax

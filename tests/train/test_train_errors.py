@@ -110,8 +110,8 @@ def test_bad_checkpoint_is_one_line_before_the_trainer_starts(
     ("override", "line"),
     [
         ("model.max_iters=abc", "model.max_iters: expected an integer >= 1, got 'abc'"),
-        ("trainer.max_epochs=x", "trainer.max_epochs: expected an integer or null, got 'x'"),
-        ("model.optimizer.lr=fast", "model.optimizer.lr: expected a number, got 'fast'"),
+        ("trainer.max_epochs=x", "trainer.max_epochs: expected an integer >= -1 or null, got 'x'"),
+        ("model.optimizer.lr=fast", "model.optimizer.lr: expected a number >= 0, got 'fast'"),
         ("model.net.num_classes=2.5", "model.net.num_classes: expected an integer, got 2.5"),
         ("model.batch_domains=maybe", "model.batch_domains: expected true or false, got 'maybe'"),
         (
