@@ -41,6 +41,7 @@ from hydra.core.hydra_config import HydraConfig
 from shared_helpers import fake_run, tiny_net
 
 from uss_slam.core.files import file_sha256
+from uss_slam.core.schema import MAX_THREADS
 
 TESTS = Path(__file__).resolve().parent
 
@@ -424,7 +425,7 @@ CASES = [
     case("slam-progress-not-a-bool", "uss-slam", f"{SLAM} progress=maybe", 1,
          "progress: expected true or false, got 'maybe'", setup=(earlier_slam_run,)),
     case("slam-negative-max-diff", "uss-slam", f"{SLAM} sequence.max_diff=-1", 1,
-         "sequence.max_diff: expected a number >= 0, got -1",
+         "sequence.max_diff: expected a number > 0, got -1",
          setup=(earlier_slam_run,)),
     case("slam-added-unknown-key", "uss-slam", f"{SLAM} +max_frames=5", 1,
          "max_frames: unknown key; expected one of sequence, segmenter, slam,",
@@ -517,11 +518,11 @@ CASES = [
          "earlier run (last.ckpt, 1 in all); resume it with "
          "ckpt_path={tmp}/run/checkpoints/last.ckpt", setup=(earlier_checkpoint,)),
     case("train-num-threads-negative", "uss-train", f"{TRAIN} num_threads=-1", 1,
-         "num_threads: expected an integer >= 1 or null, got -1"),
+         f"num_threads: expected an integer >= 1 and <= {MAX_THREADS} or null, got -1"),
     case("train-num-threads-zero", "uss-train", f"{TRAIN} num_threads=0", 1,
-         "num_threads: expected an integer >= 1 or null, got 0"),
+         f"num_threads: expected an integer >= 1 and <= {MAX_THREADS} or null, got 0"),
     case("train-num-threads-text", "uss-train", f"{TRAIN} num_threads=x", 1,
-         "num_threads: expected an integer >= 1 or null, got 'x'"),
+         f"num_threads: expected an integer >= 1 and <= {MAX_THREADS} or null, got 'x'"),
     case("train-seed-text", "uss-train", f"{TRAIN} seed=abc", 1,
          "seed: expected an integer >= 0 and <= 4294967295 or null, got 'abc'"),
     case("train-tags-not-a-list", "uss-train", f"{TRAIN} tags=5", 1,
@@ -587,7 +588,7 @@ CASES = [
     case("experiments-depth-out-of-range", "uss-experiments", f"{EXPERIMENTS} grid.n_layers=[0]",
          1, "grid.n_layers[0]: expected an integer >= 1 and <= 8, got 0"),
     case("experiments-seeds-not-a-list", "uss-experiments", f"{EXPERIMENTS} grid.seeds=abc", 1,
-         "grid.seeds: expected a non-empty list of integers >= 0, got 'abc'"),
+         "grid.seeds: expected a non-empty list of integers >= 0, each once, got 'abc'"),
     case("experiments-unknown-key", "uss-experiments", f"{EXPERIMENTS} grid.depths=[4]", 1,
          "grid.depths"),
     case("experiments-bad-override-syntax", "uss-experiments", f"{EXPERIMENTS} grid.seeds=[0",
@@ -1395,3 +1396,48 @@ def test_the_generated_matrix_refuses_every_bad_value_naming_its_key(checkers) -
                 problems.append(f"{prog} {b.id} ({b.kind}): {line}")
     assert problems == [], "\n".join(problems)
     assert all(n >= 20 for n in counts.values()), counts
+
+
+SAMPLE_BASE = {"uss-slam": (SLAM, (earlier_slam_run,)), "uss-train": (TRAIN, ()),
+               "uss-export": (EXPORT, (earlier_export,)), "uss-experiments": (EXPERIMENTS, ())}  # fmt: skip
+"""Each Hydra script's command line for a sample case, and what the case's folder holds."""
+
+
+PATH_KEYS = ("dir", "path", "root", "roots")
+"""Keys of paths: the path families' cases, not these."""
+
+
+def _override(key: str, value: Any, kind: str) -> str:
+    """``key=value`` as typed on a command line (``+key=`` for a key the config lacks)."""
+
+    def text(v: Any) -> str:
+        if v is None:
+            return "null"
+        if isinstance(v, list):
+            return "[" + ",".join(text(x) for x in v) + "]"
+        return str(v).lower() if isinstance(v, bool) else str(v)
+
+    return f"{'+' if kind == 'unknown' else ''}{key}={text(value)}"
+
+
+@pytest.mark.parametrize("prog", list(CHECKERS))
+def test_generated_sample_end_to_end(
+    prog: str, checkers, world: dict[str, Path], tmp_path: Path, monkeypatch, capsys
+) -> None:
+    """The first generated value of each kind for ``prog``'s own schema, run as the console
+    script in this process: exit 1, one line naming the key, nothing written (an earlier run or
+    export in the output folder intact)."""
+    base, setup = SAMPLE_BASE[prog]
+    _, _, bad = checkers[prog]
+    firsts = {b.kind: b for b in reversed(bad)
+              if ("." not in b.key or b.kind != "unknown") and not b.key.endswith(PATH_KEYS)}  # fmt: skip
+    for n, b in enumerate(sorted(firsts.values(), key=lambda b: b.kind)):
+        folder = tmp_path / f"case{n}"
+        folder.mkdir()
+        argv = f"{base} {_override(b.key, b.value, b.kind)}"
+        try:
+            check_case(Case(b.id, prog, tuple(argv.split()), 1, (b.key,), setup=setup),
+                       world, folder, monkeypatch, capsys)  # fmt: skip
+        finally:
+            HydraConfig.instance().cfg = None
+            GlobalHydra.instance().clear()

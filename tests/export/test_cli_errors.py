@@ -22,6 +22,7 @@ from shared_helpers import NET_YAML, fake_run, segmenter_metadata, tiny_net
 from uss_slam.core.classes import CLASS_NAMES
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.onnx_contract import SegmenterMetadata
+from uss_slam.core.schema import MAX_THREADS
 from uss_slam.export import cli as export_cli
 from uss_slam.export import onnx as export_onnx
 from uss_slam.export import verify as export_verify
@@ -249,7 +250,10 @@ def test_opset_range_of_this_install(tmp_path: Path) -> None:
         ("verify_size=[0,5]", "verify_size must be [H, W], two positive integers; got [0, 5]"),
         ("verify_size=[97,129]", "verify_size must differ from trace_size ((97, 129))"),
         ("head=side", "head: expected one of 'main', 'aux', got 'side'"),
-        ("num_threads=0", "num_threads: expected an integer >= 1 or null, got 0"),
+        (
+            "num_threads=0",
+            f"num_threads: expected an integer >= 1 and <= {MAX_THREADS} or null, got 0",
+        ),
         ("int8=maybe", "int8: expected true or false, got 'maybe'"),
         ("max_logit_diff=abc", "max_logit_diff: expected a number > 0 or null, got 'abc'"),
         ("dynamic_classes=person", "dynamic_classes: expected a list of strings, got 'person'"),

@@ -57,7 +57,10 @@ BAD = [
         "grid.method_overrides.adaptsegnet: model.bogus: not a key of the training config (a new "
         "key needs +model.bogus=VALUE)",
     ),
-    ("train.num_threads=0", "train.num_threads: expected an integer >= 1 or null, got 0"),
+    (
+        "train.num_threads=0",
+        f"train.num_threads: expected an integer >= 1 and <= {MAX_THREADS} or null, got 0",
+    ),
     (
         'init.overrides=["model.max_iters=abc"]',
         "init.overrides: model.max_iters: expected an integer >= 1, got 'abc'",
