@@ -14,6 +14,7 @@ when given, the discriminators' accuracy over training (``gap_study.py dacc``), 
   render, seed and residual components;
 - the closure (A − source-only) / (oracle − source-only), its 95% interval by a bootstrap over
   renders (2000 resamples, seed 0), and the headroom oracle − continued source-only;
+- exploratory: each comparison's per-render differences grouped by preset;
 - per adversarial row: each seed's discriminator accuracy per head (the largest 25-iteration
   block mean and the mean of the last quarter), and the runs whose discriminator never left
   chance (every block mean of both heads inside [0.4, 0.6]) marked ``D at chance``.
@@ -169,6 +170,26 @@ def paired(scores: dict, row: str, against: str, key: str) -> dict:
     return paired_interval([a[r] - b[r] for r in renders])
 
 
+def preset_lines(scores: dict) -> list[str]:
+    """Exploratory: each comparison's per-render person-IoU differences grouped by preset (the
+    render name's prefix), with the preset's mean."""
+    out = ["Per preset (exploratory): person-IoU difference of each render, and the mean:", "",
+           "| comparison | preset | mean | renders |", "|---|---|---|---|"]  # fmt: skip
+    for _label, row, against in COMPARISONS:
+        if row not in scores or against not in scores:
+            continue
+        a, b = render_means(scores[row], "person"), render_means(scores[against], "person")
+        by: dict[str, list[float]] = defaultdict(list)
+        for r in sorted(set(a) & set(b), key=lambda r: int(r.rsplit("_", 1)[1])):
+            by[r.rsplit("_", 1)[0]].append(a[r] - b[r])
+        for preset, diffs in sorted(by.items()):
+            each = " ".join(f"{d:+.0f}" for d in diffs)
+            out.append(
+                f"| {row} − {against} | {preset} | {statistics.fmean(diffs):+.1f} | {each} |"
+            )
+    return out
+
+
 def closure(scores: dict, row: str, key: str = "person") -> tuple[float, float, float] | None:
     """(closure, 2.5%, 97.5%) of ``row`` over renders, bootstrap (2000 resamples, seed 0)."""
     if any(r not in scores for r in (row, SOURCE_ONLY, ORACLE)):
@@ -260,6 +281,7 @@ def tables(scores: dict, dacc: dict | None) -> list[str]:
         c = closure(scores, row)
         if c is not None:
             out.append(f"- {ROWS[row]}: {c[0]:.2f} [{c[1]:.2f}, {c[2]:.2f}]")
+    out += ["", *preset_lines(scores)]
     if dlines:
         out += ["", "Discriminator accuracy per head (25-iteration block means; 0.5 = chance):", "",
                 *dlines]  # fmt: skip

@@ -131,6 +131,8 @@ def test_figures_pair_across_renders_and_split_the_variance(tmp_path: Path) -> N
     assert (
         "| the init as is | 20.0 [20.0, 20.0] |" in text
     )  # rows without seeds: one value per render
+    row = "| adabn_bntrained − source_only_bntrained | walking_xyz | +20.0 | +10 +20 +30 |"
+    assert row in text
 
 
 def test_d_at_chance_is_marked() -> None:
