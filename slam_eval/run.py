@@ -35,7 +35,7 @@ from .scoring.repeats import (
 from .scoring.report import metrics_dict, write_comparison, write_run
 from .scoring.run_folder import RunFolder
 from .segmenters.base import LabelsOnce, Segmenter, worth_keeping
-from .sequence import TumSequence
+from .sequence import MIN_STRIDED_FRAMES, TumSequence
 from .systems.harness import SlamPipeline
 
 log = logging.getLogger(__name__)
@@ -110,6 +110,7 @@ def run(cfg: DictConfig) -> dict[str, Any]:
         start=int(seq_cfg.start),
         stride=int(seq_cfg.stride),
         max_frames=None if seq_cfg.max_frames is None else int(seq_cfg.max_frames),
+        min_strided_frames=MIN_STRIDED_FRAMES,
     )
     warn_if_groundtruth_misses(sequence)
     warn_if_prefetch_mode_unused(cfg.slam)

@@ -79,6 +79,9 @@ class TumSequence:
         max_diff: largest rgb/depth stamp difference accepted by the association, seconds.
         load_labels: also load ``labels/<rgb file name>`` with every frame (oracle segmentation).
         start, stride, max_frames: which associated frames to use (``max_frames`` None = all).
+        min_strided_frames: a ``stride`` > 1 that leaves fewer frames than this is one line
+            naming ``sequence.stride`` (the SLAM runs pass :data:`MIN_STRIDED_FRAMES`; 0 = no
+            floor, e.g. for scoring masks on every n-th frame).
 
     Every listed image is checked to exist when the sequence is opened, so a run never fails
     half-way on a missing file; sizes and dtypes are checked on the first frame and on every load.
@@ -94,6 +97,7 @@ class TumSequence:
         start: int = 0,
         stride: int = 1,
         max_frames: int | None = None,
+        min_strided_frames: int = 0,
     ) -> None:
         self.path = Path(path).expanduser()
         if stride < 1 or start < 0 or (max_frames is not None and max_frames < 1):
@@ -107,7 +111,10 @@ class TumSequence:
         """Colour frames without a depth frame within ``max_diff`` (not processed, reported)."""
         self.load_labels = load_labels
         selected = folder.frames[start::stride]
-        _check_stride(stride, len(selected), len(folder.frames[start:]), self.path)
+        if min_strided_frames:  # a SLAM run: too few frames to initialise and track
+            _check_stride(
+                stride, len(selected), len(folder.frames[start:]), self.path, min_strided_frames
+            )
         if max_frames is not None:
             selected = selected[:max_frames]
         if not selected:
@@ -228,14 +235,14 @@ def ahead(
 _END = object()
 
 
-def _check_stride(stride: int, left: int, available: int, path: Path) -> None:
-    """A ``stride`` > 1 that leaves fewer than :data:`MIN_STRIDED_FRAMES` of the ``available``
-    frames (from ``sequence.start`` on) is one line naming ``sequence.stride``."""
-    if stride > 1 and 0 < left < MIN_STRIDED_FRAMES:
-        largest = max(1, (available - 1) // (MIN_STRIDED_FRAMES - 1))
+def _check_stride(stride: int, left: int, available: int, path: Path, minimum: int) -> None:
+    """A ``stride`` > 1 that leaves fewer than ``minimum`` of the ``available`` frames (from
+    ``sequence.start`` on) is one line naming ``sequence.stride``."""
+    if stride > 1 and 0 < left < minimum:
+        largest = max(1, (available - 1) // (minimum - 1))
         raise UssSlamError(
             f"sequence.stride={stride}: leaves {left} of the {available} associated frames of "
-            f"{path}; expected at least {MIN_STRIDED_FRAMES} (a stride of at most {largest})"
+            f"{path}; expected at least {minimum} (a stride of at most {largest})"
         )
 
 

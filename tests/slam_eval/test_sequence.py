@@ -11,7 +11,7 @@ import pytest
 
 from uss_slam.core.errors import DataFormatError, UssSlamError
 from uss_slam.core.tum_io import TUM_CAMERAS, read_file_list, resolve_camera, write_file_list
-from uss_slam.slam_eval.sequence import TumSequence
+from uss_slam.slam_eval.sequence import MIN_STRIDED_FRAMES, TumSequence
 
 
 def test_round_trip_values_and_order(write_sequence) -> None:
@@ -232,12 +232,15 @@ def re_escape(text: str) -> str:
 
 def test_a_stride_that_leaves_fewer_than_ten_frames_names_the_key(write_sequence) -> None:
     root = write_sequence(n=28)
-    assert len(TumSequence(root, stride=3)) == 10  # frames 0, 3, ..., 27
+    floor = {"min_strided_frames": MIN_STRIDED_FRAMES}  # as the SLAM runs open it
+    assert len(TumSequence(root, stride=3, **floor)) == 10  # frames 0, 3, ..., 27
     with pytest.raises(UssSlamError) as info:
-        TumSequence(root, stride=4)
+        TumSequence(root, stride=4, **floor)
     message = str(info.value)
     assert message.startswith("sequence.stride=4: leaves 7 of the 28 associated frames of ")
     assert message.endswith("expected at least 10 (a stride of at most 3)")
     with pytest.raises(UssSlamError, match=r"leaves 9 of the 27 associated frames"):
-        TumSequence(root, start=1, stride=3)
+        TumSequence(root, start=1, stride=3, **floor)
+    # Scoring masks on every n-th frame has no floor.
+    assert len(TumSequence(root, stride=4)) == 7
     assert len(TumSequence(write_sequence(n=6, name="short"))) == 6  # stride 1: the user's frames

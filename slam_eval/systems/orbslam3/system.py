@@ -63,7 +63,7 @@ from ...scoring.evaluation import EvalConfig, evaluate
 from ...scoring.report import fmt
 from ...scoring.run_folder import RunFolder
 from ...segmenters.base import Segmenter
-from ...sequence import TumSequence
+from ...sequence import MIN_STRIDED_FRAMES, TumSequence
 from .config import INSTALL_HINT, OrbSlam3Config, check_vocabulary
 from .masking import check_masks, compute_masks
 from .repeats import RepeatResult, read_estimate
@@ -97,6 +97,7 @@ class SequenceSpec:
             start=self.start,
             stride=self.stride,
             max_frames=self.max_frames,
+            min_strided_frames=MIN_STRIDED_FRAMES,
         )
 
 
