@@ -81,6 +81,15 @@ def slam_run_config(sequence: Path, out: Path, *overrides: str) -> DictConfig:
     )
 
 
+def colour_segmenter(path: Path, bias: float = 128.0) -> Path:
+    """An ONNX segmenter of the project's contract (the four classes) whose label is the argmax
+    of ``(bias, R, G, B)`` per pixel (:func:`colour_labels`)."""
+    from uss_slam.core.classes import CLASS_NAMES
+
+    metadata = segmenter_metadata(CLASS_NAMES, experiment="colour")
+    return colour_model(path, metadata.to_props(), bias=bias)
+
+
 def colour_model(
     path: Path,
     props: Mapping[str, str] | None,

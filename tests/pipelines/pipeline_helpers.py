@@ -7,8 +7,6 @@ from pathlib import Path
 
 import shared_helpers
 
-from uss_slam.core.classes import CLASS_NAMES
-
 
 def tiny_run(root: Path, seed: int = 0) -> Path:
     """A run folder of experiment ``tiny`` as ``uss-train`` writes it (``.hydra/config.yaml``
@@ -19,10 +17,9 @@ def tiny_run(root: Path, seed: int = 0) -> Path:
 
 
 def colour_model(path: Path, bias: float = 128.0) -> Path:
-    """An ONNX segmenter of the project's contract whose label is the argmax of
-    ``(bias, R, G, B)`` per pixel (:func:`shared_helpers.colour_labels`)."""
-    metadata = shared_helpers.segmenter_metadata(CLASS_NAMES, experiment="colour")
-    return shared_helpers.colour_model(path, metadata.to_props(), bias=bias)
+    """:func:`shared_helpers.colour_segmenter`: an ONNX segmenter of the project's contract
+    whose label is the argmax of ``(bias, R, G, B)`` per pixel."""
+    return shared_helpers.colour_segmenter(path, bias)
 
 
 def interrupt_at(iteration: int):  # noqa: ANN201 (a Lightning callback; lightning imported late)

@@ -9,7 +9,7 @@ import shutil
 from pathlib import Path
 
 import pytest
-from pipeline_helpers import colour_model
+from shared_helpers import colour_segmenter as colour_model
 
 from uss_slam.pipelines.experiments.tables import COLUMNS
 from uss_slam.testing.downstream import slam_ratios

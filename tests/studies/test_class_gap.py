@@ -10,8 +10,8 @@ import cv2
 import numpy as np
 import pytest
 from PIL import Image
-from pipeline_helpers import colour_model
 from shared_helpers import colour_labels
+from shared_helpers import colour_segmenter as colour_model
 
 from uss_slam.testing.scripts import load_script
 

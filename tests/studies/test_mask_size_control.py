@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from pipeline_helpers import colour_model
+from shared_helpers import colour_segmenter as colour_model
 
 from uss_slam.testing.scripts import load_script
 
