@@ -41,6 +41,7 @@ from pycocotools import mask as mask_utils
 from uss_slam.core.classes import CLASS_NAMES, IGNORE_INDEX, NUM_CLASSES
 from uss_slam.core.errors import DataFormatError
 from uss_slam.core.files import file_sha256, write_bytes_atomic
+from uss_slam.core.paths import read_text
 from uss_slam.core.progress import progress_bar
 from uss_slam.datasets.base import (
     ImageItem,
@@ -290,13 +291,11 @@ class COCOSegmentation(SegmentationDataset):
         """Read and check the JSON; returns the images (mapped annotations attached)."""
         path = self.annotation_file
         log.info("reading COCO annotations %s", path)
+        text = read_text(path, "expected a COCO annotation JSON file")  # a bad byte: its line
         try:
-            with open(path, encoding="utf-8") as file:
-                data = json.load(file)
+            data = json.loads(text)
         except json.JSONDecodeError as error:
             raise DataFormatError(path, f"not valid JSON: {error.msg}", error.lineno) from None
-        except UnicodeDecodeError as error:
-            raise DataFormatError(path, f"not a UTF-8 text file ({error.reason})") from None
         if not isinstance(data, dict):
             raise DataFormatError(
                 path, "expected a JSON object with images, annotations, categories"

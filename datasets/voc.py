@@ -15,6 +15,7 @@ import numpy as np
 
 from uss_slam.core.classes import IGNORE_INDEX, VOC_CLASS_NAMES, voc_lut
 from uss_slam.core.errors import DataFormatError
+from uss_slam.core.paths import read_text
 from uss_slam.datasets.base import (
     ImageItem,
     OnError,
@@ -61,10 +62,7 @@ def read_id_list(list_file: Path) -> list[tuple[int, str]]:
     """
     if not list_file.is_file():
         raise DataFormatError(list_file, "id list not found")
-    try:
-        text = list_file.read_text()
-    except (OSError, UnicodeDecodeError) as error:
-        raise DataFormatError(list_file, f"cannot read the id list ({error})") from error
+    text = read_text(list_file, "expected an id list (one image id per line)")
     ids: list[tuple[int, str]] = []
     seen: dict[str, int] = {}
     for number, line in enumerate(text.splitlines(), start=1):

@@ -20,6 +20,9 @@ from __future__ import annotations
 
 import logging
 import os
+import shutil
+import subprocess
+import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -235,3 +238,57 @@ def test_export_name_too_long(
     assert err.startswith(f"uss-export: error: name={tmp_path}/exports/{name}.onnx: the name "), err
     assert "is 305 bytes; expected at most 255" in err
     assert not (tmp_path / "exports").exists()
+
+
+# ------------------------------------------------------------------------------ read-only
+
+
+def _without_root_powers() -> list[str]:
+    """A command prefix under which permissions apply: root overrides them (its
+    ``CAP_DAC_OVERRIDE``), so as root the script runs without that capability."""
+    if os.geteuid() != 0:
+        return []
+    setpriv = shutil.which("setpriv")
+    if setpriv is None:
+        pytest.skip("root without setpriv: a read-only folder is writable")
+    return [setpriv, "--bounding-set=-dac_override,-dac_read_search"]
+
+
+LAUNCH = (
+    "import sys; from uss_slam.core.launch import launch; sys.argv = sys.argv[1:]; "
+    "sys.exit(launch(sys.argv[0]))"
+)
+"""``python -c LAUNCH <prog> ARGS``: the console script, as its entry point runs it."""
+
+
+@pytest.mark.parametrize(
+    "arg",
+    [pytest.param(a, id=a.id, marks=() if a.prog == "uss-slam" else (pytest.mark.slow,))
+     for a in PATH_ARGS if a.kind in (OUT_FILE, OUT_FOLDER)],
+)  # fmt: skip
+def test_read_only_output_location(arg: PathArg, world: dict[str, Path], tmp_path: Path) -> None:
+    """An output in a read-only folder (an existing read-only output folder, or a new file in
+    one) is one line naming the argument, before any work: for the Hydra apps before Hydra
+    opens its log file there (it raised a 56-line traceback in uss-slam)."""
+    locked = tmp_path / "ro"
+    locked.mkdir()
+    bad = locked if arg.kind == OUT_FOLDER else locked / "out.png"
+    paths = {**world, "tmp": tmp_path, "P": bad}
+    if "{m}" in arg.argv:
+        paths["m"] = tmp_path / "m.onnx"
+        paths["m"].write_bytes(colour_onnx({"tmp": tmp_path}))
+    argv = [a.format(**paths) for a in arg.argv.split()]
+    locked.chmod(0o555)
+    try:
+        done = subprocess.run(
+            [*_without_root_powers(), sys.executable, "-c", LAUNCH, arg.prog, *argv],
+            cwd=tmp_path, capture_output=True, text=True, timeout=300,
+        )  # fmt: skip
+    finally:
+        locked.chmod(0o755)
+    lines = done.stderr.strip().splitlines()
+    assert done.returncode == 1 and len(lines) == 1, done.stderr
+    named = str(bad) if arg.key is None else f"{arg.key}={bad}"
+    assert lines[0].startswith(f"{arg.prog}: error: {named}: "), lines[0]
+    assert f"cannot write to {locked} (Permission denied)" in lines[0], lines[0]
+    assert not any(locked.iterdir())
