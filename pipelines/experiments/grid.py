@@ -25,9 +25,13 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
+from importlib.resources import files
+from pathlib import Path
 from typing import Any, ClassVar
 
-from uss_slam.core.errors import UssSlamError
+import yaml
+
+from uss_slam.core.errors import DataFormatError, UssSlamError
 from uss_slam.pipelines.runs import USES_TARGET_LABELS
 from uss_slam.slam_eval.filters.build import filter_classes
 from uss_slam.slam_eval.variants import Variant, check_filters, masks_orbslam3_input
@@ -86,30 +90,31 @@ N_LAYERS_RANGE = range(1, 9)
 
 SYSTEMS = ("harness", "orbslam3")
 
-PRESET_METHOD_OVERRIDES: dict[str, dict[str, tuple[str, ...]]] = {
-    # ``grid.method_overrides`` when not given (null), per synthetic shift preset: each method's
-    # settings as chosen by the sweeps of docs/results/shifts.md on the labelled *target
-    # validation* images of that preset (never its evaluation sequences), by the best mean over
-    # 3 seeds. appearance: the discriminators see the target batch normalised by the source's
-    # running statistics, and ten times the paper's adversarial weights (0.393, against 0.310
-    # for the paper's settings); tum_like: ten times the paper's adversarial weights (0.380,
-    # against 0.355 for the paper's, 0.377 for ten times the discriminators' rate, 0.345 for
-    # running statistics; on both validation sequences walking_xyz and walking_rpy, ×10 0.384
-    # against 0.363); full: the paper's (not swept). ADVENT, MinEnt and self-training keep their
-    # configs' settings: on tum_like's two validation sequences they beat the alternatives swept
-    # (ADVENT x100 weights, MinEnt x10, pseudo-label threshold 0.9).
-    "appearance": {
-        "adaptsegnet": (
-            "model.domain_batch_norm=running",
-            "model.method.lambda_adv_aux=0.02",
-            "model.method.lambda_adv_main=0.1",
-        ),
-    },
-    "tum_like": {
-        "adaptsegnet": ("model.method.lambda_adv_aux=0.02", "model.method.lambda_adv_main=0.1"),
-    },
-    "full": {},
-}
+SHIFT_METHOD_SETTINGS = "shift_method_settings.yaml"
+"""Each shift preset's method settings, in the ``uss_slam.configs`` tree."""
+
+
+def read_shift_method_settings() -> dict[str, dict[str, tuple[str, ...]]]:
+    """``{shift preset: {method: its uss-train overrides}}`` from
+    ``configs/shift_method_settings.yaml`` (``grid.method_overrides`` when not given)."""
+    where = f"configs/{SHIFT_METHOD_SETTINGS}"
+    node = yaml.safe_load(files("uss_slam.configs").joinpath(SHIFT_METHOD_SETTINGS).read_text())
+    if not isinstance(node, dict):
+        raise DataFormatError(Path(where), "expected a mapping of shift presets")
+    table: dict[str, dict[str, tuple[str, ...]]] = {}
+    for shift, methods in node.items():
+        if not isinstance(methods, dict) or not all(
+            isinstance(o, list) and all(isinstance(x, str) for x in o) for o in methods.values()
+        ):
+            raise DataFormatError(
+                Path(where), f"{shift}: expected a mapping of methods to lists of overrides"
+            )
+        table[str(shift)] = {str(m): tuple(o) for m, o in methods.items()}
+    return table
+
+
+PRESET_METHOD_OVERRIDES: dict[str, dict[str, tuple[str, ...]]] = read_shift_method_settings()
+"""Each shift preset's method settings (``configs/shift_method_settings.yaml``)."""
 
 
 TARGET_LABEL_USES = ("training", "settings", "checkpoint selection")
