@@ -22,6 +22,9 @@ Sub-commands:
   domain the discriminator gets right; 0.5 = chance), averaged over blocks of 25 iterations.
 - ``false-alarm STUDY --frames DIR [DIR ...] --out FILE.csv``: each export's predicted person
   pixels per frame on real frame folders (``rgb.txt``) that show no people.
+- ``ate-cost RUNS --out FILE.csv``: the semantic filter's ATE cost there: each ``uss-slam``
+  output folder ``RUNS/<model>/`` (``segmenter=onnx filters=[semantic] slam.repeats=3``) against
+  the unfiltered ``RUNS/none/``: median ATE RMSE, the repeats' range, the ratio.
 
 The figures: ``python studies/gap_figures.py`` on the committed CSVs.
 """
@@ -282,6 +285,28 @@ def false_alarm(
     return rows
 
 
+def ate_cost(runs: Path) -> list[dict]:
+    """The semantic filter's ATE cost on frames without people: per ``uss-slam`` output folder
+    ``runs/<model>/`` its median ATE RMSE over repeats (m) with the repeats' range, and its ratio
+    to the unfiltered run ``runs/none/``."""
+
+    def ate(folder: Path) -> tuple[float, float, float]:
+        path = folder / "metrics.json"
+        if not path.is_file():
+            raise StudyError(f"{path}: no such file (a finished uss-slam run)")
+        m = json.loads(path.read_text())
+        r = m.get("ate_rmse_repeats") or {}
+        return m["ate"]["rmse"], r.get("min", m["ate"]["rmse"]), r.get("max", m["ate"]["rmse"])
+
+    base = ate(runs / "none")[0]
+    rows = []
+    for folder in sorted(p for p in runs.iterdir() if (p / "metrics.json").is_file()):
+        med, lo, hi = ate(folder)
+        rows.append({"model": folder.name, "ate_median_m": round(med, 6), "ate_min_m": round(lo, 6),
+                     "ate_max_m": round(hi, 6), "ratio_to_none": round(med / base, 4)})  # fmt: skip
+    return rows
+
+
 def write_csv(rows: list[dict], path: Path) -> None:
     if not rows:
         raise StudyError(f"{path}: nothing to write")
@@ -296,6 +321,9 @@ def write_csv(rows: list[dict], path: Path) -> None:
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
+    ate_p = sub.add_parser("ate-cost")
+    ate_p.add_argument("runs", type=Path)
+    ate_p.add_argument("--out", type=Path, required=True)
     for name in ("check", "export-init", "score", "dacc", "false-alarm"):
         p = sub.add_parser(name)
         p.add_argument("study", type=Path)
@@ -312,6 +340,10 @@ def main(argv: list[str] | None = None) -> None:
     score_p.add_argument("--name", default="real_regime", help="the study's name in the read list")
     sub.choices["false-alarm"].add_argument("--frames", type=Path, nargs="+", required=True)
     args = parser.parse_args(argv)
+    if args.command == "ate-cost":
+        if not (args.runs / "none").is_dir():
+            raise StudyError(f"{args.runs}/none: no unfiltered run to compare with")
+        return write_csv(ate_cost(args.runs), args.out)
     study = args.study
     if not study.is_dir():
         raise StudyError(f"{study}: no study folder")

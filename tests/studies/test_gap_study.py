@@ -153,3 +153,16 @@ def test_first_frames_then_every_nth(tmp_path: Path) -> None:
     (tmp_path / "rgb.txt").write_text("\n".join(lines) + "\n")
     assert study.frame_files(tmp_path, 10, 100) == [f"rgb/{i}.png" for i in range(0, 100, 10)]
     assert len(study.frame_files(tmp_path, 5)) == 60
+
+
+def test_ate_cost_against_the_unfiltered_run(tmp_path: Path) -> None:
+    import json
+
+    for name, med in (("none", 0.005), ("adabn_s0", 0.0065)):
+        (tmp_path / name).mkdir()
+        metrics = {"ate": {"rmse": med}, "ate_rmse_repeats": {"min": med - 0.001, "max": med}}
+        (tmp_path / name / "metrics.json").write_text(json.dumps(metrics))
+    rows = {r["model"]: r for r in study.ate_cost(tmp_path)}
+    assert rows["adabn_s0"]["ratio_to_none"] == 1.3 and rows["none"]["ratio_to_none"] == 1.0
+    with pytest.raises(SystemExit, match=r"/none: no unfiltered run"):
+        study.main(["ate-cost", str(tmp_path / "adabn_s0"), "--out", str(tmp_path / "x.csv")])
