@@ -118,6 +118,9 @@ def test_training_logs_validators_and_keeps_the_selected_checkpoint(
     )  # fmt: skip
     with open_dict(cfg):
         cfg.paths.output_dir = str(out)
+        cfg.pop(
+            "hydra", None
+        )  # HydraConfig holds it (compose_train set it); uss-train never sees it
     train(cfg)
     assert (out / "checkpoints" / "validator_probe.ckpt").is_file()
     saved = torch.load(out / "checkpoints" / "validator_probe.ckpt", weights_only=False)
