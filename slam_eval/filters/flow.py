@@ -7,10 +7,12 @@ is ``|LK position − motion-predicted position|``; above ``threshold`` (7 px) i
 
 from __future__ import annotations
 
+from typing import Annotated
+
 import cv2
 import numpy as np
 
-from uss_slam.core.errors import UssSlamError
+from uss_slam.core.ranges import Range
 
 from ..geometry import from_rvec, project, transform
 from .base import DynamicFilter, FilterContext, FilterOutput
@@ -25,14 +27,12 @@ class FlowFilter(DynamicFilter):
 
     def __init__(
         self,
-        threshold: float = 7.0,
-        window: int = 21,
-        levels: int = 3,
-        ransac_threshold: float = 2.0,
-        min_points: int = 12,
-    ) -> None:
-        if threshold <= 0 or window < 3 or levels < 0:
-            raise UssSlamError("filter flow: need threshold > 0, window >= 3 and levels >= 0")
+        threshold: Annotated[float, Range(gt=0)] = 7.0,
+        window: Annotated[int, Range(min=3)] = 21,
+        levels: Annotated[int, Range(min=0)] = 3,
+        ransac_threshold: Annotated[float, Range(gt=0)] = 2.0,
+        min_points: Annotated[int, Range(min=4)] = 12,
+    ) -> None:  # the ranges: the config's schema (slam.filter_params.flow.*)
         self.threshold = float(threshold)
         self.window = (int(window), int(window))
         self.levels = int(levels)

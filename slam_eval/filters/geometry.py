@@ -8,12 +8,12 @@ dynamic.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Annotated
 
 import cv2
 import numpy as np
 
-from uss_slam.core.errors import UssSlamError
+from uss_slam.core.ranges import Range
 
 from ..geometry import invert, project, transform
 from .base import DynamicFilter, FilterContext, FilterOutput, values_at
@@ -31,24 +31,17 @@ class GeometryFilter(DynamicFilter):
 
     def __init__(
         self,
-        reference_keyframes: int = 5,
-        max_parallax_deg: float = 30.0,
-        depth_threshold: float = 0.4,
-        min_keyframe_age: int = 5,
-        grow_step: float = 0.05,
-        grow_band: float = 0.6,
-        grow_scale: int = 4,
-        grow_radius: float = 32.0,
-        min_seeds: int = 2,
-        edge_window: int = 7,
-    ) -> None:
-        if reference_keyframes < 1 or depth_threshold <= 0 or not 0 < max_parallax_deg < 180:
-            raise UssSlamError(
-                "filter geometry: need reference_keyframes >= 1, depth_threshold > 0 and "
-                "0 < max_parallax_deg < 180"
-            )
-        if grow_scale < 1 or min_seeds < 1:
-            raise UssSlamError("filter geometry: need grow_scale >= 1 and min_seeds >= 1")
+        reference_keyframes: Annotated[int, Range(min=1)] = 5,
+        max_parallax_deg: Annotated[float, Range(gt=0, lt=180)] = 30.0,
+        depth_threshold: Annotated[float, Range(gt=0)] = 0.4,
+        min_keyframe_age: Annotated[int, Range(min=0)] = 5,
+        grow_step: Annotated[float, Range(gt=0)] = 0.05,
+        grow_band: Annotated[float, Range(min=0)] = 0.6,
+        grow_scale: Annotated[int, Range(min=1)] = 4,
+        grow_radius: Annotated[float, Range(min=0)] = 32.0,
+        min_seeds: Annotated[int, Range(min=1)] = 2,
+        edge_window: Annotated[int, Range(min=1)] = 7,
+    ) -> None:  # the ranges: the config's schema (slam.filter_params.geometry.*)
         self.reference_keyframes = int(reference_keyframes)
         self.cos_parallax = float(np.cos(np.radians(max_parallax_deg)))
         self.depth_threshold = float(depth_threshold)

@@ -9,12 +9,14 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import Annotated
 
 import cv2
 import numpy as np
 
 from uss_slam.core.classes import CLASS_NAMES, IGNORE_INDEX
 from uss_slam.core.errors import UssSlamError
+from uss_slam.core.ranges import Range
 
 from ..segmenters.base import class_ids
 from .base import DynamicFilter, FilterContext, FilterOutput, values_at
@@ -36,18 +38,11 @@ class ObjectFilter(DynamicFilter):
 
     def __init__(
         self,
-        min_points: int = 20,
+        min_points: Annotated[int, Range(min=1)] = 20,
         classes: Sequence[str] | None = None,
-        depth_radius: float = 0.1,
-        pixel_radius: float = 5.0,
-    ) -> None:
-        if min_points < 1:
-            raise UssSlamError(f"filter object: min_points must be >= 1, got {min_points}")
-        if not (depth_radius > 0 and pixel_radius >= 0):
-            raise UssSlamError(
-                "filter object: need depth_radius > 0 m and pixel_radius >= 0 px, got "
-                f"{depth_radius} and {pixel_radius}"
-            )
+        depth_radius: Annotated[float, Range(gt=0)] = 0.1,
+        pixel_radius: Annotated[float, Range(min=0)] = 5.0,
+    ) -> None:  # the ranges: the config's schema (slam.filter_params.object.*)
         self.min_points = int(min_points)
         names = [c for c in CLASS_NAMES if c != "background"] if classes is None else classes
         self.ids = class_ids(list(names))

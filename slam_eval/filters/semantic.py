@@ -6,13 +6,14 @@ borders).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import Annotated, Any
 
 import cv2
 import numpy as np
 
 from uss_slam.core.classes import CLASS_NAMES
 from uss_slam.core.errors import UssSlamError
+from uss_slam.core.ranges import Range
 
 from ..segmenters.base import class_ids
 from ..sequence import Frame
@@ -27,9 +28,11 @@ class SemanticFilter(DynamicFilter):
     needs_labels = True
     masks_input = True
 
-    def __init__(self, dynamic_classes: Sequence[str] = ("person",), dilation: int = 5) -> None:
-        if dilation < 0:
-            raise UssSlamError(f"filter semantic: dilation must be >= 0 px, got {dilation}")
+    def __init__(
+        self,
+        dynamic_classes: Sequence[str] = ("person",),
+        dilation: Annotated[int, Range(min=0)] = 5,
+    ) -> None:  # the ranges: the config's schema (slam.filter_params.semantic.*)
         self.ids = class_ids(list(dynamic_classes))
         self.dilation = int(dilation)
         self._lut = np.zeros(256, np.uint8)

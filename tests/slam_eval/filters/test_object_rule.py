@@ -7,8 +7,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from filter_helpers import CAM, features_at
+from omegaconf import OmegaConf
 
 from uss_slam.core.errors import UssSlamError
+from uss_slam.core.schema import check_target
 from uss_slam.slam_eval.config import filter_defaults
 from uss_slam.slam_eval.filters.base import FilterContext
 from uss_slam.slam_eval.filters.object_rule import ObjectFilter
@@ -107,7 +109,14 @@ def test_object_rule_parameters() -> None:
         "depth_radius": 0.1,
         "pixel_radius": 5.0,
     }
-    with pytest.raises(UssSlamError, match="need depth_radius > 0 m and pixel_radius >= 0 px"):
-        ObjectFilter(depth_radius=0)
-    with pytest.raises(UssSlamError, match="pixel_radius >= 0 px, got 0.1 and -1"):
-        ObjectFilter(pixel_radius=-1)
+    # the ranges are the config's schema (slam.filter_params.object.*)
+    node = OmegaConf.create({"_target_": "uss_slam.slam_eval.filters.object_rule.ObjectFilter"})
+    for key, value, line in (
+        ("depth_radius", 0, "slam.filter_params.object.depth_radius: expected a number > 0, got 0"),
+        ("pixel_radius", -1, "slam.filter_params.object.pixel_radius: expected a number >= 0, "
+                             "got -1"),
+    ):  # fmt: skip
+        bad = OmegaConf.merge(node, {key: value})
+        with pytest.raises(UssSlamError) as info:
+            check_target(bad, "slam.filter_params.object")
+        assert str(info.value) == line
