@@ -134,7 +134,7 @@ def test_a_new_filter_runs_in_uss_slam(examples: Path, synthetic_sequence, tmp_p
     assert metrics["frames"] == 8 and metrics["settings"]["filters"] == ["border"]
     assert metrics["keypoints"]["dropped"]["border"] > 0
 
-    # Its own error, as one line: the script with a negative margin.
+    # Its declared range, as one line naming the key: the script with a negative margin.
     bad = tmp_path / "bad.sh"
     bad.write_text(script.read_text().replace("margin: 20", "margin: -1"))
     done = subprocess.run(
@@ -142,7 +142,7 @@ def test_a_new_filter_runs_in_uss_slam(examples: Path, synthetic_sequence, tmp_p
         capture_output=True, text=True, timeout=300, check=False,
     )  # fmt: skip
     assert done.returncode == 1
-    assert "filter border: margin must be >= 0 px, got -1" in done.stderr
+    assert "slam.filter_params.border.margin: expected a number >= 0, got -1" in done.stderr
 
 
 def test_the_filter_flags_exactly_the_border(examples: Path) -> None:
