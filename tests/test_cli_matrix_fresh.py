@@ -49,6 +49,8 @@ from test_cli_matrix import (  # noqa: F401  (world: the fixture of the shared i
     write,
 )
 
+from uss_slam.core.schema import MAX_THREADS
+
 # ------------------------------------------------------------------------------ setups
 
 
@@ -299,12 +301,13 @@ CASES = [
          "slam.repeat_budget",
          "got 0.5", setup=(earlier_slam_run,)),
     case("slam-workers-zero", "uss-slam", f"{SLAM} slam.workers=0", 1, "slam.workers",
-         "expected an integer >= 1, got 0",
+         f"expected an integer >= 1 and <= {MAX_THREADS}, got 0",
          setup=(earlier_slam_run,)),
     case("slam-dilation-negative", "uss-slam",
          f"{SLAM} segmenter=labels filters=[semantic] slam.filter_params.semantic.dilation=-2",
          1, "dilation",
-         "dilation must be >= 0 px, got -2", setup=(earlier_slam_run,)),
+         "slam.filter_params.semantic.dilation: expected an integer >= 0, got -2",
+         setup=(earlier_slam_run,)),
     case("slam-dynamic-classes-not-a-list", "uss-slam",
          f"{SLAM} slam.filter_params.semantic.dynamic_classes=person", 1,
          "slam.filter_params.semantic.dynamic_classes",
@@ -362,7 +365,7 @@ CASES = [
          "{voc}",
          "not a TUM RGB-D sequence"),
     case("train-max-iters-zero", "uss-train", f"{TRAIN} model.max_iters=0", 1, "max_iters",
-         "must be a positive integer, got 0"),
+         "model.max_iters: expected an integer >= 1, got 0"),
     case("train-adv-weight-negative", "uss-train", f"{TRAIN} model.method.lambda_adv_main=-1", 1,
          "model.method.lambda_adv_main: expected a number >= 0, got -1"),
     case("train-weights-path-missing", "uss-train",
@@ -423,7 +426,7 @@ CASES = [
     # ---------------------------------------------------------------- uss-experiments (Hydra)
     case("experiments-seeds-empty", "uss-experiments", f"{EXPERIMENTS} grid.seeds=[]", 1,
          "grid.seeds",
-         "expected a non-empty list of integers >= 0, got []"),
+         "expected a non-empty list of integers >= 0, each once, got []"),
     case("experiments-depth-text", "uss-experiments", f"{EXPERIMENTS} grid.n_layers=[deep]", 1,
          "grid.n_layers[0]",
          "expected an integer >= 1 and <= 8, got 'deep'"),

@@ -85,7 +85,7 @@ BAD_CONFIGS = [
     (["compare=[]"], "compare must be a non-empty list of filter lists"),
     (["filters=[flow,flow]"], "filter 'flow' is listed twice"),
     (["slam.filter_params.flow.threshold=fast"],
-     "slam.filter_params.flow.threshold: expected a number, got 'fast'"),
+     "slam.filter_params.flow.threshold: expected a number > 0, got 'fast'"),
     (["+slam.filter_params.flow.radius=3"],
      "slam.filter_params.flow.radius: unknown key; expected one of threshold, window"),
     (["slam.filter_params.semantic.dynamic_classes=[person,ghost]"],
