@@ -170,34 +170,29 @@ class AdversarialMethod(Method):
         def both(maps: tuple[Tensor, Tensor]) -> tuple[Tensor, Tensor]:
             return self.d_aux(maps[0]), self.d_main(maps[1])
 
+        def losses(logits: tuple[Tensor, Tensor], domain: float, name: str) -> list[Tensor]:
+            aux, main = (domain_loss(x, domain) for x in logits)
+            check_finite(
+                module.iteration, **{f"loss_d_{name}_aux": aux, f"loss_d_{name}_main": main}
+            )
+            return [aux, main]
+
         src = (source[0].detach(), source[1].detach())
         trg = (target[0].detach(), target[1].detach())
         with DomainPass(both, src, trg, module.manual_backward, batched) as d:
-            d_src_aux, d_src_main = d.source()
-            loss_src_aux = domain_loss(d_src_aux, SOURCE_LABEL)
-            loss_src_main = domain_loss(d_src_main, SOURCE_LABEL)
-            check_finite(
-                module.iteration, loss_d_src_aux=loss_src_aux, loss_d_src_main=loss_src_main
-            )
-            d.backward(loss_src_aux + loss_src_main)
-            d_trg_aux, d_trg_main = d.target()
-            loss_trg_aux = domain_loss(d_trg_aux, TARGET_LABEL)
-            loss_trg_main = domain_loss(d_trg_main, TARGET_LABEL)
-            check_finite(
-                module.iteration, loss_d_trg_aux=loss_trg_aux, loss_d_trg_main=loss_trg_main
-            )
-            d.backward(loss_trg_aux + loss_trg_main)
+            logits = {"src": d.source()}
+            loss = {"src": losses(logits["src"], SOURCE_LABEL, "src")}
+            d.backward(loss["src"][0] + loss["src"][1])
+            logits["trg"] = d.target()
+            loss["trg"] = losses(logits["trg"], TARGET_LABEL, "trg")
+            d.backward(loss["trg"][0] + loss["trg"][1])
         opt_d.step()
-        return {
-            "loss_d_src_aux": loss_src_aux.detach(),
-            "loss_d_trg_aux": loss_trg_aux.detach(),
-            "loss_d_src_main": loss_src_main.detach(),
-            "loss_d_trg_main": loss_trg_main.detach(),
-            "d_src_aux": d_src_aux.detach(),
-            "d_trg_aux": d_trg_aux.detach(),
-            "d_src_main": d_src_main.detach(),
-            "d_trg_main": d_trg_main.detach(),
-        }
+        values: StepValues = {}
+        for name in ("src", "trg"):
+            for i, head in enumerate(("aux", "main")):
+                values[f"loss_d_{name}_{head}"] = loss[name][i].detach()
+                values[f"d_{name}_{head}"] = logits[name][i].detach()
+        return values
 
     def train_scalars(self, step: StepValues) -> dict[str, Tensor]:
         scalars = {
