@@ -60,9 +60,13 @@ class PathArg:
     kind: str
     argv: str
     slow: bool = False
+    name: str | None = None
+    """The id's name of the argument (default: its key, or the subcommand of a positional)."""
 
     @property
     def id(self) -> str:
+        if self.name is not None:
+            return f"{self.prog.removeprefix('uss-')}-{self.name}"
         first = self.argv.split()[0]  # a positional argument: by its subcommand
         name = (self.key or ("model" if first == "{P}" else first)).strip("-").replace(".", "-")
         return f"{self.prog.removeprefix('uss-')}-{name}"
@@ -79,7 +83,9 @@ PATH_ARGS = [
     PathArg("uss-eval", None, IN_FILE, "{P} --sequence {seq} --out {tmp}/eval"),
     PathArg("uss-eval", "--sequence", IN_FOLDER, "{m} --sequence {P} --out {tmp}/eval"),
     PathArg("uss-eval", "--out", OUT_FOLDER, "{m} --sequence {seq} --out {P}"),
-    PathArg("uss-eval", "data.val.roots", IN_FOLDER, "{m} data.val.roots=[{P}] --out {tmp}/eval"),
+    # (the values of data.val are checked first; its reader then names a bad folder by its path)
+    PathArg("uss-eval", None, IN_FOLDER, "{m} data.val.roots=[{P}] --out {tmp}/eval",
+            name="data-val-roots"),
     PathArg("uss-demo", "--out", OUT_FOLDER, "--out {P} --experiment ci --until data --quiet"),
     PathArg("uss-demo", "--sequence", IN_FOLDER,
             "--out {tmp}/demo --experiment ci --until data --sequence {P} --quiet"),

@@ -14,7 +14,7 @@ import numpy as np
 from uss_slam.core.cli import hydra_error_line
 from uss_slam.core.errors import DataFormatError, UssSlamError
 from uss_slam.core.images import read_colour
-from uss_slam.core.paths import input_folder, input_roots
+from uss_slam.core.paths import input_folder
 
 CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
 
@@ -137,8 +137,6 @@ def config_val_frames(overrides: Sequence[str]) -> FrameSource:
     if node is None:
         raise UssSlamError("the composed data config has no data.val (the validation set)")
     check_targets(cfg, ("data",))  # data.val.stride=abc: one line naming the key
-    val = OmegaConf.to_container(node, resolve=True, throw_on_missing=False)
-    input_roots(val, "data.val")  # data.val.roots=[...]: each folder checked, named by its key
     dataset = _instantiate_val(node)
     if not getattr(dataset, "labelled", False):
         raise UssSlamError("data.val has no labels: nothing to evaluate against")
