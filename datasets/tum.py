@@ -131,23 +131,15 @@ class TUMFrames(SegmentationDataset):
         roots: Annotated[str | Path | Sequence[str | Path], Range(unique=True)],
         labels: bool = False,
         transform: Transform | None = None,
-        stride: int = 1,
-        holdout: float = 0.0,
+        stride: Annotated[int, Range(min=1)] = 1,
+        holdout: Annotated[float, Range(min=0, lt=1)] = 0.0,
         part: Part = "train",
-        holdout_gap: int = 0,
+        holdout_gap: Annotated[int, Range(min=0)] = 0,
         exclude: Sequence[str | Path] = (),
         on_error: OnError = "raise",
-    ) -> None:
-        if stride < 1:
-            raise ValueError(f"stride must be >= 1, got {stride}")
-        if not 0.0 <= holdout < 1.0:
-            raise ValueError(f"holdout must be a fraction in [0, 1), got {holdout}")
-        if part not in ("train", "holdout"):
-            raise ValueError(f"part must be 'train' or 'holdout', got {part!r}")
+    ) -> None:  # the ranges: the config's schema (data.<split>.*)
         if part == "holdout" and holdout == 0:
             raise ValueError("part='holdout' needs holdout > 0")
-        if holdout_gap < 0:
-            raise ValueError(f"holdout_gap must be >= 0, got {holdout_gap}")
         self.on_error = check_on_error(on_error)
         paths = [Path(roots)] if isinstance(roots, (str, Path)) else [Path(r) for r in roots]
         if not paths:

@@ -9,9 +9,11 @@ from pathlib import Path
 
 import pytest
 import torch
+from omegaconf import OmegaConf
 from realdata_helpers import write_tum
 
 from uss_slam.core.errors import DataFormatError
+from uss_slam.core.schema import SchemaError, check_target
 from uss_slam.core.tum_io import read_file_list
 from uss_slam.datasets.tum import TUMFrames
 
@@ -55,10 +57,10 @@ def test_held_out_frames_are_the_end_of_each_sequence(sequences: list[Path]) -> 
     assert not set(_stamps(gap)) & set(_stamps(held))
     with pytest.raises(ValueError, match="part='holdout' needs holdout > 0"):
         TUMFrames(xyz, part="holdout")
-    with pytest.raises(ValueError, match=r"holdout must be a fraction in \[0, 1\)"):
-        TUMFrames(xyz, holdout=1.0)
-    with pytest.raises(ValueError, match="stride must be >= 1"):
-        TUMFrames(xyz, stride=0)
+    # the ranges are the config's schema: data.<split>.holdout=1 is one line naming the key
+    node = OmegaConf.create({"_target_": "uss_slam.datasets.tum.TUMFrames", "holdout": 1.0})
+    with pytest.raises(SchemaError, match=r"^data\.val\.holdout: expected a number >= 0 and < 1"):
+        check_target(node, "data.val")
 
 
 def test_frames_labelled_for_validation_are_excluded(sequences: list[Path], tmp_path: Path) -> None:
