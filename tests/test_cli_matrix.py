@@ -380,7 +380,7 @@ CASES = [
          "data.val.bogus: unknown key; expected one of roots, labels, stride, transform",
          setup=(write("m", "not read", ".onnx"),)),
     case("eval-data-value-type", "uss-eval", "{m} data.val.stride=abc --out {tmp}/eval", 1,
-         "data.val.stride: expected an integer, got 'abc'", setup=(write("m", "not read", ".onnx"),)),
+         "data.val.stride: expected an integer >= 1, got 'abc'", setup=(write("m", "not read", ".onnx"),)),
     case("eval-corrupt-label-png", "uss-eval", "{ckpt} --sequence {s} --out {tmp}/eval", 1,
          "{s}/labels/", "truncated PNG", setup=(seq_copy(corrupt("labels", 3)),)),
     case("eval-threads-zero", "uss-eval", "{m} --sequence {seq} --threads 0 --out {tmp}/e", 1,
