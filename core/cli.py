@@ -536,7 +536,7 @@ def run_hydra_app(prog: str, app: Callable[[], object]) -> None:
     os.environ["HYDRA_FULL_ERROR"] = "1"  # Hydra raises instead of printing its own report
     report = JobReport(prog)
     try:
-        with signals_as_interrupts(), report_failed_jobs(prog) as report:
+        with program(prog), signals_as_interrupts(), report_failed_jobs(prog) as report:
             app()
     except KeyboardInterrupt as interrupt:  # before the app's own handling (composition)
         sys.exit(report_interrupt(prog, interrupt))

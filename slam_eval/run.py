@@ -87,8 +87,8 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     :mod:`.scoring.run_folder`): a failure, Ctrl-C or a full disk before that, in a comparison
     too, leaves the earlier run as it was.
     """
+    plan = check(cfg)  # values first: a bad value is named before a missing folder
     input_folder(str(cfg.sequence.path), "sequence.path", "expected a TUM RGB-D sequence folder")
-    plan = check(cfg)
     out = check_writable(output_dir(cfg), "out_dir")
     if _own_hydra() is not None:  # inside uss-experiments, its job folder is that app's
         check_output_owner(out, PROG, "out_dir")  # a uss-eval or uss-demo output, ...

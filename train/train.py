@@ -149,7 +149,8 @@ def check_config(cfg: DictConfig) -> RunSettings:
     names = [f.name for f in fields(RunSettings)]
     groups = [g for g in config_groups() if g != "hydra"]
     for key in cfg:
-        if key not in names and key not in groups:
+        # `hydra`: the runtime node of a config composed with return_hydra_config (the API)
+        if key not in names and key not in groups and key != "hydra":
             raise SchemaError(str(key), ", ".join([*names, *groups]), unknown=True)
     values = {name: cfg[name] for name in names if name in cfg}
     settings = validate(values, RunSettings)
@@ -262,6 +263,18 @@ MOVED_KEYS = {
 }
 """Keys of earlier versions -> where the setting is now (the adversarial methods own their
 discriminators, their optimiser and their weights)."""
+
+
+def check_settings(cfg: DictConfig) -> RunSettings:
+    """Every check of the composed config that needs no file and no device, in ``uss-train``'s
+    order (``uss-experiments`` runs the same on each training before any starts): keys of an
+    earlier version, other methods' settings (dropped, with a warning), types and ranges, the
+    optimisers' values."""
+    check_moved_keys(cfg)
+    drop_unused_method_settings(cfg)
+    settings = check_config(cfg)
+    check_optimizers(cfg)
+    return settings
 
 
 def check_moved_keys(cfg: DictConfig) -> None:
@@ -441,10 +454,7 @@ def train(cfg: DictConfig) -> dict[str, float]:
     config, the checkpoint to resume, the output folders), so that a bad run leaves no
     checkpoints or logs behind.
     """
-    check_moved_keys(cfg)
-    drop_unused_method_settings(cfg)
-    settings = check_config(cfg)
-    check_optimizers(cfg)
+    settings = check_settings(cfg)
     check_accelerator(cfg)
     if settings.num_threads is not None:
         torch.set_num_threads(settings.num_threads)

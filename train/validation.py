@@ -124,6 +124,17 @@ def softmax_batches(
             batch = []
 
 
+def lazy_source(dataset: Any, transform: Any) -> Dataset:
+    """The source dataset of :class:`TargetValidators` built when first used, not when the
+    callback is (a config node with ``_partial_: true`` and ``_recursive_: false``): the
+    callback can be composed and instantiated without the data on disk."""
+    from hydra.utils import instantiate
+
+    from uss_slam.datasets.datamodule import with_transform
+
+    return with_transform(instantiate(dataset), instantiate(transform))
+
+
 class TargetValidators(Callback):
     """Compute label-free validators at validations and log them (see the module docstring).
 
@@ -203,6 +214,8 @@ class TargetValidators(Callback):
             self.map_names, self.params, "callbacks.target_validators.names"
         )
         wants_source = any(n in NEEDS_SOURCE or n in TORCH_VALIDATORS for n in self.names)
+        if wants_source and callable(self.source) and not isinstance(self.source, Dataset):
+            self.source = self.source()  # built at the first use (lazy_source)
         if wants_source and self.source is None:
             log.warning(
                 "target validators: no source dataset; %s skipped",

@@ -115,12 +115,10 @@ def _check_slam(exp: Experiment, job: Job) -> tuple[str, ...]:
 def _train_problem(overrides: tuple[str, ...]) -> str | None:
     """What is wrong with the ``train`` config composed with ``overrides`` (None: nothing)."""
     from uss_slam.pipelines.runs import compose_config
-    from uss_slam.train.train import check_config, check_optimizers
+    from uss_slam.train.train import check_settings
 
     try:
-        cfg = compose_config("train", list(overrides))
-        check_config(cfg)
-        check_optimizers(cfg)
+        check_settings(compose_config("train", list(overrides)))
     except Exception as error:
         line = config_error_line(error, "training")
         if line is None:

@@ -115,7 +115,9 @@ def test_missing_images_and_sequences(sequences: list[Path], tmp_path: Path) -> 
         TUMFrames(xyz)
     skipping = TUMFrames(xyz, on_error="skip")
     assert len(skipping) == 19 and len(skipping.skipped) == 1
-    with pytest.raises(DataFormatError, match=r"nowhere: TUM sequence folder not found"):
+    with pytest.raises(
+        DataFormatError, match=r"nowhere: does not exist; expected a TUM sequence folder"
+    ):
         TUMFrames([sequences[1], tmp_path / "nowhere"])
     (tmp_path / "empty").mkdir()
     (tmp_path / "empty" / "rgb.txt").write_text("# timestamp filename\n")

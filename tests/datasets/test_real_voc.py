@@ -102,10 +102,11 @@ def test_corrupt_and_truncated_files_name_the_file(voc: Path) -> None:
     png = voc / "SegmentationClass" / "2008_000002.png"
     intact = png.read_bytes()
     png.write_bytes(intact[:-20])  # pixel data complete, IEND lost: still a truncated file
-    with pytest.raises(DataFormatError, match=r"2008_000002\.png: truncated PNG: no IEND chunk"):
+    truncated = r"2008_000002\.png: truncated PNG: .*\(no IEND chunk\)"
+    with pytest.raises(DataFormatError, match=truncated):
         dataset[1]
     png.write_bytes(intact[:40] + bytes(len(intact) - 60) + intact[-20:])  # damaged inside
-    with pytest.raises(DataFormatError, match=r"2008_000002\.png: cannot decode label image"):
+    with pytest.raises(DataFormatError, match=r"2008_000002\.png: corrupt PNG: "):
         dataset[1]
 
 

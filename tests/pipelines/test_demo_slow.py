@@ -188,5 +188,7 @@ def test_unknown_sequence_is_a_one_line_error(tmp_path: Path, capsys) -> None:
                    "--sequence", "nowhere"])  # fmt: skip
     assert exit_info.value.code == 1
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].startswith("uss-demo: error: --sequence nowhere: not a folder")
+    assert len(err) == 1 and err[0].startswith(
+        "uss-demo: error: --sequence=nowhere: does not exist"
+    )
     assert "walking_xyz, static_xyz" in err[0] and not (tmp_path / "data").exists()

@@ -15,6 +15,7 @@ from hydra import compose, initialize_config_dir
 
 from uss_slam.core.errors import DataFormatError, UssSlamError
 from uss_slam.core.files import write_json_atomic
+from uss_slam.core.ranges import MAX_THREADS
 from uss_slam.pipelines.experiments import data, experiment, jobs, launch, plan
 from uss_slam.pipelines.runs import SlamJob
 from uss_slam.train.method_configs import method_names
@@ -468,7 +469,10 @@ def test_appearance_shift_trains_on_image_folders_and_plans_no_slam(tmp_path: Pa
     [
         ("segeval.stride=0", "segeval.stride: expected an integer >= 1, got 0"),
         ("segeval.stride=1.5", "segeval.stride: expected an integer >= 1, got 1.5"),
-        ("segeval.threads=0", "segeval.threads: expected an integer >= 1 or null, got 0"),
+        (
+            "segeval.threads=0",
+            f"segeval.threads: expected an integer >= 1 and <= {MAX_THREADS} or null, got 0",
+        ),
         ("segeval.source_val_stride=-1", "segeval.source_val_stride: expected an integer >= 1"),
         ("data.synthetic.eval_frames=1", "data.synthetic.eval_frames: expected an integer >= 2"),
         ("data.synthetic.train_frames=x", "data.synthetic.train_frames: expected an integer"),

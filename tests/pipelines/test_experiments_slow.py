@@ -59,7 +59,11 @@ def test_quick_end_to_end_then_reuse_then_resume(tmp_path: Path) -> None:
         kinds.count("slam"),
     ) == (12, 14, 14 * 3 + 8, 54)
     assert {r["status"] for r in rows} == {"ok"}
-    assert all(r["ate_rmse"] for r in rows if r["kind"] == "slam")
+    slam_rows = [r for r in rows if r["kind"] == "slam"]
+    # A quick-scale model learns next to nothing: one whose masks cover every frame leaves no
+    # keypoint to track, recorded as tracked_fraction 0 without an ATE; the rest have one.
+    assert all(r["ate_rmse"] or float(r["tracked_fraction"]) == 0.0 for r in slam_rows)
+    assert all(r["ate_rmse"] for r in slam_rows if r["variant"] in ("none", "oracle"))
     md = (out / "tables.md").read_text()
     for title in (
         "### T0: the UDA table",
@@ -224,7 +228,10 @@ def test_more_methods_and_the_crf_reuse_a_finished_run(tmp_path: Path) -> None:
     assert timing["semantic"]["crf_ms"]["n"] == 0
 
 
-def test_submitit_local_failed_job_marked_others_go_on(tmp_path: Path) -> None:
+def test_submitit_local_refuses_an_impossible_depth_before_any_job(tmp_path: Path) -> None:
+    """An 8-layer discriminator on 129-pixel crops is refused for the whole grid before any job
+    is submitted (it used to fail as a training job); without it every job runs through
+    submitit."""
     out = tmp_path / "sub"
     grid = [
         "launcher=submitit_local",
@@ -237,37 +244,17 @@ def test_submitit_local_failed_job_marked_others_go_on(tmp_path: Path) -> None:
         *NO_T0,
     ]
     first = run(out, *grid, cwd=tmp_path)
-    # n = 8 needs 256-pixel inputs: the training fails, its model's jobs are blocked, exit 1
-    assert first.returncode == 1, first.stdout[-3000:] + first.stderr[-3000:]
-    assert (out / ".submitit").is_dir()  # the jobs went through submitit
-    status = {r["id"]: (r["status"], r["reason"]) for r in runs_csv(out)}
-    assert status["train/source_only_s0"][0] == status["train/adaptsegnet_n4_s0"][0] == "ok"
-    failed, reason = status["train/adaptsegnet_n8_s0"]
-    assert failed == "failed"
-    assert reason.startswith(
-        "ValueError: a 8-layer discriminator needs inputs of at least 256×256 pixels, got 129×129"
-    )
-    assert status["slam/harness/static_xyz/semantic/adaptsegnet_n8_s0"] == (
-        "blocked",
-        "needs exports/adaptsegnet_n8_s0: training train/adaptsegnet_n8_s0 has no result",
-    )
-    assert status["slam/harness/static_xyz/semantic/adaptsegnet_n4_s0"][0] == "ok"
-    md = (out / "tables.md").read_text()
-    assert "| `train/adaptsegnet_n8_s0` | failed | ValueError: a 8-layer discriminator" in md
-    # T1b cell of the failed configuration († : quick's AdaptSegNet settings are the preset's,
-    # chosen on labelled target validation frames)
-    assert "| adaptsegnet_n8 † | failed |" in md
-    assert "uss-experiments: done" in first.stdout
+    assert first.returncode == 1
+    lines = first.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("uss-experiments: error: ")
+    assert "n_layers" in lines[0] and not (out / ".submitit").exists()
 
-    # The same command again retries the failed training only (its jobs stay blocked).
-    again = run(out, *grid, cwd=tmp_path)
-    assert again.returncode == 1
-    assert pending(out, "train") == ["train/adaptsegnet_n8_s0"] and pending(out, "slam") == []
-
-    # Without the impossible depth every job is complete: nothing runs, exit 0.
     fixed = run(out, *[g.replace("[4,8]", "[4]") for g in grid], cwd=tmp_path)
     assert fixed.returncode == 0, fixed.stderr[-3000:]
-    assert pending(out, "train") == [] and pending(out, "slam") == []
+    assert (out / ".submitit").is_dir()  # the jobs went through submitit
+    status = {r["id"]: r["status"] for r in runs_csv(out)}
+    assert status["train/source_only_s0"] == status["train/adaptsegnet_n4_s0"] == "ok"
+    assert status["slam/harness/static_xyz/semantic/adaptsegnet_n4_s0"] == "ok"
 
 
 def test_joblib_runs_jobs_in_parallel_processes(tmp_path: Path) -> None:

@@ -167,8 +167,8 @@ def test_cli_runs_and_reports_errors_in_one_line(synthetic_sequence, tmp_path: P
     bad = _cli([f"sequence.path={tmp_path / 'nope'}", f"out_dir={tmp_path / 'y'}"], tmp_path)
     assert bad.returncode == 1
     assert bad.stderr.strip().splitlines() == [
-        f"uss-slam: error: {tmp_path / 'nope'}: TUM sequence folder not found (expected a "
-        "folder with rgb.txt and depth.txt)"
+        f"uss-slam: error: sequence.path={tmp_path / 'nope'}: does not exist; expected a TUM "
+        "RGB-D sequence folder"
     ]
     camera = _cli([f"sequence.path={seq}", "sequence.camera=kinect", f"out_dir={tmp_path / 'z'}"],
                   tmp_path)  # fmt: skip

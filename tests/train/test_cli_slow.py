@@ -37,7 +37,11 @@ def test_multirun_sweeps_discriminator_depth(uda_data: dict[str, Path], tmp_path
         overrides = yaml.safe_load((sweep / job / ".hydra" / "overrides.yaml").read_text())
         assert f"model.method.discriminator.n_layers={n_layers}" in overrides
         state = torch.load(sweep / job / "checkpoints" / "last.ckpt", weights_only=True)
-        convs = [k for k in state["state_dict"] if k.startswith("d_main.") and k.endswith("weight")]
+        convs = [
+            k
+            for k in state["state_dict"]
+            if k.startswith("method.d_main.") and k.endswith("weight")
+        ]
         assert len(convs) == n_layers
         assert state["iteration"] == 2
     assert (sweep / "multirun.yaml").is_file()

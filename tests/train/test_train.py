@@ -268,5 +268,6 @@ def test_cli_bad_data_path_is_one_line_and_exit_1(tmp_path: Path) -> None:
     assert result.returncode == 1
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1, result.stderr
-    assert lines[0].startswith("uss-train: error: ") and "not a VOC tree" in lines[0]
+    assert lines[0].startswith("uss-train: error: data.source.root=")
+    assert "does not exist; expected a folder" in lines[0]
     assert str(tmp_path / "nowhere") in lines[0]

@@ -211,7 +211,9 @@ def test_slam_multirun_jobs_fail_independently(
     code, err = _cli(slam_cli.main, "uss-slam", args, monkeypatch, capsys)
     assert code == 1
     assert len(err) == 3, err
-    assert err[0].startswith("uss-slam: error: slam.orb.scale_factor must be > 1, got 0.9")
+    assert err[0].startswith(
+        "uss-slam: error: slam.orb.scale_factor: expected a number > 1.0, got 0.9"
+    )
     assert err[1:] == ["uss-slam: 1 of 2 jobs failed:", f"  #0 slam.orb.scale_factor=0.9: {err[0]}"]
     assert (out / "1" / "metrics.json").is_file()
     assert not (out / "0" / "metrics.json").exists()

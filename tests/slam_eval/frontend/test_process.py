@@ -143,7 +143,7 @@ def test_a_bad_frame_is_one_line_naming_its_file(synthetic_sequence, tmp_path: P
         for extracted in worker:
             seen.append(extracted.frame.index)
     assert seen == [0, 1, 2, 3, 4]
-    assert str(caught.value) == f"{broken}: not a readable image"
+    assert str(caught.value) == f"{broken}: not a readable image; expected a 16-bit depth PNG"
     _no_worker_left()
     # Through the pipeline: the same error, raised at that frame.
     with pytest.raises(DataFormatError, match="not a readable image"):
