@@ -432,7 +432,7 @@ def slam_defaults_key() -> str:
 
     cfg = OmegaConf.to_container(compose_slam(SlamJob(Path(".")), Path(".")), resolve=True)
     assert isinstance(cfg, dict)
-    for name in ("out_dir", "progress"):
+    for name in ("out_dir", "progress", "variant"):  # (jobs give their variant's keys)
         cfg.pop(name, None)
     for section, name in (*_PATHS, *_TIMING_ONLY):
         if isinstance(cfg.get(section), dict):

@@ -158,6 +158,9 @@ class SlamEvalConfig:
     slam: SlamConfig = field(default_factory=SlamConfig)
     system: Any = None
     eval: EvalConfig = field(default_factory=EvalConfig)
+    variant: Optional[str] = None  # noqa: UP045
+    """A row of ``configs/variants.yaml`` (its segmenter, filters and dense CRF), or null
+    (:func:`~.variants.choose_variant`)."""
     filters: Any = field(default_factory=list)
     """Filter names (a list, or one name)."""
     segment: str = ranged("every_frame", choices=SEGMENT_SCHEDULES)

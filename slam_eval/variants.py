@@ -119,3 +119,95 @@ def masks_orbslam3_input(variant: Variant, params: Mapping[str, Any] | None = No
 
     classes = filter_classes(params)
     return all(name in classes and classes[name].masks_input for name in variant.filters)
+
+
+# ------------------------------------------------------------------- uss-slam variant=<name>
+
+SEGMENTER_OPTIONS = {"none": "none", "labels": "labels", "model": "onnx"}
+"""The ``uss-slam`` segmenter option (``configs/segmenter/<option>.yaml``) of each kind."""
+
+
+def choose_variant(cfg: Any, overrides: Sequence[str] = ()) -> Any:
+    """``cfg`` (the composed ``uss-slam`` config) with the segmenter, filters and dense CRF of
+    its ``variant`` (``cfg`` as it is without one), set in place.
+
+    ``overrides``: the command line's; a key given there (``filters``, ``segmenter``,
+    ``segmenter.crf``) or set in ``cfg`` must agree with the variant, else one line naming it
+    and the variant. A ``model`` variant runs the exported model that ``segmenter=onnx
+    segmenter.path=FILE.onnx`` names (the only keys it leaves to the command line);
+    ``compare=`` runs several filter sets, a variant one: never both.
+    """
+    from omegaconf import open_dict
+
+    name = cfg.get("variant")
+    if name is None:
+        return cfg
+    table = read_table()
+    if str(name) not in table:
+        raise UssSlamError(
+            f"variant: unknown variant {str(name)!r}; choose from {', '.join(table)} "
+            f"(configs/{TABLE})"
+        )
+    v = table[str(name)]
+    check_filters({v.name: v}, [str(k) for k in cfg.slam.filter_params])
+    given = {o.lstrip("+~").split("=", 1)[0]: o.lstrip("+~") for o in overrides}
+    if cfg.get("compare") is not None:
+        raise UssSlamError(
+            f"compare: runs several filter sets, variant={v.name} one; give one of them"
+        )
+    with open_dict(cfg):
+        cfg.filters = _variant_filters(v, cfg.get("filters"), given.get("filters"))
+        cfg.segmenter = _variant_segmenter(v, cfg.segmenter, given.get("segmenter"))
+        _variant_crf(v, cfg.segmenter, given.get("segmenter.crf"))
+    return cfg
+
+
+def _variant_filters(v: Variant, current: Any, given: str | None) -> list[str]:
+    names = [current] if isinstance(current, str) else [str(n) for n in current or []]
+    if (given is not None or names) and names != list(v.filters):
+        shown = given or f"filters=[{','.join(names)}]"
+        raise UssSlamError(
+            f"{shown}: variant={v.name} runs filters=[{','.join(v.filters)}] "
+            f"(configs/{TABLE}); give one of them"
+        )
+    return list(v.filters)
+
+
+def _option_node(option: str) -> Any:
+    """The node of ``configs/segmenter/<option>.yaml``."""
+    text = files("uss_slam.configs").joinpath("segmenter", f"{option}.yaml").read_text("utf-8")
+    return OmegaConf.create(text)
+
+
+def _variant_segmenter(v: Variant, current: Any, given: str | None) -> Any:
+    """The segmenter node of ``v``: ``current`` when it is the variant's option, the option's
+    node when ``current`` is the default (``none``) and not chosen on the command line."""
+    option = SEGMENTER_OPTIONS[v.segmenter]
+    node = _option_node(option)
+    if current.get("_target_") == node["_target_"]:
+        return current
+    if v.segmenter == "model":
+        raise UssSlamError(
+            f"variant={v.name}: segments with an exported model: add segmenter=onnx "
+            "segmenter.path=FILE.onnx"
+        )
+    if given is not None or current.get("_target_") != _option_node("none")["_target_"]:
+        shown = given or f"segmenter._target_={current.get('_target_')}"
+        raise UssSlamError(
+            f"{shown}: variant={v.name} segments with segmenter={option} "
+            f"(configs/{TABLE}); give one of them"
+        )
+    return node
+
+
+def _variant_crf(v: Variant, segmenter: Any, given: str | None) -> None:
+    """``segmenter.crf`` of ``v`` (set in ``segmenter``, a model's node)."""
+    if v.segmenter != "model":
+        return
+    crf = bool(segmenter.get("crf", False))
+    if given is not None and crf != v.crf or not v.crf and crf:
+        raise UssSlamError(
+            f"{given or 'segmenter.crf=true'}: variant={v.name} runs "
+            f"{'with' if v.crf else 'without'} the dense CRF (configs/{TABLE}); give one of them"
+        )
+    segmenter.crf = v.crf

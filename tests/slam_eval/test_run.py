@@ -174,3 +174,23 @@ def test_cli_runs_and_reports_errors_in_one_line(synthetic_sequence, tmp_path: P
                   tmp_path)  # fmt: skip
     assert camera.returncode == 1 and "sequence.camera='kinect'" in camera.stderr
     assert len(camera.stderr.strip().splitlines()) == 1
+
+
+def test_cli_variant_runs_the_tables_row_and_refuses_a_disagreeing_key(
+    synthetic_sequence, tmp_path: Path
+) -> None:
+    seq = synthetic_sequence(preset="walking_xyz", frames=30)
+    out = tmp_path / "oracle"
+    done = _cli([f"sequence.path={seq}", "variant=oracle", "sequence.max_frames=8",
+                 f"out_dir={out}", "progress=false"], tmp_path)  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    settings = json.loads((out / "metrics.json").read_text())["settings"]
+    assert settings["variant"] == "oracle" and settings["filters"] == ["semantic"]
+    assert settings["segmenter"]["_target_"].endswith("LabelsSegmenter")
+    refused = _cli([f"sequence.path={seq}", "variant=oracle", "filters=[geometry]",
+                    f"out_dir={tmp_path / 'no'}"], tmp_path)  # fmt: skip
+    assert refused.returncode == 1 and not (tmp_path / "no" / "run.json").exists()
+    assert refused.stderr.strip().splitlines() == [
+        "uss-slam: error: filters=[geometry]: variant=oracle runs filters=[semantic] "
+        "(configs/variants.yaml); give one of them"
+    ]

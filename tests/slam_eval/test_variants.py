@@ -1,13 +1,19 @@
-"""The variants table (``configs/variants.yaml``): its entries, and one line for a bad one."""
+"""The variants table (``configs/variants.yaml``): its entries, one line for a bad one, and
+``uss-slam variant=<name>``."""
 
 from __future__ import annotations
 
 import pytest
+from omegaconf import DictConfig
+from shared_helpers import compose_slam_eval
 
 from uss_slam.core.errors import UssSlamError
+from uss_slam.slam_eval import variants as variants_module
+from uss_slam.slam_eval.config import check
 from uss_slam.slam_eval.variants import (
     Variant,
     check_filters,
+    choose_variant,
     masks_orbslam3_input,
     read_table,
     variants,
@@ -47,3 +53,69 @@ def test_a_bad_table_is_one_line(text: str, message: str) -> None:
         check_filters(read_table(text, "v.yaml"), ["semantic", "flow"], "v.yaml")
     assert str(err.value) == message or str(err.value).startswith(message)
     assert "\n" not in str(err.value)
+
+
+def _chosen(*overrides: str) -> DictConfig:
+    """``uss-slam``'s config composed with ``overrides``, its variant chosen (the overrides as
+    the command line's), checked."""
+    cfg = compose_slam_eval(["sequence.path=/unused", "out_dir=/unused", *overrides])
+    choose_variant(cfg, overrides)
+    check(cfg)
+    return cfg
+
+
+def test_uss_slam_variant_sets_the_segmenter_filters_and_crf_as_the_table_says() -> None:
+    oracle = _chosen("variant=oracle")
+    assert oracle.segmenter._target_.endswith("LabelsSegmenter")
+    assert list(oracle.filters) == ["semantic"]
+    geometry = _chosen("variant=geometry", "filters=[geometry]", "segmenter=none")  # agreeing
+    assert geometry.segmenter._target_.endswith("NoSegmenter")
+    assert list(geometry.filters) == ["geometry"]
+    crf = _chosen("variant=semantic_geometry_crf", "segmenter=onnx", "segmenter.path=m.onnx")
+    assert crf.segmenter.crf is True and crf.segmenter.path == "m.onnx"
+    assert list(crf.filters) == ["semantic", "geometry"]
+    plain = _chosen("segmenter=labels", "filters=[semantic]")  # no variant: as before
+    assert plain.variant is None and list(plain.filters) == ["semantic"]
+
+
+@pytest.mark.parametrize(
+    ("overrides", "line"),
+    [
+        (["variant=teleport"], "variant: unknown variant 'teleport'; choose from none, geometry, "
+         "semantic, semantic_crf, semantic_geometry, semantic_geometry_crf, "
+         "semantic_geometry_object, oracle (configs/variants.yaml)"),
+        (["variant=geometry", "filters=[flow]"], "filters=[flow]: variant=geometry runs "
+         "filters=[geometry] (configs/variants.yaml); give one of them"),
+        (["variant=geometry", "filters=[]"], "filters=[]: variant=geometry runs "
+         "filters=[geometry] (configs/variants.yaml); give one of them"),
+        (["variant=oracle", "segmenter=none"], "segmenter=none: variant=oracle segments with "
+         "segmenter=labels (configs/variants.yaml); give one of them"),
+        (["variant=semantic"], "variant=semantic: segments with an exported model: add "
+         "segmenter=onnx segmenter.path=FILE.onnx"),
+        (["variant=semantic", "segmenter=onnx", "segmenter.path=m.onnx", "segmenter.crf=true"],
+         "segmenter.crf=true: variant=semantic runs without the dense CRF "
+         "(configs/variants.yaml); give one of them"),
+        (["variant=semantic_crf", "segmenter=onnx", "segmenter.path=m.onnx",
+          "segmenter.crf=false"], "segmenter.crf=false: variant=semantic_crf runs with the "
+         "dense CRF (configs/variants.yaml); give one of them"),
+        (["variant=geometry", "compare=[[flow]]"],
+         "compare: runs several filter sets, variant=geometry one; give one of them"),
+    ],
+)  # fmt: skip
+def test_a_variant_that_cannot_be_run_as_given_is_one_line(overrides: list, line: str) -> None:
+    with pytest.raises(UssSlamError) as err:
+        _chosen(*overrides)
+    assert str(err.value) == line
+
+
+def test_a_chosen_variant_naming_an_unknown_filter_is_one_line(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    table = {"teleport": Variant("teleport", "teleport", "none", ("teleport",))}
+    monkeypatch.setattr(variants_module, "read_table", lambda: table)
+    with pytest.raises(UssSlamError) as err:
+        _chosen("variant=teleport")
+    assert str(err.value) == (
+        "configs/variants.yaml: variant teleport: unknown filter 'teleport'; choose from "
+        "semantic, flow, geometry, object (slam.filter_params)"
+    )
