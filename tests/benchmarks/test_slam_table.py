@@ -89,12 +89,19 @@ def _check_cells(table: dict, systems: list[str]) -> None:
             assert cell["spread"] == pytest.approx(values[-1] / values[0])
 
 
+def _synthetic_argv(
+    out: Path, frames: str, size: str, timings: str, strides: str, presets: str, systems: str
+) -> list[str]:
+    """The table's arguments for synthetic cells only, two repeats each, into ``out``."""
+    return ["--no-real", "--synthetic-frames", frames, "--synthetic-size", size,
+            "--synthetic-timings", timings, "--repeats", "2", "--strides", strides,
+            "--synthetic-presets", presets, "--systems", systems, "--out", str(out)]  # fmt: skip
+
+
 def test_table_of_synthetic_cells_is_the_run_folders_medians(tmp_path: Path, capsys) -> None:
     out = tmp_path / "out"
-    argv = ["--no-real", "--synthetic-frames", "20", "--synthetic-size", "160x120"]
-    argv += ["--synthetic-timings", "global", "--repeats", "2", "--strides", "1,2"]
-    argv += ["--synthetic-presets", "handheld_rpy"]
-    argv += ["--systems", "harness,harness_noback", "--out", str(out)]
+    argv = _synthetic_argv(out, "20", "160x120", "global", "1,2", "handheld_rpy",
+                           "harness,harness_noback")  # fmt: skip
     assert main(argv) == 0
     printed = capsys.readouterr().out
     assert printed == (out / "table.md").read_text()
@@ -140,10 +147,8 @@ def test_table_of_synthetic_cells_is_the_run_folders_medians(tmp_path: Path, cap
 def test_orbslam3_cells_use_a_vocabulary_of_another_seed(tmp_path: Path, capsys) -> None:
     pytest.importorskip("pyorbslam3")
     out = tmp_path / "out"
-    argv = ["--no-real", "--synthetic-frames", "30", "--synthetic-size", "320x240"]
-    argv += ["--synthetic-timings", "rolling", "--repeats", "2", "--strides", "1"]
-    argv += ["--synthetic-presets", "handheld_fast"]
-    argv += ["--systems", "harness,orbslam3", "--out", str(out)]
+    argv = _synthetic_argv(out, "30", "320x240", "rolling", "1", "handheld_fast",
+                           "harness,orbslam3")  # fmt: skip
     assert main(argv) == 0
     table = json.loads((out / "table.json").read_text())
     _check_cells(table, ["harness", "orbslam3"])
