@@ -379,7 +379,7 @@ def stage_report(
     miou = json.loads(miou_file.read_text())["scores"] if miou_file.is_file() else {}
     rows = demo_report.summary_rows(slam_dir, VARIANTS, miou)
     table = demo_report.markdown_table(rows)
-    findings = demo_report.findings(rows)
+    findings = demo_report.findings(rows, demo_report.training_metrics(train_dirs.get("adapted")))
     demo_report.plot_ate_bars(
         out / "ate_rmse.png", rows, f"{sequence.name}: absolute trajectory error per variant"
     )

@@ -89,12 +89,16 @@ def _change(value: float | None, reference: float | None) -> str:
     return f"{100 * (value - reference) / reference:+.0f}%"
 
 
-def findings(rows: Sequence[Mapping[str, Any]]) -> list[str]:
+def findings(
+    rows: Sequence[Mapping[str, Any]], adapted_training: Mapping[str, Any] | None = None
+) -> list[str]:
     """What the table's numbers say, computed from them (no claim beyond its one sequence and
     training seed): each mask row's median ATE against no filter, adapted against source-only
     (and whether their repeats' ranges overlap), and whether geometry helps the adapted masks,
     with the keypoints it dropped when it does not. Rows are those of :func:`summary_rows`
-    (``none``, ``source_only``, ``adapted`` and ``adapted_geometry`` needed)."""
+    (``none``, ``source_only``, ``adapted`` and ``adapted_geometry`` needed);
+    ``adapted_training``: the adapted training's final metrics, for
+    :func:`discriminator_line`."""
     by = {r["variant"]: r for r in rows}
     base, src, ada, geo = (by[n] for n in ("none", "source_only", "adapted", "adapted_geometry"))
     ref = base["ate_rmse"]
@@ -129,7 +133,29 @@ def findings(rows: Sequence[Mapping[str, Any]]) -> list[str]:
             + _same_masks(src, ada)
             + "."
         )
-    return [first, second, geometry_line(geo, ada, by.get("labels"))]
+    lines = [first, second, geometry_line(geo, ada, by.get("labels"))]
+    d_line = discriminator_line(adapted_training)
+    return lines if d_line is None else [*lines[:2], d_line, lines[2]]
+
+
+def discriminator_line(metrics: Mapping[str, Any] | None) -> str | None:
+    """One line on the adapted training's discriminators from its final metrics (the
+    ``train/d_acc_*`` figures :class:`~uss_slam.train.methods.adversarial.DiscriminatorWatch`
+    adds): whether they ever told the domains apart. None when the training logged none (a
+    method without discriminators, or a run from before they were recorded)."""
+    if not metrics or "train/d_at_chance" not in metrics:
+        return None
+    peaks = (
+        f"largest 25-iteration mean of the domain accuracy: main {metrics['train/d_acc_main_peak']:.2f}, "
+        f"aux {metrics['train/d_acc_aux_peak']:.2f}; 0.5 is chance"
+    )
+    if metrics["train/d_at_chance"]:
+        return (
+            f"The adapted training's discriminators stayed at chance ({peaks}): the adversarial "
+            "term did not act, so the adapted row is source-only in another BatchNorm mode, not "
+            "adaptation."
+        )
+    return f"The adapted training's discriminators told the domains apart ({peaks})."
 
 
 def _same_masks(src: Mapping[str, Any], ada: Mapping[str, Any]) -> str:
@@ -259,12 +285,19 @@ CAVEAT = (
 """What the demo's table can and cannot show, printed under it and written in report.md."""
 
 
-def final_val_miou(run_dir: Path) -> float | None:
-    """``val/mIoU`` at the end of a training (its ``metrics.json``; None when absent)."""
+def training_metrics(run_dir: Path | None) -> dict[str, Any] | None:
+    """A training's final metrics (its ``metrics.json``; None when absent or unreadable)."""
+    if run_dir is None:
+        return None
     try:
-        value = json.loads((run_dir / "metrics.json").read_text()).get("val/mIoU")
+        return dict(json.loads((run_dir / "metrics.json").read_text()))
     except (OSError, ValueError):
         return None
+
+
+def final_val_miou(run_dir: Path) -> float | None:
+    """``val/mIoU`` at the end of a training (its ``metrics.json``; None when absent)."""
+    value = (training_metrics(run_dir) or {}).get("val/mIoU")
     return None if value is None else float(value)
 
 

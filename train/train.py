@@ -504,6 +504,9 @@ def train(cfg: DictConfig) -> dict[str, float]:
     fit(trainer, model, datamodule, ckpt_path)
 
     metrics = {k: float(v) for k, v in trainer.callback_metrics.items()}
+    method = getattr(model, "method", None)
+    if method is not None:
+        metrics.update(method.summary())
     best = getattr(trainer.checkpoint_callback, "best_model_path", "")
     if trainer.is_global_zero:
         log.info("iterations: %s, best checkpoint: %s", getattr(model, "iteration", "?"), best)

@@ -106,3 +106,31 @@ def test_a_run_without_ate() -> None:
     first, second, _ = demo_report.findings(rows)
     assert "source-only no ATE, AdaBN" in first and first.endswith("that do not: source-only.")
     assert second == "Adapted and source-only cannot be compared: a run has no ATE."
+
+
+def _trained(at_chance: bool, main: float, aux: float) -> dict[str, float]:
+    return {"train/d_at_chance": float(at_chance), "train/d_acc_main_peak": main,
+            "train/d_acc_aux_peak": aux, "val/mIoU": 0.3}  # fmt: skip
+
+
+def test_a_discriminator_at_chance_is_said_under_the_adapted_line() -> None:
+    lines = demo_report.findings(_rows(0.05, 0.2, 1000), _trained(True, 0.55, 0.52))
+    assert len(lines) == 4 and lines[3].startswith("Geometry ")
+    assert lines[2] == (
+        "The adapted training's discriminators stayed at chance (largest 25-iteration mean of "
+        "the domain accuracy: main 0.55, aux 0.52; 0.5 is chance): the adversarial term did not "
+        "act, so the adapted row is source-only in another BatchNorm mode, not adaptation."
+    )
+
+
+def test_discriminators_that_left_chance_are_said_with_their_peaks() -> None:
+    line = demo_report.findings(_rows(0.05, 0.2, 1000), _trained(False, 0.87, 0.61))[2]
+    assert line == (
+        "The adapted training's discriminators told the domains apart (largest 25-iteration "
+        "mean of the domain accuracy: main 0.87, aux 0.61; 0.5 is chance)."
+    )
+
+
+def test_no_discriminator_figures_no_line() -> None:
+    assert len(demo_report.findings(_rows(0.05, 0.2, 1000), {"val/mIoU": 0.3})) == 3
+    assert len(demo_report.findings(_rows(0.05, 0.2, 1000), None)) == 3

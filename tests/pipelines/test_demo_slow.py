@@ -54,10 +54,13 @@ def test_demo_ci_end_to_end_then_reused(
     assert "\n".join(table[:1]) in report and all(row in report for row in table[1:])
     summary = json.loads((out / "summary.json").read_text())
     # What the numbers say: printed under the table and in the report, computed from the rows.
-    assert summary["findings"] == demo_report.findings(summary["rows"])
-    assert len(summary["findings"]) == 3
+    adapted = demo_report.training_metrics(out / "train" / "adapted")
+    assert adapted is not None and "train/d_at_chance" in adapted
+    assert summary["findings"] == demo_report.findings(summary["rows"], adapted)
+    assert len(summary["findings"]) == 4
     assert all(line in printed and line in report for line in summary["findings"])
-    assert summary["findings"][2].startswith(
+    assert summary["findings"][2].startswith("The adapted training's discriminators ")
+    assert summary["findings"][3].startswith(
         ("Geometry helps: ", "Geometry lowers the median ATE: ", "Geometry does not help here: ")
     )
     for plot in ("ate_rmse.png", "trajectories.png"):

@@ -141,6 +141,11 @@ def test_ci_run_logs_validates_and_checkpoints(uda_data: dict[str, Path], tmp_pa
     metrics = train(cfg)
     assert metrics["iteration"] == 4
     assert 0.0 <= metrics["val/mIoU"] <= 1.0
+    # The discriminators' watch: 4 iterations make one (short) block per head.
+    assert metrics["train/d_at_chance"] in (0.0, 1.0)
+    for head in ("aux", "main"):
+        assert 0.0 <= metrics[f"train/d_acc_{head}_peak"] <= 1.0
+        assert metrics[f"train/d_acc_{head}_last"] == metrics[f"train/d_acc_{head}_peak"]
     events = _events(tmp_path / "tensorboard")
     scalars = set(events.Tags()["scalars"])
     expected = ADVERSARIAL_SCALARS | {

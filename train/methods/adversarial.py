@@ -86,6 +86,7 @@ class AdversarialMethod(Method):
         self.d_aux = discriminator()
         self.d_main = discriminator()
         self.d_optimizer_factory = d_optimizer
+        self.watch = DiscriminatorWatch()
 
     # ------------------------------------------------------------------ what a method owns
 
@@ -148,6 +149,7 @@ class AdversarialMethod(Method):
         )
         step = seg.values
         step.update(self.discriminator_step(module, source_maps, term.keep, seg.batched))
+        self.watch.add(step)
         return step
 
     def discriminator_step(
@@ -207,6 +209,9 @@ class AdversarialMethod(Method):
         scalars.update(discriminator_scalars(step))
         return scalars
 
+    def summary(self) -> dict[str, float]:
+        return self.watch.summary()
+
     def extra_repr(self) -> str:
         return (
             f"name={self.name!r}, lambda_adv_aux={self.lambda_adv_aux}, "
@@ -227,3 +232,56 @@ def discriminator_scalars(step: StepValues) -> dict[str, Tensor]:
             + domain_accuracy(step[f"d_trg_{head}"], TARGET_LABEL)
         )
     return scalars
+
+
+CHANCE_BAND = (0.4, 0.6)
+"""Domain accuracies in this band are chance: a discriminator there does not tell the domains
+apart, and the adversarial term it drives does not act."""
+WATCH_BLOCK = 25
+"""Iterations per block mean of :class:`DiscriminatorWatch`."""
+
+
+class DiscriminatorWatch:
+    """Did the discriminators ever tell the domains apart? Per head, the mean domain accuracy
+    (:func:`discriminator_scalars`' ``d_acc``, 0.5 = chance) over each block of
+    :data:`WATCH_BLOCK` iterations since the run started (or resumed). Every iteration adds on
+    the device; one transfer per block."""
+
+    def __init__(self) -> None:
+        self.blocks: dict[str, list[float]] = {"aux": [], "main": []}
+        self._sum: Tensor | None = None
+        self._count = 0
+
+    def add(self, step: StepValues) -> None:
+        """One iteration's values (``d_src_<head>`` / ``d_trg_<head>`` discriminator logits)."""
+        acc = discriminator_scalars(step)
+        pair = torch.stack([acc["train/d_acc_aux"], acc["train/d_acc_main"]]).detach()
+        self._sum = pair if self._sum is None else self._sum + pair
+        self._count += 1
+        if self._count == WATCH_BLOCK:
+            self._close()
+
+    def _close(self) -> None:
+        if self._sum is None or self._count == 0:
+            return
+        aux, main = (self._sum / self._count).tolist()
+        self.blocks["aux"].append(aux)
+        self.blocks["main"].append(main)
+        self._sum, self._count = None, 0
+
+    def summary(self) -> dict[str, float]:
+        """``train/d_acc_<head>_peak`` (largest block mean), ``train/d_acc_<head>_last`` (the
+        last block's), ``train/d_at_chance`` (1.0 when every block mean of both heads lies in
+        :data:`CHANCE_BAND`, else 0.0); empty before any iteration. A last, shorter block
+        counts."""
+        self._close()
+        if not self.blocks["main"]:
+            return {}
+        lo, hi = CHANCE_BAND
+        out = {}
+        for head, means in self.blocks.items():
+            out[f"train/d_acc_{head}_peak"] = max(means)
+            out[f"train/d_acc_{head}_last"] = means[-1]
+        every = [m for means in self.blocks.values() for m in means]
+        out["train/d_at_chance"] = float(all(lo <= m <= hi for m in every))
+        return out

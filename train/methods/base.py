@@ -420,6 +420,11 @@ class Method(nn.Module, ABC):
         """The domain discriminators the method trains, or ``None``."""
         return None
 
+    def summary(self) -> dict[str, float]:
+        """Figures of the method's own over the whole training (or since a resume), added to
+        the metrics ``uss-train`` returns and logs at the end (none by default)."""
+        return {}
+
     def train_scalars(self, step: StepValues) -> dict[str, Tensor]:
         """The logged ``train/*`` scalars of one iteration (only computed on logging steps);
         by default every value of :meth:`training_step` as ``train/<name>``."""
