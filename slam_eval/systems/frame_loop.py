@@ -30,7 +30,7 @@ import numpy as np
 from ..filters.base import FilterContext
 from ..filters.chain import FilterChain, FrameFilters
 from ..frontend.orb import Features
-from ..map.slam_map import KeyFrame
+from ..map.slam_map import KeyFrame, SlamMap
 from ..mapping.local_mapping import LocalMapping
 from ..mapping.loop_closing import LoopCloser
 from ..products.builder import MapProducts
@@ -84,6 +84,8 @@ class FrameLoop:
 
     timer: Timer
     tracker: Tracker
+    map: SlamMap
+    """The run's map, the harness's, shared by the tracker, the back end and the filters."""
     chain: FilterChain
     products: MapProducts
     mapper: LocalMapping | None
@@ -133,7 +135,7 @@ class FrameLoop:
         if tracker.readout > 0:
             with timer("tracking"):
                 features = tracker.unroll(raw)
-        ctx = FilterContext(frame, features, labels, tracker.extractor, tracker.map, self.previous)
+        ctx = FilterContext(frame, features, labels, tracker.extractor, self.map, self.previous)
         filters = self.chain.frame(ctx)
         filters.pre()
         with timer("tracking"):
@@ -208,7 +210,7 @@ class FrameLoop:
             return
         if self.mapper is not None:
             with self.timer("local_ba"):
-                self.mapper.process(tracker.map, kf.id)
+                self.mapper.process(self.map, kf.id)
         if self.closer is not None:
             with self.timer("loop_closing"):
                 self.closer.process(kf)

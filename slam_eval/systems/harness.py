@@ -215,7 +215,7 @@ class SlamPipeline:
                 bar.update(1)
                 bar.set_postfix(
                     tracked=f"{loop.counts['tracked']}/{len(loop.log)}",
-                    kf=len(loop.tracker.map.keyframes),
+                    kf=len(loop.map.keyframes),
                     refresh=False,
                 )
         finally:
@@ -241,7 +241,7 @@ class SlamPipeline:
         products = MapProducts(self.map_config, extractor, placed_at_end=backend)
         segment_now = self._segment_timed if self.segment == "keyframes" else None
         chain = FilterChain(self.filters, timer)
-        return FrameLoop(timer, tracker, chain, products, mapper, closer, segment_now)
+        return FrameLoop(timer, tracker, slam_map, chain, products, mapper, closer, segment_now)
 
     def _frames(self) -> tuple[frontend_process.FrontendProcess | None, Iterator[Prepared]]:
         """The prepared frames in order (threads, or a worker process with ``prefetch_mode=
@@ -274,9 +274,9 @@ class SlamPipeline:
         cpu = timer.mean_ms(count, cpu=True)
         cpu.pop("load", None)
         with timer("map_build"):
-            cloud = loop.products.build_cloud(tracker.map.pose_wc)
+            cloud = loop.products.build_cloud(loop.map.pose_wc)
         with timer("octomap"):  # every keyframe at its final pose
-            octomap = loop.products.build_octomap(tracker.map.pose_wc)
+            octomap = loop.products.build_octomap(loop.map.pose_wc)
         noise = dict(zip(("depth_noise", "depth_noise_from"), self.depth_noise, strict=True))
         thread = "prefetch" if self.parallel and self.segment != "keyframes" else "main"
         return RunResult(
@@ -287,9 +287,9 @@ class SlamPipeline:
             trajectory=self._trajectory(loop),
             frames=count,
             tracked=loop.counts["tracked"],
-            keyframes=len(tracker.map.keyframes),
-            map_points=tracker.map.n_good,
-            culled_points=tracker.map.culled,
+            keyframes=len(loop.map.keyframes),
+            map_points=loop.map.n_good,
+            culled_points=loop.map.culled,
             relocalisations=tracker.relocalisations,
             lost_events=tracker.lost_events,
             unmatched_rgb=self.sequence.unmatched_rgb,
@@ -326,7 +326,7 @@ class SlamPipeline:
         final pose (ORB-SLAM2's ``SaveTrajectoryTUM``)."""
         poses = loop.poses
         if loop.backend:
-            pose_wc = loop.tracker.map.pose_wc
+            pose_wc = loop.map.pose_wc
             poses = [pose_wc(k) @ invert(rel) for k, rel in loop.anchors]
         if not poses:
             return Trajectory(np.zeros(0), np.zeros((0, 3)), np.zeros((0, 4)))

@@ -42,6 +42,7 @@ def test_the_harness_hands_one_map_to_tracking_the_back_end_and_the_filters(
     stepped = pipeline()
     loop = stepped._frame_loop(Timer())
     tracker, closer = loop.tracker, loop.closer
+    assert loop.map is tracker.map
     assert closer is not None and closer.map is tracker.map
     assert closer.projection is tracker.projection and closer.sampler is tracker.sampler
     assert tracker.projection.map is tracker.map
