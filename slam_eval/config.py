@@ -165,7 +165,8 @@ class SlamEvalConfig:
     """Filter names (a list, or one name)."""
     segment: str = ranged("every_frame", choices=SEGMENT_SCHEDULES)
     """every_frame: segment every frame, concurrently with ORB extraction; keyframes: segment
-    keyframes only."""
+    keyframes only; thread: keyframes in a semantic thread off the tracking path, the latest
+    mask carried to the frames between (:mod:`.systems.semantic_thread`)."""
     compare: Any = None
     """null, or a non-empty list of filter lists (comparison mode)."""
     out_dir: str = MISSING
@@ -277,6 +278,17 @@ def _check_segmenter(section: Any) -> None:
             raise UssSlamError(f"segmenter.{name}: required by {cls.__name__}")
 
 
+def _check_latency(section: DictConfig, segment: str) -> None:
+    """A simulated segmenter latency (``segmenter.latency_s`` > 0 without ``segmenter.wait``)
+    needs ``segment=thread``, the only schedule that simulates it."""
+    latency = section.get("latency_s", 0) or 0
+    if float(latency) > 0 and not section.get("wait", False) and segment != "thread":
+        raise UssSlamError(
+            f"segmenter.latency_s={float(latency):g} is simulated by segment=thread only; with "
+            f"segment={segment} set segmenter.wait=true (every call then really waits)"
+        )
+
+
 def check(cfg: DictConfig) -> RunPlan:
     """Validate everything the run will use, before any frame is read or file written: the
     config against :class:`SlamEvalConfig` (types, ranges, unknown keys), the filters' and the
@@ -317,6 +329,7 @@ def check(cfg: DictConfig) -> RunPlan:
     build_filters(known, params)  # the parameters of unused filters are checked too
     check_variant_filters(read_variants(), known)  # configs/variants.yaml: known filters only
     _check_segmenter(cfg.segmenter)
+    _check_latency(cfg.segmenter, str(cfg.segment))
     return RunPlan(orb, tracker, semantic_map, evaluation, params, runs, backend, repeats)
 
 

@@ -15,9 +15,11 @@ the ATE's part that persists over half a second and the per-frame rest), ``frame
 per filter), ``timing_ms`` (mean wall ms per frame of each module and ``total``), ``cpu_ms``
 (mean CPU ms per frame of each module), ``fps`` and ``pipeline_to_orb_ratio`` (total wall time /
 ORB-extraction wall time of the same run; below 1 is possible, as extraction runs in parallel),
-and ``segmentation``: ``schedule`` (``every_frame`` | ``keyframes``), ``thread`` (``prefetch``:
-concurrently with ORB extraction; ``main``), ``frames_segmented``, ``wall_ms`` / ``cpu_ms`` per
-segmented frame, next to ``orb_wall_ms`` / ``orb_cpu_ms`` per frame for comparison;
+and ``segmentation``: ``schedule`` (``every_frame`` | ``keyframes`` | ``thread``), ``thread``
+(``prefetch``: concurrently with ORB extraction; ``main``; ``semantic``), ``frames_segmented``,
+``wall_ms`` / ``cpu_ms`` per segmented frame, ``semantic_thread`` (null, or with
+``segment=thread`` its ``clock``, ``requested``, ``skipped``, ``delivered``, ``mean_delay_s``,
+``mean_segment_s``, ``points_marked``), next to ``orb_wall_ms`` / ``orb_cpu_ms`` per frame for comparison;
 ``rolling_shutter``: ``readout`` the seconds the tracker corrected for (0 = none),
 ``readout_from`` and ``frames_corrected``; the back end: ``local_ba`` (null when off, else ``runs``, mean ``wall_ms`` per run, ``keyframes_culled``,
 ``observations_erased``, ``mean_free_keyframes``, ``mean_points``, ``depth_noise`` the k of
@@ -83,6 +85,7 @@ def metrics_dict(result: RunResult, evaluation: Evaluation, config: EvalConfig) 
             "frames_segmented": result.segmented_frames,
             "wall_ms": result.segmentation_ms.get("wall"),
             "cpu_ms": result.segmentation_ms.get("cpu"),
+            "semantic_thread": result.semantic_thread,
             "orb_wall_ms": orb,
             "orb_cpu_ms": result.cpu_ms.get("orb", 0.0),
         },
@@ -303,11 +306,10 @@ def _sections_md(result: RunResult, data: dict[str, Any]) -> list[str]:
         lines.append(f"| {name} | {ms:.2f} | {'—' if cpu is None else f'{cpu:.2f}'} |")
     ratio = data["pipeline_to_orb_ratio"]
     seg = data["segmentation"]
-    where = (
-        "in the prefetch threads, concurrently with ORB extraction"
-        if seg["thread"] == "prefetch"
-        else "in the main thread"
-    )
+    where = {
+        "prefetch": "in the prefetch threads, concurrently with ORB extraction",
+        "semantic": "in a semantic thread off the tracking path, masks carried between",
+    }.get(seg["thread"], "in the main thread")
     schedule = "every frame" if seg["schedule"] == "every_frame" else "keyframes only"
     lines += [
         "",

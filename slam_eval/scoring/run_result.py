@@ -59,7 +59,12 @@ class RunResult:
     """``{"wall": ms, "cpu": ms}`` mean per segmented frame (empty when nothing was segmented)."""
     segmentation_thread: str = "prefetch"
     """Where the segmenter ran: ``"prefetch"`` (worker threads, concurrently with ORB
-    extraction) or ``"main"`` (keyframes schedule, or ``parallel`` off)."""
+    extraction), ``"main"`` (keyframes schedule, or ``parallel`` off) or ``"semantic"`` (the
+    semantic thread of ``segment=thread``)."""
+    semantic_thread: dict[str, float | int | str] | None = None
+    """With ``segment=thread``: its ``clock`` (camera | wall), keyframes ``requested`` /
+    ``skipped``, masks ``delivered``, ``mean_delay_s`` (request to delivery, camera time),
+    ``mean_segment_s`` (wall clock: time in the segmenter) and map ``points_marked`` bad."""
     local_ba: dict[str, float | int | str] | None = None
     """Local mapping totals (:meth:`~..mapping.local_mapping.LocalMappingStats.as_dict`) with the
     ``depth_noise`` k its stereo factors model and ``depth_noise_from`` (where it came from);

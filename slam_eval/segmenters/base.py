@@ -20,13 +20,15 @@ segmenter's dense CRF: ``segmentation.crf``).
 from __future__ import annotations
 
 import threading
+import time
 from abc import ABC, abstractmethod
-from typing import Protocol, runtime_checkable
+from typing import Annotated, Protocol, runtime_checkable
 
 import numpy as np
 
 from uss_slam.core.classes import CLASS_NAMES
 from uss_slam.core.errors import UssSlamError
+from uss_slam.core.ranges import Range
 
 from ..sequence import Frame
 
@@ -75,10 +77,28 @@ class NoSegmenter:
 
 
 class LabelsSegmenter:
-    """Oracle: the sequence's own ``labels/`` PNG (exact class ids of the synthetic world)."""
+    """Oracle: the sequence's own ``labels/`` PNG (exact class ids of the synthetic world).
+
+    ``latency_s`` (s, >= 0): behave as a network that takes that long per frame. With ``wait``
+    false (the default) the latency is simulated: :attr:`simulated_latency_s` tells
+    ``segment=thread`` to deliver each mask ``latency_s`` of camera time after it was asked for
+    (deterministic, :mod:`..systems.semantic_thread`); the other schedules refuse a simulated
+    latency. With ``wait`` true every call really sleeps ``latency_s`` (any schedule; it costs no
+    CPU, unlike a network)."""
 
     name = "labels"
     needs_labels = True
+
+    def __init__(self, latency_s: Annotated[float, Range(min=0)] = 0.0, wait: bool = False) -> None:
+        if not latency_s >= 0:  # the schema checks the config; this, direct callers
+            raise UssSlamError(f"segmenter.latency_s: expected a number >= 0, got {latency_s!r}")
+        self.latency_s = float(latency_s)
+        self.wait = bool(wait)
+
+    @property
+    def simulated_latency_s(self) -> float | None:
+        """The latency the schedule simulates (s), or None when calls really wait."""
+        return None if self.wait else self.latency_s
 
     def segment(self, frame: Frame) -> np.ndarray:
         if frame.labels is None:
@@ -86,6 +106,8 @@ class LabelsSegmenter:
                 "segmenter=labels but the frame has no labels: open the sequence with "
                 "load_labels=True"
             )
+        if self.wait and self.latency_s > 0:
+            time.sleep(self.latency_s)
         return frame.labels
 
 

@@ -13,8 +13,12 @@ ORB-extracted by the prefetch:
    bundle adjustment and loop closing after a new keyframe;
 4. **record** (:meth:`FrameLoop.record`): keypoint counts, the tracked pose and the frame's log.
 
+With ``segment=thread`` (:mod:`.semantic_thread`) each frame first takes the masks the semantic
+thread finished (:meth:`FrameLoop.receive`), the latest one is carried to the tracked frame and
+filters it at the ``late`` stage, and a new keyframe is handed to the thread after step 2.
+
 Timing names (``tracking``, ``mapping``, ``local_ba``, ``loop_closing``, ``filter.<name>``,
-``segmentation``) are those of the harness's ``timing_ms``.
+``segmentation``, ``carry_mask``) are those of the harness's ``timing_ms``.
 """
 
 from __future__ import annotations
@@ -37,6 +41,11 @@ from ..products.builder import MapProducts
 from ..scoring.run_result import FrameLog
 from ..sequence import Frame
 from ..tracking.tracker import Tracker, TrackResult
+from .semantic_thread import (
+    CarriedMask,
+    SemanticThread,
+    mark_dynamic_points,
+)
 
 
 class Timer:
@@ -91,6 +100,10 @@ class FrameLoop:
     mapper: LocalMapping | None
     closer: LoopCloser | None
     segment_now: Segment | None
+    semantic: SemanticThread | None = None
+    """The semantic thread of ``segment=thread`` (:mod:`.semantic_thread`), else None."""
+    carried: CarriedMask | None = None
+    """With the semantic thread: the latest mask delivered, carried to each later frame."""
     anchors: list[tuple[int, np.ndarray]] = field(default_factory=list)
     """With the back end: each tracked frame's ``(reference keyframe id, T_c,kf)``."""
     stamps: list[float] = field(default_factory=list)
@@ -103,7 +116,8 @@ class FrameLoop:
     counts: Counter[str] = field(default_factory=Counter)
     """Over the run: ``extracted`` keypoints (after the first rolling-shutter pass), ``kept``
     (of those, flagged by no filter); frames ``segmented`` (with labels when mapped),
-    ``corrected`` (by the second rolling-shutter pass), ``tracked`` (with a pose)."""
+    ``corrected`` (by the second rolling-shutter pass), ``tracked`` (with a pose); with the
+    semantic thread, ``masks`` delivered and map ``points_marked`` bad by them."""
 
     @property
     def backend(self) -> bool:
@@ -118,9 +132,13 @@ class FrameLoop:
         frame, labels = item.frame, item.labels
         if self.segment_now is not None and not self.tracker.initialized:
             labels = self.segment_now(frame, timer)  # a first-keyframe candidate
+        if self.semantic is not None:
+            self.receive(frame)
         filters, result = self.track(frame, labels, item.features)
         keyframe = self.filter_tracked(frame, filters, result)
         kf = self.map_keyframe(frame, filters, result, keyframe)
+        if self.semantic is not None and kf is not None:
+            self.semantic.request(frame, kf.id)  # returns at once
         self.back_end(result, kf)
         self.record(frame, filters, result, kf)
 
@@ -161,7 +179,11 @@ class FrameLoop:
         tracker, timer, ctx = self.tracker, self.timer, filters.ctx
         keyframe: bool | None = None
         late = False
-        if self.segment_now is not None and ctx.labels is None and result.pose_wc is not None:
+        if self.carried is not None and ctx.labels is None and result.pose_wc is not None:
+            with timer("carry_mask"):
+                ctx.labels = self.carried.labels_for(self.map, result.pose_wc)
+            late = True
+        elif self.segment_now is not None and ctx.labels is None and result.pose_wc is not None:
             with timer("mapping"):
                 keyframe = tracker.wants_keyframe(result, ctx.features, filters.dynamic)
             if keyframe:
@@ -177,6 +199,30 @@ class FrameLoop:
                 result.pose_wc = pose_wc
             result.inliers = int((result.matched >= 0).sum())
         return keyframe
+
+    def receive(self, frame: Frame) -> None:
+        """The semantic thread's masks finished by ``frame``'s stamp: each marks bad the map
+        points its keyframe sees inside the dynamic region of the filters that mask their input
+        (:func:`~.semantic_thread.mark_dynamic_points`) and becomes the carried mask."""
+        assert self.semantic is not None
+        with self.timer("carry_mask"):
+            for got in self.semantic.poll(frame.stamp):
+                if got.labels is None:
+                    continue
+                self.counts["masks"] += 1
+                slam_map = self.map
+                regions = [
+                    f.input_region(got.frame, got.labels)
+                    for f in self.chain.filters
+                    if f.needs_labels and f.masks_input
+                ]
+                regions = [r for r in regions if r is not None]
+                if regions:
+                    region = np.logical_or.reduce(regions)
+                    self.counts["points_marked"] += mark_dynamic_points(slam_map, got.kf_id, region)
+                self.carried = CarriedMask.of(
+                    got.kf_id, got.labels, got.frame.depth, self.tracker.k
+                )
 
     def map_keyframe(
         self, frame: Frame, filters: FrameFilters, result: TrackResult, keyframe: bool | None

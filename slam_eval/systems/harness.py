@@ -25,6 +25,11 @@ Segmentation schedule (``segment``, config key ``segment=every_frame|keyframes``
   frames, until the first keyframe exists, are segmented too (each is a first-keyframe
   candidate). The segmenter's cost is paid on keyframes only but on the main thread's critical
   path; BENCHMARKS.md ("SLAM harness") measures both schedules' ATE and time.
+- ``"thread"``: as RDS-SLAM, keyframes are segmented in a semantic thread off the tracking
+  path; tracking never waits for a mask; each frame is filtered with the latest mask carried to
+  it by its tracked pose, and each mask marks bad the map points its keyframe saw inside the
+  dynamic region (:mod:`.semantic_thread`, which also says how a segmenter's latency is
+  simulated on the camera clock or spent on the wall clock).
 
 Timing: ``timing_ms`` holds the mean wall milliseconds per processed frame of each module
 (``read`` = PNG reading and decoding in the prefetch thread, ``load`` = time the main thread
@@ -80,8 +85,9 @@ from ..segmenters.base import Segmenter
 from ..sequence import Frame, TumSequence, ahead
 from ..tracking.tracker import Tracker, TrackerConfig
 from .frame_loop import FrameLoop, Prepared, Timer
+from .semantic_thread import start_thread
 
-SEGMENT_SCHEDULES = ("every_frame", "keyframes")
+SEGMENT_SCHEDULES = ("every_frame", "keyframes", "thread")
 """Values of ``segment`` (see the module docstring)."""
 
 
@@ -122,8 +128,12 @@ class SlamPipeline:
         if segment not in SEGMENT_SCHEDULES:
             raise UssSlamError(
                 f"segment={segment!r}: choose every_frame (segment every frame, concurrently "
-                "with ORB extraction) or keyframes (segment keyframes only)"
+                "with ORB extraction), keyframes (segment keyframes only) or thread (keyframes "
+                "in a semantic thread off the tracking path)"
             )
+        line = simulated_latency_refused(segmenter, segment)
+        if line is not None:
+            raise UssSlamError(line)
         needing = [f.name for f in filters if f.needs_labels]
         probe = getattr(segmenter, "name", "none")
         if needing and probe == "none":
@@ -220,6 +230,8 @@ class SlamPipeline:
                 )
         finally:
             frames.close()
+            if loop.semantic is not None:
+                loop.semantic.close()
             if worker is not None:
                 worker.close()
             bar.close()
@@ -241,7 +253,10 @@ class SlamPipeline:
         products = MapProducts(self.map_config, extractor, placed_at_end=backend)
         segment_now = self._segment_timed if self.segment == "keyframes" else None
         chain = FilterChain(self.filters, timer)
-        return FrameLoop(timer, tracker, slam_map, chain, products, mapper, closer, segment_now)
+        semantic = start_thread(self.segmenter) if self.segment == "thread" else None
+        return FrameLoop(
+            timer, tracker, slam_map, chain, products, mapper, closer, segment_now, semantic
+        )
 
     def _frames(self) -> tuple[frontend_process.FrontendProcess | None, Iterator[Prepared]]:
         """The prepared frames in order (threads, or a worker process with ``prefetch_mode=
@@ -278,7 +293,21 @@ class SlamPipeline:
         with timer("octomap"):  # every keyframe at its final pose
             octomap = loop.products.build_octomap(loop.map.pose_wc)
         noise = dict(zip(("depth_noise", "depth_noise_from"), self.depth_noise, strict=True))
-        thread = "prefetch" if self.parallel and self.segment != "keyframes" else "main"
+        thread = "prefetch" if self.parallel and self.segment == "every_frame" else "main"
+        segmented = loop.counts["segmented"]
+        per_segmented = _per_segmented(timer, segmented)
+        semantic = None
+        if loop.semantic is not None:
+            stats = loop.semantic.stats
+            thread, segmented = "semantic", loop.counts["masks"]
+            per_segmented = {}
+            if loop.semantic.clock == "wall" and stats.delivered:
+                per_segmented = {"wall": 1000.0 * stats.segment_s / stats.delivered}
+            semantic = {
+                "clock": loop.semantic.clock,
+                **loop.semantic.stats.as_dict(),
+                "points_marked": loop.counts["points_marked"],
+            }
         return RunResult(
             sequence=str(self.sequence.path),
             camera=self.sequence.camera_source,
@@ -305,9 +334,10 @@ class SlamPipeline:
             cloud=cloud,
             log=loop.log,
             segment=self.segment,
-            segmented_frames=loop.counts["segmented"],
-            segmentation_ms=_per_segmented(timer, loop.counts["segmented"]),
+            segmented_frames=segmented,
+            segmentation_ms=per_segmented,
             segmentation_thread=thread,
+            semantic_thread=semantic,
             local_ba=None if mapper is None else {**mapper.stats.as_dict(), **noise},
             rolling_shutter={
                 "readout": tracker.readout,
@@ -331,6 +361,18 @@ class SlamPipeline:
         if not poses:
             return Trajectory(np.zeros(0), np.zeros((0, 3)), np.zeros((0, 4)))
         return Trajectory.from_matrices(loop.stamps, np.stack(poses))
+
+
+def simulated_latency_refused(segmenter: object, segment: str) -> str | None:
+    """One line when ``segmenter`` has a simulated latency (> 0) that ``segment`` cannot
+    simulate (only ``thread`` can), else None."""
+    latency = getattr(segmenter, "simulated_latency_s", None)
+    if latency and segment != "thread":
+        return (
+            f"segmenter.latency_s={latency:g} is simulated by segment=thread only; with "
+            f"segment={segment} set segmenter.wait=true (every call then really waits)"
+        )
+    return None
 
 
 def _per_segmented(timer: Timer, segmented: int) -> dict[str, float]:

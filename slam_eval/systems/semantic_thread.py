@@ -1,0 +1,262 @@
+"""The semantic thread of ``segment=thread`` (as RDS-SLAM): keyframes are segmented off the
+tracking path, tracking never waits for a mask, and the frames in between are filtered with the
+latest mask carried to them by the tracked pose.
+
+Per frame (:class:`~.frame_loop.FrameLoop`): the masks that finished since the last frame are
+taken (:meth:`SemanticThread.poll`, never blocking); each one marks the map points its keyframe
+sees inside the dynamic region as bad (:func:`mark_dynamic_points`: tracking no longer matches
+them, so a person mapped before its mask came back stops steering the pose) and becomes the
+mask that is carried (:class:`CarriedMask`); once the frame is tracked, the carried labels
+(:meth:`CarriedMask.labels_at`: the keyframe's labelled pixels, back-projected with its depth and
+projected with the frame's tracked pose) feed the filters that need labels, and the pose is
+refined without what they flagged (the ``late`` stage of :mod:`..filters.chain`). A new keyframe
+is then handed to the thread (:meth:`SemanticThread.request`). One segmentation runs at a time;
+a keyframe that arrives while one runs waits, replaced by any newer one (the newest keyframe is
+the one worth segmenting).
+
+Two clocks:
+
+- **camera** (:class:`SimulatedThread`, for a segmenter with a simulated latency: the ``labels``
+  oracle with ``latency_s`` and ``wait=false``): the labels are computed at once, but a
+  segmentation started at camera stamp ``t`` is delivered to the first frame whose stamp is at
+  least ``t + latency_s``; the next one starts when it ends. Frames are taken to arrive at their
+  stamps and to be tracked at camera rate, so the delivery frames, and therefore the
+  trajectory, are deterministic (the same on a loaded machine).
+- **wall** (:class:`WallThread`, every other segmenter, and ``labels`` with ``wait=true``): a real
+  Python thread calls the segmenter; a mask is delivered to the first frame polled after it
+  finished. This is the figure of the tracking rate with the segmenter's cost in the loop; the
+  trajectory then depends on the machine's speed.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from ..filters.base import values_at
+from ..geometry import invert
+from ..map.slam_map import SlamMap
+from ..segmenters.base import Segmenter
+from ..sequence import Frame
+
+CARRY_STRIDE = 4
+"""Pixel step of the carried mask's grid (each carried pixel is splatted over this step)."""
+
+
+@dataclass
+class Delivered:
+    """A keyframe's mask: ``kf_id``, its frame, its ``(H, W)`` uint8 labels (None: the segmenter
+    gave none), and ``requested`` / ``delivered``: the stamps (s) of the frame that asked and of
+    the frame that received it."""
+
+    kf_id: int
+    frame: Frame
+    labels: np.ndarray | None
+    requested: float
+    delivered: float = 0.0
+
+
+@dataclass
+class ThreadStats:
+    """Over a run: keyframes ``requested``, ``skipped`` (replaced by a newer one while waiting),
+    masks ``delivered``, their summed ``delay_s`` (delivery stamp - request stamp) and
+    ``segment_s`` (wall time inside the segmenter, wall clock only)."""
+
+    requested: int = 0
+    skipped: int = 0
+    delivered: int = 0
+    delay_s: float = 0.0
+    segment_s: float = 0.0
+
+    def as_dict(self) -> dict[str, float | int]:
+        n = max(self.delivered, 1)
+        return {
+            "requested": self.requested,
+            "skipped": self.skipped,
+            "delivered": self.delivered,
+            "mean_delay_s": self.delay_s / n,
+            "mean_segment_s": self.segment_s / n,
+        }
+
+
+class SemanticThread:
+    """What both clocks share: the waiting keyframe (newest wins) and the statistics."""
+
+    clock = "none"
+
+    def __init__(self, segmenter: Segmenter) -> None:
+        self.segmenter = segmenter
+        self.stats = ThreadStats()
+        self._pending: Delivered | None = None
+
+    def request(self, frame: Frame, kf_id: int) -> None:
+        """Ask for keyframe ``kf_id`` (of ``frame``) to be segmented; returns at once."""
+        self.stats.requested += 1
+        if self._pending is not None:
+            self.stats.skipped += 1
+        self._pending = Delivered(kf_id, frame, None, frame.stamp)
+
+    def poll(self, stamp: float) -> list[Delivered]:
+        """The masks finished by camera stamp ``stamp`` (s), oldest first; never waits."""
+        raise NotImplementedError
+
+    def close(self) -> None:
+        """Stop (a segmentation under way is abandoned)."""
+
+    def _deliver(self, item: Delivered, stamp: float) -> Delivered:
+        item.delivered = stamp
+        self.stats.delivered += 1
+        self.stats.delay_s += stamp - item.requested
+        return item
+
+
+class SimulatedThread(SemanticThread):
+    """The camera clock (module docstring): ``latency_s`` of camera time per segmentation."""
+
+    clock = "camera"
+
+    def __init__(self, segmenter: Segmenter, latency_s: float) -> None:
+        super().__init__(segmenter)
+        self.latency_s = float(latency_s)
+        self._running: tuple[float, Delivered] | None = None  # (done at, item)
+
+    def request(self, frame: Frame, kf_id: int) -> None:
+        super().request(frame, kf_id)
+        if self._running is None:
+            self._start(frame.stamp)
+
+    def _start(self, at: float) -> None:
+        item, self._pending = self._pending, None
+        if item is not None:
+            item.labels = self.segmenter.segment(item.frame)
+            self._running = (at + self.latency_s, item)
+
+    def poll(self, stamp: float) -> list[Delivered]:
+        out = []
+        while self._running is not None and self._running[0] <= stamp + 1e-9:
+            done_at, item = self._running
+            self._running = None
+            out.append(self._deliver(item, stamp))
+            self._start(done_at)  # the next waiting keyframe starts when this one ends
+        return out
+
+
+class WallThread(SemanticThread):
+    """The wall clock (module docstring): a daemon thread runs the segmenter."""
+
+    clock = "wall"
+
+    def __init__(self, segmenter: Segmenter) -> None:
+        super().__init__(segmenter)
+        self._lock = threading.Condition()
+        self._done: list[Delivered] = []
+        self._stop = False
+        self._thread = threading.Thread(target=self._work, name="semantic", daemon=True)
+        self._thread.start()
+
+    def request(self, frame: Frame, kf_id: int) -> None:
+        with self._lock:
+            super().request(frame, kf_id)
+            self._lock.notify()
+
+    def _work(self) -> None:
+        while True:
+            with self._lock:
+                while self._pending is None and not self._stop:
+                    self._lock.wait()
+                if self._stop:
+                    return
+                item, self._pending = self._pending, None
+            start = time.perf_counter()
+            item.labels = self.segmenter.segment(item.frame)
+            with self._lock:
+                self.stats.segment_s += time.perf_counter() - start
+                self._done.append(item)
+
+    def poll(self, stamp: float) -> list[Delivered]:
+        with self._lock:
+            done, self._done = self._done, []
+        return [self._deliver(item, stamp) for item in done]
+
+    def close(self) -> None:
+        with self._lock:
+            self._stop = True
+            self._lock.notify()
+        self._thread.join(timeout=0.1)  # a segmentation under way ends on its own (daemon)
+
+
+def start_thread(segmenter: Segmenter) -> SemanticThread:
+    """The semantic thread for ``segmenter``: the camera clock when it declares a
+    ``simulated_latency_s`` (not None), else the wall clock."""
+    latency = getattr(segmenter, "simulated_latency_s", None)
+    if latency is not None:
+        return SimulatedThread(segmenter, float(latency))
+    return WallThread(segmenter)
+
+
+@dataclass
+class CarriedMask:
+    """A keyframe's labels ready to be carried: the labelled pixels of a ``CARRY_STRIDE`` grid
+    with depth, as ``points`` (M, 3) metres in the keyframe's camera frame and ``classes`` (M,)
+    uint8, nearest last (so that the nearest wins where several land on one pixel)."""
+
+    kf_id: int
+    points: np.ndarray
+    classes: np.ndarray
+    shape: tuple[int, int]
+    k: np.ndarray = field(repr=False)
+
+    @classmethod
+    def of(cls, kf_id: int, labels: np.ndarray, depth: np.ndarray, k: np.ndarray) -> CarriedMask:
+        """From ``(H, W)`` uint8 ``labels`` and ``(H, W)`` float ``depth`` (m, 0 = none) of
+        keyframe ``kf_id``; ``k`` (3, 3) the camera matrix."""
+        s = CARRY_STRIDE
+        lab, z = labels[::s, ::s], depth[::s, ::s]
+        rows, cols = np.nonzero((lab > 0) & (z > 0))
+        zz = z[rows, cols].astype(np.float64)
+        u, v = cols * s, rows * s
+        pts = np.stack([(u - k[0, 2]) * zz / k[0, 0], (v - k[1, 2]) * zz / k[1, 1], zz], axis=1)
+        order = np.argsort(-zz, kind="stable")
+        return cls(kf_id, pts[order], lab[rows, cols][order], labels.shape, k)
+
+    def labels_at(self, t_frame_kf: np.ndarray) -> np.ndarray:
+        """``(H, W)`` uint8 labels carried to a frame whose pose relative to the keyframe is
+        ``t_frame_kf`` (4, 4, ``T_frame,kf``): each point projected, splatted over the grid
+        step; 0 where nothing lands."""
+        h, w = self.shape
+        out = np.zeros((h, w), np.uint8)
+        if len(self.points) == 0:
+            return out
+        p = self.points @ t_frame_kf[:3, :3].T + t_frame_kf[:3, 3]
+        front = p[:, 2] > 1e-6
+        p, cls = p[front], self.classes[front]
+        u = np.rint(self.k[0, 0] * p[:, 0] / p[:, 2] + self.k[0, 2]).astype(np.int64)
+        v = np.rint(self.k[1, 1] * p[:, 1] / p[:, 2] + self.k[1, 2]).astype(np.int64)
+        inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
+        out[v[inside], u[inside]] = cls[inside]  # the last (nearest) wins
+        kernel = np.ones((CARRY_STRIDE + 1, CARRY_STRIDE + 1), np.uint8)
+        grown = cv2.dilate(out, kernel)
+        return np.where(out > 0, out, grown)
+
+    def labels_for(self, slam_map: SlamMap, pose_wc: np.ndarray) -> np.ndarray:
+        """The labels carried to a frame at camera-to-world ``pose_wc`` (4, 4), from the
+        keyframe's pose in ``slam_map`` now (the back end may have moved it)."""
+        return self.labels_at(invert(pose_wc) @ slam_map.pose_wc(self.kf_id))
+
+
+def mark_dynamic_points(slam_map: SlamMap, kf_id: int, region: np.ndarray) -> int:
+    """Mark bad the map points that keyframe ``kf_id`` observes through a keypoint inside
+    ``region`` ((H, W) bool dynamic pixels of its mask), and flag those keypoints dynamic;
+    returns how many good points it marked."""
+    kf = slam_map.keyframes[kf_id]
+    inside = values_at(region, kf.features.xy)
+    kf.dynamic = kf.dynamic | inside
+    ids = kf.point_ids[inside & (kf.point_ids >= 0)]
+    bad = slam_map.points.bad.view
+    ids = ids[~bad[ids]]
+    bad[ids] = True
+    return len(ids)

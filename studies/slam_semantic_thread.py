@@ -1,0 +1,124 @@
+"""What does segmenting keyframes in a semantic thread, at a slow network's latency, cost in ATE
+against masks on every frame? Recorded in docs/results/slam.md ("The semantic thread").
+
+Per sequence, ``uss-slam`` (the harness, its defaults: local BA and loop closing on) with
+``segmenter=labels filters=[semantic]`` and ``slam.repeats`` repeats, in these cells:
+
+- ``per-frame``: ``segment=every_frame`` (ground-truth masks on every frame, the reference);
+- ``thread L s``: ``segment=thread segmenter.latency_s=L`` for each ``--latency`` (the oracle's
+  masks, each delivered ``L`` s of camera time after its keyframe asked: deterministic);
+- with ``--baseline``: ``filters=[]`` (no filter), to show how much error there is to remove.
+
+Prints one table row per sequence and cell (median ATE RMSE of the repeats with min-max, the
+ratio of the median to the per-frame cell's, frames/s of the timing repeat, masks delivered)
+and writes every cell's figures to ``OUT/cells.json``; each run's folder is ``OUT/<sequence>/
+<cell>``. A sequence without ``labels/`` (the real TUM stretches, no people) needs one of zeros
+(``--zero-labels`` writes a copy of symlinks plus an all-zero ``labels/`` under ``OUT``).
+
+    python studies/slam_semantic_thread.py SEQ [SEQ ...] --out outputs/sem/study \\
+        --latency 2.9 0.5 --repeats 5
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+USS_SLAM = str(Path(sys.executable).with_name("uss-slam"))
+
+
+def zero_labelled(seq: Path, out: Path) -> Path:
+    """``out/<name>``: symlinks to ``seq``'s files and an all-zero ``labels/`` (no people)."""
+    dst = out / "zero_labelled" / seq.name
+    (dst / "labels").mkdir(parents=True, exist_ok=True)
+    for entry in seq.iterdir():
+        if entry.name != "labels" and not (dst / entry.name).exists():
+            os.symlink(entry.resolve(), dst / entry.name)
+    for image in sorted((seq / "rgb").iterdir()):
+        target = dst / "labels" / image.name
+        if not target.exists():
+            h, w = cv2.imread(str(image), cv2.IMREAD_GRAYSCALE).shape
+            cv2.imwrite(str(target), np.zeros((h, w), np.uint8))
+    return dst
+
+
+def cells(latencies: list[float], baseline: bool) -> list[tuple[str, list[str]]]:
+    """``(cell name, uss-slam overrides)`` in the order they run."""
+    out = [("per-frame", ["segment=every_frame", "filters=[semantic]"])]
+    out += [
+        (
+            f"thread {lat:g} s",
+            ["segment=thread", f"segmenter.latency_s={lat}", "filters=[semantic]"],
+        )
+        for lat in latencies
+    ]
+    if baseline:
+        out.append(("no filter", ["segment=every_frame", "filters=[]"]))
+    return out
+
+
+def run_cell(seq: Path, folder: Path, overrides: list[str], repeats: int) -> dict:
+    """One ``uss-slam`` call; the cell's figures from its ``metrics.json``."""
+    cmd = [
+        USS_SLAM, f"sequence.path={seq}", "segmenter=labels", f"slam.repeats={repeats}",
+        f"out_dir={folder}", f"hydra.run.dir={folder}", "progress=false", *overrides,
+    ]  # fmt: skip
+    start = time.time()
+    subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    m = json.loads((folder / "metrics.json").read_text())
+    spread = m.get("ate_rmse_repeats") or {"median": m["ate"]["rmse"], "min": None, "max": None}
+    seg = m["segmentation"]
+    return {
+        "command": " ".join(cmd[1:]),
+        "ate_median": spread["median"],
+        "ate_min": spread["min"],
+        "ate_max": spread["max"],
+        "ate_repeats": [r["ate_rmse"] for r in m.get("repeats", [])],
+        "tracked_fraction": m["tracked_fraction"],
+        "fps": m["fps"],
+        "masks": seg["frames_segmented"],
+        "semantic_thread": seg.get("semantic_thread"),
+        "wall_s": time.time() - start,
+        "load": os.getloadavg()[0],
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("sequences", type=Path, nargs="+")
+    parser.add_argument("--out", type=Path, required=True)
+    parser.add_argument("--latency", type=float, nargs="+", default=[2.9, 0.5])
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--baseline", action="store_true", help="also the unfiltered cell")
+    parser.add_argument("--zero-labels", action="store_true", help="sequences without people")
+    args = parser.parse_args()
+    args.out.mkdir(parents=True, exist_ok=True)
+    record = args.out / "cells.json"
+    done = json.loads(record.read_text()) if record.exists() else {}
+    for seq in args.sequences:
+        path = zero_labelled(seq, args.out) if args.zero_labels else seq
+        rows = done.setdefault(seq.name, {})
+        for name, overrides in cells(args.latency, args.baseline):
+            if name not in rows:
+                folder = args.out / seq.name / name.replace(" ", "_")
+                rows[name] = run_cell(path, folder, overrides, args.repeats)
+                record.write_text(json.dumps(done, indent=1))
+            c, ref = rows[name], rows["per-frame"]["ate_median"]
+            print(
+                f"| {seq.name} | {name} | {c['ate_median']:.4f} ({c['ate_min']:.4f}–"
+                f"{c['ate_max']:.4f}) | ×{c['ate_median'] / ref:.2f} | {c['fps']:.1f} | "
+                f"{c['masks']} | {c['load']:.1f} |",
+                flush=True,
+            )
+
+
+if __name__ == "__main__":
+    main()
