@@ -42,6 +42,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from uss_slam.core.arguments import THREADS_ARG
 from uss_slam.core.classes import CLASS_NAMES
 from uss_slam.core.cli import exit_on_user_error
 from uss_slam.core.errors import UssSlamError
@@ -53,6 +54,7 @@ from uss_slam.core.files import (
     write_json_atomic,
 )
 from uss_slam.core.paths import input_folder, output_folder, path_override
+from uss_slam.core.ranges import MAX_THREADS
 from uss_slam.slam_eval.filters.build import filter_classes
 from uss_slam.slam_eval.variants import check_filters
 from uss_slam.slam_eval.variants import read_table as read_variants
@@ -480,7 +482,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help="stop after this stage: " + ", ".join(STAGES) + " (default: "
                              "report, all; data renders only the data set into OUT/data)")  # fmt: skip
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
-    parser.add_argument("--train-threads", type=int, default=None, metavar="N",
+    parser.add_argument("--train-threads", type=THREADS_ARG, default=None, metavar="N",
                         help="torch threads of the two trainings (default: the experiment's "
                              "num_threads, 2 for demo; 1 is faster on a busy shared machine)")  # fmt: skip
     return parser
@@ -503,8 +505,10 @@ def run_demo(
     run: a second demo into it stops at once (:func:`~uss_slam.core.files.output_lock`)."""
     plan = PLANS[experiment]
     out = Path(out)
-    if train_threads is not None and train_threads < 1:
-        raise UssSlamError(f"--train-threads must be >= 1, got {train_threads}")
+    if train_threads is not None and not 1 <= train_threads <= MAX_THREADS:
+        raise UssSlamError(
+            f"--train-threads: expected {THREADS_ARG.expected()}, got {train_threads}"
+        )
     if until not in STAGES:
         raise UssSlamError(f"--until {until}: not a stage ({', '.join(STAGES)})")
     output_folder(out, "--out")

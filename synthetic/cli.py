@@ -11,10 +11,12 @@ from pathlib import Path
 
 import cv2
 
+from uss_slam.core.arguments import number
 from uss_slam.core.classes import CLASS_NAMES
 from uss_slam.core.cli import program, report_interrupt, signals_as_interrupts
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.paths import output_folder
+from uss_slam.core.resources import check_memory
 
 from .motion import PRESETS
 from .output import (
@@ -53,34 +55,6 @@ MAX_IMAGES = 100_000
 together; at 320x240 an image with its label takes about 32 KB on disk (3 GB in all)."""
 
 
-def _positive(minimum: int, maximum: int | None = None, why: str = ""):
-    """An argparse type: an integer in ``minimum..maximum``; ``why`` explains the maximum."""
-
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-        if value < minimum:
-            raise argparse.ArgumentTypeError(f"must be >= {minimum}, got {value}")
-        if maximum is not None and value > maximum:
-            raise argparse.ArgumentTypeError(f"must be <= {maximum}, got {value} ({why})")
-        return value
-
-    return parse
-
-
-def _share(text: str) -> float:
-    """An argparse type: a number in [0, 1]."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number in [0, 1], got {text!r}") from None
-    if not 0 <= value <= 1:
-        raise argparse.ArgumentTypeError(f"must be in [0, 1], got {value:g}")
-    return value
-
-
 def _preset(text: str) -> str:
     if text not in PRESETS:
         raise argparse.ArgumentTypeError(
@@ -110,7 +84,8 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, metavar="{sequence,voc}")
 
     def common(p: argparse.ArgumentParser) -> None:
-        p.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
+        p.add_argument("--seed", type=number(int, min=0), default=0,
+                       help="random seed (default: 0)")  # fmt: skip
         p.add_argument(
             "--out", type=Path, required=True, help="output folder (must be new or empty)"
         )
@@ -153,8 +128,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     seq.add_argument(
         "--frames",
-        type=_positive(
-            2, MAX_FRAMES, "10 minutes at 30 Hz; about 1.1 MB per 640x480 frame on disk: 20 GB"
+        type=number(
+            int,
+            "10 minutes at 30 Hz; about 1.1 MB per 640x480 frame on disk: 20 GB",
+            min=2,
+            max=MAX_FRAMES,
         ),
         default=120,
         help=f"number of frames at 30 Hz (2..{MAX_FRAMES}, default: 120)",
@@ -187,7 +165,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     voc.add_argument(
         "--images",
-        type=_positive(1, MAX_IMAGES, "about 32 KB per 320x240 image on disk: 3 GB"),
+        type=number(int, "about 32 KB per 320x240 image on disk: 3 GB", min=1, max=MAX_IMAGES),
         default=200,
         help=f"number of images (1..{MAX_IMAGES}, default: 200)",
     )
@@ -204,7 +182,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     voc.add_argument(
         "--near",
-        type=_share,
+        type=number(float, min=0, max=1),
         default=0.0,
         metavar="SHARE",
         help="the share of images (0..1) that face a person at walking distance (0.6-1.6 m, "
@@ -233,6 +211,20 @@ def main(argv: Sequence[str] | None = None) -> int:
         return _render(args)
 
 
+RENDER_BYTES_PER_PIXEL = 140
+"""Memory one rendered frame takes per pixel (its float buffers, depth, labels, noise pool):
+the peak RSS of ``uss-synth sequence --preset walking_xyz --frames 2 --size WxH`` grew by
+518 MB from 1280x960 to 2560x1920 (382 -> 901 MB; AMD EPYC, ``/usr/bin/time -f %M``)."""
+
+
+def check_frame_memory(size: tuple[int, int]) -> None:
+    """One line before rendering when a frame of ``size`` (W, H) cannot fit in the memory left
+    (:func:`~uss_slam.core.resources.check_memory`): 4096x4096 needs about 2.3 GB."""
+    w, h = size
+    check_memory(RENDER_BYTES_PER_PIXEL * w * h, f"--size={w}x{h}", "rendering a frame",
+                 "--size")  # fmt: skip
+
+
 def _render(args: argparse.Namespace) -> int:
     """:func:`main` once the arguments are parsed: render, every error as one line."""
     cv2.setNumThreads(1)
@@ -240,6 +232,7 @@ def _render(args: argparse.Namespace) -> int:
     try:
         output_folder(args.out, "--out")  # before rendering, not after
         check_output(args.out, args.overwrite)
+        check_frame_memory(args.size)
         for folder in clean_stale_partials(args.out):
             print(f"uss-synth: removed {folder} (left by a killed run)", file=sys.stderr)
         if args.command == "sequence":

@@ -18,6 +18,7 @@ argument is one row of :data:`PATH_ARGS`; every family applies to it by its kind
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
 import shutil
@@ -75,7 +76,11 @@ class PathArg:
 TRAIN_BASE = TRAIN.replace("hydra.run.dir={tmp}/run", "").replace("data.source.root={voc}", "")
 PATH_ARGS = [
     PathArg("uss-synth", "--out", OUT_FOLDER, "voc --images 1 --size 32x24 --out {P} --quiet"),
+    PathArg("uss-synth", "--out", OUT_FOLDER,
+            "sequence --preset static_xyz --frames 2 --size 32x24 --out {P} --quiet",
+            name="sequence-out"),
     PathArg("uss-traj", None, IN_FILE, "ate {P} {gt}"),
+    PathArg("uss-traj", None, IN_FILE, "rpe {gt} {P}"),
     PathArg("uss-traj", "--plot", OUT_FILE, "ate {gt} {gt} --plot {P}"),
     PathArg("uss-vocab", None, IN_FOLDER, "build {P} --out {tmp}/v.txt -k 3 -L 2"),
     PathArg("uss-vocab", "--out", OUT_FILE, "build {seq} --out {P} -k 3 -L 2"),
@@ -86,6 +91,16 @@ PATH_ARGS = [
     # (the values of data.val are checked first; its reader then names a bad folder by its path)
     PathArg("uss-eval", None, IN_FOLDER, "{m} data.val.roots=[{P}] --out {tmp}/eval",
             name="data-val-roots"),
+    PathArg("uss-eval", None, IN_FILE, "compare {P} {m} --sequence {seq} --out {tmp}/cmp",
+            name="compare-model"),
+    PathArg("uss-eval", "--sequence", IN_FOLDER, "compare {m} {m} --sequence {P} --out {tmp}/cmp",
+            name="compare-sequence"),
+    PathArg("uss-eval", "--labels", IN_FOLDER,
+            "compare {m} {m} --sequence {seq} --labels {P} --out {tmp}/cmp", name="compare-labels"),
+    PathArg("uss-eval", "--source", IN_FOLDER,
+            "compare {m} {m} --sequence {seq} --source {P} --out {tmp}/cmp", name="compare-source"),
+    PathArg("uss-eval", "--out", OUT_FOLDER, "compare {m} {m} --sequence {seq} --out {P}",
+            name="compare-out"),
     PathArg("uss-demo", "--out", OUT_FOLDER, "--out {P} --experiment ci --until data --quiet"),
     PathArg("uss-demo", "--sequence", IN_FOLDER,
             "--out {tmp}/demo --experiment ci --until data --sequence {P} --quiet"),
@@ -205,6 +220,10 @@ def test_path_family(
     if "{m}" in arg.argv:
         paths["m"] = tmp_path / "m.onnx"
         paths["m"].write_bytes(colour_onnx({"tmp": tmp_path}))
+        if arg.argv.count("{m}") == 2:  # uss-eval compare: two models, not one given twice
+            paths["m2"] = tmp_path / "m2.onnx"
+            paths["m2"].write_bytes(colour_onnx({"tmp": tmp_path}) + b"\n")
+            arg = dataclasses.replace(arg, argv=arg.argv.replace("{m} {m}", "{m} {m2}"))
     argv = [a.format(**paths) for a in arg.argv.split()]
     monkeypatch.chdir(tmp_path)
     monkeypatch.setattr(logging, "raiseExceptions", False)
@@ -219,7 +238,9 @@ def test_path_family(
     assert "Traceback" not in err, err
     assert code == 1 and len(lines) == 1, err
     named = str(bad) if arg.key is None else f"{arg.key}={bad}"
-    assert lines[0].startswith(f"{arg.prog}: error: "), err
+    assert lines[0].startswith(f"{arg.prog}: error: ") or (
+        lines[0].startswith(f"{arg.prog} {arg.argv.split()[0]}: error: ")  # a subcommand's
+    ), err
     assert named in lines[0], (named, lines[0])
     for text in says:
         assert text.format(P=bad) in lines[0], (text, lines[0])
@@ -295,6 +316,7 @@ def test_read_only_output_location(arg: PathArg, world: dict[str, Path], tmp_pat
     lines = done.stderr.strip().splitlines()
     assert done.returncode == 1 and len(lines) == 1, done.stderr
     named = str(bad) if arg.key is None else f"{arg.key}={bad}"
-    assert lines[0].startswith(f"{arg.prog}: error: {named}: "), lines[0]
+    head = arg.prog + (" compare" if arg.argv.startswith("compare ") else "")
+    assert lines[0].startswith(f"{head}: error: {named}: "), lines[0]
     assert f"cannot write to {locked} (Permission denied)" in lines[0], lines[0]
     assert not any(locked.iterdir())

@@ -44,6 +44,7 @@ from uss_slam.core.schema import (
 from uss_slam.models.checkpoint import CheckpointInfo, read_checkpoint
 from uss_slam.train.callbacks import LogProgressBar
 from uss_slam.train.checkpoint_io import AtomicCheckpointIO
+from uss_slam.train.memory import check_training_memory
 from uss_slam.train.method_configs import unused_method_settings
 from uss_slam.train.module import AdversarialSegmentation, resume_differences
 from uss_slam.train.speed import resolve_precision
@@ -475,6 +476,7 @@ def train(cfg: DictConfig) -> dict[str, float]:
         check_architecture(model, checkpoint)
         check_resumed_settings(model, checkpoint)
         del checkpoint  # Lightning reads the file again; do not hold two copies
+    check_training_memory(model, cfg)  # before any batch: a run that cannot fit is one line
     callbacks: list[Callback] = _instantiate_all(cfg.get("callbacks"))
     if cfg.trainer.get("enable_progress_bar", True) and not any(
         isinstance(c, ProgressBar) for c in callbacks

@@ -25,7 +25,7 @@ model), :mod:`.metrics` (scoring frame by frame), :mod:`.markdown` (``eval.md``)
 
 from __future__ import annotations
 
-from .cli import PROG, build_parser, evaluate, main
+from .cli import COMMANDS, PROG, build_parser, evaluate, main
 from .frames import CONFIG_DIR, FrameSource, LabelledFrame, config_val_frames, sequence_frames
 from .markdown import markdown
 from .metrics import FrameScores, evaluate_frames
@@ -33,6 +33,7 @@ from .models import MODEL_KINDS, CheckpointSegmenter, load_segmenter, model_kind
 from .overlays import evenly_spaced, overlay, remove_stale_overlays, write_overlays
 
 __all__ = [
+    "COMMANDS",
     "CONFIG_DIR",
     "MODEL_KINDS",
     "PROG",

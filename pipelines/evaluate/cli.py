@@ -5,12 +5,14 @@ from __future__ import annotations
 
 import argparse
 import enum
+import importlib
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Optional
 
+from uss_slam.core.arguments import THREADS_ARG, Names, of_field
 from uss_slam.core.classes import CLASS_NAMES, DYNAMIC_CLASSES
 from uss_slam.core.cli import exit_on_user_error, warning
 from uss_slam.core.errors import UssSlamError
@@ -31,6 +33,8 @@ from .models import load_segmenter, model_kind
 from .overlays import evenly_spaced, remove_stale_overlays, write_overlays
 
 PROG = "uss-eval"
+COMMANDS = {"compare": "uss_slam.pipelines.evaluate.compare_cli"}
+"""Subcommands with a parser of their own (``build_parser`` and ``main`` of the module)."""
 
 ClassName = enum.Enum("ClassName", {name: name for name in CLASS_NAMES})  # type: ignore[misc]
 
@@ -155,19 +159,19 @@ def build_parser() -> argparse.ArgumentParser:
                              "shipped data=synthetic under paths.data_dir=outputs/demo/data)")  # fmt: skip
     parser.add_argument("--sequence", type=Path, action="append", default=[], metavar="DIR",
                         help="a TUM RGB-D folder with labels/ (repeatable) instead of data.val")  # fmt: skip
-    parser.add_argument("--stride", type=int, default=1,
+    parser.add_argument("--stride", type=of_field(EvalOptions, "stride"), default=1,
                         help="every N-th frame of each --sequence (default: 1)")  # fmt: skip
     parser.add_argument("--out", type=Path, default=None,
                         help="output folder (default: outputs/eval/<model file stem>)")  # fmt: skip
-    parser.add_argument("--dynamic", default=",".join(DYNAMIC_CLASSES),
+    parser.add_argument("--dynamic", type=Names(CLASS_NAMES), default=",".join(DYNAMIC_CLASSES),
                         help="comma-separated classes of the dynamic mask (default: "
                              f"{','.join(DYNAMIC_CLASSES)})")  # fmt: skip
-    parser.add_argument("--frame-iou", type=float, default=0.5,
+    parser.add_argument("--frame-iou", type=of_field(EvalOptions, "frame_iou"), default=0.5,
                         help="mask IoU from which a frame counts as correctly segmented "
                              "(default: 0.5)")  # fmt: skip
-    parser.add_argument("--overlays", type=int, default=0, metavar="N",
+    parser.add_argument("--overlays", type=of_field(EvalOptions, "overlays"), default=0, metavar="N",
                         help="write N PNG overlays of evenly spaced frames (default: 0)")  # fmt: skip
-    parser.add_argument("--threads", type=int, default=None,
+    parser.add_argument("--threads", type=THREADS_ARG, default=None,
                         help="inference threads (default: the runtime's)")  # fmt: skip
     return parser
 
@@ -177,10 +181,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     from omegaconf.errors import OmegaConfBaseException
 
     argv = sys.argv[1:] if argv is None else list(argv)
-    if argv[:1] == ["compare"]:  # uss-eval compare MODEL MODEL ... (see compare_cli)
-        from .compare_cli import main as compare_main
-
-        return compare_main(argv[1:])
+    if argv[:1] and argv[0] in COMMANDS:  # uss-eval compare MODEL MODEL ... (see compare_cli)
+        return importlib.import_module(COMMANDS[argv[0]]).main(argv[1:])
     # Intermixed: data-config overrides may follow the options (MODEL --out DIR data=real).
     args = build_parser().parse_intermixed_args(argv)
     out = args.out if args.out is not None else Path("outputs") / "eval" / args.model.stem
@@ -188,7 +190,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     with exit_on_user_error(PROG, config_errors):
         result = evaluate(
             args.model, out, sequences=args.sequence, overrides=args.overrides,
-            stride=args.stride, dynamic=[c.strip() for c in args.dynamic.split(",") if c.strip()],
+            stride=args.stride, dynamic=args.dynamic,
             frame_iou=args.frame_iou, overlays=args.overlays, threads=args.threads,
         )  # fmt: skip
         print(markdown(result))

@@ -11,10 +11,12 @@ from typing import Any
 
 import yaml
 
+from uss_slam.core.arguments import THREADS_ARG, Names, number
 from uss_slam.core.classes import CLASS_NAMES, DYNAMIC_CLASSES
 from uss_slam.core.cli import exit_on_user_error, warning
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.files import check_output_owner, check_writable, output_lock
+from uss_slam.core.paths import input_file, input_folder, output_folder
 from uss_slam.core.validators import NEEDS_SOURCE, build_validators
 
 from . import compare_report
@@ -32,6 +34,8 @@ from .frames import CONFIG_DIR
 PROG = "uss-eval"
 COMMAND = "uss-eval compare"
 VALIDATORS_CONFIG = CONFIG_DIR / "validators" / "default.yaml"
+MAX_BATCH = 256
+"""Largest ``--batch``: frames per inference, held in memory at once (as ``slam.prefetch``)."""
 
 
 def default_validators() -> tuple[list[str], dict[str, Any]]:
@@ -129,10 +133,20 @@ def compare(
 
 
 def check_out(out: Path) -> None:
-    if out.exists() and not out.is_dir():
-        raise UssSlamError(f"--out {out}: exists and is not a folder")
+    output_folder(out, "--out")
     check_writable(out, "--out", create=False)
     check_output_owner(out, PROG, "--out")
+
+
+def check_paths(args: argparse.Namespace) -> None:
+    """Every input path through the path layer (:mod:`uss_slam.core.paths`) before anything
+    is read: a missing file, a loop, a dangling link, a name too long is one line naming it."""
+    for model in args.models:
+        input_file(model, None, "expected an exported model (.onnx file written by uss-export)")
+    for key, folders in (("--sequence", args.sequence), ("--labels", args.labels),
+                         ("--source", [args.source] if args.source else [])):  # fmt: skip
+        for folder in folders:
+            input_folder(folder, key)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -149,34 +163,46 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--sequence", type=Path, action="append", default=[], metavar="DIR",
                         help="a TUM RGB-D folder (rgb.txt, rgb/) of target frames; repeatable")  # fmt: skip
-    parser.add_argument("--stride", type=int, default=1, help="every N-th frame (default: 1)")
+    parser.add_argument(
+        "--stride", type=number(int, min=1), default=1, help="every N-th frame (default: 1)"
+    )
     parser.add_argument("--labels", type=Path, action="append", default=[], metavar="DIR",
                         help="a folder of uint8 class-id PNGs named as colour frames (a "
                              "sequence's labels/); repeatable")  # fmt: skip
-    parser.add_argument("--label-frames", type=int, default=None, metavar="N",
+    parser.add_argument("--label-frames", type=number(int, min=1), default=None, metavar="N",
                         help="use N labelled frames, evenly spaced (default: every one found)")  # fmt: skip
     parser.add_argument("--source", type=Path, default=None, metavar="DIR",
                         help="source-domain images (PNG/JPEG, e.g. VOC's JPEGImages): adds the "
                              "domain-separability probe")  # fmt: skip
     parser.add_argument(
-        "--source-frames", type=int, default=32, help="source images used (default: 32)"
+        "--source-frames",
+        type=number(int, min=1),
+        default=32,
+        help="source images used (default: 32)",
     )
     parser.add_argument("--validators", default=None,
                         help="comma-separated validators (default: configs/validators/default.yaml)")  # fmt: skip
-    parser.add_argument("--dynamic", default=",".join(DYNAMIC_CLASSES),
+    parser.add_argument("--dynamic", type=Names(CLASS_NAMES), default=",".join(DYNAMIC_CLASSES),
                         help=f"classes of the dynamic mask (default: {','.join(DYNAMIC_CLASSES)})")  # fmt: skip
     parser.add_argument("--out", type=Path, default=None,
                         help="report folder (default: outputs/compare/<model stems>)")  # fmt: skip
     parser.add_argument("--slam", action="store_true",
                         help="also run the SLAM harness on each sequence: no filter and each "
                              "model's semantic filter, --repeats runs per row")  # fmt: skip
-    parser.add_argument("--repeats", type=int, default=3, help="SLAM runs per row (default: 3)")
+    parser.add_argument(
+        "--repeats", type=number(int, min=1), default=3, help="SLAM runs per row (default: 3)"
+    )
     parser.add_argument("--static", action="append", default=[], metavar="NAME",
                         help="a compared sequence (folder name) in which nothing moves: the "
                              "report gives each filter's cost there (with --slam; repeatable)")  # fmt: skip
-    parser.add_argument("--batch", type=int, default=4, help="frames per inference (default: 4)")
     parser.add_argument(
-        "--threads", type=int, default=None, help="inference threads (default: all)"
+        "--batch",
+        type=number(int, "frames held in memory at once", min=1, max=MAX_BATCH),
+        default=4,
+        help="frames per inference (default: 4)",
+    )
+    parser.add_argument(
+        "--threads", type=THREADS_ARG, default=None, help="inference threads (default: all)"
     )
     parser.add_argument("--quiet", action="store_true", help="no progress line")
     return parser
@@ -186,12 +212,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     out = args.out or Path("outputs") / "compare" / "_vs_".join(m.stem for m in args.models)
     with exit_on_user_error(COMMAND):
+        check_paths(args)
         check_out(out)
         plan = plan_compare(
             args.models, args.sequence, stride=args.stride, labels=args.labels,
             label_frames=args.label_frames, source=args.source, source_frames=args.source_frames,
             validators=None if args.validators is None else [v.strip() for v in args.validators.split(",") if v.strip()],
-            dynamic=[c.strip() for c in args.dynamic.split(",") if c.strip()],
+            dynamic=args.dynamic,
             batch=args.batch, threads=args.threads,
         )  # fmt: skip
         if args.static and not args.slam:

@@ -6,7 +6,6 @@ across keys and what needs the file system or an installed package."""
 from __future__ import annotations
 
 import importlib.util
-import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -16,6 +15,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.paths import input_file, input_folder
+from uss_slam.core.ranges import MAX_THREADS, THREADS_PER_CPU, machine_threads
 from uss_slam.core.schema import check as check_schema
 
 from .grid import (
@@ -297,7 +297,7 @@ def check_parallelism(plain: Mapping[str, Any], missing: Sequence[str]) -> None:
     for "every CPU but |n_jobs| − 1" when that leaves at least one), before any work instead of
     inside every job (the launcher group is Hydra's, outside the schema)."""
     launcher = plain.get("launcher") or {}
-    cpus = os.cpu_count() or 1
+    cpus = machine_threads()
     for section in ("params", "train", "slam"):
         node = launcher.get(section) or {}
         key = f"launcher.{section}.n_jobs"
@@ -308,11 +308,12 @@ def check_parallelism(plain: Mapping[str, Any], missing: Sequence[str]) -> None:
         if usable and value < 0:
             usable = cpus + 1 + value >= 1
         elif usable:
-            usable = value >= 1
+            usable = 1 <= value <= MAX_THREADS
         if not usable:
             raise UssSlamError(
-                f"{key}: expected an integer >= 1, or -1 (every CPU) down to -{cpus} (one: "
-                f"this machine has {cpus} CPUs), got {value!r}"
+                f"{key}: expected an integer in 1..{MAX_THREADS} ({THREADS_PER_CPU} per CPU), "
+                f"or -1 (every CPU) down to -{cpus} (one: this machine has {cpus} CPUs), "
+                f"got {value!r}"
             )
 
 

@@ -8,12 +8,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from uss_slam.core.arguments import number
 from uss_slam.core.cli import interruptible, print_output, report_interrupt
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.paths import input_file, output_file
@@ -41,23 +41,6 @@ _ALIGN_TITLES = {
 }
 
 
-def _finite_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
-    return value
-
-
-def _non_negative_float(text: str) -> float:
-    value = _finite_float(text)
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}")
-    return value
-
-
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog=PROG,
@@ -80,7 +63,7 @@ def _common_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("est", type=Path, metavar="EST", help="estimated trajectory (TUM format)")
     p.add_argument(
         "--max-diff",
-        type=_non_negative_float,
+        type=number(float, min=0),
         default=DEFAULT_MAX_DIFF,
         metavar="S",
         help="largest stamp difference of an associated pair, seconds, inclusive "
@@ -88,7 +71,7 @@ def _common_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--offset",
-        type=_finite_float,
+        type=number(float),
         default=0.0,
         metavar="S",
         help="seconds added to EST's stamps before association (default: %(default)s)",
@@ -113,7 +96,7 @@ def _ate_parser(sub: Any) -> None:
     )
     p_ate.add_argument(
         "--bands",
-        type=_finite_float,
+        type=number(float, gt=0),
         metavar="S",
         help="also split the error into its slow part (the aligned error vectors averaged over "
         "S seconds around each pose: drift and bias a keyframe back end can correct) and its "
@@ -141,7 +124,7 @@ def _rpe_parser(sub: Any) -> None:
     _common_arguments(p_rpe)
     p_rpe.add_argument(
         "--delta",
-        type=_finite_float,
+        type=number(float, gt=0),
         default=1.0,
         metavar="D",
         help="pair distance in --unit (default: %(default)s)",
@@ -195,13 +178,8 @@ def format_rpe(result: RpeResult, gt: Path, est: Path, max_diff: float, offset: 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    if args.command == "ate" and args.bands is not None and not args.bands > 0:
-        args.subparser.error(f"--bands must be > 0 seconds, got {args.bands:g}")
-    if args.command == "rpe":
-        if args.delta <= 0:
-            args.subparser.error(f"--delta must be > 0, got {args.delta:g}")
-        if args.unit == "frames" and not float(args.delta).is_integer():
-            args.subparser.error(f"--delta must be a whole number of frames, got {args.delta:g}")
+    if args.command == "rpe" and args.unit == "frames" and not float(args.delta).is_integer():
+        args.subparser.error(f"--delta must be a whole number of frames, got {args.delta:g}")
     try:
         for path in (args.gt, args.est):
             input_file(path, None, "expected a trajectory file (TUM format)")

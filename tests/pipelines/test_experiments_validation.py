@@ -84,16 +84,18 @@ def test_a_bad_job_setting_is_one_line_before_any_work(
 
 @pytest.mark.parametrize("dry", [True, False])
 @pytest.mark.parametrize("section", ["params", "train", "slam"])
-@pytest.mark.parametrize("value", ["0", "too_many", "two"])
+@pytest.mark.parametrize("value", ["0", "too_many", "two", "above_the_machine"])
 def test_launcher_n_jobs_out_of_range_is_one_line(
     tmp_path: Path, section: str, dry: bool, value: str
 ) -> None:
-    """0, a negative count that leaves no CPU (joblib's -1 = every CPU, -2 = all but one) or
-    a non-integer: one line before any work."""
-    import os
+    """0, a negative count that leaves no CPU (joblib's -1 = every CPU, -2 = all but one), more
+    jobs than 4 per CPU, or a non-integer: one line before any work."""
+    from uss_slam.core.ranges import MAX_THREADS, machine_threads
 
-    cpus = os.cpu_count() or 1
-    given = str(-(cpus + 1)) if value == "too_many" else value
+    cpus = machine_threads()
+    given = {"too_many": str(-(cpus + 1)), "above_the_machine": str(MAX_THREADS + 1)}.get(
+        value, value
+    )
     out = tmp_path / "out"
     cfg = compose_experiments(
         f"out_dir={out}",
@@ -105,8 +107,8 @@ def test_launcher_n_jobs_out_of_range_is_one_line(
         cli.run_experiments(cfg)
     shown = repr(int(given)) if value != "two" else "'two'"
     assert str(info.value) == (
-        f"launcher.{section}.n_jobs: expected an integer >= 1, or -1 (every CPU) down to "
-        f"-{cpus} (one: this machine has {cpus} CPUs), got {shown}"
+        f"launcher.{section}.n_jobs: expected an integer in 1..{MAX_THREADS} (4 per CPU), or -1 "
+        f"(every CPU) down to -{cpus} (one: this machine has {cpus} CPUs), got {shown}"
     )
     assert not (out / "data").exists()
 

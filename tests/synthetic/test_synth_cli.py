@@ -29,14 +29,17 @@ def _run(args: list[str], cwd: Path) -> subprocess.CompletedProcess:
             "WIDTHxHEIGHT",
         ),
         (["sequence", "--preset", "walking_xyz", "--size", "8x8", "--out", "x"], "between 16x16"),
-        (["sequence", "--preset", "walking_xyz", "--frames", "1", "--out", "x"], "must be >= 2"),
+        (
+            ["sequence", "--preset", "walking_xyz", "--frames", "1", "--out", "x"],
+            "expected an integer >= 2",
+        ),
         (["sequence", "--preset", "walking_xyz", "--frames", "ten", "--out", "x"], "integer"),
         (
             ["sequence", "--preset", "walking_xyz", "--style", "anime", "--out", "x"],
             "invalid choice",
         ),
         (["sequence", "--preset", "walking_xyz"], "--out"),
-        (["voc", "--images", "0", "--out", "x"], "must be >= 1"),
+        (["voc", "--images", "0", "--out", "x"], "expected an integer >= 1"),
         (["voc", "--outfits", "plain", "--out", "x"], "invalid choice: 'plain'"),
         (["demo", "--out", "x"], "invalid choice: 'demo'"),  # the demo data: uss-demo
         (["render", "--out", "x"], "invalid choice"),

@@ -12,6 +12,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from uss_slam.core.arguments import number
 from uss_slam.core.cli import exit_code, interruptible, report_interrupt
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.files import output_lock
@@ -26,23 +27,6 @@ from .vocabulary import (
 )
 
 PROG = "uss-vocab"
-
-
-def _int_at_least(minimum: int, maximum: int | None = None):
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-        if maximum is not None and not minimum <= value <= maximum:
-            raise argparse.ArgumentTypeError(
-                f"expected an integer in {minimum}..{maximum}, got {value}"
-            )
-        if value < minimum:
-            raise argparse.ArgumentTypeError(f"expected an integer >= {minimum}, got {value}")
-        return value
-
-    return parse
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -66,7 +50,7 @@ def build_parser() -> argparse.ArgumentParser:
     build.add_argument(
         "-k",
         "--branching",
-        type=_int_at_least(2, MAX_BRANCHING),
+        type=number(int, min=2, max=MAX_BRANCHING),
         default=10,
         metavar="K",
         help=f"children per node, 2..{MAX_BRANCHING} (default: %(default)s)",
@@ -74,36 +58,37 @@ def build_parser() -> argparse.ArgumentParser:
     build.add_argument(
         "-L",
         "--levels",
-        type=_int_at_least(1, MAX_LEVELS),
+        type=number(int, min=1, max=MAX_LEVELS),
         default=4,
         metavar="L",
         help=f"tree depth, 1..{MAX_LEVELS}: up to K^L words (default: %(default)s)",
     )
     build.add_argument(
         "--stride",
-        type=_int_at_least(1),
+        type=number(int, min=1),
         default=5,
         metavar="N",
         help="use every N-th listed frame of each sequence (default: %(default)s)",
     )
     build.add_argument(
         "--max-frames",
-        type=_int_at_least(1),
+        type=number(int, min=1),
         default=None,
         metavar="N",
         help="at most N frames per sequence (default: all)",
     )
     build.add_argument(
         "--features",
-        type=_int_at_least(1),
+        type=number(int, min=1),
         default=1000,
         metavar="N",
         help="ORB features per frame (default: %(default)s)",
     )
-    build.add_argument("--seed", type=int, default=0, help="random seed (default: %(default)s)")
+    build.add_argument("--seed", type=number(int, min=0, max=2**32 - 1), default=0,
+                       help="random seed (default: %(default)s)")  # fmt: skip
     build.add_argument(
         "--max-iterations",
-        type=_int_at_least(1),
+        type=number(int, min=1),
         default=100,
         metavar="N",
         help="cap of k-majority iterations per node (default: %(default)s)",

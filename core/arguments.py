@@ -1,0 +1,179 @@
+"""The argparse console scripts' numbers and lists, declared as the Hydra scripts' schemas
+declare theirs: an option's ``type`` is an :class:`Arg` holding its :class:`~.ranges.Range`,
+so that a bad value is argparse's one usage line naming the flag (``argument --stride:
+expected an integer >= 1, got '0'``, exit code 2) and the test matrix generates its bad values
+from the parsers themselves (:func:`bad_arguments`): a new option enters it without an edit.
+
+Torch-free and OmegaConf-free (floor 0).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from .ranges import MAX_THREADS, THREADS_PER_CPU, Range
+
+
+def _bounds(range_: Range) -> str:
+    parts = []
+    if range_.min is not None:
+        parts.append(f">= {range_.min:g}")
+    if range_.gt is not None:
+        parts.append(f"> {range_.gt:g}")
+    if range_.max is not None:
+        parts.append(f"<= {range_.max:g}")
+    if range_.lt is not None:
+        parts.append(f"< {range_.lt:g}")
+    return " and ".join(parts)
+
+
+@dataclass(frozen=True)
+class Arg:
+    """An argparse ``type``: a number of ``kind`` (int or float, finite) within ``range``;
+    ``why`` explains the bound (``'4 per CPU'``)."""
+
+    kind: type
+    range: Range = Range()  # noqa: A003
+    why: str = ""
+
+    def expected(self) -> str:
+        what = "an integer" if self.kind is int else "a number"
+        bounds = _bounds(self.range)
+        return f"{what} {bounds}".strip() + (f" ({self.why})" if self.why else "")
+
+    def __call__(self, text: str) -> Any:
+        try:
+            value = self.kind(text)
+        except ValueError:
+            value = None
+        if value is None or (self.kind is float and not math.isfinite(value)):
+            raise argparse.ArgumentTypeError(f"expected {self.expected()}, got {text!r}")
+        r = self.range
+        if ((r.min is not None and value < r.min) or (r.max is not None and value > r.max)
+                or (r.gt is not None and value <= r.gt) or (r.lt is not None and value >= r.lt)):  # fmt: skip
+            raise argparse.ArgumentTypeError(f"expected {self.expected()}, got {text!r}")
+        return value
+
+    @property
+    def __name__(self) -> str:  # argparse names the type in "invalid <name> value"
+        return self.kind.__name__
+
+
+def number(kind: type = int, why: str = "", **bounds: float) -> Arg:
+    """``type=number(int, min=1)``: an :class:`Arg` (``bounds``: min, max, gt, lt)."""
+    return Arg(kind, Range(**bounds), why)
+
+
+THREADS_ARG = Arg(int, Range(min=1, max=MAX_THREADS), f"{THREADS_PER_CPU} per CPU")
+"""The type of every thread-count option: bounded by the machine (:data:`~.ranges.MAX_THREADS`)."""
+
+
+def of_field(schema: type, name: str) -> Arg:
+    """The :class:`Arg` of a schema dataclass's number field (its ``ranged`` metadata), so that
+    a script whose options are also a schema declares each range once."""
+    found = {f.name: f for f in dataclasses.fields(schema)}[name]
+    tp = str(found.type)
+    kind = float if "float" in tp else int
+    keys = ("min", "max", "gt", "lt")
+    bounds = {k: v for k, v in found.metadata.items() if k in keys and v is not None}
+    if kind is int and bounds.get("max") == MAX_THREADS:
+        return THREADS_ARG
+    return Arg(kind, Range(**bounds))
+
+
+@dataclass(frozen=True)
+class Names:
+    """An argparse ``type``: comma-separated names among ``choices``, each once, at least one
+    (``--dynamic person,chair``); returns the list."""
+
+    choices: tuple[str, ...]
+
+    def __call__(self, text: str) -> list[str]:
+        names = [n.strip() for n in text.split(",") if n.strip()]
+        expected = f"expected comma-separated names of {', '.join(self.choices)}, each once"
+        unknown = [n for n in names if n not in self.choices]
+        if not names or unknown:
+            raise argparse.ArgumentTypeError(f"{expected}, got {text!r}")
+        twice = sorted({n for n in names if names.count(n) > 1})
+        if twice:
+            raise argparse.ArgumentTypeError(f"{expected} ({twice[0]!r} is listed twice)")
+        return names
+
+    @property
+    def __name__(self) -> str:
+        return "names"
+
+
+# ---------------------------------------------------------------- the generated bad values
+
+
+@dataclass(frozen=True)
+class BadArgument:
+    """``value`` for ``flag`` after the subcommands ``commands`` is wrong in ``kind`` (``type``,
+    ``range``, ``choice``, ``duplicate``, ``empty``; ``undeclared``: a number option whose
+    type declares no range, which the matrix reports as a fault of the parser)."""
+
+    commands: tuple[str, ...]
+    flag: str
+    kind: str
+    value: str
+
+    @property
+    def id(self) -> str:
+        return " ".join((*self.commands, self.flag, repr(self.value)))
+
+
+def _crossed(arg: Arg) -> list[str]:
+    step = 1 if arg.kind is int else 1e-9
+    r, out = arg.range, []
+    if r.min is not None:
+        out.append(r.min - (1 if arg.kind is int else max(1e-9, abs(r.min) * 1e-6)))
+    if r.gt is not None:
+        out.append(r.gt)
+    if r.max is not None:
+        out.append(r.max + (1 if arg.kind is int else max(step, abs(r.max) * 1e-6)))
+    if r.lt is not None:
+        out.append(r.lt)
+    return [str(int(v)) if arg.kind is int else repr(float(v)) for v in out]
+
+
+def _of_action(action: argparse.Action, commands: tuple[str, ...]) -> Iterator[BadArgument]:
+    flag = action.option_strings[-1] if action.option_strings else action.dest
+    t = action.type
+    if action.choices is not None and not isinstance(action, argparse._SubParsersAction):
+        yield BadArgument(commands, flag, "choice", "no_such_choice")
+    if isinstance(t, Arg):
+        yield BadArgument(commands, flag, "type", "abc")
+        if t.kind is float:
+            yield from (BadArgument(commands, flag, "type", v) for v in ("nan", "inf"))
+        yield from (BadArgument(commands, flag, "range", v) for v in _crossed(t))
+    elif isinstance(t, Names):
+        yield BadArgument(commands, flag, "choice", "no_such_name")
+        yield BadArgument(commands, flag, "empty", ",")
+        yield BadArgument(commands, flag, "duplicate", f"{t.choices[0]},{t.choices[0]}")
+    elif t in (int, float):
+        yield BadArgument(commands, flag, "undeclared", "abc")
+
+
+def bad_arguments(
+    parser: argparse.ArgumentParser, commands: tuple[str, ...] = ()
+) -> Iterator[BadArgument]:
+    """Every :class:`BadArgument` of ``parser`` and of its subcommands' parsers: for each number
+    option a wrong type and each bound crossed, an unknown choice, and for a list of names an
+    empty list, an unknown name and a name listed twice."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                yield from bad_arguments(sub, (*commands, name))
+        elif not isinstance(action, argparse._HelpAction):
+            yield from _of_action(action, commands)
+
+
+def option_strings(parser: argparse.ArgumentParser) -> Sequence[str]:
+    """Every option string of ``parser`` (for tests)."""
+    return [s for a in parser._actions for s in a.option_strings]

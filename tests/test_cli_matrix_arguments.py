@@ -1,0 +1,142 @@
+"""The generated matrix of the argparse console scripts (``uss-synth``, ``uss-traj``,
+``uss-vocab``, ``uss-eval`` and ``uss-eval compare``, ``uss-demo``): their parsers are walked
+(:func:`uss_slam.core.arguments.bad_arguments`) and every number option's wrong type and
+crossed bounds, every unknown choice, and every list of names' empty, unknown and repeated
+item is run as the console script in this process. The Hydra scripts' keys are generated from
+their schemas in ``tests/test_cli_matrix.py``; together every script is covered, and a new
+option or key enters without a list to edit.
+
+The contract (docs/errors.md): exit code 2 (an argparse usage error), argparse's usage and then
+one line ``<prog>[ <command>]: error: argument <flag>: expected ...``, no traceback, nothing
+written into the folder the script runs in.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+from test_cli_matrix import CHECKERS, run_console_script, snapshot
+from test_path_families import PATH_ARGS, PathArg
+
+from uss_slam.core.arguments import Arg, BadArgument, bad_arguments
+from uss_slam.core.launch import SCRIPTS
+
+Parser = Callable[[], argparse.ArgumentParser]
+
+
+def argparse_scripts() -> list[tuple[str, tuple[str, ...], Parser]]:
+    """``(prog, commands, build_parser)`` of every console script with an argparse parser
+    (its module's ``build_parser``) and of its subcommands with a parser of their own (the
+    module's ``COMMANDS``: name -> module)."""
+    found = []
+    for prog, module_name in SCRIPTS.items():
+        module = importlib.import_module(module_name)
+        if hasattr(module, "build_parser"):
+            found.append((prog, (), module.build_parser))
+        for name, sub in getattr(module, "COMMANDS", {}).items():
+            found.append((prog, (name,), importlib.import_module(sub).build_parser))
+    return found
+
+
+SCRIPT_PARSERS = argparse_scripts()
+BAD = [
+    (prog, bad)
+    for prog, commands, build in SCRIPT_PARSERS
+    for bad in bad_arguments(build(), commands)
+]
+
+
+def test_every_console_script_is_generated_from_its_parser_or_its_schema() -> None:
+    """Each console script of pyproject's [project.scripts] (core/launch.py's SCRIPTS) is in
+    this matrix (argparse) or in the schema matrix (Hydra)."""
+    argparse_progs = {prog for prog, _, _ in SCRIPT_PARSERS}
+    assert set(SCRIPTS) == argparse_progs | set(CHECKERS), (argparse_progs, set(CHECKERS))
+    assert not argparse_progs & set(CHECKERS)
+
+
+def test_every_number_option_declares_its_range() -> None:
+    """A number option is typed by :class:`~uss_slam.core.arguments.Arg` (its range), never a
+    bare ``int`` or ``float`` that takes 0, -1 or 10**9 alike."""
+    undeclared = [f"{prog} {bad.id}" for prog, bad in BAD if bad.kind == "undeclared"]
+    assert undeclared == []
+
+
+def test_the_matrix_has_cases_of_every_kind() -> None:
+    kinds = {bad.kind for _, bad in BAD}
+    assert {"type", "range", "choice", "duplicate", "empty"} <= kinds, kinds
+    assert len(BAD) >= 60, len(BAD)
+
+
+@pytest.mark.parametrize(
+    ("prog", "bad"),
+    [pytest.param(p, b, id=f"{p} {b.id}") for p, b in BAD if b.kind != "undeclared"],
+)
+def test_generated_argument_is_one_usage_line(
+    prog: str, bad: BadArgument, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(logging, "raiseExceptions", False)
+    (tmp_path / "earlier.txt").write_text("an earlier output\n")
+    before = snapshot(tmp_path)
+    code, _, err = run_console_script(
+        prog, [*bad.commands, bad.flag, bad.value], monkeypatch, capsys
+    )
+    lines = err.strip().splitlines()
+    assert "Traceback" not in err, err
+    assert code == 2, err
+    head = " ".join((prog, *bad.commands))
+    assert lines[-1].startswith(f"{head}: error: argument "), err
+    assert bad.flag in lines[-1], err
+    assert "expected" in lines[-1] or "choose from" in lines[-1], err  # argparse's choices
+    assert all(line.startswith(("usage:", " ")) for line in lines[:-1]), err
+    assert snapshot(tmp_path) == before
+
+
+def _path_actions() -> list[tuple[str, tuple[str, ...], str]]:
+    """``(prog, commands, flag or '')`` of every path-typed argument of every parser."""
+    found = []
+
+    def walk(prog: str, parser: argparse.ArgumentParser, commands: tuple[str, ...]) -> None:
+        for action in parser._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                for name, sub in action.choices.items():
+                    walk(prog, sub, (*commands, name))
+            elif action.type is Path:
+                found.append(
+                    (prog, commands, action.option_strings[-1] if action.option_strings else "")
+                )
+
+    for prog, commands, build in SCRIPT_PARSERS:
+        walk(prog, build(), commands)
+    return found
+
+
+def test_every_path_argument_is_in_the_path_families() -> None:
+    """Each path option of each argparse parser has a row in ``tests/test_path_families.py``
+    (every family then runs on it): an option by its flag, a positional one by its
+    subcommand."""
+
+    def command(a: PathArg) -> str:
+        first = a.argv.split()[0]
+        return first if first.isidentifier() else ""
+
+    rows = {(a.prog, command(a), a.key or "") for a in PATH_ARGS}
+    missing = [
+        f"{prog} {' '.join(commands)} {flag or '(positional)'}"
+        for prog, commands, flag in _path_actions()
+        if (prog, commands[0] if commands else "", flag) not in rows
+    ]
+    assert missing == [], missing
+
+
+def test_arg_refuses_each_bound_and_takes_the_bounds() -> None:
+    arg = Arg(int, __import__("uss_slam.core.ranges", fromlist=["Range"]).Range(min=1, max=3))
+    assert [arg("1"), arg("3")] == [1, 3]
+    for text in ("0", "4", "1.5", "x", ""):
+        with pytest.raises(argparse.ArgumentTypeError, match="expected an integer >= 1"):
+            arg(text)
