@@ -212,7 +212,10 @@ def per_render(values: dict[tuple[str, str], list[float]], method: str,
 
 
 def mediator_values(rows: list[dict]) -> dict[str, dict[tuple[str, str], list[float]]]:
-    out: dict[str, dict] = {"walker_removed": defaultdict(list), "static_removed": defaultdict(list)}
+    out: dict[str, dict] = {
+        "walker_removed": defaultdict(list),
+        "static_removed": defaultdict(list),
+    }
     for r in rows:
         render = f"{r['preset']}_{r['render_seed']}"
         for share, total in (("walker_removed", "walker_kp"), ("static_removed", "static_kp")):
@@ -266,7 +269,28 @@ def figures(mediator_rows: list[dict], slam_rows: list[dict], method: str, base:
             if vals:
                 medians.append(f"- {system}, {row}: median ratio {np.median(vals):+.3f} over "
                                f"{len(vals)} (render, seed) runs")  # fmt: skip
-    return "\n".join([*lines, "", *medians])
+    return "\n".join([*lines, "", *medians, *static_lines(slam_rows, (method, base))])
+
+
+def static_lines(rows: list[dict], names: tuple[str, ...]) -> list[str]:
+    """On renders with nothing moving (``static_*``): each row's ATE_model / ATE_none per seed
+    (the control: a mask that removes static keypoints costs accuracy there)."""
+    out = []
+    for system in sorted({r["system"] for r in rows}):
+        mine = [r for r in rows if r["system"] == system and r["preset"].startswith("static")]
+        for render in sorted({r["render"] for r in mine}):
+            here = {r["run"]: r for r in mine if r["render"] == render}
+            if "none" not in here or here["none"]["ate_median"] in ("", "None"):
+                continue
+            ref = float(here["none"]["ate_median"])
+            for row in names:
+                ratios = [float(r["ate_median"]) / ref for r in here.values()
+                          if r["row"] == row and r["ate_median"] not in ("", "None")]  # fmt: skip
+                if ratios:
+                    seeds = ", ".join(f"x{v:.2f}" for v in ratios)
+                    out.append(f"- {system}, {render} (nothing moves; no filter {ref:.4f} m), "
+                               f"{row}: ATE / no filter {seeds} (per seed)")  # fmt: skip
+    return out
 
 
 def main(argv: list[str] | None = None) -> None:
