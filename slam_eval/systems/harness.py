@@ -293,21 +293,7 @@ class SlamPipeline:
         with timer("octomap"):  # every keyframe at its final pose
             octomap = loop.products.build_octomap(loop.map.pose_wc)
         noise = dict(zip(("depth_noise", "depth_noise_from"), self.depth_noise, strict=True))
-        thread = "prefetch" if self.parallel and self.segment == "every_frame" else "main"
-        segmented = loop.counts["segmented"]
-        per_segmented = _per_segmented(timer, segmented)
-        semantic = None
-        if loop.semantic is not None:
-            stats = loop.semantic.stats
-            thread, segmented = "semantic", loop.counts["masks"]
-            per_segmented = {}
-            if loop.semantic.clock == "wall" and stats.delivered:
-                per_segmented = {"wall": 1000.0 * stats.segment_s / stats.delivered}
-            semantic = {
-                "clock": loop.semantic.clock,
-                **loop.semantic.stats.as_dict(),
-                "points_marked": loop.counts["points_marked"],
-            }
+        thread, segmented, per_segmented, semantic = self._segmentation(loop)
         return RunResult(
             sequence=str(self.sequence.path),
             camera=self.sequence.camera_source,
@@ -349,6 +335,27 @@ class SlamPipeline:
             loop_candidates_rejected=closer.rejected if closer is not None else 0,
             octomap=octomap,
         )
+
+    def _segmentation(
+        self, loop: FrameLoop
+    ) -> tuple[str, int, dict[str, float], dict[str, float | int | str] | None]:
+        """Where the segmenter ran, the frames segmented (masks delivered by the semantic
+        thread), the mean ms per segmented frame and the semantic thread's figures (None
+        without it), for :class:`RunResult`."""
+        thread = "prefetch" if self.parallel and self.segment == "every_frame" else "main"
+        segmented = loop.counts["segmented"]
+        if loop.semantic is None:
+            return thread, segmented, _per_segmented(loop.timer, segmented), None
+        stats = loop.semantic.stats
+        per_segmented = {}
+        if loop.semantic.clock == "wall" and stats.delivered:
+            per_segmented = {"wall": 1000.0 * stats.segment_s / stats.delivered}
+        semantic = {
+            "clock": loop.semantic.clock,
+            **stats.as_dict(),
+            "points_marked": loop.counts["points_marked"],
+        }
+        return "semantic", loop.counts["masks"], per_segmented, semantic
 
     @staticmethod
     def _trajectory(loop: FrameLoop) -> Trajectory:
