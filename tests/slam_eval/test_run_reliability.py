@@ -79,7 +79,7 @@ BAD_CONFIGS = [
     (["eval.rpe_delta=1.5"], "eval.rpe_delta: expected a whole number of frames with rpe_unit="),
     (["eval.rpe_delta=0"], "eval.rpe_delta: expected a number > 0, got 0"),
     (["eval.max_diff=abc"], "eval.max_diff: expected a number > 0, got 'abc'"),
-    (["segment=sometimes"], "segment: expected one of 'every_frame', 'keyframes', got 'sometimes'"),
+    (["segment=sometimes"], "segment: expected one of 'every_frame', 'keyframes', 'thread', got 'sometimes'"),
     (["filters=[semantic,teleport]"], "filters: unknown filter 'teleport'; choose from semantic"),
     (["compare=[[semantic],[flow,warp]]"], "compare[1]: unknown filter 'warp'; choose from"),
     (["compare=[]"], "compare must be a non-empty list of filter lists"),
@@ -91,8 +91,12 @@ BAD_CONFIGS = [
     (["slam.filter_params.semantic.dynamic_classes=[person,ghost]"],
      "unknown class 'ghost'; the project's classes are background, person, chair, monitor"),
     (["segmenter=labels", "+segmenter.model=x.onnx"],
-     "segmenter.model: unknown key; uss_slam.slam_eval.segmenters.base.LabelsSegmenter takes no "
-     "parameters"),
+     "segmenter.model: unknown key; expected one of latency_s, wait (the parameters of "
+     "uss_slam.slam_eval.segmenters.base.LabelsSegmenter)"),
+    (["segmenter=labels", "segmenter.latency_s=-1"], "segmenter.latency_s: expected a number >= 0"),
+    (["segmenter=labels", "segmenter.latency_s=2.9"],
+     "segmenter.latency_s=2.9 is simulated by segment=thread only; with segment=every_frame set "
+     "segmenter.wait=true"),
     (["segmenter=onnx"], "segmenter.path: required by OnnxSegmenter"),
     (["segmenter=onnx", "segmenter.path=missing.onnx"], "segmenter.path=missing.onnx: does not exist"),
     (["slam.orb.bogus=1"], "slam.orb.bogus: unknown key; expected one of n_features, scale_factor"),
