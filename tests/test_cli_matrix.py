@@ -1262,13 +1262,17 @@ def _compose(config: str, overrides: list[str]) -> Any:
 
 
 def _slam_checker() -> tuple[Any, Callable[[Any], Any], list[Any]]:
+    from omegaconf import OmegaConf
+
     from uss_slam.core.schema import target_schema
     from uss_slam.core.schema.cases import bad_values
     from uss_slam.slam_eval.config import SlamEvalConfig, check, register_configs
+    from uss_slam.slam_eval.systems.orbslam3.config import OrbSlam3Config, check_system
 
     register_configs()
     cfg = _compose("slam_eval", ["sequence.path=/nonexistent/seq", "out_dir=/nonexistent/out",
-                                 "segmenter=onnx", "segmenter.path=/nonexistent/m.onnx"])  # fmt: skip
+                                 "segmenter=onnx", "segmenter.path=/nonexistent/m.onnx",
+                                 "system=orbslam3"])  # fmt: skip
     bad = list(bad_values(SlamEvalConfig))
     for name in cfg.slam.filter_params:
         schema = target_schema(str(cfg.slam.filter_params[name]._target_))
@@ -1278,7 +1282,13 @@ def _slam_checker() -> tuple[Any, Callable[[Any], Any], list[Any]]:
         for b in bad_values(target_schema(str(cfg.segmenter._target_)), "segmenter")
         if b.key != "segmenter.path"
     ]  # fmt: skip  (a path: the path layer's cases)
-    return cfg, check, bad
+    bad += list(bad_values(OrbSlam3Config, "system"))  # last: the samples run the harness
+
+    def check_with_system(c: Any) -> Any:
+        check(c)
+        return check_system(OmegaConf.to_container(c.system, resolve=True))
+
+    return cfg, check_with_system, bad
 
 
 def _train_checker() -> tuple[Any, Callable[[Any], Any], list[Any]]:

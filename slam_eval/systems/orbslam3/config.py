@@ -4,10 +4,13 @@ own settings, checked before any frame is read, and the check of its vocabulary 
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, Optional
 
 from uss_slam.core.errors import DataFormatError, UssSlamError
+from uss_slam.core.schema import SchemaError, check_fields, ranged, validate
 
 from .masking import FILLS
 from .vocabulary import read_header
@@ -23,47 +26,45 @@ VOCAB_HINT = (
 class OrbSlam3Config:
     """``system.*`` of ``configs/system/orbslam3.yaml`` (ORB-SLAM3's own settings)."""
 
-    vocabulary: str | None = None
+    vocabulary: Optional[str] = None  # noqa: UP045 (OmegaConf)
     """DBoW2 text vocabulary file (``uss-vocab build`` or ORB-SLAM3's ``ORBvoc.txt``)."""
-    repeats: int = 3
-    settings_file: str | None = None
+    repeats: int = ranged(3, min=1)
+    settings_file: Optional[str] = None  # noqa: UP045
     """An ORB-SLAM3 settings YAML to use instead of the one written from the sequence's camera."""
-    n_features: int = 1000
-    scale_factor: float = 1.2
-    n_levels: int = 8
-    ini_fast: int = 20
-    min_fast: int = 7
-    baseline: float = 0.0747
+    n_features: int = ranged(1000, min=1)
+    scale_factor: float = ranged(1.2, gt=1.0)
+    n_levels: int = ranged(8, min=1)
+    ini_fast: int = ranged(20, min=1, max=255)
+    min_fast: int = ranged(7, min=1, max=255)
+    baseline: float = ranged(0.0747, gt=0)
     """m, ``Stereo.b``: the virtual stereo baseline of RGB-D mode (TUM examples: bf = 40)."""
-    th_depth: float = 40.0
+    th_depth: float = ranged(40.0, gt=0)
     """``Stereo.ThDepth``: close points are nearer than ``th_depth × baseline`` (~3 m)."""
-    fps: int | None = None
+    fps: Optional[int] = ranged(None, min=1)  # noqa: UP045
     """``Camera.fps`` (ORB-SLAM3 inserts a keyframe at least every fps frames); None = from
     the selected frames' stamps."""
     realtime: bool = True
     """Feed frames no faster than their stamps (as ORB-SLAM3's ``rgbd_tum`` example)."""
-    blank_value: int = 128
+    blank_value: int = ranged(128, min=0, max=255)
     """Grey level (0-255) of the blanked dynamic pixels in the colour image."""
-    blank_fill: str = "grey"
+    blank_fill: str = ranged("grey", choices=FILLS)
     """``grey`` (flat ``blank_value``) or ``inpaint`` (continued from the pixels around the
     mask: a weaker edge where a mask covers only part of a walker)."""
 
     def __post_init__(self) -> None:
-        checks = [
-            (self.repeats >= 1, "repeats", "an integer >= 1"),
-            (self.n_features >= 1, "n_features", "an integer >= 1"),
-            (self.scale_factor > 1.0, "scale_factor", "a number > 1"),
-            (self.n_levels >= 1, "n_levels", "an integer >= 1"),
-            (0 < self.min_fast <= self.ini_fast, "min_fast", "0 < min_fast <= ini_fast"),
-            (self.baseline > 0, "baseline", "a number > 0 (metres)"),
-            (self.th_depth > 0, "th_depth", "a number > 0"),
-            (self.fps is None or self.fps >= 1, "fps", "null or an integer >= 1"),
-            (0 <= self.blank_value <= 255, "blank_value", "a grey level 0..255"),
-            (self.blank_fill in FILLS, "blank_fill", " or ".join(FILLS)),
-        ]
-        for ok, key, expected in checks:
-            if not ok:
-                raise UssSlamError(f"system.{key}={getattr(self, key)!r}: expected {expected}")
+        check_fields(self, "system")  # the ranges above, one line naming system.<key>
+        if self.min_fast > self.ini_fast:  # the one rule across keys
+            raise SchemaError(
+                "system.min_fast", f"an integer <= system.ini_fast ({self.ini_fast})", self.min_fast
+            )
+
+
+def check_system(values: Mapping[str, Any]) -> OrbSlam3Config:
+    """``system.*`` as composed (``name`` left out): unknown keys, types and ranges, each one
+    line naming its ``system.<key>`` (the schema's), then the rule across keys."""
+    values = {k: v for k, v in values.items() if k != "name"}
+    validate(values, OrbSlam3Config, "system")
+    return OrbSlam3Config(**values)
 
 
 def check_vocabulary(vocabulary: str | None) -> Path:

@@ -64,7 +64,7 @@ from ...scoring.report import fmt
 from ...scoring.run_folder import RunFolder
 from ...segmenters.base import Segmenter
 from ...sequence import MIN_STRIDED_FRAMES, TumSequence
-from .config import INSTALL_HINT, OrbSlam3Config, check_vocabulary
+from .config import INSTALL_HINT, OrbSlam3Config, check_system, check_vocabulary
 from .masking import check_masks, compute_masks
 from .repeats import RepeatResult, read_estimate
 from .report import write_outputs
@@ -265,12 +265,7 @@ def run_from_config(
             "system=orbslam3 segments every frame (its keyframe choice is internal); "
             "segment=keyframes applies to the harness only"
         )
-    values = OmegaConf.to_container(cfg.system, resolve=True) or {}
-    values.pop("name", None)
-    try:
-        config = OrbSlam3Config(**values)
-    except TypeError as err:
-        raise UssSlamError(f"system: {err}") from None
+    config = check_system(OmegaConf.to_container(cfg.system, resolve=True) or {})
     seq = cfg.sequence
     spec = SequenceSpec(
         path=str(seq.path),

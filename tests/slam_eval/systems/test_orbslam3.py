@@ -104,10 +104,12 @@ def test_unreadable_settings_and_bad_config_values(tmp_path: Path) -> None:
         check_settings(tmp_path / "x.yaml")
     with pytest.raises(DataFormatError, match="file not found"):
         check_settings(tmp_path / "none.yaml")
-    with pytest.raises(UssSlamError, match=r"system.repeats=0: expected an integer >= 1"):
+    with pytest.raises(UssSlamError, match=r"system.repeats: expected an integer >= 1, got 0"):
         OrbSlam3Config(repeats=0)
-    with pytest.raises(UssSlamError, match=r"system.blank_value=300"):
+    with pytest.raises(UssSlamError, match=r"system.blank_value: expected an integer >= 0 and <= 255, got 300"):
         OrbSlam3Config(blank_value=300)
+    with pytest.raises(UssSlamError, match=r"system.min_fast: expected an integer <= system.ini"):
+        OrbSlam3Config(min_fast=21)
     with pytest.raises(UssSlamError, match="4 or 5 distortion coefficients"):
         cam = TUM_CAMERAS["fr3"]
         eight = type(cam)(cam.fx, cam.fy, cam.cx, cam.cy, 640, 480, (0.0,) * 8)
@@ -204,7 +206,7 @@ def test_inpainting_leaves_a_weaker_edge_across_a_partly_masked_walker() -> None
     assert np.all(depth_filled[mask] == 0.0) and np.all(depth_filled[~mask] == 2.0)
     with pytest.raises(UssSlamError, match="system.blank_fill='blur': expected one of grey"):
         fill_dynamic(rgb, mask, "blur")
-    with pytest.raises(UssSlamError, match="system.blank_fill='blur': expected grey or inpaint"):
+    with pytest.raises(UssSlamError, match="system.blank_fill: expected one of 'grey', 'inpaint', got 'blur'"):
         OrbSlam3Config(blank_fill="blur")
 
 
