@@ -106,7 +106,9 @@ def test_unreadable_settings_and_bad_config_values(tmp_path: Path) -> None:
         check_settings(tmp_path / "none.yaml")
     with pytest.raises(UssSlamError, match=r"system.repeats: expected an integer >= 1, got 0"):
         OrbSlam3Config(repeats=0)
-    with pytest.raises(UssSlamError, match=r"system.blank_value: expected an integer >= 0 and <= 255, got 300"):
+    with pytest.raises(
+        UssSlamError, match=r"system.blank_value: expected an integer >= 0 and <= 255, got 300"
+    ):
         OrbSlam3Config(blank_value=300)
     with pytest.raises(UssSlamError, match=r"system.min_fast: expected an integer <= system.ini"):
         OrbSlam3Config(min_fast=21)
@@ -206,7 +208,9 @@ def test_inpainting_leaves_a_weaker_edge_across_a_partly_masked_walker() -> None
     assert np.all(depth_filled[mask] == 0.0) and np.all(depth_filled[~mask] == 2.0)
     with pytest.raises(UssSlamError, match="system.blank_fill='blur': expected one of grey"):
         fill_dynamic(rgb, mask, "blur")
-    with pytest.raises(UssSlamError, match="system.blank_fill: expected one of 'grey', 'inpaint', got 'blur'"):
+    with pytest.raises(
+        UssSlamError, match="system.blank_fill: expected one of 'grey', 'inpaint', got 'blur'"
+    ):
         OrbSlam3Config(blank_fill="blur")
 
 
