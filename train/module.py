@@ -190,12 +190,7 @@ class AdversarialSegmentation(LightningModule):
         optimizer_kernels: OptimizerKernels = "default",
     ) -> None:
         super().__init__()  # the values' types and ranges: the config's schema (uss-train)
-        num_classes = getattr(net, "num_classes", None)
-        if num_classes is not None and num_classes != len(class_names):
-            raise UssSlamError(
-                f"model.net.num_classes is {num_classes} but model.class_names lists "
-                f"{len(class_names)} ({', '.join(class_names)}); they must agree"
-            )
+        self._check_net(net, class_names, domain_batch_norm)
         self.automatic_optimization = False
         self.segmenter = net
         self.method = self._check_method(method)
@@ -207,12 +202,6 @@ class AdversarialSegmentation(LightningModule):
         self.head_lr_mult = head_lr_mult
         self.class_names = tuple(class_names)
         self.batch_domains = batch_domains
-        if getattr(net, "batchnorm", None) == "reference" and domain_batch_norm != "separate":
-            raise UssSlamError(
-                f"model.domain_batch_norm={domain_batch_norm} contradicts "
-                "model.net.batchnorm=reference (source and target forwards apart, each "
-                "normalised by its own batch): set model.domain_batch_norm=separate"
-            )
         self.domain_batch_norm = domain_batch_norm
         self.channels_last = channels_last
         self.compile_networks = compile
@@ -235,19 +224,23 @@ class AdversarialSegmentation(LightningModule):
         self.val_confusion = MulticlassConfusionMatrix(
             num_classes=len(self.class_names), ignore_index=IGNORE_INDEX
         )
-        # Plain values only, so checkpoints load with torch.load(weights_only=True).
+        self._save_settings()
+
+    def _save_settings(self) -> None:
+        """The run's settings as the checkpoint's hyperparameters: plain values only, so that
+        checkpoints load with ``torch.load(weights_only=True)``."""
         self.save_hyperparameters(
             {
                 "loss": asdict(self.loss_weights),
-                "max_iters": max_iters,
-                "poly_power": poly_power,
+                "max_iters": self.max_iters,
+                "poly_power": self.poly_power,
                 "poly_total_iters": self.poly_total_iters,
-                "head_lr_mult": head_lr_mult,
+                "head_lr_mult": self.head_lr_mult,
                 "method": self.method.name,
                 "adaptation": self.method.adapts,
                 "class_names": list(self.class_names),
-                "backbone": getattr(net, "backbone_name", type(net).__name__),
-                "optimizer": factory_settings(optimizer),
+                "backbone": getattr(self.segmenter, "backbone_name", type(self.segmenter).__name__),
+                "optimizer": factory_settings(self.optimizer_factory),
                 "method_settings": {
                     key: factory_settings(value) if callable(value) else value
                     for key, value in self.method.settings().items()
@@ -255,6 +248,22 @@ class AdversarialSegmentation(LightningModule):
             },
             logger=False,
         )
+
+    @staticmethod
+    def _check_net(net: DeepLabV2, class_names: Sequence[str], domain_batch_norm: str) -> None:
+        """The network agrees with the class list and with ``domain_batch_norm``."""
+        num_classes = getattr(net, "num_classes", None)
+        if num_classes is not None and num_classes != len(class_names):
+            raise UssSlamError(
+                f"model.net.num_classes is {num_classes} but model.class_names lists "
+                f"{len(class_names)} ({', '.join(class_names)}); they must agree"
+            )
+        if getattr(net, "batchnorm", None) == "reference" and domain_batch_norm != "separate":
+            raise UssSlamError(
+                f"model.domain_batch_norm={domain_batch_norm} contradicts "
+                "model.net.batchnorm=reference (source and target forwards apart, each "
+                "normalised by its own batch): set model.domain_batch_norm=separate"
+            )
 
     @staticmethod
     def _check_method(method: Method) -> Method:
