@@ -45,6 +45,7 @@ from .systems.harness import SEGMENT_SCHEDULES
 from .tracking.config import REMOVED as REMOVED_TRACKER_KEYS
 from .tracking.config import TrackerConfig
 from .variants import check_filters as check_variant_filters
+from .variants import choose_variant
 from .variants import read_table as read_variants
 
 MAX_PREFETCH = 256
@@ -158,7 +159,7 @@ class SlamEvalConfig:
     slam: SlamConfig = field(default_factory=SlamConfig)
     system: Any = None
     eval: EvalConfig = field(default_factory=EvalConfig)
-    variant: Optional[str] = None  # noqa: UP045
+    variant: Optional[str] = ranged(None, choices=tuple(read_variants()))  # noqa: UP045
     """A row of ``configs/variants.yaml`` (its segmenter, filters and dense CRF), or null
     (:func:`~.variants.choose_variant`)."""
     filters: Any = field(default_factory=list)
@@ -289,10 +290,12 @@ def _check_latency(section: DictConfig, segment: str) -> None:
         )
 
 
-def check(cfg: DictConfig) -> RunPlan:
+def check(cfg: DictConfig, overrides: Sequence[str] = ()) -> RunPlan:
     """Validate everything the run will use, before any frame is read or file written: the
     config against :class:`SlamEvalConfig` (types, ranges, unknown keys), the filters' and the
-    segmenter's parameters against their classes, then the rules across keys."""
+    segmenter's parameters against their classes, ``configs/variants.yaml``'s filters, then
+    the rules across keys. A ``variant`` sets its segmenter, filters and dense CRF in ``cfg``
+    (:func:`~.variants.choose_variant`; ``overrides``: the command line's)."""
     for key in ("segment", "filters", "compare", "eval", "slam", "segmenter", "out_dir"):
         if key not in cfg:
             raise UssSlamError(f"{key}: missing from the config")
@@ -317,6 +320,8 @@ def check(cfg: DictConfig) -> RunPlan:
     )
     params = _check_filter_params(cfg.slam.filter_params)
     known = list(params)
+    check_variant_filters(read_variants(), known)  # configs/variants.yaml: known filters only
+    choose_variant(cfg, overrides)
     if cfg.compare is None:
         runs: list[tuple[str | None, list[str]]] = [
             (None, _filter_names(cfg.filters, "filters", known))
@@ -327,7 +332,6 @@ def check(cfg: DictConfig) -> RunPlan:
     for _, names in runs:
         build_filters(names, params)
     build_filters(known, params)  # the parameters of unused filters are checked too
-    check_variant_filters(read_variants(), known)  # configs/variants.yaml: known filters only
     _check_segmenter(cfg.segmenter)
     _check_latency(cfg.segmenter, str(cfg.segment))
     return RunPlan(orb, tracker, semantic_map, evaluation, params, runs, backend, repeats)

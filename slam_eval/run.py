@@ -37,7 +37,6 @@ from .scoring.run_folder import RunFolder
 from .segmenters.base import LabelsOnce, Segmenter, worth_keeping
 from .sequence import MIN_STRIDED_FRAMES, TumSequence
 from .systems.harness import SlamPipeline
-from .variants import choose_variant
 
 log = logging.getLogger(__name__)
 PROG = "uss-slam"
@@ -89,8 +88,9 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     too, leaves the earlier run as it was.
     """
     hydra_cfg = _own_hydra()
-    choose_variant(cfg, [] if hydra_cfg is None else [str(o) for o in hydra_cfg.overrides.task])
-    plan = check(cfg)  # values first: a bad value is named before a missing folder
+    overrides = [] if hydra_cfg is None else [str(o) for o in hydra_cfg.overrides.task]
+    # values first (a bad value is named before a missing folder); a variant's keys set in cfg
+    plan = check(cfg, overrides)
     input_folder(str(cfg.sequence.path), "sequence.path", "expected a TUM RGB-D sequence folder")
     out = check_writable(output_dir(cfg), "out_dir")
     if _own_hydra() is not None:  # inside uss-experiments, its job folder is that app's

@@ -128,8 +128,9 @@ SEGMENTER_OPTIONS = {"none": "none", "labels": "labels", "model": "onnx"}
 
 
 def choose_variant(cfg: Any, overrides: Sequence[str] = ()) -> Any:
-    """``cfg`` (the composed ``uss-slam`` config) with the segmenter, filters and dense CRF of
-    its ``variant`` (``cfg`` as it is without one), set in place.
+    """``cfg`` (the composed ``uss-slam`` config, checked against its schema and the table's
+    filters against its filter nodes) with the segmenter, filters and dense CRF of its
+    ``variant`` (``cfg`` as it is without one), set in place.
 
     ``overrides``: the command line's; a key given there (``filters``, ``segmenter``,
     ``segmenter.crf``) or set in ``cfg`` must agree with the variant, else one line naming it
@@ -142,14 +143,7 @@ def choose_variant(cfg: Any, overrides: Sequence[str] = ()) -> Any:
     name = cfg.get("variant")
     if name is None:
         return cfg
-    table = read_table()
-    if str(name) not in table:
-        raise UssSlamError(
-            f"variant: unknown variant {str(name)!r}; choose from {', '.join(table)} "
-            f"(configs/{TABLE})"
-        )
-    v = table[str(name)]
-    check_filters({v.name: v}, [str(k) for k in cfg.slam.filter_params])
+    v = read_table()[str(name)]  # (a name of the table: the schema's choices, checked first)
     given = {o.lstrip("+~").split("=", 1)[0]: o.lstrip("+~") for o in overrides}
     if cfg.get("compare") is not None:
         raise UssSlamError(

@@ -8,12 +8,11 @@ from omegaconf import DictConfig
 from shared_helpers import compose_slam_eval
 
 from uss_slam.core.errors import UssSlamError
-from uss_slam.slam_eval import variants as variants_module
+from uss_slam.slam_eval import config as slam_config
 from uss_slam.slam_eval.config import check
 from uss_slam.slam_eval.variants import (
     Variant,
     check_filters,
-    choose_variant,
     masks_orbslam3_input,
     read_table,
     variants,
@@ -59,8 +58,7 @@ def _chosen(*overrides: str) -> DictConfig:
     """``uss-slam``'s config composed with ``overrides``, its variant chosen (the overrides as
     the command line's), checked."""
     cfg = compose_slam_eval(["sequence.path=/unused", "out_dir=/unused", *overrides])
-    choose_variant(cfg, overrides)
-    check(cfg)
+    check(cfg, overrides)
     return cfg
 
 
@@ -81,9 +79,9 @@ def test_uss_slam_variant_sets_the_segmenter_filters_and_crf_as_the_table_says()
 @pytest.mark.parametrize(
     ("overrides", "line"),
     [
-        (["variant=teleport"], "variant: unknown variant 'teleport'; choose from none, geometry, "
-         "semantic, semantic_crf, semantic_geometry, semantic_geometry_crf, "
-         "semantic_geometry_object, oracle (configs/variants.yaml)"),
+        (["variant=teleport"], "variant: expected one of 'none', 'geometry', 'semantic', "
+         "'semantic_crf', 'semantic_geometry', 'semantic_geometry_crf', "
+         "'semantic_geometry_object', 'oracle' or null, got 'teleport'"),
         (["variant=geometry", "filters=[flow]"], "filters=[flow]: variant=geometry runs "
          "filters=[geometry] (configs/variants.yaml); give one of them"),
         (["variant=geometry", "filters=[]"], "filters=[]: variant=geometry runs "
@@ -108,13 +106,13 @@ def test_a_variant_that_cannot_be_run_as_given_is_one_line(overrides: list, line
     assert str(err.value) == line
 
 
-def test_a_chosen_variant_naming_an_unknown_filter_is_one_line(
+def test_uss_slam_stops_at_a_variant_naming_an_unknown_filter(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     table = {"teleport": Variant("teleport", "teleport", "none", ("teleport",))}
-    monkeypatch.setattr(variants_module, "read_table", lambda: table)
+    monkeypatch.setattr(slam_config, "read_variants", lambda: table)
     with pytest.raises(UssSlamError) as err:
-        _chosen("variant=teleport")
+        _chosen()  # any run: the table is checked at startup
     assert str(err.value) == (
         "configs/variants.yaml: variant teleport: unknown filter 'teleport'; choose from "
         "semantic, flow, geometry, object (slam.filter_params)"
