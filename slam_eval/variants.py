@@ -111,6 +111,24 @@ def variants(params: Mapping[str, Any] | None = None) -> dict[str, Variant]:
     return table
 
 
+def model_free(table: Mapping[str, Variant]) -> tuple[str, ...]:
+    """The variants that need no trained segmenter (no filter, geometry, ground-truth masks):
+    the experiments' baselines, in the table's order."""
+    return tuple(name for name, v in table.items() if v.segmenter != "model")
+
+
+def crf_pairs(table: Mapping[str, Variant]) -> tuple[tuple[str, str], ...]:
+    """``(variant, the same with the dense CRF)`` for each CRF variant of ``table`` whose
+    segmenter and filters another variant runs without the CRF, in the table's order."""
+    pairs = []
+    for name, v in table.items():
+        if v.crf:
+            off = [n for n, o in table.items()
+                   if not o.crf and (o.segmenter, o.filters) == (v.segmenter, v.filters)]  # fmt: skip
+            pairs += [(off[0], name)] if off else []
+    return tuple(pairs)
+
+
 def masks_orbslam3_input(variant: Variant, params: Mapping[str, Any] | None = None) -> bool:
     """Whether ORB-SLAM3 can run ``variant``: each of its filters finds its pixels in the frame
     alone (``masks_input``), so that they can be blanked in its input (False for a filter that

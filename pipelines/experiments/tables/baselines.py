@@ -4,12 +4,15 @@ from __future__ import annotations
 
 from typing import Any
 
+from uss_slam.slam_eval.variants import model_free
+
 from ..grid import VARIANTS
 from .layout import Layout, slam_rows
 from .markdown import md_table
 from .stats import stat
 
-BASELINES = ("none", "geometry", "oracle")
+BASELINES = model_free(VARIANTS)
+"""The variants without a trained segmenter (``configs/variants.yaml``: none, geometry, oracle)."""
 
 
 def table_baselines(rows, layout: Layout) -> tuple[list[dict[str, Any]], list[str]]:

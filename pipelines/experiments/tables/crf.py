@@ -4,14 +4,16 @@ from __future__ import annotations
 
 from typing import Any
 
+from uss_slam.slam_eval.variants import crf_pairs
+
 from ..grid import VARIANTS
 from .layout import Layout, seg_rows, slam_rows
 from .markdown import md_table
 from .runs_csv import ALL_SEQUENCES
 from .stats import stat
 
-CRF_PAIRS = (("semantic", "semantic_crf"), ("semantic_geometry", "semantic_geometry_crf"))
-"""(filter variant, the same with the dense CRF)."""
+CRF_PAIRS = crf_pairs(VARIANTS)
+"""(filter variant, the same with the dense CRF), from ``configs/variants.yaml``."""
 
 
 def table_crf(rows, layout: Layout) -> tuple[list[dict[str, Any]], list[str]]:
