@@ -125,14 +125,34 @@ def read_image(path: str | PathLike[str], flags: int, what: str = "an image") ->
     return image
 
 
+COLOUR = "a colour image (PNG or JPEG)"
+
+
 def read_colour(path: str | PathLike[str]) -> np.ndarray:
-    """A colour image as ``(H, W, 3)`` uint8 BGR (any channel count in the file)."""
-    return read_image(path, cv2.IMREAD_COLOR, "a colour image (PNG or JPEG)")
+    """A colour image as ``(H, W, 3)`` uint8 BGR (any channel count in the file; a 16-bit PNG,
+    such as a depth image, is refused: :func:`check_eight_bit`)."""
+    check_eight_bit(path)
+    return read_image(path, cv2.IMREAD_COLOR, COLOUR)
 
 
 def read_grey(path: str | PathLike[str]) -> np.ndarray:
-    """A colour image as ``(H, W)`` uint8 grey."""
-    return read_image(path, cv2.IMREAD_GRAYSCALE, "a colour image (PNG or JPEG)")
+    """A colour image as ``(H, W)`` uint8 grey (a 16-bit PNG refused, as by :func:`read_colour`)."""
+    check_eight_bit(path)
+    return read_image(path, cv2.IMREAD_GRAYSCALE, COLOUR)
+
+
+def check_eight_bit(path: str | PathLike[str]) -> None:
+    """Refuse a PNG whose header says 16 bits per channel where a colour frame is expected (the
+    decoder would scale it to 8 bits without a word: a depth image listed as a colour frame)."""
+    try:
+        with open(path, "rb") as file:
+            head = file.read(26)
+    except OSError:
+        return  # read_image names the problem
+    if head.startswith(PNG_SIGNATURE) and len(head) == 26 and head[24] == 16:
+        raise DataFormatError(
+            path, f"a 16-bit PNG (a depth image?); expected an 8-bit {COLOUR[2:]}"
+        )
 
 
 def read_depth(path: str | PathLike[str]) -> np.ndarray:

@@ -6,7 +6,10 @@ its script's module and calls its ``main``, so that what the machine lacks is on
   command that installs it, as the optional packages' errors give theirs (exit code 1);
 - memory (``MemoryError``: the machine's, or a limit such as ``ulimit -v``):
   ``<prog>: error: out of memory ...`` (exit code 1) after the script's own cleanup ran (its
-  temporary and partial outputs removed as after any error).
+  temporary and partial outputs removed as after any error);
+- Ctrl-C or SIGTERM while the script's libraries are still being imported (the first seconds
+  of a run, longer on a busy machine): ``<prog>: interrupted`` (exit code 130; SIGTERM:
+  ``<prog>: interrupted (SIGTERM)``, 143), as later in the run, never an import's traceback.
 
 Imports nothing outside the standard library before the script's module.
 """
@@ -14,6 +17,7 @@ Imports nothing outside the standard library before the script's module.
 from __future__ import annotations
 
 import importlib
+import signal
 import sys
 from collections.abc import Callable
 from importlib import metadata
@@ -72,10 +76,31 @@ MEMORY_LINE = (
 )
 
 
+class _Terminated(KeyboardInterrupt):
+    """SIGTERM while the script's module is imported (raised by :func:`_on_sigterm`)."""
+
+
+def _on_sigterm(signum: int, frame: object) -> None:
+    raise _Terminated
+
+
+def _interrupted(prog: str, error: KeyboardInterrupt) -> int:
+    """The line and exit code of an interrupt that reached :func:`launch`."""
+    sigterm = isinstance(error, _Terminated)
+    print(f"{prog}: interrupted" + (" (SIGTERM)" if sigterm else ""), file=sys.stderr)
+    return 143 if sigterm else 130
+
+
 def launch(prog: str) -> int | None:
-    """Run console script ``prog`` (its module's ``main``) with the two lines above."""
+    """Run console script ``prog`` (its module's ``main``) with the lines above."""
+    try:
+        previous = signal.signal(signal.SIGTERM, _on_sigterm)
+    except ValueError:  # not the main thread (a test): no handler
+        previous = None
     try:
         main: Callable[[], int | None] = importlib.import_module(SCRIPTS[prog]).main
+    except KeyboardInterrupt as error:  # Ctrl-C or SIGTERM during the imports
+        return _interrupted(prog, error)
     except ModuleNotFoundError as error:
         line = missing_package_line(prog, error)
         if line is None:
@@ -90,8 +115,13 @@ def launch(prog: str) -> int | None:
             file=sys.stderr,
         )
         return 1
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)  # the script installs its own
     try:
         return main()
+    except KeyboardInterrupt as error:  # one that came before the script's own handling
+        return _interrupted(prog, error)
     except Exception as error:
         if not out_of_memory(error):
             raise

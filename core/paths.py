@@ -24,6 +24,8 @@ import errno
 import os
 import re
 import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 from os import PathLike
 from pathlib import Path
 
@@ -43,6 +45,20 @@ class PathError(DataFormatError):
 
     def __reduce__(self) -> tuple[object, ...]:
         return (type(self), (self.path, self.key, self.detail))
+
+
+@contextmanager
+def naming(key: str, path: str | PathLike[str]) -> Iterator[None]:
+    """A reader's :class:`DataFormatError` about the file ``path`` itself (no line), raised
+    inside, becomes the path layer's line naming ``key`` too: ``ckpt_path=<path>: ...``."""
+    try:
+        yield
+    except DataFormatError as error:
+        if error.line is not None or getattr(error, "key", None) is not None:
+            raise
+        if Path(error.path).absolute() != Path(path).absolute():
+            raise
+        raise PathError(path, key, error.detail) from None
 
 
 def where(path: str | PathLike[str], key: str | None) -> str:
@@ -245,12 +261,15 @@ def read_text(
     """The text of an input file, read whole; every problem one :class:`DataFormatError`
     naming the file: one that cannot be read (:func:`input_file`'s problems), and a byte the
     encoding does not allow, with its line and column (1-based) and the byte (a Latin-1 ``é``
-    in a UTF-8 file, a PNG given as a trajectory)."""
+    in a UTF-8 file, a PNG given as a trajectory). A UTF-8 byte-order mark (what Windows
+    editors write first) is not part of the text."""
     checked = input_file(path, None, expected)
     try:
         data = checked.read_bytes()
     except OSError as error:
         raise PathError(path, None, f"cannot read it ({error.strerror}); {expected}") from None
+    if encoding.replace("_", "-").lower() in ("utf-8", "utf8") and data.startswith(BOM):
+        data = data[len(BOM) :]
     try:
         return data.decode(encoding)
     except UnicodeDecodeError as error:
@@ -265,6 +284,8 @@ def read_text(
         ) from None
 
 
+BOM = b"\xef\xbb\xbf"
+"""The UTF-8 byte-order mark."""
 ROOT_KEYS = ("root", "roots")
 """Keys of a data config that name input folders (one, or a list): every data set's."""
 

@@ -24,7 +24,7 @@ from omegaconf import DictConfig, OmegaConf
 from uss_slam.core.cli import hydra_task, run_hydra_app
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.onnx_contract import HEADS
-from uss_slam.core.paths import input_file, input_folder, output_file, output_folder
+from uss_slam.core.paths import input_file, input_folder, naming, output_file, output_folder
 from uss_slam.core.schema import MAX_THREADS, check, ranged
 from uss_slam.export.checkpoint import run_name
 from uss_slam.export.onnx import check_options, export_checkpoint
@@ -117,6 +117,11 @@ class ExportOptions:
         out_key = "out" if out is not None else "out_dir" if _value(cfg, "name") is None else "name"
         if out is None:
             name = _value(cfg, "name")
+            if name is not None and ("/" in str(name) or str(name) in (".", "..")):
+                raise UssSlamError(
+                    f"name={name}: expected a file name without '/' (the model is written into "
+                    "out_dir; out=PATH writes it elsewhere)"
+                )
             if name is None:
                 name = run_name(ckpt_path) or ckpt_path.stem
                 if head != "main":
@@ -164,6 +169,12 @@ def run(cfg: DictConfig) -> ExportResult:
         calibration = CalibrationSet.read(options.calibration_root, options.calibration_frames)
     if options.num_threads:
         torch.set_num_threads(options.num_threads)
+    with naming("ckpt_path", options.ckpt_path):  # ckpt_path=<file>: not a readable checkpoint
+        return _export(options, calibration)
+
+
+def _export(options: ExportOptions, calibration: CalibrationSet | None) -> ExportResult:
+    """:func:`run` once the options are checked."""
     return export_checkpoint(
         options.ckpt_path,
         options.out,

@@ -145,7 +145,7 @@ class SequenceConfig:
     """First associated frame to use."""
     stride: int = ranged(1, min=1)
     """Use every stride-th frame."""
-    max_frames: Optional[int] = ranged(None, min=1)  # noqa: UP045
+    max_frames: Optional[int] = ranged(None, min=2)  # noqa: UP045 (a trajectory: 2 frames)
     """At most this many frames; null = all."""
 
 

@@ -213,7 +213,14 @@ def warn_if_groundtruth_misses(sequence: TumSequence) -> None:
             file=sys.stderr,
         )
         return
-    if gt is None or not len(gt) or not len(frames):
+    if not len(gt):
+        print(
+            f"{PROG}: warning: {sequence.path}/groundtruth.txt holds no pose, so ATE and RPE "
+            "are n/a (the trajectory and the map are written)",
+            file=sys.stderr,
+        )
+        return
+    if not len(frames):
         return
     if gt.stamps.min() <= frames.max() and frames.min() <= gt.stamps.max():
         return

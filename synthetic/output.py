@@ -98,19 +98,23 @@ def is_synth_output(folder: Path) -> bool:
     return False
 
 
-def check_output(out_dir: str | PathLike[str], overwrite: bool) -> Path:
+def check_output(out_dir: str | PathLike[str], overwrite: bool, key: str = "--out") -> Path:
     """Refuse an existing non-empty ``out_dir`` unless ``overwrite``, and even then unless it is
-    a ``uss-synth`` output (:func:`is_synth_output`); also refuse a file there."""
+    a ``uss-synth`` output (:func:`is_synth_output`); also refuse a file there. The line names
+    ``key=<out_dir>`` (the path layer's form)."""
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
-        raise OutputExistsError(f"{out}: exists and is not a folder")
+        raise OutputExistsError(f"{key}={out}: is a file; expected a folder")
     if out.is_dir() and any(out.iterdir()):
         if not overwrite:
-            raise OutputExistsError(f"{out}: folder exists and is not empty (use overwrite)")
+            raise OutputExistsError(
+                f"{key}={out}: the folder exists and is not empty; expected a new or empty "
+                "folder (or --overwrite to replace an earlier uss-synth output)"
+            )
         if not is_synth_output(out):
             raise OutputExistsError(
-                f"{out}: not a uss-synth output (no {OUTPUT_MARKER} or synthetic.yaml in it); "
-                "refusing to overwrite it"
+                f"{key}={out}: not a uss-synth output (no {OUTPUT_MARKER} or synthetic.yaml in "
+                "it); refusing to overwrite it"
             )
     return out
 

@@ -293,7 +293,7 @@ CASES = [
          setup=(earlier_slam_run,)),
     case("slam-max-frames-zero", "uss-slam", f"{SLAM} sequence.max_frames=0", 1,
          "sequence.max_frames",
-         "expected an integer >= 1 or null, got 0", setup=(earlier_slam_run,)),
+         "expected an integer >= 2 or null, got 0", setup=(earlier_slam_run,)),
     case("slam-repeats-zero", "uss-slam", f"{SLAM} slam.repeats=0", 1, "slam.repeats",
          "expected an integer >= 1, got 0",
          setup=(earlier_slam_run,)),

@@ -31,7 +31,7 @@ from omegaconf import DictConfig, OmegaConf, open_dict
 from uss_slam.core.cli import hydra_task, run_hydra_app
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.files import check_writable
-from uss_slam.core.paths import input_file, input_roots
+from uss_slam.core.paths import input_file, input_roots, naming
 from uss_slam.core.schema import (
     MAX_THREADS,
     Range,
@@ -107,7 +107,7 @@ def config_groups() -> list[str]:
 # Ranges of library classes a config builds, whose annotations say only ``float`` / ``int``:
 # torch would refuse these values with its own text ("Invalid momentum value") once the
 # optimiser is built, Lightning would take a negative logging interval without a word.
-declare("torch.optim.SGD", lr=Range(min=0), momentum=Range(min=0), dampening=Range(min=0),
+declare("torch.optim.SGD", lr=Range(min=0), momentum=Range(min=0, lt=1), dampening=Range(min=0, max=1),
         weight_decay=Range(min=0))  # fmt: skip
 declare("torch.optim.Adam", lr=Range(min=0), betas=Range(min=0, lt=1, length=2),
         eps=Range(min=0), weight_decay=Range(min=0))  # fmt: skip
@@ -161,10 +161,18 @@ def check_config(cfg: DictConfig) -> RunSettings:
 
 
 def check_crops(cfg: DictConfig) -> None:
-    """The training crops fit the discriminators: each of their ``n_layers`` stride-2
-    convolutions halves its input, so a crop side below ``2 ** n_layers`` leaves them no output
-    (a traceback once training starts). Methods without discriminators need
-    :data:`~uss_slam.datasets.transforms.MIN_CROP` only (the schema's)."""
+    """The training crops are one side or two (``[h, w]``), and fit the discriminators: each of
+    their ``n_layers`` stride-2 convolutions halves its input, so a crop side below
+    ``2 ** n_layers`` leaves them no output (a traceback once training starts). Methods without
+    discriminators need :data:`~uss_slam.datasets.transforms.MIN_CROP` only (the schema's)."""
+    for domain in ("source", "target"):
+        crop = ((cfg.data.get(domain) or {}).get("transform") or {}).get("crop_size")
+        if crop is not None and not isinstance(crop, int) and len(crop) != 2:
+            raise SchemaError(
+                f"data.{domain}.transform.crop_size",
+                "an integer or a list of two integers [h, w]",
+                OmegaConf.to_container(crop),
+            )
     method = cfg.model.get("method")
     if not isinstance(method, DictConfig):
         return
@@ -219,7 +227,8 @@ def check_checkpoint(path: str, cfg: DictConfig) -> CheckpointInfo:
     """The ``ckpt_path`` file is a readable ``uss-train`` checkpoint with the configured
     number of classes (one error line naming the file otherwise)."""
     num_classes = cfg.model.get("net", {}).get("num_classes")
-    info = read_checkpoint(path, num_classes=None if num_classes is None else int(num_classes))
+    with naming("ckpt_path", path):  # ckpt_path=<file>: not a readable checkpoint ...
+        info = read_checkpoint(path, num_classes=None if num_classes is None else int(num_classes))
     if info.iteration is None:
         raise UssSlamError(
             f"ckpt_path {path}: no 'iteration' (not a uss-train checkpoint, cannot resume)"

@@ -70,7 +70,7 @@ def build_filters(
                 f"unknown filter {name!r}; choose from {', '.join(nodes)} (filters=[...])"
             )
         if name in {f.name for f in out}:
-            raise UssSlamError(f"filter {name!r} is listed twice")
+            raise UssSlamError(f"filters: expected each filter once ({name!r} is listed twice)")
         node = nodes[name]
         if "_target_" not in node:
             raise UssSlamError(f"slam.filter_params.{name}: expected a _target_ (the filter class)")

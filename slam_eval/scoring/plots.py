@@ -45,16 +45,18 @@ def plot_formats() -> tuple[str, ...]:
     return tuple(sorted(FigureCanvasBase.get_supported_filetypes()))
 
 
-def check_plot_path(path: StrPath) -> Path:
+def check_plot_path(path: StrPath, key: str | None = None) -> Path:
     """``path`` as a :class:`~pathlib.Path` if its extension is a plot format, else a
-    :class:`UssSlamError` naming the path and the accepted extensions."""
+    :class:`UssSlamError` naming the path (``key=<path>`` with ``key``, e.g. ``--plot``) and
+    the accepted extensions."""
     path = Path(path)
     formats = plot_formats()
     suffix = path.suffix.lower().lstrip(".")
     if suffix not in formats:
         got = f"extension {path.suffix!r}" if path.suffix else "no extension"
         raise UssSlamError(
-            f"{path}: {got} is not a plot format; use one of " + ", ".join(f".{f}" for f in formats)
+            f"{f'{key}=' if key else ''}{path}: {got} is not a plot format; expected one of "
+            + ", ".join(f".{f}" for f in formats)
         )
     return path
 

@@ -185,7 +185,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             input_file(path, None, "expected a trajectory file (TUM format)")
         if args.command == "ate" and args.plot is not None:  # before any work
             output_file(args.plot, "--plot", "expected an image file name")
-            check_plot_path(args.plot)
+            check_plot_path(args.plot, "--plot")
         gt = read_trajectory(args.gt)
         est = read_trajectory(args.est)
         if args.command == "ate":

@@ -107,3 +107,21 @@ def test_a_latin1_byte_in_a_text_file_names_its_line(tmp_path: Path) -> None:
     assert str(caught.value) == (
         f"{path}:3: not a text file: byte 0xe9 at column 8 is not UTF-8; expected a text file"
     )
+
+
+def test_a_16_bit_png_is_no_colour_frame(tmp_path: Path) -> None:
+    """A depth image listed as a colour frame: refused, not scaled to 8 bits without a word."""
+    import cv2
+    import numpy as np
+
+    from uss_slam.core.errors import DataFormatError
+    from uss_slam.core.images import read_colour, read_depth, read_grey
+
+    path = tmp_path / "depth.png"
+    cv2.imwrite(str(path), np.full((8, 8), 5000, np.uint16))
+    for read in (read_colour, read_grey):
+        with pytest.raises(
+            DataFormatError, match="a 16-bit PNG .a depth image..; expected an 8-bit"
+        ):
+            read(path)
+    assert read_depth(path).dtype == np.uint16

@@ -82,3 +82,21 @@ def test_other_errors_keep_their_traceback(monkeypatch: pytest.MonkeyPatch) -> N
     monkeypatch.setattr(cli, "main", main)
     with pytest.raises(ValueError, match="an internal error"):
         launch.launch("uss-synth")
+
+
+@pytest.mark.parametrize(("error", "code", "line"), [
+    (KeyboardInterrupt, 130, "uss-export: interrupted"),
+    (launch._Terminated, 143, "uss-export: interrupted (SIGTERM)"),
+])  # fmt: skip
+def test_an_interrupt_during_the_imports_is_the_one_line(
+    monkeypatch, capsys, error: type, code: int, line: str
+) -> None:
+    """Ctrl-C or SIGTERM while the script's libraries load (seconds on a busy machine): the
+    same line and exit code as later in the run, no import traceback."""
+
+    def interrupted(name: str) -> None:
+        raise error
+
+    monkeypatch.setattr(launch.importlib, "import_module", interrupted)
+    assert launch.launch("uss-export") == code
+    assert capsys.readouterr().err.strip().splitlines() == [line]

@@ -103,3 +103,12 @@ def test_errors_cross_processes_whole() -> None:
     assert (
         no_space_errno(pickle.loads(pickle.dumps(NoSpaceError("/o", errno.EDQUOT)))) == errno.EDQUOT
     )
+
+
+def test_a_utf8_byte_order_mark_is_no_text(tmp_path: Path) -> None:
+    """What Windows editors write first: read as no text (a TUM file's first stamp intact)."""
+    from uss_slam.core.paths import read_text
+
+    path = tmp_path / "gt.txt"
+    path.write_bytes(b"\xef\xbb\xbf1.0 0 0 0 0 0 0 1\n")
+    assert read_text(path) == "1.0 0 0 0 0 0 0 1\n"

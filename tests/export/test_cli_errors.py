@@ -396,7 +396,7 @@ def test_bad_checkpoint_is_one_line(
     code, _, err = uss_export(f"ckpt_path={ckpt}", *overrides)
     assert code == 1
     (line,) = err.splitlines()
-    named = f"ckpt_path={ckpt}" if kind == "missing" else str(ckpt)  # the path layer's form
+    named = f"ckpt_path={ckpt}"  # the path layer's form, also for the reader's problems
     assert line.startswith(f"uss-export: error: {named}: {expected}")
     assert not (tmp_path / "exports").exists()
 
@@ -414,7 +414,10 @@ def test_console_script_prints_exactly_one_line(runs: dict[str, Path], tmp_path:
     good = f"ckpt_path={runs['a']}"
     cases = [
         ([good, "opset=24"], "uss-export: error: opset 24 is not supported: "),
-        ([f"ckpt_path={truncated}"], f"uss-export: error: {truncated}: not a readable checkpoint"),
+        (
+            [f"ckpt_path={truncated}"],
+            f"uss-export: error: ckpt_path={truncated}: not a readable checkpoint",
+        ),
         (
             [good, "int8=true", f"calibration.root={tmp_path / 'none'}"],
             f"uss-export: error: calibration.root={tmp_path / 'none'}: does not exist",

@@ -83,7 +83,7 @@ BAD_CONFIGS = [
     (["filters=[semantic,teleport]"], "filters: unknown filter 'teleport'; choose from semantic"),
     (["compare=[[semantic],[flow,warp]]"], "compare[1]: unknown filter 'warp'; choose from"),
     (["compare=[]"], "compare must be a non-empty list of filter lists"),
-    (["filters=[flow,flow]"], "filter 'flow' is listed twice"),
+    (["filters=[flow,flow]"], "filters: expected each filter once ('flow' is listed twice)"),
     (["slam.filter_params.flow.threshold=fast"],
      "slam.filter_params.flow.threshold: expected a number > 0, got 'fast'"),
     (["+slam.filter_params.flow.radius=3"],

@@ -93,7 +93,7 @@ def test_overwrite_refuses_a_folder_uss_synth_did_not_write(
     assert main([*args, "--overwrite"]) == 2
     err = capsys.readouterr().err.strip()
     assert err == (
-        f"uss-synth: error: {out}: not a uss-synth output (no {OUTPUT_MARKER} or "
+        f"uss-synth: error: --out={out}: not a uss-synth output (no {OUTPUT_MARKER} or "
         "synthetic.yaml in it); refusing to overwrite it"
     )
     assert sorted(p.name for p in out.iterdir()) == sorted(

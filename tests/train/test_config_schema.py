@@ -57,8 +57,8 @@ def test_the_shipped_config_passes_and_gives_the_run_settings() -> None:
         ("model.poly_power=-1", "model.poly_power: expected a number > 0, got -1"),
         ("model.head_lr_mult=0", "model.head_lr_mult: expected a number > 0, got 0"),
         ("model.max_iters=0", "model.max_iters: expected an integer >= 1, got 0"),
-        ("model.optimizer.momentum=-0.5", "model.optimizer.momentum: expected a number >= 0, "
-                                          "got -0.5"),
+        ("model.optimizer.momentum=-0.5", "model.optimizer.momentum: expected a number >= 0 "
+                                          "and < 1, got -0.5"),
         ("trainer.log_every_n_steps=-1", "trainer.log_every_n_steps: expected an integer >= 1 "),
         ("model.class_names=[background,person,person,monitor]",
          "model.class_names: expected a list of strings, each once ('person' is listed twice)"),

@@ -276,7 +276,9 @@ def test_plot_with_unknown_extension_fails_before_any_work(
     code, out, err = run(capsys, "ate", gt, est, "--plot", target)
     assert code == 1 and out == ""
     lines = err.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith(f"uss-traj: error: {target}: extension '.jpgg'")
+    assert len(lines) == 1 and lines[0].startswith(
+        f"uss-traj: error: --plot={target}: extension '.jpgg'"
+    )
     assert ".png" in lines[0] and ".svg" in lines[0]
     assert not target.exists()
 

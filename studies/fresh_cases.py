@@ -1,0 +1,284 @@
+"""Run the held-out cases of ``studies/fresh_cases.txt`` (written down before they were run) as
+a new user would: each console script in its own process, in its own folder, with the case's
+environment, and classify each one by the contract of ``docs/errors.md``:
+
+- **good**: a bad input is one ``<prog>: error:`` line (argparse: after its usage) holding what
+  the case lists, exit code 1 or 2, nothing written into the case's folder and nothing lost; a
+  valid input exits 0 (a ``warn`` case with its warning line); Ctrl-C / SIGTERM exit 130 / 143
+  with one ``interrupted`` line, the earlier outputs intact and no partial file left;
+- **bad**: a traceback, a hang (no exit within the time limit), a process killed by a signal, or
+  data lost (a file that was there before changed or gone, the shared inputs changed);
+- **poor**: everything else (more than one line, the line does not name the key / flag / file,
+  a wrong exit code, a bad value accepted, a valid input refused, something left behind).
+
+A case whose signal came after the script had finished is ``void`` (the timing of the case,
+not the script) and left out of the shares.
+
+    nice python studies/fresh_cases.py --world /tmp/fresh/world --work /tmp/fresh/cases \\
+        --out outputs/fresh_cases [--only ID-PREFIX] [--jobs 2]
+
+Writes ``OUT/results.json`` (every case: its class, reason, exit code, seconds, stderr tail) and
+prints one line per case and the totals.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import shlex
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+from fresh_setups import HIDDEN_OUTPUTS, SETUPS, build_world, snapshot
+
+HERE = Path(__file__).resolve().parent
+CASES = HERE / "fresh_cases.txt"
+BIN = Path(sys.executable).parent
+TIMEOUT = 240
+TRAIN = (
+    "experiment=ci data.source.root={voc} data.target.roots=[{seq}] data.val.roots=[{seq}] "
+    "data.val.stride=1 hydra.run.dir={C}/run paths.log_dir={C}/logs logger=none"
+)
+TRAIN_AT = TRAIN.replace(" hydra.run.dir={C}/run", "")
+EXPORT = "ckpt_path={ckpt} out_dir={C}/exports hydra.run.dir={C}/hydra"
+MACROS = {"TRAIN_AT": TRAIN_AT, "TRAIN": TRAIN, "EXPORT": EXPORT}
+
+
+@dataclass(frozen=True)
+class Case:
+    id: str  # noqa: A003
+    prog: str
+    expect: str
+    setup: tuple[str, ...]
+    env: dict[str, str]
+    says: tuple[str, ...]
+    argv: str
+
+
+def read_cases(path: Path = CASES) -> list[Case]:
+    """The cases of ``fresh_cases.txt`` (its header says the columns)."""
+    cases = []
+    for line in path.read_text(encoding="utf-8").splitlines():
+        if not line.strip() or line.startswith("#"):
+            continue
+        id_, prog, expect, setup, env, says, argv = (c.strip() for c in line.split(" | ", 6))
+        envs = dict(e.split("=", 1) for e in env.split(";")) if env != "-" else {}
+        cases.append(Case(id_, prog, expect, tuple(s for s in setup.split(",") if s != "-"),
+                          envs, tuple(s for s in says.split(",") if s != "-"), argv))  # fmt: skip
+    return cases
+
+
+@dataclass
+class Outcome:
+    id: str  # noqa: A003
+    prog: str
+    expect: str
+    verdict: str
+    reason: str
+    code: int | None
+    seconds: float
+    stderr_tail: str
+
+
+def _argv(case: Case, paths: dict[str, str]) -> list[str]:
+    text = case.argv
+    for name, macro in MACROS.items():
+        text = text.replace(name, macro)
+    return shlex.split(text.format(**paths))
+
+
+def _without_root_powers() -> list[str]:
+    """As root, permissions do not apply: the read-only cases run without that capability."""
+    setpriv = shutil.which("setpriv")
+    if os.geteuid() != 0 or setpriv is None:
+        return []
+    return [setpriv, "--bounding-set=-dac_override,-dac_read_search"]
+
+
+def _run(case: Case, argv: list[str], folder: Path) -> tuple[int | None, str, float, bool]:
+    """(exit code or None on a hang, stderr, seconds, whether the signal came after the end)."""
+    env = dict(os.environ, PYTHONUNBUFFERED="1", COLUMNS="100")
+    limit = None
+    for key, value in case.env.items():
+        if key == "ULIMIT_V":
+            limit = int(value) * 1024
+        elif value == "":
+            env.pop(key, None)
+        else:
+            env[key] = value
+
+    def preexec() -> None:
+        os.setsid()
+        # as a terminal's Ctrl-C finds it: a runner started in the background (`cmd &`)
+        # ignores SIGINT, and Python then installs no KeyboardInterrupt handler
+        signal.signal(signal.SIGINT, signal.SIG_DFL)
+        if limit is not None:
+            resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+
+    prefix = _without_root_powers() if "ro" in case.setup or "unreadable" in str(case.setup) else []
+    command = [*prefix, str(BIN / case.prog), *argv]
+    start = time.perf_counter()
+    proc = subprocess.Popen(command, cwd=folder, env=env, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, text=True, preexec_fn=preexec)  # fmt: skip
+    late = False
+    if case.expect.startswith(("int:", "term:")):
+        kind, delay = case.expect.split(":")
+        try:
+            proc.wait(timeout=float(delay))
+            late = True
+        except subprocess.TimeoutExpired:
+            proc.send_signal(signal.SIGINT if kind == "int" else signal.SIGTERM)
+    try:
+        _, err = proc.communicate(timeout=TIMEOUT)
+        code: int | None = proc.returncode
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        _, err = proc.communicate()
+        code = None
+    return code, err, time.perf_counter() - start, late
+
+
+def classify(case: Case, code: int | None, err: str, before: dict, after: dict,
+             paths: dict[str, str]) -> tuple[str, str]:  # fmt: skip
+    """(verdict, reason) of one case by the contract (module doc)."""
+    lost = [p for p in before if p not in after or after[p] != before[p]]
+    new = sorted(p for p in after if p not in before)
+    lines = [ln for ln in err.strip().splitlines() if ln.strip()]
+    head = case.prog
+    errors = [ln for ln in lines if ln.startswith(head) and ": error: " in ln]
+    says = [s.format(**paths) for s in case.says]
+    if code is None:
+        return "bad", "no exit within the time limit"
+    if "Traceback (most recent call last)" in err:
+        return "bad", "traceback"
+    if code < 0:
+        return "bad", f"killed by signal {-code}"
+    if case.expect.startswith(("int:", "term:")):
+        if lost:
+            return "bad", f"earlier output changed or gone: {lost[:2]}"
+        want = 130 if case.expect.startswith("int") else 143
+        left = [p for p in new if any(h in p for h in HIDDEN_OUTPUTS)]
+        if code != want:
+            return "poor", f"exit code {code}, expected {want}"
+        if not lines or "interrupted" not in lines[-1]:
+            return "poor", "no 'interrupted' line at the end"
+        if left:
+            return "poor", f"left behind: {left[:2]}"
+        return "good", ""
+    if lost and not (case.expect == "ok" and "--overwrite" in case.argv):  # replacing: its job
+        return "bad", f"earlier file changed or gone: {lost[:2]}"
+    if case.expect in ("ok", "warn"):
+        if code != 0:
+            return (
+                "poor",
+                f"valid input refused (exit {code}): {(errors or lines or [''])[-1][:160]}",
+            )
+        warned = [ln for ln in lines if ": warning: " in ln]
+        if case.expect == "warn" and not any(all(s in w for s in says) for w in warned):
+            return "poor", "no warning naming " + ", ".join(says)
+        return "good", ""
+    # a bad input
+    if code == 0:
+        return "poor", "bad input accepted (exit 0)"
+    if code not in (1, 2):
+        return "poor", f"exit code {code}"
+    if len(errors) != 1:
+        return "poor", f"{len(errors)} error lines of {len(lines)} lines"
+    others = [ln for ln in lines if ln not in errors and not ln.startswith(("usage:", " "))
+              and ": warning: " not in ln]  # fmt: skip
+    if others:
+        return "poor", f"more than the error line: {others[0][:120]}"
+    missing = [s for s in says if s not in errors[0]]
+    if missing:
+        return "poor", f"the line does not name {missing}: {errors[0][:200]}"
+    if new:
+        return "poor", f"written on a failed run: {new[:2]}"
+    return "good", ""
+
+
+def run_case(case: Case, world: dict[str, str], work: Path) -> Outcome:
+    folder = work / case.id
+    if folder.exists():
+        for p in folder.rglob("*"):
+            if p.is_dir() and not p.is_symlink():
+                p.chmod(0o755)
+        shutil.rmtree(folder)
+    folder.mkdir(parents=True)
+    paths = {**world, "C": str(folder)}
+    for name in case.setup:
+        SETUPS[name](folder, world)
+    before = snapshot(folder)
+    world_before = snapshot(Path(world["W"]), quick=True)
+    code, err, seconds, late = _run(case, _argv(case, paths), folder)
+    after = snapshot(folder)
+    if snapshot(Path(world["W"]), quick=True) != world_before:
+        verdict, reason = "bad", "the shared inputs changed"
+    elif late:
+        verdict, reason = "void", "finished before the signal"
+    else:
+        verdict, reason = classify(case, code, err, before, after, paths)
+    tail = "\n".join(err.strip().splitlines()[-6:])
+    return Outcome(case.id, case.prog, case.expect, verdict, reason, code, round(seconds, 1), tail)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--world", type=Path, default=Path("/tmp/fresh/world"))
+    parser.add_argument("--work", type=Path, default=Path("/tmp/fresh/cases"))
+    parser.add_argument("--out", type=Path, default=Path("outputs/fresh_cases"))
+    parser.add_argument(
+        "--only", default="", help="comma-separated id prefixes of the cases to run"
+    )
+    parser.add_argument("--merge", type=Path, default=None,
+                        help="an earlier results.json: its outcomes of the cases not run now are kept")  # fmt: skip
+    parser.add_argument("--jobs", type=int, default=2)
+    args = parser.parse_args(argv)
+    prefixes = tuple(args.only.split(",")) if args.only else ("",)
+    cases = [c for c in read_cases() if c.id.startswith(prefixes)]
+    world = build_world(args.world.resolve(), BIN)
+    args.work.mkdir(parents=True, exist_ok=True)
+    start = time.perf_counter()
+    with ThreadPoolExecutor(args.jobs) as pool:
+        outcomes = []
+        for out in pool.map(lambda c: run_case(c, world, args.work.resolve()), cases):
+            outcomes.append(out)
+            print(f"{out.verdict:5} {out.id:45} exit {out.code} {out.seconds:6.1f} s  "
+                  f"{out.reason[:150]}", flush=True)  # fmt: skip
+    if args.merge is not None:
+        ran = {o.id for o in outcomes}
+        earlier = [Outcome(**o) for o in json.loads(args.merge.read_text())["outcomes"]]
+        order = {c.id: i for i, c in enumerate(read_cases())}
+        outcomes = sorted([*outcomes, *(o for o in earlier if o.id not in ran)],
+                          key=lambda o: order.get(o.id, len(order)))  # fmt: skip
+    counted = [o for o in outcomes if o.verdict != "void"]
+    totals = {v: sum(o.verdict == v for o in counted) for v in ("good", "poor", "bad")}
+    share = totals["good"] / max(len(counted), 1)
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "results.json").write_text(json.dumps({
+        "cases": len(outcomes), "void": len(outcomes) - len(counted), **totals,
+        "good_share": round(share, 4), "seconds": round(time.perf_counter() - start),
+        "cpu": cpu_name(), "load_before": os.getloadavg()[0],
+        "outcomes": [asdict(o) for o in outcomes]}, indent=1) + "\n")  # fmt: skip
+    print(f"{len(counted)} cases ({len(outcomes) - len(counted)} void): {totals['good']} good, "
+          f"{totals['poor']} poor, {totals['bad']} bad ({100 * share:.1f}% good); "
+          f"{time.perf_counter() - start:.0f} s")  # fmt: skip
+    return 0
+
+
+def cpu_name() -> str:
+    for line in Path("/proc/cpuinfo").read_text().splitlines():
+        if line.startswith("model name"):
+            return line.split(":", 1)[1].strip()
+    return "unknown"
+
+
+if __name__ == "__main__":
+    sys.exit(main())
