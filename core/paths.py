@@ -53,12 +53,15 @@ def naming(key: str, path: str | PathLike[str]) -> Iterator[None]:
     inside, becomes the path layer's line naming ``key`` too: ``ckpt_path=<path>: ...``."""
     try:
         yield
-    except DataFormatError as error:
-        if error.line is not None or getattr(error, "key", None) is not None:
+    except Exception as error:  # the reader's own, or one a library wrapped (Hydra's instantiate)
+        found: BaseException | None = error
+        while found is not None and not isinstance(found, DataFormatError):
+            found = found.__cause__
+        if (not isinstance(found, DataFormatError) or found.line is not None
+                or getattr(found, "key", None) is not None
+                or Path(found.path).absolute() != Path(path).absolute()):  # fmt: skip
             raise
-        if Path(error.path).absolute() != Path(path).absolute():
-            raise
-        raise PathError(path, key, error.detail) from None
+        raise PathError(path, key, found.detail) from None
 
 
 def where(path: str | PathLike[str], key: str | None) -> str:

@@ -51,3 +51,16 @@ class Range:
 
 THREADS = Range(min=1, max=MAX_THREADS)
 """The range of every thread count (:data:`MAX_THREADS`)."""
+
+
+def check_stride(stride: int, frames: int, key: str, folder: object) -> None:
+    """One rule for every "every N-th frame" option: a stride that is not below the frame count
+    of a folder of several frames keeps only its first frame, never what was meant; refused
+    naming ``key`` and ``folder``. (``uss-slam`` asks more of its own: ``sequence.stride``.)"""
+    if stride > 1 and frames > 1 and stride >= frames:
+        from uss_slam.core.errors import UssSlamError
+
+        raise UssSlamError(
+            f"{key} {stride}: {folder} has {frames} frames, so it would keep only the first; "
+            f"expected a stride below {frames}"
+        )

@@ -525,8 +525,7 @@ def run_demo(
             sequence, "--sequence",
             f"expected a TUM sequence folder or one of the demo's SLAM sequences ({presets})",
         )  # fmt: skip
-        if until != "data":
-            check_sequence(seq_path, f"--sequence {sequence}")
+        check_sequence(seq_path, f"--sequence {sequence}")  # also with --until data: before work
     with output_lock(out, "--out"):
         return _run_stages(out, plan, data, seq_path, sequence, force, quiet, train_threads, until)
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import logging
 import sys
+from contextlib import nullcontext
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -19,7 +20,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from uss_slam.core.cli import hydra_task, run_hydra_app
 from uss_slam.core.files import check_output_owner, check_writable, output_lock
-from uss_slam.core.paths import input_folder
+from uss_slam.core.paths import input_folder, naming
 from uss_slam.core.schema import unused_settings
 
 from .compare_sets import checked_runs
@@ -103,7 +104,9 @@ def run(cfg: DictConfig) -> dict[str, Any]:
                 cfg, out, before_commit=lambda f: {"overrides": _write_hydra_files(f, cfg)}
             )
     plan = replace(plan, runs=checked_runs(cfg, plan.runs, plan.filter_params))
-    segmenter: Segmenter = hydra.utils.instantiate(cfg.segmenter)
+    model = cfg.segmenter.get("path")
+    with naming("segmenter.path", str(model)) if model else nullcontext():  # its reader's line
+        segmenter: Segmenter = hydra.utils.instantiate(cfg.segmenter)
     seq_cfg = cfg.sequence
     sequence = TumSequence(
         str(seq_cfg.path),

@@ -15,6 +15,7 @@ from uss_slam.core.cli import hydra_error_line
 from uss_slam.core.errors import DataFormatError, UssSlamError
 from uss_slam.core.images import read_colour
 from uss_slam.core.paths import input_folder
+from uss_slam.core.ranges import check_stride
 
 CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
 
@@ -57,6 +58,7 @@ def sequence_frames(roots: Sequence[Path], stride: int) -> FrameSource:
             )
         seen[resolved] = root
         folder = read_tum_folder(root, depth=False, labels=True)
+        check_stride(stride, len(folder.frames), "--stride", root)
         frames = folder.frames[::stride]
         for frame in frames:
             missing = folder.missing(frame)

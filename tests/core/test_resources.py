@@ -77,3 +77,12 @@ def test_uss_synth_refuses_a_frame_the_memory_cannot_hold(monkeypatch, tmp_path,
     assert code == 1 and len(err) == 1, err
     assert err[0].startswith("uss-synth: error: --size=4096x4096: rendering a frame needs about")
     assert not (tmp_path / "v").exists()
+
+
+def test_a_stride_that_keeps_only_the_first_frame_is_refused() -> None:
+    from uss_slam.core.ranges import check_stride
+
+    check_stride(5, 30, "--stride", "seq")  # six frames: fine
+    check_stride(1, 1, "--stride", "seq")  # one frame, no stride: fine
+    with pytest.raises(UssSlamError, match="--stride 30: seq has 30 frames, so it would keep only"):
+        check_stride(30, 30, "--stride", "seq")

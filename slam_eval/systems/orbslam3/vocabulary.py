@@ -48,6 +48,7 @@ from uss_slam.core.errors import DataFormatError, UssSlamError
 from uss_slam.core.files import write_text_atomic
 from uss_slam.core.images import read_colour
 from uss_slam.core.paths import input_file, read_text
+from uss_slam.core.ranges import check_stride
 from uss_slam.core.tum_io import StrPath, read_file_list
 
 DESCRIPTOR_BYTES = 32
@@ -463,6 +464,7 @@ def training_images(
         if not folder.is_dir():
             raise DataFormatError(folder, "not a folder; expected a TUM sequence with rgb.txt")
         listing = read_file_list(folder / "rgb.txt")
+        check_stride(stride, len(listing), "--stride", folder)
         chosen = [listing.resolve(i) for i in range(0, len(listing), stride)]
         if max_frames is not None:
             chosen = chosen[:max_frames]

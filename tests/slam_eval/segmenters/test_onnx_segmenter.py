@@ -338,7 +338,9 @@ def test_uss_slam_reports_a_bad_model_in_one_line(tmp_path: Path) -> None:
     )
     assert result.returncode == 1
     lines = result.stderr.strip().splitlines()
-    assert lines[-1].startswith(f"uss-slam: error: {plain}: not a uss-slam segmenter")
+    assert lines[-1].startswith(
+        f"uss-slam: error: segmenter.path={plain}: not a uss-slam segmenter"
+    )
 
 
 @pytest.mark.slow  # torch import + export + verification: ~15 s on a quiet 2-core machine
