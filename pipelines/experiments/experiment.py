@@ -322,6 +322,22 @@ def eval_seed(cfg: Mapping[str, Any], name: str) -> int:
     return int(cfg["data"]["synthetic"]["eval_seed"]) + SYNTHETIC_SEQUENCES.index(name)
 
 
+def check_real_given(real: dict[str, Any]) -> None:
+    """``data.kind=real``: each folder of ``data.real`` and its target sequences given (one line
+    naming the first one missing), before any key whose choices depend on the data."""
+    for key in ("voc", "sbd", "coco", "tum"):
+        if real.get(key) in (None, "???"):
+            raise UssSlamError(
+                f"data.real.{key}: missing; data.kind=real needs the {key.upper()} folder "
+                f"(data.real.{key}=PATH)"
+            )
+    if not real.get("target"):
+        raise UssSlamError(
+            "data.real.target: missing; data.kind=real needs a non-empty list of the TUM "
+            "sequences of the target domain"
+        )
+
+
 def check(cfg: DictConfig) -> Experiment:
     """Everything that can be checked before any work starts (one error line each)."""
     launcher_node = cfg.get("launcher")
@@ -336,6 +352,8 @@ def check(cfg: DictConfig) -> Experiment:
     plain: dict[str, Any] = OmegaConf.to_container(cfg, resolve=True)  # type: ignore[assignment]
     stages = [str(s) for s in plain["stages"]]
     synthetic = plain["data"]["kind"] == "synthetic"
+    if not synthetic:  # the folders first: what the other keys' choices depend on
+        check_real_given(plain["data"]["real"])
     check_t0(plain, synthetic)
     resolve_method_overrides(plain, synthetic)
     check_counts(plain, synthetic)
@@ -374,17 +392,6 @@ def check(cfg: DictConfig) -> Experiment:
                 )
     else:
         real = plain["data"]["real"]
-        for key in ("voc", "sbd", "coco", "tum"):
-            if real.get(key) in (None, "???"):
-                raise UssSlamError(
-                    f"data.real.{key}: missing; data.kind=real needs the {key.upper()} folder "
-                    f"(data.real.{key}=PATH)"
-                )
-        if not real.get("target"):
-            raise UssSlamError(
-                "data.real.target: missing; data.kind=real needs a non-empty list of the TUM "
-                "sequences of the target domain"
-            )
         check_real_init(init, synthetic)
         for key in ("voc", "sbd", "coco", "tum"):  # the folders themselves, once all are given
             input_folder(Path(str(real[key])).expanduser(), f"data.real.{key}")
