@@ -202,13 +202,30 @@ def reading(stat: dict[str, float]) -> str:
 def per_render(values: dict[tuple[str, str], list[float]], method: str,
                base: str) -> list[float]:  # fmt: skip
     """Per render: mean over seeds of ``method`` − mean over seeds of ``base``."""
-    renders = sorted({r for (r, row) in values if row in (method, base)})
-    out = []
-    for r in renders:
+    return list(render_diffs(values, method, base).values())
+
+
+def render_diffs(values: dict[tuple[str, str], list[float]], method: str,
+                 base: str) -> dict[str, float]:  # fmt: skip
+    """``{render: mean over seeds of method − mean over seeds of base}``, renders in order."""
+    out = {}
+    for r in sorted({r for (r, row) in values if row in (method, base)}):
         a, b = values.get((r, method)), values.get((r, base))
         if a and b:
-            out.append(float(np.mean(a) - np.mean(b)))
+            out[r] = float(np.mean(a) - np.mean(b))
     return out
+
+
+def link(walker: dict[str, float], ratio: dict[str, float]) -> str | None:
+    """Exploratory: Spearman correlation across renders of the walker-share difference with
+    the downstream-ratio difference (renders in both)."""
+    from scipy import stats
+
+    common = sorted(set(walker) & set(ratio))
+    if len(common) < 4 or any(len({d[r] for r in common}) == 1 for d in (walker, ratio)):
+        return None  # too few renders, or a constant difference: no rank correlation
+    rho, p = stats.spearmanr([walker[r] for r in common], [ratio[r] for r in common])
+    return f"Spearman {rho:+.2f} (p {p:.2g}, {len(common)} renders)"
 
 
 def mediator_values(rows: list[dict]) -> dict[str, dict[tuple[str, str], list[float]]]:
@@ -259,9 +276,14 @@ def figures(mediator_rows: list[dict], slam_rows: list[dict], method: str, base:
     for share, values in mediator_values(mediator_rows).items():
         lines.append(_line(f"mediator: {share}", paired(per_render(values, method, base))))
     medians = []
+    walker = render_diffs(mediator_values(mediator_rows)["walker_removed"], method, base)
     for system in sorted({r["system"] for r in slam_rows}):
         ratios = slam_ratios(slam_rows, system)
         diffs = per_render(ratios, method, base)
+        corr = link(walker, render_diffs(ratios, method, base))
+        if corr:
+            medians.append(f"- {system}: walker-share difference against ratio difference "
+                           f"across renders (exploratory): {corr}")  # fmt: skip
         if len(diffs) > 1:
             lines.append(_line(f"{system}: downstream ratio", paired(diffs)))
         for row in (method, base):

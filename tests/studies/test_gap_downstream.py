@@ -108,6 +108,9 @@ def test_figures_recompute_from_the_committed_files(tmp_path: Path) -> None:
                         "source_only_bntrained")  # fmt: skip
     assert "| mediator: walker_removed | +0.215 [" in text and "| shown |" in text
     assert "| harness: downstream ratio | +0.000 [+0.000, +0.000]" in text
+    assert "Spearman" not in text  # the ratio difference is constant: no rank correlation
+    walker = {f"r{i}": float(i) for i in range(5)}
+    assert down.link(walker, {f"r{i}": float(i * i) for i in range(5)}).startswith("Spearman +1.00")
     assert (
         "static_xyz_9200 (nothing moves; no filter 0.0100 m), adabn_bntrained: ATE / no filter x1.20"
         in text
