@@ -175,19 +175,20 @@ def read_csv(path: Path) -> list[dict]:
 
 
 def paired(diffs: list[float]) -> dict[str, float]:
-    """Mean, 95% two-sided Student-t interval, MDE at 80% power, one-sided p (> 0) of paired
-    differences (one per render)."""
+    """Mean, 95% two-sided Student-t interval, MDE at 80% power (the experiment tables'
+    :func:`paired_interval`) and the one-sided p (> 0) of paired differences (one per render)."""
     from scipy import stats
 
-    d = np.asarray(diffs, float)
-    n = len(d)
-    s = float(d.std(ddof=1)) if n > 1 else math.nan
-    t975, t80 = stats.t.ppf(0.975, n - 1), stats.t.ppf(0.80, n - 1)
-    half = t975 * s / math.sqrt(n)
-    p_one = float(stats.t.sf(d.mean() / (s / math.sqrt(n)), n - 1)) if s > 0 else math.nan
-    return {"n": n, "mean": float(d.mean()), "lo": float(d.mean() - half),
-            "hi": float(d.mean() + half), "mde": float((t975 + t80) * s / math.sqrt(n)),
-            "p_one_sided": p_one, "above_0": int((d > 0).sum())}  # fmt: skip
+    from uss_slam.pipelines.experiments.tables.stats import paired_interval
+
+    p = paired_interval(diffs)
+    if p["interval"] is None:
+        raise StudyError(f"fewer than two paired renders ({len(diffs)}): no interval")
+    n, mean = p["n"], p["mean"]
+    s = float(np.std(diffs, ddof=1))
+    p_one = float(stats.t.sf(mean / (s / math.sqrt(n)), n - 1)) if s > 0 else math.nan
+    return {"n": n, "mean": mean, "lo": p["interval"][0], "hi": p["interval"][1],
+            "mde": p["mde"], "p_one_sided": p_one, "above_0": p["positive"]}  # fmt: skip
 
 
 def reading(stat: dict[str, float]) -> str:

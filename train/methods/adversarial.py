@@ -227,11 +227,17 @@ def discriminator_scalars(step: StepValues) -> dict[str, Tensor]:
     scalars = {}
     for head in ("aux", "main"):
         scalars[f"train/loss_d_{head}"] = step[f"loss_d_src_{head}"] + step[f"loss_d_trg_{head}"]
-        scalars[f"train/d_acc_{head}"] = 0.5 * (
-            domain_accuracy(step[f"d_src_{head}"], SOURCE_LABEL)
-            + domain_accuracy(step[f"d_trg_{head}"], TARGET_LABEL)
-        )
+        scalars[f"train/d_acc_{head}"] = head_accuracy(step, head)
     return scalars
+
+
+def head_accuracy(step: StepValues, head: str) -> Tensor:
+    """Share of ``head``'s discriminator patches that get their domain right, source and
+    target weighted alike (0.5 = chance)."""
+    return 0.5 * (
+        domain_accuracy(step[f"d_src_{head}"], SOURCE_LABEL)
+        + domain_accuracy(step[f"d_trg_{head}"], TARGET_LABEL)
+    )
 
 
 CHANCE_BAND = (0.4, 0.6)
@@ -254,8 +260,7 @@ class DiscriminatorWatch:
 
     def add(self, step: StepValues) -> None:
         """One iteration's values (``d_src_<head>`` / ``d_trg_<head>`` discriminator logits)."""
-        acc = discriminator_scalars(step)
-        pair = torch.stack([acc["train/d_acc_aux"], acc["train/d_acc_main"]]).detach()
+        pair = torch.stack([head_accuracy(step, "aux"), head_accuracy(step, "main")])
         self._sum = pair if self._sum is None else self._sum + pair
         self._count += 1
         if self._count == WATCH_BLOCK:
