@@ -312,7 +312,7 @@ def _serve(
         signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})  # blocked by _starting
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     _end_with_parent()
-    shm = shared_memory.SharedMemory(name=shm_name)
+    shm = _attach(shm_name)
     index = 0
     try:
         extractor = OrbExtractor(orb, sequence.camera)
@@ -350,6 +350,27 @@ def _serve(
         shm.close()
         if stop.is_set():  # the parent reads no more: do not wait to flush the queue at exit
             ready.cancel_join_thread()
+
+
+def _attach(name: str) -> shared_memory.SharedMemory:
+    """The main process's ring, attached without telling multiprocessing's resource tracker.
+
+    The ring is the main process's to create, register and unlink. Before Python 3.13 attaching
+    registers the name again with the tracker this worker shares with the main process; a
+    worker that attaches just after the main process (stopped early) unlinked the ring would
+    leave the tracker a name it then reports, at exit, as a leaked object it cannot find."""
+    try:
+        return shared_memory.SharedMemory(name=name, track=False)  # type: ignore[call-arg]
+    except TypeError:  # Python < 3.13: no ``track``
+        pass
+    from multiprocessing import resource_tracker
+
+    register = resource_tracker.register
+    resource_tracker.register = lambda *_: None  # nothing else in this worker creates shared memory
+    try:
+        return shared_memory.SharedMemory(name=name)
+    finally:
+        resource_tracker.register = register
 
 
 def _end_with_parent() -> None:

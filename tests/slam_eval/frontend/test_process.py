@@ -381,3 +381,30 @@ def test_a_worker_that_dies_is_one_line_naming_the_frame(synthetic_sequence) -> 
         "and extracted"
     )
     _no_worker_left()
+
+
+def test_the_worker_attaches_the_ring_without_registering_it(monkeypatch) -> None:
+    """Only the main process registers the ring with the resource tracker (and unregisters it
+    when it unlinks): a worker that attached after a stop would otherwise leave the tracker a
+    name it reports at exit as a leaked object."""
+    from multiprocessing import resource_tracker, shared_memory
+
+    from uss_slam.slam_eval.frontend import process
+
+    ring = shared_memory.SharedMemory(create=True, size=64)
+    try:
+        registered: list[str] = []
+
+        def record(name: str, rtype: str) -> None:
+            registered.append(name)
+
+        monkeypatch.setattr(resource_tracker, "register", record)
+        attached = process._attach(ring.name)
+        attached.buf[0] = 7
+        assert ring.buf[0] == 7
+        attached.close()
+        assert registered == []
+        assert resource_tracker.register is record  # put back for the rest of the process
+    finally:
+        ring.close()
+        ring.unlink()
