@@ -207,6 +207,13 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    if args.command == "sequence":
+        preset = PRESETS[args.preset]
+        if args.frames < preset.min_frames:
+            parser.error(
+                f"argument --frames: the {preset.name} preset needs at least "
+                f"{preset.min_frames} frames ({preset.min_frames_reason}); got {args.frames}"
+            )
     with program("uss-synth"), signals_as_interrupts():  # warnings: "uss-synth: warning: ..."
         return _render(args)
 

@@ -16,6 +16,8 @@ from .seeding import stream
 
 LOOP_PERIOD = 12.0
 """Seconds per turn of the ``loop`` motion (360 frames at 30 Hz)."""
+LOOP_MIN_FRAMES = int(LOOP_PERIOD * 30) + 90
+"""The ``loop`` preset's fewest frames: one turn and 3 s more (450)."""
 LOOP_RADIUS = 0.3
 """Radius of the ``loop`` motion's circle, metres."""
 MOTIONS = ("xyz", "static", "rpy", "halfsphere", "loop", "handheld", "handheld_fast")
@@ -37,6 +39,11 @@ class Preset:
     """The target style's sensor timing by default (``uss-synth sequence --timing``):
     ``global`` (every pixel and the depth at the colour stamp) or ``kinect`` (a rolling
     shutter, and the depth image at its own stamp: :data:`~.sequence.TIMINGS`)."""
+    min_frames: int = 2
+    """The fewest frames (at 30 Hz) that show what the preset is for (``uss-synth`` refuses
+    fewer: ``--frames``)."""
+    min_frames_reason: str = ""
+    """Why :attr:`min_frames`, in a few words (the refusal's line)."""
 
 
 PRESETS: dict[str, Preset] = {
@@ -56,7 +63,10 @@ PRESETS: dict[str, Preset] = {
                "control: camera translated along its axes; two seated people who never move"),
         Preset("loop", "loop", "frozen",
                "camera tours the room on a circle looking outwards, back at its start every "
-               f"{LOOP_PERIOD:g} s (loop closing; >= {int(LOOP_PERIOD * 30) + 90} frames)"),
+               f"{LOOP_PERIOD:g} s (loop closing; >= {LOOP_MIN_FRAMES} frames)",
+               min_frames=LOOP_MIN_FRAMES,
+               min_frames_reason=f"one turn of {LOOP_PERIOD:g} s at 30 Hz and 3 s back over "
+                                 "the start, for the loop to be seen again"),
         Preset("handheld_rpy", "handheld", "frozen",
                "control with handheld motion (like TUM fr1/fr2 rpy): fast roll, pitch and yaw "
                "(up to ~60 deg/s, ~40 on average) with hand shake and a few cm of drift, a rolling "

@@ -34,6 +34,10 @@ def _run(args: list[str], cwd: Path) -> subprocess.CompletedProcess:
             "expected an integer >= 2",
         ),
         (["sequence", "--preset", "walking_xyz", "--frames", "ten", "--out", "x"], "integer"),
+        (  # the loop preset's turn and its return: at least 450 frames (its help says why)
+            ["sequence", "--preset", "loop", "--frames", "449", "--out", "x"],
+            "argument --frames: the loop preset needs at least 450 frames",
+        ),
         (
             ["sequence", "--preset", "walking_xyz", "--style", "anime", "--out", "x"],
             "invalid choice",
