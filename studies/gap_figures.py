@@ -57,6 +57,8 @@ ROWS = {
     "adabn_bnreference": "AdaBN of source-only `reference` (exploratory)",
     "adaptsegnet_n5_bnreference": "AdaptSegNet (`reference` BatchNorm)",
     "advent_n5_bnreference": "ADVENT (`reference` BatchNorm)",
+    "fda_bntrained": "FDA (`trained` BatchNorm, published defaults)",
+    "fda_bntrained_adabn": "FDA + AdaBN (exploratory)",
     "oracle": "target oracle †",
 }
 """The study's rows, in table order (labels as the tables print them)."""
@@ -70,6 +72,9 @@ COMPARISONS = (
         "source_only_bnreference",
     ),
     ("H2' ADVENT term (BatchNorm equal)", "advent_n5_bnreference", "source_only_bnreference"),
+    ("H5 FDA", "fda_bntrained", SOURCE_ONLY),
+    ("exploratory: FDA − AdaBN", "fda_bntrained", "adabn_bntrained"),
+    ("exploratory: FDA + AdaBN − FDA", "fda_bntrained_adabn", "fda_bntrained"),
     ("exploratory: AdaptSegNet − AdaBN", "adaptsegnet_n5_bnreference", "adabn_bntrained"),
     ("exploratory: continued source-only − init", SOURCE_ONLY, "init"),
     ("exploratory: init + AdaBN − init", "init_adabn", "init"),
@@ -79,22 +84,33 @@ COMPARISONS = (
 CHANCE = (0.4, 0.6)
 
 
-def read_scores(path: Path, role: str | None) -> dict[str, dict[str, dict[str, dict[str, float]]]]:
-    """``{row: {render: {seed: {"person": pts, "mIoU": pts}}}}`` from a confusion CSV."""
+def read_scores(
+    paths: Path | list[Path], role: str | None
+) -> dict[str, dict[str, dict[str, dict[str, float]]]]:
+    """``{row: {render: {seed: {"person": pts, "mIoU": pts}}}}`` from confusion CSVs (one
+    matrix per row, render and seed over all of them: a repeat is one line naming both places)."""
     scores: dict = defaultdict(lambda: defaultdict(dict))
-    with open(path, newline="") as f:
-        for r in csv.DictReader(f):
-            if role and r["role"] != role:
-                continue
-            matrix = np.array([[int(r[f"c{t}{p}"]) for p in range(N)] for t in range(N)])
-            iou = iou_per_class(matrix)
-            render = f"{r['preset']}_{r['render_seed']}"
-            scores[r["row"]][render][r["seed"]] = {
-                "person": 100.0 * float(iou[PERSON]),
-                "mIoU": 100.0 * float(np.nanmean(iou)),
-            }
+    where: dict[tuple[str, str, str], str] = {}
+    for path in [paths] if isinstance(paths, Path) else paths:
+        with open(path, newline="") as f:
+            for line, r in enumerate(csv.DictReader(f), start=2):
+                if role and r["role"] != role:
+                    continue
+                matrix = np.array([[int(r[f"c{t}{p}"]) for p in range(N)] for t in range(N)])
+                iou = iou_per_class(matrix)
+                render = f"{r['preset']}_{r['render_seed']}"
+                key = (r["row"], render, r["seed"])
+                if key in where:
+                    sys.exit(f"gap_figures: error: {path}:{line}: {r['model']} on {render} is "
+                             f"scored already at {where[key]}")  # fmt: skip
+                where[key] = f"{path}:{line}"
+                scores[r["row"]][render][r["seed"]] = {
+                    "person": 100.0 * float(iou[PERSON]),
+                    "mIoU": 100.0 * float(np.nanmean(iou)),
+                }
     if not scores:
-        sys.exit(f"{path}: no rows" + (f" with role {role}" if role else ""))
+        names = ", ".join(map(str, [paths] if isinstance(paths, Path) else paths))
+        sys.exit(f"gap_figures: error: {names}: no rows" + (f" with role {role}" if role else ""))
     return scores
 
 
@@ -290,14 +306,15 @@ def tables(scores: dict, dacc: dict | None) -> list[str]:
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("confusion", type=Path, help="gap_study.py score's CSV")
+    parser.add_argument("confusion", type=Path, nargs="+",
+                        help="gap_study.py score's CSVs (one matrix per model and render)")  # fmt: skip
     parser.add_argument("--dacc", type=Path, help="gap_study.py dacc's CSV")
     parser.add_argument("--role", choices=("pilot", "eval"), help="keep only these rows")
     parser.add_argument("--markdown", type=Path, help="also write the tables to this file")
     parser.add_argument("--power", nargs=2, type=int, metavar=("RENDERS", "SEEDS"),
                         help="also the MDE of each comparison at this design")  # fmt: skip
     args = parser.parse_args(argv)
-    for path in (args.confusion, args.dacc):
+    for path in (*args.confusion, args.dacc):
         if path is not None and not path.is_file():
             sys.exit(f"gap_figures: error: {path}: no such file")
     scores = read_scores(args.confusion, args.role)

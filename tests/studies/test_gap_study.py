@@ -135,6 +135,31 @@ def test_figures_pair_across_renders_and_split_the_variance(tmp_path: Path) -> N
     assert row in text
 
 
+def test_figures_read_several_files_and_refuse_a_matrix_scored_twice(tmp_path: Path) -> None:
+    def write(name: str, rows: list[dict]) -> Path:
+        path = tmp_path / name
+        with open(path, "w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=list(rows[0]))
+            w.writeheader()
+            w.writerows(rows)
+        return path
+
+    def row(name: str, seed: int, value: float) -> dict:
+        return {"role": "eval", "model": f"{name}_s{seed}", "row": name, "seed": str(seed),
+                "preset": "walking_xyz", "block": 8300, "render_seed": 8300, "frames": 1,
+                **_matrix(value)}  # fmt: skip
+
+    a = write("a.csv", [row("source_only_bntrained", 0, 0.3)])
+    b = write("b.csv", [row("fda_bntrained", 0, 0.4), row("source_only_bntrained", 1, 0.5)])
+    scores = figures.read_scores([a, b], "eval")
+    assert set(scores["source_only_bntrained"]["walking_xyz_8300"]) == {"0", "1"}
+    assert scores["fda_bntrained"]["walking_xyz_8300"]["0"]["person"] == pytest.approx(40.0, abs=0.5)
+    again = write("c.csv", [row("fda_bntrained", 1, 0.4), row("source_only_bntrained", 0, 0.2)])
+    with pytest.raises(SystemExit, match=r"c.csv:3: source_only_bntrained_s0 on walking_xyz_8300 "
+                       r"is scored already at .*a.csv:2"):  # fmt: skip
+        figures.read_scores([a, again], "eval")
+
+
 def test_d_at_chance_is_marked() -> None:
     lines, marks = figures.dacc_lines(
         {
