@@ -15,7 +15,7 @@ A case whose signal came after the script had finished is ``void`` (the timing o
 not the script) and left out of the shares.
 
     nice python studies/fresh_cases.py --world /tmp/fresh/world --work /tmp/fresh/cases \\
-        --out outputs/fresh_cases [--only ID-PREFIX] [--jobs 2]
+        --out outputs/fresh_cases [--cases studies/fresh_cases2.txt] [--only ID-PREFIX] [--jobs 2]
 
 Writes ``OUT/results.json`` (every case: its class, reason, exit code, seconds, stderr tail) and
 prints one line per case and the totals.
@@ -240,9 +240,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--merge", type=Path, default=None,
                         help="an earlier results.json: its outcomes of the cases not run now are kept")  # fmt: skip
     parser.add_argument("--jobs", type=int, default=2)
+    parser.add_argument("--cases", type=Path, default=CASES,
+                        help="the case list (default: studies/fresh_cases.txt)")  # fmt: skip
     args = parser.parse_args(argv)
     prefixes = tuple(args.only.split(",")) if args.only else ("",)
-    cases = [c for c in read_cases() if c.id.startswith(prefixes)]
+    cases = [c for c in read_cases(args.cases) if c.id.startswith(prefixes)]
     world = build_world(args.world.resolve(), BIN)
     args.work.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
@@ -255,7 +257,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.merge is not None:
         ran = {o.id for o in outcomes}
         earlier = [Outcome(**o) for o in json.loads(args.merge.read_text())["outcomes"]]
-        order = {c.id: i for i, c in enumerate(read_cases())}
+        order = {c.id: i for i, c in enumerate(read_cases(args.cases))}
         outcomes = sorted([*outcomes, *(o for o in earlier if o.id not in ran)],
                           key=lambda o: order.get(o.id, len(order)))  # fmt: skip
     counted = [o for o in outcomes if o.verdict != "void"]

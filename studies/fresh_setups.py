@@ -206,6 +206,106 @@ def vocnoseg(c: Path, world: dict[str, str]) -> None:
     shutil.rmtree(c / "voc" / "SegmentationClass")
 
 
+# ------------------------------------------------------------------------------ second set
+# (studies/fresh_cases2.txt)
+
+
+def textfile(c: Path, world: dict[str, str]) -> None:
+    (c / "file.txt").write_text("a file of mine\n")
+
+
+def linkdir(c: Path, world: dict[str, str]) -> None:
+    """``link`` -> ``real``: an output folder reached through a symlink."""
+    (c / "real").mkdir()
+    (c / "link").symlink_to(c / "real", target_is_directory=True)
+
+
+def seqlink(c: Path, world: dict[str, str]) -> None:
+    (c / "seqlink").symlink_to(world["seq"], target_is_directory=True)
+
+
+def _stamp_edit(change: Callable[[str], str]) -> Callable[[list[str]], str]:
+    """Rows with ``change`` applied to each stamp."""
+    return lambda rows: "\n".join(change(r.split()[0]) + " " + " ".join(r.split()[1:])
+                                   for r in rows) + "\n"  # fmt: skip
+
+
+def _zero_quaternion(rows: list[str]) -> str:
+    first = rows[0].split()
+    return "\n".join([" ".join(first[:4] + ["0", "0", "0", "0"]), *rows[1:]]) + "\n"
+
+
+def halfvocab(c: Path, world: dict[str, str]) -> None:
+    data = Path(world["vocab"]).read_bytes()
+    (c / "half.txt").write_bytes(data[: len(data) // 2])
+
+
+def truncckpt(c: Path, world: dict[str, str]) -> None:
+    data = Path(world["ckpt"]).read_bytes()
+    (c / "half.ckpt").write_bytes(data[: len(data) // 2])
+
+
+def camyaml(c: Path, world: dict[str, str]) -> None:
+    (c / "cam.yaml").write_text("cx: 80.0\ncy: 60.0\nfy: 120.0\n")
+
+
+def _crlf_lists(seq: Path) -> None:
+    for name in ("rgb.txt", "depth.txt", "groundtruth.txt"):
+        text = (seq / name).read_text()
+        (seq / name).write_bytes(text.replace("\n", "\r\n").encode())
+
+
+def _truncate_one(folder: str) -> Callable[[Path], None]:
+    def change(seq: Path) -> None:
+        png = sorted((seq / folder).iterdir())[2]
+        png.write_bytes(png.read_bytes()[: png.stat().st_size // 2])
+
+    return change
+
+
+def _other_size(folder: str) -> Callable[[Path], None]:
+    def change(seq: Path) -> None:
+        png = sorted((seq / folder).iterdir())[2]
+        image = cv2.imread(str(png), cv2.IMREAD_UNCHANGED)
+        cv2.imwrite(str(png), cv2.resize(image, (image.shape[1] // 2, image.shape[0] // 2),
+                                         interpolation=cv2.INTER_NEAREST))  # fmt: skip
+
+    return change
+
+
+def _header_only(seq: Path) -> None:
+    lines = (seq / "rgb.txt").read_text().splitlines()
+    (seq / "rgb.txt").write_text("\n".join(x for x in lines if x.startswith("#")) + "\n")
+
+
+def vocnosets(c: Path, world: dict[str, str]) -> None:
+    shutil.copytree(world["voc"], c / "voc")
+    shutil.rmtree(c / "voc" / "ImageSets")
+
+
+SECOND: dict[str, Setup] = {
+    "textfile": textfile,
+    "linkdir": linkdir,
+    "seqlink": seqlink,
+    "onlycomments": lambda c, w: (c / "comments.txt").write_text("# timestamp tx ty tz\n# none\n"),
+    "zeroquat": _write_gt("zq.txt", _zero_quaternion),
+    "nanstamp": _write_gt("nan.txt", lambda r: "\n".join(["nan " + " ".join(r[0].split()[1:]),
+                                                          *r[1:]]) + "\n"),  # fmt: skip
+    "shifted": _write_gt("shifted.txt", _stamp_edit(lambda t: f"{float(t) + 1000:.6f}")),
+    "scistamps": _write_gt("sci.txt", _stamp_edit(lambda t: f"{float(t):.15e}")),
+    "halfvocab": halfvocab,
+    "truncckpt": truncckpt,
+    "camyaml": camyaml,
+    "crlf_lists": _seq_edit(_crlf_lists),
+    "trunc_depth": _seq_edit(_truncate_one("depth")),
+    "rgb_size": _seq_edit(_other_size("rgb")),
+    "label_size": _seq_edit(_other_size("labels")),
+    "no_depth_txt": _seq_edit(lambda s: (s / "depth.txt").unlink()),
+    "header_only": _seq_edit(_header_only),
+    "vocnosets": vocnosets,
+}
+
+
 SETUPS: dict[str, Setup] = {
     "ro": ro,
     "notes": notes,
@@ -250,3 +350,4 @@ SETUPS: dict[str, Setup] = {
     "vocnoseg": vocnoseg,
     "trainruncopy": trainruncopy,
 }
+SETUPS.update(SECOND)
