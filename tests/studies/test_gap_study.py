@@ -153,7 +153,9 @@ def test_figures_read_several_files_and_refuse_a_matrix_scored_twice(tmp_path: P
     b = write("b.csv", [row("fda_bntrained", 0, 0.4), row("source_only_bntrained", 1, 0.5)])
     scores = figures.read_scores([a, b], "eval")
     assert set(scores["source_only_bntrained"]["walking_xyz_8300"]) == {"0", "1"}
-    assert scores["fda_bntrained"]["walking_xyz_8300"]["0"]["person"] == pytest.approx(40.0, abs=0.5)
+    assert scores["fda_bntrained"]["walking_xyz_8300"]["0"]["person"] == pytest.approx(
+        40.0, abs=0.5
+    )
     again = write("c.csv", [row("fda_bntrained", 1, 0.4), row("source_only_bntrained", 0, 0.2)])
     with pytest.raises(SystemExit, match=r"c.csv:3: source_only_bntrained_s0 on walking_xyz_8300 "
                        r"is scored already at .*a.csv:2"):  # fmt: skip
