@@ -130,15 +130,21 @@ class FrameLoop:
         for name in item.timer.wall:
             timer.add(name, item.timer.wall[name], item.timer.cpu[name])
         frame, labels = item.frame, item.labels
-        if self.segment_now is not None and not self.tracker.initialized:
+        first = not self.tracker.initialized
+        if self.segment_now is not None and first:
             labels = self.segment_now(frame, timer)  # a first-keyframe candidate
         if self.semantic is not None:
             self.receive(frame)
+            if first:
+                labels = self.first_mask(frame)
         filters, result = self.track(frame, labels, item.features)
         keyframe = self.filter_tracked(frame, filters, result)
         kf = self.map_keyframe(frame, filters, result, keyframe)
         if self.semantic is not None and kf is not None:
-            self.semantic.request(frame, kf.id)  # returns at once
+            if first and labels is not None:  # the map starts from a masked frame
+                self.carried = CarriedMask.of(kf.id, labels, frame.depth, self.tracker.k)
+            else:
+                self.semantic.request(frame, kf.id)  # returns at once
         self.back_end(result, kf)
         self.record(frame, filters, result, kf)
 
@@ -199,6 +205,16 @@ class FrameLoop:
                 result.pose_wc = pose_wc
             result.inliers = int((result.matched >= 0).sum())
         return keyframe
+
+    def first_mask(self, frame: Frame) -> np.ndarray | None:
+        """With the semantic thread, a first-keyframe candidate's labels: tracking waits for
+        them (:meth:`~.semantic_thread.SemanticThread.wait_for`), so that the map starts
+        without the people in view."""
+        assert self.semantic is not None
+        with self.timer("segmentation"):
+            labels = self.semantic.wait_for(frame)
+        self.counts["masks"] += labels is not None
+        return labels
 
     def receive(self, frame: Frame) -> None:
         """The semantic thread's masks finished by ``frame``'s stamp: each marks bad the map

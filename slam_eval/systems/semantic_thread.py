@@ -71,6 +71,7 @@ class ThreadStats:
     delivered: int = 0
     delay_s: float = 0.0
     segment_s: float = 0.0
+    first_wait_s: float = 0.0
 
     def as_dict(self) -> dict[str, float | int]:
         n = max(self.delivered, 1)
@@ -80,6 +81,7 @@ class ThreadStats:
             "delivered": self.delivered,
             "mean_delay_s": self.delay_s / n,
             "mean_segment_s": self.segment_s / n,
+            "first_wait_s": self.first_wait_s,
         }
 
 
@@ -87,6 +89,7 @@ class SemanticThread:
     """What both clocks share: the waiting keyframe (newest wins) and the statistics."""
 
     clock = "none"
+    latency_s = 0.0
 
     def __init__(self, segmenter: Segmenter) -> None:
         self.segmenter = segmenter
@@ -103,6 +106,15 @@ class SemanticThread:
     def poll(self, stamp: float) -> list[Delivered]:
         """The masks finished by camera stamp ``stamp`` (s), oldest first; never waits."""
         raise NotImplementedError
+
+    def wait_for(self, frame: Frame) -> np.ndarray | None:
+        """``frame``'s labels, segmented now in the calling thread (the one wait of a run:
+        the first keyframe's mask); counted as delivered with the segmenter's latency."""
+        start = time.perf_counter()
+        labels = self.segmenter.segment(frame)
+        waited = time.perf_counter() - start
+        self.stats.first_wait_s += waited if self.clock == "wall" else self.latency_s
+        return labels
 
     def close(self) -> None:
         """Stop (a segmentation under way is abandoned)."""
@@ -215,7 +227,9 @@ class CarriedMask:
         """From ``(H, W)`` uint8 ``labels`` and ``(H, W)`` float ``depth`` (m, 0 = none) of
         keyframe ``kf_id``; ``k`` (3, 3) the camera matrix."""
         s = CARRY_STRIDE
-        lab, z = labels[::s, ::s], depth[::s, ::s]
+        lab = labels[::s, ::s]
+        z = depth[::s, ::s]
+        z = fill_depth(lab, z)
         rows, cols = np.nonzero((lab > 0) & (z > 0))
         zz = z[rows, cols].astype(np.float64)
         u, v = cols * s, rows * s
@@ -246,6 +260,25 @@ class CarriedMask:
         """The labels carried to a frame at camera-to-world ``pose_wc`` (4, 4), from the
         keyframe's pose in ``slam_map`` now (the back end may have moved it)."""
         return self.labels_at(invert(pose_wc) @ slam_map.pose_wc(self.kf_id))
+
+
+def fill_depth(labels: np.ndarray, depth: np.ndarray) -> np.ndarray:
+    """``depth`` (H, W) m with its holes inside the labelled pixels of ``labels`` (H, W) filled:
+    each connected labelled region's holes take the median of its measured depths, a region
+    measured nowhere (a person closer than the sensor's range) the frame's nearest measured
+    depth (1st percentile)."""
+    holes = (labels > 0) & ~(depth > 0)
+    if not holes.any():
+        return depth
+    out = depth.astype(np.float32, copy=True)
+    valid = depth > 0
+    near = float(np.percentile(depth[valid], 1)) if valid.any() else 0.0
+    _, comp = cv2.connectedComponents((labels > 0).astype(np.uint8), connectivity=8)
+    for c in np.unique(comp[holes]):
+        region = comp == c
+        measured = depth[region & valid]
+        out[region & holes] = float(np.median(measured)) if len(measured) else near
+    return out
 
 
 def mark_dynamic_points(slam_map: SlamMap, kf_id: int, region: np.ndarray) -> int:
