@@ -13,7 +13,8 @@ ORB-extracted by the prefetch:
    bundle adjustment and loop closing after a new keyframe;
 4. **record** (:meth:`FrameLoop.record`): keypoint counts, the tracked pose and the frame's log.
 
-With ``segment=thread`` (:mod:`.semantic_thread`) each frame first takes the masks the semantic
+With ``segment=thread`` (:mod:`.semantic_thread`) the frames before the first keyframe wait for
+their own labels (:meth:`FrameLoop.first_mask`); each frame first takes the masks the semantic
 thread finished (:meth:`FrameLoop.receive`), the latest one is carried to the tracked frame and
 filters it at the ``late`` stage, and a new keyframe is handed to the thread after step 2.
 

@@ -1,14 +1,16 @@
 """The semantic thread of ``segment=thread`` (as RDS-SLAM): keyframes are segmented off the
 tracking path, tracking never waits for a mask, and the frames in between are filtered with the
-latest mask carried to them by the tracked pose.
+latest mask carried to them by the tracked pose. The one wait: until the map exists, each frame's
+labels are segmented in the main thread (:meth:`SemanticThread.wait_for`), so that the first
+keyframe maps no person; its mask is the first carried one.
 
 Per frame (:class:`~.frame_loop.FrameLoop`): the masks that finished since the last frame are
 taken (:meth:`SemanticThread.poll`, never blocking); each one marks the map points its keyframe
 sees inside the dynamic region as bad (:func:`mark_dynamic_points`: tracking no longer matches
 them, so a person mapped before its mask came back stops steering the pose) and becomes the
 mask that is carried (:class:`CarriedMask`); once the frame is tracked, the carried labels
-(:meth:`CarriedMask.labels_at`: the keyframe's labelled pixels, back-projected with its depth and
-projected with the frame's tracked pose) feed the filters that need labels, and the pose is
+(:meth:`CarriedMask.labels_at`: the keyframe's labelled pixels, back-projected with its depth,
+holes filled by :func:`fill_depth`, and projected with the frame's tracked pose) feed the filters that need labels, and the pose is
 refined without what they flagged (the ``late`` stage of :mod:`..filters.chain`). A new keyframe
 is then handed to the thread (:meth:`SemanticThread.request`). One segmentation runs at a time;
 a keyframe that arrives while one runs waits, replaced by any newer one (the newest keyframe is

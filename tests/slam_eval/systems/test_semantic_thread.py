@@ -24,6 +24,7 @@ from uss_slam.slam_eval.systems.semantic_thread import (
     CarriedMask,
     SimulatedThread,
     WallThread,
+    fill_depth,
     start_thread,
 )
 
@@ -82,6 +83,34 @@ def test_carried_mask_leaves_out_pixels_without_depth_or_behind_the_camera() -> 
     assert not CarriedMask.of(0, labels, depth, K).labels_at(behind).any()
 
 
+def test_fill_depth_fills_the_holes_of_each_labelled_region() -> None:
+    labels = np.zeros((20, 30), np.uint8)
+    labels[2:8, 2:8] = PERSON  # measured in part: its holes take its median
+    labels[12:18, 20:28] = PERSON  # measured nowhere (too close): the frame's nearest depth
+    depth = np.full(labels.shape, 3.0, np.float32)
+    depth[2:8, 2:8] = np.linspace(1.0, 2.0, 36).reshape(6, 6)
+    depth[2:4, 2:4] = 0.0
+    depth[12:18, 20:28] = 0.0
+    depth[0, 29] = 0.0  # a hole outside any label stays a hole
+    depth[19, 0:10] = 0.5  # the nearest measured depths
+    out = fill_depth(labels, depth)
+    measured = depth[2:8, 2:8][depth[2:8, 2:8] > 0]
+    np.testing.assert_allclose(out[2:4, 2:4], np.median(measured))
+    np.testing.assert_array_equal(out[4:8, 4:8], depth[4:8, 4:8])
+    np.testing.assert_allclose(out[12:18, 20:28], np.percentile(depth[depth > 0], 1))
+    assert out[0, 29] == 0.0 and depth[2, 2] == 0.0  # the input is left as it was
+
+
+def test_carried_mask_keeps_a_person_whose_depth_has_holes() -> None:
+    labels = np.where(_square_on_plane(np.eye(4)), PERSON, 0).astype(np.uint8)
+    depth = np.full(labels.shape, 2.0, np.float32)
+    depth[labels > 0] = 0.0  # the person nearer than the sensor's range: no depth on it
+    depth[(labels > 0) & (np.arange(640)[None, :] % 3 == 0)] = 2.0  # except a few columns
+    carried = CarriedMask.of(0, labels, depth, K).labels_at(np.eye(4)) == PERSON
+    truth = labels == PERSON
+    assert (carried & truth).sum() / (carried | truth).sum() > 0.9
+
+
 def test_simulated_thread_delivers_after_the_latency_newest_waiting_first() -> None:
     seg = LabelsSegmenter(latency_s=0.1)
     thread = start_thread(seg)
@@ -102,17 +131,20 @@ def test_simulated_thread_delivers_after_the_latency_newest_waiting_first() -> N
 
 
 class NeverAnswers(ImageSegmenter):
-    """Blocks every call until released (or 30 s): a segmenter far slower than the run."""
+    """Blocks every call until released (or 30 s): a segmenter far slower than the run;
+    with ``answer_first`` the first call answers at once."""
 
     name = "never"
 
-    def __init__(self) -> None:
+    def __init__(self, answer_first: bool = False) -> None:
         self.release = threading.Event()
         self.calls = 0
+        self.answer_first = answer_first
 
     def infer(self, rgb: np.ndarray) -> np.ndarray:
         self.calls += 1
-        self.release.wait(30.0)
+        if not (self.answer_first and self.calls == 1):
+            self.release.wait(30.0)
         return np.zeros(rgb.shape[:2], np.uint8)
 
 
@@ -138,7 +170,7 @@ def test_wall_thread_never_blocks_the_caller() -> None:
 
 def test_tracking_never_waits_for_the_semantic_thread(synthetic_sequence) -> None:
     path = synthetic_sequence(preset="walking_xyz", frames=30)
-    seg = NeverAnswers()
+    seg = NeverAnswers(answer_first=True)  # only the first keyframe's mask is waited for
     seq = TumSequence(path)
     start = time.perf_counter()
     result = SlamPipeline(
@@ -146,10 +178,11 @@ def test_tracking_never_waits_for_the_semantic_thread(synthetic_sequence) -> Non
     ).run()
     seg.release.set()
     assert time.perf_counter() - start < 25.0  # it did not wait for the 30 s call
-    assert seg.calls == 1 and result.segmented_frames == 0
+    assert seg.calls == 2 and result.segmented_frames == 1  # the first mask, in the loop
     assert result.tracked == 30 and result.semantic_thread is not None
-    assert result.semantic_thread["clock"] == "wall"
-    assert result.semantic_thread["requested"] == result.keyframes
+    stats = result.semantic_thread
+    assert stats["clock"] == "wall" and stats["first_wait_s"] >= 0.0
+    assert stats["requested"] == result.keyframes - 1  # every keyframe but the first
 
 
 def _thread_run(path: Path, latency: float, filters=("semantic",)):
@@ -166,7 +199,8 @@ def test_thread_schedule_end_to_end_is_deterministic_and_filters(synthetic_seque
     np.testing.assert_array_equal(a.trajectory.positions, b.trajectory.positions)
     stats = a.semantic_thread
     assert stats is not None and stats["clock"] == "camera"
-    assert stats["delivered"] == a.segmented_frames >= 2
+    assert stats["delivered"] + 1 == a.segmented_frames >= 3  # + the first keyframe's
+    assert stats["first_wait_s"] == pytest.approx(0.2)
     assert stats["mean_delay_s"] >= 0.2 - 1e-6
     assert stats["points_marked"] > 0  # people mapped before their mask came back
     kp = a.keypoints
@@ -175,6 +209,17 @@ def test_thread_schedule_end_to_end_is_deterministic_and_filters(synthetic_seque
     assert a.segmentation_thread == "semantic" and a.tracked_fraction == 1.0
     # A longer latency: fewer masks.
     assert _thread_run(path, 0.6).segmented_frames < a.segmented_frames
+
+
+def test_the_map_starts_from_a_masked_frame(synthetic_sequence) -> None:
+    # No mask of the thread comes back within the run: only the first keyframe's, waited for,
+    # filters (its frame, and carried, the frames after it).
+    path = synthetic_sequence(preset="walking_xyz", frames=20)
+    result = _thread_run(path, 100.0)
+    assert result.semantic_thread is not None
+    assert result.semantic_thread["delivered"] == 0 and result.segmented_frames == 1
+    assert result.semantic_thread["first_wait_s"] == pytest.approx(100.0)
+    assert result.keypoints["dropped"]["semantic"] > 20 * 10  # on every frame, not the first only
 
 
 def test_cli_thread_schedule_and_latency_errors(synthetic_sequence, tmp_path: Path) -> None:
