@@ -293,11 +293,9 @@ ROOT_KEYS = ("root", "roots")
 """Keys of a data config that name input folders (one, or a list): every data set's."""
 
 
-def input_roots(config: object, prefix: str) -> None:
-    """Check every input folder a plain data config names (``root: DIR``, ``roots: [DIR, ...]``
-    at any depth, e.g. ``data.source.root``, ``data.target.roots``) with :func:`input_folder`,
-    the error naming the full key; a value not yet given (``???``, None) is left to the
-    config's own check."""
+def config_roots(config: object, prefix: str) -> Iterator[tuple[str, str]]:
+    """``(full key, folder)`` of every input folder a plain data config names (``root: DIR``,
+    ``roots: [DIR, ...]`` at any depth); values not yet given (``???``, None) are skipped."""
     if isinstance(config, dict):
         for name, value in config.items():
             key = f"{prefix}.{name}"
@@ -305,12 +303,46 @@ def input_roots(config: object, prefix: str) -> None:
                 values = value if isinstance(value, list) else [value]
                 for folder in values:
                     if isinstance(folder, str) and folder and folder != "???":
-                        input_folder(folder, key)
+                        yield key, folder
             else:
-                input_roots(value, key)
+                yield from config_roots(value, key)
     elif isinstance(config, list):
         for index, item in enumerate(config):
-            input_roots(item, f"{prefix}[{index}]")
+            yield from config_roots(item, f"{prefix}[{index}]")
+
+
+def input_roots(config: object, prefix: str) -> None:
+    """Check every input folder a plain data config names (:func:`config_roots`, e.g.
+    ``data.source.root``, ``data.target.roots``) with :func:`input_folder`, the error naming
+    the full key; a value not yet given is left to the config's own check."""
+    for key, folder in config_roots(config, prefix):
+        input_folder(folder, key)
+
+
+@contextmanager
+def naming_roots(config: object, prefix: str) -> Iterator[None]:
+    """A reader's :class:`DataFormatError` about a file inside a folder the data config names
+    (:func:`config_roots`), raised inside, becomes one line naming that key too:
+    ``data.target.roots=<folder>: rgb.txt: not a TUM RGB-D sequence: ...``."""
+    try:
+        yield
+    except Exception as error:  # the reader's own, or one a library wrapped
+        found: BaseException | None = error
+        while found is not None and not isinstance(found, DataFormatError):
+            found = found.__cause__
+        if not isinstance(found, DataFormatError) or getattr(found, "key", None) is not None:
+            raise
+        file = Path(found.path).absolute()
+        holding = [(Path(folder).absolute(), key, folder)
+                   for key, folder in config_roots(config, prefix)
+                   if file == Path(folder).absolute() or Path(folder).absolute() in file.parents]  # fmt: skip
+        if not holding:
+            raise
+        root, _, folder = max(holding, key=lambda h: len(h[0].parts))  # the innermost folder
+        keys = ", ".join(dict.fromkeys(k for r, k, _ in holding if r == root))  # each key once
+        line = "" if found.line is None else f", line {found.line}"
+        inside = f"{file.relative_to(root).as_posix()}{line}: " if file != root else ""
+        raise PathError(folder, keys, f"{inside}{found.detail}") from None
 
 
 _PLAIN_OVERRIDE = re.compile(r"[A-Za-z0-9_\-./+@%]+")

@@ -104,6 +104,11 @@ def _meminfo_of_self(name: str) -> int | None:
     return _meminfo(name, Path("/proc/self/status"))
 
 
+def held_bytes() -> int:
+    """Bytes this process holds now (``VmRSS`` of ``/proc/self/status``; 0 where unknown)."""
+    return _meminfo_of_self("VmRSS") or 0
+
+
 def available_memory() -> tuple[int | None, str]:
     """``(bytes, where)``: the least memory left by the machine, the cgroup and ``ulimit -v``,
     and which of them it is (None, "": nothing known, e.g. not Linux)."""

@@ -14,7 +14,7 @@ import numpy as np
 import yaml
 
 from .errors import DataFormatError, UssSlamError
-from .paths import read_text
+from .paths import naming, read_text
 
 DEPTH_SCALE = 5000.0
 """Depth PNG units per metre."""
@@ -218,7 +218,8 @@ def resolve_camera(
         )
     if path.is_dir():
         raise DataFormatError(path, f"is a folder; expected an {INTRINSICS_FILE}-format file")
-    return _same_size(CameraIntrinsics.from_yaml(path), path, image_size), str(path)
+    with naming(key, path):  # the reader's line about the file given names the setting too
+        return _same_size(CameraIntrinsics.from_yaml(path), path, image_size), str(path)
 
 
 def _same_size(cam: CameraIntrinsics, path: Path, image_size: tuple[int, int]) -> CameraIntrinsics:

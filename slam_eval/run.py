@@ -26,6 +26,7 @@ from uss_slam.core.schema import unused_settings
 from .compare_sets import checked_runs
 from .config import SlamEvalConfig, check, register_configs, removed_override, run_name
 from .filters.build import build_filters
+from .memory import check_slam_memory
 from .scoring.evaluation import evaluate
 from .scoring.repeats import (
     Perturbation,
@@ -118,6 +119,7 @@ def run(cfg: DictConfig) -> dict[str, Any]:
         max_frames=None if seq_cfg.max_frames is None else int(seq_cfg.max_frames),
         min_strided_frames=MIN_STRIDED_FRAMES,
     )
+    check_slam_memory(cfg, sequence, log)  # before the first frame: one line if it cannot fit
     warn_if_groundtruth_misses(sequence)
     warn_if_prefetch_mode_unused(cfg.slam)
     for line in unused_settings(cfg, SlamEvalConfig):

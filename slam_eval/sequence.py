@@ -153,6 +153,12 @@ class TumSequence:
         wall, cpu = time.perf_counter(), time.thread_time()
         record = self.records[index]
         bgr = read_colour(record.rgb_path)
+        if (bgr.shape[1], bgr.shape[0]) != self.image_size:  # the odd one out is named
+            raise DataFormatError(
+                record.rgb_path,
+                f"image is {bgr.shape[1]}x{bgr.shape[0]} but the sequence's first frame is "
+                f"{self.image_size[0]}x{self.image_size[1]}",
+            )
         raw = read_depth(record.depth_path)
         if raw.dtype != np.uint16 or raw.ndim != 2:
             raise DataFormatError(
@@ -169,12 +175,6 @@ class TumSequence:
         labels = None
         if record.labels_path is not None:
             labels = read_labels(record.labels_path, bgr.shape[:2], record.rgb_path.name)
-        if (bgr.shape[1], bgr.shape[0]) != self.image_size:
-            raise DataFormatError(
-                record.rgb_path,
-                f"image is {bgr.shape[1]}x{bgr.shape[0]} but the sequence's first frame is "
-                f"{self.image_size[0]}x{self.image_size[1]}",
-            )
         rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
         gray = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
         spent = (time.perf_counter() - wall, time.thread_time() - cpu)

@@ -289,8 +289,9 @@ SECOND: dict[str, Setup] = {
     "seqlink": seqlink,
     "onlycomments": lambda c, w: (c / "comments.txt").write_text("# timestamp tx ty tz\n# none\n"),
     "zeroquat": _write_gt("zq.txt", _zero_quaternion),
-    "nanstamp": _write_gt("nan.txt", lambda r: "\n".join(["nan " + " ".join(r[0].split()[1:]),
-                                                          *r[1:]]) + "\n"),  # fmt: skip
+    "nanstamp": _write_gt(
+        "nan.txt", lambda r: "\n".join(["nan " + " ".join(r[0].split()[1:]), *r[1:]]) + "\n"
+    ),  # fmt: skip
     "shifted": _write_gt("shifted.txt", _stamp_edit(lambda t: f"{float(t) + 1000:.6f}")),
     "scistamps": _write_gt("sci.txt", _stamp_edit(lambda t: f"{float(t):.15e}")),
     "halfvocab": halfvocab,

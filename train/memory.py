@@ -1,25 +1,30 @@
 """The memory a training needs, estimated from its settings before the first iteration
 (``uss-train`` refuses a run that cannot fit: :func:`check_training_memory`).
 
-The estimate counts, in float32 bytes:
+The estimate counts, beyond what the process holds when it is made (the imports, the data
+module, the networks' weights: its ``VmRSS``, which the memory available already excludes):
 
-- the parameters of the segmenter and the discriminators, each held 3 times (weights, their
-  gradients, one optimiser state: SGD's momentum; Adam's two states count for the
+- the parameters of the segmenter and the discriminators, each 3 times in float32 (weights,
+  their gradients, one optimiser state: SGD's momentum; Adam's two states count for the
   discriminators, which are small);
-- the activations of one training forward, kept for its backward pass: the output of every
-  leaf module of the segmenter for a batch of ``data.batch_size`` crops, and of each
-  discriminator on that batch's class maps at crop size. The networks run on torch's ``meta``
-  device for this: shapes only, no memory, no arithmetic (a fraction of a second).
+- the activations of one training forward, :data:`ACTIVATION_COPIES` times: the output of
+  every leaf module of the segmenter for a batch of ``data.batch_size`` crops, and of each
+  discriminator on that batch's class maps at crop size, kept for the backward pass, and their
+  gradients during it. The networks run on torch's ``meta`` device for this: shapes only, no
+  memory, no arithmetic (a fraction of a second);
+- :data:`RUNTIME_BYTES`: what the trainer, the callbacks (validators, precise BatchNorm), the
+  validation passes, checkpoint writing and the math libraries' caches add once training runs;
+- :data:`WORKER_BYTES` per ``data.num_workers`` process.
 
-It is a lower bound on the peak (autograd keeps some inputs as well as the outputs, the
-source and target forwards overlap in some methods, the libraries take their own share), so a
-run it refuses would not fit; a run it lets pass may still not, and then fails as before with
-``<prog>: error: out of memory`` (``core/launch.py``). CPU training only: a GPU's memory is
-its own and is not compared.
+Checked against the measured peaks of the settings users run (``studies/memory_peaks.py``,
+docs/results/reliability.md): it is above each of them, so a run it lets pass fits as those
+did; one it refuses may still fit with swap or less slack (``USS_SLAM_NO_MEMORY_CHECK=1``
+tries). CPU training only: a GPU's memory is its own and is not compared.
 """
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Sequence
 from typing import Any
 
@@ -27,11 +32,20 @@ import torch
 from torch import nn
 from torch.func import functional_call
 
-from uss_slam.core.resources import check_memory
+from uss_slam.core.resources import check_memory, held_bytes
+
+log = logging.getLogger(__name__)
 
 FLOAT_BYTES = 4
 PARAMETER_COPIES = 3
 """Weights, gradients and one optimiser state per parameter."""
+ACTIVATION_COPIES = 2
+"""Each kept output and, during the backward pass, its gradient."""
+RUNTIME_BYTES = 320 * 2**20
+"""Added after the estimate is made by everything but the batch's tensors: 183-240 MB in the
+measured runs (Lightning, the validators, the first validation, the libraries' caches)."""
+WORKER_BYTES = 200 * 2**20
+"""One data-loading worker process's own pages (its decoding, its prefetched batches)."""
 
 
 def _meta_leaf_elements(net: nn.Module, shape: Sequence[int]) -> int:
@@ -57,9 +71,10 @@ def _meta_leaf_elements(net: nn.Module, shape: Sequence[int]) -> int:
     return total
 
 
-def training_bytes(model: nn.Module, batch: int, crop: tuple[int, int]) -> int:
+def training_bytes(model: nn.Module, batch: int, crop: tuple[int, int], workers: int = 0) -> int:
     """Estimated bytes to train ``model`` (the ``LightningModule``: ``segmenter`` and
-    ``method.discriminators``) on batches of ``batch`` crops of ``crop`` = (H, W) px."""
+    ``method.discriminators``) on batches of ``batch`` crops of ``crop`` = (H, W) px with
+    ``workers`` data-loading processes, beyond what the process holds already."""
     segmenter: nn.Module = model.segmenter  # type: ignore[assignment]
     discriminators = list(getattr(getattr(model, "method", None), "discriminators", None) or ())
     params = sum(p.numel() for p in segmenter.parameters())
@@ -69,7 +84,8 @@ def training_bytes(model: nn.Module, batch: int, crop: tuple[int, int]) -> int:
     for d in discriminators:
         channels = getattr(d.layers[0], "in_channels", classes)
         activations += _meta_leaf_elements(d, (batch, channels, *crop))
-    return FLOAT_BYTES * (PARAMETER_COPIES * params + activations)
+    tensors = FLOAT_BYTES * (PARAMETER_COPIES * params + ACTIVATION_COPIES * activations)
+    return tensors + RUNTIME_BYTES + max(workers, 0) * WORKER_BYTES
 
 
 def _crop(cfg: Any) -> tuple[tuple[int, int], str]:
@@ -96,11 +112,15 @@ def check_training_memory(model: nn.Module, cfg: Any) -> None:
     batch = cfg.data.get("batch_size")
     if not key or not isinstance(batch, int):
         return
-    need = training_bytes(model, batch, crop)
+    workers = cfg.data.get("num_workers") or 0
+    need = training_bytes(model, batch, crop, workers if isinstance(workers, int) else 0)
+    log.info("memory estimate: %d bytes beyond the %d held now", need, held_bytes())
     net = str(cfg.model.net.get("_target_", "")).rsplit(".", 1)[-1]
     check_memory(
         need,
-        f"data.batch_size={batch}, {key}={crop[0] if crop[0] == crop[1] else list(crop)}",
-        f"training {net} (weights, gradients and the activations of one batch)",
+        f"data.batch_size={batch}, {key}={crop[0] if crop[0] == crop[1] else list(crop)}"
+        + (f", data.num_workers={workers}" if isinstance(workers, int) and workers > 0 else ""),
+        f"training {net} (weights, gradients, the activations of one batch, the trainer"
+        + (" and its data workers)" if isinstance(workers, int) and workers > 0 else ")"),
         "data.batch_size or the crop size",
     )

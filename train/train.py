@@ -31,7 +31,7 @@ from omegaconf import DictConfig, OmegaConf, open_dict
 from uss_slam.core.cli import hydra_task, run_hydra_app
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.files import check_writable
-from uss_slam.core.paths import input_file, input_roots, naming
+from uss_slam.core.paths import input_file, input_roots, naming, naming_roots
 from uss_slam.core.schema import (
     MAX_THREADS,
     Range,
@@ -479,7 +479,8 @@ def train(cfg: DictConfig) -> dict[str, float]:
     check_no_earlier_checkpoints(cfg, ckpt_path)
 
     check_method_data(cfg)
-    datamodule: LightningDataModule = build(cfg, "data")
+    with naming_roots(data, "data"):  # a bad file inside a data folder names its key too
+        datamodule: LightningDataModule = build(cfg, "data")
     model: LightningModule = build(cfg, "model")
     if checkpoint is not None:
         check_architecture(model, checkpoint)
@@ -512,7 +513,8 @@ def train(cfg: DictConfig) -> dict[str, float]:
     for logger in loggers:
         logger.log_hyperparams(hparams)  # type: ignore[arg-type]
 
-    fit(trainer, model, datamodule, ckpt_path)
+    with naming_roots(data, "data"):
+        fit(trainer, model, datamodule, ckpt_path)
 
     metrics = {k: float(v) for k, v in trainer.callback_metrics.items()}
     method = getattr(model, "method", None)

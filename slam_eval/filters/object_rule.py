@@ -45,7 +45,7 @@ class ObjectFilter(DynamicFilter):
     ) -> None:  # the ranges: the config's schema (slam.filter_params.object.*)
         self.min_points = int(min_points)
         names = [c for c in CLASS_NAMES if c != "background"] if classes is None else classes
-        self.ids = class_ids(list(names))
+        self.ids = class_ids(list(names), f"slam.filter_params.{self.name}.classes")
         self.depth_radius = float(depth_radius)
         self.pixel_radius = float(pixel_radius)
         r = max(0, math.ceil(self.pixel_radius) - 1)

@@ -33,7 +33,8 @@ class SemanticFilter(DynamicFilter):
         dynamic_classes: Sequence[str] = ("person",),
         dilation: Annotated[int, Range(min=0)] = 5,
     ) -> None:  # the ranges: the config's schema (slam.filter_params.semantic.*)
-        self.ids = class_ids(list(dynamic_classes))
+        key = f"slam.filter_params.{self.name}.dynamic_classes"
+        self.ids = class_ids(list(dynamic_classes), key)
         self.dilation = int(dilation)
         self._lut = np.zeros(256, np.uint8)
         self._lut[self.ids] = 1

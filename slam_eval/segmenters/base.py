@@ -155,13 +155,15 @@ def worth_keeping(segmenter: Segmenter) -> bool:
     return not isinstance(segmenter, NoSegmenter | LabelsSegmenter)
 
 
-def class_ids(names: list[str] | tuple[str, ...]) -> np.ndarray:
-    """Project class ids of class names (errors list the known names)."""
+def class_ids(names: list[str] | tuple[str, ...], key: str | None = None) -> np.ndarray:
+    """Project class ids of class names (errors name ``key``, the setting that lists them, and
+    the known names)."""
     ids = []
     for name in names:
         if name not in CLASS_NAMES:
             raise UssSlamError(
-                f"unknown class {name!r}; the project's classes are {', '.join(CLASS_NAMES)}"
+                (f"{key}: " if key else "")
+                + f"unknown class {name!r}; the project's classes are {', '.join(CLASS_NAMES)}"
             )
         ids.append(CLASS_NAMES.index(name))
     return np.asarray(ids, dtype=np.uint8)

@@ -16,6 +16,7 @@ from uss_slam.core.paths import (
     hydra_quoted,
     input_file,
     input_folder,
+    naming_roots,
     output_file,
     output_folder,
     path_override,
@@ -112,3 +113,24 @@ def test_a_utf8_byte_order_mark_is_no_text(tmp_path: Path) -> None:
     path = tmp_path / "gt.txt"
     path.write_bytes(b"\xef\xbb\xbf1.0 0 0 0 0 0 0 1\n")
     assert read_text(path) == "1.0 0 0 0 0 0 0 1\n"
+
+
+def test_naming_roots_names_the_data_key_of_a_bad_file_inside_its_folder(tmp_path: Path) -> None:
+    """A reader's line about a file inside a folder a data config names gains the key:
+    ``data.target.roots=<folder>: rgb.txt: ...``; a file elsewhere keeps its own line."""
+    data = {"target": {"roots": [str(tmp_path / "a"), str(tmp_path / "b")]}, "val": {"root": None}}
+    with pytest.raises(PathError) as info, naming_roots(data, "data"):
+        raise DataFormatError(tmp_path / "b" / "rgb.txt", "not a TUM RGB-D sequence", line=3)
+    assert str(info.value) == (
+        f"data.target.roots={tmp_path / 'b'}: rgb.txt, line 3: not a TUM RGB-D sequence"
+    )
+    data["source"] = {"root": str(tmp_path / "b")}  # one folder under two keys: both named
+    with pytest.raises(PathError) as info, naming_roots(data, "data"):
+        raise DataFormatError(tmp_path / "b" / "x" / "rgb.txt", "not a TUM RGB-D sequence")
+    assert str(info.value).startswith(
+        f"data.target.roots, data.source.root={tmp_path / 'b'}: x/rgb.txt: not a TUM"
+    )
+    elsewhere = DataFormatError(tmp_path / "c.txt", "bad")
+    with pytest.raises(DataFormatError) as info, naming_roots(data, "data"):
+        raise elsewhere
+    assert info.value is elsewhere

@@ -154,6 +154,16 @@ def test_depth_size_mismatch_names_depth_file(write_sequence) -> None:
     assert "depth image is 16x12 but the colour image" in str(info.value)
 
 
+def test_a_colour_frame_of_another_size_is_named_not_its_depth(write_sequence) -> None:
+    root = write_sequence(n=4)
+    victim = sorted((root / "rgb").iterdir())[2]
+    cv2.imwrite(str(victim), np.zeros((12, 16, 3), np.uint8))
+    seq = TumSequence(root)
+    with pytest.raises(DataFormatError) as info:
+        list(seq.frames(prefetch=2))
+    assert str(info.value) == f"{victim}: image is 16x12 but the sequence's first frame is 32x24"
+
+
 def test_depth_must_be_uint16(write_sequence) -> None:
     root = write_sequence(n=2)
     victim = sorted((root / "depth").iterdir())[0]
@@ -174,7 +184,8 @@ def test_bad_intrinsics_file(write_sequence, tmp_path: Path) -> None:
         TumSequence(write_sequence(), camera=str(bad))
     incomplete = tmp_path / "incomplete.yaml"
     incomplete.write_text("fx: 500\nfy: 500\n")
-    with pytest.raises(DataFormatError, match=r"incomplete\.yaml: expected a mapping with keys"):
+    with pytest.raises(DataFormatError, match=r"^sequence\.camera=.*incomplete\.yaml: expected "
+                                              r"a mapping with keys"):  # fmt: skip
         TumSequence(write_sequence(name="other"), camera=str(incomplete))
 
 

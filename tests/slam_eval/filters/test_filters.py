@@ -232,8 +232,11 @@ def test_build_filters_validates_names_and_parameters() -> None:
         build_filters(["flow"], {"flow": {"tau": 3}})
     with pytest.raises(UssSlamError, match="listed twice"):
         build_filters(["flow", "flow"])
-    with pytest.raises(UssSlamError, match="unknown class 'dog'"):
+    with pytest.raises(UssSlamError, match="^slam.filter_params.semantic.dynamic_classes: "
+                                           "unknown class 'dog'"):  # fmt: skip
         build_filters(["semantic"], {"semantic": {"dynamic_classes": ["dog"]}})
+    with pytest.raises(UssSlamError, match="^slam.filter_params.object.classes: unknown class"):
+        build_filters(["object"], {"object": {"classes": ["dog"]}})
 
 
 def test_each_shipped_filter_node_names_its_class_and_its_constructor_defaults() -> None:

@@ -1,0 +1,166 @@
+"""The memory a ``uss-slam`` run holds, estimated from its settings before its first frame
+(:func:`check_slam_memory`: one line naming the keys that drive it when it cannot fit; the
+comparison and the ``USS_SLAM_NO_MEMORY_CHECK=1`` opt-out are
+:func:`~uss_slam.core.resources.check_memory`'s).
+
+A run holds, beyond what the process holds when the check runs (the imports, the segmenter's
+weights once loaded: ``VmRSS``):
+
+- **frames read ahead**: ``slam.prefetch`` frames plus one per ``slam.workers`` thread being
+  prepared (at most the sequence's frames), each its colour, grey, depth and label images and
+  its features (:data:`FRAME_BYTES_PER_PIXEL` × W × H);
+- **the map**: keyframes (features, sub-sampled depth), map points and the per-frame log grow
+  with the frames of the sequence (:data:`MAP_BYTES_PER_FRAME_PIXEL` × W × H per frame, measured
+  at the default feature budget and scaled with ``slam.orb.n_features``);
+- **the segmenter**: an exported model's weights (:data:`WEIGHT_COPIES` × its file: the file
+  read, the session's initialisers, their pre-packed copies), and its runtime arena for one
+  image (:data:`ARENA_BYTES_PER_PIXEL` × W × H) per concurrent inference (``slam.workers`` with
+  ``segment=every_frame`` and ``slam.parallel``), plus :data:`THREAD_BYTES` per
+  ``segmenter.threads`` thread;
+- **repeats**: with ``slam.repeats`` > 1 each repeat's result (its point cloud and log) is kept
+  until the median is chosen, and with ``slam.reuse_labels`` the labels of every frame (W × H
+  bytes each);
+- **a worker process** with ``slam.prefetch_mode=process`` (its own imports and threads:
+  :data:`PROCESS_BYTES`);
+- what the back end, OpenCV and the report's figures add whatever the frames
+  (:data:`RUNTIME_BYTES`).
+
+Comparison sets (``compare``) and repeats run one after the other: the map is held once at a
+time. The constants are measured peaks (``studies/memory_peaks.py``; docs/results/reliability.md),
+rounded up.
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+
+from uss_slam.core.resources import check_memory, gigabytes, held_bytes
+
+FRAME_BYTES_PER_PIXEL = 12
+"""A frame read ahead: RGB (3) + grey (1) + depth float32 (4) + labels (1) bytes per pixel, its
+features and the decoder's buffers (measured: ``slam.prefetch=256`` over the default on 200
+real 640x480 frames, all of them held: 1.8 MB, 5.9 bytes per pixel; twice that)."""
+MAP_BYTES_PER_FRAME_PIXEL = 1.0
+"""Map, log and point cloud per frame of the sequence, per pixel of its images, at
+:data:`REFERENCE_FEATURES` features (measured: 200 against 50 real 640x480 frames, 0.43 bytes
+per pixel per frame; twice that)."""
+REFERENCE_FEATURES = 1000
+WEIGHT_COPIES = 4
+"""An exported model's weights: the file read, the session's initialisers, their pre-packed
+copies, and one spare."""
+ARENA_BYTES_PER_PIXEL = 400
+"""Activations of one inference of an exported segmenter per input pixel (measured: the small
+DeepLab's export on 200 real 640x480 frames, two inferences at once, 4 threads and 3 repeats'
+labels added 0.17 GB: under 280 bytes per pixel per inference; rounded up). A larger network's
+activations per pixel are larger: its weights count by its file, its arena does not."""
+THREAD_BYTES = 16 * 2**20
+"""One ``segmenter.threads`` thread: its stack and the runtime's per-thread scratch."""
+RESULT_BYTES_PER_FRAME = 64 * 2**10
+"""A finished repeat's result kept until the median is chosen: its log and point cloud."""
+PROCESS_BYTES = 256 * 2**20
+"""The frame worker process of ``slam.prefetch_mode=process``: its own imports and threads
+(measured with a comparison of three runs: 0.13 GB more over the process tree)."""
+RUNTIME_BYTES = 128 * 2**20
+"""What the run adds after the check whatever its frames: the back end's and OpenCV's buffers,
+the report's figures (measured: 50 real 640x480 frames peak 70 MB above the check with 37 MB
+of frames and map)."""
+MARGIN = 1.25
+"""The allocator's and the libraries' share on top (fragmentation, OpenCV's and GTSAM's
+buffers)."""
+
+
+@dataclass(frozen=True)
+class Part:
+    """One part of the estimate: its bytes, the settings that drive it (``key=value``) and the
+    keys to lower."""
+
+    bytes: int  # noqa: A003
+    keys: str
+    lower: str
+
+
+@dataclass(frozen=True)
+class SlamMemory:
+    """The estimate's parts by what they hold (``"frames read ahead"``, ``"the map"``, ...)."""
+
+    parts: dict[str, Part]
+
+    @property
+    def need(self) -> int:
+        """Bytes beyond what the process holds now (the parts with the margin)."""
+        return int(MARGIN * (RUNTIME_BYTES + sum(p.bytes for p in self.parts.values())))
+
+    def drivers(self) -> list[Part]:
+        """The parts that make up at least a quarter of the estimate, largest first."""
+        ranked = sorted(self.parts.values(), key=lambda p: -p.bytes)
+        total = sum(p.bytes for p in ranked) or 1
+        return [p for p in ranked if p.bytes >= total / 4] or ranked[:1]
+
+
+def image_size(path: Path) -> tuple[int, int]:
+    """(W, H) of an image file: a PNG's header, else the decoded image (one frame)."""
+    with open(path, "rb") as f:
+        head = f.read(24)
+    if head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR":
+        w, h = struct.unpack(">II", head[16:24])
+        return int(w), int(h)
+    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    return (0, 0) if image is None else (image.shape[1], image.shape[0])
+
+
+def estimate(cfg: Any, frames: int, size: tuple[int, int]) -> SlamMemory:
+    """The parts of a harness run of ``cfg`` over ``frames`` frames of ``size`` = (W, H) px
+    (the sequence as selected: ``sequence.start``, ``stride``, ``max_frames``)."""
+    slam, (w, h) = cfg.slam, size
+    pixels = w * h
+    workers, prefetch = int(slam.workers), int(slam.prefetch)
+    ahead = min(prefetch + workers, frames) if bool(slam.parallel) else 1  # no more than it has
+    parts = {"frames read ahead": Part(
+        ahead * FRAME_BYTES_PER_PIXEL * pixels,
+        f"slam.prefetch={prefetch}, slam.workers={workers}", "slam.prefetch")}  # fmt: skip
+    n_features = int(slam.orb.n_features)
+    parts["the map"] = Part(
+        int(frames * MAP_BYTES_PER_FRAME_PIXEL * pixels
+            * max(n_features, REFERENCE_FEATURES) / REFERENCE_FEATURES),
+        f"sequence.path ({frames} frames of {w}x{h}), slam.orb.n_features={n_features}",
+        "sequence.max_frames (or raise sequence.stride)")  # fmt: skip
+    model = cfg.segmenter.get("path") if "segmenter" in cfg else None
+    if model and Path(str(model)).is_file():
+        every = str(cfg.get("segment", "every_frame")) == "every_frame" and bool(slam.parallel)
+        inferences = workers if every else 1
+        threads = int(cfg.segmenter.get("threads") or 1)
+        parts["the segmenter"] = Part(
+            WEIGHT_COPIES * Path(str(model)).stat().st_size
+            + inferences * ARENA_BYTES_PER_PIXEL * pixels + threads * THREAD_BYTES,
+            f"segmenter.threads={threads}" + (f", slam.workers={workers}" if every else ""),
+            "segmenter.threads" + (" or slam.workers" if every else ""))  # fmt: skip
+    repeats = int(slam.repeats)
+    if repeats > 1:
+        labels = frames * pixels if bool(slam.reuse_labels) and model else 0
+        parts["repeats"] = Part(repeats * frames * RESULT_BYTES_PER_FRAME + labels,
+                                f"slam.repeats={repeats}", "slam.repeats")  # fmt: skip
+    if str(slam.prefetch_mode) == "process" and bool(slam.parallel) and prefetch > 0:
+        parts["the frame worker process"] = Part(PROCESS_BYTES, "slam.prefetch_mode=process",
+                                                 "slam.prefetch_mode=thread")  # fmt: skip
+    return SlamMemory(parts)
+
+
+def check_slam_memory(cfg: Any, sequence: Any, log: Any = None) -> None:
+    """One line before the first frame when the run's estimate (:func:`estimate`) for
+    ``sequence`` (a ``TumSequence``) exceeds the memory available, naming the settings of the
+    parts that make up most of it; ``log`` (a logger) gets the estimate."""
+    frames = len(sequence)
+    size = image_size(sequence.records[0].rgb_path) if frames else (0, 0)
+    memory = estimate(cfg, frames, size)
+    if log is not None:
+        log.info("memory estimate: %d bytes beyond the %d held now", memory.need, held_bytes())
+    drivers = memory.drivers()
+    parts = ", ".join(f"{what} {gigabytes(p.bytes)}" for what, p in memory.parts.items())
+    parts += f", the back end and the report {gigabytes(RUNTIME_BYTES)}"
+    check_memory(memory.need, "; ".join(p.keys for p in drivers), f"this run ({parts})",
+                 " or ".join(p.lower for p in drivers))  # fmt: skip
