@@ -42,7 +42,7 @@ PARAMETER_COPIES = 3
 ACTIVATION_COPIES = 2
 """Each kept output and, during the backward pass, its gradient."""
 RUNTIME_BYTES = 320 * 2**20
-"""Added after the estimate is made by everything but the batch's tensors: 183-240 MB in the
+"""Added after the estimate is made by everything but the batch's tensors: 183-217 MB in the
 measured runs (Lightning, the validators, the first validation, the libraries' caches)."""
 WORKER_BYTES = 200 * 2**20
 """One data-loading worker process's own pages (its decoding, its prefetched batches)."""
