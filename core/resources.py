@@ -136,18 +136,42 @@ MEMORY_OVERRIDE = "USS_SLAM_NO_MEMORY_CHECK"
 swap or memory overcommit may still run what it refuses."""
 
 
+def jobs_at_once() -> int:
+    """How many jobs of this Hydra multirun its launcher runs at once: ``hydra.launcher.n_jobs``
+    of the joblib launcher (``-1``: one per CPU, ``-2``: all but one, as joblib counts), else 1
+    (one run, or the basic launcher's jobs one after another)."""
+    try:
+        from hydra.core.hydra_config import HydraConfig
+        from hydra.types import RunMode
+    except ImportError:
+        return 1
+    if not HydraConfig.initialized() or HydraConfig.get().mode != RunMode.MULTIRUN:
+        return 1
+    n_jobs = HydraConfig.get().launcher.get("n_jobs")
+    if not isinstance(n_jobs, int) or isinstance(n_jobs, bool) or n_jobs == 0:
+        return 1
+    return max(1, n_jobs if n_jobs > 0 else (os.cpu_count() or 1) + 1 + n_jobs)
+
+
 def check_memory(need: int, settings: str, what: str, lower: str) -> None:
     """Raise the one line when ``need`` bytes (the estimate for ``what``, from ``settings``,
     e.g. ``'data.batch_size=64, crop 1025 px'``) exceed the memory available; ``lower`` says
-    which settings to lower. Does nothing when the memory available is unknown or
-    :data:`MEMORY_OVERRIDE` is set."""
+    which settings to lower. Inside a multirun whose launcher runs jobs in parallel, each of
+    :func:`jobs_at_once` jobs is counted with the same need. Does nothing when the memory
+    available is unknown or :data:`MEMORY_OVERRIDE` is set."""
     if os.environ.get(MEMORY_OVERRIDE):
         return
     available, where = available_memory()
-    if available is None or need <= available:
+    jobs = jobs_at_once()
+    if available is None or need * jobs <= available:
         return
+    if jobs > 1:
+        settings += f", hydra.launcher.n_jobs ({jobs} jobs at once)"
+        what = f"each of {jobs} jobs, {what},"
+        lower += " or hydra.launcher.n_jobs"
     raise UssSlamError(
-        f"{settings}: {what} needs about {gigabytes(need)} of memory; this machine has "
-        f"{gigabytes(available)} available ({where}); lower {lower} (or set "
-        f"{MEMORY_OVERRIDE}=1 to try anyway)"
+        f"{settings}: {what} needs about {gigabytes(need)} of memory"
+        + (f" ({gigabytes(need * jobs)} in all)" if jobs > 1 else "")
+        + f"; this machine has {gigabytes(available)} available ({where}); lower {lower} (or "
+        f"set {MEMORY_OVERRIDE}=1 to try anyway)"
     )

@@ -39,7 +39,7 @@ from typing import Any
 
 import cv2
 
-from uss_slam.core.resources import check_memory, gigabytes, held_bytes
+from uss_slam.core.resources import check_memory, gigabytes, held_bytes, jobs_at_once
 
 FRAME_BYTES_PER_PIXEL = 12
 """A frame read ahead: RGB (3) + grey (1) + depth float32 (4) + labels (1) bytes per pixel, its
@@ -158,7 +158,12 @@ def check_slam_memory(cfg: Any, sequence: Any, log: Any = None) -> None:
     size = image_size(sequence.records[0].rgb_path) if frames else (0, 0)
     memory = estimate(cfg, frames, size)
     if log is not None:
-        log.info("memory estimate: %d bytes beyond the %d held now", memory.need, held_bytes())
+        log.info(
+            "memory estimate: %d bytes beyond the %d held now%s",
+            memory.need,
+            held_bytes(),
+            f" (each of {jobs_at_once()} jobs at once)" if jobs_at_once() > 1 else "",
+        )
     drivers = memory.drivers()
     parts = ", ".join(f"{what} {gigabytes(p.bytes)}" for what, p in memory.parts.items())
     parts += f", the back end and the report {gigabytes(RUNTIME_BYTES)}"

@@ -32,7 +32,7 @@ import torch
 from torch import nn
 from torch.func import functional_call
 
-from uss_slam.core.resources import check_memory, held_bytes
+from uss_slam.core.resources import check_memory, held_bytes, jobs_at_once
 
 log = logging.getLogger(__name__)
 
@@ -114,7 +114,12 @@ def check_training_memory(model: nn.Module, cfg: Any) -> None:
         return
     workers = cfg.data.get("num_workers") or 0
     need = training_bytes(model, batch, crop, workers if isinstance(workers, int) else 0)
-    log.info("memory estimate: %d bytes beyond the %d held now", need, held_bytes())
+    log.info(
+        "memory estimate: %d bytes beyond the %d held now%s",
+        need,
+        held_bytes(),
+        f" (each of {jobs_at_once()} jobs at once)" if jobs_at_once() > 1 else "",
+    )
     net = str(cfg.model.net.get("_target_", "")).rsplit(".", 1)[-1]
     check_memory(
         need,

@@ -3,6 +3,7 @@ line a run whose estimate exceeds it prints before any work (core/resources.py).
 
 from __future__ import annotations
 
+import os
 import resource
 import subprocess
 import sys
@@ -27,6 +28,36 @@ def test_the_line_names_the_settings_the_need_and_what_limits_it(monkeypatch) ->
     resources.check_memory(1_000_000_000, "k", "w", "k")  # fits: nothing
     monkeypatch.setenv(resources.MEMORY_OVERRIDE, "1")
     resources.check_memory(5_500_000_000, "k", "w", "k")  # the user's call
+
+
+def test_jobs_run_at_once_by_the_launcher_each_count(monkeypatch) -> None:
+    """Inside a joblib multirun (uss-experiments' jobs, ``uss-slam -m`` with
+    ``hydra/launcher=joblib``) each of ``hydra.launcher.n_jobs`` jobs at once needs as much."""
+    monkeypatch.delenv(resources.MEMORY_OVERRIDE, raising=False)
+    monkeypatch.setattr(resources, "available_memory", lambda: (2_000_000_000, "ulimit -v"))
+    resources.check_memory(1_500_000_000, "k=1", "w", "k")  # one run: fits
+    monkeypatch.setattr(resources, "jobs_at_once", lambda: 2)
+    with pytest.raises(UssSlamError) as info:
+        resources.check_memory(1_500_000_000, "k=1", "w", "k")
+    assert str(info.value) == (
+        "k=1, hydra.launcher.n_jobs (2 jobs at once): each of 2 jobs, w, needs about 1.5 GB of "
+        "memory (3.0 GB in all); this machine has 2.0 GB available (ulimit -v); lower k or "
+        "hydra.launcher.n_jobs (or set USS_SLAM_NO_MEMORY_CHECK=1 to try anyway)"
+    )
+
+
+def test_jobs_at_once_reads_the_joblib_launcher(monkeypatch) -> None:
+    from hydra.core.hydra_config import HydraConfig
+    from hydra.types import RunMode
+    from omegaconf import OmegaConf
+
+    monkeypatch.setattr(HydraConfig, "initialized", staticmethod(lambda: False))
+    assert resources.jobs_at_once() == 1  # not a Hydra app
+    for n_jobs, at_once in ((3, 3), (-1, os.cpu_count()), (None, 1)):
+        cfg = OmegaConf.create({"mode": RunMode.MULTIRUN, "launcher": {"n_jobs": n_jobs}})
+        monkeypatch.setattr(HydraConfig, "initialized", staticmethod(lambda: True))
+        monkeypatch.setattr(HydraConfig, "get", staticmethod(lambda cfg=cfg: cfg))
+        assert resources.jobs_at_once() == at_once
 
 
 def test_a_cgroup_limit_counts_from_the_process_group_up(tmp_path: Path) -> None:
