@@ -62,10 +62,12 @@ def test_a_validator_that_follows_the_truth_ranks_and_picks_as_the_labels_do(tmp
     assert table["entropy"][1] == "+1.00"
     assert float(table["probe"][1]) < -0.5  # lower is better: the inverse ranking
     # entropy picks AdaBN in both seeds, as the labels do; the gain over continued source-only
-    assert table["entropy"][3] == "adabn_bntrained: 0,1"
+    assert table["entropy"][4] == "adabn_bntrained: 0,1"
     assert table["entropy"][2] == table["labels' pick †"][2]
     assert table["always AdaBN"][2].startswith("+")
-    assert table["snd"][3] == "fda_bntrained: 0,1"  # 1 − base: the worst row
+    assert table["always AdaBN"][3] == "+0.0 [+0.0, +0.0]"  # AdaBN against itself
+    assert table["snd"][3].startswith("-")
+    assert table["snd"][4] == "fda_bntrained: 0,1"  # 1 − base: the worst row
 
 
 def test_a_validator_file_without_a_number_names_its_line(tmp_path: Path) -> None:
