@@ -26,8 +26,9 @@ weights once loaded: ``VmRSS``):
   (:data:`RUNTIME_BYTES`).
 
 Comparison sets (``compare``) and repeats run one after the other: the map is held once at a
-time. The constants are measured peaks (``studies/memory_peaks.py``; docs/results/reliability.md),
-rounded up.
+time (jobs a joblib multirun runs at once each count: ``check_memory``). The constants come from
+measured peaks (``studies/memory_peaks.py``; docs/results/reliability.md), about doubled, and
+the sum gets :data:`MARGIN` more.
 """
 
 from __future__ import annotations
