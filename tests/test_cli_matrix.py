@@ -940,7 +940,7 @@ MORE_CASES = [
          "not a readable checkpoint: truncated, corrupt or not a uss-train .ckpt",
          setup=(write("m", plain_onnx, ".onnx"),)),
     case("train-val-label-png-garbled", "uss-train", f"{TRAIN} data.val.roots=[{{s}}]", 1,
-         "{s}/labels/",
+         "data.val.roots={s}: labels/",
          "truncated PNG", setup=(seq_copy(corrupt("labels", 0)),)),
     # ---------------------------------------------------------------- uss-export (Hydra)
     case("export-checkpoint-missing", "uss-export",
