@@ -4,12 +4,12 @@ control, and the bad inputs."""
 
 from __future__ import annotations
 
-import csv
 import json
 from pathlib import Path
 
 import numpy as np
 import pytest
+from shared_helpers import write_csv
 
 from uss_slam.testing.scripts import load_script
 
@@ -81,21 +81,13 @@ def test_paired_figures_and_the_three_readings() -> None:
     assert down.reading(down.paired([-0.2, -0.3, -0.25])) == "shown (negative)"
 
 
-def _write(path: Path, rows: list[dict]) -> Path:
-    with open(path, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
-    return path
-
-
 def test_figures_recompute_from_the_committed_files(tmp_path: Path) -> None:
     _runs(tmp_path / "runs", {"adabn_bntrained": [0.5, 0.6], "source_only_bntrained": [0.5, 0.6]})
     static = tmp_path / "runs" / "harness" / "static_xyz_9200"
     _metrics(static / "none", 0.010)
     _metrics(static / "adabn_bntrained_s0", 0.012)
     _metrics(static / "source_only_bntrained_s0", 0.010)
-    slam = _write(tmp_path / "slam.csv", down.collect(tmp_path / "runs"))
+    slam = write_csv(tmp_path / "slam.csv", down.collect(tmp_path / "runs"))
     med = []
     for r in range(4):
         for row, removed in (("adabn_bntrained", 60 + r), ("source_only_bntrained", 40)):
@@ -103,7 +95,7 @@ def test_figures_recompute_from_the_committed_files(tmp_path: Path) -> None:
                         "block": 8300 + 100 * r, "render_seed": 8300 + 100 * r,
                         "walker_kp": 100, "walker_removed": removed, "static_kp": 200,
                         "static_removed": 4})  # fmt: skip
-    mediator = _write(tmp_path / "med.csv", med)
+    mediator = write_csv(tmp_path / "med.csv", med)
     text = down.figures(down.read_csv(mediator), down.read_csv(slam), "adabn_bntrained",
                         "source_only_bntrained")  # fmt: skip
     assert "| mediator: walker_removed | +0.215 [" in text and "| shown |" in text

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from shared_helpers import write_csv
 
 from uss_slam.testing.scripts import load_script
 
@@ -137,12 +138,7 @@ def test_figures_pair_across_renders_and_split_the_variance(tmp_path: Path) -> N
 
 def test_figures_read_several_files_and_refuse_a_matrix_scored_twice(tmp_path: Path) -> None:
     def write(name: str, rows: list[dict]) -> Path:
-        path = tmp_path / name
-        with open(path, "w", newline="") as f:
-            w = csv.DictWriter(f, fieldnames=list(rows[0]))
-            w.writeheader()
-            w.writerows(rows)
-        return path
+        return write_csv(tmp_path / name, rows)
 
     def row(name: str, seed: int, value: float) -> dict:
         return {"role": "eval", "model": f"{name}_s{seed}", "row": name, "seed": str(seed),

@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-import csv
 from pathlib import Path
 
 import numpy as np
 import pytest
+from shared_helpers import write_csv
 
 from uss_slam.testing.scripts import load_script
 
@@ -24,14 +24,6 @@ def _matrix(person: float) -> dict[str, int]:
     return {f"c{t}{p}": int(m[t, p]) for t in range(4) for p in range(4)}
 
 
-def _write(path: Path, rows: list[dict]) -> Path:
-    with open(path, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
-    return path
-
-
 def _study(tmp_path: Path) -> tuple[Path, Path]:
     confusion, validators = [], []
     for row, base in BASE.items():
@@ -47,7 +39,7 @@ def _study(tmp_path: Path) -> tuple[Path, Path]:
             validators.append({"model": model, "row": row, "seed": seed, "entropy": own,
                                "im": 0.1, "snd": 1.0 - base, "probe": own,
                                "dynamic_share": 0.2})  # fmt: skip
-    return _write(tmp_path / "v.csv", validators), _write(tmp_path / "c.csv", confusion)
+    return write_csv(tmp_path / "v.csv", validators), write_csv(tmp_path / "c.csv", confusion)
 
 
 def test_a_validator_that_follows_the_truth_ranks_and_picks_as_the_labels_do(tmp_path) -> None:
@@ -71,7 +63,7 @@ def test_a_validator_that_follows_the_truth_ranks_and_picks_as_the_labels_do(tmp
 
 
 def test_a_validator_file_without_a_number_names_its_line(tmp_path: Path) -> None:
-    path = _write(tmp_path / "v.csv", [{"model": "init", "row": "init", "seed": "",
+    path = write_csv(tmp_path / "v.csv", [{"model": "init", "row": "init", "seed": "",
                                         "entropy": "x", "im": 1, "snd": 1, "probe": 1,
                                         "dynamic_share": 1}])  # fmt: skip
     with pytest.raises(SystemExit, match=r"v.csv:2: expected a number"):
