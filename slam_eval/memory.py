@@ -154,12 +154,14 @@ def estimate(cfg: Any, frames: int, size: tuple[int, int]) -> SlamMemory:
 def check_slam_memory(cfg: Any, sequence: Any, log: Any = None) -> None:
     """One line before the first frame when the run's estimate (:func:`estimate`) for
     ``sequence`` (a ``TumSequence``) exceeds the memory available, naming the settings of the
-    parts that make up most of it; ``log`` (a logger) gets the estimate."""
+    parts that make up most of it; ``log`` (a logger) gets the estimate at DEBUG level: at INFO
+    it would reach the run folder's ``run.log`` before the run is known to go ahead, and a run
+    stopped then must leave the earlier run's files as they were."""
     frames = len(sequence)
     size = image_size(sequence.records[0].rgb_path) if frames else (0, 0)
     memory = estimate(cfg, frames, size)
     if log is not None:
-        log.info(
+        log.debug(
             "memory estimate: %d bytes beyond the %d held now%s",
             memory.need,
             held_bytes(),
