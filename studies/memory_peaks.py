@@ -106,7 +106,10 @@ def measure(name: str, overrides: str, out: Path) -> dict[str, object]:
     run = out / name
     words = shlex.split(overrides)
     if words[0] == "uss-slam":
-        argv = [str(BIN / "uss-slam"), *words[1:], f"out_dir={run}"]
+        # its estimate is a DEBUG line (at INFO it would reach an earlier run's log before
+        # the run is known to go ahead): ask Hydra for that logger's DEBUG lines
+        argv = [str(BIN / "uss-slam"), *words[1:], f"out_dir={run}",
+                "hydra.verbose=uss_slam.slam_eval.run"]  # fmt: skip
     else:
         argv = [str(BIN / "uss-train"), *words, f"hydra.run.dir={run}",
                 f"paths.log_dir={out / 'logs'}", "logger=none"]  # fmt: skip
