@@ -109,6 +109,14 @@ def held_bytes() -> int:
     return _meminfo_of_self("VmRSS") or 0
 
 
+def estimate_line(need: int) -> str:
+    """The log line of a memory estimate of ``need`` bytes beside what this process holds now
+    (the form ``studies/memory_peaks.py`` reads back)."""
+    jobs = jobs_at_once()
+    each = f" (each of {jobs} jobs at once)" if jobs > 1 else ""
+    return f"memory estimate: {need} bytes beyond the {held_bytes()} held now{each}"
+
+
 def available_memory() -> tuple[int | None, str]:
     """``(bytes, where)``: the least memory left by the machine, the cgroup and ``ulimit -v``,
     and which of them it is (None, "": nothing known, e.g. not Linux)."""

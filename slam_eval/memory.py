@@ -40,7 +40,7 @@ from typing import Any
 
 import cv2
 
-from uss_slam.core.resources import check_memory, gigabytes, held_bytes, jobs_at_once
+from uss_slam.core.resources import check_memory, estimate_line, gigabytes
 
 FRAME_BYTES_PER_PIXEL = 12
 """A frame read ahead: RGB (3) + grey (1) + depth float32 (4) + labels (1) bytes per pixel, its
@@ -161,12 +161,7 @@ def check_slam_memory(cfg: Any, sequence: Any, log: Any = None) -> None:
     size = image_size(sequence.records[0].rgb_path) if frames else (0, 0)
     memory = estimate(cfg, frames, size)
     if log is not None:
-        log.debug(
-            "memory estimate: %d bytes beyond the %d held now%s",
-            memory.need,
-            held_bytes(),
-            f" (each of {jobs_at_once()} jobs at once)" if jobs_at_once() > 1 else "",
-        )
+        log.debug(estimate_line(memory.need))
     drivers = memory.drivers()
     parts = ", ".join(f"{what} {gigabytes(p.bytes)}" for what, p in memory.parts.items())
     parts += f", the back end and the report {gigabytes(RUNTIME_BYTES)}"

@@ -73,7 +73,8 @@ def compute(study: Path, out: Path, seeds: Sequence[int]) -> Path:
     """Every seed's group through ``uss-eval compare``; ``out/validators.csv``."""
     rows: dict[str, dict[str, object]] = {}
     for seed in seeds:
-        names = [*INIT_ROWS, *(f"{row}_s{seed}" for row in UNSUPERVISED)]
+        group_rows = [(row, "") for row in INIT_ROWS] + [(row, str(seed)) for row in UNSUPERVISED]
+        names = [row + (f"_s{s}" if s else "") for row, s in group_rows]
         models = [study / "exports" / n / f"{n}.onnx" for n in names]
         missing = [str(m) for m in models if not m.is_file()]
         if missing:
@@ -82,12 +83,9 @@ def compute(study: Path, out: Path, seeds: Sequence[int]) -> Path:
         if not (group / "compare.json").is_file():
             subprocess.run(compare_command(study, models, group), check=True)
         scores = json.loads((group / "compare.json").read_text())["validators"]
-        for name in names:
-            row, _, s = name.rpartition("_s") if name not in INIT_ROWS else (name, "", "")
-            entry = {"model": name, "row": row, "seed": s} | {
-                v: scores[name][v] for v in VALIDATORS
-            }
-            rows.setdefault(name, entry)
+        for name, (row, s) in zip(names, group_rows, strict=True):
+            entry = {"model": name, "row": row, "seed": s}
+            rows.setdefault(name, entry | {v: scores[name][v] for v in VALIDATORS})
         print(f"validators: seed {seed}: {len(names)} models", flush=True)
     path = out / "validators.csv"
     with open(path, "w", newline="") as f:

@@ -32,7 +32,7 @@ import torch
 from torch import nn
 from torch.func import functional_call
 
-from uss_slam.core.resources import check_memory, held_bytes, jobs_at_once
+from uss_slam.core.resources import check_memory, estimate_line
 
 log = logging.getLogger(__name__)
 
@@ -112,20 +112,16 @@ def check_training_memory(model: nn.Module, cfg: Any) -> None:
     batch = cfg.data.get("batch_size")
     if not key or not isinstance(batch, int):
         return
-    workers = cfg.data.get("num_workers") or 0
-    need = training_bytes(model, batch, crop, workers if isinstance(workers, int) else 0)
-    log.info(
-        "memory estimate: %d bytes beyond the %d held now%s",
-        need,
-        held_bytes(),
-        f" (each of {jobs_at_once()} jobs at once)" if jobs_at_once() > 1 else "",
-    )
+    workers = cfg.data.get("num_workers")
+    workers = workers if isinstance(workers, int) and workers > 0 else 0
+    need = training_bytes(model, batch, crop, workers)
+    log.info(estimate_line(need))
     net = str(cfg.model.net.get("_target_", "")).rsplit(".", 1)[-1]
     check_memory(
         need,
         f"data.batch_size={batch}, {key}={crop[0] if crop[0] == crop[1] else list(crop)}"
-        + (f", data.num_workers={workers}" if isinstance(workers, int) and workers > 0 else ""),
+        + (f", data.num_workers={workers}" if workers else ""),
         f"training {net} (weights, gradients, the activations of one batch, the trainer"
-        + (" and its data workers)" if isinstance(workers, int) and workers > 0 else ")"),
+        + (" and its data workers)" if workers else ")"),
         "data.batch_size or the crop size",
     )

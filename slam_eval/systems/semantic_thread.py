@@ -269,11 +269,11 @@ def fill_depth(labels: np.ndarray, depth: np.ndarray) -> np.ndarray:
     each connected labelled region's holes take the median of its measured depths, a region
     measured nowhere (a person closer than the sensor's range) the frame's nearest measured
     depth (1st percentile)."""
-    holes = (labels > 0) & ~(depth > 0)
+    valid = depth > 0
+    holes = (labels > 0) & ~valid
     if not holes.any():
         return depth
     out = depth.astype(np.float32, copy=True)
-    valid = depth > 0
     near = float(np.percentile(depth[valid], 1)) if valid.any() else 0.0
     _, comp = cv2.connectedComponents((labels > 0).astype(np.uint8), connectivity=8)
     for c in np.unique(comp[holes]):
