@@ -9,6 +9,10 @@ Per sequence, ``uss-slam`` (the harness, its defaults: local BA and loop closing
   masks, each delivered ``L`` s of camera time after its keyframe asked: deterministic);
 - with ``--baseline``: ``filters=[]`` (no filter), to show how much error there is to remove.
 
+With ``--orbslam3 VOCAB`` the same cells run ORB-SLAM3 (``system=orbslam3``, that vocabulary,
+``system.repeats``): masks on every frame blanked in its input, against ``segment=thread``'s
+masks every ``L`` s carried by its own tracked poses (``slam_eval/systems/orbslam3/thread.py``).
+
 Prints one table row per sequence and cell (median ATE RMSE of the repeats with min-max, the
 ratio of the median to the per-frame cell's, the tracked share of frames beside the per-frame
 cell's, frames/s of the timing repeat, masks delivered, the load)
@@ -66,17 +70,31 @@ def cells(latencies: list[float], baseline: bool) -> list[tuple[str, list[str]]]
     return out
 
 
-def run_cell(seq: Path, folder: Path, overrides: list[str], repeats: int) -> dict:
-    """One ``uss-slam`` call; the cell's figures from its ``metrics.json``."""
+def run_cell(
+    seq: Path, folder: Path, overrides: list[str], repeats: int, vocab: Path | None = None
+) -> dict:
+    """One ``uss-slam`` call (with ``vocab``: ``system=orbslam3`` and that vocabulary); the
+    cell's figures from its ``metrics.json``."""
+    system = (
+        [f"slam.repeats={repeats}"]
+        if vocab is None
+        else ["system=orbslam3", f"system.vocabulary={vocab}", f"system.repeats={repeats}"]
+    )
     cmd = [
-        USS_SLAM, f"sequence.path={seq}", "segmenter=labels", f"slam.repeats={repeats}",
+        USS_SLAM, f"sequence.path={seq}", "segmenter=labels", *system,
         f"out_dir={folder}", f"hydra.run.dir={folder}", "progress=false", *overrides,
     ]  # fmt: skip
     start = time.time()
     subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     m = json.loads((folder / "metrics.json").read_text())
     spread = m.get("ate_rmse_repeats") or {"median": m["ate"]["rmse"], "min": None, "max": None}
-    seg = m["segmentation"]
+    thread = m.get("semantic_thread")
+    seg = m.get("segmentation") or {  # ORB-SLAM3's: masks delivered in its median repeat
+        "frames_segmented": m["frames"]
+        if thread is None
+        else thread["delivered"][m["median_repeat"]],
+        "semantic_thread": thread,
+    }
     return {
         "command": " ".join(cmd[1:]),
         "ate_median": spread["median"],
@@ -114,6 +132,9 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--baseline", action="store_true", help="also the unfiltered cell")
     parser.add_argument("--zero-labels", action="store_true", help="sequences without people")
+    parser.add_argument(
+        "--orbslam3", type=Path, metavar="VOCAB", help="run ORB-SLAM3 with this vocabulary"
+    )
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     record = args.out / "cells.json"
@@ -124,7 +145,7 @@ def main() -> None:
         for name, overrides in cells(args.latency, args.baseline):
             if name not in rows:
                 folder = args.out / seq.name / name.replace(" ", "_")
-                rows[name] = run_cell(path, folder, overrides, args.repeats)
+                rows[name] = run_cell(path, folder, overrides, args.repeats, args.orbslam3)
                 record.write_text(json.dumps(done, indent=1))
             print(row(seq.name, name, rows[name], rows["per-frame"]), flush=True)
 

@@ -9,6 +9,7 @@ import logging
 from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -41,6 +42,9 @@ class RepeatResult:
     track_s: float
     load_s: float
     evaluation: Evaluation | None = None
+    thread: dict[str, Any] | None = None
+    """With ``segment=thread``: the worker's figures (masks ``delivered``, ``blanked_fraction``,
+    ``carry_ms`` per frame)."""
 
     @property
     def state_counts(self) -> dict[str, int]:

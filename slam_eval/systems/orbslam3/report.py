@@ -39,11 +39,13 @@ def write_outputs(
     mask_pass: MaskPass | None,
     results: list[RepeatResult],
     settings: dict[str, Any] | None,
+    thread: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Write the outputs of ORB-SLAM3's ``results`` (every repeat) into ``out`` through
     ``folder`` (staged until its commit), each file atomically: ``trajectory.txt`` (the median
     repeat's), ``metrics.json``, ``report.md`` and the plots (``repeats.png`` holds every
-    repeat). Returns the metrics dictionary."""
+    repeat); ``thread``: the figures of ``segment=thread`` (:mod:`.thread`), kept as
+    ``semantic_thread``. Returns the metrics dictionary."""
     median = results[median_index([r.ate_rmse for r in results])]
     chosen = median.evaluation or Evaluation(None, None, None, "not evaluated")
     n = len(sequence)
@@ -82,6 +84,8 @@ def write_outputs(
             "pyorbslam3": _package_version("pyorbslam3"),
         },
     }
+    if thread is not None:
+        data["semantic_thread"] = thread
     if settings is not None:
         data["settings"] = settings
     repeats = [
@@ -132,6 +136,7 @@ def _repeat(r: RepeatResult, out: Path, n: int) -> dict[str, Any]:
         "track_s": r.track_s,
         "fps": n / r.track_s if r.track_s > 0 else None,
         "vocabulary_load_s": r.load_s,
+        **({"semantic_thread": r.thread} if r.thread else {}),
     }
 
 

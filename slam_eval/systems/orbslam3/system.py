@@ -69,6 +69,7 @@ from .masking import check_masks, compute_masks
 from .repeats import RepeatResult, read_estimate
 from .report import write_outputs
 from .settings import SettingsInfo, check_settings, frame_rate, settings_yaml
+from .thread import ThreadSpec, prepare, thread_pass
 from .worker import Job, run_worker
 
 log = logging.getLogger(__name__)
@@ -112,6 +113,7 @@ def run_orbslam3(
     settings: dict[str, Any] | None = None,
     progress: bool = True,
     before_commit: Callable[[RunFolder], dict[str, Any]] | None = None,
+    thread: ThreadSpec | None = None,
 ) -> dict[str, Any]:
     """Run ORB-SLAM3 ``config.repeats`` times on the sequence and write the outputs to
     ``out_dir``: ``trajectory.txt`` (median run), ``repeats/trajectory_<i>.txt`` and
@@ -140,7 +142,12 @@ def run_orbslam3(
         masks_file = None
         mask_pass = None
         fill_dir = None
-        if getattr(segmenter, "name", "none") != "none":
+        thread_job, thread_figures = None, None
+        if thread is not None:
+            thread_job, thread_figures = prepare(
+                thread, sequence, segmenter, workdir / "labels.npz"
+            )
+        elif getattr(segmenter, "name", "none") != "none":
             fill_dir = workdir / "filled" if config.blank_fill == "inpaint" else None
             mask_pass = compute_masks(sequence, segmenter, masks, progress, fill_dir)
             masks_file = workdir / "masks.npy"
@@ -157,14 +164,17 @@ def run_orbslam3(
             realtime=config.realtime,
             trajectory="",
             result="",
+            thread=thread_job,
         )
         results = [
             _repeat(folder, out, job, workdir, i, sequence, evaluation, config.repeats)
             for i in range(config.repeats)
         ]
+        if thread_figures is not None:
+            mask_pass = thread_pass(thread_figures, results, sequence.image_size)
         data = write_outputs(
             folder, out, sequence, segmenter, masks, config, evaluation, info, fps,
-            vocabulary, mask_pass, results, settings,
+            vocabulary, mask_pass, results, settings, thread_figures,
         )  # fmt: skip
         extra = before_commit(folder) if before_commit is not None else {}
         folder.commit(system="orbslam3", sequence=str(sequence.path), **extra)
@@ -216,8 +226,9 @@ def _repeat(
             raise
     trajectory = read_estimate(trajectory_path)
     result = RepeatResult(
-        i, final_trajectory, trajectory, raw["states"], raw["track_s"], raw["load_s"]
-    )
+        i, final_trajectory, trajectory, raw["states"], raw["track_s"], raw["load_s"],
+        thread=raw.get("thread"),
+    )  # fmt: skip
     result.evaluation = evaluate(trajectory, sequence.groundtruth, evaluation)
     log.info(
         "orbslam3 repeat %d/%d: ATE RMSE %s m, %d/%d frames OK, %.1f frames/s",
@@ -260,10 +271,12 @@ def run_from_config(
             "system=orbslam3 runs one configuration per call; compare= is the harness's "
             "(run once with segmenter=none and once with segmenter=labels instead)"
         )
-    if str(cfg.get("segment", "every_frame")) != "every_frame":
+    segment = str(cfg.get("segment", "every_frame"))
+    if segment == "keyframes":
         raise UssSlamError(
-            "system=orbslam3 segments every frame (its keyframe choice is internal); "
-            "segment=keyframes applies to the harness only"
+            "system=orbslam3 segments every frame or, with segment=thread, one frame per "
+            "segmenter.latency_s (its keyframe choice is internal); segment=keyframes applies "
+            "to the harness only"
         )
     config = check_system(OmegaConf.to_container(cfg.system, resolve=True) or {})
     seq = cfg.sequence
@@ -287,6 +300,7 @@ def run_from_config(
             f"system=orbslam3: filters={list(cfg.filters)} blank what a segmenter finds; set "
             "segmenter=labels or an exported model (segmenter=none blanks nothing)"
         )
+    thread = _thread_spec(cfg, segmenter) if segment == "thread" else None
     data = run_orbslam3(
         spec,
         segmenter,
@@ -297,6 +311,7 @@ def run_from_config(
         settings=OmegaConf.to_container(cfg, resolve=True),
         progress=bool(cfg.get("progress", True)),
         before_commit=before_commit,
+        thread=thread,
     )
     rep = data["ate_rmse_repeats"]
     log.info(
@@ -322,6 +337,23 @@ def _mask_filters(cfg: Any) -> list[DynamicFilter]:
     masks = build_filters(names or [DEFAULT_MASK], params)
     check_masks(masks)
     return masks
+
+
+def _thread_spec(cfg: Any, segmenter: Segmenter) -> ThreadSpec:
+    """``segment=thread`` with ORB-SLAM3 (:mod:`.thread`): the segmenter must simulate its
+    latency on the camera clock (``segmenter=labels segmenter.latency_s=L``, ``wait`` false)."""
+    from omegaconf import OmegaConf
+
+    latency = getattr(segmenter, "simulated_latency_s", None)
+    if latency is None:
+        raise UssSlamError(
+            "system=orbslam3 segment=thread: the segmenter must simulate its latency on the "
+            "camera clock (segmenter=labels segmenter.latency_s=<s>, segmenter.wait=false); "
+            f"segmenter {getattr(segmenter, 'name', '?')!r} does not"
+        )
+    names = [str(n) for n in (cfg.get("filters") or [])] or [DEFAULT_MASK]
+    params = OmegaConf.to_container(cfg.slam.filter_params, resolve=True) or {}
+    return ThreadSpec(float(latency), names, params)
 
 
 DEFAULT_MASK = "semantic"

@@ -38,6 +38,10 @@ class Job:
     realtime: bool
     trajectory: str
     result: str
+    thread: dict[str, Any] | None = None
+    """``segment=thread`` (:mod:`.thread`): ``labels`` (the ``.npz`` of the segmented frames),
+    ``segmented`` / ``delivered`` / ``latency_s`` (the schedule), ``k`` (3x3 camera matrix),
+    ``filters`` and ``filter_params`` (the filters whose pixels are blanked); None: ``masks``."""
 
 
 def run_worker(job: Job, log_path: Path, workdir: Path, index: int) -> dict[str, Any]:
@@ -85,6 +89,9 @@ def work(job_path: str) -> None:
     loaded = time.perf_counter()
     stamps = seq.stamps
     states: list[str] = []
+    carrier = None if job.thread is None else make_carrier(job.thread)
+    blanked = 0
+    carry_s = 0.0
     frames = seq.frames()
     try:
         for frame in frames:
@@ -93,6 +100,11 @@ def work(job_path: str) -> None:
             if masks is not None:
                 bits = np.unpackbits(masks[frame.index], count=width * height)
                 mask = bits.reshape(height, width).astype(bool)
+            if carrier is not None:
+                carry = time.perf_counter()
+                mask = carrier.region(frame)
+                carry_s += time.perf_counter() - carry
+                blanked += 0 if mask is None else int(mask.sum())
             filled = None if job.filled is None else read_filled(job.filled, frame.index)
             rgb, depth = blank_dynamic(frame.rgb, frame.depth, mask, job.blank_value, filled)
             if not job.rgb:
@@ -101,6 +113,10 @@ def work(job_path: str) -> None:
                 depth = depth * np.float32(job.depth_factor)
             result = slam.track_rgbd(rgb, depth, frame.stamp)
             states.append(result.state.name)
+            if carrier is not None:
+                carry = time.perf_counter()
+                carrier.tracked(frame, result.pose_wc if result.state.name == "OK" else None)
+                carry_s += time.perf_counter() - carry
             if job.realtime:  # as ORB-SLAM3's rgbd_tum: wait until the next frame's time
                 k = frame.index
                 period = stamps[k + 1] - stamps[k] if k + 1 < len(stamps) else 0.0
@@ -113,9 +129,25 @@ def work(job_path: str) -> None:
     slam.shutdown()
     if "OK" in states:  # ORB-SLAM3 saves relative to its first keyframe: none before init
         slam.save_trajectory_tum(job.trajectory)
-    Path(job.result).write_text(
-        json.dumps({"states": states, "track_s": tracked - loaded, "load_s": loaded - start})
-    )
+    out: dict[str, Any] = {"states": states, "track_s": tracked - loaded, "load_s": loaded - start}
+    if carrier is not None:
+        n = max(len(states), 1)
+        out["thread"] = {
+            "delivered": carrier.delivered,
+            "blanked_fraction": blanked / (n * width * height),
+            "carry_ms": 1000 * carry_s / n,
+        }
+    Path(job.result).write_text(json.dumps(out))
+
+
+def make_carrier(spec: dict[str, Any]):
+    """The :class:`~.thread.Carrier` of a job's ``thread`` entry."""
+    from ...filters.build import build_filters
+    from .thread import Carrier, Schedule, read_labels
+
+    plan = Schedule(tuple(spec["segmented"]), tuple(spec["delivered"]), spec["latency_s"])
+    masks = build_filters(spec["filters"], spec["filter_params"])
+    return Carrier(plan, read_labels(spec["labels"]), np.asarray(spec["k"], np.float64), masks)
 
 
 if __name__ == "__main__":  # the worker process of one repeat (see run_worker)
