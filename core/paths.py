@@ -24,7 +24,7 @@ import errno
 import os
 import re
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from os import PathLike
 from pathlib import Path
@@ -196,6 +196,21 @@ def input_folder(
     return Path(path)
 
 
+def distinct_folders(folders: Iterable[str | PathLike[str]], key: str | None) -> list[Path]:
+    """``folders`` as paths, checked to name each folder once whatever the spelling (a link,
+    ``./``, a trailing ``/``: compared resolved). The one policy for an input folder given twice
+    (``uss-vocab build``'s sequences, ``uss-eval``'s and ``uss-eval compare``'s ``--sequence``,
+    the ``roots`` of a data config): refused, as a name listed twice in a list of names is,
+    with one line ``<key>=<path>: given twice (as <first>); expected each folder once`` (its
+    frames would otherwise count twice)."""
+    seen: dict[Path, Path] = {}
+    for folder in map(Path, folders):
+        first = seen.setdefault(folder.resolve(), folder)
+        if first is not folder:
+            raise _fail(folder, key, f"given twice (as {first})", "expected each folder once")
+    return list(seen.values())
+
+
 def _nearest_existing(path: Path) -> Path:
     probe = path
     while not os.path.lexists(probe) and probe != probe.parent:
@@ -315,8 +330,12 @@ def input_roots(config: object, prefix: str) -> None:
     """Check every input folder a plain data config names (:func:`config_roots`, e.g.
     ``data.source.root``, ``data.target.roots``) with :func:`input_folder`, the error naming
     the full key; a value not yet given is left to the config's own check."""
+    by_key: dict[str, list[str]] = {}
     for key, folder in config_roots(config, prefix):
         input_folder(folder, key)
+        by_key.setdefault(key, []).append(folder)
+    for key, folders in by_key.items():
+        distinct_folders(folders, key)
 
 
 @contextmanager

@@ -70,6 +70,13 @@ RUNTIME_BYTES = 128 * 2**20
 """What the run adds after the check whatever its frames: the back end's and OpenCV's buffers,
 the report's figures (measured: 50 real 640x480 frames peak 70 MB above the check with 37 MB
 of frames and map)."""
+VOCABULARY_COPIES = 2
+"""ORB-SLAM3's vocabulary in memory per byte of its text file (``system.vocabulary``): each node
+of the tree (a 32-byte descriptor, its weight, its children's list) takes about what its text
+line does; twice that."""
+MASK_BYTES_PER_FRAME_PIXEL = 1
+"""``system=orbslam3`` with a segmenter: every frame's dynamic mask, computed before the first
+repeat (packed to a bit per pixel, one byte while it is computed)."""
 MARGIN = 1.25
 """The allocator's and the libraries' share on top (fragmentation, OpenCV's and GTSAM's
 buffers)."""
@@ -124,12 +131,8 @@ def estimate(cfg: Any, frames: int, size: tuple[int, int]) -> SlamMemory:
     parts = {"frames read ahead": Part(
         ahead * FRAME_BYTES_PER_PIXEL * pixels,
         f"slam.prefetch={prefetch}, slam.workers={workers}", "slam.prefetch")}  # fmt: skip
-    n_features = int(slam.orb.n_features)
-    parts["the map"] = Part(
-        int(frames * MAP_BYTES_PER_FRAME_PIXEL * pixels
-            * max(n_features, REFERENCE_FEATURES) / REFERENCE_FEATURES),
-        f"sequence.path ({frames} frames of {w}x{h}), slam.orb.n_features={n_features}",
-        "sequence.max_frames (or raise sequence.stride)")  # fmt: skip
+    parts["the map"] = _map_part(cfg, frames, size, int(slam.orb.n_features),
+                                 "slam.orb.n_features")  # fmt: skip
     model = cfg.segmenter.get("path") if "segmenter" in cfg else None
     if model and Path(str(model)).is_file():
         every = str(cfg.get("segment", "every_frame")) == "every_frame" and bool(slam.parallel)
@@ -151,15 +154,54 @@ def estimate(cfg: Any, frames: int, size: tuple[int, int]) -> SlamMemory:
     return SlamMemory(parts)
 
 
+def _map_part(cfg: Any, frames: int, size: tuple[int, int], n_features: int, key: str) -> Part:
+    """The map, the log and the point cloud of ``frames`` frames of ``size`` at ``n_features``."""
+    (w, h) = size
+    return Part(
+        int(frames * MAP_BYTES_PER_FRAME_PIXEL * w * h
+            * max(n_features, REFERENCE_FEATURES) / REFERENCE_FEATURES),
+        f"sequence.path ({frames} frames of {w}x{h}), {key}={n_features}",
+        "sequence.max_frames (or raise sequence.stride)")  # fmt: skip
+
+
+def estimate_orbslam3(cfg: Any, frames: int, size: tuple[int, int]) -> SlamMemory:
+    """The parts of a ``system=orbslam3`` run of ``cfg``, as :func:`estimate`'s for the harness:
+    its worker process (:data:`PROCESS_BYTES`) holding the vocabulary
+    (:data:`VOCABULARY_COPIES` × its file) and the map (as the harness's, at
+    ``system.n_features``); with a segmenter, its weights and one inference at a time, and every
+    frame's mask (:data:`MASK_BYTES_PER_FRAME_PIXEL`). Repeats run one after the other."""
+    pixels = size[0] * size[1]
+    vocabulary = Path(str(cfg.system.get("vocabulary") or ""))
+    parts = {"the ORB-SLAM3 process": Part(PROCESS_BYTES, "system=orbslam3", "system.vocabulary")}
+    if vocabulary.is_file():
+        parts["the vocabulary"] = Part(
+            VOCABULARY_COPIES * vocabulary.stat().st_size, f"system.vocabulary={vocabulary}",
+            "system.vocabulary (a smaller one: uss-vocab build -k / -L)")  # fmt: skip
+    parts["the map"] = _map_part(cfg, frames, size, int(cfg.system.n_features), "system.n_features")
+    model = cfg.segmenter.get("path") if "segmenter" in cfg else None
+    if model and Path(str(model)).is_file():
+        threads = int(cfg.segmenter.get("threads") or 1)
+        parts["the segmenter"] = Part(
+            WEIGHT_COPIES * Path(str(model)).stat().st_size + ARENA_BYTES_PER_PIXEL * pixels
+            + threads * THREAD_BYTES, f"segmenter.threads={threads}", "segmenter.threads")  # fmt: skip
+    if str(cfg.segmenter.get("_target_", "")).rsplit(".", 1)[-1] != "NoSegmenter":
+        parts["the masks"] = Part(frames * MASK_BYTES_PER_FRAME_PIXEL * pixels,
+                                  f"sequence.path ({frames} frames), segmenter",
+                                  "sequence.max_frames")  # fmt: skip
+    return SlamMemory(parts)
+
+
 def check_slam_memory(cfg: Any, sequence: Any, log: Any = None) -> None:
     """One line before the first frame when the run's estimate (:func:`estimate`) for
     ``sequence`` (a ``TumSequence``) exceeds the memory available, naming the settings of the
     parts that make up most of it; ``log`` (a logger) gets the estimate at DEBUG level: at INFO
     it would reach the run folder's ``run.log`` before the run is known to go ahead, and a run
-    stopped then must leave the earlier run's files as they were."""
+    stopped then must leave the earlier run's files as they were. ``system=orbslam3`` is
+    estimated by :func:`estimate_orbslam3`, the harness by :func:`estimate`."""
     frames = len(sequence)
     size = image_size(sequence.records[0].rgb_path) if frames else (0, 0)
-    memory = estimate(cfg, frames, size)
+    orbslam3 = str(cfg.get("system", {}).get("name", "harness")) == "orbslam3"
+    memory = (estimate_orbslam3 if orbslam3 else estimate)(cfg, frames, size)
     if log is not None:
         log.debug(estimate_line(memory.need))
     drivers = memory.drivers()

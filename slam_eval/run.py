@@ -78,6 +78,21 @@ def _write_hydra_files(folder: RunFolder, cfg: DictConfig) -> list[str]:
     return [str(o) for o in overrides]
 
 
+def _sequence(cfg: DictConfig, load_labels: bool) -> TumSequence:
+    """The frames ``cfg.sequence`` selects (its lists read and checked; no image decoded)."""
+    seq_cfg = cfg.sequence
+    return TumSequence(
+        str(seq_cfg.path),
+        camera=seq_cfg.camera,
+        max_diff=float(seq_cfg.max_diff),
+        load_labels=load_labels,
+        start=int(seq_cfg.start),
+        stride=int(seq_cfg.stride),
+        max_frames=None if seq_cfg.max_frames is None else int(seq_cfg.max_frames),
+        min_strided_frames=MIN_STRIDED_FRAMES,
+    )
+
+
 def run(cfg: DictConfig) -> dict[str, Any]:
     """Run what ``cfg`` asks for; returns the metrics of the run (comparison: of the last run,
     with ``"comparison"`` holding every run's metrics).
@@ -100,6 +115,8 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     if OmegaConf.select(cfg, "system.name") == "orbslam3":  # the real ORB-SLAM3, not the harness
         from .systems.orbslam3.system import run_from_config
 
+        # estimated as the harness is, before the first frame: one line if it cannot fit
+        check_slam_memory(cfg, _sequence(cfg, load_labels=False), log)
         with output_lock(out, "out_dir"):
             return run_from_config(
                 cfg, out, before_commit=lambda f: {"overrides": _write_hydra_files(f, cfg)}
@@ -108,17 +125,7 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     model = cfg.segmenter.get("path")
     with naming("segmenter.path", str(model)) if model else nullcontext():  # its reader's line
         segmenter: Segmenter = hydra.utils.instantiate(cfg.segmenter)
-    seq_cfg = cfg.sequence
-    sequence = TumSequence(
-        str(seq_cfg.path),
-        camera=seq_cfg.camera,
-        max_diff=float(seq_cfg.max_diff),
-        load_labels=bool(getattr(segmenter, "needs_labels", False)),
-        start=int(seq_cfg.start),
-        stride=int(seq_cfg.stride),
-        max_frames=None if seq_cfg.max_frames is None else int(seq_cfg.max_frames),
-        min_strided_frames=MIN_STRIDED_FRAMES,
-    )
+    sequence = _sequence(cfg, load_labels=bool(getattr(segmenter, "needs_labels", False)))
     check_slam_memory(cfg, sequence, log)  # before the first frame: one line if it cannot fit
     warn_if_groundtruth_misses(sequence)
     warn_if_prefetch_mode_unused(cfg.slam)

@@ -783,8 +783,8 @@ MORE_CASES = [
          "{s}",
          "labels requested but the folder does not exist", setup=(NOT_READ, seq_copy(remove("labels")))),
     case("eval-sequence-given-twice", "uss-eval",
-         "{m} --sequence {seq} --sequence {seq} --out {tmp}/eval", 1, "given twice",
-         "its frames would count twice",
+         "{m} --sequence {seq} --sequence {seq} --out {tmp}/eval", 1, "--sequence={seq}",
+         ": given twice (as {seq}); expected each folder once",
          setup=(NOT_READ,)),
     case("eval-out-is-a-file", "uss-eval", "{m} --sequence {seq} --out {afile}", 1,
          "--out={afile}",
@@ -1226,28 +1226,42 @@ def test_vocab_of_one_frame_warns_that_every_weight_is_zero(
     ]
 
 
-def test_vocab_sequence_given_twice_counts_once_with_a_warning(
-    world: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
-) -> None:
-    """``uss-vocab build S S`` (the same folder twice, also as another spelling) trains on S's
-    frames once, as ``build S`` does, with one warning naming the repeated folder."""
+@pytest.mark.parametrize(
+    "prog, argv, key",
+    [
+        ("uss-vocab", "build {seq} {again} --out {tmp}/v.txt -k 3 -L 2", None),
+        ("uss-eval", "{m} --sequence {seq} --sequence {again} --out {tmp}/e", "--sequence"),
+        ("uss-eval", "compare {m} {m2} --sequence {seq} --sequence {again} --out {tmp}/c",
+         "--sequence"),
+    ],
+    ids=["vocab-build", "eval", "eval-compare"],
+)  # fmt: skip
+def test_sequence_given_twice_is_refused_everywhere(
+    prog: str, argv: str, key: str | None, world: dict[str, Path], tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch, capsys,
+) -> None:  # fmt: skip
+    """One policy for a sequence folder given twice, in any spelling (``S/../S``): refused with
+    one line naming it and its first spelling (``core.paths.distinct_folders``), nothing
+    written."""
+    from shared_helpers import colour_model, segmenter_props
+
+    from uss_slam.core.classes import CLASS_NAMES
+
+    models = tmp_path / "models"
+    models.mkdir()
+    m, m2 = (colour_model(models / f"{name}.onnx", segmenter_props(CLASS_NAMES), bias=bias)
+             for name, bias in (("m", 128.0), ("m2", 100.0)))  # fmt: skip
     seq = world["seq"]
-    common = ["-k", "3", "-L", "2", "--max-frames", "3"]
-    once, twice = tmp_path / "once.txt", tmp_path / "twice.txt"
-    code, _, err_once = run_console_script(
-        "uss-vocab", ["build", str(seq), "--out", str(once), *common], monkeypatch, capsys
-    )
-    assert code == 0, err_once
     again = f"{seq}/../{seq.name}"
-    argv = ["build", str(seq), again, "--out", str(twice), *common]
-    code, _, err = run_console_script("uss-vocab", argv, monkeypatch, capsys)
-    assert code == 0, err
-    assert err.strip().splitlines() == [  # then what the build of S alone says
-        f"uss-vocab: warning: {again}: given more than once (as {seq}); its frames are counted "
-        "once",
-        *err_once.strip().splitlines(),
-    ]
-    assert twice.read_bytes() == once.read_bytes()
+    text = argv.format(seq=seq, again=again, tmp=tmp_path, m=m, m2=m2)
+    code, _, err = run_console_script(prog, text.split(), monkeypatch, capsys)
+    named = again if key is None else f"{key}={again}"
+    assert code == 1, err
+    shown = f"{prog} compare" if argv.startswith("compare") else prog
+    assert err.strip().splitlines()[-1] == (
+        f"{shown}: error: {named}: given twice (as {seq}); expected each folder once"
+    )
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["models"]
 
 
 def test_eval_of_frames_with_only_ignore_labels_warns(

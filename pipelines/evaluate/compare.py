@@ -25,6 +25,7 @@ from uss_slam.core.errors import DataFormatError, UssSlamError
 from uss_slam.core.files import file_sha256
 from uss_slam.core.images import read_colour
 from uss_slam.core.onnx_contract import OUTPUT_LABELS, OUTPUT_LOGITS
+from uss_slam.core.paths import distinct_folders
 from uss_slam.core.seg_metrics import confusion_matrix
 from uss_slam.core.tum_io import read_tum_folder
 from uss_slam.core.validators import (
@@ -171,11 +172,7 @@ def check_sequences(roots: Sequence[Path], stride: int) -> tuple[list[Frame], li
         raise UssSlamError(f"--stride: expected an integer >= 1, got {stride}")
     frames: list[Frame] = []
     names: list[str] = []
-    seen: dict[Path, Path] = {}
-    for root in roots:
-        if root.resolve() in seen:
-            raise UssSlamError(f"--sequence {root}: given twice (as {seen[root.resolve()]})")
-        seen[root.resolve()] = root
+    for root in distinct_folders(roots, "--sequence"):
         folder = read_tum_folder(root, depth=False, labels=False)
         chosen = folder.frames[::stride]
         name = root.name if root.name not in names else f"{root.parent.name}/{root.name}"

@@ -14,7 +14,7 @@ import numpy as np
 from uss_slam.core.cli import hydra_error_line
 from uss_slam.core.errors import DataFormatError, UssSlamError
 from uss_slam.core.images import read_colour
-from uss_slam.core.paths import input_folder
+from uss_slam.core.paths import distinct_folders, input_folder
 from uss_slam.core.ranges import check_stride
 
 CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
@@ -42,21 +42,15 @@ def sequence_frames(roots: Sequence[Path], stride: int) -> FrameSource:
     """Every ``stride``-th colour frame of labelled frame folders: TUM RGB-D sequences with
     ``labels/``, or image folders with only ``rgb.txt``, ``rgb/`` and ``labels/`` (depth and
     ground truth are not needed). Lists and files are checked before any inference; a folder
-    given twice is an error (its frames would count twice)."""
+    given twice is refused (``core.paths.distinct_folders``)."""
     from uss_slam.core.tum_io import read_tum_folder
 
     if stride < 1:
         raise UssSlamError(f"--stride: expected an integer >= 1, got {stride}")
-    seen: dict[Path, Path] = {}
     folders = []
     for root in roots:
         input_folder(root, "--sequence", "expected a TUM sequence folder with labels/")
-        resolved = root.resolve()
-        if resolved in seen:
-            raise UssSlamError(
-                f"--sequence {root}: given twice (as {seen[resolved]}); its frames would count twice"
-            )
-        seen[resolved] = root
+    for root in distinct_folders(roots, "--sequence"):
         folder = read_tum_folder(root, depth=False, labels=True)
         check_stride(stride, len(folder.frames), "--stride", root)
         frames = folder.frames[::stride]

@@ -69,3 +69,48 @@ def test_a_run_that_cannot_fit_is_one_line_before_any_work(
     monkeypatch.setattr(sys, "argv", [*argv[:-1], "slam.prefetch=2", "sequence.max_frames=4"])
     main()
     assert (out / "run.json").is_file()
+
+
+def test_orbslam3_is_estimated_as_the_harness_is(tmp_path: Path) -> None:
+    """``system=orbslam3``: its process, the vocabulary by its file, the map at
+    ``system.n_features``, and with a segmenter the masks of every frame."""
+    from uss_slam.slam_eval.memory import PROCESS_BYTES, VOCABULARY_COPIES, estimate_orbslam3
+
+    vocab = tmp_path / "voc.txt"
+    with open(vocab, "wb") as f:
+        f.truncate(10**8)  # a sparse file: 100 MB by its size, nothing on the disk
+    base = estimate_orbslam3(_cfg(["system=orbslam3", f"system.vocabulary={vocab}"]), 300,
+                             (640, 480))  # fmt: skip
+    assert set(base.parts) == {"the ORB-SLAM3 process", "the vocabulary", "the map"}
+    assert base.parts["the ORB-SLAM3 process"].bytes == PROCESS_BYTES
+    assert base.parts["the vocabulary"].bytes == VOCABULARY_COPIES * 10**8
+    more = estimate_orbslam3(_cfg(["system=orbslam3", f"system.vocabulary={vocab}",
+                                   "system.n_features=4000"]), 300, (640, 480))  # fmt: skip
+    assert more.parts["the map"].bytes == 4 * base.parts["the map"].bytes
+    labels = estimate_orbslam3(_cfg(["system=orbslam3", f"system.vocabulary={vocab}",
+                                     "segmenter=labels"]), 300, (640, 480))  # fmt: skip
+    assert labels.parts["the masks"].bytes == 300 * 640 * 480
+
+
+def test_an_orbslam3_run_that_cannot_fit_is_one_line_before_any_work(
+    tmp_path: Path, monkeypatch, capsys, synthetic_sequence
+) -> None:
+    seq = synthetic_sequence(preset="walking_xyz", frames=8, size=(160, 120))
+    vocab = tmp_path / "voc.txt"
+    with open(vocab, "wb") as f:
+        f.truncate(10**9)
+    monkeypatch.delenv(resources.MEMORY_OVERRIDE, raising=False)
+    monkeypatch.setattr(resources, "available_memory",
+                        lambda: (500_000_000, "its cgroup's memory limit"))  # fmt: skip
+    out = tmp_path / "o"
+    monkeypatch.setattr(sys, "argv", ["uss-slam", f"sequence.path={seq}", f"out_dir={out}",
+                                      "progress=false", "system=orbslam3",
+                                      f"system.vocabulary={vocab}"])  # fmt: skip
+    with pytest.raises(SystemExit) as stop:
+        main()
+    err = capsys.readouterr().err.strip()
+    assert stop.value.code == 1
+    assert len(err.splitlines()) == 1, err
+    assert err.startswith(f"uss-slam: error: system.vocabulary={vocab}: this run (")
+    assert "500 MB available (its cgroup's memory limit); lower system.vocabulary" in err
+    assert not (out / "run.json").exists() and not (out / "trajectory.txt").exists()

@@ -16,7 +16,7 @@ from uss_slam.core.arguments import number
 from uss_slam.core.cli import exit_code, interruptible, report_interrupt
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.files import output_lock
-from uss_slam.core.paths import input_file, input_folder, output_file
+from uss_slam.core.paths import distinct_folders, input_file, input_folder, output_file
 
 from .vocabulary import (
     MAX_BRANCHING,
@@ -112,7 +112,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.command == "build":
             for folder in args.sequences:
                 input_folder(folder, None, "expected a TUM sequence with rgb.txt")
-            args.sequences = unique_sequences(args.sequences)
+            args.sequences = distinct_folders(args.sequences, None)  # each once
             output_file(args.out, "--out", "expected a vocabulary file")  # before the lock
             # a second build into the same file stops at once (exit code 2), naming the first
             with output_lock(args.out, "--out"):
@@ -131,23 +131,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         # --out is written atomically: nothing half-written is left
         return report_interrupt(PROG, interrupt)
     return 0
-
-
-def unique_sequences(sequences: Sequence[Path]) -> list[Path]:
-    """``sequences`` with each folder once (the same folder under two spellings too): a folder
-    given twice would count its frames twice in every word's weight. A warning names it."""
-    seen: dict[Path, Path] = {}
-    for folder in sequences:
-        key = folder.resolve()
-        if key in seen:
-            print(
-                f"{PROG}: warning: {folder}: given more than once (as {seen[key]}); its frames "
-                "are counted once",
-                file=sys.stderr,
-            )
-            continue
-        seen[key] = folder
-    return list(seen.values())
 
 
 def _build(args: argparse.Namespace) -> None:
