@@ -14,6 +14,7 @@ import dataclasses
 import math
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 from .ranges import MAX_THREADS, THREADS_PER_CPU, Range
@@ -67,6 +68,15 @@ class Arg:
 def number(kind: type = int, why: str = "", **bounds: float) -> Arg:
     """``type=number(int, min=1)``: an :class:`Arg` (``bounds``: min, max, gt, lt)."""
     return Arg(kind, Range(**bounds), why)
+
+
+def path_argument(text: str) -> Path:
+    """The argparse ``type`` of every path option and argument: a path, never the empty string
+    (``Path("")`` is the current folder: ``--out ""`` would write there); what the path is
+    checked for is the path layer's (``core/paths.py``)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError(f"expected a path, got {text!r}")
+    return Path(text)
 
 
 THREADS_ARG = Arg(int, Range(min=1, max=MAX_THREADS), f"{THREADS_PER_CPU} per CPU")

@@ -122,6 +122,12 @@ def launch(prog: str) -> int | None:
         return main()
     except KeyboardInterrupt as error:  # one that came before the script's own handling
         return _interrupted(prog, error)
+    except ModuleNotFoundError as error:  # a required package imported where it is first used
+        line = missing_package_line(prog, error)
+        if line is None:
+            raise
+        print(line, file=sys.stderr)
+        return 1
     except Exception as error:
         if not out_of_memory(error):
             raise

@@ -12,7 +12,10 @@ of path (:func:`input_file`, :func:`input_folder`, :func:`output_file`, :func:`o
 - a file where a folder is expected (the path, or a folder on the way to it), and a folder
   where a file is expected;
 - a location that cannot be written (read-only, no permission, a read-only file system),
-  proved by creating a file there: an output is checked before any work, not after it.
+  proved by creating a file there: an output is checked before any work, not after it; an
+  output file that exists read-only is not replaced;
+- a named pipe, a socket or a device where a file or folder is expected (a pipe would block
+  its reader; ``/dev/null`` is no file to write a result into).
 
 Pure Python (floor 0): every package may import it. The problems are found from ``os.stat`` /
 ``os.lstat`` error numbers, never from an error's text.
@@ -23,6 +26,7 @@ from __future__ import annotations
 import errno
 import os
 import re
+import stat
 import tempfile
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
@@ -155,11 +159,24 @@ def structure_problem(
             if output:
                 return f"cannot create the output folder ({prefix} is a file)"
             return f"{prefix} is a file, not a folder"
+        if prefix == path and not is_dir and not os.path.isfile(prefix):
+            return f"is {_special_kind(prefix)}, not a regular file"
         if prefix == path and folder is True and not is_dir:
             return "is a file; expected a folder"
         if prefix == path and folder is False and is_dir:
             return "is a folder; expected a file"
     return None
+
+
+def _special_kind(path: Path) -> str:
+    """What a path that is neither a folder nor a regular file is (a FIFO would block a reader
+    for ever; a device is no file to read or replace)."""
+    mode = os.stat(path).st_mode
+    if stat.S_ISFIFO(mode):
+        return "a named pipe (FIFO)"
+    if stat.S_ISSOCK(mode):
+        return "a socket"
+    return "a device"
 
 
 def _fail(path: str | PathLike[str], key: str | None, problem: str, expected: str) -> PathError:
@@ -256,6 +273,12 @@ def output_folder(
     return path
 
 
+def _read_only(path: Path) -> bool:
+    """Whether the file ``path`` may not be written: by this user, or by anyone (no write bit:
+    ``chmod a-w``, which root could ignore but a user means)."""
+    return not os.access(path, os.W_OK) or not os.stat(path).st_mode & 0o222
+
+
 def output_file(
     path: str | PathLike[str],
     key: str | None = None,
@@ -266,6 +289,8 @@ def output_file(
     refused (a link to a file is written through, as ``open()`` does)."""
     path = Path(path)
     problem = structure_problem(path, folder=False, output=True)
+    if problem is None and os.path.isfile(path) and _read_only(path):
+        problem = "is read-only (its mode forbids writing; make it writable to replace it)"
     if problem is None:
         problem = _probe_write(_nearest_existing(path.parent))
     if problem:

@@ -51,6 +51,11 @@ class Range:
 
 THREADS = Range(min=1, max=MAX_THREADS)
 """The range of every thread count (:data:`MAX_THREADS`)."""
+MAX_FEATURES = 100_000
+"""The most ORB features per frame any setting may ask for (``uss-vocab build --features``,
+``slam.orb.n_features``, ``system.n_features``): ORB-SLAM's settings ask 1000-5000, and a
+640x480 frame holds no more than a few ten thousand FAST corners; ten million would only
+allocate."""
 
 
 def check_stride(stride: int, frames: int, key: str, folder: object) -> None:

@@ -42,7 +42,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from uss_slam.core.arguments import THREADS_ARG
+from uss_slam.core.arguments import THREADS_ARG, path_argument
 from uss_slam.core.classes import CLASS_NAMES
 from uss_slam.core.cli import exit_on_user_error
 from uss_slam.core.errors import UssSlamError
@@ -463,7 +463,7 @@ def build_parser() -> argparse.ArgumentParser:
         "adapted + geometry), print one table and write OUT/report.md. Complete stages with "
         "the same inputs are reused.",
     )
-    parser.add_argument("--out", type=Path, default=Path("outputs/demo"),
+    parser.add_argument("--out", type=path_argument, default=Path("outputs/demo"),
                         help="output folder (default: outputs/demo)")  # fmt: skip
     parser.add_argument("--experiment", choices=sorted(PLANS), default="demo",
                         help="demo (default; minutes) or ci (tiny data, seconds of training)")  # fmt: skip

@@ -7,11 +7,10 @@ import sys
 import textwrap
 import time
 from collections.abc import Sequence
-from pathlib import Path
 
 import cv2
 
-from uss_slam.core.arguments import number
+from uss_slam.core.arguments import number, path_argument
 from uss_slam.core.classes import CLASS_NAMES
 from uss_slam.core.cli import program, report_interrupt, signals_as_interrupts
 from uss_slam.core.errors import UssSlamError
@@ -87,7 +86,7 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--seed", type=number(int, min=0), default=0,
                        help="random seed (default: 0)")  # fmt: skip
         p.add_argument(
-            "--out", type=Path, required=True, help="output folder (must be new or empty)"
+            "--out", type=path_argument, required=True, help="output folder (must be new or empty)"
         )
         p.add_argument(
             "--overwrite",

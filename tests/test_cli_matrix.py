@@ -108,6 +108,19 @@ def afile(p: dict[str, Path]) -> None:
     p["afile"].write_text("a file, not a folder\n")
 
 
+def fifo(p: dict[str, Path]) -> None:
+    """``{fifo}``: a named pipe (nobody writes it: a reader would wait for ever)."""
+    p["fifo"] = p["tmp"] / "fifo"
+    os.mkfifo(p["fifo"])
+
+
+def read_only_vocabulary(p: dict[str, Path]) -> None:
+    """``{v}``: a vocabulary of the user's, made read-only (``chmod 444``)."""
+    p["v"] = p["tmp"] / "v.txt"
+    p["v"].write_text("10 2 0 0\n")
+    p["v"].chmod(0o444)
+
+
 def folder(name: str, ext: str = "") -> Setup:
     def make(p: dict[str, Path]) -> None:
         p[name] = p["tmp"] / f"{name}{ext}"
@@ -337,7 +350,7 @@ CASES = [
          setup=(seq_copy(corrupt("rgb", 0, b"")),)),
     case("vocab-build-overwrite-a-non-vocabulary", "uss-vocab",
          "build {seq} --out {png} --overwrite -k 3 -L 2", 1,
-         "--out {png}: not a DBoW2 text vocabulary; --overwrite replaces only a vocabulary",
+         "--out={png}: not a DBoW2 text vocabulary; --overwrite replaces only a vocabulary",
          setup=(write("png", png_bytes, ".png"),)),
     case("vocab-build-texture-less-frames", "uss-vocab",
          "build {s} --out {tmp}/v.txt -k 3 -L 2 --max-frames 2", 1,
@@ -751,9 +764,18 @@ MORE_CASES = [
          "expected an integer >= 1, got '0'"),
     case("vocab-build-features-zero", "uss-vocab",
          "build {seq} --out {tmp}/v.txt --features 0", 2, "--features",
-         "expected an integer >= 1, got '0'"),
+         "expected an integer >= 1 and <= 100000, got '0'"),
     case("vocab-build-out-exists", "uss-vocab", "build {seq} --out {v} -k 3 -L 2", 1,
-         "{v}: exists; pass --overwrite", setup=(write("v", "the user's file\n"),)),
+         "--out={v}: exists; pass --overwrite", setup=(write("v", "the user's file\n"),)),
+    case("vocab-build-overwrite-a-read-only-vocabulary", "uss-vocab",
+         "build {seq} --out {v} -k 3 -L 2 --overwrite", 1,
+         "--out={v}: is read-only (its mode forbids writing", setup=(read_only_vocabulary,)),
+    case("vocab-build-out-is-a-device", "uss-vocab", "build {seq} --out /dev/null -k 3 -L 2", 1,
+         "--out=/dev/null: is a device, not a regular file"),
+    case("traj-input-is-a-fifo", "uss-traj", "ate {fifo} {gt}", 1,
+         "{fifo}: is a named pipe (FIFO), not a regular file", setup=(fifo,)),
+    case("vocab-info-of-a-fifo", "uss-vocab", "info {fifo}", 1,
+         "{fifo}: is a named pipe (FIFO), not a regular file", setup=(fifo,)),
     case("vocab-build-garbled-rgb-list", "uss-vocab", "build {s} --out {tmp}/v.txt -k 3 -L 2",
          1, "{s}/rgb.txt:1:",
          "expected 'timestamp filename' (2 columns), got 1 columns", setup=(seq_copy(rewrite("rgb.txt", "garbage\n")),)),

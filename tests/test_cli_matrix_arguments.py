@@ -23,7 +23,7 @@ import pytest
 from test_cli_matrix import CHECKERS, run_console_script, snapshot
 from test_path_families import PATH_ARGS, PathArg
 
-from uss_slam.core.arguments import Arg, BadArgument, bad_arguments
+from uss_slam.core.arguments import Arg, BadArgument, bad_arguments, path_argument
 from uss_slam.core.launch import SCRIPTS
 
 Parser = Callable[[], argparse.ArgumentParser]
@@ -106,7 +106,7 @@ def _path_actions() -> list[tuple[str, tuple[str, ...], str]]:
             if isinstance(action, argparse._SubParsersAction):
                 for name, sub in action.choices.items():
                     walk(prog, sub, (*commands, name))
-            elif action.type is Path:
+            elif action.type in (Path, path_argument):
                 found.append(
                     (prog, commands, action.option_strings[-1] if action.option_strings else "")
                 )
@@ -132,6 +132,28 @@ def test_every_path_argument_is_in_the_path_families() -> None:
         if (prog, commands[0] if commands else "", flag) not in rows
     ]
     assert missing == [], missing
+
+
+def test_every_path_argument_refuses_the_empty_string() -> None:
+    """Every path option and argument is typed :func:`path_argument`: ``--out ""`` is one usage
+    line naming the flag, not the current folder (``Path("")``)."""
+    plain = []
+
+    def walk(prog: str, parser: argparse.ArgumentParser) -> None:
+        for action in parser._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                for sub in action.choices.values():
+                    walk(prog, sub)
+            elif action.type is Path:
+                plain.append((prog, action.dest))
+
+    for prog, _, build in SCRIPT_PARSERS:
+        walk(prog, build())
+    assert plain == [], plain
+    for text in ("", "  "):
+        with pytest.raises(argparse.ArgumentTypeError, match="expected a path, got"):
+            path_argument(text)
+    assert path_argument("a b") == Path("a b")
 
 
 def test_arg_refuses_each_bound_and_takes_the_bounds() -> None:

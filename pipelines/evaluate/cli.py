@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Optional
 
-from uss_slam.core.arguments import THREADS_ARG, Names, of_field
+from uss_slam.core.arguments import THREADS_ARG, Names, of_field, path_argument
 from uss_slam.core.classes import CLASS_NAMES, DYNAMIC_CLASSES
 from uss_slam.core.cli import exit_on_user_error, warning
 from uss_slam.core.errors import UssSlamError
@@ -153,15 +153,17 @@ def build_parser() -> argparse.ArgumentParser:
         "of the data config (Hydra overrides as in uss-train, e.g. data=real "
         "paths.data_dir=DIR). Writes OUT/eval.json and OUT/eval.md (printed).",
     )
-    parser.add_argument("model", type=Path, help="a .ckpt (uss-train) or .onnx (uss-export)")
+    parser.add_argument(
+        "model", type=path_argument, help="a .ckpt (uss-train) or .onnx (uss-export)"
+    )
     parser.add_argument("overrides", nargs="*", metavar="KEY=VALUE",
                         help="data-config overrides selecting the val set (default: the "
                              "shipped data=synthetic under paths.data_dir=outputs/demo/data)")  # fmt: skip
-    parser.add_argument("--sequence", type=Path, action="append", default=[], metavar="DIR",
+    parser.add_argument("--sequence", type=path_argument, action="append", default=[], metavar="DIR",
                         help="a TUM RGB-D folder with labels/ (repeatable) instead of data.val")  # fmt: skip
     parser.add_argument("--stride", type=of_field(EvalOptions, "stride"), default=1,
                         help="every N-th frame of each --sequence (default: 1)")  # fmt: skip
-    parser.add_argument("--out", type=Path, default=None,
+    parser.add_argument("--out", type=path_argument, default=None,
                         help="output folder (default: outputs/eval/<model file stem>)")  # fmt: skip
     parser.add_argument("--dynamic", type=Names(CLASS_NAMES), default=",".join(DYNAMIC_CLASSES),
                         help="comma-separated classes of the dynamic mask (default: "

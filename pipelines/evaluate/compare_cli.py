@@ -11,7 +11,7 @@ from typing import Any
 
 import yaml
 
-from uss_slam.core.arguments import THREADS_ARG, Names, number
+from uss_slam.core.arguments import THREADS_ARG, Names, number, path_argument
 from uss_slam.core.classes import CLASS_NAMES, DYNAMIC_CLASSES
 from uss_slam.core.cli import exit_on_user_error, warning
 from uss_slam.core.errors import UssSlamError
@@ -159,19 +159,23 @@ def build_parser() -> argparse.ArgumentParser:
         "OUT/compare.json and images; prints the table; the last line says what to do.",
     )
     parser.add_argument(
-        "models", nargs="+", type=Path, metavar="MODEL", help="exported .onnx models (2 or more)"
+        "models",
+        nargs="+",
+        type=path_argument,
+        metavar="MODEL",
+        help="exported .onnx models (2 or more)",
     )
-    parser.add_argument("--sequence", type=Path, action="append", default=[], metavar="DIR",
+    parser.add_argument("--sequence", type=path_argument, action="append", default=[], metavar="DIR",
                         help="a TUM RGB-D folder (rgb.txt, rgb/) of target frames; repeatable")  # fmt: skip
     parser.add_argument(
         "--stride", type=number(int, min=1), default=1, help="every N-th frame (default: 1)"
     )
-    parser.add_argument("--labels", type=Path, action="append", default=[], metavar="DIR",
+    parser.add_argument("--labels", type=path_argument, action="append", default=[], metavar="DIR",
                         help="a folder of uint8 class-id PNGs named as colour frames (a "
                              "sequence's labels/); repeatable")  # fmt: skip
     parser.add_argument("--label-frames", type=number(int, min=1), default=None, metavar="N",
                         help="use N labelled frames, evenly spaced (default: every one found)")  # fmt: skip
-    parser.add_argument("--source", type=Path, default=None, metavar="DIR",
+    parser.add_argument("--source", type=path_argument, default=None, metavar="DIR",
                         help="source-domain images (PNG/JPEG, e.g. VOC's JPEGImages): adds the "
                              "domain-separability probe")  # fmt: skip
     parser.add_argument(
@@ -184,7 +188,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help="comma-separated validators (default: configs/validators/default.yaml)")  # fmt: skip
     parser.add_argument("--dynamic", type=Names(CLASS_NAMES), default=",".join(DYNAMIC_CLASSES),
                         help=f"classes of the dynamic mask (default: {','.join(DYNAMIC_CLASSES)})")  # fmt: skip
-    parser.add_argument("--out", type=Path, default=None,
+    parser.add_argument("--out", type=path_argument, default=None,
                         help="report folder (default: outputs/compare/<model stems>)")  # fmt: skip
     parser.add_argument("--slam", action="store_true",
                         help="also run the SLAM harness on each sequence: no filter and each "

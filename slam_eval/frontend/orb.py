@@ -24,6 +24,7 @@ from dataclasses import dataclass, fields
 import cv2
 import numpy as np
 
+from uss_slam.core.ranges import MAX_FEATURES
 from uss_slam.core.schema import SchemaError, check_fields, ranged
 from uss_slam.core.tum_io import CameraIntrinsics
 
@@ -37,7 +38,7 @@ EDGE = 19
 class OrbConfig:
     """ORB extraction settings (defaults: ORB-SLAM2's TUM RGB-D configuration)."""
 
-    n_features: int = ranged(1000, min=1)
+    n_features: int = ranged(1000, min=1, max=MAX_FEATURES)
     scale_factor: float = ranged(1.2, gt=1.0)
     n_levels: int = ranged(8, min=1)
     ini_fast: int = ranged(20, min=1, max=255)

@@ -13,7 +13,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from uss_slam.core.arguments import number
+from uss_slam.core.arguments import number, path_argument
 from uss_slam.core.cli import interruptible, print_output, report_interrupt
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.paths import input_file, output_file
@@ -59,8 +59,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _common_arguments(p: argparse.ArgumentParser) -> None:
     """The files, the association and the output format, shared by ``ate`` and ``rpe``."""
-    p.add_argument("gt", type=Path, metavar="GT", help="ground-truth trajectory (TUM format)")
-    p.add_argument("est", type=Path, metavar="EST", help="estimated trajectory (TUM format)")
+    p.add_argument(
+        "gt", type=path_argument, metavar="GT", help="ground-truth trajectory (TUM format)"
+    )
+    p.add_argument(
+        "est", type=path_argument, metavar="EST", help="estimated trajectory (TUM format)"
+    )
     p.add_argument(
         "--max-diff",
         type=number(float, min=0),
@@ -104,7 +108,7 @@ def _ate_parser(sub: Any) -> None:
     )
     p_ate.add_argument(
         "--plot",
-        type=Path,
+        type=path_argument,
         metavar="FILE",
         help="also save a figure: top view of both trajectories and the error over time "
         "(format from the extension: .png, .pdf, .svg, ...)",

@@ -46,6 +46,31 @@ def test_a_missing_required_package_is_one_line(prog: str) -> None:
     assert "install it with: pip install 'pyyaml>=6.0'" in err[0]
 
 
+MISSING_MATPLOTLIB = (
+    "import sys; sys.modules['matplotlib'] = None; from uss_slam.core.launch import launch; "
+    "sys.argv = sys.argv[1:]; sys.exit(launch(sys.argv[0]))"
+)
+"""A console script where ``import matplotlib`` fails (it is imported where it is first used)."""
+
+
+def test_a_missing_package_imported_where_it_is_used_is_one_line(tmp_path: Path) -> None:
+    """``uss-traj ate --plot``: matplotlib, imported only for the figure, is missing: the same
+    one line as a package missing when the script's modules are imported."""
+    gt = tmp_path / "gt.txt"
+    gt.write_text("".join(f"{t}.0 {t} 0 0 0 0 0 1\n" for t in range(5)))
+    done = subprocess.run(
+        [sys.executable, "-c", MISSING_MATPLOTLIB, "uss-traj", "ate", str(gt), str(gt),
+         "--plot", str(tmp_path / "p.png")],
+        capture_output=True, text=True, timeout=300, env={"PATH": "/usr/bin:/bin"},
+        cwd=tmp_path,
+    )  # fmt: skip
+    err = done.stderr.strip().splitlines()
+    assert done.returncode == 1 and len(err) == 1, done.stderr
+    assert err[0].startswith("uss-traj: error: the required package matplotlib (import "
+                             "matplotlib) is not installed in ")  # fmt: skip
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["gt.txt"]
+
+
 def _opencv_no_memory() -> BaseException:
     """The ``cv2.error`` OpenCV raises when an allocation fails (``ulimit -v``)."""
     import cv2

@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any, Optional
 
 from uss_slam.core.errors import DataFormatError, UssSlamError
+from uss_slam.core.ranges import MAX_FEATURES
 from uss_slam.core.schema import SchemaError, check_fields, ranged, validate
 
 from .masking import FILLS
@@ -31,7 +32,7 @@ class OrbSlam3Config:
     repeats: int = ranged(3, min=1)
     settings_file: Optional[str] = None  # noqa: UP045
     """An ORB-SLAM3 settings YAML to use instead of the one written from the sequence's camera."""
-    n_features: int = ranged(1000, min=1)
+    n_features: int = ranged(1000, min=1, max=MAX_FEATURES)
     scale_factor: float = ranged(1.2, gt=1.0)
     n_levels: int = ranged(8, min=1)
     ini_fast: int = ranged(20, min=1, max=255)

@@ -10,13 +10,13 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Sequence
-from pathlib import Path
 
-from uss_slam.core.arguments import number
+from uss_slam.core.arguments import number, path_argument
 from uss_slam.core.cli import exit_code, interruptible, report_interrupt
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.files import output_lock
 from uss_slam.core.paths import distinct_folders, input_file, input_folder, output_file
+from uss_slam.core.ranges import MAX_FEATURES
 
 from .vocabulary import (
     MAX_BRANCHING,
@@ -45,8 +45,10 @@ def build_parser() -> argparse.ArgumentParser:
         "descriptors), weight the words by TF-IDF and write DBoW2's text format "
         "(ORB-SLAM3's loadFromTextFile). Deterministic for a --seed.",
     )
-    build.add_argument("sequences", nargs="+", type=Path, metavar="SEQUENCE_DIR")
-    build.add_argument("--out", type=Path, required=True, metavar="FILE", help="vocabulary file")
+    build.add_argument("sequences", nargs="+", type=path_argument, metavar="SEQUENCE_DIR")
+    build.add_argument(
+        "--out", type=path_argument, required=True, metavar="FILE", help="vocabulary file"
+    )
     build.add_argument(
         "-k",
         "--branching",
@@ -79,7 +81,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     build.add_argument(
         "--features",
-        type=number(int, min=1),
+        type=number(int, min=1, max=MAX_FEATURES),
         default=1000,
         metavar="N",
         help="ORB features per frame (default: %(default)s)",
@@ -100,7 +102,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Read a DBoW2 text vocabulary (this tool's or ORB-SLAM's ORBvoc.txt), "
         "check every line, and print its parameters and size.",
     )
-    info.add_argument("vocabulary", type=Path, metavar="FILE")
+    info.add_argument("vocabulary", type=path_argument, metavar="FILE")
     return parser
 
 
@@ -136,13 +138,13 @@ def main(argv: Sequence[str] | None = None) -> int:
 def _build(args: argparse.Namespace) -> None:
     """``uss-vocab build``: the checks of ``--out``, the clustering, the summary line."""
     if args.out.exists() and not args.overwrite:
-        raise UssSlamError(f"{args.out}: exists; pass --overwrite to replace it")
+        raise UssSlamError(f"--out={args.out}: exists; pass --overwrite to replace it")
     if args.out.exists():  # --overwrite replaces a vocabulary, never another file
         try:
             read_header(args.out)
         except UssSlamError:
             raise UssSlamError(
-                f"--out {args.out}: not a DBoW2 text vocabulary; --overwrite replaces "
+                f"--out={args.out}: not a DBoW2 text vocabulary; --overwrite replaces "
                 "only a vocabulary file"
             ) from None
     report = build_from_sequences(
