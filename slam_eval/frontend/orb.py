@@ -220,14 +220,15 @@ class OrbExtractor:
         bx = max(1, int(math.ceil((hi_x - lo_x) / side)))
         col = np.minimum(((xy[:, 0] - lo_x) / side).astype(np.int64), bx - 1)
         bucket = ((xy[:, 1] - lo_y) / side).astype(np.int64) * bx + col
-        # FAST scores are integers in [0, 255], so (key, best score first) packs into one int64
-        # and a stable argsort gives the two-key lexsort's order (ties by position) for less.
+        # FAST scores are integers in [0, 255], so (key, best score first) packs into one int64;
+        # with the position as the last digit every key is distinct, and NumPy's default
+        # (SIMD) argsort gives the two-key lexsort's order, ties by position, for less.
         worse = 255 - score.astype(np.int64)
-        order = np.argsort(bucket * 256 + worse, kind="stable")
+        order = _argsort_by_position(bucket * 256 + worse)
         sorted_bucket = bucket[order]
         first = np.concatenate(([0], np.flatnonzero(np.diff(sorted_bucket)) + 1))
         rank = np.arange(len(order)) - np.repeat(first, np.diff(first, append=len(order)))
-        pick = order[np.argsort(rank * 256 + worse[order], kind="stable")[:budget]]
+        pick = order[_argsort_by_position(rank * 256 + worse[order])[:budget]]
         return xy[pick], score[pick]
 
     def _orientation(self, image: np.ndarray, xy: np.ndarray) -> np.ndarray:
@@ -353,6 +354,15 @@ def _fast(
     xy = cv2.KeyPoint_convert(found).reshape(-1, 2) + np.float32([ox, oy])
     score = np.array([k.response for k in found], dtype=np.float32)
     return xy, score
+
+
+def _argsort_by_position(key: np.ndarray) -> np.ndarray:
+    """``np.argsort(key, kind="stable")`` of a non-negative int64 ``(n,)`` ``key`` below
+    ``2^63 / n``: the key times ``n`` plus the position is distinct for every entry, so any sort
+    gives the stable order, and NumPy's default one (SIMD quicksort) is 2-4x faster on the
+    thousands of corners of a level than its stable merge sort."""
+    n = len(key)
+    return np.argsort(key * n + np.arange(n, dtype=np.int64))
 
 
 def _inside(xy: np.ndarray, x0: float, y0: float, x1: float, y1: float) -> np.ndarray:

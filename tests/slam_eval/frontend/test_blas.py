@@ -1,0 +1,47 @@
+"""One BLAS thread during a SLAM run (:mod:`uss_slam.slam_eval.frontend.blas`)."""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+import pytest
+
+from uss_slam.slam_eval.frontend.blas import loaded_openblas, one_blas_thread
+
+needs_openblas = pytest.mark.skipif(
+    not sys.platform.startswith("linux") or not loaded_openblas(),
+    reason="no OpenBLAS found in /proc/self/maps",
+)
+
+
+@needs_openblas
+def test_one_thread_inside_and_the_counts_restored_after() -> None:
+    libraries = loaded_openblas()
+    before = [get() for _, get in libraries]
+    with one_blas_thread():
+        assert [get() for _, get in libraries] == [1] * len(libraries)
+        a = np.arange(600 * 961, dtype=np.float32).reshape(600, 961) % 7
+        assert (a @ np.ones((961, 2), np.float32)).shape == (600, 2)  # BLAS still works
+    assert [get() for _, get in libraries] == before
+
+
+@needs_openblas
+def test_restored_after_an_error() -> None:
+    before = [get() for _, get in loaded_openblas()]
+    with pytest.raises(RuntimeError), one_blas_thread():
+        raise RuntimeError("in the run")
+    assert [get() for _, get in loaded_openblas()] == before
+
+
+def test_no_maps_file_finds_nothing(tmp_path) -> None:
+    assert loaded_openblas(str(tmp_path / "missing")) == []
+
+
+def test_a_maps_line_of_another_library_is_skipped(tmp_path) -> None:
+    maps = tmp_path / "maps"
+    maps.write_text(
+        "7f00-7f01 r-xp 0 08:01 1 /nowhere/libopenblas.so.0\n"  # not a file: skipped
+        "7f01-7f02 r-xp 0 08:01 2 /usr/lib/libc.so.6\n"
+    )
+    assert loaded_openblas(str(maps)) == []
