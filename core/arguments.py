@@ -98,16 +98,17 @@ def of_field(schema: type, name: str) -> Arg:
 
 @dataclass(frozen=True)
 class Names:
-    """An argparse ``type``: comma-separated names among ``choices``, each once, at least one
-    (``--dynamic person,chair``); returns the list."""
+    """An argparse ``type``: comma-separated names among ``choices``, each once, at least one,
+    none empty (``--dynamic person,chair``; spaces around a name are dropped); returns the
+    list."""
 
     choices: tuple[str, ...]
 
     def __call__(self, text: str) -> list[str]:
-        names = [n.strip() for n in text.split(",") if n.strip()]
+        names = [n.strip() for n in text.split(",")]
         expected = f"expected comma-separated names of {', '.join(self.choices)}, each once"
         unknown = [n for n in names if n not in self.choices]
-        if not names or unknown:
+        if unknown:  # an empty name too (``person,,chair``: a name left out?)
             raise argparse.ArgumentTypeError(f"{expected}, got {text!r}")
         twice = sorted({n for n in names if names.count(n) > 1})
         if twice:

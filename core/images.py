@@ -34,8 +34,10 @@ _STANDALONE = {0x01, *range(0xD0, 0xD8)}  # TEM, RST0..RST7: markers without a l
 
 
 def png_problem(data: bytes) -> str | None:
-    """Why the PNG bytes ``data`` are not a whole PNG file, else None."""
+    """Why the PNG bytes ``data`` are not a whole PNG file, else None: every chunk whole with
+    its CRC, the image data starting as a zlib stream (else libpng prints its own line)."""
     pos = len(PNG_SIGNATURE)
+    first_idat = True
     while pos + 8 <= len(data):
         length = int.from_bytes(data[pos : pos + 4], "big")
         kind = data[pos + 4 : pos + 8]
@@ -50,8 +52,16 @@ def png_problem(data: bytes) -> str | None:
             return f"corrupt PNG: the CRC of its {name} chunk at byte {pos} does not match"
         if kind == b"IEND":
             return None
+        if kind == b"IDAT" and first_idat and length >= 2 and not _zlib_header(data[pos + 8 :]):
+            return f"corrupt PNG: its image data (IDAT chunk at byte {pos}) is no zlib stream"
+        first_idat = first_idat and kind != b"IDAT"
         pos = end
     return "truncated PNG: no IEND chunk at the end of the file"
+
+
+def _zlib_header(head: bytes) -> bool:
+    """Whether ``head`` starts with a zlib header (RFC 1950: deflate, its check bits)."""
+    return head[0] & 0x0F == 8 and (head[0] << 8 | head[1]) % 31 == 0
 
 
 def _scan_end(data: bytes, pos: int) -> int:

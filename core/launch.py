@@ -7,6 +7,9 @@ its script's module and calls its ``main``, so that what the machine lacks is on
 - memory (``MemoryError``: the machine's, or a limit such as ``ulimit -v``):
   ``<prog>: error: out of memory ...`` (exit code 1) after the script's own cleanup ran (its
   temporary and partial outputs removed as after any error);
+- an address-space limit (``ulimit -v``) too small to load the libraries at all
+  (:data:`ADDRESS_SPACE_FLOOR`): the same ``out of memory`` line, before the imports (between
+  about 300 and 460 MB OpenCV's import killed the process with SIGSEGV);
 - Ctrl-C or SIGTERM while the script's libraries are still being imported (the first seconds
   of a run, longer on a busy machine): ``<prog>: interrupted`` (exit code 130; SIGTERM:
   ``<prog>: interrupted (SIGTERM)``, 143), as later in the run, never an import's traceback.
@@ -17,6 +20,7 @@ Imports nothing outside the standard library before the script's module.
 from __future__ import annotations
 
 import importlib
+import resource
 import signal
 import sys
 from collections.abc import Callable
@@ -76,6 +80,25 @@ MEMORY_LINE = (
 )
 
 
+ADDRESS_SPACE_FLOOR = 512 * 2**20
+"""Bytes of address space (``ulimit -v``) below which a script cannot load its libraries:
+numpy and OpenCV alone map 453 MB (``VmPeak`` after importing them, measured), and under a
+limit between about 300 and 460 MB OpenCV's import crashes the process (SIGSEGV) instead of
+failing. Scripts that import torch need more; they fail with an ``ImportError`` (one line)."""
+
+
+def address_space_line(prog: str) -> str | None:
+    """The one line for an address-space limit below :data:`ADDRESS_SPACE_FLOOR`, else None."""
+    soft, _ = resource.getrlimit(resource.RLIMIT_AS)
+    if soft == resource.RLIM_INFINITY or soft >= ADDRESS_SPACE_FLOOR:
+        return None
+    return (
+        f"{prog}: error: out of memory: ulimit -v allows {soft // 2**20} MB of address space; "
+        f"loading the script's libraries (numpy, OpenCV) takes about "
+        f"{ADDRESS_SPACE_FLOOR // 2**20} MB; raise the limit"
+    )
+
+
 class _Terminated(KeyboardInterrupt):
     """SIGTERM while the script's module is imported (raised by :func:`_on_sigterm`)."""
 
@@ -93,6 +116,10 @@ def _interrupted(prog: str, error: KeyboardInterrupt) -> int:
 
 def launch(prog: str) -> int | None:
     """Run console script ``prog`` (its module's ``main``) with the lines above."""
+    line = address_space_line(prog)
+    if line is not None:  # before any import that could crash on it
+        print(line, file=sys.stderr)
+        return 1
     try:
         previous = signal.signal(signal.SIGTERM, _on_sigterm)
     except ValueError:  # not the main thread (a test): no handler

@@ -251,13 +251,17 @@ def output_folder(
     *,
     create: bool = False,
     expected: str = "expected a folder to write into",
+    inputs: Iterable[tuple[str | None, str | PathLike[str]]] = (),
 ) -> Path:
     """A folder the script can write into (``create``: made now, with its parents; else only
     proved creatable: the nearest existing folder on the way can be written); else
     :class:`PathError`. An existing file, a dangling or looping link where the folder would be
-    are refused."""
+    are refused, and so is one of the run's input folders (``inputs``: ``(key, folder)``, in
+    any spelling): the outputs would be written among the inputs."""
     path = Path(path)
     problem = structure_problem(path, folder=True, output=True)
+    if problem is None:
+        problem = _an_input(path, inputs)
     if problem is None:
         existing = _nearest_existing(path)
         if create:
@@ -277,6 +281,16 @@ def _read_only(path: Path) -> bool:
     """Whether the file ``path`` may not be written: by this user, or by anyone (no write bit:
     ``chmod a-w``, which root could ignore but a user means)."""
     return not os.access(path, os.W_OK) or not os.stat(path).st_mode & 0o222
+
+
+def _an_input(path: Path, inputs: Iterable[tuple[str | None, str | PathLike[str]]]) -> str | None:
+    """Which input folder ``path`` is (resolved, as :func:`distinct_folders` compares), else
+    None."""
+    for key, folder in inputs:
+        if os.path.isdir(folder) and path.resolve() == Path(folder).resolve():
+            return (f"is the input folder {where(folder, key)}; expected a folder of its own for "
+                    "the outputs")  # fmt: skip
+    return None
 
 
 def output_file(

@@ -297,6 +297,12 @@ GROUNDTRUTH_FILE = "groundtruth.txt"
 LABELS_DIR = "labels"
 
 
+def label_file_name(rgb_name: str) -> str:
+    """The name of a colour frame's label image: a PNG (labels are lossless) with the frame's
+    stem, ``x.png`` for ``rgb/x.png`` and for ``rgb/x.jpg`` alike."""
+    return Path(rgb_name).stem + ".png"
+
+
 @dataclass(frozen=True)
 class FrameFiles:
     """One colour frame of a sequence folder with its partners (absolute paths, seconds).
@@ -387,7 +393,7 @@ def read_tum_folder(
         )
 
     def label(index: int) -> Path | None:
-        return labels_dir / Path(rgb.files[index]).name if labels else None
+        return labels_dir / label_file_name(rgb.files[index]) if labels else None
 
     if not depth:
         frames = tuple(

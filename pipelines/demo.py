@@ -511,7 +511,7 @@ def run_demo(
         )
     if until not in STAGES:
         raise UssSlamError(f"--until {until}: not a stage ({', '.join(STAGES)})")
-    output_folder(out, "--out")
+    output_folder(out, "--out", inputs=[("--sequence", sequence)] if sequence else ())
     check_output_owner(out, "uss-demo", "--out")  # a uss-slam run's report.md, ...
     check_filters({v.name: v for v in VARIANTS}, list(filter_classes()))
     data = out / "data"

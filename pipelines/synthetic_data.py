@@ -235,11 +235,38 @@ def read_spec(root: Path) -> DemoData:
 
 
 def is_complete(out: Path, spec: DemoData) -> bool:
-    """True when ``out`` holds a complete data set rendered from ``spec``."""
+    """True when ``out`` holds a complete data set rendered from ``spec``: its record says so
+    and every file its lists name is still there (a stage is complete only while its outputs
+    exist: a frame deleted since renders the data set again)."""
     try:
-        return yaml.safe_load((Path(out) / RECORD).read_text()) == spec.record()
+        if yaml.safe_load((Path(out) / RECORD).read_text()) != spec.record():
+            return False
     except (OSError, yaml.YAMLError):
         return False
+    return _files_present(Path(out))
+
+
+def _files_present(root: Path) -> bool:
+    """Whether every image the data set's lists name exists: each sequence's ``rgb.txt`` and
+    ``depth.txt`` entries and their labels, each VOC image set's JPEG and label PNG."""
+    from uss_slam.core.tum_io import read_tum_folder
+
+    try:
+        for lst in sorted(root.glob("*/*/rgb.txt")):
+            seq = lst.parent
+            folder = read_tum_folder(seq, depth=(seq / "depth.txt").is_file(),
+                                     labels=(seq / "labels").is_dir())  # fmt: skip
+            if any(folder.missing(frame) is not None for frame in folder.frames):
+                return False
+        for sets in sorted(root.glob("voc/**/ImageSets/Segmentation")):
+            voc = sets.parents[1]
+            for name in {n for f in sets.glob("*.txt") for n in f.read_text().split()}:
+                if not ((voc / "JPEGImages" / f"{name}.jpg").is_file()
+                        and (voc / "SegmentationClass" / f"{name}.png").is_file()):  # fmt: skip
+                    return False
+    except (OSError, UssSlamError):
+        return False
+    return True
 
 
 Task = tuple[str, Callable[..., Path], dict[str, Any]]

@@ -770,6 +770,9 @@ MORE_CASES = [
     case("vocab-build-overwrite-a-read-only-vocabulary", "uss-vocab",
          "build {seq} --out {v} -k 3 -L 2 --overwrite", 1,
          "--out={v}: is read-only (its mode forbids writing", setup=(read_only_vocabulary,)),
+    case("demo-out-is-the-sequence", "uss-demo",
+         "--out {seq} --experiment ci --sequence {seq} --until data --quiet", 1,
+         "--out={seq}: is the input folder --sequence={seq}; expected a folder of its own"),
     case("vocab-build-out-is-a-device", "uss-vocab", "build {seq} --out /dev/null -k 3 -L 2", 1,
          "--out=/dev/null: is a device, not a regular file"),
     case("traj-input-is-a-fifo", "uss-traj", "ate {fifo} {gt}", 1,
@@ -1284,6 +1287,50 @@ def test_sequence_given_twice_is_refused_everywhere(
         f"{shown}: error: {named}: given twice (as {seq}); expected each folder once"
     )
     assert sorted(p.name for p in tmp_path.iterdir()) == ["models"]
+
+
+@pytest.mark.parametrize(
+    "argv, line",
+    [
+        ("compare {m} {m2} --sequence {seq} --repeats 5 --out {tmp}/c",
+         "uss-eval compare: error: --repeats needs --slam (it counts the SLAM runs per row)"),
+        ("compare {m} {m2} --sequence {seq} --source-frames 5 --out {tmp}/c",
+         "uss-eval compare: error: --source-frames needs --source DIR (the source-domain images)"),
+        ("compare {m} {m2} --sequence {seq} --out {seq}",
+         "uss-eval compare: error: --out={seq}: is the input folder --sequence={seq}; expected a "
+         "folder of its own for the outputs"),
+        ("{m} --sequence {seq} --out {seq}",
+         "uss-eval: error: --out={seq}: is the input folder --sequence={seq}; expected a folder "
+         "of its own for the outputs"),
+        ("{m} --sequence {seq} --dynamic person,,chair --out {tmp}/e",
+         "uss-eval: error: argument --dynamic: expected comma-separated names of background, "
+         "person, chair, monitor, each once, got 'person,,chair'"),
+    ],
+    ids=["compare-repeats-without-slam", "compare-source-frames-without-source",
+         "compare-out-is-the-sequence", "eval-out-is-the-sequence", "eval-dynamic-empty-name"],
+)  # fmt: skip
+def test_eval_options_that_change_nothing_or_mix_outputs_with_inputs(
+    argv: str, line: str, world: dict[str, Path], tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch, capsys,
+) -> None:  # fmt: skip
+    """An option that needs another (``--repeats`` without ``--slam``), an output folder that
+    is an input folder, an empty name in a list: one line, nothing written."""
+    from shared_helpers import colour_model, segmenter_props
+
+    from uss_slam.core.classes import CLASS_NAMES
+
+    models = tmp_path / "models"
+    models.mkdir()
+    m, m2 = (colour_model(models / f"{name}.onnx", segmenter_props(CLASS_NAMES), bias=bias)
+             for name, bias in (("m", 128.0), ("m2", 100.0)))  # fmt: skip
+    seq = tmp_path / "seq"
+    shutil.copytree(world["seq"], seq)
+    before = snapshot(tmp_path)
+    text = argv.format(seq=seq, tmp=tmp_path, m=m, m2=m2)
+    code, _, err = run_console_script("uss-eval", text.split(), monkeypatch, capsys)
+    assert code in (1, 2), err
+    assert err.strip().splitlines()[-1] == line.format(seq=seq)
+    assert snapshot(tmp_path) == before
 
 
 def test_eval_of_frames_with_only_ignore_labels_warns(

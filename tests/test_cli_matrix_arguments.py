@@ -156,6 +156,18 @@ def test_every_path_argument_refuses_the_empty_string() -> None:
     assert path_argument("a b") == Path("a b")
 
 
+def test_names_refuse_an_empty_name() -> None:
+    """``--dynamic person,,chair`` (a name left out between the commas) is refused, as ``,``
+    is; spaces around a name are not a name."""
+    from uss_slam.core.arguments import Names
+
+    names = Names(("person", "chair"))
+    assert names(" person , chair ") == ["person", "chair"]
+    for text in ("person,,chair", "person,", ",", ""):
+        with pytest.raises(argparse.ArgumentTypeError, match="expected comma-separated names"):
+            names(text)
+
+
 def test_arg_refuses_each_bound_and_takes_the_bounds() -> None:
     arg = Arg(int, __import__("uss_slam.core.ranges", fromlist=["Range"]).Range(min=1, max=3))
     assert [arg("1"), arg("3")] == [1, 3]

@@ -76,7 +76,7 @@ def evaluate(
         raise UssSlamError(
             "give either --sequence folders or data-config overrides (the val set), not both"
         )
-    output_folder(out, "--out")
+    output_folder(out, "--out", inputs=[("--sequence", s) for s in sequences])
     check_output_owner(out, PROG, "--out")  # a uss-slam run, a uss-demo output, ...
     source = sequence_frames(sequences, stride) if sequences else config_val_frames(overrides)
     if source.count == 0:

@@ -27,7 +27,7 @@ from uss_slam.core.images import read_colour
 from uss_slam.core.onnx_contract import OUTPUT_LABELS, OUTPUT_LOGITS
 from uss_slam.core.paths import distinct_folders
 from uss_slam.core.seg_metrics import confusion_matrix
-from uss_slam.core.tum_io import read_tum_folder
+from uss_slam.core.tum_io import label_file_name, read_tum_folder
 from uss_slam.core.validators import (
     NEEDS_SOURCE,
     AgreementCounter,
@@ -202,7 +202,7 @@ def attach_labels(
     the number attached."""
     by_name: dict[str, list[Frame]] = {}
     for f in frames:
-        by_name.setdefault(f.name, []).append(f)
+        by_name.setdefault(label_file_name(f.name), []).append(f)
     found: list[tuple[Frame, Path]] = []
     for folder in folders:
         if not folder.is_dir():
@@ -219,7 +219,8 @@ def attach_labels(
                 found.append((matches[0], path))
         if not any(p.name in by_name for p in files):
             raise UssSlamError(
-                f"--labels {folder}: no label PNG named as a compared colour frame (e.g. {frames[0].name})"
+                f"--labels {folder}: no label PNG named as a compared colour frame (e.g. "
+                f"{label_file_name(frames[0].name)})"
             )
     if wanted is not None and wanted > len(found):
         raise UssSlamError(

@@ -38,6 +38,12 @@ MAX_BATCH = 256
 """Largest ``--batch``: frames per inference, held in memory at once (as ``slam.prefetch``)."""
 
 
+SOURCE_FRAMES = 32
+"""Source images used with ``--source`` when ``--source-frames`` is not given."""
+SLAM_REPEATS = 3
+"""SLAM runs per row with ``--slam`` when ``--repeats`` is not given."""
+
+
 def default_validators() -> tuple[list[str], dict[str, Any]]:
     """The ``validators`` config group's default: ``(names, params)``."""
     cfg = yaml.safe_load(VALIDATORS_CONFIG.read_text())
@@ -52,7 +58,7 @@ def plan_compare(
     labels: Sequence[Path] = (),
     label_frames: int | None = None,
     source: Path | None = None,
-    source_frames: int = 32,
+    source_frames: int | None = None,
     validators: Sequence[str] | None = None,
     dynamic: Sequence[str] = DYNAMIC_CLASSES,
     batch: int = 4,
@@ -61,12 +67,14 @@ def plan_compare(
     """Every input checked (models, frames' headers, labels read and checked, source images),
     no inference yet: a bad input is one line naming the file or option."""
     for key, value in (("--batch", batch), ("--source-frames", source_frames)):
-        if value < 1:
+        if value is not None and value < 1:
             raise UssSlamError(f"{key}: expected an integer >= 1, got {value}")
     if label_frames is not None and label_frames < 1:
         raise UssSlamError(f"--label-frames: expected an integer >= 1, got {label_frames}")
     if label_frames is not None and not labels:
         raise UssSlamError("--label-frames needs --labels FOLDER (label PNGs named as the frames)")
+    if source_frames is not None and source is None:
+        raise UssSlamError("--source-frames needs --source DIR (the source-domain images)")
     unknown = [c for c in dynamic if c not in CLASS_NAMES]
     if unknown or not dynamic:
         raise UssSlamError(
@@ -86,7 +94,7 @@ def plan_compare(
     frames, seq_names = check_sequences(sequences, stride)
     if labels:
         attach_labels(frames, labels, label_frames, len(CLASS_NAMES))
-    src = source_images(source, source_frames) if source is not None else []
+    src = source_images(source, source_frames or SOURCE_FRAMES) if source is not None else []
     return ComparePlan(checked, frames, seq_names, tuple(dynamic), names, params, src, batch)
 
 
@@ -132,8 +140,8 @@ def compare(
     return compare_report.summary(result, stats, lines, last)
 
 
-def check_out(out: Path) -> None:
-    output_folder(out, "--out")
+def check_out(out: Path, inputs: Sequence[tuple[str, Path]] = ()) -> None:
+    output_folder(out, "--out", inputs=inputs)
     check_writable(out, "--out", create=False)
     check_output_owner(out, PROG, "--out")
 
@@ -181,8 +189,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--source-frames",
         type=number(int, min=1),
-        default=32,
-        help="source images used (default: 32)",
+        default=None,
+        help=f"source images used, with --source (default: {SOURCE_FRAMES})",
     )
     parser.add_argument("--validators", default=None,
                         help="comma-separated validators (default: configs/validators/default.yaml)")  # fmt: skip
@@ -194,7 +202,10 @@ def build_parser() -> argparse.ArgumentParser:
                         help="also run the SLAM harness on each sequence: no filter and each "
                              "model's semantic filter, --repeats runs per row")  # fmt: skip
     parser.add_argument(
-        "--repeats", type=number(int, min=1), default=3, help="SLAM runs per row (default: 3)"
+        "--repeats",
+        type=number(int, min=1),
+        default=None,
+        help=f"SLAM runs per row, with --slam (default: {SLAM_REPEATS})",
     )
     parser.add_argument("--static", action="append", default=[], metavar="NAME",
                         help="a compared sequence (folder name) in which nothing moves: the "
@@ -217,7 +228,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     out = args.out or Path("outputs") / "compare" / "_vs_".join(m.stem for m in args.models)
     with exit_on_user_error(COMMAND):
         check_paths(args)
-        check_out(out)
+        check_out(out, [*(("--sequence", s) for s in args.sequence),
+                        *(("--labels", f) for f in args.labels),
+                        *([("--source", args.source)] if args.source else [])])  # fmt: skip
         plan = plan_compare(
             args.models, args.sequence, stride=args.stride, labels=args.labels,
             label_frames=args.label_frames, source=args.source, source_frames=args.source_frames,
@@ -229,6 +242,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise UssSlamError(
                 "--static needs --slam (it names where a filter's SLAM cost is measured)"
             )
-        slam = check_slam(plan, args.sequence, args.static, args.repeats) if args.slam else None
+        if args.repeats is not None and not args.slam:
+            raise UssSlamError("--repeats needs --slam (it counts the SLAM runs per row)")
+        repeats = args.repeats or SLAM_REPEATS
+        slam = check_slam(plan, args.sequence, args.static, repeats) if args.slam else None
         compare(plan, out, quiet=args.quiet, slam=slam)
     return 0

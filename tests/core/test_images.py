@@ -71,6 +71,25 @@ def test_a_png_with_a_changed_byte_is_refused_by_its_crc(
     assert capfd.readouterr().err == ""
 
 
+def test_image_data_that_is_no_zlib_stream_is_refused_before_libpng_speaks(
+    tmp_path: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
+    """IDAT bytes rewritten with a matching CRC (the chunks are whole): libpng would print
+    ``libpng error: IDAT: incorrect header check`` beside the error line."""
+    import zlib
+
+    data = bytearray(_encoded("png"))
+    at = data.index(b"IDAT")
+    length = int.from_bytes(data[at - 4 : at], "big")
+    body = bytes((b * 7 + 3) % 256 for b in data[at + 4 : at + 4 + length])
+    data[at + 4 : at + 8 + length] = body + zlib.crc32(b"IDAT" + body).to_bytes(4, "big")
+    path = tmp_path / "depth.png"
+    path.write_bytes(bytes(data))
+    with pytest.raises(DataFormatError, match=r"corrupt PNG: its image data \(IDAT chunk at "):
+        read_depth(path)
+    assert capfd.readouterr().err == ""
+
+
 @pytest.mark.parametrize(
     ("data", "says"),
     [(b"", "empty file"), (b"not an image at all", "not a readable image"),

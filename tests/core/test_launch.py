@@ -71,6 +71,30 @@ def test_a_missing_package_imported_where_it_is_used_is_one_line(tmp_path: Path)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["gt.txt"]
 
 
+SMALL_ADDRESS_SPACE = (
+    "import resource, sys; resource.setrlimit(resource.RLIMIT_AS, (400 << 20, 400 << 20)); "
+    "from uss_slam.core.launch import launch; sys.argv = sys.argv[1:]; "
+    "sys.exit(launch(sys.argv[0]))"
+)
+
+
+def test_an_address_space_too_small_to_load_the_libraries_is_one_line(tmp_path: Path) -> None:
+    """``ulimit -v`` 400 MB: OpenCV's import would crash the process (SIGSEGV); the one line
+    comes first, and nothing is written."""
+    done = subprocess.run(
+        [sys.executable, "-c", SMALL_ADDRESS_SPACE, "uss-eval", "m.onnx", "--sequence", "s",
+         "--out", str(tmp_path / "e")],
+        capture_output=True, text=True, timeout=300, cwd=tmp_path,
+    )  # fmt: skip
+    err = done.stderr.strip().splitlines()
+    assert done.returncode == 1 and len(err) == 1, done.stderr
+    assert err[0] == (
+        "uss-eval: error: out of memory: ulimit -v allows 400 MB of address space; loading the "
+        "script's libraries (numpy, OpenCV) takes about 512 MB; raise the limit"
+    )
+    assert list(tmp_path.iterdir()) == []
+
+
 def _opencv_no_memory() -> BaseException:
     """The ``cv2.error`` OpenCV raises when an allocation fails (``ulimit -v``)."""
     import cv2

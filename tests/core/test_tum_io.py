@@ -254,3 +254,18 @@ def test_tum_folder_errors_name_the_path(tmp_path: Path) -> None:
     (root / "rgb.txt").write_text("# nothing\n")
     with pytest.raises(DataFormatError, match=r"rgb\.txt: the sequence lists no images"):
         read_tum_folder(root, depth=False)
+
+
+def test_the_label_of_a_jpeg_frame_is_the_png_of_its_stem(tmp_path: Path) -> None:
+    """Labels are PNGs named as their colour frames: ``labels/x.png`` for ``rgb/x.jpg`` too."""
+    from uss_slam.core.tum_io import label_file_name, read_tum_folder
+
+    assert label_file_name("rgb/1.5.jpg") == label_file_name("1.5.png") == "1.5.png"
+    (tmp_path / "rgb").mkdir()
+    (tmp_path / "labels").mkdir()
+    (tmp_path / "rgb" / "1.000000.jpg").write_bytes(b"a frame")
+    (tmp_path / "labels" / "1.000000.png").write_bytes(b"its label")
+    (tmp_path / "rgb.txt").write_text("# rgb\n1.000000 rgb/1.000000.jpg\n")
+    folder = read_tum_folder(tmp_path, depth=False, labels=True)
+    assert folder.frames[0].labels == tmp_path / "labels" / "1.000000.png"
+    assert folder.missing(folder.frames[0]) is None

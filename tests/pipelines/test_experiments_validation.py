@@ -46,7 +46,7 @@ BAD = [
     ),
     (
         'slam.overrides=["slam.orb.n_features=abc"]',
-        "slam.overrides: slam.orb.n_features: expected an integer >= 1, got 'abc'",
+        "slam.overrides: slam.orb.n_features: expected an integer >= 1 and <= 100000, got 'abc'",
     ),
     (
         'slam.overrides=["slam.workers=0"]',

@@ -146,12 +146,21 @@ def test_small_data_set(tmp_path: Path) -> None:
     assert "person" in text and "%" in text
     assert synthetic_data.is_complete(out, SMALL) and (out / OUTPUT_MARKER).is_file()
     assert not synthetic_data.is_complete(out, DemoData(voc_images=6, **_but(SMALL, "voc_images")))
+    # complete only while its outputs exist: a frame deleted since, then a VOC image
+    frame = sorted((out / "slam" / "walking_xyz" / "rgb").iterdir())[1]
+    kept = frame.read_bytes()
+    frame.unlink()
+    assert not synthetic_data.is_complete(out, SMALL)
+    frame.write_bytes(kept)
+    assert synthetic_data.is_complete(out, SMALL)
     # two worker processes produce the same files
     again = tmp_path / "again"
     synthetic_data.render_demo_data(again, SMALL, workers=2, progress=False)
     files = sorted(p.relative_to(out) for p in out.rglob("*") if p.is_file())
     assert files == sorted(p.relative_to(again) for p in again.rglob("*") if p.is_file())
     assert all((out / f).read_bytes() == (again / f).read_bytes() for f in files)
+    sorted((out / "voc").rglob("JPEGImages/*.jpg"))[0].unlink()
+    assert not synthetic_data.is_complete(out, SMALL)
 
 
 def _but(spec: DemoData, name: str) -> dict:

@@ -71,7 +71,7 @@ def earlier(tmp_path_factory: pytest.TempPathFactory, synthetic_sequence) -> tup
 
 
 BAD_CONFIGS = [
-    (["slam.orb.n_features=abc"], "slam.orb.n_features: expected an integer >= 1, got 'abc'"),
+    (["slam.orb.n_features=abc"], "slam.orb.n_features: expected an integer >= 1 and <= 100000, got 'abc'"),
     (["slam.tracker.ratio=1.5"], "slam.tracker.ratio: expected a number > 0 and <= 1, got 1.5"),
     (["slam.map.voxel=0"], "slam.map.voxel: expected a number > 0, got 0"),
     (["eval.align=se4"], "eval.align: expected one of 'se3', 'sim3', 'none', got 'se4'"),
