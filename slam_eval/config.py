@@ -101,11 +101,13 @@ class SlamConfig:
     """Background threads (PNG decoding releases the GIL); at most 4 per CPU."""
     parallel: bool = True
     """Segment and extract ORB in those threads too (overlaps tracking)."""
-    prefetch_mode: str = ranged("thread", choices=PREFETCH_MODES)
+    prefetch_mode: str = ranged("auto", choices=PREFETCH_MODES)
     """thread: read and extract ORB in this process's prefetch threads; process: in a worker
     process (its own ``workers`` threads), so that the Python work there does not take turns
     with tracking and the back end under one GIL (:mod:`.frontend.process`; the same
-    trajectories). Used with ``parallel`` and ``prefetch`` > 0."""
+    trajectories); auto: process where the run has a second core to itself, thread inside a
+    process pool's worker (``uss-experiments``' parallel jobs) or on one CPU
+    (:func:`.frontend.process.resolve_mode`). Used with ``parallel`` and ``prefetch`` > 0."""
     local_ba: bool = True
     """Local bundle adjustment and keyframe culling after each new keyframe (ORB-SLAM2's local
     mapping, on GTSAM); false = the tracker alone, trajectories as without a back end."""

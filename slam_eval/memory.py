@@ -42,6 +42,8 @@ import cv2
 
 from uss_slam.core.resources import check_memory, estimate_line, gigabytes
 
+from .frontend.process import resolve_mode
+
 FRAME_BYTES_PER_PIXEL = 12
 """A frame read ahead: RGB (3) + grey (1) + depth float32 (4) + labels (1) bytes per pixel, its
 features and the decoder's buffers (measured: ``slam.prefetch=256`` over the default on 200
@@ -148,9 +150,11 @@ def estimate(cfg: Any, frames: int, size: tuple[int, int]) -> SlamMemory:
         labels = frames * pixels if bool(slam.reuse_labels) and model else 0
         parts["repeats"] = Part(repeats * frames * RESULT_BYTES_PER_FRAME + labels,
                                 f"slam.repeats={repeats}", "slam.repeats")  # fmt: skip
-    if str(slam.prefetch_mode) == "process" and bool(slam.parallel) and prefetch > 0:
-        parts["the frame worker process"] = Part(PROCESS_BYTES, "slam.prefetch_mode=process",
-                                                 "slam.prefetch_mode=thread")  # fmt: skip
+    mode = resolve_mode(str(slam.prefetch_mode))
+    if mode == "process" and bool(slam.parallel) and prefetch > 0:
+        parts["the frame worker process"] = Part(
+            PROCESS_BYTES, f"slam.prefetch_mode={slam.prefetch_mode}", "slam.prefetch_mode=thread"
+        )
     return SlamMemory(parts)
 
 

@@ -55,8 +55,8 @@ from ..sequence import Frame, TumSequence
 from .blas import one_blas_thread
 from .orb import Features, OrbConfig, OrbExtractor
 
-PREFETCH_MODES = ("thread", "process")
-"""Values of ``slam.prefetch_mode``."""
+PREFETCH_MODES = ("auto", "thread", "process")
+"""Values of ``slam.prefetch_mode`` (``auto``: :func:`resolve_mode`)."""
 
 POLL_S = 0.2
 """How often a blocked side looks whether the other one has gone, seconds."""
@@ -269,6 +269,26 @@ def _starting() -> Iterator[None]:
             signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
         if swap:
             multiprocessing.set_start_method(method, force=True)
+
+
+def resolve_mode(mode: str) -> str:
+    """``thread`` or ``process`` for a ``slam.prefetch_mode`` of ``mode``.
+
+    ``auto`` is the worker process where the run has a second core to itself, and the threads
+    where it is one of several parallel jobs: ``process`` when at least two CPUs are usable and
+    this process is not a child of a process pool (joblib's workers, which ``uss-experiments``
+    runs its jobs in through Hydra's joblib launcher, or a ``multiprocessing`` pool), else
+    ``thread``. On two idle cores the worker process is the faster; when other jobs take the
+    cores it costs more CPU per frame than the threads (its copies and queues: BENCHMARKS.md,
+    "SLAM harness speed"). Either way the trajectory is the same."""
+    if mode != "auto":
+        return mode
+    try:
+        usable = len(os.sched_getaffinity(0))
+    except AttributeError:  # no affinity API (macOS, Windows)
+        usable = os.cpu_count() or 1
+    alone = multiprocessing.parent_process() is None
+    return "process" if usable >= 2 and alone else "thread"
 
 
 def start(

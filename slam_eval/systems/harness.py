@@ -118,14 +118,16 @@ class SlamPipeline:
         sampling_seed: int | None = None,
     ) -> None:
         """``sampling_seed``: perturbs the tracker's RANSAC sampling (a repeated run,
-        :mod:`.repeats`); None = the deterministic run. ``prefetch_mode``: ``"thread"`` or
+        :mod:`.repeats`); None = the deterministic run. ``prefetch_mode``: ``"thread"``,
         ``"process"`` (reading and ORB extraction in a worker process, :mod:`..frontend.process`;
-        with ``parallel`` and ``prefetch`` > 0 only)."""
+        with ``parallel`` and ``prefetch`` > 0 only) or ``"auto"`` (the process where the run
+        has a core to spare: :func:`..frontend.process.resolve_mode`)."""
         if prefetch_mode not in frontend_process.PREFETCH_MODES:
             raise UssSlamError(
                 f"prefetch_mode={prefetch_mode!r}: choose "
-                + " or ".join(frontend_process.PREFETCH_MODES)
-            )
+                + ", ".join(frontend_process.PREFETCH_MODES[:-1])
+                + " or " + frontend_process.PREFETCH_MODES[-1]
+            )  # fmt: skip
         if segment not in SEGMENT_SCHEDULES:
             raise UssSlamError(
                 f"segment={segment!r}: choose every_frame (segment every frame, concurrently "
@@ -155,7 +157,8 @@ class SlamPipeline:
         self.prefetch = prefetch
         self.workers = workers
         self.parallel = parallel and prefetch > 0
-        self.prefetch_mode = prefetch_mode
+        self.prefetch_mode = frontend_process.resolve_mode(prefetch_mode)
+        """``thread`` or ``process`` (``auto`` resolved)."""
         self.segment = segment
         self.progress = progress
         self.description = description or sequence.path.name

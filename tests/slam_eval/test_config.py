@@ -42,7 +42,7 @@ def test_the_shipped_config_passes() -> None:
         (["sequence.max_frames=0"], "sequence.max_frames: expected an integer >= 2 or null, got 0"),
         (["slam.prefetch=-1"], "slam.prefetch: expected an integer >= 0 and <= 256, got -1"),
         (["slam.prefetch_mode=fork"],
-         "slam.prefetch_mode: expected one of 'thread', 'process', got 'fork'"),
+         "slam.prefetch_mode: expected one of 'auto', 'thread', 'process', got 'fork'"),
         (["slam.filter_params.object.classes=person"],
          "slam.filter_params.object.classes: expected a list of strings or null, got 'person'"),
         (["slam.filter_params.flow.window=2.5"],

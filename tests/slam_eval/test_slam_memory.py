@@ -20,7 +20,8 @@ def _cfg(overrides: list[str]):
         return compose("slam_eval", overrides=["sequence.path=x", *overrides])
 
 
-def test_parts_follow_their_settings(tmp_path: Path) -> None:
+def test_parts_follow_their_settings(tmp_path: Path, monkeypatch) -> None:
+    monkeypatch.setattr("os.sched_getaffinity", lambda pid: {0}, raising=False)  # auto: threads
     model = tmp_path / "m.onnx"
     model.write_bytes(b"\0" * 1000)
     base = estimate(_cfg([]), 300, (640, 480))
@@ -38,6 +39,10 @@ def test_parts_follow_their_settings(tmp_path: Path) -> None:
     assert onnx.parts["the segmenter"].keys == "segmenter.threads=4, slam.workers=2"
     process = estimate(_cfg(["slam.prefetch_mode=process"]), 300, (640, 480))
     assert process.need > base.need
+    monkeypatch.setattr("os.sched_getaffinity", lambda pid: {0, 1}, raising=False)
+    auto = estimate(_cfg([]), 300, (640, 480))  # a second core: auto is the worker process
+    assert auto.parts["the frame worker process"].keys == "slam.prefetch_mode=auto"
+    assert auto.need == process.need
 
 
 def test_image_size_reads_the_png_header(synthetic_sequence) -> None:
@@ -54,7 +59,7 @@ def test_a_run_that_cannot_fit_is_one_line_before_any_work(
                         lambda: (1_000_000, "its cgroup's memory limit"))  # fmt: skip
     out = tmp_path / "o"
     argv = ["uss-slam", f"sequence.path={seq}", f"out_dir={out}", "progress=false",
-            "slam.prefetch=200"]  # fmt: skip
+            "slam.prefetch_mode=thread", "slam.prefetch=200"]  # fmt: skip
     monkeypatch.setattr(sys, "argv", argv)
     with pytest.raises(SystemExit) as stop:
         main()

@@ -225,8 +225,33 @@ def test_no_process_possible_is_one_warning_and_the_threads_run(
 
 
 def test_an_unknown_mode_is_refused(synthetic_sequence) -> None:
-    with pytest.raises(UssSlamError, match="prefetch_mode='fork': choose thread or process"):
+    with pytest.raises(UssSlamError, match="prefetch_mode='fork': choose auto, thread or process"):
         _pipeline(synthetic_sequence(frames=12), "fork")
+
+
+@pytest.mark.parametrize(
+    ("cpus", "pool_child", "expected"),
+    [({0, 1}, False, "process"), ({0}, False, "thread"), ({0, 1, 2, 3}, True, "thread")],
+)
+def test_auto_is_the_process_where_the_run_has_a_second_core(
+    monkeypatch, cpus, pool_child, expected
+) -> None:
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: cpus, raising=False)
+    parent = object() if pool_child else None
+    monkeypatch.setattr(multiprocessing, "parent_process", lambda: parent)
+    assert frontend_process.resolve_mode("auto") == expected
+    assert frontend_process.resolve_mode("thread") == "thread"
+    assert frontend_process.resolve_mode("process") == "process"
+
+
+def test_auto_runs_are_the_threads_run(synthetic_sequence, monkeypatch, started) -> None:
+    path = synthetic_sequence(frames=12)
+    threads = _pipeline(path, "thread").run()
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1}, raising=False)
+    auto = _pipeline(path, "auto")
+    assert auto.prefetch_mode == "process"
+    _assert_same_run(threads, auto.run())
+    assert len(started) == 1  # the worker process ran
 
 
 def _job_in_a_pool_worker(path: str) -> tuple[bool, np.ndarray]:
@@ -256,6 +281,11 @@ def test_process_mode_inside_joblib_jobs(synthetic_sequence) -> None:
     for usable, positions in done:
         assert usable
         np.testing.assert_array_equal(positions, expected)
+    # One of several parallel jobs: auto leaves the cores to the other jobs (threads).
+    modes = joblib.Parallel(n_jobs=2, backend="loky")(
+        joblib.delayed(frontend_process.resolve_mode)("auto") for _ in range(2)
+    )
+    assert modes == ["thread", "thread"]
 
 
 def _descendants(pid: int) -> dict[int, int]:
