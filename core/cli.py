@@ -391,6 +391,10 @@ def exit_on_user_error(prog: str, kinds: tuple[type[BaseException], ...] = ()) -
             # ended reports itself broken before the interrupt reaches the body): the stop is
             # what to report.
             sys.exit(report_interrupt(prog, error))
+        missing = _missing_package(prog, error)
+        if missing is not None:  # a required package, first imported here (maybe by Hydra)
+            print(missing, file=sys.stderr)
+            sys.exit(1)
         cause = user_error(error, kinds) or no_space_error(error)
         if cause is None:
             raise
@@ -401,6 +405,24 @@ def exit_on_user_error(prog: str, kinds: tuple[type[BaseException], ...] = ()) -
             sys.exit(exit_code(cause))
         report.failures.append(FailedJob(job[0], job[1], line))
         raise JobFailed(line) from None
+
+
+def _missing_package(prog: str, error: BaseException) -> str | None:
+    """The launcher's line for a required package that is not installed, found anywhere in
+    ``error``'s chain (Hydra's ``instantiate`` wraps the import's error in its own), else
+    None."""
+    from uss_slam.core.launch import missing_package_line
+
+    seen: set[int] = set()
+    current: BaseException | None = error
+    while current is not None and id(current) not in seen:
+        seen.add(id(current))
+        if isinstance(current, ModuleNotFoundError):
+            line = missing_package_line(prog, current)
+            if line is not None:
+                return line
+        current = current.__cause__ or current.__context__
+    return None
 
 
 def hydra_task(prog: str, task: Callable[[Any], T], cfg: Any) -> T | None:

@@ -183,7 +183,13 @@ CV2_NO_MEMORY = -4
 
 def _entry(prog: str) -> Callable[[], None]:
     def run() -> None:
-        sys.exit(launch(prog))
+        code = launch(prog)
+        # The script is done and has said so: a Ctrl-C or SIGTERM during the interpreter's
+        # shutdown (joining threads, a library's teardown) stops nothing any more, and would
+        # only kill the process by the signal after its outputs were written.
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        sys.exit(code)
 
     run.__name__ = run.__qualname__ = prog.replace("-", "_")
     run.__doc__ = f"``{prog}``: :func:`launch`."

@@ -60,7 +60,7 @@ last layers nothing to convolve."""
 
 def train_transform(
     crop_size: Annotated[int | Sequence[int] | None, Range(min=MIN_CROP)] = 321,
-    scale_range: Sequence[float] | None = (0.5, 1.5),
+    scale_range: Annotated[Sequence[float] | None, Range(gt=0, length=2)] = (0.5, 1.5),
     hflip: bool = True,
     resize: Sequence[int] | None = None,
     mean: Sequence[float] = IMAGENET_MEAN,

@@ -21,11 +21,11 @@ import hydra
 import torch
 from omegaconf import DictConfig, OmegaConf
 
-from uss_slam.core.cli import hydra_task, run_hydra_app
+from uss_slam.core.cli import hydra_task, run_hydra_app, warning
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.onnx_contract import HEADS
 from uss_slam.core.paths import input_file, input_folder, naming, output_file, output_folder
-from uss_slam.core.schema import MAX_THREADS, check, ranged
+from uss_slam.core.schema import MAX_THREADS, check, ranged, unused_settings
 from uss_slam.export.checkpoint import run_name
 from uss_slam.export.onnx import check_options, export_checkpoint
 from uss_slam.export.outputs import ExportResult
@@ -66,7 +66,7 @@ class ExportSchema:
     min_label_agreement: Optional[float] = ranged(None, gt=0, max=1)
     num_threads: Optional[int] = ranged(None, min=1, max=MAX_THREADS)
     int8: bool = False
-    calibration: CalibrationSchema = field(default_factory=CalibrationSchema)
+    calibration: CalibrationSchema = ranged(default_factory=CalibrationSchema, needs="int8")
 
 
 def _value(cfg: DictConfig, key: str) -> Any:
@@ -97,6 +97,8 @@ class ExportOptions:
     def from_config(cls, cfg: DictConfig) -> ExportOptions:
         plain = {k: v for k, v in cfg.items() if k != "hydra"}
         check(OmegaConf.create(plain), ExportSchema)
+        for line in unused_settings(OmegaConf.create(plain), ExportSchema):
+            warning(line)  # calibration.* without int8=true: accepted, changes nothing
         ckpt = _value(cfg, "ckpt_path")
         if ckpt is None or ckpt == "":
             raise UssSlamError("ckpt_path=PATH is required (a uss-train .ckpt)")

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
-from typing import Literal
+from typing import Literal, get_args
 
 import torch
 import torchvision
@@ -33,7 +33,10 @@ from uss_slam.core.errors import UssSlamError
 
 log = logging.getLogger(__name__)
 
-BACKBONES: tuple[str, ...] = ("resnet101", "resnet50", "resnet_small")
+BackboneName = Literal["resnet101", "resnet50", "resnet_small"]
+"""The backbones a network's ``backbone`` key takes (the schema's choices: ``model.net.backbone``
+names them in its line)."""
+BACKBONES: tuple[str, ...] = get_args(BackboneName)
 
 _TORCHVISION_WEIGHTS = {"resnet101": "ResNet101_Weights", "resnet50": "ResNet50_Weights"}
 

@@ -13,6 +13,7 @@ from torch import Tensor, nn
 from uss_slam.core.errors import UssSlamError
 from uss_slam.models.backbone import (
     BATCHNORM_MODES,
+    BackboneName,
     BatchNormMode,
     FreezeBatchNorm,
     batchnorm_from_freeze_bn,
@@ -191,7 +192,7 @@ class DeepLabV2(TwoHeadSegmenter):
     def __init__(
         self,
         num_classes: int = 4,
-        backbone: str = "resnet101",
+        backbone: BackboneName = "resnet101",
         *,
         aspp_rates: Sequence[int] = (6, 12, 18, 24),
         batchnorm: BatchNormMode = "auto",

@@ -18,7 +18,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from uss_slam.core.errors import UssSlamError
-from uss_slam.models.backbone import BatchNormMode, FreezeBatchNorm
+from uss_slam.models.backbone import BackboneName, BatchNormMode, FreezeBatchNorm
 from uss_slam.models.deeplab import TwoHeadSegmenter
 
 
@@ -133,7 +133,7 @@ class PSPNet(TwoHeadSegmenter):
     def __init__(
         self,
         num_classes: int = 4,
-        backbone: str = "resnet101",
+        backbone: BackboneName = "resnet101",
         *,
         bins: Sequence[int] = (1, 2, 3, 6),
         dropout: float = 0.1,

@@ -227,6 +227,63 @@ def test_a_setting_whose_switch_is_off_warns_naming_both_keys(
     assert warnings == [
         "uss-slam: warning: slam.map.octomap_resolution is set but changes nothing while "
         "slam.map.octomap is false",
-        "uss-slam: warning: slam.local_ba_params is set but changes nothing while "
+        "uss-slam: warning: slam.local_ba_params.covisibility is set but changes nothing while "
         "slam.local_ba is false",
+    ]
+
+
+def test_an_export_calibration_without_int8_warns_naming_its_keys(
+    tmp_path: Path, monkeypatch, capsys
+) -> None:
+    """``uss-export calibration.frames=4 calibration.root=DIR`` without ``int8=true``: the
+    export goes on; one warning names both keys and the switch."""
+    from omegaconf import OmegaConf
+
+    from uss_slam.core.cli import program
+    from uss_slam.export.cli import ExportOptions, ExportSchema
+
+    cfg = OmegaConf.merge(
+        OmegaConf.structured(ExportSchema),
+        {"ckpt_path": str(tmp_path / "m.ckpt"), "out_dir": str(tmp_path),
+         "calibration": {"root": str(tmp_path), "frames": 4}},
+    )  # fmt: skip
+    (tmp_path / "m.ckpt").write_bytes(b"not read here")
+    with program("uss-export"):
+        ExportOptions.from_config(cfg)
+    assert capsys.readouterr().err.strip().splitlines() == [
+        "uss-export: warning: calibration.root, calibration.frames are set but change nothing "
+        "while int8 is false"
+    ]
+
+
+def test_experiments_adabn_methods_without_adabn_warn(capsys) -> None:
+    """``grid.adabn_methods`` is declared ``needs="adabn"``: set while ``grid.adabn=false``,
+    one warning naming both keys (the plan is made as without it)."""
+    from uss_slam.core.cli import program
+    from uss_slam.pipelines.experiments.experiment import check
+    from uss_slam.pipelines.runs import compose_config
+
+    cfg = compose_config("experiments", ["grid.adabn=false",
+                                         "grid.adabn_methods=[source_only,adaptsegnet]"])  # fmt: skip
+    with program("uss-experiments"):
+        check(cfg)
+    warnings = [ln for ln in capsys.readouterr().err.splitlines() if ": warning: " in ln]
+    assert warnings == [
+        "uss-experiments: warning: grid.adabn_methods is set but changes nothing while "
+        "grid.adabn is false"
+    ]
+
+
+def test_experiments_orbslam3_settings_without_orbslam3_warn(capsys) -> None:
+    from uss_slam.core.cli import program
+    from uss_slam.pipelines.experiments.experiment import check
+    from uss_slam.pipelines.runs import compose_config
+
+    cfg = compose_config("experiments", ["slam.orbslam3.repeats=5"])
+    with program("uss-experiments"):
+        check(cfg)
+    warnings = [ln for ln in capsys.readouterr().err.splitlines() if ": warning: " in ln]
+    assert warnings == [
+        "uss-experiments: warning: slam.orbslam3.repeats is set but changes nothing while "
+        "systems does not list orbslam3"
     ]

@@ -276,11 +276,23 @@ def unused_settings(values: Any, schema: type, key: str = "") -> list[str]:
         value = plain.get(f.name, MISSING)
         needs = f.metadata.get(NEEDS)
         if needs and plain.get(needs) is False and value is not MISSING and _changed(f, value):
-            lines.append(f"{where} is set but changes nothing while {_join(key, needs)} is false")
+            keys = [_join(where, k) for k in _changed_keys(f, value)] or [where]
+            verb = "is set but changes" if len(keys) == 1 else "are set but change"
+            lines.append(f"{', '.join(keys)} {verb} nothing while {_join(key, needs)} is false")
         inner, _ = _optional(_hints(schema)[f.name])
         if dataclasses.is_dataclass(inner) and isinstance(value, Mapping):
             lines += unused_settings(value, inner, where)  # type: ignore[arg-type]
     return lines
+
+
+def _changed_keys(f: dataclasses.Field, value: Any) -> list[str]:
+    """The keys of a section ``value`` that differ from the section's defaults ([] for a value
+    that is no section)."""
+    default = f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
+    if not (dataclasses.is_dataclass(default) and isinstance(value, Mapping)):
+        return []
+    defaults = _plain(dataclasses.asdict(default))  # type: ignore[arg-type]
+    return [k for k, v in value.items() if v != defaults.get(k)]
 
 
 def _changed(f: dataclasses.Field, value: Any) -> bool:

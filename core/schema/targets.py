@@ -8,6 +8,7 @@ library's class whose annotations we cannot change, :func:`declare`."""
 from __future__ import annotations
 
 import dataclasses
+import importlib
 import inspect
 import types
 import typing
@@ -114,8 +115,28 @@ def _signature(target: str | Callable[..., Any]) -> tuple[Any, inspect.Signature
     constructor's, without ``self``)."""
     from hydra.utils import get_object
 
+    if isinstance(target, str):
+        _import_module_of(target)
     obj = get_object(target) if isinstance(target, str) else target
     return obj, inspect.signature(obj)
+
+
+def _import_module_of(target: str) -> None:
+    """Import the module ``target`` lives in, so that a package it needs that is not installed
+    raises its own ``ModuleNotFoundError`` (the launcher's one line) rather than Hydra's logged
+    "Error getting object" lines; a prefix that is no module is left to Hydra's lookup."""
+    parts = target.split(".")
+    for end in range(len(parts) - 1, 0, -1):
+        name = ".".join(parts[:end])
+        try:
+            importlib.import_module(name)
+        except ModuleNotFoundError as error:
+            if error.name is not None and (name == error.name or name.startswith(f"{error.name}.")):
+                continue  # no such module: the target's module is a shorter prefix
+            raise
+        except Exception:
+            return  # Hydra's lookup reports it
+        return
 
 
 def takes_any_keyword(target: str | Callable[..., Any]) -> bool:

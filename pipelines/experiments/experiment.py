@@ -13,10 +13,12 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
+from uss_slam.core.cli import warning
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.paths import input_file, input_folder
 from uss_slam.core.ranges import MAX_THREADS, THREADS_PER_CPU, machine_threads
 from uss_slam.core.schema import check as check_schema
+from uss_slam.core.schema import unused_settings
 
 from .grid import (
     PRESET_METHOD_OVERRIDES,
@@ -109,6 +111,20 @@ def training_seeds(seed: int) -> set[int]:
     from uss_slam.pipelines.synthetic_data import sequence_seeds
 
     return {seed, *sequence_seeds(seed).values()}
+
+
+def warn_orbslam3_unused(orb: Mapping[str, Any]) -> None:
+    """``slam.orbslam3.*`` set while ``systems`` does not list orbslam3: one warning naming the
+    keys (accepted; nothing runs ORB-SLAM3)."""
+    from dataclasses import asdict
+
+    from .schema import OrbSlam3
+
+    defaults = asdict(OrbSlam3())
+    keys = [f"slam.orbslam3.{k}" for k, v in orb.items() if v != defaults.get(k)]
+    if keys:
+        verb = "is set but changes" if len(keys) == 1 else "are set but change"
+        warning(f"{', '.join(keys)} {verb} nothing while systems does not list orbslam3")
 
 
 def check_orbslam3(orb: Mapping[str, Any]) -> None:
@@ -348,6 +364,8 @@ def check(cfg: DictConfig) -> Experiment:
             missing += [f"launcher.{section}.{k}" for k in node if OmegaConf.is_missing(node, k)]
     # every key's type, range and accepted values, and no key that nothing reads
     check_schema({k: v for k, v in cfg.items() if k != "hydra"}, ExperimentsSchema)
+    for line in unused_settings({k: v for k, v in cfg.items() if k != "hydra"}, ExperimentsSchema):
+        warning(line)  # declared needs= in the schema: accepted, changes nothing
     check_variant_filters()  # configs/variants.yaml names filter nodes only
     plain: dict[str, Any] = OmegaConf.to_container(cfg, resolve=True)  # type: ignore[assignment]
     stages = [str(s) for s in plain["stages"]]
@@ -368,6 +386,8 @@ def check(cfg: DictConfig) -> Experiment:
     check_parallelism(plain, missing)
     if "orbslam3" in grid.systems:
         check_orbslam3(plain["slam"].get("orbslam3") or {})
+    else:
+        warn_orbslam3_unused(plain["slam"].get("orbslam3") or {})
     if synthetic:
         syn = plain["data"]["synthetic"]
         for key in ("voc_size", "train_size", "eval_size"):

@@ -134,7 +134,7 @@ class Grid:
     method_overrides: Optional[dict[str, Any]] = None
     adabn: bool = True
     adabn_methods: list[Method] = ranged(  # type: ignore[valid-type]
-        default_factory=lambda: ["source_only"], nonempty=True
+        default_factory=lambda: ["source_only"], nonempty=True, needs="adabn"
     )
     oracle: Optional[bool] = None
 

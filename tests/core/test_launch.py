@@ -3,6 +3,7 @@ missing and running out of memory are one line and exit code 1, in every script.
 
 from __future__ import annotations
 
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -149,3 +150,54 @@ def test_an_interrupt_during_the_imports_is_the_one_line(
     monkeypatch.setattr(launch.importlib, "import_module", interrupted)
     assert launch.launch("uss-export") == code
     assert capsys.readouterr().err.strip().splitlines() == [line]
+
+
+def test_a_missing_package_inside_a_hydra_app_is_the_same_one_line(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A ``_target_`` whose module imports a required package that is missing: the schema's
+    lookup lets the import's own error through (not Hydra's logged "Error getting object"), and
+    the Hydra apps' handler finds it in a wrapped error's chain."""
+    from uss_slam.core.cli import _missing_package
+    from uss_slam.core.schema.targets import _import_module_of
+
+    (tmp_path / "needs_cv2.py").write_text("import cv2\n\nclass Thing:\n    pass\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setitem(sys.modules, "cv2", None)
+    with pytest.raises(ModuleNotFoundError) as caught:
+        _import_module_of("needs_cv2.Thing")
+    assert caught.value.name == "cv2"
+    _import_module_of("no_such_package.module.Thing")  # left to Hydra's lookup: no error here
+    wrapped = RuntimeError("Error locating target 'needs_cv2.Thing'")
+    wrapped.__cause__ = caught.value
+    line = _missing_package("uss-train", wrapped)
+    assert line is not None and line.startswith(
+        "uss-train: error: the required package opencv-python-headless (import cv2) is not "
+    )
+    assert _missing_package("uss-train", RuntimeError("other")) is None
+
+
+LATE_CTRL_C = """
+import atexit, signal, sys, types
+from uss_slam.core import launch
+
+def main():
+    atexit.register(lambda: print(signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)))
+    return 0
+
+module = types.ModuleType("late_script")
+module.main = main
+sys.modules["late_script"] = module
+launch.SCRIPTS["uss-late"] = "late_script"
+launch._entry("uss-late")()
+"""
+
+
+def test_a_ctrl_c_after_the_script_is_done_changes_nothing() -> None:
+    """Once the script has finished and said so, Ctrl-C and SIGTERM are ignored during the
+    interpreter's shutdown (``uss-export int8=true``: a Ctrl-C while onnxruntime and torch tear
+    down killed the process by SIGINT, exit code -2, after its outputs were written)."""
+    done = subprocess.run([sys.executable, "-c", LATE_CTRL_C], capture_output=True, text=True,
+                          timeout=60)  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split() == [str(int(signal.SIG_IGN))] * 2
