@@ -19,6 +19,13 @@ ORB-extracted in this process's threads (``slam.prefetch_mode=thread``) and in a
 ratio of each pair beside the CPU milliseconds per frame of the main thread, of this process and
 of the worker process.
 
+``--prefetch-mode defaults`` compares the default before 2026-12-07 (``before``: the threads,
+with NumPy's and SciPy's OpenBLAS threads as loaded) with today's default (``auto``: the worker
+process where the run has a second core to itself, the threads inside a process pool's worker;
+one OpenBLAS thread); ``--jobs 2`` runs two such benchmarks at once in joblib's worker processes,
+as ``uss-experiments`` runs its SLAM jobs (``auto`` is then the threads), each printing its own
+same-run ratios: the speed under the load of two parallel jobs.
+
 ``--orbslam3 VOCAB`` also runs the real ORB-SLAM3 on the same frames in the same command
 (``uss-slam system=orbslam3 system.repeats=--repeats system.realtime=false``: as fast as it
 tracks, unfiltered, after the harness's repeats)
@@ -29,6 +36,7 @@ loop-closing threads beside) and the harness's ratio to it.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import statistics
@@ -44,6 +52,7 @@ from uss_slam.slam_eval.frontend.orb import OrbConfig, OrbExtractor
 from uss_slam.slam_eval.scoring.metrics import ate
 from uss_slam.slam_eval.segmenters.base import LabelsSegmenter
 from uss_slam.slam_eval.sequence import TumSequence
+from uss_slam.slam_eval.systems import harness
 from uss_slam.slam_eval.systems.harness import SlamPipeline
 from uss_slam.testing.harness_runs import sequence_path
 
@@ -66,16 +75,51 @@ def main() -> None:
                              "runs the tracker alone without it)")  # fmt: skip
     parser.add_argument("--loop-closing", action="store_true",
                         help="loop closing on (uss-slam's default, as --local-ba)")  # fmt: skip
-    parser.add_argument("--prefetch-mode", choices=("thread", "process", "both"), default="both",
-                        help="slam.prefetch_mode; both: the two in turns in every repeat")  # fmt: skip
+    parser.add_argument("--prefetch-mode", choices=(*MODES, *PAIRS), default="both",
+                        help="slam.prefetch_mode; both: thread and process in turns in every "
+                             "repeat; defaults: before and auto in turns (module docstring)")  # fmt: skip
+    parser.add_argument("--jobs", type=int, default=1,
+                        help="run this many benchmarks at once in joblib's worker processes "
+                             "(as uss-experiments runs SLAM jobs); 1 = in this process")  # fmt: skip
     parser.add_argument(
         "--orbslam3", type=Path, metavar="VOCAB", help="also time ORB-SLAM3 with this vocabulary"
     )
     args = parser.parse_args()
     if args.orbslam3 is not None and not args.orbslam3.is_file():
         raise SystemExit(f"--orbslam3: {args.orbslam3} is not a file (uss-vocab build makes one)")
+    if args.jobs < 1:
+        raise SystemExit(f"--jobs: expected an integer >= 1, got {args.jobs}")
     size = tuple(int(v) for v in args.size.lower().split("x"))
     path = sequence_path(args.data, args.preset, args.frames, size, 0)
+    if args.jobs > 1:
+        from joblib import Parallel, delayed
+
+        print(f"{args.jobs} jobs at once in joblib's worker processes (auto resolves to "
+              f"{frontend_process.resolve_mode('auto')} in this process); load average "
+              f"{os.getloadavg()[0]:.2f}", flush=True)  # fmt: skip
+        logs = Parallel(n_jobs=args.jobs, backend="loky")(
+            delayed(job)(args, path, k) for k in range(args.jobs)
+        )
+        for k, log in enumerate(logs):
+            print(f"----- job {k}\n{log}", end="")
+        print(f"load average after: {os.getloadavg()[0]:.2f}")
+        return
+    benchmark(args, path)
+
+
+def job(args: argparse.Namespace, path: Path, k: int) -> str:
+    """One of ``--jobs`` benchmarks, in a joblib worker: its printed lines."""
+    import io
+
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        benchmark(args, path)
+    return out.getvalue()
+
+
+def benchmark(args: argparse.Namespace, path: Path) -> None:
+    """Every repeat of the compared modes in turns, their medians and ratios (and ORB-SLAM3's)."""
+    size = tuple(int(v) for v in args.size.lower().split("x"))
     seq = TumSequence(path, load_labels=True)
     frames = [seq.load(i) for i in range(len(seq))]
     extractor = OrbExtractor(OrbConfig(), seq.camera)
@@ -83,7 +127,9 @@ def main() -> None:
           f"{args.local_ba}, loop closing {args.loop_closing}, {os.cpu_count()} CPUs "
           f"({cpu_model()}), load average {os.getloadavg()[0]:.2f}")  # fmt: skip
 
-    modes = ["thread", "process"] if args.prefetch_mode == "both" else [args.prefetch_mode]
+    modes = PAIRS.get(args.prefetch_mode, [args.prefetch_mode])
+    print(f"modes {modes}; auto resolves to {frontend_process.resolve_mode('auto')} here",
+          flush=True)  # fmt: skip
     runs: dict[str, list[dict]] = {mode: [] for mode in modes}
     orb_alone = []
     for repeat in range(args.repeats):
@@ -123,8 +169,9 @@ def main() -> None:
             print(f"[{mode}] median {text}: "
                   f"{statistics.median(r[key] for r in done):.1f} {unit}")  # fmt: skip
     if len(modes) == 2:
-        pairs = [p["fps"] / t["fps"] for t, p in zip(runs["thread"], runs["process"], strict=True)]
-        print(f"process / thread frames/s, per repeat: {', '.join(f'{v:.2f}' for v in pairs)}; "
+        a, b = modes
+        pairs = [q["fps"] / p["fps"] for p, q in zip(runs[a], runs[b], strict=True)]
+        print(f"{b} / {a} frames/s, per repeat: {', '.join(f'{v:.2f}' for v in pairs)}; "
               f"median {statistics.median(pairs):.2f}")  # fmt: skip
     if args.orbslam3 is not None:
         orb3 = orbslam3_fps(path, args.orbslam3, args.repeats)
@@ -134,6 +181,12 @@ def main() -> None:
               + ", ".join(f"{m} {fps_of[m] / median3:.2f}" for m in modes))  # fmt: skip
     print(f"load average after: {os.getloadavg()[0]:.2f}")
 
+
+MODES = ("thread", "process", "auto", "before")
+"""What ``--prefetch-mode`` runs: a ``slam.prefetch_mode``, or ``before`` (the default up to
+2026-12-07: the threads, with the OpenBLAS threads as loaded)."""
+PAIRS = {"both": ["thread", "process"], "defaults": ["before", "auto"]}
+"""Two modes in turns in every repeat."""
 
 WORKER_MODULES = {"read", "segmentation", "orb"}
 """Modules of the prefetch threads (and of the worker process): the rest is the main thread's."""
@@ -150,7 +203,7 @@ def timed_run(seq: TumSequence, args: argparse.Namespace, mode: str) -> dict:
         progress=False,
         local_ba=args.local_ba,
         loop_closing=args.loop_closing,
-        prefetch_mode=mode,
+        prefetch_mode="thread" if mode == "before" else mode,
     )
     workers: list[frontend_process.FrontendProcess | None] = []
     start = frontend_process.start
@@ -160,11 +213,15 @@ def timed_run(seq: TumSequence, args: argparse.Namespace, mode: str) -> dict:
         return workers[-1]
 
     frontend_process.start = recording
+    blas = harness.one_blas_thread
+    if mode == "before":  # the threads with OpenBLAS's own threads (no worker process to reach)
+        harness.one_blas_thread = contextlib.nullcontext
     own = time.process_time()
     try:
         result = pipeline.run()
     finally:
         frontend_process.start = start
+        harness.one_blas_thread = blas
     own = time.process_time() - own
     child = sum(w.worker_cpu for w in workers if w is not None)
     n = max(result.frames, 1)
