@@ -52,7 +52,8 @@ def png_problem(data: bytes) -> str | None:
             return f"corrupt PNG: the CRC of its {name} chunk at byte {pos} does not match"
         if kind == b"IEND":
             return None
-        if kind == b"IDAT" and first_idat and length >= 2 and not _zlib_header(data[pos + 8 :]):
+        head = data[pos + 8 : pos + 10]  # two bytes: slicing to the end would copy the file
+        if kind == b"IDAT" and first_idat and length >= 2 and not _zlib_header(head):
             return f"corrupt PNG: its image data (IDAT chunk at byte {pos}) is no zlib stream"
         first_idat = first_idat and kind != b"IDAT"
         pos = end
