@@ -16,9 +16,10 @@ The worker computes exactly what the threads compute (the same code on the same 
 features, and the run's trajectory, are bit-identical in both modes.
 
 Starting: the worker is a child of Python's fork server (started once per process with this
-module and the main script imported, so that each run's worker starts in milliseconds), or a
-spawned interpreter where there is no fork server; never a plain fork of this process, which
-runs threads.
+module imported, so that each run's worker starts in milliseconds), or a spawned interpreter
+where there is no fork server; never a plain fork of this process, which runs threads. The
+worker does not import the main script (:func:`_without_main`): its target and arguments are
+this package's, so a script needs no ``if __name__ == "__main__":`` guard for it.
 
 Ending: the main process stops and joins the worker when the run ends, fails or is interrupted
 (Ctrl-C, SIGTERM: the pipeline's ``finally``); the worker ignores Ctrl-C (the terminal sends it
@@ -42,7 +43,7 @@ import threading
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
-from multiprocessing import shared_memory
+from multiprocessing import shared_memory, spawn
 from multiprocessing.connection import wait
 from typing import Any
 
@@ -235,14 +236,40 @@ class FrontendProcess:
 
 def _context() -> Any:
     """Where the worker comes from: Python's fork server (started once per process, with this
-    module and the main script imported: a worker then starts in milliseconds instead of the
-    second a fresh interpreter takes to import them), else a spawned interpreter. Never a plain
-    fork of this process, which runs threads."""
+    module imported: a worker then starts in milliseconds instead of the second a fresh
+    interpreter takes to import it), else a spawned interpreter. Never a plain fork of this
+    process, which runs threads."""
     if "forkserver" in multiprocessing.get_all_start_methods():
         context = multiprocessing.get_context("forkserver")
-        context.set_forkserver_preload(["__main__", __name__])
+        context.set_forkserver_preload([__name__])
         return context
     return multiprocessing.get_context("spawn")
+
+
+@contextlib.contextmanager
+def _without_main() -> Iterator[None]:
+    """Start a child that does not import the main script.
+
+    multiprocessing has every child run the parent's main script again (as ``__mp_main__``)
+    so that it can unpickle what the script defined, and Python 3.11's fork server never
+    preloads it (it looks for a ``main_path`` its preparation data does not have): each worker
+    re-ran ``uss-slam``'s imports (Hydra, GTSAM, the whole harness), 0.2 CPU s and 0.3-0.8 s
+    before its first frame, per run, and a script without a ``__main__`` guard ran again in
+    it. The worker's target and arguments are this package's: the main script is left out of
+    the preparation data while it starts."""
+    real = spawn.get_preparation_data
+
+    def prepared(name: str) -> dict[str, Any]:
+        data = real(name)
+        data.pop("init_main_from_path", None)
+        data.pop("init_main_from_name", None)
+        return data
+
+    spawn.get_preparation_data = prepared
+    try:
+        yield
+    finally:
+        spawn.get_preparation_data = real
 
 
 @contextlib.contextmanager
@@ -263,7 +290,8 @@ def _starting() -> Iterator[None]:
     if mask:
         signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
     try:
-        yield
+        with _without_main():
+            yield
     finally:
         if mask:
             signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})

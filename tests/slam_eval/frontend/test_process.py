@@ -201,6 +201,29 @@ def test_the_worker_ends_with_a_killed_parent(synthetic_sequence, tmp_path: Path
             parent.kill()
 
 
+def test_a_script_without_a_main_guard_runs_once(synthetic_sequence, tmp_path: Path) -> None:
+    """The worker never imports the main script (a script without the ``__main__`` guard
+    would run again in it), and starts without its imports."""
+    path = synthetic_sequence(frames=12)
+    script = textwrap.dedent(f"""
+        import sys
+        from uss_slam.slam_eval.segmenters.base import LabelsSegmenter
+        from uss_slam.slam_eval.sequence import TumSequence
+        from uss_slam.slam_eval.systems.harness import SlamPipeline
+        print("script ran", flush=True)
+        seq = TumSequence({str(path)!r}, load_labels=True)
+        result = SlamPipeline(seq, LabelsSegmenter(), [], progress=False,
+                              prefetch_mode="process").run()
+        print("tracked", result.tracked, flush=True)
+    """)
+    (tmp_path / "unguarded.py").write_text(script)
+    done = subprocess.run([sys.executable, str(tmp_path / "unguarded.py")],
+                          capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.splitlines() == ["script ran", "tracked 12"]
+    assert "warning" not in done.stderr
+
+
 def test_no_process_possible_is_one_warning_and_the_threads_run(
     synthetic_sequence, monkeypatch: pytest.MonkeyPatch, capsys
 ) -> None:
