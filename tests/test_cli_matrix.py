@@ -329,7 +329,7 @@ CASES = [
          "argument --offset", "expected a number, got 'nan'"),
     case("traj-delta-finer-than-sampling", "uss-traj",
          "rpe {gt} {gt} --unit seconds --delta 0.0001", 1,
-         "{gt}: no pose pairs 0.0001 seconds apart"),
+         "--delta=0.0001 (seconds): {gt}: no pose pairs 0.0001 seconds apart"),
     case("traj-ctrl-c-while-plotting", "uss-traj", "ate {gt} {gt} --plot {tmp}/ate.png", 130,
          "uss-traj: interrupted",
          interrupt=("uss_slam.slam_eval.scoring.traj_cli:plot_ate", 0)),

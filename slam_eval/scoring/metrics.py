@@ -55,6 +55,10 @@ class AssociationError(UssSlamError, ValueError):
     """Two trajectories share too few poses (by timestamp) to be compared."""
 
 
+class NoPairsError(AssociationError):
+    """No pose pairs ``delta`` apart (RPE): the delta, not the files, is what to change."""
+
+
 class AlignmentError(UssSlamError, ValueError):
     """The associated positions do not determine a rigid alignment (collinear or identical)."""
 
@@ -468,7 +472,7 @@ def rpe(
         tol = SECONDS_DELTA_REL_TOL * delta
         i, j, skipped = _pairs_by_seconds(est_stamps, float(delta), tol)
     if len(i) == 0:
-        raise AssociationError(
+        raise NoPairsError(
             f"{_name(est, 'estimated')}: no pose pairs {delta:g} {unit} apart among the "
             f"{len(gi)} poses associated with {_name(gt, 'ground-truth')} "
             f"(max_diff {max_diff:g} s, offset {offset:g} s); use a delta shorter than the "

@@ -25,6 +25,7 @@ from .metrics import (
     DELTA_UNITS,
     AteResult,
     ErrorStats,
+    NoPairsError,
     RpeResult,
     ate,
     ate_bands,
@@ -211,9 +212,13 @@ def main(argv: Sequence[str] | None = None) -> int:
                 plot_ate(args.plot, result)
         else:
             delta = int(args.delta) if args.unit == "frames" else args.delta
-            result = rpe(
-                gt, est, delta=delta, unit=args.unit, max_diff=args.max_diff, offset=args.offset
-            )
+            try:
+                result = rpe(
+                    gt, est, delta=delta, unit=args.unit, max_diff=args.max_diff,
+                    offset=args.offset,
+                )  # fmt: skip
+            except NoPairsError as error:  # the flag to change, then what was found
+                raise UssSlamError(f"--delta={args.delta:g} ({args.unit}): {error}") from None
             out = (
                 json.dumps(result.as_dict())
                 if args.json
