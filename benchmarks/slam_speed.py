@@ -20,9 +20,9 @@ ratio of each pair beside the CPU milliseconds per frame of the main thread, of 
 of the worker process.
 
 ``--prefetch-mode defaults`` compares the default before 2026-12-07 (``before``: the threads,
-with NumPy's and SciPy's OpenBLAS threads as loaded) with today's default (``auto``: the worker
+with OpenBLAS's and OpenCV's thread pools as loaded) with today's default (``auto``: the worker
 process where the run has a second core to itself, the threads inside a process pool's worker;
-one OpenBLAS thread); ``--jobs 2`` runs two such benchmarks at once in joblib's worker processes,
+one thread in those pools); ``--jobs 2`` runs two such benchmarks at once in joblib's worker processes,
 as ``uss-experiments`` runs its SLAM jobs (``auto`` is then the threads), each printing its own
 same-run ratios: the speed under the load of two parallel jobs.
 
@@ -184,7 +184,7 @@ def benchmark(args: argparse.Namespace, path: Path) -> None:
 
 MODES = ("thread", "process", "auto", "before")
 """What ``--prefetch-mode`` runs: a ``slam.prefetch_mode``, or ``before`` (the default up to
-2026-12-07: the threads, with the OpenBLAS threads as loaded)."""
+2026-12-07: the threads, with OpenBLAS's and OpenCV's thread pools as loaded)."""
 PAIRS = {"both": ["thread", "process"], "defaults": ["before", "auto"]}
 """Two modes in turns in every repeat."""
 
@@ -213,15 +213,15 @@ def timed_run(seq: TumSequence, args: argparse.Namespace, mode: str) -> dict:
         return workers[-1]
 
     frontend_process.start = recording
-    blas = harness.one_blas_thread
-    if mode == "before":  # the threads with OpenBLAS's own threads (no worker process to reach)
-        harness.one_blas_thread = contextlib.nullcontext
+    pools = harness.one_thread_pools
+    if mode == "before":  # the threads with the libraries' own pools (no worker process here)
+        harness.one_thread_pools = contextlib.nullcontext
     own = time.process_time()
     try:
         result = pipeline.run()
     finally:
         frontend_process.start = start
-        harness.one_blas_thread = blas
+        harness.one_thread_pools = pools
     own = time.process_time() - own
     child = sum(w.worker_cpu for w in workers if w is not None)
     n = max(result.frames, 1)

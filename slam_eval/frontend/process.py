@@ -53,7 +53,7 @@ from uss_slam.core.errors import DataFormatError, UssSlamError
 from uss_slam.core.processes import die_with_parent
 
 from ..sequence import Frame, TumSequence
-from .blas import one_blas_thread
+from .pools import one_thread_pools
 from .orb import Features, OrbConfig, OrbExtractor
 
 PREFETCH_MODES = ("auto", "thread", "process")
@@ -361,7 +361,7 @@ def _serve(
         signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})  # blocked by _starting
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     _end_with_parent()
-    one_blas_thread().__enter__()  # for the worker's life, never restored (see .blas)
+    one_thread_pools().__enter__()  # for the worker's life, never restored (see .pools)
     shm = _attach(shm_name)
     index = 0
     try:

@@ -71,7 +71,7 @@ from uss_slam.core.tum_io import Trajectory
 from ..filters.base import DynamicFilter
 from ..filters.chain import FilterChain
 from ..frontend import process as frontend_process
-from ..frontend.blas import one_blas_thread
+from ..frontend.pools import one_thread_pools
 from ..frontend.orb import OrbConfig, OrbExtractor
 from ..geometry import invert
 from ..map.slam_map import SlamMap
@@ -207,9 +207,10 @@ class SlamPipeline:
 
     def run(self) -> RunResult:
         """Every frame of the sequence through the frame loop (:mod:`.frame_loop`), then the
-        trajectory, the map products and the run's figures; with one BLAS thread (OpenBLAS's
-        threads would spin on the cores the run's own threads use: :mod:`..frontend.blas`)."""
-        with one_blas_thread():
+        trajectory, the map products and the run's figures; with one thread in OpenBLAS's and
+        OpenCV's pools (theirs would spin on the cores the run's own threads use:
+        :mod:`..frontend.pools`)."""
+        with one_thread_pools():
             return self._run()
 
     def _run(self) -> RunResult:

@@ -1,13 +1,15 @@
-"""One BLAS thread during a SLAM run (:mod:`uss_slam.slam_eval.frontend.blas`)."""
+"""One thread in OpenBLAS's and OpenCV's pools during a SLAM run
+(:mod:`uss_slam.slam_eval.frontend.pools`)."""
 
 from __future__ import annotations
 
 import sys
 
+import cv2
 import numpy as np
 import pytest
 
-from uss_slam.slam_eval.frontend.blas import loaded_openblas, one_blas_thread
+from uss_slam.slam_eval.frontend.pools import loaded_openblas, one_thread_pools
 
 needs_openblas = pytest.mark.skipif(
     not sys.platform.startswith("linux") or not loaded_openblas(),
@@ -19,17 +21,20 @@ needs_openblas = pytest.mark.skipif(
 def test_one_thread_inside_and_the_counts_restored_after() -> None:
     libraries = loaded_openblas()
     before = [get() for _, get in libraries]
-    with one_blas_thread():
+    opencv = cv2.getNumThreads()
+    with one_thread_pools():
         assert [get() for _, get in libraries] == [1] * len(libraries)
+        assert cv2.getNumThreads() == 1
         a = np.arange(600 * 961, dtype=np.float32).reshape(600, 961) % 7
         assert (a @ np.ones((961, 2), np.float32)).shape == (600, 2)  # BLAS still works
     assert [get() for _, get in libraries] == before
+    assert cv2.getNumThreads() == opencv
 
 
 @needs_openblas
 def test_restored_after_an_error() -> None:
     before = [get() for _, get in loaded_openblas()]
-    with pytest.raises(RuntimeError), one_blas_thread():
+    with pytest.raises(RuntimeError), one_thread_pools():
         raise RuntimeError("in the run")
     assert [get() for _, get in loaded_openblas()] == before
 

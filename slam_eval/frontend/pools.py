@@ -1,17 +1,19 @@
-"""One BLAS thread for the length of a SLAM run (:func:`one_blas_thread`).
+"""One thread in the libraries' own pools for the length of a SLAM run (:func:`one_thread_pools`).
 
-NumPy's and SciPy's OpenBLAS start one thread per core and hand them every product above a small
-size: in the harness that is the ORB orientation's ``(M, 961) @ (961, 2)`` product of each
-pyramid level, a few hundred microseconds of work split over threads that then spin waiting for
-the next job. On the two cores the harness shares between its main thread and its frame reading
-(threads or the worker process of ``slam.prefetch_mode=process``), that spinning is CPU taken
-from the other threads: 2.5–3 CPU ms per frame of ~40 in all, measured with
-``benchmarks/slam_speed.py`` (BENCHMARKS.md, "SLAM harness speed"). The results do not change:
-the orientation's sums are integers below 2^24, exact in any order, and the other products are
-too small to be split.
+NumPy's and SciPy's OpenBLAS and OpenCV start one thread per core and hand them every product
+(OpenBLAS) or image operation (OpenCV: resizes, colour conversions, blurs, dilations) above a
+small size; after each job those threads spin waiting for the next one. In the harness the jobs
+are small (the ORB orientation's ``(M, 961) @ (961, 2)`` product of each pyramid level, a
+640x480 dilation) and the run's own threads already keep the two cores busy (the main thread,
+and the frame reading in threads or in the worker process of ``slam.prefetch_mode=process``),
+so the spinning is CPU taken from them: OpenBLAS's 2.5–3 CPU ms per frame of ~40 in all
+(``benchmarks/slam_speed.py``, BENCHMARKS.md "SLAM harness speed"), OpenCV's ~0.6 ms per frame
+in each process (``perf``: its pool thread in ``sched_yield``). The results do not change: the
+orientation's sums are integers below 2^24, exact in any order, OpenBLAS splits a product's rows
+and columns (never its sums) over threads, and OpenCV's parallel loops split image rows.
 
 Only OpenBLAS libraries already loaded in the process are touched (found in ``/proc/self/maps``
-and opened with ``RTLD_NOLOAD``); elsewhere (no ``/proc``, another BLAS) this does nothing.
+and opened with ``RTLD_NOLOAD``); elsewhere (no ``/proc``, another BLAS) only OpenCV's pool is.
 """
 
 from __future__ import annotations
@@ -20,6 +22,8 @@ import contextlib
 import ctypes
 import os
 from collections.abc import Callable, Iterator
+
+import cv2
 
 _NAMES = (
     ("openblas_set_num_threads", "openblas_get_num_threads"),
@@ -58,15 +62,18 @@ def loaded_openblas(maps: str = "/proc/self/maps") -> list[tuple[Callable, Calla
 
 
 @contextlib.contextmanager
-def one_blas_thread() -> Iterator[None]:
-    """Every loaded OpenBLAS limited to one thread inside the block; the counts they had are
-    restored after it."""
+def one_thread_pools() -> Iterator[None]:
+    """Every loaded OpenBLAS and OpenCV limited to one thread inside the block; the counts they
+    had are restored after it."""
     libraries = loaded_openblas()
     before = [(setter, getter()) for setter, getter in libraries]
+    opencv = cv2.getNumThreads()
     for setter, _ in before:
         setter(1)
+    cv2.setNumThreads(1)
     try:
         yield
     finally:
+        cv2.setNumThreads(opencv)
         for setter, count in before:
             setter(count)
