@@ -53,8 +53,8 @@ from uss_slam.core.errors import DataFormatError, UssSlamError
 from uss_slam.core.processes import die_with_parent
 
 from ..sequence import Frame, TumSequence
-from .pools import one_thread_pools
 from .orb import Features, OrbConfig, OrbExtractor
+from .pools import one_thread_pools
 
 PREFETCH_MODES = ("auto", "thread", "process")
 """Values of ``slam.prefetch_mode`` (``auto``: :func:`resolve_mode`)."""

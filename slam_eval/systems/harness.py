@@ -71,8 +71,8 @@ from uss_slam.core.tum_io import Trajectory
 from ..filters.base import DynamicFilter
 from ..filters.chain import FilterChain
 from ..frontend import process as frontend_process
-from ..frontend.pools import one_thread_pools
 from ..frontend.orb import OrbConfig, OrbExtractor
+from ..frontend.pools import one_thread_pools
 from ..geometry import invert
 from ..map.slam_map import SlamMap
 from ..mapping.local_mapping import LocalMapping, LocalMappingConfig, depth_noise_of
