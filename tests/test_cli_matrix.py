@@ -494,7 +494,9 @@ CASES = [
          setup=(write("m", bad_segmenter(**THREE_CLASSES), ".onnx"), earlier_slam_run)),
     case("slam-ctrl-c-mid-run", "uss-slam", SLAM, 130, "uss-slam: interrupted",
          setup=(earlier_slam_run,),
-         interrupt=("uss_slam.slam_eval.sequence:TumSequence.load", 3)),
+         # A main-process step of every frame: with the frame worker process (auto on two
+         # cores) frames are loaded in the worker, where no hook of this process reaches.
+         interrupt=("uss_slam.slam_eval.systems.frame_loop:FrameLoop.step", 3)),
     case("slam-ctrl-c-in-the-second-run-of-a-comparison", "uss-slam",
          f"{SLAM} segmenter=labels compare=[[semantic],[geometry]]", 130,
          "uss-slam: interrupted", setup=(earlier_slam_run,),
