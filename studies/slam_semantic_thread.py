@@ -80,21 +80,19 @@ def run_cell(
         if vocab is None
         else ["system=orbslam3", f"system.vocabulary={vocab}", f"system.repeats={repeats}"]
     )
+    # ORB-SLAM3 blanks the semantic filter's pixels when filters=[] names none: unfiltered is
+    # segmenter=none there
+    unfiltered = vocab is not None and "filters=[]" in overrides
+    segmenter = "segmenter=none" if unfiltered else "segmenter=labels"
     cmd = [
-        USS_SLAM, f"sequence.path={seq}", "segmenter=labels", *system,
+        USS_SLAM, f"sequence.path={seq}", segmenter, *system,
         f"out_dir={folder}", f"hydra.run.dir={folder}", "progress=false", *overrides,
     ]  # fmt: skip
     start = time.time()
     subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     m = json.loads((folder / "metrics.json").read_text())
     spread = m.get("ate_rmse_repeats") or {"median": m["ate"]["rmse"], "min": None, "max": None}
-    thread = m.get("semantic_thread")
-    seg = m.get("segmentation") or {  # ORB-SLAM3's: masks delivered in its median repeat
-        "frames_segmented": m["frames"]
-        if thread is None
-        else thread["delivered"][m["median_repeat"]],
-        "semantic_thread": thread,
-    }
+    seg = m.get("segmentation") or _orbslam3_masks(m)
     return {
         "command": " ".join(cmd[1:]),
         "ate_median": spread["median"],
@@ -108,6 +106,19 @@ def run_cell(
         "wall_s": time.time() - start,
         "load": os.getloadavg()[0],
     }
+
+
+def _orbslam3_masks(m: dict) -> dict:
+    """An ORB-SLAM3 run's masks: none unfiltered, every frame's, or with the thread those
+    delivered in its median repeat."""
+    thread = m.get("semantic_thread")
+    if m.get("blanked") is None:
+        count = 0
+    elif thread is None:
+        count = m["frames"]
+    else:
+        count = thread["delivered"][m["median_repeat"]]
+    return {"frames_segmented": count, "semantic_thread": thread}
 
 
 def row(sequence: str, name: str, cell: dict, reference: dict) -> str:
