@@ -83,9 +83,8 @@ def write_outputs(
             "vocabulary_k_L": [header[0], header[1]],
             "pyorbslam3": _package_version("pyorbslam3"),
         },
+        **({} if thread is None else {"semantic_thread": thread}),
     }
-    if thread is not None:
-        data["semantic_thread"] = thread
     if settings is not None:
         data["settings"] = settings
     repeats = [
