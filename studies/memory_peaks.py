@@ -12,7 +12,7 @@ users run: each training runs as ``uss-train`` in its own process tree, sampled 
   at the fork, a few MB from this script, hundreds from a test process holding torch).
 
     nice python studies/memory_peaks.py --voc VOC2012 --seq SEQ --seq640 SEQ640 \\
-        --out /tmp/memory_peaks [--only ci,demo]
+        --out /tmp/memory_peaks [--tum TUM --onnx M --vocab V] [--only ci,demo]
 
 Writes ``OUT/results.json`` and prints one line per setting.
 """
@@ -43,6 +43,9 @@ SETTINGS: dict[str, str] = {
     "segmenter.path={onnx} segmenter.threads=4 filters=[semantic] slam.repeats=3",
     "slam-process": "uss-slam sequence.path={tum} progress=false slam.prefetch_mode=process "
     "'compare=[[flow],[geometry]]'",
+    # ORB-SLAM3 (its worker process, the vocabulary, its map), its 3 repeats one after another
+    "slam-orbslam3": "uss-slam sequence.path={tum} progress=false system=orbslam3 "
+    "system.vocabulary={vocab}",
     # the CI smoke run: small DeepLab, batch 2, 129 px crops
     "ci": "experiment=ci data.source.root={voc} data.target.roots=[{seq}] data.val.roots=[{seq}]",
     # uss-demo's adapted training (batch 4, 129 px, one worker, precise BN), 4 iterations
@@ -142,6 +145,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seq640", required=True, help="a labelled 640x480 sequence")
     parser.add_argument("--tum", default="", help="a real TUM sequence (uss-slam settings)")
     parser.add_argument("--onnx", default="", help="an exported segmenter (uss-export)")
+    parser.add_argument("--vocab", default="", help="an ORB vocabulary (uss-vocab build)")
     parser.add_argument("--out", type=Path, default=Path("outputs/memory_peaks"))
     parser.add_argument("--only", default="", help="comma-separated setting names")
     args = parser.parse_args(argv)
@@ -149,9 +153,8 @@ def main(argv: list[str] | None = None) -> int:
     names = args.only.split(",") if args.only else list(SETTINGS)
     rows = []
     for name in names:
-        text = SETTINGS[name].format(
-            voc=args.voc, seq=args.seq, seq640=args.seq640, tum=args.tum, onnx=args.onnx
-        )
+        paths = {"voc": args.voc, "seq": args.seq, "seq640": args.seq640, "tum": args.tum}
+        text = SETTINGS[name].format(**paths, onnx=args.onnx, vocab=args.vocab)
         row = measure(name, text, args.out.resolve())
         rows.append(row)
         print(f"{name:9} exit {row['exit']} {row['seconds']:6.1f} s  estimate "
