@@ -94,8 +94,7 @@ def main() -> None:
     if args.jobs > 1:
         from joblib import Parallel, delayed
 
-        print(f"{args.jobs} jobs at once in joblib's worker processes (auto resolves to "
-              f"{frontend_process.resolve_mode('auto')} in this process); load average "
+        print(f"{args.jobs} jobs at once in joblib's worker processes; load average "
               f"{os.getloadavg()[0]:.2f}", flush=True)  # fmt: skip
         logs = Parallel(n_jobs=args.jobs, backend="loky")(
             delayed(job)(args, path, k) for k in range(args.jobs)
@@ -128,8 +127,8 @@ def benchmark(args: argparse.Namespace, path: Path) -> None:
           f"({cpu_model()}), load average {os.getloadavg()[0]:.2f}")  # fmt: skip
 
     modes = PAIRS.get(args.prefetch_mode, [args.prefetch_mode])
-    print(f"modes {modes}; auto resolves to {frontend_process.resolve_mode('auto')} here",
-          flush=True)  # fmt: skip
+    print(f"modes {modes}; auto (decided as each run starts) would be "
+          f"{frontend_process.resolve_mode('auto')} now", flush=True)  # fmt: skip
     runs: dict[str, list[dict]] = {mode: [] for mode in modes}
     orb_alone = []
     for repeat in range(args.repeats):
@@ -239,13 +238,15 @@ def timed_run(seq: TumSequence, args: argparse.Namespace, mode: str) -> dict:
         "worker_process": worker_process,
         "bound": bound,
         "tracked": result.tracked_fraction,
+        "used": pipeline.mode_used,
         "ate": ate(seq.groundtruth, result.trajectory).stats.rmse,
     }
 
 
 def show(repeat: int, mode: str, run: dict, seq: TumSequence) -> None:
     print(
-        f"repeat {repeat} [{mode}]: {run['fps']:5.1f} frames/s, pipeline "
+        f"repeat {repeat} [{mode}{' -> ' + run['used'] if mode == 'auto' else ''}]: "
+        f"{run['fps']:5.1f} frames/s, pipeline "
         f"{run['timing']['total']:.1f} ms/frame; CPU ms/frame: main thread "
         f"{run['main_thread']:.1f}, main process {run['main_process']:.1f}, worker process "
         f"{run['worker_process']:.1f} -> CPU-bound rate on 2 idle cores {run['bound']:.1f} "

@@ -106,8 +106,9 @@ class SlamConfig:
     process (its own ``workers`` threads), so that the Python work there does not take turns
     with tracking and the back end under one GIL (:mod:`.frontend.process`; the same
     trajectories); auto: process where the run has a second core to itself, thread inside a
-    process pool's worker (``uss-experiments``' parallel jobs) or on one CPU
-    (:func:`.frontend.process.resolve_mode`). Used with ``parallel`` and ``prefetch`` > 0."""
+    process pool's worker (``uss-experiments``' parallel jobs), on one CPU or when other jobs
+    keep the cores busy as the run starts (:func:`.frontend.process.resolve_mode`). Used with
+    ``parallel`` and ``prefetch`` > 0."""
     local_ba: bool = True
     """Local bundle adjustment and keyframe culling after each new keyframe (ORB-SLAM2's local
     mapping, on GTSAM); false = the tracker alone, trajectories as without a back end."""

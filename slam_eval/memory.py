@@ -150,7 +150,7 @@ def estimate(cfg: Any, frames: int, size: tuple[int, int]) -> SlamMemory:
         labels = frames * pixels if bool(slam.reuse_labels) and model else 0
         parts["repeats"] = Part(repeats * frames * RESULT_BYTES_PER_FRAME + labels,
                                 f"slam.repeats={repeats}", "slam.repeats")  # fmt: skip
-    mode = resolve_mode(str(slam.prefetch_mode))
+    mode = resolve_mode(str(slam.prefetch_mode), sample=False)  # auto: the process may run
     if mode == "process" and bool(slam.parallel) and prefetch > 0:
         parts["the frame worker process"] = Part(
             PROCESS_BYTES, f"slam.prefetch_mode={slam.prefetch_mode}", "slam.prefetch_mode=thread"

@@ -157,8 +157,10 @@ class SlamPipeline:
         self.prefetch = prefetch
         self.workers = workers
         self.parallel = parallel and prefetch > 0
-        self.prefetch_mode = frontend_process.resolve_mode(prefetch_mode)
-        """``thread`` or ``process`` (``auto`` resolved)."""
+        self.prefetch_mode = prefetch_mode
+        """As given; ``auto`` is resolved as each run starts (:attr:`mode_used`)."""
+        self.mode_used: str | None = None
+        """``thread`` or ``process``: where the last run read and extracted its frames."""
         self.segment = segment
         self.progress = progress
         self.description = description or sequence.path.name
@@ -272,10 +274,11 @@ class SlamPipeline:
         """The prepared frames in order (threads, or a worker process with ``prefetch_mode=
         "process"``, or serially), and that worker (None without one)."""
         worker = None
-        if self.parallel and self.prefetch_mode == "process":
+        if self.parallel and frontend_process.resolve_mode(self.prefetch_mode) == "process":
             worker = frontend_process.start(
                 self.sequence, self.extractor.config, self.prefetch, self.workers
             )
+        self.mode_used = "thread" if worker is None else "process"
         if worker is not None:
             frames = ahead(self._label, iter(worker), self.prefetch, self.workers)
         elif self.parallel:

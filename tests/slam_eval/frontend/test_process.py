@@ -253,28 +253,58 @@ def test_an_unknown_mode_is_refused(synthetic_sequence) -> None:
 
 
 @pytest.mark.parametrize(
-    ("cpus", "pool_child", "expected"),
-    [({0, 1}, False, "process"), ({0}, False, "thread"), ({0, 1, 2, 3}, True, "thread")],
+    ("cpus", "pool_child", "free", "expected"),
+    [
+        ({0, 1}, False, 1.9, "process"),
+        ({0, 1}, False, None, "process"),  # no /proc/stat: the CPU count decides
+        ({0, 1}, False, 1.0, "thread"),  # another job takes a core
+        ({0, 1, 2, 3}, False, 2.5, "process"),
+        ({0}, False, 1.0, "thread"),
+        ({0, 1, 2, 3}, True, 4.0, "thread"),
+    ],
 )
 def test_auto_is_the_process_where_the_run_has_a_second_core(
-    monkeypatch, cpus, pool_child, expected
+    monkeypatch, cpus, pool_child, free, expected
 ) -> None:
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: cpus, raising=False)
     parent = object() if pool_child else None
     monkeypatch.setattr(multiprocessing, "parent_process", lambda: parent)
+    monkeypatch.setattr(frontend_process, "free_cores", lambda: free)
     assert frontend_process.resolve_mode("auto") == expected
     assert frontend_process.resolve_mode("thread") == "thread"
     assert frontend_process.resolve_mode("process") == "process"
+    if not pool_child and len(cpus) >= 2:  # the memory estimate counts the process it may start
+        assert frontend_process.resolve_mode("auto", sample=False) == "process"
+
+
+def test_free_cores_from_the_cpu_times(monkeypatch, tmp_path: Path) -> None:
+    cpu_times = frontend_process._cpu_times
+    times = iter([([100, 0, 50, 800, 50, 0, 0, 0], 2), ([150, 0, 100, 850, 50, 0, 0, 0], 2)])
+    monkeypatch.setattr(frontend_process, "_cpu_times", lambda stat: next(times))
+    assert frontend_process.free_cores(0.0) == pytest.approx(2 * 50 / 150)  # one core busy
+    monkeypatch.setattr(frontend_process, "_cpu_times", cpu_times)
+    stat = tmp_path / "stat"
+    stat.write_text(
+        "cpu  10 0 5 80 5 0 0 0 0 0\ncpu0 5 0 2 40 3 0 0 0 0 0\ncpu1 5 0 3 40 2 0 0 0 0 0\n"
+    )
+    assert frontend_process._cpu_times(str(stat)) == ([10, 0, 5, 80, 5, 0, 0, 0], 2)
+    assert frontend_process._cpu_times(str(tmp_path / "missing")) is None
+    if Path("/proc/stat").is_file():
+        real = frontend_process.free_cores(0.02)
+        assert real is None or 0.0 <= real <= (os.cpu_count() or 1) + 0.01
 
 
 def test_auto_runs_are_the_threads_run(synthetic_sequence, monkeypatch, started) -> None:
     path = synthetic_sequence(frames=12)
     threads = _pipeline(path, "thread").run()
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1}, raising=False)
+    monkeypatch.setattr(frontend_process, "free_cores", lambda: 2.0)
     auto = _pipeline(path, "auto")
-    assert auto.prefetch_mode == "process"
     _assert_same_run(threads, auto.run())
-    assert len(started) == 1  # the worker process ran
+    assert auto.mode_used == "process" and len(started) == 1  # the worker process ran
+    monkeypatch.setattr(frontend_process, "free_cores", lambda: 0.7)  # the cores are busy
+    _assert_same_run(threads, auto.run())
+    assert auto.mode_used == "thread" and len(started) == 1
 
 
 def _job_in_a_pool_worker(path: str) -> tuple[bool, np.ndarray]:
