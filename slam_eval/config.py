@@ -120,6 +120,12 @@ class SlamConfig:
     loop_closing_params: LoopClosingConfig = ranged(
         default_factory=LoopClosingConfig, needs="loop_closing"
     )
+    provisional_points: bool = False
+    """With ``segment=thread`` only: the map points of a keyframe made before its mask came are
+    held back (not tracked, not optimised) until a mask clears them, and while the newest
+    keyframe's are all still held, the next keyframe waits ``tracker.max_keyframe_interval``
+    frames (:class:`~.systems.frame_loop.FrameLoop`). An experiment, off by default
+    (docs/results/slam.md, "provisional map points, second attempt")."""
     repeats: int = ranged(1, min=1)
     """Runs per filter set: repeat 0 unperturbed, the others with a perturbed feature budget and
     RANSAC sampling; the outputs are the median run's, with the spread (:mod:`.scoring.repeats`)."""
@@ -337,6 +343,10 @@ def check(cfg: DictConfig, overrides: Sequence[str] = ()) -> RunPlan:
     build_filters(known, params)  # the parameters of unused filters are checked too
     _check_segmenter(cfg.segmenter)
     _check_latency(cfg.segmenter, str(cfg.segment))
+    if cfg.slam.provisional_points and str(cfg.segment) != "thread":
+        raise UssSlamError(
+            f"slam.provisional_points=true needs segment=thread (got segment={cfg.segment})"
+        )
     return RunPlan(orb, tracker, semantic_map, evaluation, params, runs, backend, repeats)
 
 

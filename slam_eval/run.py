@@ -119,7 +119,10 @@ def run(cfg: DictConfig) -> dict[str, Any]:
         check_slam_memory(cfg, _sequence(cfg, load_labels=False), log)
         with output_lock(out, "out_dir"):
             return run_from_config(
-                cfg, out, before_commit=lambda f: {"overrides": _write_hydra_files(f, cfg)}
+                cfg,
+                out,
+                before_commit=lambda f: {"overrides": _write_hydra_files(f, cfg)},
+                overrides=overrides,
             )
     plan = replace(plan, runs=checked_runs(cfg, plan.runs, plan.filter_params))
     model = cfg.segmenter.get("path")
@@ -156,6 +159,7 @@ def _run_harness(
             prefetch_mode=str(slam.prefetch_mode),
             **plan.backend,
             segment=str(cfg.segment),
+            provisional_points=bool(slam.provisional_points),
             progress=bool(cfg.progress),
             description=f"{sequence.path.name} [{run_name(names)}]"
             + (f" repeat {repeat.index}" if len(plan.repeats) > 1 else ""),

@@ -55,13 +55,17 @@ def zero_labelled(seq: Path, out: Path) -> Path:
     return dst
 
 
-def cells(latencies: list[float], baseline: bool) -> list[tuple[str, list[str]]]:
-    """``(cell name, uss-slam overrides)`` in the order they run."""
+def cells(
+    latencies: list[float], baseline: bool, thread_set: list[str] | None = None
+) -> list[tuple[str, list[str]]]:
+    """``(cell name, uss-slam overrides)`` in the order they run; ``thread_set``: overrides of
+    the thread cells only (``--thread-set``)."""
     out = [("per-frame", ["segment=every_frame", "filters=[semantic]"])]
     out += [
         (
             f"thread {lat:g} s",
-            ["segment=thread", f"segmenter.latency_s={lat}", "filters=[semantic]"],
+            ["segment=thread", f"segmenter.latency_s={lat}", "filters=[semantic]"]
+            + list(thread_set or []),
         )
         for lat in latencies
     ]
@@ -80,8 +84,8 @@ def run_cell(
         if vocab is None
         else ["system=orbslam3", f"system.vocabulary={vocab}", f"system.repeats={repeats}"]
     )
-    # ORB-SLAM3 blanks the semantic filter's pixels when filters=[] names none: unfiltered is
-    # segmenter=none there
+    # ORB-SLAM3 refuses filters=[] with a segmenter (it would still blank the semantic
+    # filter's pixels): unfiltered is segmenter=none there
     unfiltered = vocab is not None and "filters=[]" in overrides
     segmenter = "segmenter=none" if unfiltered else "segmenter=labels"
     cmd = [
@@ -146,6 +150,10 @@ def main() -> None:
     parser.add_argument(
         "--orbslam3", type=Path, metavar="VOCAB", help="run ORB-SLAM3 with this vocabulary"
     )
+    parser.add_argument(
+        "--thread-set", nargs="+", default=[], metavar="KEY=VALUE",
+        help="uss-slam overrides of the thread cells only (e.g. slam.provisional_points=true)",
+    )  # fmt: skip
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     record = args.out / "cells.json"
@@ -153,7 +161,7 @@ def main() -> None:
     for seq in args.sequences:
         path = zero_labelled(seq, args.out) if args.zero_labels else seq
         rows = done.setdefault(seq.name, {})
-        for name, overrides in cells(args.latency, args.baseline):
+        for name, overrides in cells(args.latency, args.baseline, args.thread_set):
             if name not in rows:
                 folder = args.out / seq.name / name.replace(" ", "_")
                 rows[name] = run_cell(path, folder, overrides, args.repeats, args.orbslam3)

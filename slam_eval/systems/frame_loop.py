@@ -45,7 +45,9 @@ from ..tracking.tracker import Tracker, TrackResult
 from .semantic_thread import (
     CarriedMask,
     SemanticThread,
+    hold_new_points,
     mark_dynamic_points,
+    settle_provisional,
 )
 
 
@@ -105,6 +107,16 @@ class FrameLoop:
     """The semantic thread of ``segment=thread`` (:mod:`.semantic_thread`), else None."""
     carried: CarriedMask | None = None
     """With the semantic thread: the latest mask delivered, carried to each later frame."""
+    provisional_points: bool = False
+    """With the semantic thread (``slam.provisional_points``): the map points of a keyframe made
+    without a mask are held back (bad) until a mask clears them
+    (:func:`~.semantic_thread.settle_provisional`), and while every point the newest keyframe
+    held back is still waiting, a frame becomes a keyframe only when the tracker wants one and
+    ``max_keyframe_interval`` frames have passed since the last (:meth:`keyframe_gate`)."""
+    provisional: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    """The (P,) ids of the map points held back and not judged by a mask yet."""
+    pending: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    """The ids the newest keyframe held back (empty: none, or the keyframe was not held)."""
     anchors: list[tuple[int, np.ndarray]] = field(default_factory=list)
     """With the back end: each tracked frame's ``(reference keyframe id, T_c,kf)``."""
     stamps: list[float] = field(default_factory=list)
@@ -140,12 +152,19 @@ class FrameLoop:
                 labels = self.first_mask(frame)
         filters, result = self.track(frame, labels, item.features)
         keyframe = self.filter_tracked(frame, filters, result)
+        if self.provisional_points and keyframe is None:
+            keyframe = self.keyframe_gate(filters, result)
         kf = self.map_keyframe(frame, filters, result, keyframe)
         if self.semantic is not None and kf is not None:
             if first and labels is not None:  # the map starts from a masked frame
                 self.carried = CarriedMask.of(kf.id, labels, frame.depth, self.tracker.k)
             else:
                 self.semantic.request(frame, kf.id)  # returns at once
+                if self.provisional_points:
+                    held = hold_new_points(self.map, kf.id)
+                    self.provisional = np.concatenate([self.provisional, held])
+                    self.pending = held
+                    self.counts["points_held"] += len(held)
         self.back_end(result, kf)
         self.record(frame, filters, result, kf)
 
@@ -207,6 +226,24 @@ class FrameLoop:
             result.inliers = int((result.matched >= 0).sum())
         return keyframe
 
+    def keyframe_gate(self, filters: FrameFilters, result: TrackResult) -> bool | None:
+        """With provisional points: None (the tracker decides) unless the newest keyframe is
+        still waiting, i.e. every point it held back is still provisional (no mask has judged
+        any); then the tracker's decision (:meth:`~.Tracker.wants_keyframe`) only once
+        ``max_keyframe_interval`` frames have passed since the last keyframe, else False. Held
+        points are not matched, so without this gate a keyframe that holds its points back
+        seems to track few and asks for the next keyframe at once, which holds its own back."""
+        pending = self.pending
+        if len(pending) == 0 or not np.isin(pending, self.provisional).all():
+            return None
+        tracker = self.tracker
+        if tracker.frames_since_keyframe + 1 < tracker.config.max_keyframe_interval:
+            self.counts["keyframes_gated"] += tracker.wants_keyframe(
+                result, filters.ctx.features, filters.dynamic
+            )
+            return False
+        return None
+
     def first_mask(self, frame: Frame) -> np.ndarray | None:
         """With the semantic thread, a first-keyframe candidate's labels: tracking waits for
         them (:meth:`~.semantic_thread.SemanticThread.wait_for`), so that the map starts
@@ -237,6 +274,17 @@ class FrameLoop:
                 if regions:
                     region = np.logical_or.reduce(regions)
                     self.counts["points_marked"] += mark_dynamic_points(slam_map, got.kf_id, region)
+                    if self.provisional_points:
+                        self.provisional, cleared, dropped = settle_provisional(
+                            slam_map,
+                            self.provisional,
+                            got.kf_id,
+                            region,
+                            got.frame.depth,
+                            self.tracker.k,
+                        )
+                        self.counts["points_cleared"] += cleared
+                        self.counts["points_dropped"] += dropped
                 self.carried = CarriedMask.of(
                     got.kf_id, got.labels, got.frame.depth, self.tracker.k
                 )

@@ -116,6 +116,7 @@ class SlamPipeline:
         local_ba_params: LocalMappingConfig | None = None,
         loop_closing_params: LoopClosingConfig | None = None,
         sampling_seed: int | None = None,
+        provisional_points: bool = False,
     ) -> None:
         """``sampling_seed``: perturbs the tracker's RANSAC sampling (a repeated run,
         :mod:`.repeats`); None = the deterministic run. ``prefetch_mode``: ``"thread"``,
@@ -133,6 +134,10 @@ class SlamPipeline:
                 f"segment={segment!r}: choose every_frame (segment every frame, concurrently "
                 "with ORB extraction), keyframes (segment keyframes only) or thread (keyframes "
                 "in a semantic thread off the tracking path)"
+            )
+        if provisional_points and segment != "thread":
+            raise UssSlamError(
+                f"slam.provisional_points=true needs segment=thread (got segment={segment})"
             )
         line = simulated_latency_refused(segmenter, segment)
         if line is not None:
@@ -162,6 +167,7 @@ class SlamPipeline:
         self.mode_used: str | None = None
         """``thread`` or ``process``: where the last run read and extracted its frames."""
         self.segment = segment
+        self.provisional_points = provisional_points
         self.progress = progress
         self.description = description or sequence.path.name
         self.local_ba = local_ba
@@ -267,8 +273,9 @@ class SlamPipeline:
         chain = FilterChain(self.filters, timer)
         semantic = start_thread(self.segmenter) if self.segment == "thread" else None
         return FrameLoop(
-            timer, tracker, slam_map, chain, products, mapper, closer, segment_now, semantic
-        )
+            timer, tracker, slam_map, chain, products, mapper, closer, segment_now, semantic,
+            provisional_points=self.provisional_points,
+        )  # fmt: skip
 
     def _frames(self) -> tuple[frontend_process.FrontendProcess | None, Iterator[Prepared]]:
         """The prepared frames in order (threads, or a worker process with ``prefetch_mode=
@@ -367,6 +374,11 @@ class SlamPipeline:
             "clock": loop.semantic.clock,
             **stats.as_dict(),
             "points_marked": loop.counts["points_marked"],
+            **{
+                k: loop.counts[k]
+                for k in ("points_held", "points_cleared", "points_dropped", "keyframes_gated")
+                if k in loop.counts
+            },
         }
         return "semantic", loop.counts["masks"], per_segmented, semantic
 

@@ -40,7 +40,7 @@ import cv2
 import numpy as np
 
 from ..filters.base import values_at
-from ..geometry import invert
+from ..geometry import invert, transform
 from ..map.slam_map import SlamMap
 from ..segmenters.base import Segmenter
 from ..sequence import Frame
@@ -295,3 +295,55 @@ def mark_dynamic_points(slam_map: SlamMap, kf_id: int, region: np.ndarray) -> in
     ids = ids[~bad[ids]]
     bad[ids] = True
     return len(ids)
+
+
+PROVISIONAL_DEPTH = 0.05
+"""A provisional point agrees with a mask's depth within this share of its depth (at least as
+many metres)."""
+
+
+def hold_new_points(slam_map: SlamMap, kf_id: int) -> np.ndarray:
+    """Make the good map points keyframe ``kf_id`` created provisional (marked bad until a mask
+    clears them: :func:`settle_provisional`); returns their ids."""
+    kf = slam_map.keyframes[kf_id]
+    ids = kf.point_ids[kf.point_ids >= 0]
+    pts = slam_map.points
+    ids = ids[(pts.first_keyframe.view[ids] == kf_id) & ~pts.bad.view[ids]]
+    pts.bad.view[ids] = True
+    return ids
+
+
+def settle_provisional(
+    slam_map: SlamMap,
+    ids: np.ndarray,
+    kf_id: int,
+    region: np.ndarray,
+    depth: np.ndarray,
+    k: np.ndarray,
+) -> tuple[np.ndarray, int, int]:
+    """Judge the provisional points ``ids`` by keyframe ``kf_id``'s mask (``region`` (H, W) bool
+    dynamic pixels, ``depth`` (H, W) m): each that projects into it (in front, inside the image)
+    is cleared (good again) outside the region where the measured depth agrees
+    (:data:`PROVISIONAL_DEPTH`), dropped (stays bad) inside the region or where the depth
+    disagrees; returns the ids still provisional, and how many were cleared and dropped."""
+    if len(ids) == 0:
+        return ids, 0, 0
+    pts = slam_map.points
+    p = transform(invert(slam_map.pose_wc(kf_id)), pts.position.view[ids])
+    z = p[:, 2]
+    front = z > 1e-3
+    zs = np.where(front, z, 1.0)
+    u = np.rint(k[0, 0] * p[:, 0] / zs + k[0, 2]).astype(np.int64)
+    v = np.rint(k[1, 1] * p[:, 1] / zs + k[1, 2]).astype(np.int64)
+    h, w = region.shape
+    inside = front & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    uu, vv = np.where(inside, u, 0), np.where(inside, v, 0)
+    dyn = region[vv, uu]
+    measured = depth[vv, uu]
+    agree = (measured > 0) & (
+        np.abs(measured - z) <= np.maximum(PROVISIONAL_DEPTH, PROVISIONAL_DEPTH * z)
+    )
+    clear = inside & ~dyn & agree
+    drop = inside & (dyn | ((measured > 0) & ~agree))
+    pts.bad.view[ids[clear]] = False
+    return ids[~(clear | drop)], int(clear.sum()), int(drop.sum())

@@ -14,6 +14,8 @@ def test_cells_in_order_with_their_overrides() -> None:
     assert [name for name, _ in cells] == ["per-frame", "thread 2.9 s", "thread 0.5 s", "no filter"]
     assert "segmenter.latency_s=0.5" in cells[2][1] and "segment=thread" in cells[2][1]
     assert cells[0][1] == ["segment=every_frame", "filters=[semantic]"]
+    with_key = study.cells([0.5], baseline=True, thread_set=["slam.provisional_points=true"])
+    assert [o[-1] == "slam.provisional_points=true" for _, o in with_key] == [False, True, False]
 
 
 def test_row_gives_the_ratio_and_both_tracked_shares() -> None:

@@ -260,9 +260,10 @@ def run_from_config(
     cfg: Any,
     out_dir: StrPath,
     before_commit: Callable[[RunFolder], dict[str, Any]] | None = None,
+    overrides: Sequence[str] = (),
 ) -> dict[str, Any]:
     """``uss-slam system=orbslam3``: build everything from the composed config and run
-    (``before_commit``: as :func:`run_orbslam3`'s)."""
+    (``before_commit``: as :func:`run_orbslam3`'s; ``overrides``: the command line's)."""
     import hydra
     from omegaconf import OmegaConf
 
@@ -295,6 +296,9 @@ def run_from_config(
     except TypeError as err:
         raise UssSlamError(f"eval: {err}") from None
     segmenter: Segmenter = hydra.utils.instantiate(cfg.segmenter)
+    line = empty_filters_refused(cfg, overrides, getattr(segmenter, "name", "none"))
+    if line is not None:
+        raise UssSlamError(line)
     if list(cfg.get("filters") or []) and getattr(segmenter, "name", "none") == "none":
         raise UssSlamError(
             f"system=orbslam3: filters={list(cfg.filters)} blank what a segmenter finds; set "
@@ -325,6 +329,22 @@ def run_from_config(
         out_dir,
     )
     return data
+
+
+def empty_filters_refused(cfg: Any, overrides: Sequence[str], segmenter: str) -> str | None:
+    """One line when the command line sets ``filters=[]`` with a segmenter: for the harness
+    that is the unfiltered run, but ORB-SLAM3 would blank its default filter's pixels
+    (:data:`DEFAULT_MASK`) all the same; the unfiltered ORB-SLAM3 run is ``segmenter=none``."""
+    given = {o.lstrip("+~").split("=", 1)[0] for o in overrides}
+    if "filters" not in given or list(cfg.get("filters") or []):
+        return None
+    if segmenter == "none":
+        return None
+    return (
+        "system=orbslam3: filters=[] would still blank the semantic filter's pixels (ORB-SLAM3's "
+        "default with a segmenter); for a run without masks set segmenter=none, to blank "
+        "filters name them (filters=[semantic])"
+    )
 
 
 def _mask_filters(cfg: Any) -> list[DynamicFilter]:

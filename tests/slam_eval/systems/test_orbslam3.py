@@ -473,3 +473,18 @@ def test_rows_orbslam3_repeats_for_untracked_frames_are_removed(tmp_path: Path, 
     path.write_text("\n".join(rows) + "\n")
     with pytest.raises(DataFormatError, match=r"trajectory_0.txt:3: duplicate timestamp"):
         read_estimate(path)
+
+
+def test_empty_filters_with_a_segmenter_are_refused_for_orbslam3() -> None:
+    from omegaconf import OmegaConf
+
+    from uss_slam.slam_eval.systems.orbslam3.system import empty_filters_refused
+
+    empty = OmegaConf.create({"filters": []})
+    line = empty_filters_refused(empty, ["filters=[]", "segmenter=labels"], "labels")
+    assert line is not None and line.startswith("system=orbslam3: filters=[] would still blank")
+    assert "segmenter=none" in line
+    assert empty_filters_refused(empty, ["filters=[]"], "none") is None  # nothing to blank
+    assert empty_filters_refused(empty, ["segmenter=labels"], "labels") is None  # the default
+    named = OmegaConf.create({"filters": ["semantic"]})
+    assert empty_filters_refused(named, ["filters=[semantic]"], "labels") is None
