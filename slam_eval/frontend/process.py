@@ -330,21 +330,26 @@ def resolve_mode(mode: str, sample: bool = True) -> str:
 
 
 def free_cores(seconds: float = SAMPLE_S, stat: str = "/proc/stat") -> float | None:
-    """Idle cores of the machine over the next ``seconds`` (idle and I/O-wait time of all CPUs,
-    from ``stat``'s ``cpu`` line), None where it cannot be read (not Linux)."""
+    """Cores of the machine that other processes leave idle over the next ``seconds``: all
+    CPUs less the busy time of the ``cpu`` line of ``stat`` (everything but idle and I/O wait),
+    less this process's own CPU time meanwhile (its pools' threads may still spin after its
+    last run); None where ``stat`` cannot be read (not Linux)."""
     first = _cpu_times(stat)
     if first is None:
         return None
+    wall, own = time.perf_counter(), time.process_time()
     time.sleep(seconds)
     second = _cpu_times(stat)
+    wall, own = time.perf_counter() - wall, time.process_time() - own
     if second is None:
         return None
-    busy = [b - a for a, b in zip(first[0], second[0], strict=True)]
-    total = sum(busy)
-    if total <= 0:
+    spent = [b - a for a, b in zip(first[0], second[0], strict=True)]
+    total = sum(spent)
+    if total <= 0 or wall <= 0:
         return None
-    idle = busy[3] + busy[4]
-    return first[1] * idle / total
+    cpus = first[1]
+    others = cpus * (total - spent[3] - spent[4]) / total - own / wall
+    return cpus - max(0.0, others)
 
 
 def _cpu_times(stat: str) -> tuple[list[int], int] | None:
