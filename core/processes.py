@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import gc
 import multiprocessing
 import os
 import signal
@@ -86,7 +87,13 @@ def pool_ending_with_parent(sig: int = signal.SIGTERM) -> dict[str, Any]:
     """``initializer`` / ``initargs`` / ``mp_context`` for
     :class:`concurrent.futures.ProcessPoolExecutor`: each worker gets ``sig`` when this process
     ends (create the pool in the main thread), ignores Ctrl-C, and is ended by
-    :func:`end_pool_workers` when this process is interrupted."""
+    :func:`end_pool_workers` when this process is interrupted.
+
+    Garbage is collected here, before the workers fork: an unreachable object left for the
+    collector (an onnxruntime session, a thread pool) would otherwise be destroyed in a worker,
+    whose copy of its lock has no owner thread there, and hang it; each worker also freezes what
+    it inherited (:func:`gc.freeze`), so that its collector never destroys the parent's objects."""
+    gc.collect()
     return {
         "initializer": _start_pool_worker,
         "initargs": (os.getpid(), sig),
@@ -97,7 +104,10 @@ def pool_ending_with_parent(sig: int = signal.SIGTERM) -> dict[str, Any]:
 def _start_pool_worker(parent: int, sig: int) -> None:
     """A pool worker's initializer: SIGTERM ends it at once, Ctrl-C is left to the parent
     (which ends it: :func:`end_pool_workers`), and the parent's end ends it too. A forked worker
-    would otherwise keep the parent's Python handlers and print a traceback on either signal."""
+    would otherwise keep the parent's Python handlers and print a traceback on either signal.
+    What a forked worker inherited is frozen out of its garbage collector (see
+    :func:`pool_ending_with_parent`)."""
+    gc.freeze()
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     die_with_parent(parent, sig)
