@@ -92,6 +92,45 @@ SEGMENT_SCHEDULES = ("every_frame", "keyframes", "thread")
 """Values of ``segment`` (see the module docstring)."""
 
 
+def _check_settings(
+    sequence: TumSequence,
+    segmenter: Segmenter,
+    filters: Sequence[DynamicFilter],
+    prefetch_mode: str,
+    segment: str,
+    provisional_points: bool,
+) -> None:
+    """One line (:class:`UssSlamError`) for a combination :class:`SlamPipeline` cannot run."""
+    if prefetch_mode not in frontend_process.PREFETCH_MODES:
+        raise UssSlamError(
+            f"prefetch_mode={prefetch_mode!r}: choose "
+            + ", ".join(frontend_process.PREFETCH_MODES[:-1])
+            + " or " + frontend_process.PREFETCH_MODES[-1]
+        )  # fmt: skip
+    if segment not in SEGMENT_SCHEDULES:
+        raise UssSlamError(
+            f"segment={segment!r}: choose every_frame (segment every frame, concurrently "
+            "with ORB extraction), keyframes (segment keyframes only) or thread (keyframes "
+            "in a semantic thread off the tracking path)"
+        )
+    if provisional_points and segment != "thread":
+        raise UssSlamError(
+            f"slam.provisional_points=true needs segment=thread (got segment={segment})"
+        )
+    line = simulated_latency_refused(segmenter, segment)
+    if line is not None:
+        raise UssSlamError(line)
+    needing = [f.name for f in filters if f.needs_labels]
+    probe = getattr(segmenter, "name", "none")
+    if needing and probe == "none":
+        raise UssSlamError(
+            f"filters {needing} need a segmenter; set segmenter=labels (the sequence's "
+            "labels/ folder) or an exported model"
+        )
+    if segmenter.needs_labels and not sequence.load_labels:
+        raise UssSlamError(f"segmenter {probe!r} needs the sequence opened with load_labels")
+
+
 class SlamPipeline:
     """Runs the harness on one sequence with one filter set."""
 
@@ -123,34 +162,7 @@ class SlamPipeline:
         ``"process"`` (reading and ORB extraction in a worker process, :mod:`..frontend.process`;
         with ``parallel`` and ``prefetch`` > 0 only) or ``"auto"`` (the process where the run
         has a core to spare: :func:`..frontend.process.resolve_mode`)."""
-        if prefetch_mode not in frontend_process.PREFETCH_MODES:
-            raise UssSlamError(
-                f"prefetch_mode={prefetch_mode!r}: choose "
-                + ", ".join(frontend_process.PREFETCH_MODES[:-1])
-                + " or " + frontend_process.PREFETCH_MODES[-1]
-            )  # fmt: skip
-        if segment not in SEGMENT_SCHEDULES:
-            raise UssSlamError(
-                f"segment={segment!r}: choose every_frame (segment every frame, concurrently "
-                "with ORB extraction), keyframes (segment keyframes only) or thread (keyframes "
-                "in a semantic thread off the tracking path)"
-            )
-        if provisional_points and segment != "thread":
-            raise UssSlamError(
-                f"slam.provisional_points=true needs segment=thread (got segment={segment})"
-            )
-        line = simulated_latency_refused(segmenter, segment)
-        if line is not None:
-            raise UssSlamError(line)
-        needing = [f.name for f in filters if f.needs_labels]
-        probe = getattr(segmenter, "name", "none")
-        if needing and probe == "none":
-            raise UssSlamError(
-                f"filters {needing} need a segmenter; set segmenter=labels (the sequence's "
-                "labels/ folder) or an exported model"
-            )
-        if segmenter.needs_labels and not sequence.load_labels:
-            raise UssSlamError(f"segmenter {probe!r} needs the sequence opened with load_labels")
+        _check_settings(sequence, segmenter, filters, prefetch_mode, segment, provisional_points)
         self.sequence = sequence
         self.segmenter = segmenter
         self.filters = list(filters)

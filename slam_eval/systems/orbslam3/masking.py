@@ -24,6 +24,19 @@ from ...segmenters.base import Segmenter
 from ...sequence import Frame, TumSequence
 
 
+def segment_timed(segmenter: Segmenter, frame: Frame) -> tuple[np.ndarray, float]:
+    """``segmenter``'s (H, W) labels of ``frame`` and the wall seconds they took; one line
+    (:class:`UssSlamError`) where it returns none."""
+    start = time.perf_counter()
+    labels = segmenter.segment(frame)
+    seconds = time.perf_counter() - start
+    if labels is None:
+        raise UssSlamError(
+            f"segmenter {segmenter.name!r} returned no labels for frame {frame.index}"
+        )
+    return labels, seconds
+
+
 def dynamic_mask(
     frame: Frame, labels: np.ndarray | None, masks: Sequence[DynamicFilter]
 ) -> np.ndarray:
@@ -147,13 +160,8 @@ def compute_masks(
             disable=not progress,
             dynamic_ncols=True,
         ):
-            start = time.perf_counter()
-            labels = segmenter.segment(frame)
-            spent += time.perf_counter() - start
-            if labels is None:
-                raise UssSlamError(
-                    f"segmenter {segmenter.name!r} returned no labels for frame {frame.index}"
-                )
+            labels, seconds = segment_timed(segmenter, frame)
+            spent += seconds
             mask = dynamic_mask(frame, labels, masks)
             blanked += int(mask.sum())
             packed[frame.index] = np.packbits(mask.reshape(-1))

@@ -35,7 +35,6 @@ are not told apart here.
 
 from __future__ import annotations
 
-import time
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -43,13 +42,11 @@ from typing import Any
 
 import numpy as np
 
-from uss_slam.core.errors import UssSlamError
-
 from ...filters.base import DynamicFilter
 from ...segmenters.base import Segmenter
 from ...sequence import Frame, TumSequence
 from ..semantic_thread import CarriedMask
-from .masking import MaskPass, dynamic_mask
+from .masking import MaskPass, dynamic_mask, segment_timed
 
 
 @dataclass(frozen=True)
@@ -191,13 +188,8 @@ def segment_scheduled(
     for frame in frames:
         if frame.index not in wanted:
             continue
-        start = time.perf_counter()
-        labels = segmenter.segment(frame)
-        spent += time.perf_counter() - start
-        if labels is None:
-            raise UssSlamError(
-                f"segmenter {segmenter.name!r} returned no labels for frame {frame.index}"
-            )
+        labels, seconds = segment_timed(segmenter, frame)
+        spent += seconds
         out[f"f{frame.index}"] = np.asarray(labels, np.uint8)
     np.savez_compressed(path, **out)
     return 1000 * spent / max(len(out), 1), len(out)
