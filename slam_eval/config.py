@@ -41,7 +41,7 @@ from .mapping.loop_closing import LoopClosingConfig
 from .products.semantic_map import MapConfig
 from .scoring.evaluation import EvalConfig
 from .scoring.repeats import Perturbation, perturbations
-from .systems.harness import SEGMENT_SCHEDULES
+from .systems.harness import SEGMENT_SCHEDULES, provisional_points_refused
 from .tracking.config import REMOVED as REMOVED_TRACKER_KEYS
 from .tracking.config import TrackerConfig
 from .variants import check_filters as check_variant_filters
@@ -343,10 +343,9 @@ def check(cfg: DictConfig, overrides: Sequence[str] = ()) -> RunPlan:
     build_filters(known, params)  # the parameters of unused filters are checked too
     _check_segmenter(cfg.segmenter)
     _check_latency(cfg.segmenter, str(cfg.segment))
-    if cfg.slam.provisional_points and str(cfg.segment) != "thread":
-        raise UssSlamError(
-            f"slam.provisional_points=true needs segment=thread (got segment={cfg.segment})"
-        )
+    line = provisional_points_refused(bool(cfg.slam.provisional_points), str(cfg.segment))
+    if line is not None:
+        raise UssSlamError(line)
     return RunPlan(orb, tracker, semantic_map, evaluation, params, runs, backend, repeats)
 
 

@@ -256,18 +256,24 @@ def test_an_export_calibration_without_int8_warns_naming_its_keys(
     ]
 
 
-def test_experiments_adabn_methods_without_adabn_warn(capsys) -> None:
-    """``grid.adabn_methods`` is declared ``needs="adabn"``: set while ``grid.adabn=false``,
-    one warning naming both keys (the plan is made as without it)."""
+def _experiments_warnings(capsys, overrides: list[str]) -> list[str]:
+    """The warning lines of ``uss-experiments``' check of the config ``overrides`` compose."""
     from uss_slam.core.cli import program
     from uss_slam.pipelines.experiments.experiment import check
     from uss_slam.pipelines.runs import compose_config
 
-    cfg = compose_config("experiments", ["grid.adabn=false",
-                                         "grid.adabn_methods=[source_only,adaptsegnet]"])  # fmt: skip
+    cfg = compose_config("experiments", overrides)
     with program("uss-experiments"):
         check(cfg)
-    warnings = [ln for ln in capsys.readouterr().err.splitlines() if ": warning: " in ln]
+    return [ln for ln in capsys.readouterr().err.splitlines() if ": warning: " in ln]
+
+
+def test_experiments_adabn_methods_without_adabn_warn(capsys) -> None:
+    """``grid.adabn_methods`` is declared ``needs="adabn"``: set while ``grid.adabn=false``,
+    one warning naming both keys (the plan is made as without it)."""
+    warnings = _experiments_warnings(
+        capsys, ["grid.adabn=false", "grid.adabn_methods=[source_only,adaptsegnet]"]
+    )
     assert warnings == [
         "uss-experiments: warning: grid.adabn_methods is set but changes nothing while "
         "grid.adabn is false"
@@ -275,14 +281,7 @@ def test_experiments_adabn_methods_without_adabn_warn(capsys) -> None:
 
 
 def test_experiments_orbslam3_settings_without_orbslam3_warn(capsys) -> None:
-    from uss_slam.core.cli import program
-    from uss_slam.pipelines.experiments.experiment import check
-    from uss_slam.pipelines.runs import compose_config
-
-    cfg = compose_config("experiments", ["slam.orbslam3.repeats=5"])
-    with program("uss-experiments"):
-        check(cfg)
-    warnings = [ln for ln in capsys.readouterr().err.splitlines() if ": warning: " in ln]
+    warnings = _experiments_warnings(capsys, ["slam.orbslam3.repeats=5"])
     assert warnings == [
         "uss-experiments: warning: slam.orbslam3.repeats is set but changes nothing while "
         "systems does not list orbslam3"

@@ -21,7 +21,7 @@ values), :mod:`.compose` (Hydra's ConfigStore, errors while composing), :mod:`.t
 (``_target_`` nodes).
 """
 
-from .checking import check, check_fields, unused_settings, validate
+from .checking import changed_keys, check, check_fields, unused_line, unused_settings, validate
 from .compose import omegaconf_error_line, register
 from .fields import (
     MAX_THREADS,
@@ -57,6 +57,8 @@ __all__ = [
     "structured",
     "takes_any_keyword",
     "unused_settings",
+    "unused_line",
+    "changed_keys",
     "target_schema",
     "validate",
 ]

@@ -10,7 +10,7 @@ import dataclasses
 import math
 import types
 import typing
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any, Union
 
 from omegaconf import MISSING, DictConfig, ListConfig, OmegaConf
@@ -276,29 +276,37 @@ def unused_settings(values: Any, schema: type, key: str = "") -> list[str]:
         value = plain.get(f.name, MISSING)
         needs = f.metadata.get(NEEDS)
         if needs and plain.get(needs) is False and value is not MISSING and _changed(f, value):
-            keys = [_join(where, k) for k in _changed_keys(f, value)] or [where]
-            verb = "is set but changes" if len(keys) == 1 else "are set but change"
-            lines.append(f"{', '.join(keys)} {verb} nothing while {_join(key, needs)} is false")
+            default = _default(f)
+            section = dataclasses.is_dataclass(default) and isinstance(value, Mapping)
+            keys = changed_keys(value, default, where) if section else [where]
+            lines.append(unused_line(keys, f"{_join(key, needs)} is false"))
         inner, _ = _optional(_hints(schema)[f.name])
         if dataclasses.is_dataclass(inner) and isinstance(value, Mapping):
             lines += unused_settings(value, inner, where)  # type: ignore[arg-type]
     return lines
 
 
-def _changed_keys(f: dataclasses.Field, value: Any) -> list[str]:
-    """The keys of a section ``value`` that differ from the section's defaults ([] for a value
-    that is no section)."""
-    default = f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
-    if not (dataclasses.is_dataclass(default) and isinstance(value, Mapping)):
-        return []
-    defaults = _plain(dataclasses.asdict(default))  # type: ignore[arg-type]
-    return [k for k, v in value.items() if v != defaults.get(k)]
+def changed_keys(section: Mapping[str, Any], default: Any, where: str = "") -> list[str]:
+    """The full keys (under ``where``) of the settings in ``section`` whose values differ from
+    those of ``default``, an instance of the section's dataclass."""
+    defaults = _plain(dataclasses.asdict(default))
+    return [_join(where, k) for k, v in section.items() if v != defaults.get(k)]
+
+
+def unused_line(keys: Sequence[str], condition: str) -> str:
+    """The warning for settings ``keys`` that change nothing while ``condition`` holds (one
+    form for every such warning: :func:`unused_settings`' and the scripts' own)."""
+    verb = "is set but changes" if len(keys) == 1 else "are set but change"
+    return f"{', '.join(keys)} {verb} nothing while {condition}"
+
+
+def _default(f: dataclasses.Field) -> Any:
+    return f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
 
 
 def _changed(f: dataclasses.Field, value: Any) -> bool:
     """Whether ``value`` differs from the default of ``f`` (a section: in any key it gives)."""
-    default = f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
+    default = _default(f)
     if dataclasses.is_dataclass(default) and isinstance(value, Mapping):
-        defaults = _plain(dataclasses.asdict(default))  # type: ignore[arg-type]
-        return any(v != defaults.get(k) for k, v in value.items())
+        return bool(changed_keys(value, default))
     return bool(value != _plain(default))

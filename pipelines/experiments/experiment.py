@@ -17,8 +17,8 @@ from uss_slam.core.cli import warning
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.paths import input_file, input_folder
 from uss_slam.core.ranges import MAX_THREADS, THREADS_PER_CPU, machine_threads
+from uss_slam.core.schema import changed_keys, unused_line, unused_settings
 from uss_slam.core.schema import check as check_schema
-from uss_slam.core.schema import unused_settings
 
 from .grid import (
     PRESET_METHOD_OVERRIDES,
@@ -116,15 +116,11 @@ def training_seeds(seed: int) -> set[int]:
 def warn_orbslam3_unused(orb: Mapping[str, Any]) -> None:
     """``slam.orbslam3.*`` set while ``systems`` does not list orbslam3: one warning naming the
     keys (accepted; nothing runs ORB-SLAM3)."""
-    from dataclasses import asdict
-
     from .schema import OrbSlam3
 
-    defaults = asdict(OrbSlam3())
-    keys = [f"slam.orbslam3.{k}" for k, v in orb.items() if v != defaults.get(k)]
+    keys = changed_keys(orb, OrbSlam3(), "slam.orbslam3")
     if keys:
-        verb = "is set but changes" if len(keys) == 1 else "are set but change"
-        warning(f"{', '.join(keys)} {verb} nothing while systems does not list orbslam3")
+        warning(unused_line(keys, "systems does not list orbslam3"))
 
 
 def check_orbslam3(orb: Mapping[str, Any]) -> None:

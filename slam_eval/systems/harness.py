@@ -113,13 +113,12 @@ def _check_settings(
             "with ORB extraction), keyframes (segment keyframes only) or thread (keyframes "
             "in a semantic thread off the tracking path)"
         )
-    if provisional_points and segment != "thread":
-        raise UssSlamError(
-            f"slam.provisional_points=true needs segment=thread (got segment={segment})"
-        )
-    line = simulated_latency_refused(segmenter, segment)
-    if line is not None:
-        raise UssSlamError(line)
+    for line in (
+        provisional_points_refused(provisional_points, segment),
+        simulated_latency_refused(segmenter, segment),
+    ):
+        if line is not None:
+            raise UssSlamError(line)
     needing = [f.name for f in filters if f.needs_labels]
     probe = getattr(segmenter, "name", "none")
     if needing and probe == "none":
@@ -416,6 +415,14 @@ def simulated_latency_refused(segmenter: object, segment: str) -> str | None:
             f"segmenter.latency_s={latency:g} is simulated by segment=thread only; with "
             f"segment={segment} set segmenter.wait=true (every call then really waits)"
         )
+    return None
+
+
+def provisional_points_refused(provisional_points: bool, segment: str) -> str | None:
+    """One line when ``slam.provisional_points`` is on with a ``segment`` schedule other than
+    ``thread`` (the only one whose keyframes wait for a mask), else None."""
+    if provisional_points and segment != "thread":
+        return f"slam.provisional_points=true needs segment=thread (got segment={segment})"
     return None
 
 

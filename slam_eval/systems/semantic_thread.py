@@ -40,7 +40,7 @@ import cv2
 import numpy as np
 
 from ..filters.base import values_at
-from ..geometry import invert, transform
+from ..geometry import invert, project, transform
 from ..map.slam_map import SlamMap
 from ..segmenters.base import Segmenter
 from ..sequence import Frame
@@ -332,9 +332,8 @@ def settle_provisional(
     p = transform(invert(slam_map.pose_wc(kf_id)), pts.position.view[ids])
     z = p[:, 2]
     front = z > 1e-3
-    zs = np.where(front, z, 1.0)
-    u = np.rint(k[0, 0] * p[:, 0] / zs + k[0, 2]).astype(np.int64)
-    v = np.rint(k[1, 1] * p[:, 1] / zs + k[1, 2]).astype(np.int64)
+    uv = np.rint(project(k, np.where(front[:, None], p, (0.0, 0.0, 1.0)))).astype(np.int64)
+    u, v = uv[:, 0], uv[:, 1]
     h, w = region.shape
     inside = front & (u >= 0) & (u < w) & (v >= 0) & (v < h)
     uu, vv = np.where(inside, u, 0), np.where(inside, v, 0)
