@@ -1,4 +1,4 @@
-"""Judge a SLAM change on whole tables, not on one cell: two ``benchmarks/slam_table.py`` outputs
+"""Judge a SLAM change on whole tables, not on one cell: two ``studies/slam_table.py`` outputs
 (``table.json``, before and after, the same cells) compared cell by cell, with the rules fixed
 before the runs: cells with spread <= x1.5 must not decrease, the geometric mean of the medians
 (per kind: real, synthetic) must not increase, no cell at strides 1-3 may get a median more than

@@ -328,5 +328,5 @@ def test_semantic_filter_costs_nothing_on_a_static_scene(synthetic_sequence) -> 
     assert base < 0.02
     # The people of static_xyz sit still: dropping their keypoints only removes information.
     # At 320x240 over 4 s the run-to-run spread is larger than at the 640x480 / 300-frame size of
-    # the target (<= 10% worse, benchmarks/slam_targets.py), hence 25% here.
+    # the target (<= 10% worse, studies/slam_targets.py), hence 25% here.
     assert filtered <= 1.25 * base

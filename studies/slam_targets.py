@@ -1,6 +1,6 @@
 """Does the SLAM harness meet its accuracy targets on synthetic sequences (the ``semantic`` filter's
-ATE RMSE against the unfiltered baseline's)? Reported in BENCHMARKS.md, "SLAM harness" / "Accuracy
-targets", and docs/results/slam.md (its tracking-policy entries).
+ATE RMSE against the unfiltered baseline's)? An accuracy study, reported in docs/results/slam.md
+(its tracking-policy entries).
 
 For each preset (640x480, >= 300 frames) the unfiltered baseline and the ``labels`` segmenter +
 ``semantic`` filter run on the same sequence; the script prints ATE RMSE of both, their ratio and
@@ -11,8 +11,8 @@ comes first, then the medians:
 - walking_xyz / walking_rpy / walking_halfsphere: semantic ATE RMSE <= 20% of the baseline's;
 - static_xyz: semantic no worse than the baseline by more than 10%, baseline under 2 cm.
 
-    python benchmarks/slam_targets.py --data outputs/bench/slam --frames 300 --seeds 0 1 2
-    python benchmarks/slam_targets.py --seeds 0 1 2 --repeats 3 --tracker policy=harness --tracker motion_ransac=false
+    python studies/slam_targets.py --data outputs/bench/slam --frames 300 --seeds 0 1 2
+    python studies/slam_targets.py --seeds 0 1 2 --repeats 3 --tracker policy=harness --tracker motion_ransac=false
 
 ``--repeats N`` runs every cell N times with the perturbations of ``slam.repeats`` (repeat 0 is
 the single run; the others jitter the feature budget by ``--repeat-budget`` and the RANSAC

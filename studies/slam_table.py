@@ -5,12 +5,12 @@ its defaults (local bundle adjustment + loop closing), the harness without back 
 (``slam.local_ba=false slam.loop_closing=false``) and ORB-SLAM3, each ``--repeats`` times, and
 prints one table: per sequence × stride × system the median ATE RMSE, its (min–max) and max/min
 spread, and the ratios harness default / ORB-SLAM3 and default / no back end. Results: the
-"SLAM on real frames" section of BENCHMARKS.md (docs/results/slam_table/README.md).
+"SLAM on real frames" section of docs/results/slam.md (every run: docs/results/slam_table/README.md).
 
-    python benchmarks/slam_table.py --out outputs/bench/slam_table
-    python benchmarks/slam_table.py --data ../shared/data/tum --repeats 5 --strides 1,2,3,4,5 \\
+    python studies/slam_table.py --out outputs/bench/slam_table
+    python studies/slam_table.py --data ../shared/data/tum --repeats 5 --strides 1,2,3,4,5 \\
         --systems harness,harness_noback,orbslam3 --synthetic --out outputs/bench/slam_table
-    python benchmarks/slam_table.py --no-real --synthetic-presets handheld_fast --strides 1,2
+    python studies/slam_table.py --no-real --synthetic-presets handheld_fast --strides 1,2
 
 Every run goes through the console scripts (``uss-slam``, ``uss-vocab``, ``uss-synth``), one
 folder per cell under ``<out>/runs/<sequence>/stride<k>/<system>/``; a rerun reuses a cell whose
@@ -388,7 +388,7 @@ def main(argv: list[str] | None = None) -> int:
         return run(
             args,
             " ".join(
-                ["python", "benchmarks/slam_table.py", *(sys.argv[1:] if argv is None else argv)]
+                ["python", "studies/slam_table.py", *(sys.argv[1:] if argv is None else argv)]
             ),
         )
     except TableError as err:

@@ -1,4 +1,4 @@
-"""benchmarks/slam_table.py: one table of every stretch × stride × system, whose figures are
+"""studies/slam_table.py: one table of every stretch × stride × system, whose figures are
 those of the run folders it keeps, with one clear error line for each bad input."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "slam_table.py"
+SCRIPT = Path(__file__).resolve().parents[2] / "studies" / "slam_table.py"
 _spec = importlib.util.spec_from_file_location("slam_table", SCRIPT)
 slam_table = sys.modules.setdefault("slam_table", importlib.util.module_from_spec(_spec))
 _spec.loader.exec_module(slam_table)

@@ -1,6 +1,6 @@
 """How does the real ORB-SLAM3 (pyorbslam3), unfiltered and with the ground-truth people blanked,
-compare with the harness on the same synthetic frames? Reported in BENCHMARKS.md, "ORB-SLAM3 next to
-the harness", and docs/results/slam.md, "2026-12-01 — ORB-SLAM3 next to the harness (seed 7)".
+compare with the harness on the same synthetic frames? An accuracy study, reported in
+docs/results/slam.md, "2026-12-01 — ORB-SLAM3 next to the harness (seed 7)".
 
 For each preset: ORB-SLAM3 with ``segmenter=none`` and with ``segmenter=labels`` (person, dilated
 as the harness's semantic filter, blanked to grey with depth 0), each the median of ``--repeats``
@@ -8,7 +8,7 @@ runs with min / max; then the harness's baseline and ``semantic`` filter (determ
 on the same sequence. ATE RMSE through the same evaluation
 (``slam_eval.scoring.evaluation.evaluate``: SE(3) Umeyama, 0.02 s association).
 
-    python benchmarks/orbslam3_ate.py --data outputs/bench/orbslam3 --repeats 3
+    python studies/orbslam3_ate.py --data outputs/bench/orbslam3 --repeats 3
 
 Sequences are rendered into ``--data`` on first use (``uss-synth sequence --preset P --frames 300
 --size 640x480 --seed 7``). The vocabulary is built from a *different* sequence (walking_halfsphere,
