@@ -41,6 +41,7 @@ from uss_slam.core.schema import (
     ranged,
     validate,
 )
+from uss_slam.datasets.precheck import check_data_files
 from uss_slam.models.checkpoint import CheckpointInfo, read_checkpoint
 from uss_slam.train.callbacks import LogProgressBar
 from uss_slam.train.checkpoint_io import AtomicCheckpointIO
@@ -481,6 +482,7 @@ def train(cfg: DictConfig) -> dict[str, float]:
     check_method_data(cfg)
     with naming_roots(data, "data"):  # a bad file inside a data folder names its key too
         datamodule: LightningDataModule = build(cfg, "data")
+        check_data_files(datamodule)  # labels and images before Lightning's first line
     model: LightningModule = build(cfg, "model")
     if checkpoint is not None:
         check_architecture(model, checkpoint)

@@ -5,13 +5,16 @@ others (``uss-train -m`` and ``uss-slam -m``)."""
 
 from __future__ import annotations
 
+import shutil
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 import yaml
 from hydra.utils import instantiate
+from PIL import Image
 from shared_helpers import compose_train, data_overrides
 
 from uss_slam.train import train as train_cli
@@ -276,3 +279,50 @@ def test_a_full_disk_while_saving_a_checkpoint_names_it_and_leaves_no_part(
     folder = tmp_path / "run" / "checkpoints"
     assert hit[0].parent == folder
     assert sorted(p.name for p in folder.iterdir()) == []
+
+
+def _damage(kind: str, data: dict[str, Path]) -> Path:
+    """Damage one file of the ``uda_data`` copy: a VOC label value 40 (no VOC class), a
+    validation label value 4 (no class id), a VOC JPEG cut in half; returns the file."""
+    if kind == "val_label_4":
+        path = sorted((data["val"] / "labels").glob("*.png"))[-1]
+        values = np.array(Image.open(path))
+        values[0, 0] = 4
+        Image.fromarray(values).save(path)
+        return path
+    voc = next(data["voc"].rglob("SegmentationClass")).parent
+    if kind == "voc_label_40":
+        path = sorted((voc / "SegmentationClass").glob("*.png"))[-1]
+        label = Image.open(path)
+        values = np.array(label)
+        values[0, 0] = 40
+        out = Image.fromarray(values, mode="P")
+        out.putpalette(label.getpalette())
+        out.save(path)
+        return path
+    path = sorted((voc / "JPEGImages").glob("*.jpg"))[-1]
+    path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+    return path
+
+
+@pytest.mark.parametrize(
+    ("kind", "reason"),
+    [
+        ("voc_label_40", "label values [40]"),
+        ("val_label_4", "label values [4]"),
+        ("voc_jpeg_cut", "truncated JPEG"),
+    ],
+)
+def test_a_bad_label_or_image_is_one_line_before_lightning_starts(
+    kind: str, reason: str, uda_data: dict[str, Path], tmp_path: Path, monkeypatch, capsys
+) -> None:
+    """Found by the up-front check of the data's files (``datasets.precheck``), not by the
+    batch that would read it after Lightning's device lines (or by none)."""
+    data = {
+        key: Path(shutil.copytree(root, tmp_path / "data" / key)) for key, root in uda_data.items()
+    }
+    path = _damage(kind, data)
+    code, err = _uss_train(_common(data, tmp_path), monkeypatch, capsys)
+    assert code == 1 and len(err) == 1, err
+    assert err[0].startswith("uss-train: error: data.") and path.name in err[0] and reason in err[0]
+    assert _left_behind(tmp_path / "run") == set()
