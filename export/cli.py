@@ -5,6 +5,7 @@ Examples::
     uss-export ckpt_path=outputs/train/runs/demo/<time>/checkpoints/last.ckpt
     uss-export ckpt_path=PATH name=demo_aux head=aux out=/tmp/demo_aux.onnx
     uss-export ckpt_path=PATH int8=true calibration.root=outputs/demo/data/slam/walking_xyz
+    uss-export ckpt_path=B001.ckpt 'ensemble=[B005.ckpt,B009.ckpt]'   # mean of three models
 
 Every option is checked first (types, opset, sizes), then the calibration frames are read (with
 ``int8=true``), then the checkpoint; only then is anything written. A bad input ends with one
@@ -13,6 +14,7 @@ line on stderr naming the key or file, and exit code 1.
 
 from __future__ import annotations
 
+from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Optional
@@ -52,6 +54,7 @@ class ExportSchema:
     are :func:`uss_slam.export.onnx.check_options`' and :meth:`ExportOptions.from_config`'s."""
 
     ckpt_path: Optional[str] = ranged(None, text=True)
+    ensemble: list[str] = ranged(default_factory=list, text=True)
     name: Optional[str] = ranged(None, text=True)
     out_dir: str = ranged("exports", text=True)
     out: Optional[str] = ranged(None, text=True)
@@ -79,6 +82,7 @@ class ExportOptions:
     """``configs/export.yaml``, type-checked (see that file for each key)."""
 
     ckpt_path: Path
+    ensemble: tuple[Path, ...]
     out: Path
     head: str
     opset: int
@@ -103,6 +107,7 @@ class ExportOptions:
         if ckpt is None or ckpt == "":
             raise UssSlamError("ckpt_path=PATH is required (a uss-train .ckpt)")
         ckpt_path = input_file(str(ckpt), "ckpt_path", "expected a uss-train checkpoint (.ckpt)")
+        ensemble = _ensemble(ckpt_path, _value(cfg, "ensemble"))
         head = _value(cfg, "head")
         net_config = _value(cfg, "net_config")
         if net_config is not None and not isinstance(net_config, (str, dict)):
@@ -126,6 +131,8 @@ class ExportOptions:
                 )
             if name is None:
                 name = run_name(ckpt_path) or ckpt_path.stem
+                if ensemble:
+                    name = f"{name}_ensemble{len(ensemble) + 1}"
                 if head != "main":
                     name = f"{name}_{head}"
             out = str(Path(str(_value(cfg, "out_dir"))) / f"{name}.onnx")
@@ -138,6 +145,7 @@ class ExportOptions:
         experiment = _value(cfg, "experiment")
         return cls(
             ckpt_path=ckpt_path,
+            ensemble=ensemble,
             out=Path(str(out)),
             head=head,
             opset=_value(cfg, "opset"),
@@ -152,6 +160,24 @@ class ExportOptions:
             calibration_root=Path(str(root)) if int8 and root is not None else None,
             calibration_frames=_value(cfg, "calibration.frames"),
         )
+
+
+def _ensemble(ckpt_path: Path, items: list[str]) -> tuple[Path, ...]:
+    """``ensemble``'s checkpoints, each a readable file and none of them ``ckpt_path`` or another
+    item under a second spelling (the schema refuses an item written twice)."""
+    paths = tuple(
+        input_file(str(item), "ensemble", "expected a uss-train checkpoint (.ckpt)")
+        for item in items
+    )
+    seen = {ckpt_path.resolve(): "ckpt_path"}
+    for path in paths:
+        if path.resolve() in seen:
+            raise UssSlamError(
+                f"ensemble: {path} is the same file as {seen[path.resolve()]}: an ensemble "
+                "averages different checkpoints"
+            )
+        seen[path.resolve()] = f"ensemble item {path}"
+    return paths
 
 
 def run(cfg: DictConfig) -> ExportResult:
@@ -171,7 +197,10 @@ def run(cfg: DictConfig) -> ExportResult:
         calibration = CalibrationSet.read(options.calibration_root, options.calibration_frames)
     if options.num_threads:
         torch.set_num_threads(options.num_threads)
-    with naming("ckpt_path", options.ckpt_path):  # ckpt_path=<file>: not a readable checkpoint
+    with ExitStack() as names:  # ckpt_path=<file>: not a readable checkpoint
+        names.enter_context(naming("ckpt_path", options.ckpt_path))
+        for path in options.ensemble:
+            names.enter_context(naming("ensemble", path))
         return _export(options, calibration)
 
 
@@ -191,6 +220,7 @@ def _export(options: ExportOptions, calibration: CalibrationSet | None) -> Expor
         min_label_agreement=options.min_label_agreement,
         calibration=calibration,
         threads=options.num_threads,
+        ensemble=options.ensemble,
     )
 
 

@@ -33,7 +33,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from uss_slam.core.classes import DYNAMIC_CLASSES
-from uss_slam.core.errors import UssSlamError
+from uss_slam.core.errors import DataFormatError, UssSlamError
 from uss_slam.core.files import (
     StagedFiles,
     check_writable,
@@ -259,8 +259,11 @@ def export_segmenter(
     min_label_agreement: float | None = None,
     calibration: CalibrationSet | None = None,
     threads: int | None = None,
+    members: Sequence[nn.Module] = (),
 ) -> ExportResult:
-    """Export ``segmenter`` (``forward`` -> ``.aux`` / ``.main`` logits) to ``out``, verified.
+    """Export ``segmenter`` (``forward`` -> ``.aux`` / ``.main`` logits) to ``out``, verified;
+    with ``members``, the ensemble of ``segmenter`` and them (their mean probabilities, see
+    :class:`~uss_slam.export.wrapper.SegmenterExport`).
 
     With ``calibration`` also ``<name>.int8.onnx`` (see :mod:`uss_slam.export.quantize`;
     ``threads`` for its timing); without it, an ``<name>.int8.onnx`` of an earlier export is
@@ -274,7 +277,9 @@ def export_segmenter(
     out, trace_size, verify_size = check_options(
         out, opset, trace_size, verify_size, int8=calibration is not None
     )
-    wrapper = SegmenterExport(segmenter, metadata.head, metadata.mean, metadata.std).eval()
+    wrapper = SegmenterExport(
+        segmenter, metadata.head, metadata.mean, metadata.std, members=members
+    ).eval()
     check_writable(out.parent)
     verify_path = sidecar(out, VERIFY_SUFFIX)
     int8_out = sidecar(out, INT8_SUFFIX)
@@ -366,18 +371,33 @@ def export_checkpoint(
     calibration: CalibrationSet | None = None,
     threads: int | None = None,
     prepare: Callable[[nn.Module], object] | None = None,
+    ensemble: Sequence[str | Path] = (),
 ) -> ExportResult:
     """Export the segmenter of a ``uss-train`` checkpoint to ``out`` (see
     :func:`~uss_slam.export.checkpoint.load_checkpoint` and :func:`export_segmenter`);
     ``experiment`` defaults to the training run's ``run_name``. ``prepare`` is applied to the
     loaded segmenter before the trace (e.g. :func:`uss_slam.train.precise_bn.adabn`: target
-    BatchNorm statistics); the metadata's checkpoint hash stays the checkpoint's."""
+    BatchNorm statistics); the metadata's checkpoint hash stays the checkpoint's.
+
+    ``ensemble``: further checkpoints (same classes, any architecture ``net_cfg`` or their runs
+    give) whose probabilities are averaged with this one's in one graph (FDA's multi-band
+    ensemble); ``experiment`` then defaults to the run names joined by ``+`` and the checkpoint
+    hash to every file's hash, comma-separated, in order."""
     if head not in HEADS:
         raise UssSlamError(f"head must be one of {HEADS}, got {head!r}")
     check_options(out, opset, trace_size, verify_size, int8=calibration is not None)
     loaded = load_checkpoint(ckpt_path, net_cfg)
-    if prepare is not None:
-        prepare(loaded.segmenter)
+    members = [load_checkpoint(path, net_cfg) for path in ensemble]
+    for path, member in zip(ensemble, members, strict=True):
+        if member.class_names != loaded.class_names:
+            raise DataFormatError(
+                path,
+                f"its classes ({', '.join(member.class_names)}) differ from ckpt_path's "
+                f"({', '.join(loaded.class_names)}): an ensemble averages the same classes",
+            )
+    for each in (loaded, *members):
+        if prepare is not None:
+            prepare(each.segmenter)
     unknown = [c for c in dynamic_classes if c not in loaded.class_names]
     if unknown:
         raise UssSlamError(f"dynamic_classes {unknown} are not among {loaded.class_names}")
@@ -387,8 +407,8 @@ def export_checkpoint(
         mean=IMAGENET_MEAN,
         std=IMAGENET_STD,
         head=head,
-        experiment=experiment or loaded.experiment,
-        checkpoint_sha256=loaded.sha256,
+        experiment=experiment or "+".join(m.experiment for m in (loaded, *members)),
+        checkpoint_sha256=",".join(m.sha256 for m in (loaded, *members)),
         version=project_version(),
     )
     return export_segmenter(
@@ -402,4 +422,5 @@ def export_checkpoint(
         min_label_agreement=min_label_agreement,
         calibration=calibration,
         threads=threads,
+        members=[m.segmenter for m in members],
     )

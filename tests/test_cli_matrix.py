@@ -557,7 +557,7 @@ CASES = [
          setup=(earlier_slam_run,)),
     # ---------------------------------------------------------------- uss-export (Hydra)
     case("export-unknown-key", "uss-export", f"{EXPORT} opsett=17", 1,
-         "opsett: unknown key; expected one of ckpt_path, name, out_dir, out, head, opset,"),
+         "opsett: unknown key; expected one of ckpt_path, ensemble, name, out_dir, out, head, opset,"),
     case("export-bad-override-syntax", "uss-export", f"{EXPORT} trace_size=[1", 1,
          "trace_size=[1: no viable alternative at input '[1'"),
     case("export-hydra-dir-under-a-file", "uss-export",
