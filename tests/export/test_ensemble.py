@@ -5,7 +5,7 @@ member's own single export; its metadata names every checkpoint; bad ensembles a
 from __future__ import annotations
 
 import hashlib
-import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +17,6 @@ from shared_helpers import fake_run, tiny_net
 from uss_slam.core.errors import DataFormatError
 from uss_slam.core.onnx_contract import SegmenterMetadata
 from uss_slam.export import SegmenterExport, export_checkpoint, verification_images
-from uss_slam.export import cli as export_cli
 
 
 def _softmax(logits: np.ndarray) -> np.ndarray:
@@ -64,27 +63,11 @@ def test_one_segmenter_without_members_is_unchanged() -> None:
     assert torch.equal(plain[0], listed[0]) and torch.equal(plain[1], listed[1])
 
 
-def _uss_export(monkeypatch: pytest.MonkeyPatch, capsys, tmp_path: Path, *overrides: str):
-    monkeypatch.chdir(tmp_path)
-    argv = ["uss-export", *overrides, f"hydra.run.dir={tmp_path / 'hydra'}"]
-    monkeypatch.setattr(sys, "argv", argv)
-    capsys.readouterr()
-    try:
-        export_cli.main()
-        code = 0
-    except SystemExit as exit_info:
-        code = int(exit_info.code or 0)
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
 def test_cli_default_name_and_bad_ensembles(
-    three_runs: list[Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
+    three_runs: list[Path], tmp_path: Path, uss_export: Callable[..., tuple[int, str, str]]
 ) -> None:
     a, b, c = (str(p) for p in three_runs)
-    code, out, err = _uss_export(
-        monkeypatch, capsys, tmp_path, f"ckpt_path={a}", f"ensemble=[{b},{c}]", "out_dir=models"
-    )
+    code, out, err = uss_export(f"ckpt_path={a}", f"ensemble=[{b},{c}]", "out_dir=models")
     assert code == 0, err
     assert (tmp_path / "models" / "fda_b0_ensemble3.onnx").is_file()
     assert "fda_b0_ensemble3.onnx" in out
@@ -95,8 +78,7 @@ def test_cli_default_name_and_bad_ensembles(
         f"ensemble=[{tmp_path / 'missing.ckpt'}]": "ensemble=",
     }
     for override, expected in bad.items():
-        code, out, err = _uss_export(monkeypatch, capsys, tmp_path, f"ckpt_path={a}", override,
-                                     "out_dir=bad")  # fmt: skip
+        code, out, err = uss_export(f"ckpt_path={a}", override, "out_dir=bad")
         lines = err.strip().splitlines()
         assert code == 1 and len(lines) == 1 and expected in lines[0], (override, err)
         assert not (tmp_path / "bad").exists() or not any((tmp_path / "bad").iterdir())
