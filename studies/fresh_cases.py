@@ -39,8 +39,10 @@ from pathlib import Path
 
 from fresh_setups import HIDDEN_OUTPUTS, SETUPS, build_world, snapshot
 from fresh_setups3 import THIRD
+from fresh_setups4 import FOURTH
 
 SETUPS.update(THIRD)
+SETUPS.update(FOURTH)
 
 HERE = Path(__file__).resolve().parent
 CASES = HERE / "fresh_cases.txt"

@@ -1,0 +1,151 @@
+"""Screen a new held-out set of cases (``studies/fresh_cases4.txt``) against what the project
+already tries: every case the generated matrices make (each argparse option's bad values,
+``uss_slam.core.arguments.bad_arguments``; each Hydra schema key's bad values,
+``uss_slam.core.schema.cases.bad_values`` as ``tests/test_cli_matrix.py`` collects them; every
+path family of ``tests/test_path_families.py`` on every path argument), the hand-written cases
+of the test matrices (``tests/test_cli_matrix.py``, ``test_image_families.py``) and the earlier
+held-out sets. A new case *repeats* one when it is the same script with
+
+- a generated bad value: the option followed by that value, or ``key=value`` as the schema
+  matrix writes it (the override text, compared as typed);
+- a path family: its path argument given a path of that family (a missing path, a 300-byte
+  name, a link that loops or points nowhere, a file for a folder or the reverse, a path under
+  a file: recognised by the names the families make in the case's folder);
+- an earlier case: the same setup and the same arguments once the paths are named alike, or
+  the same arguments that are not the script's usual base (the same tried input).
+
+    python studies/screen_cases.py studies/fresh_cases4.txt   # exit 1 and the repeats, if any
+
+Needs the test folder on ``sys.path`` (it imports the matrices' modules, which import pytest).
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import shlex
+import sys
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+sys.path[:0] = [str(HERE), str(ROOT / "tests")]
+
+from fresh_cases import MACROS, read_cases  # noqa: E402
+
+EARLIER = ("fresh_cases.txt", "fresh_cases2.txt", "fresh_cases3.txt")
+ALIASES = {"{tmp}": "{C}", "{m}": "{onnx}", "{out}": "{C}/o", "{s}": "{C}/seq"}
+"""The hand-written matrices' path names -> the fresh sets' names."""
+FAMILY_PATHS = re.compile(r"\{C\}/(nope|nothing|loop|link|afile|afolder|a/x)\b|a{300}")
+"""Paths of tests/test_path_families.py's families, as a case of the fresh sets would write
+them (the family's own names; ``{C}/nope`` a missing path)."""
+
+
+def tokens(prog: str, argv: str) -> tuple[str, ...]:
+    """The case's arguments with the macros expanded and the matrices' path names aliased."""
+    for name, macro in MACROS.items():
+        argv = argv.replace(name, macro)
+    for old, new in ALIASES.items():
+        argv = argv.replace(old, new)
+    try:
+        return tuple(shlex.split(argv))
+    except ValueError:
+        return tuple(argv.split())
+
+
+def usual(prog: str, cases: list) -> set[str]:
+    """Arguments in at least a third of ``prog``'s cases: its base, not what a case tries."""
+    mine = [set(tokens(c.prog, c.argv)) for c in cases if c.prog == prog]
+    counts: dict[str, int] = {}
+    for toks in mine:
+        for t in toks:
+            counts[t] = counts.get(t, 0) + 1
+    return {t for t, n in counts.items() if n * 3 >= len(mine)}
+
+
+def _tried(toks: tuple[str, ...], base: set[str]) -> tuple[str, ...]:
+    """The arguments a case tries: those not of the script's base, each as often as given."""
+    return tuple(sorted(t for t in toks if t not in base))
+
+
+def _environment(case) -> frozenset[str]:
+    """The environment variables a case changes (a missing package's ``PYTHONPATH`` aside:
+    its setup names the package)."""
+    return frozenset(k for k in case.env if k not in ("PYTHONPATH", "PYTHONDONTWRITEBYTECODE"))
+
+
+def generated_argparse() -> list[tuple[str, tuple[str, ...], str, str]]:
+    from test_cli_matrix_arguments import BAD
+
+    return [(prog, b.commands, b.flag, b.value) for prog, b in BAD if b.kind != "undeclared"]
+
+
+def generated_schema() -> list[tuple[str, str]]:
+    from test_cli_matrix import CHECKERS, _override
+
+    found = []
+    for prog, make in CHECKERS.items():
+        _, _, bad = make()
+        found += [(prog, _override(b.key, b.value, b.kind)) for b in bad]
+    return found
+
+
+def handwritten() -> list[tuple[str, tuple[str, ...]]]:
+    import test_cli_matrix
+    import test_image_families
+
+    cases = [*test_cli_matrix.CASES, *test_cli_matrix.MORE_CASES, *test_image_families.CASES]
+    return [(c.prog, tokens(c.prog, " ".join(c.argv))) for c in cases]
+
+
+def screen(path: Path) -> list[str]:
+    """One line per repeat found among ``path``'s cases."""
+    new = read_cases(path)
+    earlier = [c for name in EARLIER for c in read_cases(HERE / name)]
+    found: list[str] = []
+    bad_args = generated_argparse()
+    bad_keys = generated_schema()
+    hand = handwritten()
+    for case in new:
+        toks = tokens(case.prog, case.argv)
+        pairs = set(zip(toks, toks[1:], strict=False))
+        for prog, commands, flag, value in bad_args:
+            if prog == case.prog and toks[: len(commands)] == commands and (flag, value) in pairs:
+                found.append(f"{case.id}: generated argparse case {flag} {value}")
+        for prog, override in bad_keys:
+            if prog == case.prog and override in toks:
+                found.append(f"{case.id}: generated schema case {override}")
+        if FAMILY_PATHS.search(case.argv):
+            found.append(f"{case.id}: a path family's path")
+        base = usual(case.prog, [*earlier, *new])
+        tried = _tried(toks, base)
+        for old in earlier:
+            old_toks = tokens(old.prog, old.argv)
+            if old.prog != case.prog:
+                continue
+            same_setup = set(old.setup) == set(case.setup)
+            if old_toks == toks and same_setup and old.env == case.env:
+                found.append(f"{case.id}: the earlier case {old.id}")
+            elif tried and tried == _tried(old_toks, base) and same_setup and old.env == case.env:
+                found.append(f"{case.id}: tries what {old.id} tried")
+            elif _environment(case) and _environment(case) == _environment(old):
+                found.append(f"{case.id}: changes the environment as {old.id} did")
+        for prog, hand_toks in hand:
+            # (a case with a setup differs by its files, not its arguments: screened by reading)
+            if prog == case.prog and not case.setup and tried and tried == _tried(hand_toks, base):
+                found.append(f"{case.id}: a hand-written matrix case ({' '.join(hand_toks)[:80]})")
+    return found
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("cases", type=Path)
+    args = parser.parse_args(argv)
+    found = screen(args.cases)
+    n = len(read_cases(args.cases))
+    print("\n".join(found) if found else f"{n} cases: no repeat found")
+    return 1 if found else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
