@@ -126,6 +126,11 @@ class SlamConfig:
     keyframe's are all still held, the next keyframe waits ``tracker.max_keyframe_interval``
     frames (:class:`~.systems.frame_loop.FrameLoop`). An experiment, off by default
     (docs/results/slam.md, "provisional map points, second attempt")."""
+    provisional_border_px: Optional[int] = ranged(None, min=0, needs="provisional_points")  # noqa: UP045
+    """With ``provisional_points``: hold back only the new points whose keypoint lies within
+    this many pixels of the carried mask's dynamic region (the rest are mapped at once), and no
+    keyframe wait; null = all of them, with the wait. An experiment (docs/results/slam.md,
+    "provisional map points near the carried mask")."""
     repeats: int = ranged(1, min=1)
     """Runs per filter set: repeat 0 unperturbed, the others with a perturbed feature budget and
     RANSAC sampling; the outputs are the median run's, with the spread (:mod:`.scoring.repeats`)."""

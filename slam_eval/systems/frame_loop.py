@@ -30,6 +30,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
 
 from ..filters.base import FilterContext
@@ -113,6 +114,10 @@ class FrameLoop:
     (:func:`~.semantic_thread.settle_provisional`), and while every point the newest keyframe
     held back is still waiting, a frame becomes a keyframe only when the tracker wants one and
     ``max_keyframe_interval`` frames have passed since the last (:meth:`keyframe_gate`)."""
+    provisional_border_px: int | None = None
+    """With ``provisional_points`` (``slam.provisional_border_px``): hold back only the new
+    points whose keypoint lies within this many pixels of the carried mask's dynamic region
+    (:meth:`near_carried`), without the keyframe gate; None: all of them, with the gate."""
     provisional: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     """The (P,) ids of the map points held back and not judged by a mask yet."""
     pending: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
@@ -152,7 +157,7 @@ class FrameLoop:
                 labels = self.first_mask(frame)
         filters, result = self.track(frame, labels, item.features)
         keyframe = self.filter_tracked(frame, filters, result)
-        if self.provisional_points and keyframe is None:
+        if self.provisional_points and self.provisional_border_px is None and keyframe is None:
             keyframe = self.keyframe_gate(filters, result)
         kf = self.map_keyframe(frame, filters, result, keyframe)
         if self.semantic is not None and kf is not None:
@@ -161,7 +166,7 @@ class FrameLoop:
             else:
                 self.semantic.request(frame, kf.id)  # returns at once
                 if self.provisional_points:
-                    held = hold_new_points(self.map, kf.id)
+                    held = hold_new_points(self.map, kf.id, self.near_carried(filters))
                     self.provisional = np.concatenate([self.provisional, held])
                     self.pending = held
                     self.counts["points_held"] += len(held)
@@ -243,6 +248,30 @@ class FrameLoop:
             )
             return False
         return None
+
+    def near_carried(self, filters: FrameFilters) -> np.ndarray | None:
+        """With ``provisional_border_px``: ``(H, W)`` bool, the dynamic region of the labels
+        carried to this frame (the filters that mask their input) grown by that many pixels
+        (all False without carried labels); None without the border (every new point held)."""
+        border = self.provisional_border_px
+        if border is None:
+            return None
+        ctx = filters.ctx
+        shape = ctx.frame.gray.shape
+        regions = [
+            f.input_region(ctx.frame, ctx.labels)
+            for f in self.chain.filters
+            if f.needs_labels and f.masks_input
+        ]
+        regions = [r for r in regions if r is not None]
+        if not regions:
+            return np.zeros(shape, bool)
+        region = np.logical_or.reduce(regions)
+        if border == 0 or not region.any():
+            return region
+        # pixels within ``border`` (Euclidean) of the region, at any border in O(H W)
+        away = cv2.distanceTransform((~region).astype(np.uint8), cv2.DIST_L2, 5)
+        return away <= border
 
     def first_mask(self, frame: Frame) -> np.ndarray | None:
         """With the semantic thread, a first-keyframe candidate's labels: tracking waits for

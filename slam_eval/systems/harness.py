@@ -155,6 +155,7 @@ class SlamPipeline:
         loop_closing_params: LoopClosingConfig | None = None,
         sampling_seed: int | None = None,
         provisional_points: bool = False,
+        provisional_border_px: int | None = None,
     ) -> None:
         """``sampling_seed``: perturbs the tracker's RANSAC sampling (a repeated run,
         :mod:`.repeats`); None = the deterministic run. ``prefetch_mode``: ``"thread"``,
@@ -179,6 +180,7 @@ class SlamPipeline:
         """``thread`` or ``process``: where the last run read and extracted its frames."""
         self.segment = segment
         self.provisional_points = provisional_points
+        self.provisional_border_px = provisional_border_px
         self.progress = progress
         self.description = description or sequence.path.name
         self.local_ba = local_ba
@@ -286,6 +288,7 @@ class SlamPipeline:
         return FrameLoop(
             timer, tracker, slam_map, chain, products, mapper, closer, segment_now, semantic,
             provisional_points=self.provisional_points,
+            provisional_border_px=self.provisional_border_px,
         )  # fmt: skip
 
     def _frames(self) -> tuple[frontend_process.FrontendProcess | None, Iterator[Prepared]]:

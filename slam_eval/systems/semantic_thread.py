@@ -302,11 +302,15 @@ PROVISIONAL_DEPTH = 0.05
 many metres)."""
 
 
-def hold_new_points(slam_map: SlamMap, kf_id: int) -> np.ndarray:
+def hold_new_points(slam_map: SlamMap, kf_id: int, near: np.ndarray | None = None) -> np.ndarray:
     """Make the good map points keyframe ``kf_id`` created provisional (marked bad until a mask
-    clears them: :func:`settle_provisional`); returns their ids."""
+    clears them: :func:`settle_provisional`), with ``near`` ((H, W) bool) only those observed
+    through a keypoint inside it; returns their ids."""
     kf = slam_map.keyframes[kf_id]
-    ids = kf.point_ids[kf.point_ids >= 0]
+    ids = kf.point_ids
+    if near is not None:
+        ids = ids[values_at(near, kf.features.xy)]
+    ids = ids[ids >= 0]
     pts = slam_map.points
     ids = ids[(pts.first_keyframe.view[ids] == kf_id) & ~pts.bad.view[ids]]
     pts.bad.view[ids] = True

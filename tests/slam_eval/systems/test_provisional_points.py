@@ -45,11 +45,12 @@ def test_keyframe_gate_holds_the_next_keyframe_while_the_newest_waits() -> None:
     assert loop.keyframe_gate(filters, None) is None
 
 
-def _run(path: Path, provisional: bool):
+def _run(path: Path, provisional: bool, border: int | None = None):
     seq = TumSequence(path, load_labels=True)
     return SlamPipeline(
         seq, LabelsSegmenter(latency_s=0.2), build_filters(["semantic"]),
         segment="thread", progress=False, provisional_points=provisional,
+        provisional_border_px=border,
     ).run()  # fmt: skip
 
 
@@ -63,6 +64,16 @@ def test_provisional_points_end_to_end(synthetic_sequence) -> None:
     assert stats["points_cleared"] + stats["points_dropped"] <= stats["points_held"]
     np.testing.assert_array_equal(on.trajectory.positions, again.trajectory.positions)
     assert on.keyframes <= off.keyframes + 1  # the gate: no keyframe cascade
+
+
+def test_a_border_holds_only_the_points_near_the_carried_mask(synthetic_sequence) -> None:
+    path = synthetic_sequence(preset="walking_xyz", frames=40)
+    every, near, none = _run(path, True, 10_000), _run(path, True, 40), _run(path, True, 0)
+    stats = [r.semantic_thread for r in (every, near, none)]
+    assert all(s is not None for s in stats)
+    held = [s["points_held"] for s in stats]
+    assert held[0] > held[1] > held[2]  # 0 px: only what the filter's own dilation covers
+    assert "keyframes_gated" not in near.semantic_thread  # no keyframe gate with a border
 
 
 def test_provisional_points_need_the_thread(synthetic_sequence, tmp_path: Path) -> None:
