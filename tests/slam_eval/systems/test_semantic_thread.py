@@ -164,8 +164,11 @@ def test_wall_thread_never_blocks_the_caller() -> None:
         got += thread.poll(1.0)
         time.sleep(0.01)
     thread.close()
-    # The first keyframe if the thread took it before the others came, then the newest one.
-    assert [d.kf_id for d in got] in ([0, 4], [4]) and got[-1].labels is not None
+    # The keyframe the thread took while the others came (whichever had come: the thread
+    # starts when the machine lets it), then only the newest one.
+    ids = [d.kf_id for d in got]
+    assert ids[-1] == 4 and len(ids) <= 2 and ids == sorted(set(ids))
+    assert got[-1].labels is not None
 
 
 def test_tracking_never_waits_for_the_semantic_thread(synthetic_sequence) -> None:
