@@ -129,8 +129,8 @@ class SlamConfig:
     provisional_border_px: Optional[int] = ranged(None, min=0, needs="provisional_points")  # noqa: UP045
     """With ``provisional_points``: hold back only the new points whose keypoint lies within
     this many pixels of the carried mask's dynamic region (the rest are mapped at once), and no
-    keyframe wait; null = all of them, with the wait. An experiment (docs/results/slam.md,
-    "provisional map points near the carried mask")."""
+    keyframe wait; null = all of them, with the wait. An experiment, dropped by its
+    pre-registered rule (docs/results/slam.md, "provisional map points near the carried mask")."""
     repeats: int = ranged(1, min=1)
     """Runs per filter set: repeat 0 unperturbed, the others with a perturbed feature budget and
     RANSAC sampling; the outputs are the median run's, with the spread (:mod:`.scoring.repeats`)."""
