@@ -431,8 +431,11 @@ def hydra_task(prog: str, task: Callable[[Any], T], cfg: Any) -> T | None:
     with a user error (printed and recorded; the other jobs go on)."""
     from omegaconf.errors import OmegaConfBaseException
 
+    from uss_slam.core.schema.compose import check_interpolations
+
     try:
         with exit_on_user_error(prog, (OmegaConfBaseException,)):
+            check_interpolations(cfg)  # ${oc.env:X} unset: one line naming its key
             return task(cfg)
     except JobFailed:
         return None
@@ -513,6 +516,11 @@ def override_parse_line(override: str, message: str) -> str:
     quoted (spaces, non-ASCII letters such as in ``out_dir=/data/résumé``), the quoted form to
     use instead of the lexer's text."""
     key, sep, value = override.partition("=")
+    if sep and value.startswith("[") and value.endswith("]") and "=" in value:  # [a=1,b=2]
+        from uss_slam.core.paths import hydra_quoted
+
+        items = "[" + ",".join(hydra_quoted(i.strip()) for i in value[1:-1].split(",")) + "]"
+        return f"{key}: a list item holding '=' must be quoted for Hydra; write {key}={items}"
     if sep and value and not value.startswith(("'", '"', "[", "{")):
         from uss_slam.core.paths import hydra_quoted
 

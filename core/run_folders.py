@@ -59,7 +59,15 @@ class RunFolderCheck:
         from uss_slam.core.files import check_output_owner, output_lock
         from uss_slam.core.paths import output_folder
 
-        folder = str(config.hydra.run.dir)
+        try:
+            folder = str(config.hydra.run.dir)
+        except Exception as error:  # an interpolation that cannot be resolved (${nope})
+            if type(error).__module__.split(".")[0] != "omegaconf":
+                raise
+            text = str(getattr(error, "msg", "") or error).strip().splitlines()
+            raise RefusedRunFolder(
+                UssSlamError(f"{self.key}: {text[0] if text else error}")
+            ) from None
         try:
             output_folder(folder, self.key)  # before Hydra opens its log file in it
             if self.lock and os.environ.get("LOCAL_RANK", "0") == "0":

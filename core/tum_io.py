@@ -297,6 +297,17 @@ GROUNDTRUTH_FILE = "groundtruth.txt"
 LABELS_DIR = "labels"
 
 
+def is_file(path: Path) -> bool:
+    """``path.is_file()``, except that a folder on the way whose mode forbids looking inside it
+    (``chmod 000 rgb``) is an error naming that folder, not Python's ``PermissionError``."""
+    try:
+        return path.is_file()
+    except PermissionError:
+        raise DataFormatError(
+            path.parent, "cannot be read: permission denied (its mode forbids looking inside it)"
+        ) from None
+
+
 def label_file_name(rgb_name: str) -> str:
     """The name of a colour frame's label image: a PNG (labels are lossless) with the frame's
     stem, ``x.png`` for ``rgb/x.png`` and for ``rgb/x.jpg`` alike."""
@@ -335,7 +346,7 @@ class TumFolder:
     def groundtruth(self) -> Path | None:
         """``groundtruth.txt`` when the folder has one."""
         path = self.root / GROUNDTRUTH_FILE
-        return path if path.is_file() else None
+        return path if is_file(path) else None
 
     def missing(self, frame: FrameFiles) -> DataFormatError | None:
         """The error for the first file of ``frame`` that does not exist (None: all there);
@@ -344,11 +355,11 @@ class TumFolder:
             (self.rgb, frame.rgb_index, frame.rgb),
             (self.depth, frame.depth_index, frame.depth),
         ):
-            if files is None or index is None or path is None or path.is_file():
+            if files is None or index is None or path is None or is_file(path):
                 continue
             line = files.lines[index] if files.lines else None
             return DataFormatError(files.path, f"listed image {files.files[index]} not found", line)
-        if frame.labels is not None and not frame.labels.is_file():
+        if frame.labels is not None and not is_file(frame.labels):
             return DataFormatError(
                 frame.labels,
                 f"label of {self.rgb.files[frame.rgb_index]} not found "
@@ -379,7 +390,7 @@ def read_tum_folder(
     input_folder(root, None, f"expected a TUM sequence folder with {needed}")
     lists = [RGB_LIST, DEPTH_LIST] if depth else [RGB_LIST]
     for name in lists:
-        if not (root / name).is_file():
+        if not is_file(root / name):
             raise DataFormatError(root / name, f"not a TUM RGB-D sequence: {name} not found")
     rgb = read_file_list(root / RGB_LIST, skipped=skipped)
     if len(rgb) == 0:

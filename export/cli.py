@@ -26,7 +26,14 @@ from omegaconf import DictConfig, OmegaConf
 from uss_slam.core.cli import hydra_task, run_hydra_app, warning
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.onnx_contract import HEADS
-from uss_slam.core.paths import input_file, input_folder, naming, output_file, output_folder
+from uss_slam.core.paths import (
+    input_file,
+    input_folder,
+    naming,
+    naming_roots,
+    output_file,
+    output_folder,
+)
 from uss_slam.core.schema import MAX_THREADS, check, ranged, unused_settings
 from uss_slam.export.checkpoint import run_name
 from uss_slam.export.onnx import check_options, export_checkpoint
@@ -194,7 +201,9 @@ def run(cfg: DictConfig) -> ExportResult:
     # anything is written.
     calibration = None
     if options.calibration_root is not None:
-        calibration = CalibrationSet.read(options.calibration_root, options.calibration_frames)
+        root = str(options.calibration_root)
+        with naming_roots({"root": root}, "calibration"):  # a bad frame names the key too
+            calibration = CalibrationSet.read(root, options.calibration_frames)
     if options.num_threads:
         torch.set_num_threads(options.num_threads)
     with ExitStack() as names:  # ckpt_path=<file>: not a readable checkpoint

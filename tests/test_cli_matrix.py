@@ -985,7 +985,7 @@ MORE_CASES = [
          f"{EXPORT} int8=true calibration.root={{seq}} calibration.frames=many", 1,
          "calibration.frames: expected an integer >= 1, got 'many'"),
     case("export-calibration-rgb-list-garbled", "uss-export",
-         f"{EXPORT} int8=true calibration.root={{s}}", 1, "{s}/rgb.txt",
+         f"{EXPORT} int8=true calibration.root={{s}}", 1, "calibration.root={s}: rgb.txt",
          "expected 'timestamp filename' (2 columns), got 3 columns",
          setup=(seq_copy(rewrite("rgb.txt", "one two three\n")),)),
     case("export-net-config-missing", "uss-export", f"{EXPORT} net_config={{tmp}}/net.yaml", 1,

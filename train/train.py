@@ -11,7 +11,9 @@ Returns the value of ``optimized_metric`` (``val/mIoU``) so Hydra sweepers can o
 
 from __future__ import annotations
 
+import importlib
 import logging
+import secrets
 import signal
 from dataclasses import dataclass, fields
 from pathlib import Path
@@ -458,6 +460,17 @@ def _drop_shutdown_notice(record: logging.LogRecord) -> bool:
     return "Detected KeyboardInterrupt" not in str(record.msg)
 
 
+def draw_seed(cfg: DictConfig) -> None:
+    """``seed=null``: a seed drawn from the system's entropy for this run (logged, and recorded
+    in the checkpoints' hyper-parameters), so that every ``${seed}`` of the config (the data
+    streams', the selection's) is a number; a resumed run keeps the one it is given."""
+    if "seed" not in cfg or cfg.seed is not None:
+        return
+    with open_dict(cfg):
+        cfg.seed = secrets.randbelow(2**32)
+    log.info("seed=null: drew seed %d for this run", cfg.seed)
+
+
 def train(cfg: DictConfig) -> dict[str, float]:
     """Fit the configured model; returns the final callback metrics as floats.
 
@@ -465,6 +478,7 @@ def train(cfg: DictConfig) -> dict[str, float]:
     config, the checkpoint to resume, the output folders), so that a bad run leaves no
     checkpoints or logs behind.
     """
+    draw_seed(cfg)
     settings = check_settings(cfg)
     check_accelerator(cfg)
     if settings.num_threads is not None:
@@ -496,6 +510,8 @@ def train(cfg: DictConfig) -> dict[str, float]:
         # Lightning's own bar would write one line per batch into a file or CI log
         callbacks.append(LogProgressBar())
     loggers: list[Logger] = _instantiate_all(cfg.get("logger"))
+    if any(type(logger).__name__ == "TensorBoardLogger" for logger in loggers):
+        importlib.import_module("tensorboard")  # Lightning imports it at the first log line
     if not loggers:  # `logger=none`: nothing to monitor learning rates into
         callbacks = [c for c in callbacks if not isinstance(c, LearningRateMonitor)]
     precision, reason = resolve_precision(

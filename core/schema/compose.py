@@ -18,6 +18,7 @@ from omegaconf.errors import (
     ValidationError,
 )
 
+from ..errors import UssSlamError
 from .fields import SchemaError, _hints, describe, structured
 
 
@@ -98,3 +99,26 @@ def register(group: str, name: str, schema: type) -> None:
     from hydra.core.config_store import ConfigStore
 
     ConfigStore.instance().store(group=group, name=name, node=structured(schema))
+
+
+def check_interpolations(cfg: DictConfig | ListConfig, prefix: str = "") -> None:
+    """Resolve every interpolation of ``cfg`` (``${oc.env:SEQ}``, ``${now:...}``, ``${a.b}``)
+    before any work: one that cannot be resolved (a variable that is not set, a key that does
+    not exist) is a :class:`SchemaError` naming the key that holds it, not OmegaConf's text
+    without a key (:class:`UssSlamError`). A missing mandatory value (``???``) is left to the schema's own check."""
+    keys = range(len(cfg)) if isinstance(cfg, ListConfig) else list(cfg.keys())
+    for key in keys:
+        full = f"{prefix}[{key}]" if isinstance(key, int) else f"{prefix}.{key}".lstrip(".")
+        node = cfg._get_node(key)
+        try:
+            value = cfg[key]
+        except MissingMandatoryValue:
+            continue
+        except OmegaConfBaseException as error:
+            if node is None or not node._is_interpolation():
+                raise
+            text = str(error.msg or error).strip().splitlines()
+            detail = text[0].split("resolving interpolation: ")[-1].strip("'\"")
+            raise UssSlamError(f"{full}: cannot resolve {node._value()} ({detail})") from None
+        if isinstance(value, (DictConfig, ListConfig)):
+            check_interpolations(value, full)

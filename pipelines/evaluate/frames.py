@@ -43,7 +43,7 @@ def sequence_frames(roots: Sequence[Path], stride: int) -> FrameSource:
     ``labels/``, or image folders with only ``rgb.txt``, ``rgb/`` and ``labels/`` (depth and
     ground truth are not needed). Lists and files are checked before any inference; a folder
     given twice is refused (``core.paths.distinct_folders``)."""
-    from uss_slam.core.tum_io import read_tum_folder
+    from uss_slam.core.tum_io import is_file, read_tum_folder
 
     if stride < 1:
         raise UssSlamError(f"--stride: expected an integer >= 1, got {stride}")
@@ -58,7 +58,7 @@ def sequence_frames(roots: Sequence[Path], stride: int) -> FrameSource:
             missing = folder.missing(frame)
             if missing is not None:
                 raise missing
-            if frame.labels is not None and not frame.labels.is_file():
+            if frame.labels is not None and not is_file(frame.labels):
                 raise DataFormatError(
                     frame.labels, f"no labels for colour frame {frame.rgb.name} (expected a "
                     "uint8 class-id PNG of the same name in labels/)"

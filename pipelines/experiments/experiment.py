@@ -123,6 +123,23 @@ def warn_orbslam3_unused(orb: Mapping[str, Any]) -> None:
         warning(unused_line(keys, "systems does not list orbslam3"))
 
 
+def warn_methods_untrained(grid: Mapping[str, Any]) -> None:
+    """``grid.depth_sweep`` or ``grid.adabn_methods`` set (not their defaults) to methods that
+    ``grid.methods`` does not train: one warning per key naming them (accepted; no depth is
+    swept, no AdaBN export is made for them)."""
+    from .schema import Grid
+
+    methods = [str(m) for m in grid.get("methods") or []]
+    for key in changed_keys(grid, Grid(), "grid"):
+        name = key.removeprefix("grid.")
+        if name not in ("depth_sweep", "adabn_methods"):
+            continue
+        untrained = [str(m) for m in grid.get(name) or [] if str(m) not in methods]
+        if untrained:
+            condition = f"grid.methods does not list {', '.join(untrained)}"
+            warning(unused_line([key], condition))
+
+
 def check_orbslam3(orb: Mapping[str, Any]) -> None:
     """``systems=[...,orbslam3]``: the bindings installed, a readable vocabulary (when given)
     before any work."""
@@ -377,6 +394,7 @@ def check(cfg: DictConfig) -> Experiment:
     grid = expand(plain, accepted, inits=(init.seeds if init.pretrains else ()) or (None,))
     check_batchnorm(plain, grid)
     check_crf(plain, grid)
+    warn_methods_untrained(plain["grid"])
     launcher = plain.get("launcher") or {}
     choose("launcher.name", launcher.get("name"), LAUNCHERS)
     check_parallelism(plain, missing)

@@ -77,11 +77,10 @@ def _figure(width: float, height: float, columns: int = 1) -> tuple[Figure, list
 
 
 def _save(fig: Figure, path: StrPath) -> Path:
-    """Save ``fig`` to ``path`` atomically (temporary sibling, then rename)."""
+    """Save ``fig`` to ``path`` atomically (temporary sibling, then rename); a folder on the way
+    that does not exist is created, as for every output file (``core.paths.output_file``)."""
     path = check_plot_path(path)
     fig.tight_layout()
-    if not path.parent.is_dir():  # atomic_path would create it: a plot goes into a folder
-        raise UssSlamError(f"{path}: cannot write the plot (no folder {path.parent})")
     try:
         with atomic_path(path, prefix=TMP_PREFIX) as tmp:
             fig.savefig(tmp, format=path.suffix.lower().lstrip("."), dpi=DPI)

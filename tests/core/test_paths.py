@@ -91,6 +91,19 @@ def test_a_value_hydra_cannot_read_unquoted_gets_its_quoted_form() -> None:
     )
 
 
+def test_list_items_holding_equals_signs_get_their_quoted_form() -> None:
+    """``train.overrides=[logger=none,model.max_iters=6]``: Hydra's lexer text would say "no
+    viable alternative"; the line gives the form that works."""
+    line = override_parse_line("train.overrides=[logger=none,model.max_iters=6]", "no viable ...")
+    assert line == (
+        "train.overrides: a list item holding '=' must be quoted for Hydra; write "
+        "train.overrides=['logger=none','model.max_iters=6']"
+    )
+    assert override_parse_line("limit=[1", "no viable alternative at input '[1'").startswith(
+        "limit=[1: no viable"
+    )
+
+
 def test_errors_cross_processes_whole() -> None:
     """A worker's error is pickled to its parent: rebuilt from its fields, never from its
     message (a full disk would name itself twice), and still a full disk there."""

@@ -269,3 +269,24 @@ def test_the_label_of_a_jpeg_frame_is_the_png_of_its_stem(tmp_path: Path) -> Non
     folder = read_tum_folder(tmp_path, depth=False, labels=True)
     assert folder.frames[0].labels == tmp_path / "labels" / "1.000000.png"
     assert folder.missing(folder.frames[0]) is None
+
+
+def test_a_frames_folder_that_cannot_be_searched_is_one_error_naming_it(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``chmod 000 rgb`` (as a user, not root: ``stat`` of a file inside fails with EACCES):
+    the error names the folder, not Python's ``PermissionError`` (uss-slam, uss-eval and
+    uss-vocab check listed frames with :func:`is_file`)."""
+    root = _folder(tmp_path / "seq")
+    folder = read_tum_folder(root, labels=True)
+    real = Path.is_file
+
+    def denied(path: Path) -> bool:
+        if path.parent.name == "rgb":
+            raise PermissionError(13, "Permission denied", str(path))
+        return real(path)
+
+    monkeypatch.setattr(Path, "is_file", denied)
+    with pytest.raises(DataFormatError, match="rgb: cannot be read: permission denied") as error:
+        folder.missing(folder.frames[0])
+    assert error.value.path == str(root / "rgb")

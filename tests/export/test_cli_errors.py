@@ -99,19 +99,23 @@ def _bad_calibration(kind: str, root: Path) -> tuple[list[str], str]:
     root.mkdir()
     if kind == "empty":
         return [f"calibration.root={root}"], (
-            f"{root / 'rgb.txt'}: calibration.root must be a TUM RGB-D folder with rgb.txt"
+            f"calibration.root={root}: rgb.txt: calibration.root must be a TUM RGB-D folder "
+            "with rgb.txt"
         )
     if kind == "no_frames":
         (root / "rgb.txt").write_text("# timestamp filename\n")
-        return [f"calibration.root={root}"], f"{root / 'rgb.txt'}: needs at least 2 frames, lists 0"
+        return [f"calibration.root={root}"], (
+            f"calibration.root={root}: rgb.txt: needs at least 2 frames, lists 0"
+        )
     assert kind == "broken_image"
     (root / "rgb").mkdir()
     (root / "rgb" / "1.png").write_bytes(b"not a png")
     (root / "rgb" / "2.png").write_bytes(b"not a png")
     (root / "rgb.txt").write_text("1.0 rgb/1.png\n2.0 rgb/2.png\n")
-    return [
-        f"calibration.root={root}"
-    ], f"{root / 'rgb' / '1.png'}: not a readable image; expected a colour image (PNG or JPEG)"
+    return (
+        [f"calibration.root={root}"],
+        f"calibration.root={root}: rgb/1.png: not a readable image; expected a colour image (PNG or JPEG)",
+    )
 
 
 @pytest.mark.parametrize("kind", ["unset", "missing", "empty", "no_frames", "broken_image"])

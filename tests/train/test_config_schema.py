@@ -15,7 +15,7 @@ from omegaconf import DictConfig
 
 from uss_slam.core.cli import FailedJob, JobReport
 from uss_slam.core.schema import MAX_THREADS, SchemaError
-from uss_slam.train.train import MAX_SEED, RunSettings, check_config
+from uss_slam.train.train import MAX_SEED, RunSettings, check_config, draw_seed
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 
@@ -35,6 +35,15 @@ def test_the_shipped_config_passes_and_gives_the_run_settings() -> None:
     settings = check_config(_compose("seed=7", "run_name=2024", "trainer.precision=auto"))
     assert isinstance(settings, RunSettings)
     assert (settings.seed, settings.run_name, settings.num_threads) == (7, "2024", None)
+
+
+def test_seed_null_draws_a_seed_that_every_seed_key_takes() -> None:
+    """``seed=null`` (documented as valid) used to be refused by ``data.seed: ${seed}``."""
+    cfg = _compose("seed=null", "data=real")
+    draw_seed(cfg)
+    settings = check_config(cfg)
+    assert settings.seed is not None and 0 <= settings.seed <= MAX_SEED
+    assert cfg.data.seed == settings.seed
 
 
 @pytest.mark.parametrize(

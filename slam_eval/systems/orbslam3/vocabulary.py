@@ -49,7 +49,7 @@ from uss_slam.core.files import write_text_atomic
 from uss_slam.core.images import read_colour
 from uss_slam.core.paths import input_file, read_text
 from uss_slam.core.ranges import check_stride
-from uss_slam.core.tum_io import StrPath, read_file_list
+from uss_slam.core.tum_io import StrPath, is_file, read_file_list
 
 DESCRIPTOR_BYTES = 32
 """ORB descriptor length (``FORB::L``)."""
@@ -471,7 +471,7 @@ def training_images(
         if not chosen:
             raise DataFormatError(listing.path, "lists no images")
         for image in chosen:
-            if not image.is_file():
+            if not is_file(image):
                 raise DataFormatError(image, f"file not found (listed in {listing.path})")
         images += chosen
     return images

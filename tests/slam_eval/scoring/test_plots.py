@@ -53,6 +53,14 @@ def test_check_plot_path_accepts_matplotlib_formats(tmp_path: Path) -> None:
 
 
 def test_unwritable_folder_is_a_user_error(tmp_path: Path) -> None:
-    target = tmp_path / "missing" / "t.png"
-    with pytest.raises(UssSlamError, match=r"missing/t\.png: cannot write the plot"):
+    (tmp_path / "afile").write_text("a file\n")
+    target = tmp_path / "afile" / "t.png"
+    with pytest.raises(UssSlamError, match=r"afile/t\.png: cannot write the plot"):
         plots.plot_error_over_time(target, np.arange(3.0), np.zeros(3), "x")
+
+
+def test_a_new_folder_on_the_way_is_created(tmp_path: Path) -> None:
+    """As for every output file (``uss-vocab build --out a/b/v.txt``, the path layer's rule)."""
+    target = tmp_path / "new" / "plots" / "t.png"
+    assert plots.plot_error_over_time(target, np.arange(3.0), np.zeros(3), "x") == target
+    assert target.is_file()

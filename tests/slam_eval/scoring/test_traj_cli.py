@@ -137,8 +137,11 @@ def test_plot_writes_a_png(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -
     code, _, err = run(capsys, "ate", gt, est, "--plot", png)
     assert code == 0 and err == ""
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    code, _, err = run(capsys, "ate", gt, est, "--plot", tmp_path / "missing" / "ate.png")
-    assert code == 1 and len(err.strip().splitlines()) == 1 and "missing/ate.png" in err
+    code, _, err = run(capsys, "ate", gt, est, "--plot", tmp_path / "new" / "ate.png")
+    assert code == 0 and (tmp_path / "new" / "ate.png").is_file()  # folders on the way: made
+    (tmp_path / "afile").write_text("a file\n")
+    code, _, err = run(capsys, "ate", gt, est, "--plot", tmp_path / "afile" / "ate.png")
+    assert code == 1 and len(err.strip().splitlines()) == 1 and "--plot" in err
 
 
 def test_console_script_exit_codes(tmp_path: Path) -> None:
