@@ -21,13 +21,17 @@ loop closing, ``slam.prefetch_mode=auto``; ``filters=[semantic] segment=thread s
 - ``network labels``: as ``network`` with the random network's own labels (``uss-slam``
   unchanged; its masks are not people, so its map and keyframes differ).
 
+With ``--nice N`` a fourth run, ``network nice``: as ``network`` with ``slam.semantic_nice=N``
+(the semantic thread N nice levels below tracking: the network gets the CPU time tracking
+leaves).
+
 Reported per run: frames/s end to end (``metrics.json`` ``fps``: the first keyframe's mask,
-waited for, included) and after that wait (``tracking``), the main thread's CPU ms per frame
-(its modules' ``cpu_ms``, without the first wait), the CPU ms per frame of the whole
-``uss-slam`` process tree (``getrusage`` of the child: prefetch, network and main thread
-together), masks delivered, the network's latency (the first, waited-for mask; the mean in the
-thread) and the keypoints the semantic filter flagged; then medians per sequence and cell, the
-CPU model and the load average.
+waited for, included) and after that wait (``tracking``); the CPU ms per frame of tracking (every
+``cpu_ms`` row but the first mask's ``segmentation``: reading and ORB in the prefetch, the main
+thread's modules) and of the main thread alone; for ``network`` and ``network nice`` the
+network's CPU per frame and per call (its thread's CPU clock); masks delivered, the network's
+latency (the first, waited-for mask; the mean in the thread) and the keypoints the semantic
+filter flagged. Then medians per sequence and cell, the CPU model and the load average.
 
     python benchmarks/semantic_thread_speed.py --repeats 3 \\
         --sequence SEQ [SEQ ...]      # default: walking_xyz, seed 0, 300 frames, 640x480
@@ -39,7 +43,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import resource
 import statistics
 import subprocess
 import sys
@@ -102,23 +105,29 @@ def run(seq: Path, out: Path, overrides: list[str], truth: bool = False) -> dict
         *prog, f"sequence.path={seq}", "filters=[semantic]", "segment=thread",
         "slam.repeats=1", "progress=false", f"out_dir={out}", f"hydra.run.dir={out}", *overrides,
     ]  # fmt: skip
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    out.mkdir(parents=True, exist_ok=True)
+    spent = out.parent / f"{out.name}.network_cpu.json"
+    spent.unlink(missing_ok=True)
+    env = {**os.environ, NETWORK_CPU: str(spent)}
     load = os.getloadavg()[0]
-    done = subprocess.run(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    done = subprocess.run(
+        cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env
+    )
     if done.returncode != 0:
         raise SystemExit(f"uss-slam failed ({done.returncode}): {' '.join(cmd)}\n"
                          f"{done.stderr.strip()[-800:]}")  # fmt: skip
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
     m = json.loads((out / "metrics.json").read_text())
     thread = m["segmentation"]["semantic_thread"]
     n = max(m["frames"], 1)
     first = float(thread["first_wait_s"])
-    cpu = (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime)
+    network = json.loads(spent.read_text()) if spent.is_file() else None
     return {
         "fps": m["fps"],
         "tracking_fps": (n - 1) / max(m["wall_time_s"] - first, 1e-9),
         "main_cpu_ms": sum(v for k, v in m["cpu_ms"].items() if k not in MAIN_EXCLUDED),
-        "process_cpu_ms": 1000.0 * cpu / n,
+        "tracking_cpu_ms": sum(v for k, v in m["cpu_ms"].items() if k not in ("segmentation",)),
+        "network_cpu_s": None if network is None else network["cpu_s"] / max(network["calls"], 1),
+        "network_cpu_ms": None if network is None else 1000.0 * network["cpu_s"] / n,
         "masks": m["segmentation"]["frames_segmented"],
         "requested": thread["requested"],
         "first_s": first,
@@ -133,6 +142,10 @@ def run(seq: Path, out: Path, overrides: list[str], truth: bool = False) -> dict
 
 
 TRUTH = "--uss-slam-with-truth"
+NETWORK_CPU = "USS_BENCH_NETWORK_CPU"
+"""Environment variable: where :func:`uss_slam_with_truth` writes the network's calls and their
+CPU and wall seconds (its own thread's CPU clock: onnxruntime with one intra-op thread computes
+in the caller)."""
 
 
 def uss_slam_with_truth() -> None:
@@ -144,15 +157,25 @@ def uss_slam_with_truth() -> None:
     from uss_slam.slam_eval.segmenters.onnx import OnnxSegmenter
 
     infer = OnnxSegmenter.infer
+    spent = {"calls": 0, "cpu_s": 0.0, "wall_s": 0.0}
 
     def segment(self: OnnxSegmenter, frame):  # noqa: ANN001, ANN202
+        wall, cpu = time.perf_counter(), time.thread_time()
         infer(self, frame.rgb)
+        spent["cpu_s"] += time.thread_time() - cpu
+        spent["wall_s"] += time.perf_counter() - wall
+        spent["calls"] += 1
         return frame.labels
 
     OnnxSegmenter.segment = segment
     OnnxSegmenter.needs_labels = True
     sys.argv = ["uss-slam", *sys.argv[2:]]
-    uss_slam_run.main()
+    record = os.environ.get(NETWORK_CPU)
+    try:
+        uss_slam_run.main()
+    finally:
+        if record:
+            Path(record).write_text(json.dumps(spent))
 
 
 def measured(net: dict) -> float:
@@ -162,30 +185,41 @@ def measured(net: dict) -> float:
 
 
 def show(name: str, seq: str, repeat: int, r: dict) -> None:
+    net = "" if r["network_cpu_s"] is None else (
+        f", network {r['network_cpu_ms']:.1f} ({r['network_cpu_s']:.2f} CPU s per call)"
+    )  # fmt: skip
     print(
         f"{seq} repeat {repeat} [{name}]: {r['fps']:.1f} frames/s end to end, tracking "
-        f"{r['tracking_fps']:.1f} frames/s; CPU ms/frame: main thread {r['main_cpu_ms']:.1f}, "
-        f"process {r['process_cpu_ms']:.1f}; masks {r['masks']} of {r['requested'] + 1} asked; "
-        f"latency first {r['first_s']:.2f} s, in the thread {r['latency_s']:.2f} s; flagged "
-        f"{r['flagged']}; tracked {r['tracked']:.2f}, ATE {r['ate']:.4f} m, {r['keyframes']} kf; "
-        f"load {r['load'][0]:.1f} -> {r['load'][1]:.1f}",
+        f"{r['tracking_fps']:.1f} frames/s; CPU ms/frame: tracking {r['tracking_cpu_ms']:.1f} "
+        f"(main thread {r['main_cpu_ms']:.1f}){net}; masks {r['masks']} of "
+        f"{r['requested'] + 1} asked; latency first {r['first_s']:.2f} s, in the thread "
+        f"{r['latency_s']:.2f} s; flagged {r['flagged']}; tracked {r['tracked']:.2f}, ATE "
+        f"{r['ate']:.4f} m, {r['keyframes']} kf; load {r['load'][0]:.1f} -> {r['load'][1]:.1f}",
         flush=True,
     )
 
 
 def summary(runs: dict[str, dict[str, list[dict]]]) -> None:
     """Medians per sequence and cell, as a markdown table."""
-    keys = ("fps", "tracking_fps", "main_cpu_ms", "process_cpu_ms", "masks", "latency_s")
-    print("\n| sequence | run | frames/s | tracking frames/s | main-thread CPU ms/frame | "
-          "process CPU ms/frame | masks | latency s (thread) | first mask s | load |")  # fmt: skip
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    keys = ("fps", "tracking_fps", "tracking_cpu_ms", "main_cpu_ms", "masks", "latency_s")
+    print("\n| sequence | run | frames/s | tracking frames/s | tracking CPU ms/frame (main "
+          "thread) | network CPU ms/frame (s per mask) | masks | latency s (first; thread) "
+          "| load |")  # fmt: skip
+    print("|---|---|---|---|---|---|---|---|---|")
     for seq, cells in runs.items():
         for name, done in cells.items():
+            if not done:
+                continue
             med = {k: statistics.median(r[k] for r in done) for k in (*keys, "first_s")}
+            nets = [r for r in done if r["network_cpu_s"] is not None]
+            net = "—" if not nets else (
+                f"{statistics.median(r['network_cpu_ms'] for r in nets):.1f} "
+                f"({statistics.median(r['network_cpu_s'] for r in nets):.2f})"
+            )  # fmt: skip
             loads = [v for r in done for v in r["load"]]
             print(f"| {seq} | {name} | {med['fps']:.1f} | {med['tracking_fps']:.1f} | "
-                  f"{med['main_cpu_ms']:.1f} | {med['process_cpu_ms']:.1f} | {med['masks']:g} | "
-                  f"{med['latency_s']:.2f} | {med['first_s']:.2f} | "
+                  f"{med['tracking_cpu_ms']:.1f} ({med['main_cpu_ms']:.1f}) | {net} | "
+                  f"{med['masks']:g} | {med['first_s']:.2f}; {med['latency_s']:.2f} | "
                   f"{min(loads):.1f}–{max(loads):.1f} |")  # fmt: skip
 
 
@@ -201,7 +235,7 @@ def cpu_model() -> str:
 
 
 CELLS = ("network", "oracle", "network labels")
-"""The runs of each repeat (module docstring)."""
+"""The runs of each repeat (module docstring); with ``--nice N`` also ``network nice``."""
 
 
 def main() -> None:
@@ -221,6 +255,8 @@ def main() -> None:
     parser.add_argument("--work", type=Path, default=Path("outputs/bench/semantic_thread"))
     parser.add_argument("--threads", type=int, default=1, help="segmenter.threads")
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--nice", type=int, default=0, choices=range(20), metavar="0..19",
+                        help="also run the network cell with slam.semantic_nice=N")  # fmt: skip
     parser.add_argument("--build-only", action="store_true", help="build the model and stop")
     args = parser.parse_args()
     for path in [*(args.sequence or []), *([args.model] if args.model else [])]:
@@ -242,20 +278,24 @@ def main() -> None:
                f"segmenter.threads={args.threads}"]  # fmt: skip
     runs: dict[str, dict[str, list[dict]]] = {}
     for seq in sequences:
-        cells = runs.setdefault(seq.name, {name: [] for name in CELLS})
+        names = (*CELLS, "network nice") if args.nice else CELLS
+        cells = runs.setdefault(seq.name, {name: [] for name in names})
         for repeat in range(args.repeats):
             # The oracle right after the network, at the latency that run measured (same,
             # ground-truth masks); the network's own labels last in even repeats, first in odd.
-            order = CELLS if repeat % 2 == 0 else (CELLS[2], *CELLS[:2])
+            order = names if repeat % 2 == 0 else (*names[2:][::-1], *names[:2])
             for name in order:
                 if name == "oracle":
                     latency = measured(cells["network"][-1])
                     overrides = ["segmenter=labels", f"segmenter.latency_s={latency:.3f}",
                                  "segmenter.wait=true"]  # fmt: skip
+                elif name == "network nice":
+                    overrides = [*network, f"slam.semantic_nice={args.nice}"]
                 else:
                     overrides = network
                 out = args.work / "runs" / seq.name / str(repeat) / name.replace(" ", "_")
-                cells[name].append(run(seq, out, overrides, truth=name == "network"))
+                truth = name in ("network", "network nice")
+                cells[name].append(run(seq, out, overrides, truth=truth))
                 show(name, seq.name, repeat, cells[name][-1])
     summary(runs)
     (args.work / "runs.json").write_text(json.dumps(runs, indent=1) + "\n")

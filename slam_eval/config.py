@@ -131,6 +131,10 @@ class SlamConfig:
     this many pixels of the carried mask's dynamic region (the rest are mapped at once), and no
     keyframe wait; null = all of them, with the wait. An experiment, dropped by its
     pre-registered rule (docs/results/slam.md, "provisional map points near the carried mask")."""
+    semantic_nice: int = ranged(0, min=0, max=19)
+    """With ``segment=thread`` and a segmenter that really runs (the wall clock): the semantic
+    thread's nice value above the process's (Linux), so that tracking takes the cores first and
+    the network the time left; 0 = the same priority."""
     repeats: int = ranged(1, min=1)
     """Runs per filter set: repeat 0 unperturbed, the others with a perturbed feature budget and
     RANSAC sampling; the outputs are the median run's, with the spread (:mod:`.scoring.repeats`)."""

@@ -161,6 +161,7 @@ def _run_harness(
             segment=str(cfg.segment),
             provisional_points=bool(slam.provisional_points),
             provisional_border_px=slam.provisional_border_px,
+            semantic_nice=int(slam.semantic_nice),
             progress=bool(cfg.progress),
             description=f"{sequence.path.name} [{run_name(names)}]"
             + (f" repeat {repeat.index}" if len(plan.repeats) > 1 else ""),

@@ -156,6 +156,7 @@ class SlamPipeline:
         sampling_seed: int | None = None,
         provisional_points: bool = False,
         provisional_border_px: int | None = None,
+        semantic_nice: int = 0,
     ) -> None:
         """``sampling_seed``: perturbs the tracker's RANSAC sampling (a repeated run,
         :mod:`.repeats`); None = the deterministic run. ``prefetch_mode``: ``"thread"``,
@@ -181,6 +182,7 @@ class SlamPipeline:
         self.segment = segment
         self.provisional_points = provisional_points
         self.provisional_border_px = provisional_border_px
+        self.semantic_nice = semantic_nice
         self.progress = progress
         self.description = description or sequence.path.name
         self.local_ba = local_ba
@@ -284,7 +286,9 @@ class SlamPipeline:
         products = MapProducts(self.map_config, extractor, placed_at_end=backend)
         segment_now = self._segment_timed if self.segment == "keyframes" else None
         chain = FilterChain(self.filters, timer)
-        semantic = start_thread(self.segmenter) if self.segment == "thread" else None
+        semantic = (
+            start_thread(self.segmenter, self.semantic_nice) if self.segment == "thread" else None
+        )
         return FrameLoop(
             timer, tracker, slam_map, chain, products, mapper, closer, segment_now, semantic,
             provisional_points=self.provisional_points,

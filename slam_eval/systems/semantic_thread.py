@@ -32,6 +32,7 @@ Two clocks:
 
 from __future__ import annotations
 
+import os
 import threading
 import time
 from dataclasses import dataclass, field
@@ -164,8 +165,9 @@ class WallThread(SemanticThread):
 
     clock = "wall"
 
-    def __init__(self, segmenter: Segmenter) -> None:
+    def __init__(self, segmenter: Segmenter, nice: int = 0) -> None:
         super().__init__(segmenter)
+        self.nice = int(nice)
         self._lock = threading.Condition()
         self._done: list[Delivered] = []
         self._stop = False
@@ -178,6 +180,8 @@ class WallThread(SemanticThread):
             self._lock.notify()
 
     def _work(self) -> None:
+        if self.nice > 0:
+            lower_priority(self.nice)
         while True:
             with self._lock:
                 while self._pending is None and not self._stop:
@@ -203,13 +207,26 @@ class WallThread(SemanticThread):
         self._thread.join(timeout=0.1)  # a segmentation under way ends on its own (daemon)
 
 
-def start_thread(segmenter: Segmenter) -> SemanticThread:
+def lower_priority(nice: int) -> None:
+    """Raise the calling thread's own nice value by ``nice`` (Linux schedules threads on their
+    own; elsewhere, or where refused, nothing changes). The segmenter runs in this thread (with
+    one intra-op thread onnxruntime computes in the caller), so tracking and its prefetch take
+    the cores first and the network the time they leave."""
+    try:
+        tid = threading.get_native_id()
+        os.setpriority(os.PRIO_PROCESS, tid, os.getpriority(os.PRIO_PROCESS, tid) + nice)
+    except (AttributeError, OSError):
+        pass
+
+
+def start_thread(segmenter: Segmenter, nice: int = 0) -> SemanticThread:
     """The semantic thread for ``segmenter``: the camera clock when it declares a
-    ``simulated_latency_s`` (not None), else the wall clock."""
+    ``simulated_latency_s`` (not None), else the wall clock (its thread ``nice`` more nice than
+    the process: :func:`lower_priority`)."""
     latency = getattr(segmenter, "simulated_latency_s", None)
     if latency is not None:
         return SimulatedThread(segmenter, float(latency))
-    return WallThread(segmenter)
+    return WallThread(segmenter, nice)
 
 
 @dataclass

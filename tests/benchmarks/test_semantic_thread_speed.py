@@ -22,19 +22,26 @@ def test_times_the_network_and_the_oracle_at_its_latency(synthetic_sequence, tmp
     work = tmp_path / "work"
     args = [sys.executable, str(SCRIPT), "--sequence", str(seq), "--model", str(model)]
     done = subprocess.run(
-        [*args, "--repeats", "2", "--work", str(work)], capture_output=True, text=True
+        [*args, "--repeats", "2", "--nice", "5", "--work", str(work)],
+        capture_output=True,
+        text=True,
     )
     assert done.returncode == 0, done.stderr
     runs = json.loads((work / "runs.json").read_text())[seq.name]
-    assert len(runs["network"]) == len(runs["oracle"]) == len(runs["network labels"]) == 2
+    assert [len(v) for v in runs.values()] == [2, 2, 2, 2]
     for net, oracle in zip(runs["network"], runs["oracle"], strict=True):
-        assert net["first_s"] > 0 and net["masks"] >= 1 and net["process_cpu_ms"] > 0
-        assert net["tracking_fps"] > 0 and net["main_cpu_ms"] > 0
+        assert net["first_s"] > 0 and net["masks"] >= 1 and net["network_cpu_s"] > 0
+        assert net["tracking_fps"] > 0 and net["tracking_cpu_ms"] > net["main_cpu_ms"] > 0
+        assert oracle["network_cpu_s"] is None
         # the oracle waited the network's measured latency, on the wall clock
         assert oracle["first_s"] >= min(net["latency_s"], net["first_s"]) * 0.9
     metrics = json.loads((work / "runs" / seq.name / "0" / "oracle" / "metrics.json").read_text())
     assert metrics["segmenter"] == "labels"
     assert metrics["segmentation"]["semantic_thread"]["clock"] == "wall"
+    nice = json.loads(
+        (work / "runs" / seq.name / "1" / "network_nice" / "metrics.json").read_text()
+    )
+    assert nice["settings"]["slam"]["semantic_nice"] == 5
     for name in ("network", "network_labels"):
         net = json.loads((work / "runs" / seq.name / "0" / name / "metrics.json").read_text())
         assert net["segmenter"] == "onnx:m.onnx"

@@ -4,6 +4,7 @@ pose, the oracle's latency option, and a tiny end-to-end run."""
 from __future__ import annotations
 
 import json
+import os
 import threading
 import time
 from pathlib import Path
@@ -250,3 +251,25 @@ def test_cli_thread_schedule_and_latency_errors(synthetic_sequence, tmp_path: Pa
     seq = TumSequence(path, load_labels=True)
     with pytest.raises(UssSlamError, match="simulated by segment=thread only"):
         SlamPipeline(seq, LabelsSegmenter(latency_s=0.5), [], segment="keyframes")
+
+
+def test_the_wall_thread_can_run_nicer_than_tracking() -> None:
+    seen: list[int] = []
+
+    class Nice:
+        name, needs_labels = "nice", False
+
+        def segment(self, frame):  # noqa: ANN001, ANN202
+            seen.append(os.getpriority(os.PRIO_PROCESS, threading.get_native_id()))
+            return None
+
+    own = os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
+    thread = start_thread(Nice(), nice=3)
+    assert isinstance(thread, WallThread)
+    thread.request(_frame(0, 0.0), kf_id=0)
+    deadline = time.perf_counter() + 5.0
+    while not seen and time.perf_counter() < deadline:
+        time.sleep(0.01)
+    thread.close()
+    assert seen == [min(own + 3, 19)]
+    assert os.getpriority(os.PRIO_PROCESS, threading.get_native_id()) == own  # the caller's
