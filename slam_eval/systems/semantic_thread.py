@@ -32,9 +32,11 @@ Two clocks:
 
 from __future__ import annotations
 
+import atexit
 import os
 import threading
 import time
+import weakref
 from dataclasses import dataclass, field
 
 import cv2
@@ -173,6 +175,7 @@ class WallThread(SemanticThread):
         self._stop = False
         self._thread = threading.Thread(target=self._work, name="semantic", daemon=True)
         self._thread.start()
+        _UNDER_WAY.add(self._thread)
 
     def request(self, frame: Frame, kf_id: int) -> None:
         with self._lock:
@@ -205,6 +208,24 @@ class WallThread(SemanticThread):
             self._stop = True
             self._lock.notify()
         self._thread.join(timeout=0.1)  # a segmentation under way ends on its own (daemon)
+
+
+_UNDER_WAY: weakref.WeakSet[threading.Thread] = weakref.WeakSet()
+"""Every :class:`WallThread`'s thread: a segmentation under way when its run ended goes on in
+the background, and is waited for before the interpreter exits (:func:`_finish_segmentations`)."""
+
+EXIT_WAIT_S = 120.0
+"""How long the interpreter's exit waits for each segmentation still under way (s)."""
+
+
+@atexit.register
+def _finish_segmentations() -> None:
+    """Wait for the segmentations still running in abandoned semantic threads: a native
+    segmenter (onnxruntime) still computing while the interpreter tears down its runtime aborts
+    the process (``terminate called without an active exception``), after the run's outputs
+    were written."""
+    for thread in list(_UNDER_WAY):
+        thread.join(timeout=EXIT_WAIT_S)
 
 
 def lower_priority(nice: int) -> None:

@@ -273,3 +273,32 @@ def test_the_wall_thread_can_run_nicer_than_tracking() -> None:
     thread.close()
     assert seen == [min(own + 3, 19)]
     assert os.getpriority(os.PRIO_PROCESS, threading.get_native_id()) == own  # the caller's
+
+
+def test_a_segmentation_under_way_is_finished_before_the_interpreter_exits(tmp_path) -> None:
+    """A run's thread abandoned mid-segmentation: the exit waits for it (a native segmenter
+    still computing while the interpreter tears down would abort the process)."""
+    import subprocess
+    import sys
+
+    done = tmp_path / "done"
+    script = f"""
+import time, numpy as np
+from types import SimpleNamespace
+from uss_slam.slam_eval.systems.semantic_thread import start_thread
+
+class Slow:
+    name, needs_labels = "slow", False
+    def segment(self, frame):
+        time.sleep(0.5)
+        open({str(done)!r}, "w").write("finished")
+        return None
+
+thread = start_thread(Slow())
+thread.request(SimpleNamespace(stamp=0.0), kf_id=0)
+time.sleep(0.1)
+thread.close()  # returns at once, the segmentation still under way
+"""
+    run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    assert done.read_text() == "finished"
