@@ -252,6 +252,9 @@ def main() -> None:
     parser.add_argument("--data", type=Path, default=Path("outputs/bench/slam"))
     parser.add_argument("--model", type=Path, help="an exported .onnx (default: build the INT8 "
                         "ResNet-101 DeepLab-v2 in --work)")  # fmt: skip
+    parser.add_argument("--backbone", default="resnet101", choices=("resnet101", "resnet_small"),
+                        help="the DeepLab-v2 backbone built without --model (resnet_small: the "
+                             "demo's, for a quick check)")  # fmt: skip
     parser.add_argument("--work", type=Path, default=Path("outputs/bench/semantic_thread"))
     parser.add_argument("--threads", type=int, default=1, help="segmenter.threads")
     parser.add_argument("--repeats", type=int, default=3)
@@ -271,7 +274,7 @@ def main() -> None:
         sequences = [sequence_path(args.data, "walking_xyz", 300, (640, 480), 0)]
     print(f"{os.cpu_count()} CPUs ({cpu_model()}), load average {os.getloadavg()[0]:.2f}",
           flush=True)  # fmt: skip
-    model = args.model or build_network(args.work, sequences[0])
+    model = args.model or build_network(args.work, sequences[0], args.backbone)
     if args.build_only:
         return
     network = ["segmenter=onnx", f"segmenter.path={model.resolve()}",

@@ -54,3 +54,17 @@ def test_times_the_network_and_the_oracle_at_its_latency(synthetic_sequence, tmp
         [*args[:3], str(tmp_path / "nope"), "--model", str(model)], capture_output=True, text=True
     )
     assert missing.returncode == 2 and f"{tmp_path / 'nope'}: not found" in missing.stderr
+
+
+def test_builds_an_int8_deeplab_once(synthetic_sequence, tmp_path) -> None:
+    """Without ``--model`` the benchmark builds the INT8 DeepLab-v2 (here the demo's small
+    backbone) into ``--work`` and reuses it."""
+    seq = synthetic_sequence(preset="walking_xyz", frames=12, size=(160, 120))
+    work = tmp_path / "work"
+    args = [sys.executable, str(SCRIPT), "--sequence", str(seq), "--work", str(work)]
+    args += ["--backbone", "resnet_small", "--build-only"]
+    first = subprocess.run(args, capture_output=True, text=True)
+    assert first.returncode == 0, first.stderr
+    assert "built " in first.stdout and (work / "resnet_small.int8.onnx").is_file()
+    again = subprocess.run(args, capture_output=True, text=True)
+    assert again.returncode == 0 and "built " not in again.stdout
