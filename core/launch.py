@@ -115,7 +115,14 @@ def _interrupted(prog: str, error: KeyboardInterrupt) -> int:
 
 
 def launch(prog: str) -> int | None:
-    """Run console script ``prog`` (its module's ``main``) with the lines above."""
+    """Run console script ``prog`` (its module's ``main``) with the lines above; ``prog
+    --version`` prints ``<prog> <uss-slam's version>`` (every script, Hydra's apps included,
+    whose own flag would print Hydra's version)."""
+    if sys.argv[1:] == ["--version"]:
+        from importlib.metadata import version
+
+        print(f"{prog} {version('uss-slam')}")
+        return 0
     line = address_space_line(prog)
     if line is not None:  # before any import that could crash on it
         print(line, file=sys.stderr)

@@ -218,6 +218,10 @@ def check_counts(plain: Mapping[str, Any], synthetic: bool) -> None:
             )
 
 
+TORCH_ZIP = b"PK\x03\x04"
+"""How a ``torch.save`` file starts (a zip archive); the legacy format starts as a pickle."""
+
+
 def check_init(plain: Mapping[str, Any], synthetic: bool, sequences: Sequence[str]) -> Init:
     """The ``init`` section (absent = ``scratch``): its kind, and for ``pretrained`` either a
     readable ``init.path`` or (synthetic data only) the pretraining set and its trainings; the
@@ -231,6 +235,11 @@ def check_init(plain: Mapping[str, Any], synthetic: bool, sequences: Sequence[st
         expected = ("expected a pretrained weights file (a DeepLab-v2 Caffe init, a torchvision "
                     "ResNet state dict or a uss-train checkpoint)")  # fmt: skip
         path = input_file(Path(str(init["path"])).expanduser(), "init.path", expected)
+        with open(path, "rb") as file:
+            head = file.read(4)
+        if head != TORCH_ZIP and not head.startswith(b"\x80"):  # torch.load's two formats
+            raise UssSlamError(f"init.path={path}: not a file torch.load reads (an ONNX model, "
+                               f"say); {expected}")  # fmt: skip
         return Init(kind, path=path.resolve())
     if not synthetic:
         return Init(kind)  # no init: an error after the data checks (check_real_init)

@@ -201,3 +201,14 @@ def test_a_ctrl_c_after_the_script_is_done_changes_nothing() -> None:
                           timeout=60)  # fmt: skip
     assert done.returncode == 0, done.stderr
     assert done.stdout.split() == [str(int(signal.SIG_IGN))] * 2
+
+
+@pytest.mark.parametrize("prog", ["uss-synth", "uss-slam"])
+def test_version_flag(prog: str, monkeypatch: pytest.MonkeyPatch, capsys) -> None:
+    """``--version`` alone: the project's version, exit 0 (argparse would name a missing
+    subcommand, Hydra print its own version)."""
+    from importlib.metadata import version
+
+    monkeypatch.setattr(sys, "argv", [prog, "--version"])
+    assert launch.launch(prog) == 0
+    assert capsys.readouterr().out == f"{prog} {version('uss-slam')}\n"

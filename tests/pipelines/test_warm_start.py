@@ -204,7 +204,7 @@ def test_missing_init_is_an_error_unless_dry(tmp_path: Path) -> None:
 
 def test_init_path_is_every_trainings_start(tmp_path: Path) -> None:
     weights = tmp_path / "coco_init.pth"
-    weights.write_bytes(b"weights")
+    weights.write_bytes(b"PK\x03\x04 weights")  # torch.save's zip, as far as the check reads
     exp = check(tmp_path, f"init.path={weights}", "init.kind=pretrained", "grid.seeds=[0]")
     assert exp.init.path == weights and not exp.init.pretrains
     found = data.Data(train_dir=tmp_path / "data" / "train")
@@ -213,7 +213,7 @@ def test_init_path_is_every_trainings_start(tmp_path: Path) -> None:
     assert [j.id for j in jobs][:1] == ["train/source_only_s0"]  # no pretraining, one init
     for job in jobs:
         assert f"model.net.weights_path={weights}" in job.spec["overrides"]
-        assert job.spec["key"]["init"] == hashlib.sha256(b"weights").hexdigest()
+        assert job.spec["key"]["init"] == hashlib.sha256(weights.read_bytes()).hexdigest()
     assert warm_start.describe_init(exp) is None
 
 
@@ -290,7 +290,7 @@ def test_scratch_ignores_the_pretraining_keys_and_paper_takes_a_file(tmp_path: P
     # against the schema: a bad one is an error in any mode)
     assert not check(tmp_path, "init.kind=scratch", "init.images=3").init.pretrained
     weights = tmp_path / "init.pth"
-    weights.write_bytes(b"x")
+    weights.write_bytes(b"PK\x03\x04")
     paper = check(
         tmp_path,
         "scale=paper",
@@ -336,3 +336,11 @@ def test_quick_scale_warm_starts_every_training(tmp_path: Path) -> None:
     assert "pretraining set reused, pretrained init i0: reused" in again.stdout
     assert "init: 1 jobs, 1 complete, 0 to run" in again.stdout
     assert "train: 6 jobs, 6 complete, 0 to run" in again.stdout
+
+
+def test_an_init_path_torch_cannot_read_is_one_line_in_a_dry_run(tmp_path: Path) -> None:
+    """An ONNX model as ``init.path`` was accepted until the init stage loaded it."""
+    model = tmp_path / "m.onnx"
+    model.write_bytes(b"\x08\x08\x12\x07pytorch")  # how an exported ONNX model starts
+    with pytest.raises(UssSlamError, match=rf"^init.path={model}: not a file torch.load reads"):
+        check(tmp_path, f"init.path={model}", "init.kind=pretrained", "dry_run=true")
