@@ -7,7 +7,9 @@ environment, and classify each one by the contract of ``docs/errors.md``:
   valid input exits 0 (a ``warn`` case with its warning line); Ctrl-C / SIGTERM exit 130 / 143
   with one ``interrupted`` line, the earlier outputs intact and no partial file left;
 - **bad**: a traceback, a hang (no exit within the time limit), a process killed by a signal, or
-  data lost (a file that was there before changed or gone, the shared inputs changed);
+  data lost (a file that was there before changed or gone, the shared inputs changed; a
+  successful rerun of a script into its own output folder replaces the files it writes there,
+  as docs/errors.md says: for those scripts, :data:`OWN_FOLDERS`, only a file gone is lost);
 - **poor**: everything else (more than one line, the line does not name the key / flag / file,
   a wrong exit code, a bad value accepted, a valid input refused, something left behind).
 

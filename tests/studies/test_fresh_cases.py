@@ -41,3 +41,20 @@ def test_rerun_into_own_folder(fresh, prog, expect, code, after, verdict) -> Non
     err = "" if code == 0 else f"{prog}: error: --out: bad"
     got, _ = fresh.classify(_case(fresh, prog, expect), code, err, before, after, {})
     assert got == verdict
+
+
+def test_the_screen_flags_a_generated_case_and_an_earlier_one(fresh, tmp_path) -> None:
+    """studies/screen_cases.py: a case that is a generated argparse value (``--images 0``), one
+    that repeats an earlier set's case and a new one; only the first two are repeats."""
+    import screen_cases
+
+    cases = tmp_path / "cases.txt"
+    cases.write_text(
+        "a | uss-synth | error | - | - | --images | voc --images 0 --size 48x32 --out {C}/v --quiet\n"
+        "b | uss-traj | ok | - | - | - | ate {gt} {est} --align SE3\n"
+        "c | uss-traj | ok | - | - | - | ate {est} {gt} --align none --bands 0.125\n"
+    )
+    found = screen_cases.screen(cases)
+    assert any(f.startswith("a: generated argparse case --images 0") for f in found), found
+    assert any(f.startswith("b: ") for f in found), found
+    assert not any(f.startswith("c: ") for f in found), found
