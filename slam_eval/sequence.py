@@ -151,6 +151,19 @@ class TumSequence:
     def load(self, index: int) -> Frame:
         """Read frame ``index`` from disk, checking formats and sizes (errors name the file)."""
         wall, cpu = time.perf_counter(), time.thread_time()
+        rgb, gray, labels = self.load_colour(index, labels=False)
+        depth = self.load_depth(index)
+        if self.records[index].labels_path is not None:
+            labels = self.load_frame_labels(index)
+        spent = (time.perf_counter() - wall, time.thread_time() - cpu)
+        return Frame(index, self.records[index].stamp, rgb, gray, depth, labels, spent)
+
+    def load_colour(
+        self, index: int, labels: bool = True
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """Frame ``index``'s ``(H, W, 3)`` uint8 RGB and ``(H, W)`` uint8 grey images, and with
+        ``labels`` its ``(H, W)`` uint8 labels (None without a labels folder): :meth:`load`
+        without the depth, which the frame reader process leaves to :meth:`load_depth`."""
         record = self.records[index]
         bgr = read_colour(record.rgb_path)
         if (bgr.shape[1], bgr.shape[0]) != self.image_size:  # the odd one out is named
@@ -159,26 +172,38 @@ class TumSequence:
                 f"image is {bgr.shape[1]}x{bgr.shape[0]} but the sequence's first frame is "
                 f"{self.image_size[0]}x{self.image_size[1]}",
             )
+        found = self.load_frame_labels(index) if labels and record.labels_path is not None else None
+        rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+        gray = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
+        return rgb, gray, found
+
+    def load_depth(self, index: int) -> np.ndarray:
+        """Frame ``index``'s ``(H, W)`` float32 depth, metres (0 = no measurement), checked to be
+        a single-channel uint16 PNG of the sequence's image size."""
+        record = self.records[index]
         raw = read_depth(record.depth_path)
         if raw.dtype != np.uint16 or raw.ndim != 2:
             raise DataFormatError(
                 record.depth_path,
                 f"expected a single-channel uint16 depth PNG, got {raw.dtype} with shape {raw.shape}",
             )
-        if raw.shape != bgr.shape[:2]:
+        width, height = self.image_size
+        if raw.shape != (height, width):
             raise DataFormatError(
                 record.depth_path,
                 f"depth image is {raw.shape[1]}x{raw.shape[0]} but the colour image "
-                f"{record.rgb_path.name} is {bgr.shape[1]}x{bgr.shape[0]}",
+                f"{record.rgb_path.name} is {width}x{height}",
             )
-        depth = raw.astype(np.float32) * np.float32(1.0 / self.camera.depth_scale)
-        labels = None
-        if record.labels_path is not None:
-            labels = read_labels(record.labels_path, bgr.shape[:2], record.rgb_path.name)
-        rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
-        gray = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
-        spent = (time.perf_counter() - wall, time.thread_time() - cpu)
-        return Frame(record.index, record.stamp, rgb, gray, depth, labels, spent)
+        depth = np.empty(raw.shape, np.float32)
+        np.multiply(raw, np.float32(1.0 / self.camera.depth_scale), out=depth)
+        return depth
+
+    def load_frame_labels(self, index: int) -> np.ndarray:
+        """Frame ``index``'s ``(H, W)`` uint8 labels (the sequence has a labels folder)."""
+        record = self.records[index]
+        assert record.labels_path is not None
+        width, height = self.image_size
+        return read_labels(record.labels_path, (height, width), record.rgb_path.name)
 
     def frames(self, prefetch: int = 4, workers: int = 1) -> Iterator[Frame]:
         """Yield every selected frame in order, loading up to ``prefetch`` frames ahead.

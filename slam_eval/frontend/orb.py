@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 
 import cv2
 import numpy as np
@@ -313,6 +313,21 @@ class OrbExtractor:
     ) -> Features:
         """Assemble :class:`Features`: undistort positions, sample depth, back-project."""
         uv = self.undistort(xy)
+        z = self.sample_depth(xy, depth)
+        points = self.backproject(uv, z)
+        return Features(xy, uv, octave, angle, response, descriptors, z, points)
+
+    def with_depth(self, features: Features, depth: np.ndarray) -> Features:
+        """``features`` extracted without a depth map (``self(gray, None)``), given the frame's
+        ``(H, W)`` float32 ``depth`` (metres): the same :class:`Features` as ``self(gray,
+        depth)``. The frame reader process extracts without depth; the depth is read and
+        sampled in the main process."""
+        z = self.sample_depth(features.xy, depth)
+        return replace(features, depth=z, points=self.backproject(features.uv, z))
+
+    def sample_depth(self, xy: np.ndarray, depth: np.ndarray | None) -> np.ndarray:
+        """``(N,)`` float32 depth at the pixels nearest ``xy`` (N, 2), metres; 0 outside
+        ``[min_depth, max_depth]`` and everywhere when ``depth`` is None."""
         n = len(xy)
         z = np.zeros(n, np.float32)
         if depth is not None and n:
@@ -321,8 +336,7 @@ class OrbExtractor:
             row = np.clip(np.rint(xy[:, 1]).astype(np.int64), 0, h - 1)
             z = depth[row, col].astype(np.float32)
             z[(z < self.config.min_depth) | (z > self.config.max_depth)] = 0.0
-        points = self.backproject(uv, z)
-        return Features(xy, uv, octave, angle, response, descriptors, z, points)
+        return z
 
     def undistort(self, xy: np.ndarray) -> np.ndarray:
         """``(N, 2)`` undistorted pixel coordinates of image positions ``xy`` (float64)."""

@@ -7,13 +7,19 @@ GTSAM's optimiser (which holds the GIL for a whole optimisation) take turns with
 one worker process does the reading and the extraction, ``workers`` threads of its own
 ``prefetch`` frames ahead, and hands each frame to the main process:
 
-- the images (``rgb``, ``gray``, ``depth``, ``labels``) through a ring of ``prefetch`` slots of
-  shared memory (a 640x480 frame is 2.9 MB: through a pipe it would cost the main process a
-  copy and an unpickling each); the main process copies a slot out and gives it back;
-- the :class:`~.orb.Features` (about 100 kB) and the timings through a queue.
+- the images (``rgb``, ``gray``, ``labels``, and ``depth`` where the worker read it) through a
+  ring of ``prefetch`` slots of shared memory (a 640x480 frame is 2.9 MB: through a pipe it
+  would cost the main process a copy and an unpickling each); a prefetch thread of the main
+  process copies a slot out and gives it back (:meth:`FrontendProcess.take`);
+- the :class:`~.orb.Features`, extracted without depth, and the timings through a queue.
 
-The worker computes exactly what the threads compute (the same code on the same inputs), so the
-features, and the run's trajectory, are bit-identical in both modes.
+The depth image (a third of a frame's reading) is read by whichever side has time: by the
+main process's prefetch threads, beside its main thread, unless the ring is (nearly) full of
+frames the main process has not taken yet; then the worker, which would otherwise wait for a
+free slot, reads it (:func:`_main_is_behind`). The main process samples the depth at the
+keypoints (:meth:`~.orb.OrbExtractor.with_depth`). The worker computes exactly what the threads
+compute (the same code on the same inputs), so the features, and the run's trajectory, are
+bit-identical in both modes, wherever the depth was read.
 
 Starting: the worker is a child of Python's fork server (started once per process with this
 module imported, so that each run's worker starts in milliseconds), or a spawned interpreter
@@ -52,7 +58,8 @@ import numpy as np
 from uss_slam.core.errors import DataFormatError, UssSlamError
 from uss_slam.core.processes import die_with_parent
 
-from ..sequence import Frame, TumSequence
+from ..sequence import TumSequence, ahead
+from .auto import FREE_CORES, SAMPLE_S, free_cores, resolve_mode  # noqa: F401 (re-exported)
 from .orb import Features, OrbConfig, OrbExtractor
 from .pools import one_thread_pools
 
@@ -102,12 +109,40 @@ class _Layout:
 
 @dataclass
 class Extracted:
-    """One frame as the worker process prepared it: the frame, its features, and the wall and
-    CPU seconds of its reading (``frame.read_time``) and of the ORB extraction (``orb_time``)."""
+    """One frame as the worker process prepared it, without its depth (the main process reads
+    it: :meth:`~..sequence.TumSequence.load_depth`): frame ``index`` of the sequence at
+    ``stamp`` (s), its ``rgb``, ``gray`` and ``labels`` (None without) as in
+    :class:`~..sequence.Frame`, the features extracted without depth
+    (:meth:`~.orb.OrbExtractor.with_depth` completes them), and the wall and CPU seconds of its
+    reading (``read_time``) and of the ORB extraction (``orb_time``)."""
 
-    frame: Frame
+    index: int
+    stamp: float
+    rgb: np.ndarray
+    gray: np.ndarray
+    labels: np.ndarray | None
+    depth: np.ndarray | None
+    """``(H, W)`` float32 metres where the worker read it (the main process was behind), else
+    None: the main process reads it."""
+    read_time: tuple[float, float]
     features: Features
     orb_time: tuple[float, float]
+
+
+@dataclass
+class Received:
+    """A frame the worker process has sent, its images still in slot ``slot`` of the ring:
+    :meth:`take` copies them out and gives the slot back (in a prefetch thread of the main
+    process, off the main thread's path)."""
+
+    source: FrontendProcess
+    slot: int
+    meta: dict[str, Any]
+    features: Features
+    orb_time: tuple[float, float]
+
+    def take(self) -> Extracted:
+        return self.source.take(self)
 
 
 class FrontendProcess:
@@ -117,9 +152,22 @@ class FrontendProcess:
     :meth:`close` (the iterator's end and the pipeline's ``finally`` do).
     """
 
-    def __init__(self, sequence: TumSequence, orb: OrbConfig, prefetch: int, workers: int) -> None:
+    def __init__(
+        self,
+        sequence: TumSequence,
+        orb: OrbConfig,
+        prefetch: int,
+        workers: int,
+        behind: int | None = None,
+    ) -> None:
+        """``behind``: the worker reads a frame's depth itself when at most this many slots of
+        the ring are free (None: :data:`BEHIND`; -1: never, ``prefetch``: always)."""
         self.sequence = sequence
         self._closed = False
+        self._lock = threading.Lock()
+        self._untaken = 0
+        """Frames received whose images are still in the ring (:meth:`take` not called yet)."""
+        self._received_all = False
         self.worker_cpu = 0.0
         """CPU seconds the worker process had used when it sent the last frame received."""
         width, height = sequence.image_size
@@ -146,6 +194,7 @@ class FrontendProcess:
                 self._ready,
                 self._free,
                 self._stop,
+                BEHIND if behind is None else behind,
             ),
             name="uss-slam-frontend",
             daemon=True,
@@ -160,35 +209,61 @@ class FrontendProcess:
         # in the middle of a message leaves the reader at end-of-file instead of waiting forever.
         self._ready._writer.close()
 
-    def __iter__(self) -> Iterator[Extracted]:
+    def __iter__(self) -> Iterator[Received]:
+        """Every frame in order; the worker and the ring are freed once the last one is taken
+        (or at once when the caller stops early or fails: :meth:`close`)."""
         try:
             for index in range(len(self.sequence)):
                 yield self._receive(index)
-        finally:
+        except BaseException:
+            self.close()
+            raise
+        with self._lock:
+            self._received_all = True
+            done = self._untaken == 0
+        if done:
             self.close()
 
-    def _receive(self, index: int) -> Extracted:
+    def _receive(self, index: int) -> Received:
         message = self._get(index)
         kind = message[0]
         if kind == "error":
             raise _rebuild_error(message[1:])
         _, slot, meta, features, orb_time = message
         self.worker_cpu = meta["cpu"]
-        assert self._shm is not None
-        views = self.layout.views(self._shm.buf, slot)
-        images = {name: view.copy() for name, view in views.items()}
-        del views  # no view may outlive the slot (nor keep the buffer from closing)
-        self._free.put(slot)
-        frame = Frame(
+        with self._lock:
+            self._untaken += 1
+        return Received(self, slot, meta, features, orb_time)
+
+    def take(self, received: Received) -> Extracted:
+        """The images of ``received`` copied out of its slot, which goes back to the worker
+        (from any thread)."""
+        meta = received.meta
+        with self._lock:
+            if self._shm is None:
+                raise UssSlamError(
+                    f"{self.sequence.records[meta['index']].rgb_path}: the frame reader "
+                    "process was closed before this frame was taken"
+                )
+            views = self.layout.views(self._shm.buf, received.slot)
+            images = {name: view.copy() for name, view in views.items() if meta.get(name, True)}
+            del views  # no view may outlive the slot (nor keep the buffer from closing)
+            self._untaken -= 1
+            done = self._received_all and self._untaken == 0
+            self._free.put(received.slot)
+        if done:
+            self.close()
+        return Extracted(
             meta["index"],
             meta["stamp"],
             images["rgb"],
             images["gray"],
-            images["depth"],
             images["labels"] if meta["labels"] else None,
+            images["depth"] if meta["depth"] else None,
             meta["read_time"],
+            received.features,
+            received.orb_time,
         )
-        return Extracted(frame, features, orb_time)
 
     def _get(self, index: int) -> tuple:
         """The worker's next message, waiting as long as the worker lives."""
@@ -208,9 +283,10 @@ class FrontendProcess:
 
     def close(self) -> None:
         """Stop the worker (at once: frames it prepared ahead are dropped) and free the ring."""
-        if self._closed:
-            return
-        self._closed = True
+        with self._lock:  # once, whichever thread asks first
+            if self._closed:
+                return
+            self._closed = True
         proc = self._proc
         self._stop.set()
         if proc.is_alive():
@@ -224,14 +300,15 @@ class FrontendProcess:
         self._release()
 
     def _release(self) -> None:
-        for q in (self._ready, self._free):
-            q.cancel_join_thread()  # nobody reads them any more: never block on their feeders
-            q.close()
-        if self._shm is not None:
-            self._shm.close()
-            with contextlib.suppress(FileNotFoundError):
-                self._shm.unlink()
-            self._shm = None
+        with self._lock:  # not while a prefetch thread takes a frame (take)
+            for q in (self._ready, self._free):
+                q.cancel_join_thread()  # nobody reads them any more: never block on feeders
+                q.close()
+            if self._shm is not None:
+                self._shm.close()
+                with contextlib.suppress(FileNotFoundError):
+                    self._shm.unlink()
+                self._shm = None
 
 
 def _context() -> Any:
@@ -299,73 +376,6 @@ def _starting() -> Iterator[None]:
             multiprocessing.set_start_method(method, force=True)
 
 
-FREE_CORES = 1.5
-"""``auto`` takes the worker process when at least this many cores are idle as the run starts
-(the main thread's, and most of another for the worker's reading and extraction)."""
-SAMPLE_S = 0.05
-"""How long ``auto`` watches the CPUs' idle time (``/proc/stat``) before a run, seconds."""
-
-
-def resolve_mode(mode: str, sample: bool = True) -> str:
-    """``thread`` or ``process`` for a ``slam.prefetch_mode`` of ``mode``.
-
-    ``auto`` is the worker process where the run has a second core to itself, and the threads
-    where it is one of several parallel jobs: ``thread`` on one usable CPU, inside a process
-    pool's worker (joblib's workers, which ``uss-experiments`` runs its jobs in through Hydra's
-    joblib launcher, or a ``multiprocessing`` pool) and, with ``sample``, when fewer than
-    :data:`FREE_CORES` cores were idle over the last :data:`SAMPLE_S` seconds (other jobs take
-    them; :func:`free_cores`); else ``process``. On two idle cores the worker process is the
-    faster; when other jobs take the cores it costs more CPU per frame than the threads and is
-    slower (BENCHMARKS.md, "SLAM harness speed"). Either way the trajectory is the same."""
-    if mode != "auto":
-        return mode
-    try:
-        usable = len(os.sched_getaffinity(0))
-    except AttributeError:  # no affinity API (macOS, Windows)
-        usable = os.cpu_count() or 1
-    if usable < 2 or multiprocessing.parent_process() is not None:
-        return "thread"
-    free = free_cores() if sample else None
-    return "thread" if free is not None and min(free, usable) < FREE_CORES else "process"
-
-
-def free_cores(seconds: float = SAMPLE_S, stat: str = "/proc/stat") -> float | None:
-    """Cores of the machine that other processes leave idle over the next ``seconds``: all
-    CPUs less the busy time of the ``cpu`` line of ``stat`` (everything but idle and I/O wait),
-    less this process's own CPU time meanwhile (its pools' threads may still spin after its
-    last run); None where ``stat`` cannot be read (not Linux)."""
-    first = _cpu_times(stat)
-    if first is None:
-        return None
-    wall, own = time.perf_counter(), time.process_time()
-    time.sleep(seconds)
-    second = _cpu_times(stat)
-    wall, own = time.perf_counter() - wall, time.process_time() - own
-    if second is None:
-        return None
-    spent = [b - a for a, b in zip(first[0], second[0], strict=True)]
-    total = sum(spent)
-    if total <= 0 or wall <= 0:
-        return None
-    cpus = first[1]
-    others = cpus * (total - spent[3] - spent[4]) / total - own / wall
-    return cpus - max(0.0, others)
-
-
-def _cpu_times(stat: str) -> tuple[list[int], int] | None:
-    """The ``cpu`` line's first eight times (user, nice, system, idle, iowait, irq, softirq,
-    steal) and the number of CPUs, or None."""
-    try:
-        with open(stat, encoding="ascii") as lines:
-            rows = [line.split() for line in lines if line.startswith("cpu")]
-        times = [int(v) for v in rows[0][1:9]]
-    except (OSError, ValueError, IndexError):
-        return None
-    if rows[0][0] != "cpu" or len(times) < 8:
-        return None
-    return times, max(1, len(rows) - 1)
-
-
 def start(
     sequence: TumSequence, orb: OrbConfig, prefetch: int, workers: int
 ) -> FrontendProcess | None:
@@ -400,9 +410,11 @@ def _serve(
     ready: Any,
     free: Any,
     stop: Any,
+    behind: int,
 ) -> None:
     """The worker process: read and extract every frame in order into the ring, until done,
-    told to stop, or the parent is gone."""
+    told to stop, or the parent is gone; read its depth too when at most ``behind`` slots are
+    free (:func:`_main_is_behind`)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
     if hasattr(signal, "pthread_sigmask"):
         signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})  # blocked by _starting
@@ -414,12 +426,17 @@ def _serve(
     try:
         extractor = OrbExtractor(orb, sequence.camera)
 
-        def extract(frame: Frame) -> tuple[Frame, Features, tuple[float, float]]:
+        def prepare(k: int) -> tuple[_Images, Features, tuple[float, float]]:
             wall, cpu = time.perf_counter(), time.thread_time()
-            features = extractor(frame.gray, frame.depth)
-            return frame, features, (time.perf_counter() - wall, time.thread_time() - cpu)
+            images = _Images(k, *sequence.load_colour(k))
+            if _main_is_behind(free, behind):
+                images.depth = sequence.load_depth(k)
+            images.read_time = (time.perf_counter() - wall, time.thread_time() - cpu)
+            wall, cpu = time.perf_counter(), time.thread_time()
+            features = extractor(images.gray, None)  # the depth: sampled in the main process
+            return images, features, (time.perf_counter() - wall, time.thread_time() - cpu)
 
-        items = sequence.prepared(extract, prefetch, workers)
+        items = ahead(prepare, iter(range(len(sequence))), prefetch, workers)
         try:
             while not stop.is_set():
                 item = next(items, None)
@@ -432,9 +449,10 @@ def _serve(
                 _write_slot(layout, shm.buf, slot, frame)
                 meta = {
                     "index": frame.index,
-                    "stamp": frame.stamp,
+                    "stamp": sequence.records[frame.index].stamp,
                     "read_time": frame.read_time,
                     "labels": frame.labels is not None,
+                    "depth": frame.depth is not None,
                     "cpu": time.process_time(),
                 }
                 ready.put(("frame", slot, meta, features, orb_time))
@@ -486,7 +504,36 @@ def _end_with_parent() -> None:
     threading.Thread(target=watch, name="uss-slam-frontend-watch", daemon=True).start()
 
 
-def _write_slot(layout: _Layout, buffer: memoryview, slot: int, frame: Frame) -> None:
+@dataclass
+class _Images:
+    """What the worker reads of frame ``index`` (:meth:`~..sequence.TumSequence.load_colour`)."""
+
+    index: int
+    rgb: np.ndarray
+    gray: np.ndarray
+    labels: np.ndarray | None
+    depth: np.ndarray | None = None
+    read_time: tuple[float, float] = (0.0, 0.0)
+
+
+BEHIND = 1
+"""The worker reads a frame's depth itself when at most this many slots of the ring are free
+as it starts reading the frame (:func:`_main_is_behind`)."""
+
+
+def _main_is_behind(free: Any, behind: int) -> bool:
+    """Whether the main process is the slower side now: at most ``behind`` slots of the ring
+    are free (:data:`BEHIND` by default), the rest hold frames it has not taken yet. Then the
+    worker, which would otherwise wait for a free slot, reads the next frame's depth too; else
+    the main process's prefetch threads read it (:meth:`FrontendProcess.take`'s caller). Which
+    side reads a depth image changes nothing else: the trajectory is the same."""
+    try:
+        return free.qsize() <= behind
+    except NotImplementedError:  # no sem_getvalue (macOS): the main process reads every depth
+        return False
+
+
+def _write_slot(layout: _Layout, buffer: memoryview, slot: int, frame: _Images) -> None:
     """Copy the frame's images into ``slot`` (the views end with the call: the shared memory
     cannot be closed while one exists)."""
     for name, view in layout.views(buffer, slot).items():

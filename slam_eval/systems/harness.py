@@ -4,8 +4,9 @@ With ``parallel`` (the default) segmentation and ORB extraction of upcoming fram
 prefetch threads, next to PNG decoding, while the main thread filters and tracks the current frame
 (PSPNet-SLAM likewise runs segmentation in its own thread); results are identical to the serial
 order. With ``prefetch_mode="process"`` reading and ORB extraction run in a worker process instead
-(:mod:`..frontend.process`), off the GIL that tracking and the back end hold; segmentation stays
-in this process's prefetch threads; the results are the same.
+(:mod:`..frontend.process`), off the GIL that tracking and the back end hold; segmentation, and
+the depth images the worker leaves to this process, stay in this process's prefetch threads; the
+results are the same.
 
 Segmentation schedule (``segment``, config key ``segment=every_frame|keyframes``):
 
@@ -205,17 +206,27 @@ class SlamPipeline:
             features = self.extractor(frame.gray, frame.depth)
         return Prepared(frame, labels, features, timer)
 
-    def _label(self, extracted: frontend_process.Extracted) -> Prepared:
-        """Segmentation (``every_frame`` schedule) of a frame the worker process read and
-        extracted (``prefetch_mode="process"``; in the prefetch threads of this process)."""
-        frame = extracted.frame
+    def _label(self, received: frontend_process.Received) -> Prepared:
+        """A frame the worker process read and extracted (``prefetch_mode="process"``), in the
+        prefetch threads of this process: its images out of the shared ring, its depth (read
+        here unless the worker read it) sampled at the keypoints, and its segmentation
+        (``every_frame`` schedule)."""
+        got = received.take()
         timer = Timer()
-        timer.add("read", *frame.read_time)
+        depth = got.depth
+        if depth is None:  # the worker leaves it to this process unless this one is behind
+            with timer("read"):
+                depth = self.sequence.load_depth(got.index)
+        timer.add("read", *got.read_time)
+        frame = Frame(got.index, got.stamp, got.rgb, got.gray, depth, got.labels,
+                      (timer.wall["read"], timer.cpu["read"]))  # fmt: skip
+        with timer("orb"):
+            features = self.extractor.with_depth(got.features, depth)
+        timer.add("orb", *got.orb_time)
         labels = None
         if self.segment == "every_frame":
             labels = self._segment_timed(frame, timer)
-        timer.add("orb", *extracted.orb_time)
-        return Prepared(frame, labels, extracted.features, timer)
+        return Prepared(frame, labels, features, timer)
 
     def _segment_timed(self, frame: Frame, timer: Timer) -> np.ndarray | None:
         """The segmenter on ``frame``, timed as ``segmentation``, with its own stages as

@@ -22,6 +22,7 @@ from shared_helpers import slam_run_config
 
 from uss_slam.core.errors import DataFormatError, UssSlamError
 from uss_slam.slam_eval.filters.build import build_filters
+from uss_slam.slam_eval.frontend import auto as frontend_auto
 from uss_slam.slam_eval.frontend import process as frontend_process
 from uss_slam.slam_eval.frontend.orb import OrbConfig, OrbExtractor
 from uss_slam.slam_eval.frontend.process import FrontendProcess
@@ -80,25 +81,47 @@ def started(monkeypatch: pytest.MonkeyPatch) -> list:
     return calls
 
 
-def test_the_worker_yields_the_frames_and_features_of_the_threads(synthetic_sequence) -> None:
+@pytest.mark.parametrize("behind", [-1, 3])
+def test_the_worker_yields_the_frames_and_features_of_the_threads(
+    synthetic_sequence, behind: int
+) -> None:
+    """Every frame's images and features as the threads read and extract them, whether the
+    main process reads the depth (``behind=-1``) or the worker does (``behind`` = the ring's
+    slots: always)."""
     seq = TumSequence(synthetic_sequence(frames=12), load_labels=True)
     config = OrbConfig(n_features=700)
     extractor = OrbExtractor(config, seq.camera)
-    got = list(FrontendProcess(seq, config, prefetch=3, workers=2))
-    assert [e.frame.index for e in got] == list(range(len(seq)))
+    got = [r.take() for r in FrontendProcess(seq, config, prefetch=3, workers=2, behind=behind)]
+    assert [e.index for e in got] == list(range(len(seq)))
     for extracted in got:
-        frame = seq.load(extracted.frame.index)
+        frame = seq.load(extracted.index)
+        assert (extracted.depth is None) == (behind < 0)
+        depth = frame.depth if extracted.depth is None else extracted.depth
         for name in ("rgb", "gray", "depth", "labels"):
-            expected, actual = getattr(frame, name), getattr(extracted.frame, name)
+            expected = getattr(frame, name)
+            actual = depth if name == "depth" else getattr(extracted, name)
             assert actual.dtype == expected.dtype and actual.flags.writeable
             np.testing.assert_array_equal(actual, expected)
-        assert extracted.frame.stamp == frame.stamp
+        assert extracted.stamp == frame.stamp
         reference = extractor(frame.gray, frame.depth)
+        features = extractor.with_depth(extracted.features, depth)
         for field in fields(reference):
             np.testing.assert_array_equal(
-                getattr(extracted.features, field.name), getattr(reference, field.name)
+                getattr(features, field.name), getattr(reference, field.name)
             )
-        assert extracted.orb_time[0] > 0 and extracted.frame.read_time[0] > 0
+        assert extracted.orb_time[0] > 0 and extracted.read_time[0] > 0
+    _no_worker_left()
+
+
+def test_the_worker_reads_the_depth_when_the_main_process_is_behind(synthetic_sequence) -> None:
+    """A consumer slower than the worker leaves the ring full: the worker then reads depths too;
+    the default leaves them to a consumer that keeps up."""
+    seq = TumSequence(synthetic_sequence(frames=12), load_labels=True)
+    slow = []
+    for received in FrontendProcess(seq, OrbConfig(), prefetch=3, workers=1):
+        time.sleep(0.2)  # the worker fills the ring meanwhile
+        slow.append(received.take().depth is not None)
+    assert sum(slow) >= 6
     _no_worker_left()
 
 
@@ -135,19 +158,29 @@ def test_a_bad_frame_is_one_line_naming_its_file(synthetic_sequence, tmp_path: P
     path = tmp_path / "seq"
     subprocess.run(["cp", "-r", str(source), str(path)], check=True)
     seq = TumSequence(path, load_labels=True)
-    broken = seq.records[5].depth_path
+    broken = seq.records[5].rgb_path
     broken.write_bytes(b"not a png")
     worker = FrontendProcess(seq, OrbConfig(), prefetch=2, workers=2)
     seen = []
     with pytest.raises(DataFormatError) as caught:
-        for extracted in worker:
-            seen.append(extracted.frame.index)
+        for received in worker:
+            seen.append(received.take().index)
     assert seen == [0, 1, 2, 3, 4]
-    assert str(caught.value) == f"{broken}: not a readable image; expected a 16-bit depth PNG"
+    assert str(caught.value) == (
+        f"{broken}: not a readable image; expected a colour image (PNG or JPEG)"
+    )
     _no_worker_left()
-    # Through the pipeline: the same error, raised at that frame.
+    # Through the pipeline: the same error, raised at that frame; and a broken depth image,
+    # which this process or the worker reads.
     with pytest.raises(DataFormatError, match="not a readable image"):
         _pipeline(path, "process").run()
+    _no_worker_left()
+    subprocess.run(["cp", str(source / "rgb" / broken.name), str(broken)], check=True)
+    depth = seq.records[5].depth_path
+    depth.write_bytes(b"not a png")
+    with pytest.raises(DataFormatError) as caught:
+        _pipeline(path, "process").run()
+    assert str(caught.value) == f"{depth}: not a readable image; expected a 16-bit depth PNG"
     _no_worker_left()
 
 
@@ -156,8 +189,8 @@ def test_an_interrupt_ends_the_worker_and_frees_its_memory(synthetic_sequence) -
     worker = FrontendProcess(seq, OrbConfig(), prefetch=2, workers=1)
     name = worker._shm.name
     with pytest.raises(KeyboardInterrupt):
-        for extracted in worker:
-            if extracted.frame.index == 2:
+        for received in worker:
+            if received.take().index == 2:
                 raise KeyboardInterrupt
     _no_worker_left()
     assert not Path("/dev/shm", name).exists()
@@ -269,7 +302,7 @@ def test_auto_is_the_process_where_the_run_has_a_second_core(
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: cpus, raising=False)
     parent = object() if pool_child else None
     monkeypatch.setattr(multiprocessing, "parent_process", lambda: parent)
-    monkeypatch.setattr(frontend_process, "free_cores", lambda: free)
+    monkeypatch.setattr(frontend_auto, "free_cores", lambda: free)
     assert frontend_process.resolve_mode("auto") == expected
     assert frontend_process.resolve_mode("thread") == "thread"
     assert frontend_process.resolve_mode("process") == "process"
@@ -278,20 +311,20 @@ def test_auto_is_the_process_where_the_run_has_a_second_core(
 
 
 def test_free_cores_from_the_cpu_times(monkeypatch, tmp_path: Path) -> None:
-    cpu_times = frontend_process._cpu_times
+    cpu_times = frontend_auto._cpu_times
     times = iter([([100, 0, 50, 800, 50, 0, 0, 0], 2), ([150, 0, 100, 850, 50, 0, 0, 0], 2)])
-    monkeypatch.setattr(frontend_process, "_cpu_times", lambda stat: next(times))
-    free = frontend_process.free_cores(0.01)  # one core busy (not this test's own process)
+    monkeypatch.setattr(frontend_auto, "_cpu_times", lambda stat: next(times))
+    free = frontend_auto.free_cores(0.01)  # one core busy (not this test's own process)
     assert 0.5 < free < 2 * 50 / 150 + 0.5
-    monkeypatch.setattr(frontend_process, "_cpu_times", cpu_times)
+    monkeypatch.setattr(frontend_auto, "_cpu_times", cpu_times)
     stat = tmp_path / "stat"
     stat.write_text(
         "cpu  10 0 5 80 5 0 0 0 0 0\ncpu0 5 0 2 40 3 0 0 0 0 0\ncpu1 5 0 3 40 2 0 0 0 0 0\n"
     )
-    assert frontend_process._cpu_times(str(stat)) == ([10, 0, 5, 80, 5, 0, 0, 0], 2)
-    assert frontend_process._cpu_times(str(tmp_path / "missing")) is None
+    assert frontend_auto._cpu_times(str(stat)) == ([10, 0, 5, 80, 5, 0, 0, 0], 2)
+    assert frontend_auto._cpu_times(str(tmp_path / "missing")) is None
     if Path("/proc/stat").is_file():
-        real = frontend_process.free_cores(0.02)
+        real = frontend_auto.free_cores(0.02)
         assert real is None or 0.0 <= real <= (os.cpu_count() or 1) + 0.01
 
 
@@ -299,11 +332,11 @@ def test_auto_runs_are_the_threads_run(synthetic_sequence, monkeypatch, started)
     path = synthetic_sequence(frames=12)
     threads = _pipeline(path, "thread").run()
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1}, raising=False)
-    monkeypatch.setattr(frontend_process, "free_cores", lambda: 2.0)
+    monkeypatch.setattr(frontend_auto, "free_cores", lambda: 2.0)
     auto = _pipeline(path, "auto")
     _assert_same_run(threads, auto.run())
     assert auto.mode_used == "process" and len(started) == 1  # the worker process ran
-    monkeypatch.setattr(frontend_process, "free_cores", lambda: 0.7)  # the cores are busy
+    monkeypatch.setattr(frontend_auto, "free_cores", lambda: 0.7)  # the cores are busy
     _assert_same_run(threads, auto.run())
     assert auto.mode_used == "thread" and len(started) == 1
 
@@ -454,8 +487,8 @@ def test_a_worker_that_dies_is_one_line_naming_the_frame(synthetic_sequence) -> 
     worker = FrontendProcess(seq, OrbConfig(), prefetch=2, workers=1)
     seen = []
     with pytest.raises(UssSlamError) as caught:
-        for extracted in worker:
-            seen.append(extracted.frame.index)
+        for received in worker:
+            seen.append(received.take().index)
             if len(seen) == 1:
                 os.kill(worker._proc.pid, signal.SIGKILL)
     missing = seq.records[len(seen)].rgb_path
