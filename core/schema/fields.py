@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 import enum
 import functools
+import re
 import types
 import typing
 from collections.abc import Callable, Mapping, Sequence
@@ -42,8 +43,9 @@ class SchemaError(UssSlamError, ValueError):
         self, key: str, expected: str, got: Any = MISSING, *, unknown: bool = False, owner: str = ""
     ) -> None:
         self.key = key or "config"
-        self.expected = expected
         self._args = (expected, got, unknown, owner)
+        expected = _SIBLING.sub(r"\1", expected)  # {ini_fast}: another key of the section
+        self.expected = expected
         if unknown and not expected:
             message = f"{self.key}: unknown key; {owner or 'this section'} takes no parameters"
         elif unknown:
@@ -68,7 +70,14 @@ class SchemaError(UssSlamError, ValueError):
         object built from a section names the field, the caller knows the section."""
         expected, got, unknown, owner = self._args
         key = f"{section}.{self.key}" if section else self.key
+        if section:  # a rule's other key, written {name}, gets the section too
+            expected = _SIBLING.sub(lambda m: "{" + f"{section}.{m.group(1)}" + "}", expected)
         return SchemaError(key, expected, got, unknown=unknown, owner=owner)
+
+
+_SIBLING = re.compile(r"\{([\w.]+)\}")
+"""A key named inside a rule's ``expected`` text (``an integer <= {ini_fast}``): prefixed with
+the section by :meth:`SchemaError.within`, shown without the braces."""
 
 
 def _show(value: Any) -> str:

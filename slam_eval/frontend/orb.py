@@ -54,10 +54,10 @@ class OrbConfig:
     def __post_init__(self) -> None:
         check_fields(self)  # the ranges above; then the rules across fields
         if self.min_fast > self.ini_fast:
-            raise SchemaError("min_fast", f"an integer <= ini_fast ({self.ini_fast})",
+            raise SchemaError("min_fast", f"an integer <= {{ini_fast}} ({self.ini_fast})",
                               self.min_fast)  # fmt: skip
         if self.min_depth >= self.max_depth:
-            raise SchemaError("min_depth", f"a number < max_depth ({self.max_depth})",
+            raise SchemaError("min_depth", f"a number < {{max_depth}} ({self.max_depth})",
                               self.min_depth)  # fmt: skip
 
 

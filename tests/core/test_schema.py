@@ -354,3 +354,14 @@ def test_generated_bad_values_cover_every_kind() -> None:
     for b in bad_values(Gen, "g"):
         with pytest.raises(SchemaError, match=rf"^{b.key}"):
             validate({b.key.split(".")[1]: b.value}, Gen, "g")
+
+
+def test_a_rules_other_key_gets_the_section_too() -> None:
+    """``min_fast <= ini_fast`` raised inside ``slam.orb``'s settings names both full keys."""
+    from uss_slam.core.schema import SchemaError
+
+    error = SchemaError("min_fast", "an integer <= {ini_fast} (5)", 20)
+    assert str(error) == "min_fast: expected an integer <= ini_fast (5), got 20"
+    assert str(error.within("slam.orb")) == (
+        "slam.orb.min_fast: expected an integer <= slam.orb.ini_fast (5), got 20"
+    )

@@ -51,7 +51,7 @@ def test_the_shipped_config_passes() -> None:
         ([f"+slam.filter_params.wide._target_={SEMANTIC}", "+slam.filter_params.wide.dilation=abc"],
          "slam.filter_params.wide.dilation: expected an integer >= 0, got 'abc'"),
         # rules across keys stay checks of their own, naming the key
-        (["slam.orb.min_fast=30"], "slam.orb.min_fast: expected an integer <= ini_fast (20), got 30"),
+        (["slam.orb.min_fast=30"], "slam.orb.min_fast: expected an integer <= slam.orb.ini_fast (20), got 30"),
     ],
 )  # fmt: skip
 def test_a_bad_value_is_one_line_naming_its_key(overrides: list[str], line: str) -> None:
