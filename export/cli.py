@@ -14,6 +14,8 @@ line on stderr naming the key or file, and exit code 1.
 
 from __future__ import annotations
 
+import re
+import sys
 from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -68,7 +70,7 @@ class ExportSchema:
     head: str = ranged("main", choices=HEADS)
     opset: int = 17
     net_config: Any = None
-    experiment: Optional[str] = ranged(None, text=True)
+    experiment_name: Optional[str] = ranged(None, text=True)
     dynamic_classes: list[str] = field(default_factory=lambda: ["person"])
     trace_size: Any = field(default_factory=lambda: [97, 129])
     verify_size: Any = field(default_factory=lambda: [120, 160])
@@ -149,7 +151,7 @@ class ExportOptions:
         if int8:
             input_folder(str(root), "calibration.root", "expected a TUM RGB-D folder with rgb.txt")
         max_diff, agreement = _value(cfg, "max_logit_diff"), _value(cfg, "min_label_agreement")
-        experiment = _value(cfg, "experiment")
+        experiment = _value(cfg, "experiment_name")
         return cls(
             ckpt_path=ckpt_path,
             ensemble=ensemble,
@@ -253,10 +255,25 @@ def app(cfg: DictConfig) -> None:
         )
 
 
+EXPERIMENT_OVERRIDE = re.compile(r"^[+~]*experiment=(.*)$")
+"""``experiment=NAME`` on the command line: Hydra reads it as a choice of the ``experiment``
+config group (uss-train's presets, in the same config folder), never as the model's name."""
+
+
 def main() -> None:
     """``uss-export``: every user error is one line on stderr and exit code 1, the errors Hydra
     raises while composing the config (an unknown key, bad override syntax, an output folder it
     cannot create) included."""
+    for argument in sys.argv[1:]:
+        found = EXPERIMENT_OVERRIDE.match(argument)
+        if found:
+            print(
+                f"{PROG}: error: {argument}: the experiment name stored in the model is "
+                f"experiment_name={found.group(1) or 'NAME'} (experiment= selects a uss-train "
+                "preset)",
+                file=sys.stderr,
+            )
+            sys.exit(1)
     run_hydra_app(PROG, app)
 
 

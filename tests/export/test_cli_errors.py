@@ -271,6 +271,20 @@ def test_missing_ckpt_path(uss_export: Runner) -> None:
     _assert_one_line(code, err, "ckpt_path=PATH is required (a uss-train .ckpt)")
 
 
+def test_the_experiment_name_key(runs: dict[str, Path], uss_export: Runner, tmp_path: Path) -> None:
+    """``experiment=`` would choose a uss-train preset (Hydra's config group of that name): one
+    line naming ``experiment_name``; ``experiment_name=`` sets what the model stores."""
+    for given in ("experiment=ci", "+experiment=ci"):
+        code, _, err = uss_export(f"ckpt_path={runs['a']}", given, "out_dir=x")
+        expected = f"{given}: the experiment name stored in the model is experiment_name=ci"
+        _assert_one_line(code, err, f"{expected} (experiment= selects a uss-train preset)")
+        assert not (tmp_path / "x").exists()
+    code, _, err = uss_export(f"ckpt_path={runs['a']}", "experiment_name=mine", "out_dir=x")
+    assert code == 0, err
+    props = onnx.load(str(tmp_path / "x" / "fake.onnx")).metadata_props
+    assert SegmenterMetadata.from_props({p.key: p.value for p in props}).experiment == "mine"
+
+
 # ---------------------------------------------------------------------------- output folder
 
 
