@@ -34,8 +34,7 @@ import onnxruntime as ort
 import torch
 
 from uss_slam.core.classes import CLASS_NAMES
-from uss_slam.core.onnx_contract import INPUT_NAME, SegmenterMetadata
-from uss_slam.datasets.transforms import IMAGENET_MEAN, IMAGENET_STD
+from uss_slam.core.onnx_contract import INPUT_NAME
 from uss_slam.export import (
     SegmenterExport,
     export_segmenter,
@@ -45,6 +44,7 @@ from uss_slam.export import (
     verification_images,
 )
 from uss_slam.models import DeepLabV2
+from uss_slam.testing.machine import benchmark_metadata
 
 BACKBONES = {"demo": "resnet_small", "resnet101": "resnet101"}
 
@@ -72,16 +72,7 @@ def bench(
     workdir: Path,
     calibration: Path | None,
 ) -> list[dict]:
-    metadata = SegmenterMetadata(
-        class_names=CLASS_NAMES,
-        dynamic_classes=("person",),
-        mean=IMAGENET_MEAN,
-        std=IMAGENET_STD,
-        head="main",
-        experiment=f"benchmark-{name}",
-        checkpoint_sha256="random",
-        version="benchmark",
-    )
+    metadata = benchmark_metadata(name)
     # Random ResNet-101 logits reach the hundreds: float32 reordering (BN folded into the
     # convolutions) then exceeds the absolute 1e-4 meant for trained models; printed below.
     result = export_segmenter(net, workdir / f"{name}.onnx", metadata, max_logit_diff=1e-2)

@@ -51,6 +51,8 @@ from pathlib import Path
 
 import cv2
 
+from uss_slam.testing.machine import benchmark_metadata, cpu_model
+
 USS_SLAM = str(Path(sys.executable).with_name("uss-slam"))
 
 MAIN_EXCLUDED = {"read", "orb", "segmentation", "load"}
@@ -67,24 +69,12 @@ def build_network(work: Path, calibration: Path, backbone: str = "resnet101") ->
     import torch  # only to build the model
     from segmenter_speed import random_net
 
-    from uss_slam.core.classes import CLASS_NAMES
-    from uss_slam.core.onnx_contract import SegmenterMetadata
-    from uss_slam.datasets.transforms import IMAGENET_MEAN, IMAGENET_STD
     from uss_slam.export import export_segmenter, quantize_int8, read_calibration_frames
 
     work.mkdir(parents=True, exist_ok=True)
     torch.set_num_threads(2)
     start = time.perf_counter()
-    metadata = SegmenterMetadata(
-        class_names=CLASS_NAMES,
-        dynamic_classes=("person",),
-        mean=IMAGENET_MEAN,
-        std=IMAGENET_STD,
-        head="main",
-        experiment=f"benchmark-{backbone}",
-        checkpoint_sha256="random",
-        version="benchmark",
-    )
+    metadata = benchmark_metadata(backbone)
     # A random ResNet-101's logits reach the hundreds: 1e-2 absolute is ~1e-5 relative.
     fp32 = export_segmenter(random_net(backbone), work / f"{backbone}.onnx", metadata,
                             max_logit_diff=1e-2).path  # fmt: skip
@@ -221,17 +211,6 @@ def summary(runs: dict[str, dict[str, list[dict]]]) -> None:
                   f"{med['tracking_cpu_ms']:.1f} ({med['main_cpu_ms']:.1f}) | {net} | "
                   f"{med['masks']:g} | {med['first_s']:.2f}; {med['latency_s']:.2f} | "
                   f"{min(loads):.1f}–{max(loads):.1f} |")  # fmt: skip
-
-
-def cpu_model() -> str:
-    """The CPU's model name from ``/proc/cpuinfo`` (``unknown CPU`` elsewhere)."""
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return "unknown CPU"
 
 
 CELLS = ("network", "oracle", "network labels")

@@ -16,7 +16,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import resource
 import statistics
 import subprocess
@@ -25,15 +24,7 @@ import tempfile
 import time
 from pathlib import Path
 
-
-def cpu_name() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown CPU"
+from uss_slam.testing.machine import cpu_model
 
 
 def one_job(args: argparse.Namespace, reuse: bool, out: Path) -> tuple[float, float, list]:
@@ -72,7 +63,7 @@ def main() -> None:
             parser.error(f"{path}: not found")
     times: dict[bool, list[tuple[float, float]]] = {False: [], True: []}
     ates: dict[bool, list] = {}
-    print(f"{cpu_name()}, {os.cpu_count()} cores; load before: {os.getloadavg()[0]:.2f}")
+    print(f"{cpu_model()}, {os.cpu_count()} cores; load before: {os.getloadavg()[0]:.2f}")
     with tempfile.TemporaryDirectory() as tmp:
         for i in range(args.runs):
             order = (False, True) if i % 2 == 0 else (True, False)

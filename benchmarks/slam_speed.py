@@ -55,6 +55,7 @@ from uss_slam.slam_eval.sequence import TumSequence
 from uss_slam.slam_eval.systems import harness
 from uss_slam.slam_eval.systems.harness import SlamPipeline
 from uss_slam.testing.harness_runs import sequence_path
+from uss_slam.testing.machine import cpu_model
 
 
 def main() -> None:
@@ -254,18 +255,6 @@ def show(repeat: int, mode: str, run: dict, seq: TumSequence) -> None:
         f"{os.getloadavg()[0]:.2f})",
         flush=True,
     )
-
-
-def cpu_model() -> str:
-    """The CPU's model name as ``lscpu`` prints it (``/proc/cpuinfo``), or ``unknown CPU``."""
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8") as info:
-            for line in info:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return "unknown CPU"
 
 
 def orbslam3_fps(path: Path, vocabulary: Path, repeats: int) -> list[float]:

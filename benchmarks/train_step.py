@@ -54,6 +54,7 @@ import torch
 from torch import Tensor
 
 from uss_slam.models import DeepLabV2
+from uss_slam.testing.machine import cpu_model
 from uss_slam.testing.reference_step import (
     PaperWeights,
     PlainState,
@@ -394,18 +395,6 @@ def main() -> None:
         compare = compared.AdversarialSegmentation
     for case in cases(args):
         run(case, compare)
-
-
-def cpu_model(cpuinfo: Path = Path("/proc/cpuinfo")) -> str:
-    """The CPU's model name (Linux ``/proc/cpuinfo``; ``unknown CPU`` where there is none)."""
-    try:
-        lines = cpuinfo.read_text().splitlines()
-    except OSError:
-        return "unknown CPU"
-    for line in lines:
-        if line.startswith("model name") and ":" in line:
-            return line.split(":", 1)[1].strip()
-    return "unknown CPU"
 
 
 def main_speed(args: argparse.Namespace) -> None:

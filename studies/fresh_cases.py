@@ -43,6 +43,8 @@ from fresh_setups import HIDDEN_OUTPUTS, SETUPS, build_world, snapshot
 from fresh_setups3 import THIRD
 from fresh_setups4 import FOURTH
 
+from uss_slam.testing.machine import cpu_model
+
 SETUPS.update(THIRD)
 SETUPS.update(FOURTH)
 
@@ -310,19 +312,12 @@ def main(argv: list[str] | None = None) -> int:
     (args.out / "results.json").write_text(json.dumps({
         "cases": len(outcomes), "void": len(outcomes) - len(counted), **totals,
         "good_share": round(share, 4), "seconds": round(time.perf_counter() - start),
-        "cpu": cpu_name(), "load_before": os.getloadavg()[0],
+        "cpu": cpu_model(), "load_before": os.getloadavg()[0],
         "outcomes": [asdict(o) for o in outcomes]}, indent=1) + "\n")  # fmt: skip
     print(f"{len(counted)} cases ({len(outcomes) - len(counted)} void): {totals['good']} good, "
           f"{totals['poor']} poor, {totals['bad']} bad ({100 * share:.1f}% good); "
           f"{time.perf_counter() - start:.0f} s")  # fmt: skip
     return 0
-
-
-def cpu_name() -> str:
-    for line in Path("/proc/cpuinfo").read_text().splitlines():
-        if line.startswith("model name"):
-            return line.split(":", 1)[1].strip()
-    return "unknown"
 
 
 if __name__ == "__main__":

@@ -33,7 +33,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import shutil
 import statistics
 import subprocess
@@ -42,6 +41,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from tqdm import tqdm
+
+from uss_slam.testing.machine import cpu_model
 
 SYSTEMS = {
     "harness": ("harness (default)", []),
@@ -347,17 +348,6 @@ def git_commit() -> str | None:
     return proc.stdout.strip() or None
 
 
-def cpu_model() -> str:
-    """The CPU's model name (Linux ``/proc/cpuinfo``), with ``avx512_bf16`` when it has it."""
-    try:
-        info = Path("/proc/cpuinfo").read_text()
-    except OSError:
-        return platform.processor() or platform.machine()
-    names = [ln.split(":", 1)[1].strip() for ln in info.splitlines() if ln.startswith("model name")]
-    name = names[0] if names else platform.machine()
-    return name + (" (avx512_bf16)" if " avx512_bf16" in info else "")
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", type=Path, default=DEFAULT_DATA,
@@ -452,7 +442,7 @@ def run(args: argparse.Namespace, command: str) -> int:
     meta = {
         "command": command,
         "commit": git_commit(),
-        "machine": cpu_model(),
+        "machine": cpu_model(flags=True),
         "cpus": os.cpu_count(),
         "load_average_start": load_start,
         "load_average_end": os.getloadavg(),

