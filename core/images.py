@@ -153,36 +153,25 @@ COLOUR = "a colour image (PNG or JPEG)"
 
 def read_colour(path: str | PathLike[str]) -> np.ndarray:
     """A colour image as ``(H, W, 3)`` uint8 BGR (any channel count in the file; a 16-bit PNG,
-    such as a depth image, is refused: :func:`check_eight_bit`)."""
-    data = _file_bytes(path, COLOUR)
-    _refuse_sixteen_bit(path, data[:26])
-    return _decode(path, data, cv2.IMREAD_COLOR, COLOUR)
+    such as a depth image, is refused: :func:`_read_eight_bit`)."""
+    return _read_eight_bit(path, cv2.IMREAD_COLOR)
 
 
 def read_grey(path: str | PathLike[str]) -> np.ndarray:
     """A colour image as ``(H, W)`` uint8 grey (a 16-bit PNG refused, as by :func:`read_colour`)."""
+    return _read_eight_bit(path, cv2.IMREAD_GRAYSCALE)
+
+
+def _read_eight_bit(path: str | PathLike[str], flags: int) -> np.ndarray:
+    """:func:`read_image` of a colour frame, refusing a PNG whose header says 16 bits per
+    channel (the decoder would scale it to 8 bits without a word: a depth image listed as a
+    colour frame), from the bytes read once."""
     data = _file_bytes(path, COLOUR)
-    _refuse_sixteen_bit(path, data[:26])
-    return _decode(path, data, cv2.IMREAD_GRAYSCALE, COLOUR)
-
-
-def check_eight_bit(path: str | PathLike[str]) -> None:
-    """Refuse a PNG whose header says 16 bits per channel where a colour frame is expected (the
-    decoder would scale it to 8 bits without a word: a depth image listed as a colour frame)."""
-    try:
-        with open(path, "rb") as file:
-            head = file.read(26)
-    except OSError:
-        return  # read_image names the problem
-    _refuse_sixteen_bit(path, head)
-
-
-def _refuse_sixteen_bit(path: str | PathLike[str], head: bytes) -> None:
-    """:func:`check_eight_bit` on the file's first 26 bytes ``head``."""
-    if head.startswith(PNG_SIGNATURE) and len(head) == 26 and head[24] == 16:
+    if data.startswith(PNG_SIGNATURE) and len(data) >= 26 and data[24] == 16:
         raise DataFormatError(
             path, f"a 16-bit PNG (a depth image?); expected an 8-bit {COLOUR[2:]}"
         )
+    return _decode(path, data, flags, COLOUR)
 
 
 def read_depth(path: str | PathLike[str]) -> np.ndarray:
