@@ -39,6 +39,19 @@ def file_sha256(path: Path) -> str:
     return digest.hexdigest()
 
 
+TORCH_ZIP = b"PK\x03\x04"
+"""How a ``torch.save`` file starts (a zip archive); the legacy format starts as a pickle."""
+
+
+def saved_by_torch(path: str | PathLike[str]) -> bool:
+    """Whether the file ``path`` starts as one of ``torch.load``'s two formats (a zip archive or
+    a pickle), read from its first 4 bytes without importing torch: an ONNX model, an image or
+    a text file given as weights is not. An unreadable file is the caller's to report."""
+    with open(path, "rb") as file:
+        head = file.read(4)
+    return head == TORCH_ZIP or head.startswith(b"\x80")
+
+
 def folder_fingerprint(folder: str | PathLike[str]) -> str:
     """Hex SHA-256 of every file under ``folder`` by relative path, size and modification time
     (nanoseconds), hidden names (``.*``) left out: a cache key that changes when a file is

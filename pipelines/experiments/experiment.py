@@ -15,6 +15,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from uss_slam.core.cli import warning
 from uss_slam.core.errors import UssSlamError
+from uss_slam.core.files import saved_by_torch
 from uss_slam.core.paths import input_file, input_folder
 from uss_slam.core.ranges import MAX_THREADS, THREADS_PER_CPU, machine_threads
 from uss_slam.core.schema import changed_keys, unused_line, unused_settings
@@ -218,10 +219,6 @@ def check_counts(plain: Mapping[str, Any], synthetic: bool) -> None:
             )
 
 
-TORCH_ZIP = b"PK\x03\x04"
-"""How a ``torch.save`` file starts (a zip archive); the legacy format starts as a pickle."""
-
-
 def check_init(plain: Mapping[str, Any], synthetic: bool, sequences: Sequence[str]) -> Init:
     """The ``init`` section (absent = ``scratch``): its kind, and for ``pretrained`` either a
     readable ``init.path`` or (synthetic data only) the pretraining set and its trainings; the
@@ -235,9 +232,7 @@ def check_init(plain: Mapping[str, Any], synthetic: bool, sequences: Sequence[st
         expected = ("expected a pretrained weights file (a DeepLab-v2 Caffe init, a torchvision "
                     "ResNet state dict or a uss-train checkpoint)")  # fmt: skip
         path = input_file(Path(str(init["path"])).expanduser(), "init.path", expected)
-        with open(path, "rb") as file:
-            head = file.read(4)
-        if head != TORCH_ZIP and not head.startswith(b"\x80"):  # torch.load's two formats
+        if not saved_by_torch(path):
             raise UssSlamError(f"init.path={path}: not a file torch.load reads (an ONNX model, "
                                f"say); {expected}")  # fmt: skip
         return Init(kind, path=path.resolve())
