@@ -30,7 +30,6 @@ import torch
 from torch import Tensor, nn
 
 from uss_slam.core.errors import DataFormatError
-from uss_slam.core.files import saved_by_torch
 from uss_slam.core.normalization import IMAGENET_MEAN, IMAGENET_STD
 from uss_slam.models.backbone import CAFFE_LAYOUT_BUFFER
 from uss_slam.models.checkpoint import HEAD_WEIGHTS
@@ -116,11 +115,6 @@ def read_weights(path: str | Path) -> WeightsFile:
     path = Path(path)
     if not path.is_file():
         raise DataFormatError(path, f"weights file not found; expected {ACCEPTED}")
-    if not saved_by_torch(path):  # an ONNX model, an image: torch.load's text would follow
-        raise DataFormatError(
-            path,
-            f"not a readable torch weights file (not written by torch.save); expected {ACCEPTED}",
-        )
     try:
         blob = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as error:  # unpickling errors have no common base class
