@@ -42,11 +42,13 @@ from pathlib import Path
 from fresh_setups import HIDDEN_OUTPUTS, SETUPS, build_world, snapshot
 from fresh_setups3 import THIRD
 from fresh_setups4 import FOURTH
+from fresh_setups5 import FIFTH
 
 from uss_slam.testing.machine import cpu_model
 
 SETUPS.update(THIRD)
 SETUPS.update(FOURTH)
+SETUPS.update(FIFTH)
 
 HERE = Path(__file__).resolve().parent
 CASES = HERE / "fresh_cases.txt"
@@ -116,13 +118,16 @@ def _run(case: Case, argv: list[str], folder: Path,
          paths: dict[str, str]) -> tuple[int | None, str, float, bool]:  # fmt: skip
     """(exit code or None on a hang, stderr, seconds, whether the signal came after the end)."""
     env = dict(os.environ, PYTHONUNBUFFERED="1", COLUMNS="100")
-    limit = None
+    limits: dict[int, int] = {}
+    shell = {k: case.env[k] for k in PSEUDO if k in case.env}  # the shell's state, not variables
     for key, value in case.env.items():
         value = value.format(**paths)
         if key == "PYTHONPATH":  # before the runner's own (a snapshot of the code under test)
             env[key] = os.pathsep.join(p for p in (value, os.environ.get(key, "")) if p)
-        elif key == "ULIMIT_V":
-            limit = int(value) * 1024
+        elif key in LIMITS:  # ulimit -v / -f (KiB), -n (files)
+            limits[LIMITS[key]] = int(value) * (1 if key == "ULIMIT_N" else 1024)
+        elif key in PSEUDO:
+            continue
         elif value == "":
             env.pop(key, None)
         else:
@@ -133,23 +138,36 @@ def _run(case: Case, argv: list[str], folder: Path,
         # as a terminal's Ctrl-C finds it: a runner started in the background (`cmd &`)
         # ignores SIGINT, and Python then installs no KeyboardInterrupt handler
         signal.signal(signal.SIGINT, signal.SIG_DFL)
-        if limit is not None:
-            resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+        for kind, limit in limits.items():
+            resource.setrlimit(kind, (limit, limit))
+        if "UMASK" in shell:
+            os.umask(int(shell["UMASK"], 8))
+        if "CWD_GONE" in shell:  # the working folder deleted (another terminal's `rm -r`)
+            os.rmdir(os.getcwd())
+        if shell.get("STDOUT") == "closed":
+            os.close(1)
 
-    powerless = any(s.startswith("ro") or s == "links" or "unreadable" in s for s in case.setup)
+    powerless = "UMASK" in shell or any(
+        s.startswith("ro") or s == "links" or "unreadable" in s for s in case.setup
+    )
     prefix = _without_root_powers() if powerless else []
     command = [*prefix, str(BIN / case.prog), *argv]
+    cwd = folder
+    if "CWD_GONE" in shell:
+        cwd = folder / "gone"
+        cwd.mkdir()
+    stdout = open("/dev/full", "w") if shell.get("STDOUT") == "full" else subprocess.DEVNULL  # noqa: SIM115
     start = time.perf_counter()
-    proc = subprocess.Popen(command, cwd=folder, env=env, stdout=subprocess.DEVNULL,
+    proc = subprocess.Popen(command, cwd=cwd, env=env, stdout=stdout,
                             stderr=subprocess.PIPE, text=True, preexec_fn=preexec)  # fmt: skip
     late = False
-    if case.expect.startswith(("int:", "term:")):
+    if case.expect.startswith(SIGNALLED):
         kind, delay = case.expect.split(":")
         try:
             proc.wait(timeout=float(delay))
             late = True
         except subprocess.TimeoutExpired:
-            proc.send_signal(signal.SIGINT if kind == "int" else signal.SIGTERM)
+            proc.send_signal(SIGNALS[kind])
     try:
         _, err = proc.communicate(timeout=TIMEOUT)
         code: int | None = proc.returncode
@@ -157,7 +175,21 @@ def _run(case: Case, argv: list[str], folder: Path,
         os.killpg(proc.pid, signal.SIGKILL)
         _, err = proc.communicate()
         code = None
+    if stdout is not subprocess.DEVNULL:
+        stdout.close()
     return code, err, time.perf_counter() - start, late
+
+
+LIMITS = {"ULIMIT_V": resource.RLIMIT_AS, "ULIMIT_F": resource.RLIMIT_FSIZE,
+          "ULIMIT_N": resource.RLIMIT_NOFILE}  # fmt: skip
+"""A case's ``env`` keys that set a resource limit of its process (``ulimit -v / -f / -n``)."""
+PSEUDO = ("UMASK", "CWD_GONE", "STDOUT")
+"""A case's ``env`` keys that set the shell's state: ``UMASK=027``; ``CWD_GONE=1``: the working
+folder is deleted as the script starts; ``STDOUT=full`` (``/dev/full``) or ``closed``."""
+SIGNALS = {"int": signal.SIGINT, "term": signal.SIGTERM, "hup": signal.SIGHUP}
+SIGNALLED = tuple(f"{k}:" for k in SIGNALS)
+"""``expect`` of a case that sends a signal after N s: ``int:N`` (Ctrl-C), ``term:N`` (kill),
+``hup:N`` (the terminal closed: the same contract as SIGTERM, exit 129)."""
 
 
 def classify(case: Case, code: int | None, err: str, before: dict, after: dict,
@@ -175,10 +207,10 @@ def classify(case: Case, code: int | None, err: str, before: dict, after: dict,
         return "bad", "traceback"
     if code < 0:
         return "bad", f"killed by signal {-code}"
-    if case.expect.startswith(("int:", "term:")):
+    if case.expect.startswith(SIGNALLED):
         if lost:
             return "bad", f"earlier output changed or gone: {lost[:2]}"
-        want = 130 if case.expect.startswith("int") else 143
+        want = 128 + SIGNALS[case.expect.split(":")[0]]
         left = [p for p in new if any(h in p for h in HIDDEN_OUTPUTS)]
         if code != want:
             return "poor", f"exit code {code}, expected {want}"

@@ -14,7 +14,7 @@ held-out sets. A new case *repeats* one when it is the same script with
 - an earlier case: the same setup and the same arguments once the paths are named alike, or
   the same arguments that are not the script's usual base (the same tried input).
 
-    python studies/screen_cases.py studies/fresh_cases4.txt   # exit 1 and the repeats, if any
+    python studies/screen_cases.py studies/fresh_cases5.txt   # exit 1 and the repeats, if any
 
 Needs the test folder on ``sys.path`` (it imports the matrices' modules, which import pytest).
 """
@@ -33,7 +33,8 @@ sys.path[:0] = [str(HERE), str(ROOT / "tests")]
 
 from fresh_cases import MACROS, read_cases  # noqa: E402
 
-EARLIER = ("fresh_cases.txt", "fresh_cases2.txt", "fresh_cases3.txt")
+EARLIER = ("fresh_cases.txt", "fresh_cases2.txt", "fresh_cases3.txt", "fresh_cases4.txt")
+"""The held-out sets so far, in order; a set is screened against those before it."""
 ALIASES = {"{tmp}": "{C}", "{m}": "{onnx}", "{out}": "{C}/o", "{s}": "{C}/seq"}
 """The hand-written matrices' path names -> the fresh sets' names."""
 FAMILY_PATHS = re.compile(r"\{C\}/(nope|nothing|loop|link|afile|afolder|a/x)\b|a{300}")
@@ -101,7 +102,8 @@ def handwritten() -> list[tuple[str, tuple[str, ...]]]:
 def screen(path: Path) -> list[str]:
     """One line per repeat found among ``path``'s cases."""
     new = read_cases(path)
-    earlier = [c for name in EARLIER for c in read_cases(HERE / name)]
+    before = EARLIER[: EARLIER.index(path.name)] if path.name in EARLIER else EARLIER
+    earlier = [c for name in before for c in read_cases(HERE / name)]
     found: list[str] = []
     bad_args = generated_argparse()
     bad_keys = generated_schema()

@@ -58,3 +58,39 @@ def test_the_screen_flags_a_generated_case_and_an_earlier_one(fresh, tmp_path) -
     assert any(f.startswith("a: generated argparse case --images 0") for f in found), found
     assert any(f.startswith("b: ") for f in found), found
     assert not any(f.startswith("c: ") for f in found), found
+
+
+@pytest.mark.parametrize(
+    ("code", "err", "verdict"),
+    [
+        (129, "uss-slam: interrupted (SIGHUP)", "good"),
+        (-1, "", "bad"),  # killed by the hang-up: the default action
+        (143, "uss-slam: interrupted (SIGTERM)", "poor"),  # another signal's exit code
+    ],
+)
+def test_a_hang_up_case_is_held_to_sigterms_contract(fresh, code, err, verdict) -> None:
+    """``hup:N`` (the terminal closed) expects 128 + 1 and the one ``interrupted`` line."""
+    case = _case(fresh, "uss-slam", "hup:4", "out_dir={C}/o")
+    assert fresh.classify(case, code, err, {}, {}, {})[0] == verdict
+
+
+def test_the_shell_state_of_a_case_reaches_its_process(fresh, tmp_path) -> None:
+    """``UMASK``, ``CWD_GONE`` and ``ULIMIT_N`` set the child's state, not its environment."""
+    case = fresh.Case("c", "uss-traj", "ok", (), {"UMASK": "077", "CWD_GONE": "1",
+                                                  "ULIMIT_N": "50"}, (), "")  # fmt: skip
+    probe = (
+        "import os, resource, sys\n"
+        "try:\n    os.getcwd(); gone = False\nexcept FileNotFoundError:\n    gone = True\n"
+        "ok = os.umask(0) == 0o77 and resource.getrlimit(resource.RLIMIT_NOFILE)[0] == 50\n"
+        "sys.exit(0 if ok and gone and 'UMASK' not in os.environ else 3)"
+    )
+    saved = fresh.BIN
+    (tmp_path / "bin").mkdir()
+    (tmp_path / "bin" / "uss-traj").symlink_to(sys.executable)
+    fresh.BIN = tmp_path / "bin"
+    try:
+        code, err, _, _ = fresh._run(case, ["-c", probe], tmp_path, {})
+    finally:
+        fresh.BIN = saved
+    assert code == 0, err
+    assert not (tmp_path / "gone").exists()
