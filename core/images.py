@@ -18,7 +18,6 @@ way: JPEG has no checksum.) Torch-free (floor 0).
 
 from __future__ import annotations
 
-import zlib
 from os import PathLike
 
 import cv2
@@ -27,6 +26,7 @@ import numpy as np
 from uss_slam.core.classes import CLASS_NAMES, IGNORE_INDEX
 from uss_slam.core.errors import DataFormatError
 from uss_slam.core.paths import input_file
+from uss_slam.core.png_inflate import crc32, stored
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 JPEG_SOI = b"\xff\xd8"
@@ -49,7 +49,7 @@ def png_problem(data: bytes) -> str | None:
         if end > len(data):
             return f"truncated PNG: it ends inside its {name} chunk at byte {pos} (no IEND chunk)"
         crc = int.from_bytes(data[end - 4 : end], "big")
-        if zlib.crc32(view[pos + 4 : end - 4]) != crc:
+        if crc32(view[pos + 4 : end - 4]) != crc:
             return f"corrupt PNG: the CRC of its {name} chunk at byte {pos} does not match"
         if kind == b"IEND":
             return None
@@ -142,6 +142,8 @@ def _decode(path: str | PathLike[str], data: bytes, flags: int, what: str) -> np
     problem = image_problem(data) if data else "empty file"
     if problem:
         raise DataFormatError(path, f"{problem}; expected {what}")
+    if data.startswith(PNG_SIGNATURE):
+        data = stored(data)  # the same pixels, inflated by ISA-L: core/png_inflate.py
     image = cv2.imdecode(np.frombuffer(data, np.uint8), flags)
     if image is None:
         raise DataFormatError(path, f"not a readable image; expected {what}")

@@ -45,6 +45,7 @@ REQUIRED = {
     "torchmetrics": "torchmetrics", "hydra": "hydra-core", "omegaconf": "hydra-core",
     "tensorboard": "tensorboard", "onnx": "onnx", "onnxruntime": "onnxruntime",
     "matplotlib": "matplotlib", "scipy": "scipy", "pycocotools": "pycocotools", "gtsam": "gtsam",
+    "isal": "isal",
 }  # fmt: skip
 """Import name -> distribution of every required dependency (pyproject's ``dependencies``)."""
 
