@@ -22,6 +22,9 @@ and writes every cell's figures to ``OUT/cells.json``; each run's folder is ``OU
 
     python studies/slam_semantic_thread.py SEQ [SEQ ...] --out outputs/sem/study \\
         --latency 2.9 0.5 --repeats 5
+
+``--set KEY=VALUE ...`` gives every harness cell the same ``uss-slam`` overrides (a candidate
+setting judged against the same command without it); ``--thread-set`` the thread cells only.
 """
 
 from __future__ import annotations
@@ -154,6 +157,10 @@ def main() -> None:
         "--thread-set", nargs="+", default=[], metavar="KEY=VALUE",
         help="uss-slam overrides of the thread cells only (e.g. slam.provisional_points=true)",
     )  # fmt: skip
+    parser.add_argument(
+        "--set", nargs="+", default=[], metavar="KEY=VALUE",
+        help="uss-slam overrides of every harness cell (a candidate setting)",
+    )  # fmt: skip
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     record = args.out / "cells.json"
@@ -164,6 +171,7 @@ def main() -> None:
         for name, overrides in cells(args.latency, args.baseline, args.thread_set):
             if name not in rows:
                 folder = args.out / seq.name / name.replace(" ", "_")
+                overrides = overrides + ([] if args.orbslam3 else args.set)
                 rows[name] = run_cell(path, folder, overrides, args.repeats, args.orbslam3)
                 record.write_text(json.dumps(done, indent=1))
             print(row(seq.name, name, rows[name], rows["per-frame"]), flush=True)

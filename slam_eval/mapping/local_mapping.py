@@ -6,6 +6,14 @@ Local bundle adjustment of a new keyframe ``K`` (free: ``K``, its covisible keyf
 their points; fixed: the keyframes that also observe those points, and keyframe 0) is
 :class:`~..optim.local_ba.BundleAdjuster`'s, which describes its factors, noise and passes.
 
+Schedule (``min_interval_s``, ORB-SLAM2's queue of new keyframes): the mapper runs local BA only
+when no newer keyframe waits, and a new keyframe interrupts it. Here the main thread runs it, so
+that behaviour is modelled on the camera clock: after a local BA the mapper counts as busy for
+``min_interval_s`` seconds of frame stamps; a keyframe made meanwhile waits, a newer one replaces
+it (the older one's BA is skipped, as ORB-SLAM2 optimises only the newest keyframe of its queue),
+and the waiting keyframe is adjusted (with culling) on the first frame after the busy time. 0 (the
+default) adjusts every keyframe at once.
+
 Keyframe culling: a covisible keyframe of ``K`` (never keyframe 0) is removed when more than
 ``redundancy`` (90%) of its close map points (those of keypoints with depth) are seen by at least
 ``redundant_observers`` (3) other keyframes at the same or a finer pyramid level (± one).
@@ -58,6 +66,11 @@ class LocalMappingConfig:
     frees it alone (its covisible keyframes stay fixed), so the map corrects its pose and it
     moves no other keyframe; 0 = off (ORB-SLAM2 frees every covisible keyframe)."""
 
+    min_interval_s: float = ranged(0.0, min=0)
+    """Camera seconds (frame stamps) the mapper counts as busy after a local BA: a keyframe made
+    meanwhile waits for the end of that time and a newer one replaces it (module docstring,
+    "Schedule"); 0 = every keyframe adjusted at once."""
+
     def __post_init__(self) -> None:
         check_fields(self)
 
@@ -75,7 +88,9 @@ def depth_noise_of(config: LocalMappingConfig, camera_noise: float | None) -> tu
 @dataclass
 class LocalMappingStats:
     """Totals over a run: ``runs`` local bundle adjustments, their mean ``wall_ms``, keyframes
-    ``culled``, outlier ``observations_erased``."""
+    ``culled``, outlier ``observations_erased``; keyframes ``deferred`` (made while the mapper was
+    busy, ``min_interval_s``) and ``skipped`` (of those, replaced by a newer one before their
+    BA)."""
 
     runs: int = 0
     wall_s: float = 0.0
@@ -83,6 +98,8 @@ class LocalMappingStats:
     observations_erased: int = 0
     optimised_keyframes: int = 0
     optimised_points: int = 0
+    deferred: int = 0
+    skipped: int = 0
 
     def as_dict(self) -> dict[str, float | int]:
         return {
@@ -92,6 +109,8 @@ class LocalMappingStats:
             "observations_erased": self.observations_erased,
             "mean_free_keyframes": self.optimised_keyframes / max(self.runs, 1),
             "mean_points": self.optimised_points / max(self.runs, 1),
+            "keyframes_deferred": self.deferred,
+            "keyframes_skipped": self.skipped,
         }
 
 
@@ -102,6 +121,41 @@ class LocalMapping:
         self.config = config
         self.adjuster = adjuster
         self.stats = LocalMappingStats()
+        self.waiting: int | None = None
+        """The keyframe whose BA waits for the end of the busy time (``min_interval_s``)."""
+        self.busy_until = -np.inf
+        """Frame stamp (s) until which the mapper counts as busy after its last local BA."""
+
+    def keyframe(self, slam_map: SlamMap, keyframe_id: int, stamp: float) -> bool:
+        """A new keyframe made at ``stamp`` (s): adjusted now when the mapper is free, else it
+        waits (replacing a waiting one). Returns whether the map changed."""
+        if self.waiting is not None:
+            self.stats.skipped += 1
+            self.waiting = None
+        if stamp < self.busy_until:
+            self.stats.deferred += 1
+            self.waiting = keyframe_id
+            return False
+        self.run(slam_map, keyframe_id, stamp)
+        return True
+
+    def frame(self, slam_map: SlamMap, stamp: float) -> bool:
+        """A frame at ``stamp`` (s) without a new keyframe: the waiting keyframe is adjusted
+        when the busy time is over (and it was not culled meanwhile). Returns whether the map
+        changed."""
+        if self.waiting is None or stamp < self.busy_until:
+            return False
+        keyframe_id, self.waiting = self.waiting, None
+        if slam_map.keyframes[keyframe_id].bad:
+            self.stats.skipped += 1
+            return False
+        self.run(slam_map, keyframe_id, stamp)
+        return True
+
+    def run(self, slam_map: SlamMap, keyframe_id: int, stamp: float) -> None:
+        """:meth:`process` at ``stamp``, and the busy time that follows."""
+        self.process(slam_map, keyframe_id)
+        self.busy_until = stamp + self.config.min_interval_s
 
     def local_keyframes(self, slam_map: SlamMap, keyframe_id: int) -> np.ndarray:
         """The new keyframe and its covisible keyframes (most shared points first if capped);

@@ -23,7 +23,8 @@ and ``segmentation``: ``schedule`` (``every_frame`` | ``keyframes`` | ``thread``
 ``rolling_shutter``: ``readout`` the seconds the tracker corrected for (0 = none),
 ``readout_from`` and ``frames_corrected``; the back end: ``local_ba`` (null when off, else ``runs``, mean ``wall_ms`` per run, ``keyframes_culled``,
 ``observations_erased``, ``mean_free_keyframes``, ``mean_points``, ``depth_noise`` the k of
-``σ_z = k·z²`` its stereo factors model (0 = ORB-SLAM2's model) and ``depth_noise_from``),
+``σ_z = k·z²`` its stereo factors model (0 = ORB-SLAM2's model), ``depth_noise_from``, and
+``keyframes_deferred`` / ``keyframes_skipped`` by ``local_ba_params.min_interval_s``),
 ``loop_closing`` (on/off),
 ``loop_closures`` (how many) and ``loop_closure_frames`` (per closure: ``frame``, ``stamp``,
 ``keyframe``, ``loop_frame``, ``loop_keyframe``, ``inliers``, ``correction_m``,

@@ -170,7 +170,7 @@ class FrameLoop:
                     self.provisional = np.concatenate([self.provisional, held])
                     self.pending = held
                     self.counts["points_held"] += len(held)
-        self.back_end(result, kf)
+        self.back_end(result, kf, frame.stamp)
         self.record(frame, filters, result, kf)
 
     def track(
@@ -335,10 +335,11 @@ class FrameLoop:
                 self.products.add(kf, frame, ctx.labels, filters.region())
         return kf
 
-    def back_end(self, result: TrackResult, kf: KeyFrame | None) -> None:
+    def back_end(self, result: TrackResult, kf: KeyFrame | None, stamp: float) -> None:
         """With the back end: the tracked frame's pose kept on its reference keyframe, and
-        after a new keyframe (not the first) local bundle adjustment, loop closing and the
-        tracker's last pose put back on the corrected map."""
+        after a new keyframe (not the first) local bundle adjustment (now, or once the mapper's
+        busy time is over: ``local_ba_params.min_interval_s``), loop closing and the tracker's
+        last pose put back on the corrected map."""
         if not self.backend:
             return
         tracker = self.tracker
@@ -347,10 +348,14 @@ class FrameLoop:
             assert anchor is not None
             self.anchors.append(anchor)
         if kf is None or kf.id == 0:
+            if self.mapper is not None and self.mapper.waiting is not None:
+                with self.timer("local_ba"):
+                    if self.mapper.frame(self.map, stamp):
+                        tracker.map_changed()
             return
         if self.mapper is not None:
             with self.timer("local_ba"):
-                self.mapper.process(self.map, kf.id)
+                self.mapper.keyframe(self.map, kf.id, stamp)
         if self.closer is not None:
             with self.timer("loop_closing"):
                 self.closer.process(kf)
