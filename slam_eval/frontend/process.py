@@ -8,7 +8,7 @@ one worker process does the reading and the extraction, ``workers`` threads of i
 ``prefetch`` frames ahead, and hands each frame to the main process:
 
 - the images (``rgb``, ``gray``, ``labels``, and ``depth`` where the worker read it) through a
-  ring of ``prefetch`` slots of shared memory (a 640x480 frame is 2.9 MB: through a pipe it
+  ring of slots of shared memory (:func:`ring_slots`: 32 frames of 640x480) (a 640x480 frame is 2.9 MB: through a pipe it
   would cost the main process a copy and an unpickling each); a prefetch thread of the main
   process copies a slot out and gives it back (:meth:`FrontendProcess.take`);
 - the :class:`~.orb.Features`, extracted without depth, and the timings through a queue.
@@ -159,9 +159,11 @@ class FrontendProcess:
         prefetch: int,
         workers: int,
         behind: int | None = None,
+        slots: int | None = None,
     ) -> None:
         """``behind``: the worker reads a frame's depth itself when at most this many slots of
-        the ring are free (None: :data:`BEHIND`; -1: never, ``prefetch``: always)."""
+        the ring are free (None: :data:`BEHIND`; -1: never, ``slots``: always). ``slots``: the
+        ring's frames (None: :func:`ring_slots`)."""
         self.sequence = sequence
         self._closed = False
         self._lock = threading.Lock()
@@ -172,7 +174,8 @@ class FrontendProcess:
         """CPU seconds the worker process had used when it sent the last frame received."""
         width, height = sequence.image_size
         self.layout = _Layout(height, width, sequence.load_labels)
-        slots = max(1, prefetch)
+        slots = ring_slots(prefetch, self.layout.slot_bytes) if slots is None else max(1, slots)
+        self.slots = slots
         context = _context()
         self._shm: shared_memory.SharedMemory | None = shared_memory.SharedMemory(
             create=True, size=slots * self.layout.slot_bytes
@@ -514,6 +517,23 @@ class _Images:
     labels: np.ndarray | None
     depth: np.ndarray | None = None
     read_time: tuple[float, float] = (0.0, 0.0)
+
+
+RING_FRAMES = 32
+"""Frames the ring holds (at least ``prefetch``; fewer where they would pass
+:data:`RING_BYTES`). The main thread's work comes in bursts: a frame takes ~7 ms, one with a
+new keyframe 40-150 ms (local BA, loop closing: GTSAM holds the GIL meanwhile, so this
+process's prefetch threads cannot take frames out of the ring either). With a ring of
+``prefetch`` (4) frames the worker stopped during each burst and the two cores idled after it
+(a model of a measured run's per-frame CPU times: ~52 frames/s with 4 frames, ~60 with 32)."""
+RING_BYTES = 96 * 2**20
+"""At most this much shared memory for the ring (~34 frames of 640x480)."""
+
+
+def ring_slots(prefetch: int, slot_bytes: int) -> int:
+    """Frames of the ring for frames of ``slot_bytes``: :data:`RING_FRAMES`, at most
+    :data:`RING_BYTES` of them, never fewer than ``prefetch`` (nor than 1)."""
+    return max(1, prefetch, min(RING_FRAMES, RING_BYTES // max(1, slot_bytes)))
 
 
 BEHIND = 1

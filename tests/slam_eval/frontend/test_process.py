@@ -25,7 +25,7 @@ from uss_slam.slam_eval.filters.build import build_filters
 from uss_slam.slam_eval.frontend import auto as frontend_auto
 from uss_slam.slam_eval.frontend import process as frontend_process
 from uss_slam.slam_eval.frontend.orb import OrbConfig, OrbExtractor
-from uss_slam.slam_eval.frontend.process import FrontendProcess
+from uss_slam.slam_eval.frontend.process import RING_BYTES, FrontendProcess, ring_slots
 from uss_slam.slam_eval.run import run
 from uss_slam.slam_eval.segmenters.base import LabelsSegmenter
 from uss_slam.slam_eval.sequence import TumSequence
@@ -91,7 +91,8 @@ def test_the_worker_yields_the_frames_and_features_of_the_threads(
     seq = TumSequence(synthetic_sequence(frames=12), load_labels=True)
     config = OrbConfig(n_features=700)
     extractor = OrbExtractor(config, seq.camera)
-    got = [r.take() for r in FrontendProcess(seq, config, prefetch=3, workers=2, behind=behind)]
+    worker = FrontendProcess(seq, config, prefetch=3, workers=2, behind=behind, slots=3)
+    got = [r.take() for r in worker]
     assert [e.index for e in got] == list(range(len(seq)))
     for extracted in got:
         frame = seq.load(extracted.index)
@@ -118,11 +119,21 @@ def test_the_worker_reads_the_depth_when_the_main_process_is_behind(synthetic_se
     the default leaves them to a consumer that keeps up."""
     seq = TumSequence(synthetic_sequence(frames=12), load_labels=True)
     slow = []
-    for received in FrontendProcess(seq, OrbConfig(), prefetch=3, workers=1):
+    for received in FrontendProcess(seq, OrbConfig(), prefetch=3, workers=1, slots=3):
         time.sleep(0.2)  # the worker fills the ring meanwhile
         slow.append(received.take().depth is not None)
     assert sum(slow) >= 6
     _no_worker_left()
+
+
+def test_the_ring_holds_32_frames_within_its_memory_bound() -> None:
+    """The ring absorbs the main thread's bursts (local BA, loop closing): 32 frames of
+    640x480, fewer of larger frames, never fewer than ``prefetch``."""
+    frame = 9 * 640 * 480
+    assert ring_slots(4, frame) == 32
+    assert ring_slots(40, frame) == 40
+    assert ring_slots(4, 4 * frame) == RING_BYTES // (4 * frame) < 32
+    assert ring_slots(2, RING_BYTES + 1) == 2
 
 
 def test_process_mode_gives_the_threads_run_with_the_back_end(synthetic_sequence, started) -> None:
