@@ -36,6 +36,9 @@ filter flagged. Then medians per sequence and cell, the CPU model and the load a
     python benchmarks/semantic_thread_speed.py --repeats 3 \\
         --sequence SEQ [SEQ ...]      # default: walking_xyz, seed 0, 300 frames, 640x480
     python benchmarks/semantic_thread_speed.py --build-only   # the INT8 model alone (~1 min)
+
+``--set KEY=VALUE ...`` adds ``uss-slam`` overrides to every run (e.g. a local BA setting,
+timed against the same command without it; give each its own ``--work``).
 """
 
 from __future__ import annotations
@@ -240,7 +243,13 @@ def main() -> None:
     parser.add_argument("--nice", type=int, default=0, choices=range(20), metavar="0..19",
                         help="also run the network cell with slam.semantic_nice=N")  # fmt: skip
     parser.add_argument("--build-only", action="store_true", help="build the model and stop")
+    parser.add_argument("--set", nargs="+", default=[], metavar="KEY=VALUE",
+                        help="uss-slam overrides of every run (a setting timed against the "
+                             "same command without it)")  # fmt: skip
     args = parser.parse_args()
+    bad = [o for o in args.set if "=" not in o]
+    if bad:
+        parser.error(f"--set: expected KEY=VALUE, got {bad[0]!r}")
     for path in [*(args.sequence or []), *([args.model] if args.model else [])]:
         if not path.exists():
             parser.error(f"{path}: not found")
@@ -277,7 +286,7 @@ def main() -> None:
                     overrides = network
                 out = args.work / "runs" / seq.name / str(repeat) / name.replace(" ", "_")
                 truth = name in ("network", "network nice")
-                cells[name].append(run(seq, out, overrides, truth=truth))
+                cells[name].append(run(seq, out, [*overrides, *args.set], truth=truth))
                 show(name, seq.name, repeat, cells[name][-1])
     summary(runs)
     (args.work / "runs.json").write_text(json.dumps(runs, indent=1) + "\n")

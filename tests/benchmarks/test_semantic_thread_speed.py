@@ -21,11 +21,9 @@ def test_times_the_network_and_the_oracle_at_its_latency(synthetic_sequence, tmp
     model = colour_model(tmp_path / "m.onnx", segmenter_props(CLASS_NAMES), label_map=(0, 0, 0, 0))
     work = tmp_path / "work"
     args = [sys.executable, str(SCRIPT), "--sequence", str(seq), "--model", str(model)]
-    done = subprocess.run(
-        [*args, "--repeats", "2", "--nice", "5", "--work", str(work)],
-        capture_output=True,
-        text=True,
-    )
+    options = ["--repeats", "2", "--nice", "5", "--work", str(work)]
+    options += ["--set", "slam.local_ba_params.min_interval_s=0.25"]
+    done = subprocess.run([*args, *options], capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
     runs = json.loads((work / "runs.json").read_text())[seq.name]
     assert [len(v) for v in runs.values()] == [2, 2, 2, 2]
@@ -42,6 +40,7 @@ def test_times_the_network_and_the_oracle_at_its_latency(synthetic_sequence, tmp
         (work / "runs" / seq.name / "1" / "network_nice" / "metrics.json").read_text()
     )
     assert nice["settings"]["slam"]["semantic_nice"] == 5
+    assert metrics["settings"]["slam"]["local_ba_params"]["min_interval_s"] == 0.25  # --set
     for name in ("network", "network_labels"):
         net = json.loads((work / "runs" / seq.name / "0" / name / "metrics.json").read_text())
         assert net["segmenter"] == "onnx:m.onnx"
@@ -54,6 +53,8 @@ def test_times_the_network_and_the_oracle_at_its_latency(synthetic_sequence, tmp
         [*args[:3], str(tmp_path / "nope"), "--model", str(model)], capture_output=True, text=True
     )
     assert missing.returncode == 2 and f"{tmp_path / 'nope'}: not found" in missing.stderr
+    bad = subprocess.run([*args, "--set", "slam.local_ba"], capture_output=True, text=True)
+    assert bad.returncode == 2 and "--set: expected KEY=VALUE, got 'slam.local_ba'" in bad.stderr
 
 
 def test_builds_an_int8_deeplab_once(synthetic_sequence, tmp_path) -> None:
