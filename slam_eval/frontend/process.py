@@ -13,10 +13,10 @@ one worker process does the reading and the extraction, ``workers`` threads of i
   process copies a slot out and gives it back (:meth:`FrontendProcess.take`);
 - the :class:`~.orb.Features`, extracted without depth, and the timings through a queue.
 
-The depth image (a third of a frame's reading) is read by whichever side has time: by the
-main process's prefetch threads, beside its main thread, unless the ring is (nearly) full of
-frames the main process has not taken yet; then the worker, which would otherwise wait for a
-free slot, reads it (:func:`_main_is_behind`). The main process samples the depth at the
+The depth image (a third of a frame's reading) and the label image are read by whichever
+side has time: by the main process's prefetch threads, beside its main thread, unless the ring
+is (nearly) full of frames the main process has not taken yet; then the worker, which would
+otherwise wait for a free slot, reads them (:func:`_main_is_behind`). The main process samples the depth at the
 keypoints (:meth:`~.orb.OrbExtractor.with_depth`). The worker computes exactly what the threads
 compute (the same code on the same inputs), so the features, and the run's trajectory, are
 bit-identical in both modes, wherever the depth was read.
@@ -109,9 +109,10 @@ class _Layout:
 
 @dataclass
 class Extracted:
-    """One frame as the worker process prepared it, without its depth (the main process reads
-    it: :meth:`~..sequence.TumSequence.load_depth`): frame ``index`` of the sequence at
-    ``stamp`` (s), its ``rgb``, ``gray`` and ``labels`` (None without) as in
+    """One frame as the worker process prepared it, without its depth and labels unless it
+    read them (else the main process reads them: :meth:`~..sequence.TumSequence.load_depth`,
+    :meth:`~..sequence.TumSequence.load_frame_labels`): frame ``index`` of the sequence at
+    ``stamp`` (s), its ``rgb``, ``gray`` and ``labels`` as in
     :class:`~..sequence.Frame`, the features extracted without depth
     (:meth:`~.orb.OrbExtractor.with_depth` completes them), and the wall and CPU seconds of its
     reading (``read_time``) and of the ORB extraction (``orb_time``)."""
@@ -121,6 +122,7 @@ class Extracted:
     rgb: np.ndarray
     gray: np.ndarray
     labels: np.ndarray | None
+    """As ``depth``: None where the main process reads them (or the sequence has none)."""
     depth: np.ndarray | None
     """``(H, W)`` float32 metres where the worker read it (the main process was behind), else
     None: the main process reads it."""
@@ -161,7 +163,7 @@ class FrontendProcess:
         behind: int | None = None,
         slots: int | None = None,
     ) -> None:
-        """``behind``: the worker reads a frame's depth itself when at most this many slots of
+        """``behind``: the worker reads a frame's depth and labels itself when at most this many slots of
         the ring are free (None: :data:`BEHIND`; -1: never, ``slots``: always). ``slots``: the
         ring's frames (None: :func:`ring_slots`)."""
         self.sequence = sequence
@@ -431,9 +433,11 @@ def _serve(
 
         def prepare(k: int) -> tuple[_Images, Features, tuple[float, float]]:
             wall, cpu = time.perf_counter(), time.thread_time()
-            images = _Images(k, *sequence.load_colour(k))
             if _main_is_behind(free, behind):
+                images = _Images(k, *sequence.load_colour(k))
                 images.depth = sequence.load_depth(k)
+            else:  # the main process reads the depth and labels
+                images = _Images(k, *sequence.load_colour(k, labels=False))
             images.read_time = (time.perf_counter() - wall, time.thread_time() - cpu)
             wall, cpu = time.perf_counter(), time.thread_time()
             features = extractor(images.gray, None)  # the depth: sampled in the main process
@@ -537,16 +541,16 @@ def ring_slots(prefetch: int, slot_bytes: int) -> int:
 
 
 BEHIND = 1
-"""The worker reads a frame's depth itself when at most this many slots of the ring are free
-as it starts reading the frame (:func:`_main_is_behind`)."""
+"""The worker reads a frame's depth and labels itself when at most this many slots of the ring
+are free as it starts reading the frame (:func:`_main_is_behind`)."""
 
 
 def _main_is_behind(free: Any, behind: int) -> bool:
     """Whether the main process is the slower side now: at most ``behind`` slots of the ring
     are free (:data:`BEHIND` by default), the rest hold frames it has not taken yet. Then the
-    worker, which would otherwise wait for a free slot, reads the next frame's depth too; else
-    the main process's prefetch threads read it (:meth:`FrontendProcess.take`'s caller). Which
-    side reads a depth image changes nothing else: the trajectory is the same."""
+    worker, which would otherwise wait for a free slot, reads the next frame's depth and labels
+    too; else the main process's prefetch threads read them (:meth:`FrontendProcess.take`'s
+    caller). Which side reads them changes nothing else: the trajectory is the same."""
     try:
         return free.qsize() <= behind
     except NotImplementedError:  # no sem_getvalue (macOS): the main process reads every depth

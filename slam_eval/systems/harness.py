@@ -208,17 +208,19 @@ class SlamPipeline:
 
     def _label(self, received: frontend_process.Received) -> Prepared:
         """A frame the worker process read and extracted (``prefetch_mode="process"``), in the
-        prefetch threads of this process: its images out of the shared ring, its depth (read
-        here unless the worker read it) sampled at the keypoints, and its segmentation
-        (``every_frame`` schedule)."""
+        prefetch threads of this process: its images out of the shared ring, its depth and label
+        images (read here unless the worker read them), the depth sampled at the keypoints, and
+        its segmentation (``every_frame`` schedule)."""
         got = received.take()
         timer = Timer()
-        depth = got.depth
-        if depth is None:  # the worker leaves it to this process unless this one is behind
+        depth, given = got.depth, got.labels
+        if depth is None:  # the worker leaves them to this process unless this one is behind
             with timer("read"):
                 depth = self.sequence.load_depth(got.index)
+                if self.sequence.records[got.index].labels_path is not None:
+                    given = self.sequence.load_frame_labels(got.index)
         timer.add("read", *got.read_time)
-        frame = Frame(got.index, got.stamp, got.rgb, got.gray, depth, got.labels,
+        frame = Frame(got.index, got.stamp, got.rgb, got.gray, depth, given,
                       (timer.wall["read"], timer.cpu["read"]))  # fmt: skip
         with timer("orb"):
             features = self.extractor.with_depth(got.features, depth)

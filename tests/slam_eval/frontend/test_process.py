@@ -86,8 +86,8 @@ def test_the_worker_yields_the_frames_and_features_of_the_threads(
     synthetic_sequence, behind: int
 ) -> None:
     """Every frame's images and features as the threads read and extract them, whether the
-    main process reads the depth (``behind=-1``) or the worker does (``behind`` = the ring's
-    slots: always)."""
+    main process reads the depth and labels (``behind=-1``) or the worker does (``behind`` =
+    the ring's slots: always)."""
     seq = TumSequence(synthetic_sequence(frames=12), load_labels=True)
     config = OrbConfig(n_features=700)
     extractor = OrbExtractor(config, seq.camera)
@@ -96,16 +96,16 @@ def test_the_worker_yields_the_frames_and_features_of_the_threads(
     assert [e.index for e in got] == list(range(len(seq)))
     for extracted in got:
         frame = seq.load(extracted.index)
-        assert (extracted.depth is None) == (behind < 0)
-        depth = frame.depth if extracted.depth is None else extracted.depth
+        assert (extracted.depth is None) == (extracted.labels is None) == (behind < 0)
+        if behind < 0:  # what the main process reads
+            extracted.depth, extracted.labels = seq.load_depth(extracted.index), frame.labels
         for name in ("rgb", "gray", "depth", "labels"):
-            expected = getattr(frame, name)
-            actual = depth if name == "depth" else getattr(extracted, name)
+            expected, actual = getattr(frame, name), getattr(extracted, name)
             assert actual.dtype == expected.dtype and actual.flags.writeable
             np.testing.assert_array_equal(actual, expected)
         assert extracted.stamp == frame.stamp
         reference = extractor(frame.gray, frame.depth)
-        features = extractor.with_depth(extracted.features, depth)
+        features = extractor.with_depth(extracted.features, extracted.depth)
         for field in fields(reference):
             np.testing.assert_array_equal(
                 getattr(features, field.name), getattr(reference, field.name)
