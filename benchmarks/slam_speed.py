@@ -46,6 +46,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from uss_slam.core import png_inflate
 from uss_slam.slam_eval.filters.build import build_filters
 from uss_slam.slam_eval.frontend import process as frontend_process
 from uss_slam.slam_eval.frontend.orb import OrbConfig, OrbExtractor
@@ -126,6 +127,7 @@ def benchmark(args: argparse.Namespace, path: Path) -> None:
     print(f"{path}: {len(seq)} frames {size[0]}x{size[1]}, filters {args.filters}, local BA "
           f"{args.local_ba}, loop closing {args.loop_closing}, {os.cpu_count()} CPUs "
           f"({cpu_model()}), load average {os.getloadavg()[0]:.2f}")  # fmt: skip
+    print(f"PNG image data inflated by {inflater()}", flush=True)
 
     modes = PAIRS.get(args.prefetch_mode, [args.prefetch_mode])
     print(f"modes {modes}; auto (decided as each run starts) would be "
@@ -180,6 +182,13 @@ def benchmark(args: argparse.Namespace, path: Path) -> None:
               f"(repeats {', '.join(f'{v:.1f}' for v in orb3)}); harness / ORB-SLAM3: "
               + ", ".join(f"{m} {fps_of[m] / median3:.2f}" for m in modes))  # fmt: skip
     print(f"load average after: {os.getloadavg()[0]:.2f}")
+
+
+def inflater() -> str:
+    """Which inflate the PNG reader uses (core/png_inflate.py): both systems read with it."""
+    if png_inflate.isal_zlib is None:
+        return "the system zlib (isal is not installed: pip install isal)"
+    return "ISA-L (isal)"
 
 
 MODES = ("thread", "process", "auto", "before")
