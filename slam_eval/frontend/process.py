@@ -7,10 +7,11 @@ GTSAM's optimiser (which holds the GIL for a whole optimisation) take turns with
 one worker process does the reading and the extraction, ``workers`` threads of its own
 ``prefetch`` frames ahead, and hands each frame to the main process:
 
-- the images (``rgb``, ``gray``, ``labels``, and ``depth`` where the worker read it) through a
-  ring of slots of shared memory (:func:`ring_slots`: 32 frames of 640x480) (a 640x480 frame is 2.9 MB: through a pipe it
-  would cost the main process a copy and an unpickling each); a prefetch thread of the main
-  process copies a slot out and gives it back (:meth:`FrontendProcess.take`);
+- the images (``rgb``, ``gray``, and ``labels`` and ``depth`` where the worker read them)
+  through a ring of slots of shared memory (:func:`ring_slots`: 32 frames of 640x480; a frame
+  is 2.9 MB: through a pipe it would cost the main process a copy and an unpickling each); a
+  prefetch thread of the main process copies a slot out and gives it back
+  (:meth:`FrontendProcess.take`);
 - the :class:`~.orb.Features`, extracted without depth, and the timings through a queue.
 
 The depth image (a third of a frame's reading) and the label image are read by whichever
@@ -109,13 +110,10 @@ class _Layout:
 
 @dataclass
 class Extracted:
-    """One frame as the worker process prepared it, without its depth and labels unless it
-    read them (else the main process reads them: :meth:`~..sequence.TumSequence.load_depth`,
-    :meth:`~..sequence.TumSequence.load_frame_labels`): frame ``index`` of the sequence at
-    ``stamp`` (s), its ``rgb``, ``gray`` and ``labels`` as in
-    :class:`~..sequence.Frame`, the features extracted without depth
-    (:meth:`~.orb.OrbExtractor.with_depth` completes them), and the wall and CPU seconds of its
-    reading (``read_time``) and of the ORB extraction (``orb_time``)."""
+    """One frame as the worker process prepared it (its depth and labels only where it read
+    them, else the main process does): frame ``index`` at ``stamp`` (s), its images as in
+    :class:`~..sequence.Frame`, the features extracted without depth (completed by
+    :meth:`~.orb.OrbExtractor.with_depth`), the wall and CPU seconds of reading and ORB."""
 
     index: int
     stamp: float
@@ -176,8 +174,9 @@ class FrontendProcess:
         """CPU seconds the worker process had used when it sent the last frame received."""
         width, height = sequence.image_size
         self.layout = _Layout(height, width, sequence.load_labels)
-        slots = ring_slots(prefetch, self.layout.slot_bytes) if slots is None else max(1, slots)
-        self.slots = slots
+        if slots is None:
+            slots = ring_slots(prefetch, self.layout.slot_bytes, shared_memory_free())
+        slots = self.slots = max(1, slots)
         context = _context()
         self._shm: shared_memory.SharedMemory | None = shared_memory.SharedMemory(
             create=True, size=slots * self.layout.slot_bytes
@@ -524,20 +523,29 @@ class _Images:
 
 
 RING_FRAMES = 32
-"""Frames the ring holds (at least ``prefetch``; fewer where they would pass
-:data:`RING_BYTES`). The main thread's work comes in bursts: a frame takes ~7 ms, one with a
-new keyframe 40-150 ms (local BA, loop closing: GTSAM holds the GIL meanwhile, so this
-process's prefetch threads cannot take frames out of the ring either). With a ring of
-``prefetch`` (4) frames the worker stopped during each burst and the two cores idled after it
-(a model of a measured run's per-frame CPU times: ~52 frames/s with 4 frames, ~60 with 32)."""
+"""Frames the ring holds (:func:`ring_slots`). The main thread's work comes in bursts (a frame
+~7 ms, one with a new keyframe 40-150 ms of local BA or loop closing, GTSAM holding the GIL);
+with ``prefetch`` (4) slots the worker stopped in each burst (benchmarks/frame_ring_model.py:
+~52 frames/s with 4 slots, ~62 with 32)."""
 RING_BYTES = 96 * 2**20
 """At most this much shared memory for the ring (~34 frames of 640x480)."""
 
 
-def ring_slots(prefetch: int, slot_bytes: int) -> int:
-    """Frames of the ring for frames of ``slot_bytes``: :data:`RING_FRAMES`, at most
-    :data:`RING_BYTES` of them, never fewer than ``prefetch`` (nor than 1)."""
-    return max(1, prefetch, min(RING_FRAMES, RING_BYTES // max(1, slot_bytes)))
+def ring_slots(prefetch: int, slot_bytes: int, free: int | None = None) -> int:
+    """Frames of ``slot_bytes`` in the ring: :data:`RING_FRAMES`, in at most :data:`RING_BYTES`
+    and half of ``free`` bytes (None: no bound), never fewer than ``prefetch`` (nor than 1)."""
+    most = RING_BYTES if free is None else min(RING_BYTES, free // 2)
+    return max(1, prefetch, min(RING_FRAMES, most // max(1, slot_bytes)))
+
+
+def shared_memory_free() -> int | None:
+    """Bytes free in ``/dev/shm`` (64 MB in a Docker container by default: a worker writing
+    past it dies of SIGBUS), None where there is none."""
+    try:
+        stat = os.statvfs("/dev/shm")
+    except OSError:
+        return None
+    return stat.f_bavail * stat.f_frsize
 
 
 BEHIND = 1

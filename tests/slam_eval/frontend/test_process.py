@@ -128,12 +128,15 @@ def test_the_worker_reads_the_depth_when_the_main_process_is_behind(synthetic_se
 
 def test_the_ring_holds_32_frames_within_its_memory_bound() -> None:
     """The ring absorbs the main thread's bursts (local BA, loop closing): 32 frames of
-    640x480, fewer of larger frames, never fewer than ``prefetch``."""
+    640x480, fewer of larger frames or where /dev/shm is small, never fewer than ``prefetch``."""
     frame = 9 * 640 * 480
     assert ring_slots(4, frame) == 32
     assert ring_slots(40, frame) == 40
     assert ring_slots(4, 4 * frame) == RING_BYTES // (4 * frame) < 32
     assert ring_slots(2, RING_BYTES + 1) == 2
+    docker = 64 * 2**20  # a container's default /dev/shm: half of it at most
+    assert ring_slots(4, frame, free=docker) == docker // 2 // frame == 12
+    assert ring_slots(4, frame, free=0) == 4
 
 
 def test_process_mode_gives_the_threads_run_with_the_back_end(synthetic_sequence, started) -> None:
