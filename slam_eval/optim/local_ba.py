@@ -33,10 +33,12 @@ Local bundle adjustment of a new keyframe ``K``:
   ~8 px misregistration, plus edges and quantisation), and with that model local BA made the
   trajectory twice as bad (ATE 0.013 → 0.026 m, median of 3 repeats) where ORB-SLAM2's model
   improves it (0.0127 m); ``docs/slam.md``, "Local BA on real frames";
-- **two passes**: ``first_iterations`` LM iterations, then observations whose χ² exceeds those
-  quantiles (or that fall behind the camera) are left out, the kernel is dropped, and
-  ``second_iterations`` more; finally the observations still above the quantiles are erased from
-  the map (a point left with one keyframe is marked bad).
+- **passes**: ``first_iterations`` LM iterations with the kernel; with ``second_iterations`` > 0
+  (ORB-SLAM2's second pass) the observations whose χ² exceeds those quantiles (or that fall
+  behind the camera) are then left out, the kernel is dropped, and ``second_iterations`` more;
+  finally the observations still above the quantiles are erased from the map (a point left with
+  one keyframe is marked bad). Local mapping's default is ORB-SLAM3's single pass (10
+  iterations, no second pass: :class:`~..mapping.local_mapping.LocalMappingConfig`).
 
 Fixed keyframes are variables with a tight prior (σ = 1e-6 m / rad): GTSAM's hard
 ``NonlinearEquality`` constraint gives the same result but optimised about five times slower here.
