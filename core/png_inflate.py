@@ -32,6 +32,9 @@ _BLOCK = 0xFFFF
 """Largest stored deflate block, bytes."""
 _CHANNELS = {0: 1, 2: 3, 3: 1, 4: 2, 6: 4}
 """Samples per pixel of each PNG colour type (grey, RGB, palette, grey + alpha, RGBA)."""
+MAX_PIXELS = 1 << 30
+"""OpenCV's default ``CV_IO_MAX_IMAGE_PIXELS``: a larger image is left to OpenCV, which
+refuses it before decoding anything (its rows are never inflated here)."""
 MIN_SHARE = 16
 """Image data compressed to less than 1/16 of its size is left to libpng: zlib inflates such
 data (long repeats: label images, 4.4 kB for 307 kB of rows) at least as fast as copying it
@@ -46,7 +49,7 @@ def stored(data: bytes) -> bytes:
         return data  # no ISA-L, no IHDR first, or interlaced (Adam7): rows of several sizes
     width, height = struct.unpack_from(">II", data, 16)
     depth, colour = data[24], data[25]
-    if colour not in _CHANNELS:
+    if colour not in _CHANNELS or width * height > MAX_PIXELS:
         return data
     size = height * (1 + (width * _CHANNELS[colour] * depth + 7) // 8)
     pieces, first, after = _image_data(data)
