@@ -19,7 +19,6 @@ that need them (this module stays importable without them).
 
 from __future__ import annotations
 
-import errno
 import functools
 import logging
 import os
@@ -29,11 +28,15 @@ import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any, TypeVar
 
 from uss_slam.core.errors import NoSpaceError, UssSlamError
 from uss_slam.core.files import no_space_errno
+from uss_slam.core.hydra_lines import (  # noqa: F401 (their home before)
+    hydra_error_line,
+    output_folder_line,
+    override_parse_line,
+)
 from uss_slam.core.run_folders import RefusedRunFolder, RunFolderCheck, release_run_folders
 
 __all__ = ["RefusedRunFolder", "RunFolderCheck"]  # (configs name core.cli.RunFolderCheck)
@@ -44,6 +47,12 @@ INTERRUPTED = 130
 """Exit code after Ctrl-C (128 + SIGINT, as shells report a process stopped by it)."""
 TERMINATED = 143
 """Exit code after SIGTERM (128 + SIGTERM)."""
+
+
+INTERRUPTING = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+"""The signals a console script handles as Ctrl-C: SIGTERM (``kill``) and SIGHUP (the terminal
+closed, an SSH connection lost) raise :class:`Terminated`, the same cleanup runs, the line
+names the signal and the exit code is 128 + its number (143, 129)."""
 
 
 class Terminated(KeyboardInterrupt):
@@ -79,7 +88,7 @@ def _interrupt_handler(signum: int, frame: object) -> None:
 
 @contextmanager
 def signals_as_interrupts() -> Iterator[None]:
-    """During the block, SIGTERM is handled as Ctrl-C: it raises :class:`Terminated` (a
+    """During the block, SIGTERM and SIGHUP are handled as Ctrl-C: they raise :class:`Terminated` (a
     ``KeyboardInterrupt``) in the main thread; Ctrl-C raises ``KeyboardInterrupt`` as before.
     Either first ends the pool workers of :func:`uss_slam.core.processes.pool_ending_with_parent`.
 
@@ -93,7 +102,7 @@ def signals_as_interrupts() -> Iterator[None]:
         return
     if _handlers_depth == 0:
         _received = None
-    previous = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    previous = {sig: signal.getsignal(sig) for sig in INTERRUPTING}
     for sig, handler in previous.items():
         if handler is signal.SIG_IGN or (sig == signal.SIGINT and not callable(handler)):
             continue  # ignored by whoever started us, or Ctrl-C handled outside Python
@@ -148,9 +157,19 @@ reader did not get it. Nothing is printed on stderr; the convention of Python's 
 def print_output(text: str) -> int:
     """Print ``text`` on stdout and return the exit code: 0, or :data:`CLOSED_PIPE` when the
     reader closed the pipe; then stdout is pointed at ``/dev/null``, so that the flush at exit
-    raises nothing either (no traceback, no ``Exception ignored`` line)."""
+    raises nothing either (no traceback, no ``Exception ignored`` line). Stdout closed or
+    failing otherwise (a full disk, ``/dev/full``: :mod:`uss_slam.core.stdout`) is a
+    :class:`UssSlamError`: the output was not delivered."""
+    from uss_slam.core import stdout
+
+    if stdout.closed():
+        raise UssSlamError("stdout is closed (>&-): the output cannot be written")
     try:
         print(text, flush=True)
+        error = stdout.lost(clear=True)
+        if error is not None:
+            why = error.strerror or type(error).__name__
+            raise UssSlamError(f"stdout: cannot write the output ({why})")
     except BrokenPipeError:
         try:
             devnull = os.open(os.devnull, os.O_WRONLY)
@@ -235,7 +254,7 @@ def interrupts_deferred() -> Iterator[None]:
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    previous = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    previous = {sig: signal.getsignal(sig) for sig in INTERRUPTING}
     # ignored, default (SIGTERM ends the process at once) or handled outside Python: left alone
     deferred = {sig: handler for sig, handler in previous.items() if callable(handler)}
     caught: list[int] = []
@@ -397,7 +416,12 @@ def exit_on_user_error(prog: str, kinds: tuple[type[BaseException], ...] = ()) -
             sys.exit(1)
         cause = user_error(error, kinds) or no_space_error(error)
         if cause is None:
-            raise
+            from uss_slam.core.launch import MEMORY_LINE, out_of_memory
+
+            if not out_of_memory(error):
+                raise
+            # here, not after the app: a Hydra app would print its own report of the job first
+            cause = UssSlamError(MEMORY_LINE)
         line = error_line(prog, cause)
         print(line, file=sys.stderr)
         job = _multirun_job() if report is not None else None
@@ -464,95 +488,6 @@ def report_failed_jobs(prog: str) -> Iterator[JobReport]:
             print(report.summary(), file=sys.stderr)
     if report.failures:
         sys.exit(1)
-
-
-def hydra_error_line(error: BaseException) -> str | None:
-    """One line for an error Hydra raises while composing the config, naming the key; None for
-    anything else. Built from the exceptions' attributes:
-
-    - ``MissingConfigException`` (an unknown option of a config group): its ``missing_cfg_file``
-      and ``options`` -> ``<group>: unknown option '<name>'; expected one of ...``;
-    - ``OverrideParseException`` (bad override syntax): its ``override`` and the parser's
-      ``message`` -> ``<override>: <message>`` (the message's first line: the second is Hydra's
-      link to its grammar page);
-    - an OmegaConf error in the cause chain (a value of the wrong type for a structured config,
-      a key the config does not have): :func:`uss_slam.core.schema.omegaconf_error_line`,
-      ``<key>: expected ..., got ...``.
-
-    Hydra's other composition errors (``+key`` for a key that exists, ``~key`` for one that does
-    not, a sweep without ``-m``) carry no attributes besides their text: their lines are joined
-    into one, as the only part of this function that reads an error's text."""
-    from hydra.errors import HydraException, MissingConfigException, OverrideParseException
-    from omegaconf.errors import OmegaConfBaseException
-
-    from uss_slam.core.schema import omegaconf_error_line
-
-    chain: list[BaseException] = []
-    current: BaseException | None = error
-    while current is not None and all(current is not c for c in chain):
-        chain.append(current)
-        current = current.__cause__ or current.__context__
-    for item in chain:
-        if isinstance(item, MissingConfigException) and item.missing_cfg_file:
-            group, _, name = item.missing_cfg_file.rpartition("/")
-            if item.options:
-                expected = ", ".join(item.options)
-                return f"{group}: unknown option {name!r}; expected one of {expected}"
-            return f"{item.missing_cfg_file}: no such config"
-        if isinstance(item, OverrideParseException):
-            return override_parse_line(item.override, item.message)
-    for item in chain:
-        if isinstance(item, OmegaConfBaseException):
-            return omegaconf_error_line(item)
-    for item in chain:
-        if isinstance(item, HydraException):
-            lines = [line.strip().rstrip(".") for line in str(item).splitlines() if line.strip()]
-            return "; ".join(lines) or type(item).__name__
-    return None
-
-
-def override_parse_line(override: str, message: str) -> str:
-    """``<override>: <the parser's message>``; for a value holding characters Hydra reads only
-    quoted (spaces, non-ASCII letters such as in ``out_dir=/data/résumé``), the quoted form to
-    use instead of the lexer's text."""
-    key, sep, value = override.partition("=")
-    if sep and value.startswith("[") and value.endswith("]") and "=" in value:  # [a=1,b=2]
-        from uss_slam.core.paths import hydra_quoted
-
-        items = "[" + ",".join(hydra_quoted(i.strip()) for i in value[1:-1].split(",")) + "]"
-        return f"{key}: a list item holding '=' must be quoted for Hydra; write {key}={items}"
-    if sep and value and not value.startswith(("'", '"', "[", "{")):
-        from uss_slam.core.paths import hydra_quoted
-
-        quoted = hydra_quoted(value)
-        if quoted != value and any(ord(c) > 127 or c.isspace() for c in value):
-            return (
-                f"{key}: the value {value!r} must be quoted for Hydra (it holds spaces or "
-                f'non-ASCII characters); write {key}={quoted} (in a shell: "{key}={quoted}")'
-            )
-    return f"{override}: {(message.strip().splitlines() or ['cannot be parsed'])[0]}"
-
-
-def output_folder_line(error: OSError) -> str:
-    """``cannot create the output folder <path> (<why>)`` for an ``OSError`` of ``mkdir``;
-    names the file in the way when a part of the path is a file."""
-    path = Path(str(error.filename))
-    if error.errno == errno.ENAMETOOLONG:
-        from uss_slam.core.files import check_name_lengths
-
-        try:
-            check_name_lengths(path)
-        except UssSlamError as too_long:
-            return f"cannot create the output folder {too_long}"
-        return f"cannot create the output folder {path} (a name in it is too long)"
-    existing = path
-    while not existing.exists() and existing != existing.parent:
-        existing = existing.parent
-    if existing.exists() and not existing.is_dir():
-        why = "it is a file" if existing == path else f"{existing} is a file"
-    else:
-        why = error.strerror or type(error).__name__
-    return f"cannot create the output folder {path} ({why})"
 
 
 def run_hydra_app(prog: str, app: Callable[[], object]) -> None:

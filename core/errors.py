@@ -38,15 +38,17 @@ class DataFormatError(UssSlamError, ValueError):
         return (type(self), (self.path, self.detail, self.line))
 
 
-NO_SPACE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT})
-"""``errno`` values of a full file system (ENOSPC) or an exhausted disk quota (EDQUOT)."""
+NO_SPACE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG})
+"""``errno`` values of a full file system (ENOSPC), an exhausted disk quota (EDQUOT) or a file
+past the process's size limit (EFBIG: ``ulimit -f``; Python ignores the SIGXFSZ that would
+otherwise kill it): an output that cannot be written whole, handled alike."""
 
 
 class NoSpaceError(UssSlamError):
     """An output could not be written: the file system is full (or the user's quota is used).
 
     ``path`` is the output that was being written (its final name; the temporary file it was
-    written to is already removed), ``errno`` ENOSPC or EDQUOT.
+    written to is already removed), ``errno`` ENOSPC, EDQUOT or EFBIG.
     """
 
     def __init__(self, path: str | PathLike[str] | None, code: int = errno.ENOSPC) -> None:
@@ -55,6 +57,8 @@ class NoSpaceError(UssSlamError):
         why = "no space left on device"
         if code == errno.EDQUOT:
             why += " (disk quota exceeded)"
+        elif code == errno.EFBIG:
+            why = "the file size limit is exceeded (ulimit -f)"
         super().__init__(f"{why} while writing {self.path or 'an output file'}")
 
     def __reduce__(self) -> tuple[object, ...]:

@@ -138,13 +138,34 @@ def _file_bytes(path: str | PathLike[str], what: str) -> bytes:
         raise DataFormatError(path, f"cannot read it ({error.strerror}); expected {what}") from None
 
 
+MAX_PIXELS = 1 << 30
+"""The most pixels an image may declare (OpenCV's own limit, ``CV_IO_MAX_IMAGE_PIXELS``): a
+header past it is refused before anything is decoded or allocated."""
+
+
+def declared_size(data: bytes) -> tuple[int, int] | None:
+    """``(width, height)`` a PNG's header declares, else None (other formats: the decoder's)."""
+    if data.startswith(PNG_SIGNATURE) and len(data) >= 24 and data[12:16] == b"IHDR":
+        return int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
+    return None
+
+
 def _decode(path: str | PathLike[str], data: bytes, flags: int, what: str) -> np.ndarray:
     problem = image_problem(data) if data else "empty file"
+    size = declared_size(data) if not problem else None
+    if size is not None and size[0] * size[1] > MAX_PIXELS:
+        problem = (
+            f"its header declares {size[0]}x{size[1]} pixels, more than an image may have (2^30)"
+        )
     if problem:
         raise DataFormatError(path, f"{problem}; expected {what}")
     if data.startswith(PNG_SIGNATURE):
         data = stored(data)  # the same pixels, inflated by ISA-L: core/png_inflate.py
-    image = cv2.imdecode(np.frombuffer(data, np.uint8), flags)
+    try:
+        image = cv2.imdecode(np.frombuffer(data, np.uint8), flags)
+    except cv2.error as error:  # a limit of the decoder's (a JPEG's declared size, ...)
+        first = (str(error).strip().splitlines() or [""])[-1].strip()
+        raise DataFormatError(path, f"not a readable image ({first}); expected {what}") from None
     if image is None:
         raise DataFormatError(path, f"not a readable image; expected {what}")
     return image

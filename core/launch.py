@@ -20,11 +20,14 @@ Imports nothing outside the standard library before the script's module.
 from __future__ import annotations
 
 import importlib
+import os
 import resource
 import signal
 import sys
 from collections.abc import Callable
 from importlib import metadata
+
+from uss_slam.core import stdout
 
 SCRIPTS = {
     "uss-synth": "uss_slam.synthetic.cli",
@@ -101,18 +104,28 @@ def address_space_line(prog: str) -> str | None:
 
 
 class _Terminated(KeyboardInterrupt):
-    """SIGTERM while the script's module is imported (raised by :func:`_on_sigterm`)."""
+    """SIGTERM or SIGHUP while the script's module is imported (raised by :func:`_on_sigterm`)."""
+
+    def __init__(self, signum: int = signal.SIGTERM) -> None:
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
 
 
 def _on_sigterm(signum: int, frame: object) -> None:
-    raise _Terminated
+    raise _Terminated(signum)
+
+
+TERMINATING = (signal.SIGTERM, signal.SIGHUP)
+"""The signals besides Ctrl-C that stop a script with its one line (``kill``; the terminal
+closed)."""
 
 
 def _interrupted(prog: str, error: KeyboardInterrupt) -> int:
     """The line and exit code of an interrupt that reached :func:`launch`."""
-    sigterm = isinstance(error, _Terminated)
-    print(f"{prog}: interrupted" + (" (SIGTERM)" if sigterm else ""), file=sys.stderr)
-    return 143 if sigterm else 130
+    signum = getattr(error, "signum", signal.SIGINT)
+    named = "" if signum == signal.SIGINT else f" ({signal.Signals(signum).name})"
+    print(f"{prog}: interrupted{named}", file=sys.stderr)
+    return 128 + int(signum)
 
 
 def launch(prog: str) -> int | None:
@@ -124,14 +137,21 @@ def launch(prog: str) -> int | None:
 
         print(f"{prog} {version('uss-slam')}")
         return 0
-    line = address_space_line(prog)
+    line = address_space_line(prog) or working_folder_line(prog)
     if line is not None:  # before any import that could crash on it
         print(line, file=sys.stderr)
         return 1
+    stdout.guard()
+    # every plot is drawn into a file (Agg); a backend set for interactive use is not the
+    # scripts' (a notebook's module://matplotlib_inline... fails matplotlib's import here)
+    os.environ["MPLBACKEND"] = "Agg"
+    previous: dict[int, object] = {}
     try:
-        previous = signal.signal(signal.SIGTERM, _on_sigterm)
+        for sig in TERMINATING:
+            if signal.getsignal(sig) is not signal.SIG_IGN:  # (nohup: SIGHUP stays ignored)
+                previous[sig] = signal.signal(sig, _on_sigterm)
     except ValueError:  # not the main thread (a test): no handler
-        previous = None
+        previous = {}
     try:
         main: Callable[[], int | None] = importlib.import_module(SCRIPTS[prog]).main
     except KeyboardInterrupt as error:  # Ctrl-C or SIGTERM during the imports
@@ -151,8 +171,8 @@ def launch(prog: str) -> int | None:
         )
         return 1
     finally:
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)  # the script installs its own
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)  # the script installs its own
     try:
         return main()
     except KeyboardInterrupt as error:  # one that came before the script's own handling
@@ -164,10 +184,33 @@ def launch(prog: str) -> int | None:
         print(line, file=sys.stderr)
         return 1
     except Exception as error:
-        if not out_of_memory(error):
+        if out_of_memory(error):
+            print(f"{prog}: error: {MEMORY_LINE}", file=sys.stderr)
+            return 1
+        from uss_slam.core.errors import UssSlamError
+
+        if not isinstance(error, UssSlamError):  # raised outside the script's own handling
             raise
-        print(f"{prog}: error: {MEMORY_LINE}", file=sys.stderr)
-        return 1
+        print(f"{prog}: error: {(str(error).strip().splitlines() or [''])[0]}", file=sys.stderr)
+        return int(getattr(error, "exit_code", 1))
+
+
+HYDRA_APPS = ("uss-slam", "uss-train", "uss-export", "uss-experiments")
+"""The scripts that are Hydra apps: Hydra needs the working folder (``hydra.runtime.cwd``)."""
+
+
+def working_folder_line(prog: str) -> str | None:
+    """The error line of a Hydra app started in a working folder that was deleted (Hydra's
+    own start would be a traceback), else None. The other scripts need it only for a relative
+    path, which the path layer refuses by its key."""
+    if prog not in HYDRA_APPS:
+        return None
+    try:
+        os.getcwd()
+    except FileNotFoundError:
+        return (f"{prog}: error: the working folder no longer exists (it was deleted); run "
+                "from an existing folder")  # fmt: skip
+    return None
 
 
 def out_of_memory(error: BaseException) -> bool:
@@ -192,11 +235,12 @@ CV2_NO_MEMORY = -4
 def _entry(prog: str) -> Callable[[], None]:
     def run() -> None:
         code = launch(prog)
+        stdout.report_lost(prog)
         # The script is done and has said so: a Ctrl-C or SIGTERM during the interpreter's
         # shutdown (joining threads, a library's teardown) stops nothing any more, and would
         # only kill the process by the signal after its outputs were written.
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
-        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        for sig in (signal.SIGINT, *TERMINATING):
+            signal.signal(sig, signal.SIG_IGN)
         sys.exit(code)
 
     run.__name__ = run.__qualname__ = prog.replace("-", "_")

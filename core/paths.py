@@ -32,6 +32,7 @@ from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from os import PathLike
 from pathlib import Path
+from typing import Any
 
 from uss_slam.core.errors import DataFormatError, UssSlamError
 
@@ -138,6 +139,11 @@ def structure_problem(
 
     The texts read after ``<key>=<path>: ``."""
     path = Path(path)
+    if not path.is_absolute() and working_folder_gone():
+        return (
+            "a relative path, and the working folder no longer exists (it was deleted); "
+            "give an absolute path or run from an existing folder"
+        )
     reason = too_long(path)
     if reason:
         return reason
@@ -228,6 +234,42 @@ def distinct_folders(folders: Iterable[str | PathLike[str]], key: str | None) ->
     return list(seen.values())
 
 
+def working_folder_gone() -> bool:
+    """Whether the process's working folder was deleted (``os.getcwd`` fails): a relative path
+    then names nothing."""
+    try:
+        os.getcwd()
+    except FileNotFoundError:
+        return True
+    return False
+
+
+def umask() -> int:
+    """The process's file mode creation mask (``/proc/self/status``; else set and restored)."""
+    try:
+        with open("/proc/self/status", encoding="ascii") as status:
+            for line in status:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def _umask_problem() -> str | None:
+    """Why a folder created now could not be written into: the umask removes its owner's
+    write or search permission (``umask 0222``), else None."""
+    mask = umask()
+    if mask & 0o300:
+        return (
+            f"a folder created now could not be written into: the umask {mask:04o} removes "
+            "the owner's write permission; set a umask such as 0022"
+        )
+    return None
+
+
 def _nearest_existing(path: Path) -> Path:
     probe = path
     while not os.path.lexists(probe) and probe != probe.parent:
@@ -264,7 +306,9 @@ def output_folder(
         problem = _an_input(path, inputs)
     if problem is None:
         existing = _nearest_existing(path)
-        if create:
+        if existing != path:
+            problem = _umask_problem()
+        if problem is None and create:
             try:
                 path.mkdir(parents=True, exist_ok=True)
             except OSError as error:
@@ -305,6 +349,8 @@ def output_file(
     problem = structure_problem(path, folder=False, output=True)
     if problem is None and os.path.isfile(path) and _read_only(path):
         problem = "is read-only (its mode forbids writing; make it writable to replace it)"
+    if problem is None and not os.path.lexists(path.parent):
+        problem = _umask_problem()
     if problem is None:
         problem = _probe_write(_nearest_existing(path.parent))
     if problem:
@@ -339,6 +385,36 @@ def read_text(
             f"{encoding.upper()}; {expected}",
             line,
         ) from None
+
+
+def read_yaml(path: str | PathLike[str], expected: str = "expected a YAML file") -> Any:
+    """The data of a YAML input file (:func:`read_text`'s checks first); a syntax error, and a
+    key given twice in one mapping (which YAML loaders keep the last of without a word), are
+    one :class:`DataFormatError` naming the file and the line."""
+    import yaml
+
+    class _Loader(yaml.SafeLoader):
+        def construct_mapping(self, node: Any, deep: bool = False) -> Any:
+            seen: dict[Any, int] = {}
+            for key_node, _ in node.value:
+                key = self.construct_object(key_node, deep=True)
+                line = key_node.start_mark.line + 1
+                if key in seen:
+                    raise DataFormatError(
+                        path, f"the key {key!r} is given twice (first at line {seen[key]}); "
+                        f"{expected}", line,
+                    )  # fmt: skip
+                seen[key] = line
+            return super().construct_mapping(node, deep=deep)
+
+    text = read_text(path, expected)
+    try:
+        return yaml.load(text, Loader=_Loader)  # noqa: S506 (a SafeLoader)
+    except yaml.YAMLError as err:
+        mark = getattr(err, "problem_mark", None)
+        problem = getattr(err, "problem", None) or "syntax error"
+        line = None if mark is None else mark.line + 1
+        raise DataFormatError(path, f"not valid YAML ({problem})", line) from None
 
 
 BOM = b"\xef\xbb\xbf"

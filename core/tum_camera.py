@@ -6,6 +6,7 @@ Kinect calibrations (:data:`TUM_CAMERAS`) and which camera a sequence uses
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass
 from os import PathLike
 from pathlib import Path
@@ -14,7 +15,7 @@ import numpy as np
 import yaml
 
 from .errors import DataFormatError, UssSlamError
-from .paths import naming, read_text
+from .paths import naming, read_yaml
 
 DEPTH_SCALE = 5000.0
 """Depth PNG units per metre."""
@@ -92,14 +93,7 @@ class CameraIntrinsics:
         finite and > 0, ``width`` / ``height`` whole numbers > 0, the principal point inside the
         image, 4, 5 or 8 finite distortion coefficients; errors name the file and the key."""
         path = Path(path)
-        text = read_text(path, "expected an intrinsics YAML file")
-        try:
-            data = yaml.safe_load(text)
-        except yaml.YAMLError as err:
-            mark = getattr(err, "problem_mark", None)
-            problem = getattr(err, "problem", None) or "syntax error"
-            line = None if mark is None else mark.line + 1
-            raise DataFormatError(path, f"not valid YAML ({problem})", line) from None
+        data = read_yaml(path, "expected an intrinsics YAML file")
         required = ("fx", "fy", "cx", "cy", "width", "height")
         if not isinstance(data, dict) or any(k not in data for k in required):
             raise DataFormatError(path, f"expected a mapping with keys {', '.join(required)}")
@@ -201,7 +195,7 @@ def resolve_camera(
     width, height = image_size
     if spec is None or str(spec).strip().lower() in ("", "auto", "none", "null"):
         own = Path(sequence_dir) / INTRINSICS_FILE
-        if own.is_file():
+        if os.path.lexists(own):  # a folder or a broken link of that name: the reader's line
             return _same_size(CameraIntrinsics.from_yaml(own), own, image_size), str(own)
         spec = "fr3"
     name = str(spec).strip()

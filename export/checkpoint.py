@@ -66,8 +66,11 @@ class LoadedCheckpoint:
     net_config: dict[str, Any]
 
 
-def _net_config(ckpt_path: Path, net_cfg: Mapping[str, Any] | str | Path | None) -> DictConfig:
-    """The segmenter's Hydra config (a node with a ``_target_``)."""
+def _net_config(
+    ckpt_path: Path, net_cfg: Mapping[str, Any] | str | Path | None
+) -> tuple[DictConfig, str]:
+    """The segmenter's Hydra config (a node with a ``_target_``) and where it was read (the
+    file, or ``net_config``)."""
     if net_cfg is not None:
         if isinstance(net_cfg, (str, Path)):
             path = Path(net_cfg)
@@ -80,7 +83,7 @@ def _net_config(ckpt_path: Path, net_cfg: Mapping[str, Any] | str | Path | None)
             node = OmegaConf.create(dict(net_cfg))
         if not isinstance(node, DictConfig) or "_target_" not in node:
             raise UssSlamError(f"net config {net_cfg} has no _target_ (see configs/model/net/)")
-        return node
+        return node, str(net_cfg) if isinstance(net_cfg, (str, Path)) else "net_config"
     run_cfg = run_config(ckpt_path)
     run_cfg_path = run_config_path(ckpt_path)
     if run_cfg is None:
@@ -92,7 +95,26 @@ def _net_config(ckpt_path: Path, net_cfg: Mapping[str, Any] | str | Path | None)
     node = OmegaConf.select(run_cfg, "model.net")
     if not isinstance(node, DictConfig) or "_target_" not in node:
         raise DataFormatError(run_cfg_path, "expected a model.net node with a _target_")
-    return node
+    return node, str(run_cfg_path)
+
+
+def _build(node: DictConfig, source: str) -> Any:
+    """The segmenter ``node`` builds, its values first checked against the network's signature
+    (a run config edited by hand: ``num_classes: four``); every problem one line naming
+    ``source`` and the key."""
+    from uss_slam.core.schema.fields import SchemaError
+    from uss_slam.core.schema.targets import check_target
+
+    try:
+        check_target(node, "model.net")
+    except SchemaError as error:
+        raise DataFormatError(source, str(error)) from None
+    try:
+        return instantiate(node)
+    except Exception as error:  # a library's text: the first line, under the file's name
+        cause = error.__cause__ or error
+        first = (str(cause).strip().splitlines() or [type(cause).__name__])[0]
+        raise DataFormatError(source, f"cannot build model.net ({first})") from error
 
 
 def load_checkpoint(
@@ -107,13 +129,13 @@ def load_checkpoint(
     """
     ckpt_path = Path(ckpt_path)
     info = read_checkpoint(ckpt_path)
-    node = _net_config(ckpt_path, net_cfg)
+    node, source = _net_config(ckpt_path, net_cfg)
     node = OmegaConf.create(OmegaConf.to_container(node, resolve=True))
     # The checkpoint holds every weight: never read (or download) initial weights.
     for key in ("weights_path", "backbone_weights"):
         if key in node:
             node[key] = None
-    segmenter = instantiate(node)
+    segmenter = _build(node, source)
     if not isinstance(segmenter, SEGMENTERS):
         expected = " or ".join(c.__name__ for c in SEGMENTERS)
         raise DataFormatError(

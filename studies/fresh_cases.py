@@ -138,6 +138,7 @@ def _run(case: Case, argv: list[str], folder: Path,
         # as a terminal's Ctrl-C finds it: a runner started in the background (`cmd &`)
         # ignores SIGINT, and Python then installs no KeyboardInterrupt handler
         signal.signal(signal.SIGINT, signal.SIG_DFL)
+        signal.signal(signal.SIGHUP, signal.SIG_DFL)  # a runner under nohup ignores it
         for kind, limit in limits.items():
             resource.setrlimit(kind, (limit, limit))
         if "UMASK" in shell:

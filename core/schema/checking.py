@@ -250,11 +250,24 @@ def _written_as(tp: Any, value: Any) -> bool:
     return True  # Enums, Any: OmegaConf's merge judged them
 
 
+C_INT_MAX = 2**31 - 1
+"""The largest integer a setting may hold without a bound of its own: the libraries behind the
+settings (OpenCV, ONNX Runtime, NumPy's indices) take them as C ints, and a count past it is
+no run that ends (``slam.tracker.ransac_iterations=2147483648``)."""
+
+
 def _check_range(value: Any, tp: Any, metadata: dict[str, Any], where: str) -> None:
     if not isinstance(value, (int, float)) or isinstance(value, bool):
         return
     low, high = metadata.get("min"), metadata.get("max")
     above, below = metadata.get("gt"), metadata.get("lt")
+    past = isinstance(value, int) and not -C_INT_MAX - 1 <= value <= C_INT_MAX
+    if past and _optional(tp)[0] is int:
+        bound = {"max": C_INT_MAX} if value > 0 else {"min": -C_INT_MAX - 1}
+        if (value > 0 and high is None and below is None) or (
+            value < 0 and low is None and above is None
+        ):
+            raise SchemaError(where, describe(tp, {**metadata, **bound}), value)
     if (
         (low is not None and not value >= low)
         or (high is not None and not value <= high)

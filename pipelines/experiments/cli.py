@@ -31,7 +31,7 @@ from typing import Any
 import hydra
 from omegaconf import DictConfig
 
-from uss_slam.core.cli import exit_on_user_error, hydra_task, run_hydra_app
+from uss_slam.core.cli import exit_on_user_error, hydra_task, print_output, run_hydra_app
 from uss_slam.core.files import output_lock
 from uss_slam.pipelines.runs import policy_note
 from uss_slam.pipelines.stages import Progress
@@ -112,7 +112,8 @@ def _run_experiments(exp: Experiment) -> dict[str, Any]:
         exports = existing_exports(exp, data)
         slam_jobs = plan_slam(exp, data, exports)
         blocked = {j.id for j in slam_jobs if j.needs is not None and j.needs not in exports}
-        print(describe_plan(exp, "slam", slam_jobs, blocked))
+        # the plan is a dry run's product: stdout that fails (full, closed) is its error
+        print_output(describe_plan(exp, "slam", slam_jobs, blocked))
         return {}
     if "train" in exp.stages:
         progress.run(

@@ -28,8 +28,8 @@ class FlowFilter(DynamicFilter):
     def __init__(
         self,
         threshold: Annotated[float, Range(gt=0)] = 7.0,
-        window: Annotated[int, Range(min=3)] = 21,
-        levels: Annotated[int, Range(min=0)] = 3,
+        window: Annotated[int, Range(min=3, max=255)] = 21,  # px: past a frame's side
+        levels: Annotated[int, Range(min=0, max=16)] = 3,
         ransac_threshold: Annotated[float, Range(gt=0)] = 2.0,
         min_points: Annotated[int, Range(min=4)] = 12,
     ) -> None:  # the ranges: the config's schema (slam.filter_params.flow.*)

@@ -34,13 +34,18 @@ EDGE = 19
 """Keypoints keep this far from each level's border (ORB-SLAM2's EDGE_THRESHOLD)."""
 
 
+MAX_LEVELS = 32
+"""The most pyramid levels (ORB-SLAM's 8 at scale 1.2 span 3.6x; 32 span 300x, past any
+frame's size)."""
+
+
 @dataclass(frozen=True)
 class OrbConfig:
     """ORB extraction settings (defaults: ORB-SLAM2's TUM RGB-D configuration)."""
 
     n_features: int = ranged(1000, min=1, max=MAX_FEATURES)
     scale_factor: float = ranged(1.2, gt=1.0)
-    n_levels: int = ranged(8, min=1)
+    n_levels: int = ranged(8, min=1, max=MAX_LEVELS)
     ini_fast: int = ranged(20, min=1, max=255)
     """FAST threshold, grey levels (0-255)."""
     min_fast: int = ranged(7, min=1, max=255)
@@ -153,9 +158,9 @@ class OrbExtractor:
         levels = [gray]
         h, w = gray.shape
         for level in range(1, self.config.n_levels):
-            size = (
-                int(round(w / self.scales[level])),
-                int(round(h / self.scales[level])),
+            size = (  # at least a pixel: levels past the frame's size find nothing
+                max(1, int(round(w / self.scales[level]))),
+                max(1, int(round(h / self.scales[level]))),
             )
             levels.append(cv2.resize(levels[-1], size, interpolation=cv2.INTER_LINEAR))
         return levels

@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from uss_slam.core.errors import UssSlamError
+from uss_slam.core.errors import DataFormatError, UssSlamError
 from uss_slam.core.files import atomic_path
 from uss_slam.core.tum_io import StrPath
 
@@ -85,7 +85,7 @@ def _save(fig: Figure, path: StrPath) -> Path:
         with atomic_path(path, prefix=TMP_PREFIX) as tmp:
             fig.savefig(tmp, format=path.suffix.lower().lstrip("."), dpi=DPI)
     except OSError as err:
-        raise UssSlamError(f"{path}: cannot write the plot ({err.strerror})") from None
+        raise DataFormatError(path, f"cannot write the plot ({err.strerror})") from None
     return path
 
 

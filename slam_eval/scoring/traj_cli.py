@@ -16,7 +16,7 @@ from typing import Any
 from uss_slam.core.arguments import number, path_argument
 from uss_slam.core.cli import interruptible, print_output, report_interrupt
 from uss_slam.core.errors import UssSlamError
-from uss_slam.core.paths import input_file, output_file
+from uss_slam.core.paths import input_file, naming, output_file
 from uss_slam.core.tum_io import read_trajectory
 
 from .metrics import (
@@ -209,7 +209,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                         f"{bands.window:g} s)\n{'fast':>8}  {bands.fast:.6f} m  (RMSE of the rest)"
                     )
             if args.plot is not None:
-                plot_ate(args.plot, result)
+                with naming("--plot", args.plot):  # a write that fails names its flag
+                    plot_ate(args.plot, result)
         else:
             delta = int(args.delta) if args.unit == "frames" else args.delta
             try:

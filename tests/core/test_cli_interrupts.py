@@ -88,6 +88,18 @@ def test_sigterm_is_an_interrupt_named_in_the_line(capsys) -> None:
     assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL  # restored
 
 
+def test_sighup_is_an_interrupt_named_in_the_line(capsys) -> None:
+    """The terminal closed (an SSH connection lost): SIGTERM's contract, exit code 129."""
+    import os
+    import signal
+
+    with pytest.raises(SystemExit) as stop, exit_on_user_error("uss-x"):
+        os.kill(os.getpid(), signal.SIGHUP)
+    assert stop.value.code == 129
+    assert capsys.readouterr().err.splitlines() == ["uss-x: interrupted (SIGHUP)"]
+    assert signal.getsignal(signal.SIGHUP) is signal.SIG_DFL  # restored
+
+
 def test_a_deferred_step_finishes_before_sigterm_takes_effect() -> None:
     import os
     import signal

@@ -147,3 +147,21 @@ def test_naming_roots_names_the_data_key_of_a_bad_file_inside_its_folder(tmp_pat
     with pytest.raises(DataFormatError) as info, naming_roots(data, "data"):
         raise elsewhere
     assert info.value is elsewhere
+
+
+def test_a_yaml_key_given_twice_is_refused_with_both_lines(tmp_path: Path) -> None:
+    """YAML loaders keep the last of a key given twice without a word; the path layer's
+    reader names the file, the line and the first one."""
+    from uss_slam.core.paths import read_yaml
+
+    path = tmp_path / "intrinsics.yaml"
+    path.write_text("fx: 1.0\nfy: 2.0\nnested:\n  a: 1\n  a: 2\n")
+    with pytest.raises(
+        DataFormatError, match=r"intrinsics.yaml:5: the key 'a' is given twice \(first at line 4\)"
+    ):
+        read_yaml(path)
+    path.write_text("fx: 1.0\n\tfy: 2.0\n")
+    with pytest.raises(DataFormatError, match=r"intrinsics.yaml:2: not valid YAML"):
+        read_yaml(path)
+    path.write_text("fx: 1.0\nlist: [1, 1]\n")
+    assert read_yaml(path) == {"fx": 1.0, "list": [1, 1]}

@@ -365,3 +365,48 @@ def test_a_rules_other_key_gets_the_section_too() -> None:
     assert str(error.within("slam.orb")) == (
         "slam.orb.min_fast: expected an integer <= slam.orb.ini_fast (5), got 20"
     )
+
+
+def test_an_integer_without_a_bound_of_its_own_fits_a_c_int() -> None:
+    """A count past 2**31 - 1 is no run that ends, and the libraries take it as a C int:
+    refused by the one rule, naming the bound, whatever the key."""
+    from uss_slam.core.schema.checking import C_INT_MAX
+
+    @dataclass
+    class Counts:
+        iterations: int = ranged(100, min=1)
+        offset: int = 0
+        capped: int = ranged(5, max=10)
+
+    check({"iterations": C_INT_MAX, "offset": -C_INT_MAX - 1}, Counts, "x")
+    with pytest.raises(
+        UssSlamError,
+        match=r"^x\.iterations: expected an integer >= 1 and <= 2147483647, got 2147483648$",
+    ):
+        check({"iterations": C_INT_MAX + 1}, Counts, "x")
+    with pytest.raises(UssSlamError, match=r"^x\.offset: expected an integer >= -2147483648"):
+        check({"offset": -(2**40)}, Counts, "x")
+    with pytest.raises(
+        UssSlamError, match=r"^x\.capped: expected an integer <= 10, got 2147483648"
+    ):
+        check({"capped": 2**31}, Counts, "x")  # its own bound speaks
+
+
+def test_a_users_config_file_that_is_no_yaml_is_one_line(tmp_path) -> None:
+    import yaml
+
+    from uss_slam.core.cli import hydra_error_line
+
+    mine = tmp_path / "mine.yaml"
+    mine.write_text("path: /x\nmax_frames: [10\n")
+    try:
+        with mine.open() as stream:
+            yaml.safe_load(stream)
+    except yaml.YAMLError as error:
+        line = hydra_error_line(RuntimeError("Hydra's wrapper").with_traceback(None))
+        assert line is None
+        wrapped = RuntimeError("Hydra's wrapper")
+        wrapped.__cause__ = error
+        assert hydra_error_line(wrapped) == (
+            f"{mine}:3: not valid YAML (expected ',' or ']', but got '<stream end>')"
+        )

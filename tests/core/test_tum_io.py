@@ -153,6 +153,23 @@ def test_intrinsics_yaml_round_trip_and_errors(tmp_path: Path) -> None:
     assert TUM_CAMERAS["fr1"].has_distortion and not TUM_CAMERAS["fr3"].has_distortion
 
 
+def test_a_sequences_intrinsics_yaml_that_is_a_folder_or_names_a_key_twice_is_refused(
+    tmp_path: Path,
+) -> None:
+    """Not taken as missing (the fr3 fallback) nor read with the last of a repeated key."""
+    from uss_slam.core.tum_camera import resolve_camera
+
+    (tmp_path / "intrinsics.yaml").mkdir()
+    with pytest.raises(DataFormatError, match=r"intrinsics.yaml: is a folder"):
+        resolve_camera(None, tmp_path, (640, 480))
+    (tmp_path / "intrinsics.yaml").rmdir()
+    TUM_CAMERAS["fr3"].to_yaml(tmp_path / "intrinsics.yaml")
+    text = (tmp_path / "intrinsics.yaml").read_text()
+    (tmp_path / "intrinsics.yaml").write_text(text + "fx: 525.0\n")
+    with pytest.raises(DataFormatError, match=r"the key 'fx' is given twice \(first at line 1\)"):
+        resolve_camera(None, tmp_path, (640, 480))
+
+
 def test_intrinsics_declare_an_optional_depth_noise(tmp_path: Path) -> None:
     # a sensor whose depth noise is known (a synthetic one) declares it; a real Kinect does not
     assert all(cam.depth_noise is None for cam in TUM_CAMERAS.values())

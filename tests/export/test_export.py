@@ -226,6 +226,22 @@ def test_checkpoint_without_run_config_needs_net_config(tmp_path: Path) -> None:
         load_checkpoint(moved, wrong)
 
 
+def test_a_run_config_edited_by_hand_is_one_line_naming_its_file_and_key(tmp_path: Path) -> None:
+    """A value of the wrong type in the run's ``.hydra/config.yaml`` is the schema's line under
+    the file's name, not the network's ``TypeError``; YAML that does not parse names it too."""
+    ckpt = _fake_run(tmp_path / "run", _tiny_net())
+    config = tmp_path / "run" / ".hydra" / "config.yaml"
+    text = config.read_text()
+    config.write_text(text.replace("num_classes: 4", "num_classes: four"))
+    with pytest.raises(
+        DataFormatError, match=r"config\.yaml: model\.net\.num_classes: expected an"
+    ):
+        load_checkpoint(ckpt)
+    config.write_text(text + "\nmodel: [\n")
+    with pytest.raises(DataFormatError, match=r"config\.yaml: not a readable YAML file"):
+        load_checkpoint(ckpt)
+
+
 def test_export_checkpoint_records_checkpoint_and_run(tmp_path: Path) -> None:
     net = _tiny_net(seed=6)
     ckpt = _fake_run(tmp_path / "run", net, run_name="demo")

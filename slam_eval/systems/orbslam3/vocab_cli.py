@@ -12,10 +12,10 @@ import sys
 from collections.abc import Sequence
 
 from uss_slam.core.arguments import number, path_argument
-from uss_slam.core.cli import exit_code, interruptible, report_interrupt
+from uss_slam.core.cli import exit_code, interruptible, print_output, report_interrupt
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.files import output_lock
-from uss_slam.core.paths import distinct_folders, input_file, input_folder, output_file
+from uss_slam.core.paths import distinct_folders, input_file, input_folder, naming, output_file
 from uss_slam.core.ranges import MAX_FEATURES
 
 from .vocabulary import (
@@ -117,12 +117,12 @@ def main(argv: Sequence[str] | None = None) -> int:
             args.sequences = distinct_folders(args.sequences, None)  # each once
             output_file(args.out, "--out", "expected a vocabulary file")  # before the lock
             # a second build into the same file stops at once (exit code 2), naming the first
-            with output_lock(args.out, "--out"):
+            with output_lock(args.out, "--out"), naming("--out", args.out):
                 _build(args)
         else:
             input_file(args.vocabulary, None, "expected a DBoW2 text vocabulary file")
             vocab = read_vocabulary(args.vocabulary)
-            print(
+            return print_output(  # its product: stdout that fails is its error
                 f"{args.vocabulary}: k={vocab.k} L={vocab.levels} scoring={vocab.scoring} "
                 f"weighting={vocab.weighting}, {vocab.n_nodes} nodes, {vocab.n_words} words"
             )

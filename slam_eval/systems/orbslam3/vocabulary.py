@@ -303,7 +303,7 @@ def write_vocabulary(path: StrPath, vocab: Vocabulary) -> Path:
     try:  # atomically: a killed run never leaves half a vocabulary under the final name
         write_text_atomic(path, "\n".join(lines))
     except OSError as err:
-        raise UssSlamError(f"{path}: cannot write the vocabulary ({err.strerror})") from None
+        raise DataFormatError(path, f"cannot write the vocabulary ({err.strerror})") from None
     return path
 
 

@@ -1,0 +1,113 @@
+"""One line for an error of Hydra's composition of a config (a missing config group option,
+an override that does not parse, a user's config file that is no valid YAML, OmegaConf's
+errors) and for an output folder that cannot be created: the texts the Hydra apps' handler
+(:mod:`uss_slam.core.cli`) prints."""
+
+from __future__ import annotations
+
+import errno
+from pathlib import Path
+
+from uss_slam.core.errors import UssSlamError
+
+
+def hydra_error_line(error: BaseException) -> str | None:
+    """One line for an error Hydra raises while composing the config, naming the key; None for
+    anything else. Built from the exceptions' attributes:
+
+    - ``MissingConfigException`` (an unknown option of a config group): its ``missing_cfg_file``
+      and ``options`` -> ``<group>: unknown option '<name>'; expected one of ...``;
+    - ``OverrideParseException`` (bad override syntax): its ``override`` and the parser's
+      ``message`` -> ``<override>: <message>`` (the message's first line: the second is Hydra's
+      link to its grammar page);
+    - an OmegaConf error in the cause chain (a value of the wrong type for a structured config,
+      a key the config does not have): :func:`uss_slam.core.schema.omegaconf_error_line`,
+      ``<key>: expected ..., got ...``.
+
+    Hydra's other composition errors (``+key`` for a key that exists, ``~key`` for one that does
+    not, a sweep without ``-m``) carry no attributes besides their text: their lines are joined
+    into one, as the only part of this function that reads an error's text."""
+    from hydra.errors import HydraException, MissingConfigException, OverrideParseException
+    from omegaconf.errors import OmegaConfBaseException
+
+    from uss_slam.core.schema import omegaconf_error_line
+
+    chain: list[BaseException] = []
+    current: BaseException | None = error
+    while current is not None and all(current is not c for c in chain):
+        chain.append(current)
+        current = current.__cause__ or current.__context__
+    for item in chain:
+        if isinstance(item, MissingConfigException) and item.missing_cfg_file:
+            group, _, name = item.missing_cfg_file.rpartition("/")
+            if item.options:
+                expected = ", ".join(item.options)
+                return f"{group}: unknown option {name!r}; expected one of {expected}"
+            return f"{item.missing_cfg_file}: no such config"
+        if isinstance(item, OverrideParseException):
+            return override_parse_line(item.override, item.message)
+        line = _yaml_error_line(item)
+        if line is not None:  # a config file of the user's (--config-dir) that does not parse
+            return line
+    for item in chain:
+        if isinstance(item, OmegaConfBaseException):
+            return omegaconf_error_line(item)
+    for item in chain:
+        if isinstance(item, HydraException):
+            lines = [line.strip().rstrip(".") for line in str(item).splitlines() if line.strip()]
+            return "; ".join(lines) or type(item).__name__
+    return None
+
+
+def _yaml_error_line(error: BaseException) -> str | None:
+    """``<file>:<line>: not valid YAML (<problem>)`` for PyYAML's error with a position."""
+    import yaml
+
+    mark = getattr(error, "problem_mark", None)
+    if not isinstance(error, yaml.MarkedYAMLError) or mark is None:
+        return None
+    return f"{mark.name}:{mark.line + 1}: not valid YAML ({error.problem or 'syntax error'})"
+
+
+def override_parse_line(override: str, message: str) -> str:
+    """``<override>: <the parser's message>``; for a value holding characters Hydra reads only
+    quoted (spaces, non-ASCII letters such as in ``out_dir=/data/résumé``), the quoted form to
+    use instead of the lexer's text."""
+    key, sep, value = override.partition("=")
+    if sep and value.startswith("[") and value.endswith("]") and "=" in value:  # [a=1,b=2]
+        from uss_slam.core.paths import hydra_quoted
+
+        items = "[" + ",".join(hydra_quoted(i.strip()) for i in value[1:-1].split(",")) + "]"
+        return f"{key}: a list item holding '=' must be quoted for Hydra; write {key}={items}"
+    if sep and value and not value.startswith(("'", '"', "[", "{")):
+        from uss_slam.core.paths import hydra_quoted
+
+        quoted = hydra_quoted(value)
+        if quoted != value and any(ord(c) > 127 or c.isspace() for c in value):
+            return (
+                f"{key}: the value {value!r} must be quoted for Hydra (it holds spaces or "
+                f'non-ASCII characters); write {key}={quoted} (in a shell: "{key}={quoted}")'
+            )
+    return f"{override}: {(message.strip().splitlines() or ['cannot be parsed'])[0]}"
+
+
+def output_folder_line(error: OSError) -> str:
+    """``cannot create the output folder <path> (<why>)`` for an ``OSError`` of ``mkdir``;
+    names the file in the way when a part of the path is a file."""
+    path = Path(str(error.filename))
+    if error.errno == errno.ENAMETOOLONG:
+        from uss_slam.core.files import check_name_lengths
+
+        try:
+            check_name_lengths(path)
+        except UssSlamError as too_long:
+            return f"cannot create the output folder {too_long}"
+        return f"cannot create the output folder {path} (a name in it is too long)"
+    existing = path
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if existing.exists() and not existing.is_dir():
+        why = "it is a file" if existing == path else f"{existing} is a file"
+    else:
+        why = error.strerror or type(error).__name__
+    return f"cannot create the output folder {path} ({why})"

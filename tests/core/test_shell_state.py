@@ -1,0 +1,144 @@
+"""The shell's state a script starts in, at the shared layer: a working folder deleted, a umask
+that makes new folders unwritable, a file size limit (``ulimit -f``), stdout full or closed, an
+image header declaring more pixels than any image may have, an interactive matplotlib backend,
+and a training run's config edited by hand. Each is one line naming what to change."""
+
+from __future__ import annotations
+
+import errno
+import io
+import os
+import struct
+import sys
+import zlib
+from pathlib import Path
+
+import pytest
+
+from uss_slam.core import launch, stdout
+from uss_slam.core.cli import print_output
+from uss_slam.core.errors import DataFormatError, NoSpaceError, UssSlamError
+from uss_slam.core.files import no_space_errno
+from uss_slam.core.images import read_colour
+from uss_slam.core.paths import PathError, input_file, output_file, output_folder
+
+
+@pytest.fixture
+def cwd_gone(tmp_path: Path):
+    """The process's working folder deleted under it (another terminal's ``rm -r``)."""
+    before = os.getcwd()
+    gone = tmp_path / "gone"
+    gone.mkdir()
+    os.chdir(gone)
+    gone.rmdir()
+    try:
+        yield tmp_path
+    finally:
+        os.chdir(before)
+
+
+def test_a_relative_path_in_a_deleted_working_folder_is_one_line(cwd_gone: Path) -> None:
+    with pytest.raises(PathError, match=r"^--out=v: a relative path, and the working folder no "):
+        output_folder("v", "--out")
+    with pytest.raises(PathError, match=r"^--plot=p.png: a relative path"):
+        output_file("p.png", "--plot")
+    assert input_file(__file__) == Path(__file__)  # an absolute path needs no working folder
+
+
+def test_a_hydra_app_in_a_deleted_working_folder_is_one_line(cwd_gone: Path) -> None:
+    assert launch.working_folder_line("uss-slam") == (
+        "uss-slam: error: the working folder no longer exists (it was deleted); run from an "
+        "existing folder"
+    )
+    assert launch.working_folder_line("uss-traj") is None  # its relative paths: the path layer
+
+
+@pytest.fixture
+def umask_0222():
+    before = os.umask(0o222)
+    try:
+        yield
+    finally:
+        os.umask(before)
+
+
+def test_a_umask_that_leaves_new_folders_unwritable_is_refused_before_any_work(
+    tmp_path: Path, umask_0222
+) -> None:
+    with pytest.raises(PathError, match=r"the umask 0222 removes the owner's write permission"):
+        output_folder(tmp_path / "new" / "v", "--out", create=False)
+    with pytest.raises(PathError, match=r"^--out=.*/new/v.txt: a folder created now"):
+        output_file(tmp_path / "new" / "v.txt", "--out")
+    assert output_file(tmp_path / "v.txt", "--out") == tmp_path / "v.txt"  # its folder exists
+
+
+def test_a_file_size_limit_is_handled_as_a_full_disk() -> None:
+    """``ulimit -f``: Python ignores SIGXFSZ, a write past the limit fails with EFBIG."""
+    error = OSError(errno.EFBIG, "File too large")
+    assert no_space_errno(RuntimeError("not a write")) is None
+    wrapped = RuntimeError("a library's")
+    wrapped.__cause__ = error
+    assert no_space_errno(wrapped) == errno.EFBIG
+    assert str(NoSpaceError("/o/v.txt", errno.EFBIG)) == (
+        "the file size limit is exceeded (ulimit -f) while writing /o/v.txt"
+    )
+
+
+class _Full(io.StringIO):
+    def write(self, text: str) -> int:
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+
+def test_a_full_stdout_is_the_products_error_and_a_warning_for_the_rest(
+    monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    monkeypatch.setattr(sys, "stdout", _Full())
+    stdout.guard()
+    print("a progress note")  # kept, not raised
+    with pytest.raises(UssSlamError, match=r"^stdout: cannot write the output \(No space left"):
+        print_output("the numbers")
+    print("another note")
+    monkeypatch.setattr(os, "dup2", lambda *a: None)  # (the test's stdout has no descriptor)
+    stdout.report_lost("uss-synth")
+    assert capsys.readouterr().err.startswith("uss-synth: warning: stdout: cannot write to it (")
+    assert stdout.lost() is None
+
+
+def test_a_closed_stdout_is_the_products_error(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(sys, "stdout", None)
+    with pytest.raises(UssSlamError, match=r"^stdout is closed"):
+        print_output("the numbers")
+
+
+def test_an_interactive_matplotlib_backend_is_not_the_scripts(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setenv("MPLBACKEND", "module://matplotlib_inline.backend_inline")
+    monkeypatch.setattr(launch.importlib, "import_module", lambda name: _Main)
+    monkeypatch.setattr(sys, "stdout", sys.stdout)  # the guard's wrapper is undone after
+    assert launch.launch("uss-traj") == 0
+    assert os.environ["MPLBACKEND"] == "Agg"
+
+
+class _Main:
+    @staticmethod
+    def main() -> int:
+        return 0
+
+
+def _png_header(width: int, height: int) -> bytes:
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return (
+            struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+        )
+
+    header = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)
+    body = chunk(b"IHDR", header) + chunk(b"IDAT", zlib.compress(b"\0" * 64)) + chunk(b"IEND", b"")
+    return b"\x89PNG\r\n\x1a\n" + body
+
+
+def test_an_image_header_past_the_pixel_limit_is_refused_before_decoding(tmp_path: Path) -> None:
+    path = tmp_path / "bomb.png"
+    path.write_bytes(_png_header(60000, 60000))
+    with pytest.raises(DataFormatError, match=r"bomb.png: its header declares 60000x60000 pixels"):
+        read_colour(path)
