@@ -22,14 +22,9 @@ from .ranges import MAX_THREADS, THREADS_PER_CPU, Range
 
 def _bounds(range_: Range) -> str:
     parts = []
-    if range_.min is not None:
-        parts.append(f">= {range_.min:g}")
-    if range_.gt is not None:
-        parts.append(f"> {range_.gt:g}")
-    if range_.max is not None:
-        parts.append(f"<= {range_.max:g}")
-    if range_.lt is not None:
-        parts.append(f"< {range_.lt:g}")
+    for op, bound in ((">=", range_.min), (">", range_.gt), ("<=", range_.max), ("<", range_.lt)):
+        if bound is not None:  # an integer bound in full (a seed's 4294967295, not 4.29e+09)
+            parts.append(f"{op} {bound}" if isinstance(bound, int) else f"{op} {bound:g}")
     return " and ".join(parts)
 
 

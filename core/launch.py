@@ -137,6 +137,7 @@ def launch(prog: str) -> int | None:
 
         print(f"{prog} {version('uss-slam')}")
         return 0
+    without_optimize()
     line = address_space_line(prog) or working_folder_line(prog)
     if line is not None:  # before any import that could crash on it
         print(line, file=sys.stderr)
@@ -195,6 +196,22 @@ def launch(prog: str) -> int | None:
         return int(getattr(error, "exit_code", 1))
 
 
+def without_optimize() -> None:
+    """Start the script again without ``PYTHONOPTIMIZE`` (``-O``) when it is set: Hydra's
+    override parser needs its asserts (under ``-O`` a dict value such as ``{a:1}`` is an
+    ``AttributeError`` inside it), and nothing of the scripts is faster without them. Once."""
+    if not sys.flags.optimize or os.environ.get(_RESTARTED) or "PYTHONOPTIMIZE" not in os.environ:
+        return
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONOPTIMIZE"}
+    env[_RESTARTED] = "1"
+    if sys.stdout is not None:
+        sys.stdout.flush()
+    os.execve(sys.executable, [sys.executable, *sys.argv], env)
+
+
+_RESTARTED = "USS_SLAM_RESTARTED_WITHOUT_OPTIMIZE"
+
+
 HYDRA_APPS = ("uss-slam", "uss-train", "uss-export", "uss-experiments")
 """The scripts that are Hydra apps: Hydra needs the working folder (``hydra.runtime.cwd``)."""
 
@@ -215,7 +232,8 @@ def working_folder_line(prog: str) -> str | None:
 
 def out_of_memory(error: BaseException) -> bool:
     """Whether ``error`` (or one in its cause chain) is an allocation that failed: Python's
-    ``MemoryError``, or OpenCV's ``cv2.error`` with code ``StsNoMem`` (-4)."""
+    ``MemoryError``, OpenCV's ``cv2.error`` with code ``StsNoMem`` (-4), or torch's CPU
+    allocator's ``RuntimeError``."""
     seen: set[int] = set()
     current: BaseException | None = error
     while current is not None and id(current) not in seen:
@@ -224,12 +242,16 @@ def out_of_memory(error: BaseException) -> bool:
             return True
         if type(current).__module__ == "cv2" and getattr(current, "code", None) == CV2_NO_MEMORY:
             return True
+        if isinstance(current, RuntimeError) and TORCH_NO_MEMORY in str(current):
+            return True  # torch's CPU allocator: a RuntimeError, its only mark this text
         current = current.__cause__ or current.__context__
     return False
 
 
 CV2_NO_MEMORY = -4
 """``cv2.Error.StsNoMem``: OpenCV could not allocate."""
+TORCH_NO_MEMORY = "DefaultCPUAllocator: can't allocate memory"
+"""The text of torch's ``RuntimeError`` when its CPU allocator fails."""
 
 
 def _entry(prog: str) -> Callable[[], None]:

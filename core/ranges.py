@@ -51,6 +51,14 @@ class Range:
 
 THREADS = Range(min=1, max=MAX_THREADS)
 """The range of every thread count (:data:`MAX_THREADS`)."""
+MAX_SEED = 2**32 - 1
+"""The largest seed: numpy's (and so Lightning's ``seed_everything``); one rule for every seed
+of every script (``uss-train seed``, ``uss-synth --seed``, ``uss-vocab build --seed``,
+``uss-experiments``' seeds)."""
+MAX_REPEATS = 1000
+"""The most runs of one SLAM setting (``slam.repeats``, ``uss-experiments``' ``slam.repeats``
+and ``slam.orbslam3.repeats``): a spread is estimated from a handful; a thousand runs of a 30 s
+sequence take eight hours."""
 MAX_FEATURES = 100_000
 """The most ORB features per frame any setting may ask for (``uss-vocab build --features``,
 ``slam.orb.n_features``, ``system.n_features``): ORB-SLAM's settings ask 1000-5000, and a

@@ -158,7 +158,15 @@ def check_size(key: str, value: Sequence[int]) -> tuple[int, int]:
         or not all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in items)
     ):
         raise UssSlamError(f"{key} must be [H, W], two positive integers; got {value!r}")
+    if max(items) > MAX_SIDE:  # bounded work: a frame of this size is no export check
+        raise UssSlamError(
+            f"{key} must be [H, W], each side at most {MAX_SIDE} px (a frame); got {value!r}"
+        )
     return items[0], items[1]
+
+
+MAX_SIDE = 8192
+"""The longest side of a trace or verification frame, px (8K video's width)."""
 
 
 def check_options(

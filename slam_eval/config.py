@@ -30,6 +30,7 @@ from typing import Any, Optional
 from omegaconf import MISSING, DictConfig, ListConfig, OmegaConf
 
 from uss_slam.core.errors import UssSlamError
+from uss_slam.core.ranges import MAX_REPEATS
 from uss_slam.core.schema import MAX_THREADS, SchemaError, check_target, ranged, register
 from uss_slam.core.schema import check as schema_check
 
@@ -135,7 +136,7 @@ class SlamConfig:
     """With ``segment=thread`` and a segmenter that really runs (the wall clock): the semantic
     thread's nice value above the process's (Linux), so that tracking takes the cores first and
     the network the time left; 0 = the same priority."""
-    repeats: int = ranged(1, min=1)
+    repeats: int = ranged(1, min=1, max=MAX_REPEATS)
     """Runs per filter set: repeat 0 unperturbed, the others with a perturbed feature budget and
     RANSAC sampling; the outputs are the median run's, with the spread (:mod:`.scoring.repeats`)."""
     repeat_seed: int = 0
@@ -196,6 +197,7 @@ def register_configs() -> None:
     """Store the schema nodes in Hydra's ConfigStore (idempotent)."""
     register(SCHEMA_GROUP, "slam", SlamConfig)
     register(SCHEMA_GROUP, "eval", EvalConfig)
+    register(SCHEMA_GROUP, "sequence", SequenceConfig)  # under a user's own sequence file
 
 
 # ------------------------------------------------------------------------------------ checks

@@ -15,6 +15,7 @@ from uss_slam.core.classes import CLASS_NAMES
 from uss_slam.core.cli import program, report_interrupt, signals_as_interrupts
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.paths import output_folder
+from uss_slam.core.ranges import MAX_SEED
 from uss_slam.core.resources import check_memory
 
 from .motion import PRESETS
@@ -83,7 +84,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, metavar="{sequence,voc}")
 
     def common(p: argparse.ArgumentParser) -> None:
-        p.add_argument("--seed", type=number(int, min=0), default=0,
+        p.add_argument("--seed", type=number(int, min=0, max=MAX_SEED), default=0,
                        help="random seed (default: 0)")  # fmt: skip
         p.add_argument(
             "--out", type=path_argument, required=True, help="output folder (must be new or empty)"

@@ -34,6 +34,7 @@ from uss_slam.core.cli import hydra_task, run_hydra_app
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.files import check_writable
 from uss_slam.core.paths import input_file, input_roots, naming, naming_roots
+from uss_slam.core.ranges import MAX_SEED
 from uss_slam.core.schema import (
     MAX_THREADS,
     Range,
@@ -120,9 +121,6 @@ declare("lightning.pytorch.Trainer", log_every_n_steps=Range(min=1),
         max_epochs=Range(min=-1), max_steps=Range(min=-1), min_epochs=Range(min=0),
         num_sanity_val_steps=Range(min=-1), accumulate_grad_batches=Range(min=1),
         check_val_every_n_epoch=Range(min=1), gradient_clip_val=Range(min=0))  # fmt: skip
-
-MAX_SEED = 2**32 - 1
-"""The largest seed numpy (and so Lightning's ``seed_everything``) accepts."""
 
 
 @dataclass

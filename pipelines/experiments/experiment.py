@@ -43,11 +43,24 @@ TUM_PREFIX = "rgbd_dataset_freiburg3_"
 def check_choices(argv: Sequence[str]) -> None:
     """Unknown ``scale=`` / ``launcher=`` options: one line naming the key and the accepted
     values (before Hydra, which would print a multi-line error)."""
+    folders = [CONFIG_DIR, *_config_dirs(argv)]  # a user's own options (--config-dir DIR)
     for arg in argv:
         key, sep, value = arg.lstrip("+~").partition("=")
         if sep and key in ("scale", "launcher"):
-            accepted = sorted(p.stem for p in (CONFIG_DIR / key).glob("*.yaml"))
+            accepted = sorted({p.stem for f in folders for p in (Path(f) / key).glob("*.yaml")})
             choose(key, value, accepted)
+
+
+def _config_dirs(argv: Sequence[str]) -> list[str]:
+    """The folders ``--config-dir DIR`` / ``-cd DIR`` (or ``--config-dir=DIR``) add to Hydra's
+    search path."""
+    found = []
+    for i, arg in enumerate(argv):
+        if arg in ("--config-dir", "-cd") and i + 1 < len(argv):
+            found.append(argv[i + 1])
+        elif arg.startswith("--config-dir="):
+            found.append(arg.partition("=")[2])
+    return found
 
 
 def _size(key: str, text: Any) -> str:

@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Optional
 
+from uss_slam.core.ranges import MAX_REPEATS, MAX_SEED
 from uss_slam.core.schema import MAX_THREADS, ranged
 from uss_slam.pipelines.runs import CHECKPOINT_POLICIES
 from uss_slam.pipelines.synthetic_data import SHIFTS
@@ -64,19 +65,24 @@ VariantName = _names("VariantName", VARIANTS)
 System = _names("System", SYSTEMS)
 
 
+MAX_RENDERS = 100_000
+"""The most images or frames one synthetic data set renders (about a day on two cores at the
+rendering speed of the quick scale; PASCAL VOC's augmented training set has 10582)."""
+
+
 @dataclass
 class SyntheticData:
-    seed: int = ranged(0, min=0)
-    voc_images: int = ranged(400, min=1)
+    seed: int = ranged(0, min=0, max=MAX_SEED)
+    voc_images: int = ranged(400, min=1, max=MAX_RENDERS)
     voc_size: str = ranged("320x240", text=True)  # WxH: parsed by the experiment's checks
     shift: str = ranged("tum_like", choices=SHIFTS)
     source_outfits: Optional[str] = ranged(None, choices=(*WARDROBES, None))
-    train_frames: int = ranged(100, min=2)
-    val_frames: int = ranged(100, min=2)
+    train_frames: int = ranged(100, min=2, max=MAX_RENDERS)
+    val_frames: int = ranged(100, min=2, max=MAX_RENDERS)
     train_size: str = ranged("320x240", text=True)
-    eval_frames: int = ranged(300, min=2)
+    eval_frames: int = ranged(300, min=2, max=MAX_RENDERS)
     eval_size: str = ranged("640x480", text=True)
-    eval_seed: int = ranged(1000, min=0)
+    eval_seed: int = ranged(1000, min=0, max=MAX_SEED)
 
 
 @dataclass
@@ -100,10 +106,12 @@ class Init:
     kind: str = ranged("scratch", choices=INIT_KINDS)
     style: str = ranged("source", choices=INIT_STYLES)
     regime: str = ranged("real", choices=INIT_REGIMES)
-    seeds: list[int] = ranged(default_factory=lambda: [0], min=0, nonempty=True, unique=True)
+    seeds: list[int] = ranged(
+        default_factory=lambda: [0], min=0, max=MAX_SEED, nonempty=True, unique=True
+    )
     images: int = ranged(800, min=2)
     size: str = ranged("320x240", text=True)
-    render_seed: int = ranged(900, min=0)
+    render_seed: int = ranged(900, min=0, max=MAX_SEED)
     experiment: str = ranged("pretrain", choices=EXPERIMENTS)
     overrides: list[str] = field(default_factory=list)
     path: Optional[str] = None
@@ -128,7 +136,9 @@ class Grid:
     depth_sweep: list[DiscriminatorMethod] = field(  # type: ignore[valid-type]
         default_factory=lambda: ["adaptsegnet"]
     )
-    seeds: list[int] = ranged(default_factory=lambda: [0, 1, 2], min=0, nonempty=True, unique=True)
+    seeds: list[int] = ranged(
+        default_factory=lambda: [0, 1, 2], min=0, max=MAX_SEED, nonempty=True, unique=True
+    )
     loss: dict[str, Any] = field(default_factory=dict)
     batchnorm: Optional[dict[str, Any]] = None
     method_overrides: Optional[dict[str, Any]] = None
@@ -155,14 +165,14 @@ class CrfParams:
 @dataclass
 class OrbSlam3:
     vocabulary: Optional[str] = None
-    repeats: int = ranged(3, min=1)
+    repeats: int = ranged(3, min=1, max=MAX_REPEATS)
     overrides: list[str] = field(default_factory=list)
 
 
 @dataclass
 class Slam:
     overrides: list[str] = field(default_factory=list)
-    repeats: int = ranged(3, min=1)
+    repeats: int = ranged(3, min=1, max=MAX_REPEATS)
     every_model: bool = False
     orbslam3: OrbSlam3 = field(default_factory=OrbSlam3)
 

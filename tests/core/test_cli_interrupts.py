@@ -93,11 +93,15 @@ def test_sighup_is_an_interrupt_named_in_the_line(capsys) -> None:
     import os
     import signal
 
-    with pytest.raises(SystemExit) as stop, exit_on_user_error("uss-x"):
-        os.kill(os.getpid(), signal.SIGHUP)
+    before = signal.signal(signal.SIGHUP, signal.SIG_DFL)  # (a test run under nohup ignores it)
+    try:
+        with pytest.raises(SystemExit) as stop, exit_on_user_error("uss-x"):
+            os.kill(os.getpid(), signal.SIGHUP)
+        assert signal.getsignal(signal.SIGHUP) is signal.SIG_DFL  # restored
+    finally:
+        signal.signal(signal.SIGHUP, before)
     assert stop.value.code == 129
     assert capsys.readouterr().err.splitlines() == ["uss-x: interrupted (SIGHUP)"]
-    assert signal.getsignal(signal.SIGHUP) is signal.SIG_DFL  # restored
 
 
 def test_a_deferred_step_finishes_before_sigterm_takes_effect() -> None:

@@ -1,4 +1,4 @@
-"""The shell's state a script starts in, at the shared layer: a working folder deleted, a umask
+"""The families of the fifth held-out set, at the shared layer: the shell's state a script starts in, a working folder deleted, a umask
 that makes new folders unwritable, a file size limit (``ulimit -f``), stdout full or closed, an
 image header declaring more pixels than any image may have, an interactive matplotlib backend,
 and a training run's config edited by hand. Each is one line naming what to change."""
@@ -142,3 +142,12 @@ def test_an_image_header_past_the_pixel_limit_is_refused_before_decoding(tmp_pat
     path.write_bytes(_png_header(60000, 60000))
     with pytest.raises(DataFormatError, match=r"bomb.png: its header declares 60000x60000 pixels"):
         read_colour(path)
+
+
+def test_torchs_allocation_failure_is_out_of_memory() -> None:
+    error = RuntimeError(
+        "[enforce fail at alloc_cpu.cpp:127] err == 0. DefaultCPUAllocator: can't allocate "
+        "memory: you tried to allocate 480000000000 bytes. Error code 12"
+    )
+    assert launch.out_of_memory(error)
+    assert not launch.out_of_memory(RuntimeError("shape mismatch"))

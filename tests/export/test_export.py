@@ -389,3 +389,13 @@ def test_default_logit_tolerance_grows_with_the_logits(
     )
     with pytest.raises(ExportVerificationError, match="failed verification"):
         export_segmenter(net, tmp_path / "strict.onnx", _metadata(), max_logit_diff=1e-9)
+
+
+def test_an_export_frame_size_has_a_bound() -> None:
+    from uss_slam.export.onnx import check_size
+
+    assert check_size("verify_size", [120, 160]) == (120, 160)
+    with pytest.raises(
+        UssSlamError, match=r"^verify_size must be \[H, W\], each side at most 8192"
+    ):
+        check_size("verify_size", [100000, 100000])

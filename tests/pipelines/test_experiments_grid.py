@@ -154,10 +154,10 @@ def test_orbslam3_gets_the_mask_variants_only() -> None:
         ({"systems": ["orbslam2"]}, "systems[0]: expected one of harness, orbslam3, got 'orbslam2'"),
         ({"systems": ["harness", "harness"]}, "systems: expected a non-empty list of harness, "),
         ({"grid.n_layers": [4, 9]}, "grid.n_layers[1]: expected an integer >= 1 and <= 8, got 9"),
-        ({"grid.seeds": []}, "grid.seeds: expected a non-empty list of integers >= 0, each once, "
-         "got []"),
-        ({"grid.seeds": [0, 0]}, "grid.seeds: expected a non-empty list of integers >= 0, each "
-         "once (0 is listed twice), got [0, 0]"),
+        ({"grid.seeds": []}, "grid.seeds: expected a non-empty list of integers >= 0 and <= "
+         "4294967295, each once, got []"),
+        ({"grid.seeds": [0, 0]}, "grid.seeds: expected a non-empty list of integers >= 0 and <= "
+         "4294967295, each once (0 is listed twice), got [0, 0]"),
         ({"grid.loss": {"lambda_gan": [1]}},
          "grid.loss: unknown value 'lambda_gan'; accepted: lambda_seg_aux, lambda_seg_main, "
          "lambda_adv_aux, lambda_adv_main"),
@@ -183,3 +183,16 @@ def test_train_cell_without_depth_is_source_only_shaped() -> None:
         "source_only_s3",
         "train/source_only_s3",
     )
+
+
+def test_a_users_own_scale_or_launcher_file_is_an_accepted_option(tmp_path) -> None:
+    """``uss-experiments --config-dir DIR scale=mine``: DIR/scale/mine.yaml is an option, as
+    Hydra itself will find it; a name in neither folder is still one line."""
+    from uss_slam.pipelines.experiments.experiment import check_choices
+
+    (tmp_path / "scale").mkdir()
+    (tmp_path / "scale" / "mine.yaml").write_text("scale_name: mine\n")
+    check_choices(["--config-dir", str(tmp_path), "scale=mine"])
+    check_choices([f"--config-dir={tmp_path}", "scale=quick"])
+    with pytest.raises(UssSlamError, match=r"^scale: unknown value 'mine'; accepted: "):
+        check_choices(["scale=mine"])

@@ -46,7 +46,7 @@ def test_the_shipped_config_passes() -> None:
         (["slam.filter_params.object.classes=person"],
          "slam.filter_params.object.classes: expected a list of strings or null, got 'person'"),
         (["slam.filter_params.flow.window=2.5"],
-         "slam.filter_params.flow.window: expected an integer >= 3, got 2.5"),
+         "slam.filter_params.flow.window: expected an integer >= 3 and <= 255, got 2.5"),
         # a filter added with its own _target_ is checked against that class
         ([f"+slam.filter_params.wide._target_={SEMANTIC}", "+slam.filter_params.wide.dilation=abc"],
          "slam.filter_params.wide.dilation: expected an integer >= 0, got 'abc'"),

@@ -16,7 +16,7 @@ from uss_slam.core.cli import exit_code, interruptible, print_output, report_int
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.files import output_lock
 from uss_slam.core.paths import distinct_folders, input_file, input_folder, naming, output_file
-from uss_slam.core.ranges import MAX_FEATURES
+from uss_slam.core.ranges import MAX_FEATURES, MAX_SEED
 
 from .vocabulary import (
     MAX_BRANCHING,
@@ -86,7 +86,7 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="N",
         help="ORB features per frame (default: %(default)s)",
     )
-    build.add_argument("--seed", type=number(int, min=0, max=2**32 - 1), default=0,
+    build.add_argument("--seed", type=number(int, min=0, max=MAX_SEED), default=0,
                        help="random seed (default: %(default)s)")  # fmt: skip
     build.add_argument(
         "--max-iterations",

@@ -528,9 +528,12 @@ def build_from_sequences(
     extracted = time.perf_counter()
     where = ", ".join(str(folder) for folder in folders)
     if not any(len(s) for s in sets):
+        why = "the frames have no texture"
+        if n_features < 8:  # ORB shares the budget among its pyramid's levels
+            why += f", or --features={n_features} is too small a budget for 8 pyramid levels"
         raise UssSlamError(
-            f"{where}: no ORB descriptors in the {len(images)} training frames (the frames "
-            "have no texture); expected frames with corners to cluster"
+            f"{where}: no ORB descriptors in the {len(images)} training frames ({why}); "
+            "expected frames with corners to cluster"
         )
     vocab = build_vocabulary(sets, k=k, levels=levels, seed=seed, max_iterations=max_iterations)
     path = write_vocabulary(out, vocab)

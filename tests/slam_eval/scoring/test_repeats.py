@@ -115,7 +115,9 @@ def test_repeated_run_writes_the_median_run_and_every_trajectory(
 def test_bad_repeat_settings_are_one_clear_line(synthetic_sequence, tmp_path: Path) -> None:
     seq = synthetic_sequence(preset="static_xyz", frames=30)
     base = [f"sequence.path={seq}", f"out_dir={tmp_path}", "progress=false"]
-    with pytest.raises(UssSlamError, match=r"^slam\.repeats: expected an integer >= 1, got 0$"):
+    with pytest.raises(
+        UssSlamError, match=r"^slam\.repeats: expected an integer >= 1 and <= 1000, got 0$"
+    ):
         run(compose_slam_eval([*base, "slam.repeats=0"]))
     with pytest.raises(
         UssSlamError, match=r"^slam\.repeat_budget: expected a number >= 0 and < 0\.5, got 0\.7$"
