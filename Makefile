@@ -5,6 +5,8 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed-stamp
 DEMO_OUT ?= outputs/demo
+# make test's parallel workers (pytest-xdist): auto = one per CPU, at most 4; 0 runs in-process.
+TEST_WORKERS ?= auto
 
 .PHONY: install demo test test-fast lint clean
 
@@ -21,8 +23,9 @@ $(STAMP): pyproject.toml setup.py
 demo: $(STAMP)
 	$(VENV)/bin/uss-demo --out $(DEMO_OUT) $(DEMO_ARGS)
 
+# Whole test files go to one worker each (--dist loadfile), so a module's fixtures are built once.
 test: $(STAMP)
-	$(PY) -m pytest
+	$(PY) -m pytest -n $(TEST_WORKERS) --maxprocesses 4 --dist loadfile
 
 test-fast: $(STAMP)
 	$(PY) -m pytest -m "not slow"

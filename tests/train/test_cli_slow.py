@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -47,15 +48,33 @@ def test_multirun_sweeps_discriminator_depth(uda_data: dict[str, Path], tmp_path
     assert (sweep / "multirun.yaml").is_file()
 
 
+def _uss_train_ddp(*args: str, run: Path, cwd: Path) -> subprocess.CompletedProcess:
+    """``uss-train`` with DDP into ``run``, once more (from an empty ``run``) if its rendezvous
+    port was taken meanwhile: Lightning picks a free port, then the processes it starts bind it
+    seconds later, and another process on the machine (a test beside this one) can take it in
+    between (EADDRINUSE)."""
+    exe = Path(sys.executable).parent / "uss-train"
+    for attempt in range(2):
+        shutil.rmtree(run, ignore_errors=True)
+        result = subprocess.run(
+            [str(exe), *args], cwd=cwd, capture_output=True, text=True, timeout=900
+        )
+        if result.returncode == 0 or "EADDRINUSE" not in result.stderr or attempt:
+            break
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    return result
+
+
 @pytest.mark.slow
 def test_ddp_on_cpu_keeps_replicas_identical(uda_data: dict[str, Path], tmp_path: Path) -> None:
     run = tmp_path / "run"
-    _uss_train(
+    _uss_train_ddp(
         "experiment=ci",
         "trainer=ddp_cpu",
         *data_overrides(uda_data),
         "logger=none",
         f"hydra.run.dir={run}",
+        run=run,
         cwd=tmp_path,
     )
     record = json.loads((run / "replicas.json").read_text())
