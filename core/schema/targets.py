@@ -17,8 +17,15 @@ from typing import Any, Literal, Optional, Union
 
 from omegaconf import MISSING, DictConfig, ListConfig, OmegaConf
 
+from uss_slam.core.ranges import MAX_SEED
+
 from .checking import _join, _plain, check
 from .fields import _MAPPINGS, _SCALARS, _SEQUENCES, Range, SchemaError
+
+SEED_RANGE = {"min": 0, "max": MAX_SEED}
+"""The range of a target's integer parameter named ``seed`` unless it declares its own: the
+range of every other seed (``seed``, which ``data.seed: ${seed}`` and the methods' seeds take,
+so a seed ``seed=null`` draws is one every seed key takes)."""
 
 DECLARED: dict[str, dict[str, dict[str, Any]]] = {}
 """``{target path: {parameter: range metadata}}`` declared by :func:`declare`."""
@@ -102,6 +109,8 @@ def target_schema(target: str | Callable[..., Any], opaque: Iterable[type] = ())
         if name == "self" or param.kind in (param.VAR_POSITIONAL, param.VAR_KEYWORD):
             continue
         tp, metadata = _config_type(hints.get(name, Any), opaque)
+        if name == "seed" and tp in (int, Optional[int]):  # noqa: UP045
+            metadata = {**SEED_RANGE, **metadata}  # one bound for every seed
         metadata = {**metadata, **declared.get(name, {})}
         fields_.append((name, tp, dataclasses.field(default=MISSING, metadata=metadata)))
     label = getattr(obj, "__qualname__", str(target))

@@ -224,7 +224,7 @@ def test_launcher_overrides_merge_the_stage_section() -> None:
         ),
         (
             ["init.kind=pretrained", "init.seeds=[0,0]"],
-            "init.seeds: expected a non-empty list of integers >= 0, each once (0 is listed twice)",
+            "init.seeds: expected a non-empty list of integers >= 0 and <= 4294967295, each once (0 is listed twice)",
         ),
     ],
 )

@@ -247,7 +247,7 @@ def test_batchnorm_modes_are_rows_of_their_own(tmp_path: Path) -> None:
         (["init.path=/nonexistent/coco.pth"], "init.path=/nonexistent/coco.pth: does not exist"),
         (["init.render_seed=3"], "init.render_seed: 3 is a seed of the source set or of a sequence"),
         (["init.render_seed=1000"], "init.render_seed: 1000 is a seed of the source set or of a"),
-        (["init.seeds=[0,0]"], "init.seeds: expected a non-empty list of integers >= 0, each once (0 is listed twice)"),
+        (["init.seeds=[0,0]"], "init.seeds: expected a non-empty list of integers >= 0 and <= 4294967295, each once (0 is listed twice)"),
         (["init.seeds=[]"], "init.seeds: expected a non-empty list"),
         (["init.images=0"], "init.images: expected an integer >= 2, got 0"),
         (["init.size=big"], "init.size: "),

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import json
-import shutil
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -48,19 +48,19 @@ def test_multirun_sweeps_discriminator_depth(uda_data: dict[str, Path], tmp_path
     assert (sweep / "multirun.yaml").is_file()
 
 
-def _uss_train_ddp(*args: str, run: Path, cwd: Path) -> subprocess.CompletedProcess:
-    """``uss-train`` with DDP into ``run``, once more (from an empty ``run``) if its rendezvous
-    port was taken meanwhile: Lightning picks a free port, then the processes it starts bind it
-    seconds later, and another process on the machine (a test beside this one) can take it in
-    between (EADDRINUSE)."""
+RENDEZVOUS = ("MASTER_ADDR", "MASTER_PORT", "WORLD_SIZE", "RANK", "LOCAL_RANK", "NODE_RANK")
+"""torch.distributed's variables: a ``uss-train`` started with them set joins that group."""
+
+
+def _uss_train_ddp(*args: str, cwd: Path) -> subprocess.CompletedProcess:
+    """``uss-train`` with DDP as a user starts it: none of :data:`RENDEZVOUS` set (a test run
+    in this process before may have left Lightning's in ``os.environ``, naming a port this
+    process still listens on: EADDRINUSE)."""
     exe = Path(sys.executable).parent / "uss-train"
-    for attempt in range(2):
-        shutil.rmtree(run, ignore_errors=True)
-        result = subprocess.run(
-            [str(exe), *args], cwd=cwd, capture_output=True, text=True, timeout=900
-        )
-        if result.returncode == 0 or "EADDRINUSE" not in result.stderr or attempt:
-            break
+    env = {k: v for k, v in os.environ.items() if k not in RENDEZVOUS}
+    result = subprocess.run(
+        [str(exe), *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=900
+    )
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
     return result
 
@@ -74,7 +74,6 @@ def test_ddp_on_cpu_keeps_replicas_identical(uda_data: dict[str, Path], tmp_path
         *data_overrides(uda_data),
         "logger=none",
         f"hydra.run.dir={run}",
-        run=run,
         cwd=tmp_path,
     )
     record = json.loads((run / "replicas.json").read_text())

@@ -46,6 +46,13 @@ def test_seed_null_draws_a_seed_that_every_seed_key_takes() -> None:
     assert cfg.data.seed == settings.seed
 
 
+@pytest.mark.parametrize("data", ["real", "synthetic"])
+def test_the_largest_seed_is_one_every_seed_key_takes(data: str) -> None:
+    """A seed past a C int (``seed=null`` draws one half the time) reaches ``data.seed`` too."""
+    settings = check_config(_compose(f"seed={MAX_SEED}", f"data={data}"))
+    assert settings.seed == MAX_SEED
+
+
 @pytest.mark.parametrize(
     ("override", "line"),
     [

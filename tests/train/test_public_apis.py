@@ -4,6 +4,8 @@ module finds its shard and refuses a distributed sampler, and the transforms' si
 from __future__ import annotations
 
 import ast
+import os
+from collections.abc import Iterator
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
@@ -171,6 +173,24 @@ def _trainer(**kwargs: Any) -> Trainer:
     return quiet_trainer(devices=1, **kwargs)
 
 
+@pytest.fixture
+def one_process_group() -> Iterator[None]:
+    """Lightning's DDP in this process: its rendezvous variables (``MASTER_PORT``, ...) are
+    undone and its process group destroyed afterwards, so that no later ``uss-train`` started
+    from this process inherits a port this process still listens on."""
+    names = ("MASTER_ADDR", "MASTER_PORT", "WORLD_SIZE", "RANK", "LOCAL_RANK", "NODE_RANK")
+    before = {name: os.environ.get(name) for name in names}
+    yield
+    if torch.distributed.is_available() and torch.distributed.is_initialized():
+        torch.distributed.destroy_process_group()
+    for name, value in before.items():
+        if value is None:
+            os.environ.pop(name, None)
+        else:
+            os.environ[name] = value
+
+
+@pytest.mark.usefixtures("one_process_group")
 def test_ddp_with_lightnings_distributed_sampler_is_refused() -> None:
     # One DDP process (gloo) is enough: Lightning wraps the loaders as soon as the strategy is
     # distributed, and a wrapped stream is re-shuffled even with one replica.
