@@ -39,7 +39,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from fresh_setups import HIDDEN_OUTPUTS, SETUPS, build_world, snapshot
+from fresh_setups import HIDDEN_OUTPUTS, SETUPS, build_world, snapshot, stop_group
 from fresh_setups3 import THIRD
 from fresh_setups4 import FOURTH
 from fresh_setups5 import FIFTH
@@ -266,17 +266,6 @@ LONG = {
 """Path parts the cases' templates may name besides the world's."""
 
 
-def _stop(proc: subprocess.Popen) -> None:
-    """End a background setup's process group (SIGTERM, then SIGKILL after 60 s)."""
-    if proc.poll() is None:
-        os.killpg(proc.pid, signal.SIGTERM)
-        try:
-            proc.wait(timeout=60)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
-
-
 def run_case(case: Case, world: dict[str, str], work: Path) -> Outcome:
     folder = work / case.id
     if folder.exists():
@@ -294,7 +283,7 @@ def run_case(case: Case, world: dict[str, str], work: Path) -> Outcome:
     after = snapshot(folder)
     if busy:  # the other writer's own staging, temporary and lock files are its business
         for proc in busy:
-            _stop(proc)
+            stop_group(proc)
         before, after = ({p: v for p, v in files.items() if not any(h in p for h in HIDDEN_OUTPUTS)}
                          for files in (before, after))  # fmt: skip
     if snapshot(Path(world["W"]), quick=True) != world_before:

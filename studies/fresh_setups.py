@@ -5,7 +5,9 @@ from __future__ import annotations
 
 import gzip
 import hashlib
+import os
 import shutil
+import signal
 import subprocess
 from collections.abc import Callable
 from pathlib import Path
@@ -34,6 +36,19 @@ def snapshot(root: Path, quick: bool = False) -> dict[str, object]:
             except PermissionError:
                 files[rel] = "unreadable"
     return files
+
+
+def stop_group(proc: subprocess.Popen, first: int = signal.SIGTERM, grace: float = 60) -> None:
+    """End ``proc``'s process group (started with ``start_new_session``): signal ``first``,
+    then SIGKILL if it has not ended within ``grace`` seconds."""
+    if proc.poll() is not None:
+        return
+    os.killpg(proc.pid, first)
+    try:
+        proc.wait(timeout=grace)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
 
 
 def _run(bin_dir: Path, prog: str, *args: str, cwd: Path) -> None:

@@ -14,7 +14,6 @@ runs the same command again (``interrupted``)."""
 from __future__ import annotations
 
 import gzip
-import os
 import shlex
 import shutil
 import signal
@@ -26,7 +25,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import cv2
-from fresh_setups import Setup, _gt_rows, _seq_edit
+from fresh_setups import Setup, _gt_rows, _seq_edit, stop_group
 from fresh_setups3 import BIN, _nth, _voc_edit
 from PIL import Image
 
@@ -169,12 +168,7 @@ def interrupted(command: str, seconds: float) -> Setup:
         try:
             proc.wait(timeout=seconds)
         except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGINT)
-            try:
-                proc.wait(timeout=120)
-            except subprocess.TimeoutExpired:
-                os.killpg(proc.pid, signal.SIGKILL)
-                proc.wait()
+            stop_group(proc, signal.SIGINT, grace=120)
         time.sleep(0.5)
 
     return setup

@@ -94,3 +94,22 @@ def test_the_shell_state_of_a_case_reaches_its_process(fresh, tmp_path) -> None:
         fresh.BIN = saved
     assert code == 0, err
     assert not (tmp_path / "gone").exists()
+
+
+def test_stop_group_signals_then_kills_what_ignores_it(fresh) -> None:
+    import signal
+    import subprocess
+
+    from fresh_setups import stop_group
+
+    sleeper = subprocess.Popen(["sleep", "30"], start_new_session=True)
+    stop_group(sleeper, grace=5)
+    assert sleeper.returncode == -signal.SIGTERM
+    ignoring = [sys.executable, "-c", "import signal, time; "
+                "signal.signal(signal.SIGINT, signal.SIG_IGN); print(flush=True); time.sleep(30)"]  # fmt: skip
+    deaf = subprocess.Popen(ignoring, start_new_session=True, stdout=subprocess.PIPE)
+    deaf.stdout.readline()  # its handler is set
+    stop_group(deaf, signal.SIGINT, grace=0.5)
+    assert deaf.returncode == -signal.SIGKILL
+    stop_group(deaf)  # an ended one: nothing to do
+    deaf.stdout.close()
