@@ -26,6 +26,11 @@ one thread in those pools); ``--jobs 2`` runs two such benchmarks at once in job
 as ``uss-experiments`` runs its SLAM jobs (``auto`` is then the threads), each printing its own
 same-run ratios: the speed under the load of two parallel jobs.
 
+``--prefetch-mode readers`` runs the worker process with ``slam.workers`` (2) reading threads
+and with one (``process/1``; ``slam.workers=1``, which the ``uss-slam`` process's own prefetch
+threads then use too) in turns: the same trajectories, one thread fewer taking turns under the
+worker's GIL.
+
 ``--orbslam3 VOCAB`` also runs the real ORB-SLAM3 on the same frames in the same command
 (``uss-slam system=orbslam3 system.repeats=--repeats system.realtime=false``: as fast as it
 tracks, unfiltered, after the harness's repeats)
@@ -194,8 +199,12 @@ def inflater() -> str:
 MODES = ("thread", "process", "auto", "before")
 """What ``--prefetch-mode`` runs: a ``slam.prefetch_mode``, or ``before`` (the default up to
 2026-12-07: the threads, with OpenBLAS's and OpenCV's thread pools as loaded)."""
-PAIRS = {"both": ["thread", "process"], "defaults": ["before", "auto"]}
-"""Two modes in turns in every repeat."""
+PAIRS = {
+    "both": ["thread", "process"],
+    "defaults": ["before", "auto"],
+    "readers": ["process", "process/1"],
+}
+"""Two modes in turns in every repeat (``MODE/N``: ``MODE`` with ``slam.workers=N``)."""
 
 WORKER_MODULES = {"read", "segmentation", "orb"}
 """Modules of the prefetch threads (and of the worker process): the rest is the main thread's."""
@@ -205,6 +214,7 @@ def timed_run(seq: TumSequence, args: argparse.Namespace, mode: str) -> dict:
     """One whole-pipeline run: frames/s, per-module wall and CPU ms per frame, the CPU ms per
     frame of the main thread, of this process and of the worker process, and the CPU-bound
     rate on two idle cores."""
+    mode, _, readers = mode.partition("/")
     pipeline = SlamPipeline(
         seq,
         LabelsSegmenter(),
@@ -213,6 +223,7 @@ def timed_run(seq: TumSequence, args: argparse.Namespace, mode: str) -> dict:
         local_ba=args.local_ba,
         loop_closing=args.loop_closing,
         prefetch_mode="thread" if mode == "before" else mode,
+        **({"workers": int(readers)} if readers else {}),
     )
     workers: list[frontend_process.FrontendProcess | None] = []
     start = frontend_process.start

@@ -1,0 +1,31 @@
+"""benchmarks/slam_speed.py: ``MODE/N`` runs a prefetch mode with N reading threads, and the
+``readers`` pair gives the worker process two threads and one, with the same trajectory."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from uss_slam.slam_eval.sequence import TumSequence
+from uss_slam.slam_eval.systems import harness
+from uss_slam.testing.scripts import load_script
+
+slam_speed = load_script(Path(__file__).resolve().parents[2] / "benchmarks" / "slam_speed.py")
+
+
+def test_readers_pair_changes_only_the_reading_threads(synthetic_sequence, monkeypatch) -> None:
+    assert slam_speed.PAIRS["readers"] == ["process", "process/1"]
+    seq = TumSequence(synthetic_sequence(preset="walking_xyz", frames=30), load_labels=True)
+    args = argparse.Namespace(filters=["semantic"], local_ba=False, loop_closing=False)
+    built: list[int] = []
+    init = harness.SlamPipeline.__init__
+
+    def recording(self, *a, **kw):
+        init(self, *a, **kw)
+        built.append(self.workers)
+
+    monkeypatch.setattr(harness.SlamPipeline, "__init__", recording)
+    two, one = (slam_speed.timed_run(seq, args, mode) for mode in slam_speed.PAIRS["readers"])
+    assert built == [2, 1]
+    assert two["used"] == one["used"]  # the worker process (the threads where none can start)
+    assert two["ate"] == one["ate"] and two["tracked"] == one["tracked"] == 1.0
