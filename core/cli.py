@@ -37,6 +37,7 @@ from uss_slam.core.hydra_lines import (  # noqa: F401 (their home before)
     output_folder_line,
     override_parse_line,
 )
+from uss_slam.core.launch import TERMINATING
 from uss_slam.core.run_folders import RefusedRunFolder, RunFolderCheck, release_run_folders
 
 __all__ = ["RefusedRunFolder", "RunFolderCheck"]  # (configs name core.cli.RunFolderCheck)
@@ -49,7 +50,7 @@ TERMINATED = 143
 """Exit code after SIGTERM (128 + SIGTERM)."""
 
 
-INTERRUPTING = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+INTERRUPTING = (signal.SIGINT, *TERMINATING)
 """The signals a console script handles as Ctrl-C: SIGTERM (``kill``) and SIGHUP (the terminal
 closed, an SSH connection lost) raise :class:`Terminated`, the same cleanup runs, the line
 names the signal and the exit code is 128 + its number (143, 129)."""

@@ -26,7 +26,7 @@ import numpy as np
 from uss_slam.core.classes import CLASS_NAMES, IGNORE_INDEX
 from uss_slam.core.errors import DataFormatError
 from uss_slam.core.paths import input_file
-from uss_slam.core.png_inflate import crc32, stored
+from uss_slam.core.png_inflate import MAX_PIXELS, crc32, stored
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 JPEG_SOI = b"\xff\xd8"
@@ -136,11 +136,6 @@ def _file_bytes(path: str | PathLike[str], what: str) -> bytes:
     except OSError as error:
         input_file(path, None, f"expected {what}")  # a missing file, a folder, a broken link
         raise DataFormatError(path, f"cannot read it ({error.strerror}); expected {what}") from None
-
-
-MAX_PIXELS = 1 << 30
-"""The most pixels an image may declare (OpenCV's own limit, ``CV_IO_MAX_IMAGE_PIXELS``): a
-header past it is refused before anything is decoded or allocated."""
 
 
 def declared_size(data: bytes) -> tuple[int, int] | None:

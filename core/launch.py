@@ -220,14 +220,12 @@ def working_folder_line(prog: str) -> str | None:
     """The error line of a Hydra app started in a working folder that was deleted (Hydra's
     own start would be a traceback), else None. The other scripts need it only for a relative
     path, which the path layer refuses by its key."""
-    if prog not in HYDRA_APPS:
+    from uss_slam.core.paths import working_folder_gone  # standard library only
+
+    if prog not in HYDRA_APPS or not working_folder_gone():
         return None
-    try:
-        os.getcwd()
-    except FileNotFoundError:
-        return (f"{prog}: error: the working folder no longer exists (it was deleted); run "
-                "from an existing folder")  # fmt: skip
-    return None
+    return (f"{prog}: error: the working folder no longer exists (it was deleted); run "
+            "from an existing folder")  # fmt: skip
 
 
 def out_of_memory(error: BaseException) -> bool:

@@ -33,8 +33,9 @@ _BLOCK = 0xFFFF
 _CHANNELS = {0: 1, 2: 3, 3: 1, 4: 2, 6: 4}
 """Samples per pixel of each PNG colour type (grey, RGB, palette, grey + alpha, RGBA)."""
 MAX_PIXELS = 1 << 30
-"""OpenCV's default ``CV_IO_MAX_IMAGE_PIXELS``: a larger image is left to OpenCV, which
-refuses it before decoding anything (its rows are never inflated here)."""
+"""The most pixels an image may declare (OpenCV's default ``CV_IO_MAX_IMAGE_PIXELS``): the
+image reader (:mod:`uss_slam.core.images`) refuses a header past it before anything is decoded
+or allocated, and a larger image is never inflated here."""
 MIN_SHARE = 16
 """Image data compressed to less than 1/16 of its size is left to libpng: zlib inflates such
 data (long repeats: label images, 4.4 kB for 307 kB of rows) at least as fast as copying it

@@ -21,7 +21,7 @@ weights once loaded: ``VmRSS``):
   until the median is chosen, and with ``slam.reuse_labels`` the labels of every frame (W × H
   bytes each);
 - **a worker process** with ``slam.prefetch_mode=process`` (its own imports and threads:
-  :data:`PROCESS_BYTES`), and its ring of shared memory (:data:`RING_BYTES_PER_PIXEL`);
+  :data:`PROCESS_BYTES`), and its ring of shared memory (:func:`~.frontend.process.ring_bytes`);
 - what the back end, OpenCV and the report's figures add whatever the frames
   (:data:`RUNTIME_BYTES`).
 
@@ -42,7 +42,7 @@ import cv2
 
 from uss_slam.core.resources import check_memory, estimate_line, gigabytes
 
-from .frontend.process import resolve_mode, ring_slots
+from .frontend.process import resolve_mode, ring_bytes
 
 FRAME_BYTES_PER_PIXEL = 12
 """A frame read ahead: RGB (3) + grey (1) + depth float32 (4) + labels (1) bytes per pixel, its
@@ -68,9 +68,6 @@ RESULT_BYTES_PER_FRAME = 64 * 2**10
 PROCESS_BYTES = 256 * 2**20
 """The frame worker process of ``slam.prefetch_mode=process``: its own imports and threads
 (measured with a comparison of three runs: 0.13 GB more over the process tree)."""
-RING_BYTES_PER_PIXEL = 9
-"""A frame in the worker process's shared ring: RGB (3) + grey (1) + depth float32 (4) + labels
-(1) bytes per pixel (:func:`~.frontend.process.ring_slots` frames of them)."""
 RUNTIME_BYTES = 128 * 2**20
 """What the run adds after the check whatever its frames: the back end's and OpenCV's buffers,
 the report's figures (measured: 50 real 640x480 frames peak 70 MB above the check with 37 MB
@@ -155,7 +152,7 @@ def estimate(cfg: Any, frames: int, size: tuple[int, int]) -> SlamMemory:
                                 f"slam.repeats={repeats}", "slam.repeats")  # fmt: skip
     mode = resolve_mode(str(slam.prefetch_mode), sample=False)  # auto: the process may run
     if mode == "process" and bool(slam.parallel) and prefetch > 0:
-        ring = ring_slots(prefetch, RING_BYTES_PER_PIXEL * pixels) * RING_BYTES_PER_PIXEL * pixels
+        ring = ring_bytes(h, w, prefetch)
         parts["the frame worker process"] = Part(
             PROCESS_BYTES + ring,
             f"slam.prefetch_mode={slam.prefetch_mode}",

@@ -151,19 +151,15 @@ class TumSequence:
     def load(self, index: int) -> Frame:
         """Read frame ``index`` from disk, checking formats and sizes (errors name the file)."""
         wall, cpu = time.perf_counter(), time.thread_time()
-        rgb, gray, labels = self.load_colour(index, labels=False)
-        depth = self.load_depth(index)
-        if self.records[index].labels_path is not None:
-            labels = self.load_frame_labels(index)
+        rgb, gray = self.load_colour(index)
+        depth, labels = self.load_depth_and_labels(index)
         spent = (time.perf_counter() - wall, time.thread_time() - cpu)
         return Frame(index, self.records[index].stamp, rgb, gray, depth, labels, spent)
 
-    def load_colour(
-        self, index: int, labels: bool = True
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-        """Frame ``index``'s ``(H, W, 3)`` uint8 RGB and ``(H, W)`` uint8 grey images, and with
-        ``labels`` its ``(H, W)`` uint8 labels (None without a labels folder): :meth:`load`
-        without the depth, which the frame reader process leaves to :meth:`load_depth`."""
+    def load_colour(self, index: int) -> tuple[np.ndarray, np.ndarray]:
+        """Frame ``index``'s ``(H, W, 3)`` uint8 RGB and ``(H, W)`` uint8 grey images:
+        :meth:`load` without :meth:`load_depth_and_labels`, which the frame reader process
+        leaves to the main process unless it is behind."""
         record = self.records[index]
         bgr = read_colour(record.rgb_path)
         if (bgr.shape[1], bgr.shape[0]) != self.image_size:  # the odd one out is named
@@ -172,10 +168,15 @@ class TumSequence:
                 f"image is {bgr.shape[1]}x{bgr.shape[0]} but the sequence's first frame is "
                 f"{self.image_size[0]}x{self.image_size[1]}",
             )
-        found = self.load_frame_labels(index) if labels and record.labels_path is not None else None
         rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
         gray = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
-        return rgb, gray, found
+        return rgb, gray
+
+    def load_depth_and_labels(self, index: int) -> tuple[np.ndarray, np.ndarray | None]:
+        """Frame ``index``'s depth (:meth:`load_depth`) and labels (:meth:`load_frame_labels`;
+        None without a labels folder)."""
+        labelled = self.records[index].labels_path is not None
+        return self.load_depth(index), self.load_frame_labels(index) if labelled else None
 
     def load_depth(self, index: int) -> np.ndarray:
         """Frame ``index``'s ``(H, W)`` float32 depth, metres (0 = no measurement), checked to be

@@ -432,11 +432,9 @@ def _serve(
 
         def prepare(k: int) -> tuple[_Images, Features, tuple[float, float]]:
             wall, cpu = time.perf_counter(), time.thread_time()
-            if _main_is_behind(free, behind):
-                images = _Images(k, *sequence.load_colour(k))
-                images.depth = sequence.load_depth(k)
-            else:  # the main process reads the depth and labels
-                images = _Images(k, *sequence.load_colour(k, labels=False))
+            images = _Images(k, *sequence.load_colour(k))
+            if _main_is_behind(free, behind):  # else the main process reads them
+                images.depth, images.labels = sequence.load_depth_and_labels(k)
             images.read_time = (time.perf_counter() - wall, time.thread_time() - cpu)
             wall, cpu = time.perf_counter(), time.thread_time()
             features = extractor(images.gray, None)  # the depth: sampled in the main process
@@ -517,7 +515,7 @@ class _Images:
     index: int
     rgb: np.ndarray
     gray: np.ndarray
-    labels: np.ndarray | None
+    labels: np.ndarray | None = None
     depth: np.ndarray | None = None
     read_time: tuple[float, float] = (0.0, 0.0)
 
@@ -536,6 +534,13 @@ def ring_slots(prefetch: int, slot_bytes: int, free: int | None = None) -> int:
     and half of ``free`` bytes (None: no bound), never fewer than ``prefetch`` (nor than 1)."""
     most = RING_BYTES if free is None else min(RING_BYTES, free // 2)
     return max(1, prefetch, min(RING_FRAMES, most // max(1, slot_bytes)))
+
+
+def ring_bytes(height: int, width: int, prefetch: int) -> int:
+    """Shared memory of the ring of a ``width`` x ``height`` sequence with labels (the most a
+    run asks for: :func:`ring_slots` without a ``/dev/shm`` bound, every part of a frame)."""
+    slot = _Layout(height, width, labels=True).slot_bytes
+    return ring_slots(prefetch, slot) * slot
 
 
 def shared_memory_free() -> int | None:

@@ -56,8 +56,8 @@ class LocalMappingConfig:
     second pass)."""
     second_iterations: int = ranged(0, min=0)
     """LM iterations after leaving the outliers out, without kernel (0 = none, ORB-SLAM3;
-    ORB-SLAM2: 10, skipped when a new keyframe interrupts it). The single pass halves local BA's
-    cost at the same ATE: docs/results/slam.md, "local BA on walking_rpy"."""
+    ORB-SLAM2: 10, skipped when a new keyframe interrupts it; the default's measurements:
+    docs/results/slam.md)."""
     culling: bool = True
     """Remove redundant keyframes after each local bundle adjustment."""
     redundancy: float = ranged(0.9, gt=0, max=1, needs="culling")

@@ -216,9 +216,7 @@ class SlamPipeline:
         depth, given = got.depth, got.labels
         if depth is None:  # the worker leaves them to this process unless this one is behind
             with timer("read"):
-                depth = self.sequence.load_depth(got.index)
-                if self.sequence.records[got.index].labels_path is not None:
-                    given = self.sequence.load_frame_labels(got.index)
+                depth, given = self.sequence.load_depth_and_labels(got.index)
         timer.add("read", *got.read_time)
         frame = Frame(got.index, got.stamp, got.rgb, got.gray, depth, given,
                       (timer.wall["read"], timer.cpu["read"]))  # fmt: skip

@@ -12,6 +12,7 @@ import pytest
 import torch
 import yaml
 from shared_helpers import data_overrides
+from train_helpers import RENDEZVOUS
 
 
 def _uss_train(*args: str, cwd: Path) -> subprocess.CompletedProcess:
@@ -46,10 +47,6 @@ def test_multirun_sweeps_discriminator_depth(uda_data: dict[str, Path], tmp_path
         assert len(convs) == n_layers
         assert state["iteration"] == 2
     assert (sweep / "multirun.yaml").is_file()
-
-
-RENDEZVOUS = ("MASTER_ADDR", "MASTER_PORT", "WORLD_SIZE", "RANK", "LOCAL_RANK", "NODE_RANK")
-"""torch.distributed's variables: a ``uss-train`` started with them set joins that group."""
 
 
 def _uss_train_ddp(*args: str, cwd: Path) -> subprocess.CompletedProcess:

@@ -17,7 +17,7 @@ from lightning.pytorch.loggers import TensorBoardLogger
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 from torch.utils.data import Dataset
 from torchvision import tv_tensors
-from train_helpers import fit_repeated, quiet_trainer
+from train_helpers import RENDEZVOUS, fit_repeated, quiet_trainer
 
 from uss_slam.core.errors import UssSlamError
 from uss_slam.datasets.datamodule import UDADataModule
@@ -178,8 +178,7 @@ def one_process_group() -> Iterator[None]:
     """Lightning's DDP in this process: its rendezvous variables (``MASTER_PORT``, ...) are
     undone and its process group destroyed afterwards, so that no later ``uss-train`` started
     from this process inherits a port this process still listens on."""
-    names = ("MASTER_ADDR", "MASTER_PORT", "WORLD_SIZE", "RANK", "LOCAL_RANK", "NODE_RANK")
-    before = {name: os.environ.get(name) for name in names}
+    before = {name: os.environ.get(name) for name in RENDEZVOUS}
     yield
     if torch.distributed.is_available() and torch.distributed.is_initialized():
         torch.distributed.destroy_process_group()

@@ -14,6 +14,10 @@ from lightning.pytorch import Callback, LightningModule, Trainer
 
 from uss_slam.testing.step_timing import RepeatedBatch
 
+RENDEZVOUS = ("MASTER_ADDR", "MASTER_PORT", "WORLD_SIZE", "RANK", "LOCAL_RANK", "NODE_RANK")
+"""torch.distributed's variables: Lightning's DDP sets them in ``os.environ``, and a
+``uss-train`` started with them set joins (or fails to start) that group."""
+
 CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
 
 # The train/* scalars of an iteration that trains the discriminators (AdaptSegNet, ADVENT).
