@@ -465,7 +465,7 @@ def draw_seed(cfg: DictConfig) -> None:
     if "seed" not in cfg or cfg.seed is not None:
         return
     with open_dict(cfg):
-        cfg.seed = secrets.randbelow(2**32)
+        cfg.seed = secrets.randbelow(MAX_SEED + 1)
     log.info("seed=null: drew seed %d for this run", cfg.seed)
 
 

@@ -14,13 +14,12 @@ one worker process does the reading and the extraction, ``workers`` threads of i
   (:meth:`FrontendProcess.take`);
 - the :class:`~.orb.Features`, extracted without depth, and the timings through a queue.
 
-The depth image (a third of a frame's reading) and the label image are read by whichever
-side has time: by the main process's prefetch threads, beside its main thread, unless the ring
-is (nearly) full of frames the main process has not taken yet; then the worker, which would
-otherwise wait for a free slot, reads them (:func:`_main_is_behind`). The main process samples the depth at the
-keypoints (:meth:`~.orb.OrbExtractor.with_depth`). The worker computes exactly what the threads
-compute (the same code on the same inputs), so the features, and the run's trajectory, are
-bit-identical in both modes, wherever the depth was read.
+The depth and label images (a third of a frame's reading) are read by whichever side has
+time: the main process's prefetch threads, unless the ring is (nearly) full of frames it has not
+taken; then the worker, which would otherwise wait for a slot, reads them (:func:`_main_is_behind`).
+The main process samples the depth at the keypoints (:meth:`~.orb.OrbExtractor.with_depth`).
+The worker computes what the threads compute (the same code on the same inputs): features and
+trajectory are bit-identical in both modes, wherever the depth was read.
 
 Starting: the worker is a child of Python's fork server (started once per process with this
 module imported, so that each run's worker starts in milliseconds), or a spawned interpreter
@@ -161,9 +160,8 @@ class FrontendProcess:
         behind: int | None = None,
         slots: int | None = None,
     ) -> None:
-        """``behind``: the worker reads a frame's depth and labels itself when at most this many slots of
-        the ring are free (None: :data:`BEHIND`; -1: never, ``slots``: always). ``slots``: the
-        ring's frames (None: :func:`ring_slots`)."""
+        """``behind``: the worker reads a frame's depth and labels itself when at most this
+        many slots are free (None: :data:`BEHIND`; -1: never); ``slots``: :func:`ring_slots`."""
         self.sequence = sequence
         self._closed = False
         self._lock = threading.Lock()
@@ -521,10 +519,9 @@ class _Images:
 
 
 RING_FRAMES = 32
-"""Frames the ring holds (:func:`ring_slots`). The main thread's work comes in bursts (a frame
-~7 ms, one with a new keyframe 40-150 ms of local BA or loop closing, GTSAM holding the GIL);
-with ``prefetch`` (4) slots the worker stopped in each burst (benchmarks/frame_ring_model.py:
-~52 frames/s with 4 slots, ~62 with 32)."""
+"""Frames the ring holds (:func:`ring_slots`): the main thread's work comes in bursts (a new
+keyframe's local BA or loop closing, GTSAM holding the GIL), and with ``prefetch`` (4) slots
+the worker stopped in each one (benchmarks/frame_ring_model.py)."""
 RING_BYTES = 96 * 2**20
 """At most this much shared memory for the ring (~34 frames of 640x480)."""
 
@@ -537,15 +534,13 @@ def ring_slots(prefetch: int, slot_bytes: int, free: int | None = None) -> int:
 
 
 def ring_bytes(height: int, width: int, prefetch: int) -> int:
-    """Shared memory of the ring of a ``width`` x ``height`` sequence with labels (the most a
-    run asks for: :func:`ring_slots` without a ``/dev/shm`` bound, every part of a frame)."""
+    """The most shared memory a ring of ``width`` x ``height`` frames takes (with labels)."""
     slot = _Layout(height, width, labels=True).slot_bytes
     return ring_slots(prefetch, slot) * slot
 
 
 def shared_memory_free() -> int | None:
-    """Bytes free in ``/dev/shm`` (64 MB in a Docker container by default: a worker writing
-    past it dies of SIGBUS), None where there is none."""
+    """Bytes free in ``/dev/shm`` (Docker: 64 MB; past it a worker dies of SIGBUS), or None."""
     try:
         stat = os.statvfs("/dev/shm")
     except OSError:
