@@ -43,6 +43,7 @@ from .products.semantic_map import MapConfig
 from .scoring.evaluation import EvalConfig
 from .scoring.repeats import Perturbation, perturbations
 from .systems.harness import SEGMENT_SCHEDULES, provisional_points_refused
+from .systems.semantic_thread import CARRY_TO_KEYFRAMES, carry_refused
 from .tracking.config import REMOVED as REMOVED_TRACKER_KEYS
 from .tracking.config import TrackerConfig
 from .variants import check_filters as check_variant_filters
@@ -132,6 +133,12 @@ class SlamConfig:
     this many pixels of the carried mask's dynamic region (the rest are mapped at once), and no
     keyframe wait; null = all of them, with the wait. An experiment, dropped by its
     pre-registered rule (docs/results/slam.md, "provisional map points near the carried mask")."""
+    carry_to_keyframes: str = ranged("none", choices=CARRY_TO_KEYFRAMES)
+    """With ``segment=thread``: the other keyframes each delivered mask is carried to (their
+    poses, the mask's depth), marking bad their map points inside it: ``none`` (its own
+    keyframe only), ``newer`` (also every keyframe made after it), ``since_previous`` (also
+    those made since the previous mask's keyframe). docs/results/slam.md ("each delivered mask
+    carried to the keyframes that got none")."""
     semantic_nice: int = ranged(0, min=0, max=19)
     """With ``segment=thread`` and a segmenter that really runs (the wall clock): the semantic
     thread's nice value above the process's (Linux), so that tracking takes the cores first and
@@ -354,9 +361,12 @@ def check(cfg: DictConfig, overrides: Sequence[str] = ()) -> RunPlan:
     build_filters(known, params)  # the parameters of unused filters are checked too
     _check_segmenter(cfg.segmenter)
     _check_latency(cfg.segmenter, str(cfg.segment))
-    line = provisional_points_refused(bool(cfg.slam.provisional_points), str(cfg.segment))
-    if line is not None:
-        raise UssSlamError(line)
+    for line in (
+        provisional_points_refused(bool(cfg.slam.provisional_points), str(cfg.segment)),
+        carry_refused(str(cfg.slam.carry_to_keyframes), str(cfg.segment)),
+    ):
+        if line is not None:
+            raise UssSlamError(line)
     return RunPlan(orb, tracker, semantic_map, evaluation, params, runs, backend, repeats)
 
 

@@ -46,7 +46,9 @@ from ..tracking.tracker import Tracker, TrackResult
 from .semantic_thread import (
     CarriedMask,
     SemanticThread,
+    carry_targets,
     hold_new_points,
+    mark_carried,
     mark_dynamic_points,
     settle_provisional,
 )
@@ -118,6 +120,11 @@ class FrameLoop:
     """With ``provisional_points`` (``slam.provisional_border_px``): hold back only the new
     points whose keypoint lies within this many pixels of the carried mask's dynamic region
     (:meth:`near_carried`), without the keyframe gate; None: all of them, with the gate."""
+    carry_to_keyframes: str = "none"
+    """With the semantic thread (``slam.carry_to_keyframes``): the other keyframes each delivered
+    mask is carried to, to mark their points too (:func:`~.semantic_thread.carry_targets`)."""
+    last_masked: int | None = None
+    """The keyframe id of the last mask delivered (None: none yet)."""
     provisional: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     """The (P,) ids of the map points held back and not judged by a mask yet."""
     pending: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
@@ -163,6 +170,7 @@ class FrameLoop:
         if self.semantic is not None and kf is not None:
             if first and labels is not None:  # the map starts from a masked frame
                 self.carried = CarriedMask.of(kf.id, labels, frame.depth, self.tracker.k)
+                self.last_masked = kf.id
             else:
                 self.semantic.request(frame, kf.id)  # returns at once
                 if self.provisional_points:
@@ -257,16 +265,9 @@ class FrameLoop:
         if border is None:
             return None
         ctx = filters.ctx
-        shape = ctx.frame.gray.shape
-        regions = [
-            f.input_region(ctx.frame, ctx.labels)
-            for f in self.chain.filters
-            if f.needs_labels and f.masks_input
-        ]
-        regions = [r for r in regions if r is not None]
-        if not regions:
-            return np.zeros(shape, bool)
-        region = np.logical_or.reduce(regions)
+        region = self.dynamic_region(ctx.frame, ctx.labels)
+        if region is None:
+            return np.zeros(ctx.frame.gray.shape, bool)
         if border == 0 or not region.any():
             return region
         # pixels within ``border`` (Euclidean) of the region, at any border in O(H W)
@@ -294,14 +295,8 @@ class FrameLoop:
                     continue
                 self.counts["masks"] += 1
                 slam_map = self.map
-                regions = [
-                    f.input_region(got.frame, got.labels)
-                    for f in self.chain.filters
-                    if f.needs_labels and f.masks_input
-                ]
-                regions = [r for r in regions if r is not None]
-                if regions:
-                    region = np.logical_or.reduce(regions)
+                region = self.dynamic_region(got.frame, got.labels)
+                if region is not None:
                     self.counts["points_marked"] += mark_dynamic_points(slam_map, got.kf_id, region)
                     if self.provisional_points:
                         self.provisional, cleared, dropped = settle_provisional(
@@ -317,6 +312,32 @@ class FrameLoop:
                 self.carried = CarriedMask.of(
                     got.kf_id, got.labels, got.frame.depth, self.tracker.k
                 )
+                self.carry_to_others(got.frame, got.kf_id)
+
+    def dynamic_region(self, frame: Frame, labels: np.ndarray | None) -> np.ndarray | None:
+        """``(H, W)`` bool: the union of the dynamic regions that the filters which mask their
+        input find in ``frame``'s ``labels`` (H, W); None when none of them does."""
+        regions = [
+            f.input_region(frame, labels)
+            for f in self.chain.filters
+            if f.needs_labels and f.masks_input
+        ]
+        regions = [r for r in regions if r is not None]
+        return np.logical_or.reduce(regions) if regions else None
+
+    def carry_to_others(self, frame: Frame, kf_id: int) -> None:
+        """The mask just delivered for keyframe ``kf_id`` (``self.carried``) carried to the
+        keyframes ``carry_to_keyframes`` names, marking their points inside it
+        (:func:`~.semantic_thread.mark_carried`); counted as ``keyframes_carried`` and
+        ``points_marked_carried``."""
+        targets = carry_targets(self.map, kf_id, self.last_masked, self.carry_to_keyframes)
+        self.last_masked = kf_id
+        if not targets or self.carried is None:
+            return
+        self.counts["keyframes_carried"] += len(targets)
+        self.counts["points_marked_carried"] += mark_carried(
+            self.map, self.carried, targets, lambda labels: self.dynamic_region(frame, labels)
+        )
 
     def map_keyframe(
         self, frame: Frame, filters: FrameFilters, result: TrackResult, keyframe: bool | None

@@ -158,6 +158,7 @@ class SlamPipeline:
         provisional_points: bool = False,
         provisional_border_px: int | None = None,
         semantic_nice: int = 0,
+        carry_to_keyframes: str = "none",
     ) -> None:
         """``sampling_seed``: perturbs the tracker's RANSAC sampling (a repeated run,
         :mod:`.repeats`); None = the deterministic run. ``prefetch_mode``: ``"thread"``,
@@ -184,6 +185,7 @@ class SlamPipeline:
         self.provisional_points = provisional_points
         self.provisional_border_px = provisional_border_px
         self.semantic_nice = semantic_nice
+        self.carry_to_keyframes = carry_to_keyframes
         self.progress = progress
         self.description = description or sequence.path.name
         self.local_ba = local_ba
@@ -304,6 +306,7 @@ class SlamPipeline:
             timer, tracker, slam_map, chain, products, mapper, closer, segment_now, semantic,
             provisional_points=self.provisional_points,
             provisional_border_px=self.provisional_border_px,
+            carry_to_keyframes=self.carry_to_keyframes,
         )  # fmt: skip
 
     def _frames(self) -> tuple[frontend_process.FrontendProcess | None, Iterator[Prepared]]:
@@ -405,7 +408,10 @@ class SlamPipeline:
             "points_marked": loop.counts["points_marked"],
             **{
                 k: loop.counts[k]
-                for k in ("points_held", "points_cleared", "points_dropped", "keyframes_gated")
+                for k in (
+                    "points_held", "points_cleared", "points_dropped", "keyframes_gated",
+                    "keyframes_carried", "points_marked_carried",
+                )  # fmt: skip
                 if k in loop.counts
             },
         }

@@ -8,7 +8,9 @@ Per frame (:class:`~.frame_loop.FrameLoop`): the masks that finished since the l
 taken (:meth:`SemanticThread.poll`, never blocking); each one marks the map points its keyframe
 sees inside the dynamic region as bad (:func:`mark_dynamic_points`: tracking no longer matches
 them, so a person mapped before its mask came back stops steering the pose) and becomes the
-mask that is carried (:class:`CarriedMask`); once the frame is tracked, the carried labels
+mask that is carried (:class:`CarriedMask`) (with ``slam.carry_to_keyframes``, also to the
+keyframes that got no mask of their own, marking their points: :func:`mark_carried`); once the
+frame is tracked, the carried labels
 (:meth:`CarriedMask.labels_at`: the keyframe's labelled pixels, back-projected with its depth,
 holes filled by :func:`fill_depth`, and projected with the frame's tracked pose) feed the filters that need labels, and the pose is
 refined without what they flagged (the ``late`` stage of :mod:`..filters.chain`). A new keyframe
@@ -37,6 +39,7 @@ import os
 import threading
 import time
 import weakref
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import cv2
@@ -333,6 +336,57 @@ def mark_dynamic_points(slam_map: SlamMap, kf_id: int, region: np.ndarray) -> in
     ids = ids[~bad[ids]]
     bad[ids] = True
     return len(ids)
+
+
+CARRY_TO_KEYFRAMES = ("none", "newer", "since_previous")
+"""``slam.carry_to_keyframes``: which other keyframes a delivered mask is carried to
+(:func:`carry_targets`)."""
+
+
+def carry_refused(reach: str, segment: str) -> str | None:
+    """One line when ``slam.carry_to_keyframes`` asks for carried masks with a ``segment``
+    schedule other than ``thread`` (the only one with delivered masks), else None."""
+    if reach != "none" and segment != "thread":
+        return f"slam.carry_to_keyframes={reach} needs segment=thread (got segment={segment})"
+    return None
+
+
+def carry_targets(
+    slam_map: SlamMap, kf_id: int, previous: int | None, reach: str
+) -> list[int]:
+    """The good keyframes, other than ``kf_id``, whose points keyframe ``kf_id``'s delivered
+    mask also marks: ``none``: no other; ``newer``: every keyframe made after it;
+    ``since_previous``: also those made after ``previous`` (the keyframe of the mask delivered
+    before, None: from the first keyframe on), the ones the thread skipped before it."""
+    if reach not in CARRY_TO_KEYFRAMES:
+        raise ValueError(f"carry_to_keyframes: expected one of {CARRY_TO_KEYFRAMES}, got {reach!r}")
+    if reach == "none":
+        return []
+    first = kf_id + 1 if reach == "newer" else (0 if previous is None else previous + 1)
+    return [
+        kf.id for kf in slam_map.keyframes[first:] if not kf.bad and kf.id != kf_id
+    ]
+
+
+def mark_carried(
+    slam_map: SlamMap,
+    carried: CarriedMask,
+    targets: list[int],
+    region_of: Callable[[np.ndarray], np.ndarray | None],
+) -> int:
+    """Carry ``carried`` (a delivered keyframe mask) to each keyframe in ``targets`` by their
+    map poses now (:meth:`CarriedMask.labels_at`), and mark bad the map points each observes
+    inside ``region_of(labels)`` ((H, W) bool dynamic pixels of the carried ``(H, W)`` labels,
+    None: none), as its own mask would (:func:`mark_dynamic_points`); returns how many good
+    points were marked."""
+    marked = 0
+    pose_kf = slam_map.pose_wc(carried.kf_id)
+    for target in targets:
+        labels = carried.labels_at(invert(slam_map.pose_wc(target)) @ pose_kf)
+        region = region_of(labels)
+        if region is not None and region.any():
+            marked += mark_dynamic_points(slam_map, target, region)
+    return marked
 
 
 PROVISIONAL_DEPTH = 0.05
