@@ -29,7 +29,9 @@ same-run ratios: the speed under the load of two parallel jobs.
 ``--prefetch-mode readers`` runs the worker process with ``slam.workers`` (2) reading threads
 and with one (``process/1``; ``slam.workers=1``, which the ``uss-slam`` process's own prefetch
 threads then use too) in turns: the same trajectories, one thread fewer taking turns under the
-worker's GIL.
+worker's GIL. ``--prefetch-mode reader-threads`` runs the worker process with 2 reading threads
+and with ``slam.reader_threads=1`` (``process:1``: the worker process's threads alone; the
+``uss-slam`` process's prefetch threads stay ``slam.workers``) in turns.
 
 ``--orbslam3 VOCAB`` also runs the real ORB-SLAM3 on the same frames in the same command
 (``uss-slam system=orbslam3 system.repeats=--repeats system.realtime=false``: as fast as it
@@ -71,7 +73,8 @@ def main() -> None:
     )
     parser.add_argument("--data", type=Path, default=Path("outputs/bench/slam"),
                         help="folder of rendered sequences (rendered there on first use)")  # fmt: skip
-    parser.add_argument("--preset", default="walking_xyz", help="uss-synth preset (seed 0)")
+    parser.add_argument("--preset", default="walking_xyz", help="uss-synth preset")
+    parser.add_argument("--seed", type=int, default=0, help="uss-synth seed of the sequence")
     parser.add_argument("--frames", type=int, default=300, help="frames of the sequence")
     parser.add_argument("--size", default="640x480", help="WxH")
     parser.add_argument("--repeats", type=int, default=3, help="whole-pipeline runs (median)")
@@ -97,7 +100,7 @@ def main() -> None:
     if args.jobs < 1:
         raise SystemExit(f"--jobs: expected an integer >= 1, got {args.jobs}")
     size = tuple(int(v) for v in args.size.lower().split("x"))
-    path = sequence_path(args.data, args.preset, args.frames, size, 0)
+    path = sequence_path(args.data, args.preset, args.frames, size, args.seed)
     if args.jobs > 1:
         from joblib import Parallel, delayed
 
@@ -203,8 +206,10 @@ PAIRS = {
     "both": ["thread", "process"],
     "defaults": ["before", "auto"],
     "readers": ["process", "process/1"],
+    "reader-threads": ["process", "process:1"],
 }
-"""Two modes in turns in every repeat (``MODE/N``: ``MODE`` with ``slam.workers=N``)."""
+"""Two modes in turns in every repeat (``MODE/N``: ``MODE`` with ``slam.workers=N``;
+``MODE:N``: ``MODE`` with ``slam.reader_threads=N``)."""
 
 WORKER_MODULES = {"read", "segmentation", "orb"}
 """Modules of the prefetch threads (and of the worker process): the rest is the main thread's."""
@@ -214,6 +219,7 @@ def timed_run(seq: TumSequence, args: argparse.Namespace, mode: str) -> dict:
     """One whole-pipeline run: frames/s, per-module wall and CPU ms per frame, the CPU ms per
     frame of the main thread, of this process and of the worker process, and the CPU-bound
     rate on two idle cores."""
+    mode, _, reader_threads = mode.partition(":")
     mode, _, readers = mode.partition("/")
     pipeline = SlamPipeline(
         seq,
@@ -224,6 +230,7 @@ def timed_run(seq: TumSequence, args: argparse.Namespace, mode: str) -> dict:
         loop_closing=args.loop_closing,
         prefetch_mode="thread" if mode == "before" else mode,
         **({"workers": int(readers)} if readers else {}),
+        **({"reader_threads": int(reader_threads)} if reader_threads else {}),
     )
     workers: list[frontend_process.FrontendProcess | None] = []
     start = frontend_process.start

@@ -103,6 +103,10 @@ class SlamConfig:
     """Background threads (PNG decoding releases the GIL); at most 4 per CPU."""
     parallel: bool = True
     """Segment and extract ORB in those threads too (overlaps tracking)."""
+    reader_threads: Optional[int] = ranged(None, min=1, max=MAX_THREADS)  # noqa: UP045
+    """Threads of the frame reader process (``prefetch_mode=process``) that read colour images
+    and extract ORB; None: ``workers``. Only that process's: the prefetch threads of this
+    process (the depth and labels, ``segment=every_frame``'s segmenter) stay ``workers``."""
     prefetch_mode: str = ranged("auto", choices=PREFETCH_MODES)
     """thread: read and extract ORB in this process's prefetch threads; process: in a worker
     process (its own ``workers`` threads), so that the Python work there does not take turns

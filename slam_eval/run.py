@@ -155,6 +155,7 @@ def _run_harness(
             semantic_map=plan.semantic_map,
             prefetch=int(slam.prefetch),
             workers=int(slam.workers),
+            reader_threads=slam.reader_threads,
             parallel=bool(slam.parallel),
             prefetch_mode=str(slam.prefetch_mode),
             **plan.backend,

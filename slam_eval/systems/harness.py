@@ -145,6 +145,7 @@ class SlamPipeline:
         semantic_map: MapConfig | None = None,
         prefetch: int = 4,
         workers: int = 2,
+        reader_threads: int | None = None,
         parallel: bool = True,
         prefetch_mode: str = "thread",
         segment: str = "every_frame",
@@ -164,7 +165,8 @@ class SlamPipeline:
         :mod:`.repeats`); None = the deterministic run. ``prefetch_mode``: ``"thread"``,
         ``"process"`` (reading and ORB extraction in a worker process, :mod:`..frontend.process`;
         with ``parallel`` and ``prefetch`` > 0 only) or ``"auto"`` (the process where the run
-        has a core to spare: :func:`..frontend.process.resolve_mode`)."""
+        has a core to spare: :func:`..frontend.process.resolve_mode`); ``reader_threads``: the
+        worker process's reading and extracting threads (None: ``workers``)."""
         _check_settings(sequence, segmenter, filters, prefetch_mode, segment, provisional_points)
         self.sequence = sequence
         self.segmenter = segmenter
@@ -176,6 +178,7 @@ class SlamPipeline:
             load_pyoctomap()  # a missing extra is one clear line before any frame
         self.prefetch = prefetch
         self.workers = workers
+        self.reader_threads = reader_threads
         self.parallel = parallel and prefetch > 0
         self.prefetch_mode = prefetch_mode
         """As given; ``auto`` is resolved as each run starts (:attr:`mode_used`)."""
@@ -314,8 +317,9 @@ class SlamPipeline:
         "process"``, or serially), and that worker (None without one)."""
         worker = None
         if self.parallel and frontend_process.resolve_mode(self.prefetch_mode) == "process":
+            threads = self.workers if self.reader_threads is None else self.reader_threads
             worker = frontend_process.start(
-                self.sequence, self.extractor.config, self.prefetch, self.workers
+                self.sequence, self.extractor.config, self.prefetch, threads
             )
         self.mode_used = "thread" if worker is None else "process"
         if worker is not None:

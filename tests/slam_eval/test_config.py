@@ -41,6 +41,8 @@ def test_the_shipped_config_passes() -> None:
         (["sequence.start=-1"], "sequence.start: expected an integer >= 0, got -1"),
         (["sequence.max_frames=0"], "sequence.max_frames: expected an integer >= 2 or null, got 0"),
         (["slam.prefetch=-1"], "slam.prefetch: expected an integer >= 0 and <= 256, got -1"),
+        (["slam.reader_threads=0"],
+         "slam.reader_threads: expected an integer >= 1 and <= 8 or null, got 0"),
         (["slam.prefetch_mode=fork"],
          "slam.prefetch_mode: expected one of 'auto', 'thread', 'process', got 'fork'"),
         (["slam.filter_params.object.classes=person"],

@@ -29,6 +29,7 @@ from uss_slam.slam_eval.frontend.process import RING_BYTES, FrontendProcess, rin
 from uss_slam.slam_eval.run import run
 from uss_slam.slam_eval.segmenters.base import LabelsSegmenter
 from uss_slam.slam_eval.sequence import TumSequence
+from uss_slam.slam_eval.systems import harness
 from uss_slam.slam_eval.systems.harness import RunResult, SlamPipeline
 
 
@@ -79,6 +80,24 @@ def started(monkeypatch: pytest.MonkeyPatch) -> list:
 
     monkeypatch.setattr(frontend_process, "start", recording)
     return calls
+
+
+def test_reader_threads_sizes_the_worker_process_alone(synthetic_sequence, monkeypatch) -> None:
+    """``reader_threads`` is the worker process's thread count; this process's prefetch threads
+    (depth, labels, segmentation) stay ``workers``; the run is the same."""
+    path = synthetic_sequence(frames=12)
+    counts: list[tuple[str, int]] = []
+    real_start, real_ahead = frontend_process.start, harness.ahead
+    monkeypatch.setattr(frontend_process, "start",
+                        lambda *a: counts.append(("reader", a[3])) or real_start(*a))  # fmt: skip
+    monkeypatch.setattr(harness, "ahead",
+                        lambda *a: counts.append(("prefetch", a[3])) or real_ahead(*a))  # fmt: skip
+    one = _pipeline(path, "process", workers=3, reader_threads=1).run()
+    assert counts == [("reader", 1), ("prefetch", 3)]
+    default = _pipeline(path, "process", workers=3).run()
+    assert counts[2:] == [("reader", 3), ("prefetch", 3)]
+    _assert_same_run(one, default)
+    _no_worker_left()
 
 
 @pytest.mark.parametrize("behind", [-1, 3])
