@@ -43,12 +43,14 @@ from fresh_setups import HIDDEN_OUTPUTS, SETUPS, build_world, snapshot, stop_gro
 from fresh_setups3 import THIRD
 from fresh_setups4 import FOURTH
 from fresh_setups5 import FIFTH
+from fresh_setups6 import SIXTH
 
 from uss_slam.testing.machine import cpu_model
 
 SETUPS.update(THIRD)
 SETUPS.update(FOURTH)
 SETUPS.update(FIFTH)
+SETUPS.update(SIXTH)
 
 HERE = Path(__file__).resolve().parent
 CASES = HERE / "fresh_cases.txt"
@@ -168,7 +170,7 @@ def _run(case: Case, argv: list[str], folder: Path,
             proc.wait(timeout=float(delay))
             late = True
         except subprocess.TimeoutExpired:
-            proc.send_signal(SIGNALS[kind])
+            _signal(proc, kind)
     try:
         _, err = proc.communicate(timeout=TIMEOUT)
         code: int | None = proc.returncode
@@ -181,16 +183,44 @@ def _run(case: Case, argv: list[str], folder: Path,
     return code, err, time.perf_counter() - start, late
 
 
+def _signal(proc: subprocess.Popen, kind: str) -> None:
+    """Send a case's signal: to the script alone (``int``, ``term``, ``hup``), to its whole
+    process group as a terminal does (``gint``: Ctrl-C reaches every process of the foreground
+    job, a script's workers included; ``gterm``), Ctrl-C twice 0.5 s apart (``int2``), or
+    Ctrl-Z then ``fg`` (``stop``: the group stopped for 3 s, then continued; SIGSTOP, as a
+    terminal's SIGTSTP is discarded for a group without a controlling terminal)."""
+    try:
+        if kind == "stop":
+            os.killpg(proc.pid, signal.SIGSTOP)
+            time.sleep(3)
+            os.killpg(proc.pid, signal.SIGCONT)
+        elif kind.startswith("g"):
+            os.killpg(proc.pid, SIGNALS[kind])
+        else:
+            proc.send_signal(SIGNALS[kind])
+            if kind == "int2":
+                time.sleep(0.5)
+                if proc.poll() is None:
+                    proc.send_signal(SIGNALS[kind])
+    except ProcessLookupError:  # it ended in between
+        pass
+
+
 LIMITS = {"ULIMIT_V": resource.RLIMIT_AS, "ULIMIT_F": resource.RLIMIT_FSIZE,
           "ULIMIT_N": resource.RLIMIT_NOFILE}  # fmt: skip
 """A case's ``env`` keys that set a resource limit of its process (``ulimit -v / -f / -n``)."""
 PSEUDO = ("UMASK", "CWD_GONE", "STDOUT")
 """A case's ``env`` keys that set the shell's state: ``UMASK=027``; ``CWD_GONE=1``: the working
 folder is deleted as the script starts; ``STDOUT=full`` (``/dev/full``) or ``closed``."""
-SIGNALS = {"int": signal.SIGINT, "term": signal.SIGTERM, "hup": signal.SIGHUP}
+SIGNALS = {"int": signal.SIGINT, "term": signal.SIGTERM, "hup": signal.SIGHUP,
+           "gint": signal.SIGINT, "gterm": signal.SIGTERM, "int2": signal.SIGINT,
+           "stop": signal.SIGSTOP}  # fmt: skip
 SIGNALLED = tuple(f"{k}:" for k in SIGNALS)
 """``expect`` of a case that sends a signal after N s: ``int:N`` (Ctrl-C), ``term:N`` (kill),
-``hup:N`` (the terminal closed: the same contract as SIGTERM, exit 129)."""
+``hup:N`` (the terminal closed: the same contract as SIGTERM, exit 129), ``gint:N`` /
+``gterm:N`` (to the whole process group, as a terminal's Ctrl-C or ``kill -- -PGID``),
+``int2:N`` (Ctrl-C pressed twice), ``stop:N`` (Ctrl-Z, then ``fg``: held to ``ok``'s contract)."""
+INTERRUPTED = tuple(f"{k}:" for k in SIGNALS if k != "stop")
 
 
 def classify(case: Case, code: int | None, err: str, before: dict, after: dict,
@@ -208,7 +238,7 @@ def classify(case: Case, code: int | None, err: str, before: dict, after: dict,
         return "bad", "traceback"
     if code < 0:
         return "bad", f"killed by signal {-code}"
-    if case.expect.startswith(SIGNALLED):
+    if case.expect.startswith(INTERRUPTED):
         if lost:
             return "bad", f"earlier output changed or gone: {lost[:2]}"
         want = 128 + SIGNALS[case.expect.split(":")[0]]
@@ -220,6 +250,8 @@ def classify(case: Case, code: int | None, err: str, before: dict, after: dict,
         if left:
             return "poor", f"left behind: {left[:2]}"
         return "good", ""
+    if case.expect.startswith("stop:"):  # stopped and continued: the run goes on as usual
+        case = Case(case.id, case.prog, "ok", case.setup, case.env, case.says, case.argv)
     if lost and case.expect in ("ok", "warn") and code == 0 and case.prog in OWN_FOLDERS:
         # a rerun into the script's own output folder replaces the files it writes there
         # (docs/errors.md, "Rerunning into an output"): a file changed is its job, one gone not
@@ -266,6 +298,12 @@ LONG = {
 """Path parts the cases' templates may name besides the world's."""
 
 
+TUM = Path(os.environ.get("USS_FRESH_TUM",
+                         "/work/shared/data/tum/rgbd_dataset_freiburg1_rpy_frames401-523"))  # fmt: skip
+"""A real TUM RGB-D sequence (``{tum}``: rgb/, depth/, no labels, no intrinsics.yaml), read only;
+``{R}`` is the code's own folder (its ``configs/``)."""
+
+
 def run_case(case: Case, world: dict[str, str], work: Path) -> Outcome:
     folder = work / case.id
     if folder.exists():
@@ -274,7 +312,7 @@ def run_case(case: Case, world: dict[str, str], work: Path) -> Outcome:
                 p.chmod(0o755)
         shutil.rmtree(folder)
     folder.mkdir(parents=True)
-    paths = {**world, "C": str(folder), **LONG}
+    paths = {**world, "C": str(folder), "R": str(HERE.parent), "tum": str(TUM), **LONG}
     started = [SETUPS[name](folder, world) for name in case.setup]
     busy = [p for p in started if isinstance(p, subprocess.Popen)]
     before = snapshot(folder)

@@ -113,3 +113,44 @@ def test_stop_group_signals_then_kills_what_ignores_it(fresh) -> None:
     assert deaf.returncode == -signal.SIGKILL
     stop_group(deaf)  # an ended one: nothing to do
     deaf.stdout.close()
+
+
+def test_a_stopped_and_continued_case_is_held_to_oks_contract(fresh) -> None:
+    """``stop:N`` (Ctrl-Z, then ``fg``): the run must end as a valid input does."""
+    case = fresh.Case("c", "uss-slam", "stop:3", (), {}, (), "out_dir={C}/o")
+    assert fresh.classify(case, 0, "", {}, {"o/run.json": "x"}, {})[0] == "good"
+    assert fresh.classify(case, 130, "uss-slam: interrupted", {}, {}, {})[0] == "poor"
+
+
+@pytest.mark.parametrize("kind", ["gint", "gterm", "int2"])
+def test_a_group_or_repeated_signal_is_held_to_the_interrupt_contract(fresh, kind) -> None:
+    case = fresh.Case("c", "uss-slam", f"{kind}:4", (), {}, (), "out_dir={C}/o")
+    want = 143 if kind == "gterm" else 130
+    line = "uss-slam: interrupted" + (" (SIGTERM)" if kind == "gterm" else "")
+    assert fresh.classify(case, want, line, {}, {}, {})[0] == "good"
+    assert fresh.classify(case, 1, line, {}, {}, {})[0] == "poor"
+
+
+CHILD = """
+import signal, sys, time
+seen = []
+signal.signal(signal.SIGINT, lambda *a: seen.append(1))
+print("ready", flush=True)
+end = time.monotonic() + 2.5
+while time.monotonic() < end:
+    time.sleep(0.05)
+sys.exit(len(seen))
+"""
+
+
+@pytest.mark.parametrize(("kind", "code"), [("int2", 2), ("gint", 1), ("stop", 0)])
+def test_the_runner_delivers_each_kind_of_signal(fresh, kind, code) -> None:
+    """``int2`` presses Ctrl-C twice, ``gint`` once to the group, ``stop`` none (SIGSTOP, then
+    SIGCONT: the child runs on and ends as it would)."""
+    import subprocess
+
+    proc = subprocess.Popen([sys.executable, "-c", CHILD], stdout=subprocess.PIPE, text=True,
+                            start_new_session=True)  # fmt: skip
+    assert proc.stdout.readline().strip() == "ready"
+    fresh._signal(proc, kind)
+    assert proc.wait(timeout=30) == code
