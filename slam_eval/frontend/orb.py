@@ -20,6 +20,7 @@ from __future__ import annotations
 import itertools
 import math
 from dataclasses import dataclass, fields, replace
+from operator import attrgetter
 
 import cv2
 import numpy as np
@@ -193,22 +194,22 @@ class OrbExtractor:
         edges = np.diff(grid, axis=1)
         run_rows, run_starts = np.nonzero(edges == 1)
         _, run_ends = np.nonzero(edges == -1)
-        found: list[tuple[cv2.KeyPoint, ...]] = []
-        boxes: list[tuple[int, int, int, int]] = []
-        for gy, gx0, gx1 in zip(
-            run_rows.tolist(), run_starts.tolist(), run_ends.tolist(), strict=True
-        ):
-            x0, y0 = lo_x + gx0 * cell, lo_y + gy * cell
-            x1, y1 = min(lo_x + gx1 * cell, hi_x), min(y0 + cell, hi_y)
-            corners = self._fast_lo.detect(image[y0 - 3 : y1 + 3, x0 - 3 : x1 + 3])
-            if corners:
-                found.append(corners)
-                boxes.append((x0, y0, x1, y1))
-        if found:
-            box = np.repeat(np.array(boxes, np.float32), [len(c) for c in found], axis=0)
+        # Each run's box (x0, y0, x1, y1), its corners detected on the box grown by 3 px.
+        all_boxes = np.empty((len(run_rows), 4), np.int64)
+        all_boxes[:, 0] = lo_x + run_starts * cell
+        all_boxes[:, 1] = lo_y + run_rows * cell
+        all_boxes[:, 2] = np.minimum(lo_x + run_ends * cell, hi_x)
+        all_boxes[:, 3] = np.minimum(all_boxes[:, 1] + cell, hi_y)
+        detect = self._fast_lo.detect
+        found = [
+            detect(image[y0 - 3 : y1 + 3, x0 - 3 : x1 + 3]) for x0, y0, x1, y1 in all_boxes.tolist()
+        ]
+        counts = [len(corners) for corners in found]
+        if any(counts):
+            box = np.repeat(all_boxes.astype(np.float32), counts, axis=0)
             flat = list(itertools.chain.from_iterable(found))
             extra = cv2.KeyPoint_convert(flat).reshape(-1, 2) + (box[:, :2] - np.float32(3))
-            extra_score = np.array([k.response for k in flat], dtype=np.float32)
+            extra_score = _responses(flat)
             keep = (
                 (extra[:, 0] >= box[:, 0])
                 & (extra[:, 0] < box[:, 2])
@@ -282,25 +283,23 @@ class OrbExtractor:
         if len(xy) == 0:
             return Features.empty()
         sizes = (2 * HALF_PATCH + 1) * self.scales[octave]
-        keypoints = [
-            cv2.KeyPoint(x, y, s, a, r, o, k)
-            for k, (x, y, s, a, r, o) in enumerate(
-                zip(
-                    xy[:, 0].tolist(),
-                    xy[:, 1].tolist(),
-                    sizes.tolist(),
-                    angle.tolist(),
-                    response.tolist(),
-                    octave.tolist(),
-                    strict=True,
-                )
+        keypoints = list(  # class_id k: the keypoint's row
+            map(
+                cv2.KeyPoint,
+                xy[:, 0].tolist(),
+                xy[:, 1].tolist(),
+                sizes.tolist(),
+                angle.tolist(),
+                response.tolist(),
+                octave.tolist(),
+                range(len(xy)),
             )
-        ]
+        )
         described, descriptors = self._orb.compute(gray, keypoints)
         if descriptors is None or not described:
             return Features.empty()
         # OpenCV may reorder (by level) or drop keypoints; class_id says which is which.
-        kept = np.array([k.class_id for k in described], dtype=np.int64)
+        kept = np.fromiter(map(_CLASS_ID, described), np.int64, len(described))
         if len(kept) != len(xy) or np.any(kept[1:] < kept[:-1]):
             order = np.argsort(kept, kind="stable")
             kept, descriptors = kept[order], descriptors[order]
@@ -371,8 +370,15 @@ def _fast(
     if not found:
         return np.zeros((0, 2), np.float32), np.zeros(0, np.float32)
     xy = cv2.KeyPoint_convert(found).reshape(-1, 2) + np.float32([ox, oy])
-    score = np.array([k.response for k in found], dtype=np.float32)
-    return xy, score
+    return xy, _responses(found)
+
+
+_RESPONSE, _CLASS_ID = attrgetter("response"), attrgetter("class_id")
+
+
+def _responses(keypoints: list[cv2.KeyPoint] | tuple[cv2.KeyPoint, ...]) -> np.ndarray:
+    """``(N,)`` float32 FAST scores of OpenCV keypoints (no Python frame per keypoint)."""
+    return np.fromiter(map(_RESPONSE, keypoints), np.float32, len(keypoints))
 
 
 def _argsort_by_position(key: np.ndarray) -> np.ndarray:

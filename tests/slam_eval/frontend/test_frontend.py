@@ -209,3 +209,25 @@ def test_config_validation() -> None:
         ValueError, match=r"min_depth: expected a number < max_depth \(4.0\), got 5.0"
     ):
         OrbConfig(min_depth=5.0, max_depth=4.0)
+
+
+def test_descriptors_are_opencvs_on_the_keypoints_built_one_by_one(texture) -> None:
+    """The keypoints handed to OpenCV's rBRIEF (built without a Python frame each) are those
+    built one by one: the same descriptors, rows in keypoint order."""
+    gray = texture((640, 480), seed=9)
+    ex = OrbExtractor(OrbConfig(), CAM)
+    features = ex(gray, None)
+    xy, octave, angle, response = ex.detect(gray)
+    sizes = 31 * ex.scales[octave]
+    keypoints = [
+        cv2.KeyPoint(float(x), float(y), float(s), float(a), float(r), int(o), k)
+        for k, ((x, y), s, a, r, o) in enumerate(
+            zip(xy, sizes, angle, response, octave, strict=True)
+        )
+    ]
+    described, descriptors = ex._orb.compute(gray, keypoints)
+    order = np.argsort([k.class_id for k in described], kind="stable")
+    np.testing.assert_array_equal(features.descriptors, descriptors[order])
+    kept = np.sort([k.class_id for k in described])
+    np.testing.assert_array_equal(features.xy, xy[kept])
+    np.testing.assert_array_equal(features.response, response[kept])

@@ -7,6 +7,7 @@ import numpy as np
 
 from uss_slam.core.tum_io import TUM_CAMERAS
 from uss_slam.slam_eval.geometry import invert, project, transform
+from uss_slam.slam_eval.optim import pose as pose_module
 from uss_slam.slam_eval.optim.pose import (
     CHI2_MONO,
     CHI2_STEREO,
@@ -95,3 +96,19 @@ def test_depth_term_uses_the_virtual_right_coordinate() -> None:
     o, s = observations(np.array([[K[0, 2], K[1, 2]]]), np.array([2.0]), BF)
     e2, _ = chi2(K, BF, np.eye(4), world, o, s, np.ones(1))
     np.testing.assert_allclose(e2[0], (BF / 2.1 - BF / 2.0) ** 2, rtol=1e-12)
+
+
+def test_the_solve_is_numpys_bit_for_bit_and_a_singular_system_stops() -> None:
+    """Each Gauss-Newton step is ``np.linalg.solve``'s result exactly (the trajectories stay
+    the same); a singular normal matrix ends the iterations with the pose reached."""
+    rng = np.random.default_rng(3)
+    for _ in range(50):
+        a = rng.normal(size=(6, 6)) * 10.0 ** rng.uniform(-3, 3, 6)
+        h, g = a @ a.T + 1e-9 * np.eye(6), rng.normal(size=6)
+        np.testing.assert_array_equal(pose_module._solve(h, g), np.linalg.solve(h, g))
+    assert pose_module._solve(np.zeros((6, 6)), np.ones(6)) is None
+    _, pose_cw, world, uv, depth = _scene(4)
+    obs, stereo = observations(uv, depth, BF)
+    none = slice(0, 0)  # no observation: the normal matrix is all zeros
+    same = optimise_pose(K, BF, pose_cw, world[none], obs[none], stereo[none], np.ones(0))
+    np.testing.assert_array_equal(same, pose_cw)
