@@ -7,7 +7,10 @@ Pure Python: every layer (the SLAM runtime included, which never imports torch) 
 from __future__ import annotations
 
 import errno
+import os
 from os import PathLike
+
+from uss_slam.core.output_keys import key_of
 
 
 class UssSlamError(Exception):
@@ -48,7 +51,10 @@ class NoSpaceError(UssSlamError):
     """An output could not be written: the file system is full (or the user's quota is used).
 
     ``path`` is the output that was being written (its final name; the temporary file it was
-    written to is already removed), ``errno`` ENOSPC, EDQUOT or EFBIG.
+    written to is already removed), ``errno`` ENOSPC, EDQUOT or EFBIG. The message starts with
+    the key or flag that set the output holding ``path`` when the path layer checked one
+    (:mod:`uss_slam.core.output_keys`): ``--out=/o: no space left on device while writing
+    /o/a.png``.
     """
 
     def __init__(self, path: str | PathLike[str] | None, code: int = errno.ENOSPC) -> None:
@@ -59,7 +65,13 @@ class NoSpaceError(UssSlamError):
             why += " (disk quota exceeded)"
         elif code == errno.EFBIG:
             why = "the file size limit is exceeded (ulimit -f)"
-        super().__init__(f"{why} while writing {self.path or 'an output file'}")
+        named = None if path is None else key_of(path)  # the key or flag that set its output
+        if named is None:
+            super().__init__(f"{why} while writing {self.path or 'an output file'}")
+        elif os.path.abspath(named[1]) == os.path.abspath(self.path or ""):
+            super().__init__(f"{named[0]}={named[1]}: {why}")
+        else:
+            super().__init__(f"{named[0]}={named[1]}: {why} while writing {self.path}")
 
     def __reduce__(self) -> tuple[object, ...]:
         # rebuilt from its fields in another process (a rendering worker's full disk), not

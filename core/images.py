@@ -9,7 +9,11 @@ Python, from its bytes (cheap next to decoding):
 
 - PNG: the signature, every chunk whole with its CRC-32 right, and an ``IEND`` chunk;
 - JPEG: start-of-image, every marker segment whole, each scan's entropy-coded data followed by
-  a marker, and an end-of-image marker (bytes after it are allowed, as cameras append them).
+  a marker, and an end-of-image marker (bytes after it are allowed, as cameras append them);
+- the format, by the file's magic bytes: PNG or JPEG only (OpenCV would also decode WebP, BMP,
+  TIFF, ... none of which can be checked whole here), and the one its extension names
+  (``.png``; ``.jpg``, ``.jpeg``): WebP data named ``.png`` or a PNG named ``.jpg`` is
+  refused, naming the file and what its content is.
 
 A damaged file is one :class:`DataFormatError` naming the file and what is wrong, and the
 decoders never print. (A changed byte inside a JPEG's compressed data cannot be found this
@@ -18,6 +22,7 @@ way: JPEG has no checksum.) Torch-free (floor 0).
 
 from __future__ import annotations
 
+import os
 from os import PathLike
 
 import cv2
@@ -109,6 +114,46 @@ def jpeg_problem(data: bytes) -> str | None:
             return "truncated JPEG: its image data ends without an end-of-image marker (FFD9)"
 
 
+OTHER_FORMATS = (
+    (b"RIFF", 8, b"WEBP", "WebP"), (b"GIF8", 0, b"", "GIF"), (b"BM", 0, b"", "BMP"),
+    (b"II*\x00", 0, b"", "TIFF"), (b"MM\x00*", 0, b"", "TIFF"),
+    (b"\x00\x00\x00\x0cjP  ", 0, b"", "JPEG 2000"), (b"\xff\x4f\xff\x51", 0, b"", "JPEG 2000"),
+    (b"v/1\x01", 0, b"", "OpenEXR"), (b"", 4, b"ftyp", "HEIF / AVIF"), (b"qoif", 0, b"", "QOI"),
+)  # fmt: skip
+"""(magic at byte 0, offset of a second mark, the mark, name) of the image formats the decoder
+would take that the project does not read: named in the line that refuses them."""
+SUFFIXES = {".png": "PNG", ".jpg": "JPEG", ".jpeg": "JPEG", ".jpe": "JPEG", ".jfif": "JPEG"}
+"""A file name's extension -> the format its content must have."""
+
+
+def content_format(data: bytes) -> str | None:
+    """The image format of a file's bytes, by their magic bytes: ``"PNG"``, ``"JPEG"``, the
+    name of another format (:data:`OTHER_FORMATS`), or None (no image format known)."""
+    if data.startswith(PNG_SIGNATURE):
+        return "PNG"
+    if data.startswith(JPEG_SOI):
+        return "JPEG"
+    for magic, at, mark, name in OTHER_FORMATS:
+        if data.startswith(magic) and data[at : at + len(mark)] == mark:
+            return name
+    return None
+
+
+def format_problem(path: str | PathLike[str], data: bytes) -> str | None:
+    """Why the content ``data`` of the file ``path`` is not an image this reader takes: a format
+    other than PNG or JPEG (WebP, BMP, ... which the decoder would take, unchecked), or a PNG
+    or JPEG under the other's extension (a name that says what the file is not); else None.
+    Content no image format starts as is left to the decoder's ``not a readable image``."""
+    found = content_format(data)
+    named = SUFFIXES.get(os.path.splitext(os.fspath(path))[1].lower())
+    if found not in (None, "PNG", "JPEG"):
+        said = f", not the {named} its name says" if named else ", not PNG or JPEG"
+        return f"its content is a {found} image{said}"
+    if found is not None and named is not None and found != named:
+        return f"its content is a {found} image, not the {named} its name says"
+    return None
+
+
 def image_problem(data: bytes) -> str | None:
     """Why ``data`` (a file's bytes) is an incomplete or damaged PNG / JPEG, else None (other
     formats are left to the decoder)."""
@@ -146,7 +191,7 @@ def declared_size(data: bytes) -> tuple[int, int] | None:
 
 
 def _decode(path: str | PathLike[str], data: bytes, flags: int, what: str) -> np.ndarray:
-    problem = image_problem(data) if data else "empty file"
+    problem = (image_problem(data) or format_problem(path, data)) if data else "empty file"
     size = declared_size(data) if not problem else None
     if size is not None and size[0] * size[1] > MAX_PIXELS:
         problem = (

@@ -154,6 +154,7 @@ def launch(prog: str) -> int | None:
     except ValueError:  # not the main thread (a test): no handler
         previous = {}
     try:
+        torch_without_working_folder(prog)
         main: Callable[[], int | None] = importlib.import_module(SCRIPTS[prog]).main
     except KeyboardInterrupt as error:  # Ctrl-C or SIGTERM during the imports
         return _interrupted(prog, error)
@@ -226,6 +227,39 @@ def working_folder_line(prog: str) -> str | None:
         return None
     return (f"{prog}: error: the working folder no longer exists (it was deleted); run "
             "from an existing folder")  # fmt: skip
+
+
+TORCH_LATER = {"uss-eval": ("uss_slam.export",)}
+"""The scripts besides the Hydra apps that may import torch while they run (``uss-eval`` of a
+``.ckpt``) -> the modules that import it and the libraries that need a working folder when
+imported (torch's oneMKL, ``torch._dynamo``). ``uss-demo``'s training stage needs one to run
+too (Hydra's composition, Lightning): it refuses, before its data stage, to start one."""
+
+
+def torch_without_working_folder(prog: str) -> None:
+    """Import torch from ``/`` when the working folder was deleted and ``prog`` may need it,
+    then go back into the deleted folder: Intel oneMKL (in torch's ``libtorch_cpu``) cannot be
+    loaded without a working folder (``Intel oneMKL FATAL ERROR``: the process ends, after a
+    stage's work, with no line of the script's own). Loaded once, it works anywhere; back in
+    the deleted folder, a relative path is still refused by the path layer, naming its key."""
+    from uss_slam.core.paths import working_folder_gone  # standard library only
+
+    if prog not in TORCH_LATER or not working_folder_gone():
+        return
+    try:
+        here = os.open(".", os.O_RDONLY | os.O_DIRECTORY)
+    except OSError:
+        return
+    try:
+        os.chdir("/")
+        try:
+            for module in TORCH_LATER[prog]:
+                importlib.import_module(module)
+        except ImportError:  # the script's own line when it needs it
+            pass
+    finally:
+        os.fchdir(here)
+        os.close(here)
 
 
 def out_of_memory(error: BaseException) -> bool:

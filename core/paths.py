@@ -34,6 +34,7 @@ from os import PathLike
 from pathlib import Path
 from typing import Any
 
+from uss_slam.core import output_keys
 from uss_slam.core.errors import DataFormatError, UssSlamError
 
 NAME_MAX_DEFAULT, PATH_MAX_DEFAULT = 255, 4096
@@ -318,6 +319,7 @@ def output_folder(
             problem = _probe_write(existing)
     if problem:
         raise _fail(path, key, problem, expected)
+    output_keys.record(path, key)
     return path
 
 
@@ -355,6 +357,7 @@ def output_file(
         problem = _probe_write(_nearest_existing(path.parent))
     if problem:
         raise _fail(path, key, problem, expected)
+    output_keys.record(path, key)
     return path
 
 

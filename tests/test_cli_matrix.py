@@ -1590,20 +1590,23 @@ SYNTH_OVER = (
     "sequence --preset static_xyz --frames 3 --size 32x24 --out {tmp}/seq --overwrite --quiet"
 )
 NO_SPACE = [
-    # (id, console script, argv, setup, the outputs whose write hits the full disk, the path named)
-    ("slam", "uss-slam", SLAM, (earlier_slam_run,), ["metrics.json"], "{out}/metrics.json"),
+    # (id, console script, argv, setup, the outputs whose write hits the full disk, the line
+    # after "<prog>: error: ": the key or flag that set the output, and the file)
+    ("slam", "uss-slam", SLAM, (earlier_slam_run,), ["metrics.json"],
+     "out_dir={out}: no space left on device while writing {out}/metrics.json"),
     ("slam-compare-plot", "uss-slam", f"{SLAM} segmenter=labels compare=[[semantic]]",
-     (earlier_slam_run,), ["ate.png"], "{out}/baseline/ate.png"),
+     (earlier_slam_run,), ["ate.png"],
+     "out_dir={out}: no space left on device while writing {out}/baseline/ate.png"),
     ("export-model", "uss-export", EXPORT, (earlier_export,), ["fake.onnx"],
-     "{exports}/fake.onnx"),
+     "out_dir={exports}: no space left on device while writing {exports}/fake.onnx"),
     ("export-report", "uss-export", EXPORT, (earlier_export,), ["fake.verify.json"],
-     "{exports}/fake.verify.json"),
+     "out_dir={exports}: no space left on device while writing {exports}/fake.verify.json"),
     ("synth-frame", "uss-synth", SYNTH_OVER, (earlier_synth_output,),
-     lambda path: path.parent.name == "labels", "{tmp}/seq"),
+     lambda path: path.parent.name == "labels", "--out={tmp}/seq: no space left on device"),
     ("synth-marker", "uss-synth", SYNTH_OVER, (earlier_synth_output,), [".uss-synth"],
-     "{tmp}/seq"),
+     "--out={tmp}/seq: no space left on device"),
     ("eval", "uss-eval", "{m} --sequence {seq} --out {tmp}/eval", (write("m", colour_onnx, ".onnx"),),
-     ["eval.json"], "{tmp}/eval/eval.json"),
+     ["eval.json"], "--out={tmp}/eval: no space left on device while writing {tmp}/eval/eval.json"),
 ]  # fmt: skip
 
 
@@ -1624,9 +1627,9 @@ def test_a_full_disk_is_one_line_and_keeps_the_earlier_outputs(
     capsys,
 ) -> None:
     """ENOSPC while an output is written (the file being written is ``/dev/full``): exit code
-    1, one line ``<prog>: error: no space left on device while writing <path>`` naming the
-    output's final path, every earlier output byte for byte as before, and no temporary file,
-    staging or partial folder left behind."""
+    1, one line ``<prog>: error: <key>=<output>: no space left on device while writing <path>``
+    naming the key or flag that set the output and the file's final path, every earlier output
+    byte for byte as before, and no temporary file, staging or partial folder left behind."""
     from shared_helpers import full_disk
 
     paths = {**world, "tmp": tmp_path}
@@ -1645,13 +1648,93 @@ def test_a_full_disk_is_one_line_and_keeps_the_earlier_outputs(
     assert "Traceback" not in err, err
     lines = err.strip().splitlines()
     assert code == 1 and len(lines) == 1, err
-    assert lines == [
-        f"{prog}: error: no space left on device while writing {named.format(**paths)}"
-    ]
+    assert lines == [f"{prog}: error: {named.format(**paths)}"]
     assert snapshot(tmp_path) == before
     left = [p.name for p in tmp_path.rglob("*") if p.is_symlink() or ".tmp" in p.name
             or ".partial-" in p.name or p.name.startswith(".uss-slam-new.")]  # fmt: skip
     assert left == []
+
+
+FILE_SIZE_LIMIT = [
+    # (console script, argv, ulimit -f in KiB, the line after "<prog>: error: ")
+    ("uss-synth", "voc --images 2 --size 96x64 --out {tmp}/v --quiet", 1,
+     "--out={tmp}/v: the file size limit is exceeded (ulimit -f)"),
+    ("uss-traj", "ate {gt} {gt} --plot {tmp}/p.png", 4,
+     "--plot={tmp}/p.png: the file size limit is exceeded (ulimit -f)"),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("prog", "argv", "kib", "named"), FILE_SIZE_LIMIT, ids=[c[0] for c in FILE_SIZE_LIMIT]
+)
+def test_a_file_size_limit_names_the_flag_of_the_output(
+    prog: str, argv: str, kib: int, named: str, world: dict[str, Path], tmp_path: Path
+) -> None:
+    """``ulimit -f`` met while an output is written (the script's own process, the real
+    limit): one line naming the flag that set the output, nothing left behind."""
+    import resource
+
+    paths = {**world, "tmp": tmp_path, "gt": world["seq"] / "groundtruth.txt"}
+    limit = kib * 1024
+
+    def limited() -> None:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+
+    script = Path(sys.executable).parent / prog
+    done = subprocess.run([str(script), *(a.format(**paths) for a in argv.split())],
+                          capture_output=True, text=True, timeout=120, preexec_fn=limited)  # fmt: skip
+    assert done.returncode == 1, done.stderr
+    assert done.stderr.strip().splitlines() == [f"{prog}: error: {named.format(**paths)}"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+# ------------------------------------------------------------------------------ no working folder
+
+
+def _in_a_deleted_folder(folder: Path) -> Callable[[], None]:
+    """A ``preexec_fn``: the child starts in ``folder``, deleted under it (``rm -r`` in another
+    terminal)."""
+
+    def gone() -> None:
+        os.rmdir(folder)
+
+    return gone
+
+
+@pytest.mark.slow  # a uss-eval process importing torch: ~15 s on two busy cores
+def test_eval_of_a_checkpoint_without_a_working_folder_runs(
+    world: dict[str, Path], tmp_path: Path
+) -> None:
+    """torch's oneMKL cannot be loaded without a working folder (``Intel oneMKL FATAL ERROR``
+    ended the process): the launcher loads it from ``/``; the absolute paths work."""
+    gone = tmp_path / "gone"
+    gone.mkdir()
+    script = Path(sys.executable).parent / "uss-eval"
+    argv = [str(world["ckpt"]), "--sequence", str(world["seq"]), "--out", str(tmp_path / "e")]
+    done = subprocess.run([str(script), *argv], cwd=gone, capture_output=True, text=True,
+                          timeout=300, preexec_fn=_in_a_deleted_folder(gone))  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert "FATAL" not in done.stderr
+    assert (tmp_path / "e" / "eval.json").is_file()
+
+
+def test_demo_training_without_a_working_folder_is_one_line_before_any_work(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    """The demo's training stage cannot start without a working folder (Hydra's composition,
+    torch): refused before the data stage, naming ``--until``; ``--until data`` is not."""
+    gone = tmp_path / "gone"
+    gone.mkdir()
+    monkeypatch.chdir(gone)
+    gone.rmdir()
+    argv = ["--out", str(tmp_path / "demo"), "--experiment", "ci", "--quiet"]
+    code, _, err = run_console_script("uss-demo", [*argv, "--until", "train"], monkeypatch, capsys)
+    assert code == 1 and err.strip().splitlines() == [
+        "uss-demo: error: --until train: the working folder no longer exists (it was deleted), "
+        "and the training stage needs one (torch and Hydra cannot start without it); run from "
+        "an existing folder, or stop after the data stage (--until data)"
+    ]
+    assert sorted(tmp_path.iterdir()) == []
 
 
 # ------------------------------------------------------------------------------ kill -9

@@ -2,7 +2,8 @@
 
 Each case is held to the contract of ``tests/test_cli_matrix.py`` (exit code 1, one line naming
 the file and what is wrong, no traceback, nothing written), run in this process: a truncated
-JPEG colour frame (decoders would fill its missing rows with grey and go on), a truncated
+JPEG colour frame (decoders would fill its missing rows with grey and go on), a frame whose
+content is another format than its name says (WebP named ``.png``: decoded by content), a truncated
 depth PNG (libpng would print its own line first), a label PNG holding a value that is no
 class id (7), and a Latin-1 byte in a text file (the line names its line number).
 """
@@ -40,6 +41,18 @@ def truncated_jpeg(folder: str, k: int):
     return change
 
 
+def encoded_as(folder: str, k: int, ext: str):
+    """Frame ``k`` of ``folder`` replaced by its whole encoding in another format (``.webp``,
+    ``.jpg``) under its own name (``.png``)."""
+
+    def change(seq: Path) -> None:
+        path = nth(folder, k)(seq)
+        ok, data = cv2.imencode(ext, cv2.imread(str(path), cv2.IMREAD_UNCHANGED))
+        path.write_bytes(data.tobytes())
+
+    return change
+
+
 def truncated_png(folder: str, k: int):
     def change(seq: Path) -> None:
         path = nth(folder, k)(seq)
@@ -68,7 +81,22 @@ def latin1_groundtruth(seq: Path) -> None:
 SLAM_S = "sequence.path={s} out_dir={tmp}/out progress=false"
 TRUNCATED = "truncated JPEG: its image data ends without an end-of-image marker (FFD9)"
 NOT_A_CLASS = "label values 7 are not class ids; expected 0..3"
+WEBP = "its content is a WebP image, not the PNG its name says"
 CASES = [
+    case("slam-webp-named-png", "uss-slam", SLAM_S, 1, "{s}/rgb/", WEBP,
+         setup=(seq_copy(encoded_as("rgb", 3, ".webp")),)),
+    case("slam-jpeg-labels-named-png", "uss-slam",
+         f"{SLAM_S} segmenter=labels filters=[semantic]", 1, "{s}/labels/",
+         "its content is a JPEG image, not the PNG its name says",
+         setup=(seq_copy(encoded_as("labels", 2, ".jpg")),)),
+    case("vocab-webp-named-png", "uss-vocab",
+         "build {s} --out {tmp}/v.txt -k 3 -L 2 --stride 1", 1, "{s}/rgb/", WEBP,
+         setup=(seq_copy(encoded_as("rgb", 3, ".webp")),)),
+    case("eval-webp-named-png", "uss-eval", "{ckpt} --sequence {s} --out {tmp}/eval", 1,
+         "{s}/rgb/", WEBP, setup=(seq_copy(encoded_as("rgb", 1, ".webp")),)),
+    case("export-calibration-webp-named-png", "uss-export",
+         f"{EXPORT} int8=true calibration.root={{s}} calibration.frames=2", 1,
+         "calibration.root={s}: rgb/", WEBP, setup=(seq_copy(encoded_as("rgb", 0, ".webp")),)),
     case("slam-truncated-jpeg-frame", "uss-slam", SLAM_S, 1, "{s}/rgb/", TRUNCATED,
          setup=(seq_copy(truncated_jpeg("rgb", 3)),)),
     case("slam-truncated-depth-png", "uss-slam", SLAM_S, 1, "{s}/depth/",

@@ -144,3 +144,37 @@ def test_a_16_bit_png_is_no_colour_frame(tmp_path: Path) -> None:
         ):
             read(path)
     assert read_depth(path).dtype == np.uint16
+
+
+@pytest.mark.parametrize(
+    ("name", "ext", "says"),
+    [("x.png", ".webp", "its content is a WebP image, not the PNG its name says"),
+     ("x.jpg", ".png", "its content is a PNG image, not the JPEG its name says"),
+     ("x.JPEG", ".png", "its content is a PNG image, not the JPEG its name says"),
+     ("x.png", ".jpg", "its content is a JPEG image, not the PNG its name says"),
+     ("x.bmp", ".bmp", "its content is a BMP image, not PNG or JPEG"),
+     ("x.tif", ".tiff", "its content is a TIFF image, not PNG or JPEG")],
+)  # fmt: skip
+def test_content_that_is_not_what_the_name_says_is_refused(
+    name: str, ext: str, says: str, tmp_path: Path
+) -> None:
+    """The format is decided by the magic bytes, and must be the one the extension names:
+    OpenCV would decode any of these by content, without a word."""
+    ok, data = cv2.imencode(ext, np.full((8, 8, 3), 90, np.uint8))
+    path = tmp_path / name
+    path.write_bytes(data.tobytes())
+    with pytest.raises(DataFormatError) as caught:
+        read_colour(path)
+    assert str(caught.value) == f"{path}: {says}; expected a colour image (PNG or JPEG)"
+
+
+def test_a_png_and_a_jpeg_under_their_own_names_or_no_image_name_are_read(tmp_path: Path) -> None:
+    for name, ext in (
+        ("a.png", ".png"),
+        ("b.jpeg", ".jpg"),
+        ("c.JPG", ".jpg"),
+        ("d.frame", ".png"),
+    ):
+        ok, data = cv2.imencode(ext, np.full((8, 8, 3), 90, np.uint8))
+        (tmp_path / name).write_bytes(data.tobytes())
+        assert read_colour(tmp_path / name).shape == (8, 8, 3)
