@@ -267,14 +267,18 @@ def test_a_full_disk_while_saving_a_checkpoint_names_it_and_leaves_no_part(
     uda_data: dict[str, Path], tmp_path: Path, monkeypatch, capsys
 ) -> None:
     """Checkpoints are written beside their final name and renamed: a full disk is one line
-    naming the checkpoint's own path, and no truncated ``.ckpt`` nor temporary file is left."""
+    naming the checkpoints folder's key and the checkpoint's own path, and no truncated ``.ckpt`` nor temporary file is left."""
     from shared_helpers import full_disk
 
     hit = full_disk(monkeypatch, lambda path: path.suffix == ".ckpt")
     code, err = _uss_train([*_common(uda_data, tmp_path), "logger=none"], monkeypatch, capsys)
     assert hit, "no checkpoint was written"
     assert code == 1, err
-    assert err[-1] == f"uss-train: error: no space left on device while writing {hit[0]}", err
+    folder = tmp_path / "run" / "checkpoints"  # the key that sets it (under hydra.run.dir)
+    assert err[-1] == (
+        f"uss-train: error: callbacks.last_checkpoint.dirpath={folder}: no space left on device "
+        f"while writing {hit[0]}"
+    ), err
     assert "Traceback" not in "\n".join(err)
     folder = tmp_path / "run" / "checkpoints"
     assert hit[0].parent == folder
