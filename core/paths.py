@@ -245,6 +245,17 @@ def working_folder_gone() -> bool:
     return False
 
 
+def need_working_folder(named: str, what: str, instead: str) -> None:
+    """Refuse ``what`` (a stage that starts Hydra and torch, which need the working folder)
+    when the working folder was deleted: ``<named>: ... ; ... or <instead>``."""
+    if working_folder_gone():
+        raise UssSlamError(
+            f"{named}: the working folder no longer exists (it was deleted), and {what} needs "
+            f"one (torch and Hydra cannot start without it); run from an existing folder, or "
+            f"{instead}"
+        )
+
+
 def umask() -> int:
     """The process's file mode creation mask (``/proc/self/status``; else set and restored)."""
     try:

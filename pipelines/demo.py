@@ -53,7 +53,7 @@ from uss_slam.core.files import (
     output_lock,
     write_json_atomic,
 )
-from uss_slam.core.paths import input_folder, output_folder, path_override, working_folder_gone
+from uss_slam.core.paths import input_folder, need_working_folder, output_folder, path_override
 from uss_slam.core.ranges import MAX_THREADS
 from uss_slam.slam_eval.filters.build import filter_classes
 from uss_slam.slam_eval.variants import check_filters
@@ -513,16 +513,11 @@ def run_demo(
         raise UssSlamError(f"--until {until}: not a stage ({', '.join(STAGES)})")
     output_folder(out, "--out", inputs=[("--sequence", sequence)] if sequence else ())
     check_output_owner(out, "uss-demo", "--out")  # a uss-slam run's report.md, ...
-    if until != "data" and working_folder_gone():  # before the data stage's minutes
-        raise UssSlamError(
-            f"--until {until}: the working folder no longer exists (it was deleted), and the "
-            "training stage needs one (torch and Hydra cannot start without it); run from an "
-            "existing folder, or stop after the data stage (--until data)"
-        )
+    if until != "data":  # before the data stage's minutes
+        need_working_folder(f"--until {until}", "the training stage", "--until data")
     check_filters({v.name: v for v in VARIANTS}, list(filter_classes()))
     data = out / "data"
-    # A bad --sequence fails here, before any work: a folder is checked now, a name after the
-    # data stage made it.
+    # A bad --sequence fails here, before any work (a name: after the data stage made it)
     if sequence in synthetic_data.SLAM_PRESETS and not Path(sequence).is_dir():
         seq_path = data / "slam" / sequence
     else:

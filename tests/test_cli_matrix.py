@@ -1732,7 +1732,7 @@ def test_demo_training_without_a_working_folder_is_one_line_before_any_work(
     assert code == 1 and err.strip().splitlines() == [
         "uss-demo: error: --until train: the working folder no longer exists (it was deleted), "
         "and the training stage needs one (torch and Hydra cannot start without it); run from "
-        "an existing folder, or stop after the data stage (--until data)"
+        "an existing folder, or --until data"
     ]
     assert sorted(tmp_path.iterdir()) == []
 
