@@ -141,8 +141,8 @@ class SlamConfig:
     """With ``segment=thread``: the other keyframes each delivered mask is carried to (their
     poses, the mask's depth), marking bad their map points inside it: ``none`` (its own
     keyframe only), ``newer`` (also every keyframe made after it), ``since_previous`` (also
-    those made since the previous mask's keyframe). docs/results/slam.md ("each delivered mask
-    carried to the keyframes that got none")."""
+    those made since the previous mask's keyframe). An experiment, dropped by its pre-registered
+    rule (docs/results/slam.md, "each delivered mask carried to the keyframes that got none")."""
     semantic_nice: int = ranged(0, min=0, max=19)
     """With ``segment=thread`` and a segmenter that really runs (the wall clock): the semantic
     thread's nice value above the process's (Linux), so that tracking takes the cores first and
