@@ -143,6 +143,11 @@ class SlamConfig:
     keyframe only), ``newer`` (also every keyframe made after it), ``since_previous`` (also
     those made since the previous mask's keyframe). An experiment, dropped by its pre-registered
     rule (docs/results/slam.md, "each delivered mask carried to the keyframes that got none")."""
+    carry_velocity: bool = False
+    """With ``segment=thread``: the carried mask is also drawn where each person (a connected
+    labelled region) moves to, at the velocity of its 3D centroid between the last two masks
+    (at most 1.5 m/s, for at most 1 s). docs/results/slam.md ("the carried mask moved with each
+    person's velocity")."""
     semantic_nice: int = ranged(0, min=0, max=19)
     """With ``segment=thread`` and a segmenter that really runs (the wall clock): the semantic
     thread's nice value above the process's (Linux), so that tracking takes the cores first and
@@ -368,6 +373,7 @@ def check(cfg: DictConfig, overrides: Sequence[str] = ()) -> RunPlan:
     for line in (
         provisional_points_refused(bool(cfg.slam.provisional_points), str(cfg.segment)),
         carry_refused(str(cfg.slam.carry_to_keyframes), str(cfg.segment)),
+        carry_refused("velocity" if cfg.slam.carry_velocity else "none", str(cfg.segment)),
     ):
         if line is not None:
             raise UssSlamError(line)

@@ -50,6 +50,7 @@ from .semantic_thread import (
     hold_new_points,
     mark_carried,
     mark_dynamic_points,
+    people_motion,
     settle_provisional,
 )
 
@@ -124,6 +125,12 @@ class FrameLoop:
     """With the semantic thread (``slam.carry_to_keyframes``): the other keyframes each delivered
     mask is carried to, to mark their points too (:func:`~.semantic_thread.carry_targets`)."""
     last_masked: int | None = None
+    carry_velocity: bool = False
+    """With the semantic thread (``slam.carry_velocity``): the carried mask is also drawn where
+    each person moves to (:func:`~.semantic_thread.people_motion`)."""
+    people: tuple[np.ndarray, float] | None = None
+    """With ``carry_velocity``: the last delivered mask's people, ``(B, 3)`` map-frame
+    centroids and its stamp (s)."""
     """The keyframe id of the last mask delivered (None: none yet)."""
     provisional: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     """The (P,) ids of the map points held back and not judged by a mask yet."""
@@ -169,8 +176,11 @@ class FrameLoop:
         kf = self.map_keyframe(frame, filters, result, keyframe)
         if self.semantic is not None and kf is not None:
             if first and labels is not None:  # the map starts from a masked frame
-                self.carried = CarriedMask.of(kf.id, labels, frame.depth, self.tracker.k)
+                self.carried = CarriedMask.of(
+                    kf.id, labels, frame.depth, self.tracker.k, frame.stamp
+                )
                 self.last_masked = kf.id
+                self.track_people()
             else:
                 self.semantic.request(frame, kf.id)  # returns at once
                 if self.provisional_points:
@@ -220,7 +230,7 @@ class FrameLoop:
         late = False
         if self.carried is not None and ctx.labels is None and result.pose_wc is not None:
             with timer("carry_mask"):
-                ctx.labels = self.carried.labels_for(self.map, result.pose_wc)
+                ctx.labels = self.carried.labels_for(self.map, result.pose_wc, frame.stamp)
             late = True
         elif self.segment_now is not None and ctx.labels is None and result.pose_wc is not None:
             with timer("mapping"):
@@ -310,9 +320,21 @@ class FrameLoop:
                         self.counts["points_cleared"] += cleared
                         self.counts["points_dropped"] += dropped
                 self.carried = CarriedMask.of(
-                    got.kf_id, got.labels, got.frame.depth, self.tracker.k
+                    got.kf_id, got.labels, got.frame.depth, self.tracker.k, got.frame.stamp
                 )
+                self.track_people()
                 self.carry_to_others(got.frame, got.kf_id)
+
+    def track_people(self) -> None:
+        """With ``carry_velocity``: the people of the mask just carried move as they did since
+        the mask before (:func:`~.semantic_thread.people_motion`)."""
+        if self.carry_velocity and self.carried is not None:
+            pose = self.map.pose_wc(self.carried.kf_id)
+            self.people = people_motion(self.carried, pose, self.people)
+            carried = self.carried
+            assert carried.velocity is not None and carried.region is not None
+            moving = np.any(carried.velocity != 0, axis=1)
+            self.counts["people_moving"] += len(np.unique(carried.region[moving]))
 
     def dynamic_region(self, frame: Frame, labels: np.ndarray | None) -> np.ndarray | None:
         """``(H, W)`` bool: the union of the dynamic regions that the filters which mask their

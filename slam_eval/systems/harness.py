@@ -160,6 +160,7 @@ class SlamPipeline:
         provisional_border_px: int | None = None,
         semantic_nice: int = 0,
         carry_to_keyframes: str = "none",
+        carry_velocity: bool = False,
     ) -> None:
         """``sampling_seed``: perturbs the tracker's RANSAC sampling (a repeated run,
         :mod:`.repeats`); None = the deterministic run. ``prefetch_mode``: ``"thread"``,
@@ -189,6 +190,7 @@ class SlamPipeline:
         self.provisional_border_px = provisional_border_px
         self.semantic_nice = semantic_nice
         self.carry_to_keyframes = carry_to_keyframes
+        self.carry_velocity = carry_velocity
         self.progress = progress
         self.description = description or sequence.path.name
         self.local_ba = local_ba
@@ -310,6 +312,7 @@ class SlamPipeline:
             provisional_points=self.provisional_points,
             provisional_border_px=self.provisional_border_px,
             carry_to_keyframes=self.carry_to_keyframes,
+            carry_velocity=self.carry_velocity,
         )  # fmt: skip
 
     def _frames(self) -> tuple[frontend_process.FrontendProcess | None, Iterator[Prepared]]:
@@ -414,7 +417,7 @@ class SlamPipeline:
                 k: loop.counts[k]
                 for k in (
                     "points_held", "points_cleared", "points_dropped", "keyframes_gated",
-                    "keyframes_carried", "points_marked_carried",
+                    "keyframes_carried", "points_marked_carried", "people_moving",
                 )  # fmt: skip
                 if k in loop.counts
             },

@@ -253,22 +253,42 @@ def start_thread(segmenter: Segmenter, nice: int = 0) -> SemanticThread:
     return WallThread(segmenter, nice)
 
 
+MIN_PERSON_POINTS = 20
+"""A connected labelled region of the carried grid counts as a person (its own velocity) from
+this many grid points on (:func:`people_motion`)."""
+
+MAX_PERSON_SPEED = 1.5
+"""A person's velocity is capped at this speed (m/s), and a region of the previous mask farther
+than this speed times the time between the masks is not the same person."""
+
+MAX_EXTRAPOLATION_S = 1.0
+"""The carried mask is moved by a person's velocity for at most this long (s)."""
+
+
 @dataclass
 class CarriedMask:
     """A keyframe's labels ready to be carried: the labelled pixels of a ``CARRY_STRIDE`` grid
     with depth, as ``points`` (M, 3) metres in the keyframe's camera frame and ``classes`` (M,)
-    uint8, nearest last (so that the nearest wins where several land on one pixel)."""
+    uint8, nearest last (so that the nearest wins where several land on one pixel); ``region``
+    (M,) the connected labelled region of the grid each point lies in, ``stamp`` the keyframe's
+    (s) and ``velocity`` (M, 3) m/s in the keyframe's camera frame (None: not moved;
+    :func:`people_motion`)."""
 
     kf_id: int
     points: np.ndarray
     classes: np.ndarray
     shape: tuple[int, int]
     k: np.ndarray = field(repr=False)
+    region: np.ndarray | None = field(default=None, repr=False)
+    stamp: float = 0.0
+    velocity: np.ndarray | None = field(default=None, repr=False)
 
     @classmethod
-    def of(cls, kf_id: int, labels: np.ndarray, depth: np.ndarray, k: np.ndarray) -> CarriedMask:
+    def of(
+        cls, kf_id: int, labels: np.ndarray, depth: np.ndarray, k: np.ndarray, stamp: float = 0.0
+    ) -> CarriedMask:
         """From ``(H, W)`` uint8 ``labels`` and ``(H, W)`` float ``depth`` (m, 0 = none) of
-        keyframe ``kf_id``; ``k`` (3, 3) the camera matrix."""
+        keyframe ``kf_id`` at ``stamp`` (s); ``k`` (3, 3) the camera matrix."""
         s = CARRY_STRIDE
         lab = labels[::s, ::s]
         z = depth[::s, ::s]
@@ -278,19 +298,28 @@ class CarriedMask:
         u, v = cols * s, rows * s
         pts = np.stack([(u - k[0, 2]) * zz / k[0, 0], (v - k[1, 2]) * zz / k[1, 1], zz], axis=1)
         order = np.argsort(-zz, kind="stable")
-        return cls(kf_id, pts[order], lab[rows, cols][order], labels.shape, k)
+        _, comp = cv2.connectedComponents((lab > 0).astype(np.uint8), connectivity=8)
+        region = comp[rows, cols][order]
+        return cls(kf_id, pts[order], lab[rows, cols][order], labels.shape, k, region, stamp)
 
-    def labels_at(self, t_frame_kf: np.ndarray) -> np.ndarray:
+    def labels_at(self, t_frame_kf: np.ndarray, dt: float = 0.0) -> np.ndarray:
         """``(H, W)`` uint8 labels carried to a frame whose pose relative to the keyframe is
-        ``t_frame_kf`` (4, 4, ``T_frame,kf``): each point projected, splatted over the grid
-        step; 0 where nothing lands."""
+        ``t_frame_kf`` (4, 4, ``T_frame,kf``) ``dt`` s after it: each point projected, splatted
+        over the grid step; with a ``velocity``, also each point moved by it for ``dt`` (at most
+        :data:`MAX_EXTRAPOLATION_S`); 0 where nothing lands."""
         h, w = self.shape
         out = np.zeros((h, w), np.uint8)
         if len(self.points) == 0:
             return out
-        p = self.points @ t_frame_kf[:3, :3].T + t_frame_kf[:3, 3]
+        points, classes = self.points, self.classes
+        if self.velocity is not None and dt > 0:
+            moved = points + self.velocity * min(dt, MAX_EXTRAPOLATION_S)
+            points, classes = np.concatenate([points, moved]), np.concatenate([classes, classes])
+            order = np.argsort(-points[:, 2], kind="stable")  # nearest last again
+            points, classes = points[order], classes[order]
+        p = points @ t_frame_kf[:3, :3].T + t_frame_kf[:3, 3]
         front = p[:, 2] > 1e-6
-        p, cls = p[front], self.classes[front]
+        p, cls = p[front], classes[front]
         u = np.rint(self.k[0, 0] * p[:, 0] / p[:, 2] + self.k[0, 2]).astype(np.int64)
         v = np.rint(self.k[1, 1] * p[:, 1] / p[:, 2] + self.k[1, 2]).astype(np.int64)
         inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
@@ -299,10 +328,42 @@ class CarriedMask:
         grown = cv2.dilate(out, kernel)
         return np.where(out > 0, out, grown)
 
-    def labels_for(self, slam_map: SlamMap, pose_wc: np.ndarray) -> np.ndarray:
-        """The labels carried to a frame at camera-to-world ``pose_wc`` (4, 4), from the
-        keyframe's pose in ``slam_map`` now (the back end may have moved it)."""
-        return self.labels_at(invert(pose_wc) @ slam_map.pose_wc(self.kf_id))
+    def labels_for(
+        self, slam_map: SlamMap, pose_wc: np.ndarray, stamp: float | None = None
+    ) -> np.ndarray:
+        """The labels carried to a frame at camera-to-world ``pose_wc`` (4, 4) and ``stamp``
+        (s; None: the keyframe's), from the keyframe's pose in ``slam_map`` now (the back end
+        may have moved it)."""
+        dt = 0.0 if stamp is None else stamp - self.stamp
+        return self.labels_at(invert(pose_wc) @ slam_map.pose_wc(self.kf_id), dt)
+
+
+def people_motion(
+    carried: CarriedMask, pose_wc: np.ndarray, previous: tuple[np.ndarray, float] | None
+) -> tuple[np.ndarray, float]:
+    """Set ``carried.velocity``: each of its people (connected regions of at least
+    :data:`MIN_PERSON_POINTS` grid points) moves as its 3D centroid did since the nearest
+    centroid of ``previous`` (``(P, 3)`` map-frame centroids of the mask before, its stamp s),
+    within :data:`MAX_PERSON_SPEED` times the time between them and capped at that speed; the
+    others stand still. ``pose_wc`` (4, 4): the keyframe's camera-to-world pose. Returns this
+    mask's ``(B, 3)`` centroids and stamp, the ``previous`` of the next."""
+    velocity = np.zeros_like(carried.points)
+    assert carried.region is not None
+    ids, counts = np.unique(carried.region, return_counts=True)
+    ids = ids[counts >= MIN_PERSON_POINTS]
+    world = carried.points @ pose_wc[:3, :3].T + pose_wc[:3, 3]
+    centroids = np.array([world[carried.region == i].mean(axis=0) for i in ids]).reshape(-1, 3)
+    dt = carried.stamp - previous[1] if previous is not None else 0.0
+    if previous is not None and dt > 0 and len(previous[0]):
+        for i, c in zip(ids, centroids, strict=True):
+            shift = c - previous[0]
+            j = int(np.argmin(np.linalg.norm(shift, axis=1)))
+            if np.linalg.norm(shift[j]) <= MAX_PERSON_SPEED * dt:
+                v = shift[j] / dt
+                v *= min(1.0, MAX_PERSON_SPEED / max(float(np.linalg.norm(v)), 1e-9))
+                velocity[carried.region == i] = pose_wc[:3, :3].T @ v  # in the keyframe's frame
+    carried.velocity = velocity
+    return centroids, carried.stamp
 
 
 def fill_depth(labels: np.ndarray, depth: np.ndarray) -> np.ndarray:
@@ -344,10 +405,12 @@ CARRY_TO_KEYFRAMES = ("none", "newer", "since_previous")
 
 
 def carry_refused(reach: str, segment: str) -> str | None:
-    """One line when ``slam.carry_to_keyframes`` asks for carried masks with a ``segment``
-    schedule other than ``thread`` (the only one with delivered masks), else None."""
+    """One line when ``slam.carry_to_keyframes`` asks for carried masks (``reach``;
+    ``velocity``: ``slam.carry_velocity=true``) with a ``segment`` schedule other than ``thread``
+    (the only one with delivered masks), else None."""
     if reach != "none" and segment != "thread":
-        return f"slam.carry_to_keyframes={reach} needs segment=thread (got segment={segment})"
+        key = "carry_velocity=true" if reach == "velocity" else f"carry_to_keyframes={reach}"
+        return f"slam.{key} needs segment=thread (got segment={segment})"
     return None
 
 
