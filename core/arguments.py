@@ -180,6 +180,55 @@ def bad_arguments(
             yield from _of_action(action, commands)
 
 
+ONCE_KINDS = (argparse._StoreAction, argparse.BooleanOptionalAction)
+"""The option actions whose second use would replace the first without a word (``--out a
+--out b``; ``--x --no-x``); an ``append`` option (``--sequence``) is given as often as wanted,
+and a flag (``--quiet``) means the same however often it is given."""
+
+
+def given_once(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """``parser`` (and its subcommands' parsers), each of whose value options refuses being
+    given twice on one command line with argparse's usage line (exit code 2): ``argument
+    --out: given twice (--out /a and --out /b); expected it once``. Every argparse console
+    script's ``build_parser`` returns its parser through this."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                given_once(sub)
+        elif action.option_strings and type(action) in ONCE_KINDS:
+            action.__class__ = _ONCE[type(action)]
+    return parser
+
+
+def _shown(option: str | None, values: Any) -> str:
+    if values is None:
+        return str(option)
+    items = values if isinstance(values, list) else [values]
+    return " ".join([str(option), *(str(v) for v in items)])
+
+
+def _once(kind: type[argparse.Action]) -> type[argparse.Action]:
+    class Once(kind):  # type: ignore[misc,valid-type]
+        """``kind`` that refuses a second use in the same parse (the same namespace)."""
+
+        def __call__(self, parser: Any, namespace: Any, values: Any, option: Any = None) -> None:
+            first = getattr(self, "_given", None)
+            if first is not None and first[0] is namespace:
+                raise argparse.ArgumentError(
+                    self,
+                    f"given twice ({first[1]} and {_shown(option, values)}); expected it once "
+                    "(the second would replace the first without a word)",
+                )
+            self._given = (namespace, _shown(option, values))
+            super().__call__(parser, namespace, values, option)
+
+    Once.__name__ = Once.__qualname__ = f"Once{kind.__name__}"
+    return Once
+
+
+_ONCE = {kind: _once(kind) for kind in ONCE_KINDS}
+
+
 def option_strings(parser: argparse.ArgumentParser) -> Sequence[str]:
     """Every option string of ``parser`` (for tests)."""
     return [s for a in parser._actions for s in a.option_strings]

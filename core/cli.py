@@ -36,6 +36,7 @@ from uss_slam.core.hydra_lines import (  # noqa: F401 (their home before)
     hydra_error_line,
     output_folder_line,
     override_parse_line,
+    repeated_override_line,
 )
 from uss_slam.core.launch import TERMINATING
 from uss_slam.core.run_folders import RefusedRunFolder, RunFolderCheck, release_run_folders
@@ -501,6 +502,10 @@ def run_hydra_app(prog: str, app: Callable[[], object]) -> None:
     previous = os.environ.get("HYDRA_FULL_ERROR")
     os.environ["HYDRA_FULL_ERROR"] = "1"  # Hydra raises instead of printing its own report
     report = JobReport(prog)
+    repeated = repeated_override_line(sys.argv[1:])
+    if repeated is not None:
+        print(f"{prog}: error: {repeated}", file=sys.stderr)
+        sys.exit(1)
     try:
         with program(prog), signals_as_interrupts(), report_failed_jobs(prog) as report:
             app()

@@ -111,3 +111,31 @@ def output_folder_line(error: OSError) -> str:
     else:
         why = error.strerror or type(error).__name__
     return f"cannot create the output folder {path} ({why})"
+
+
+def repeated_override_line(argv: list[str]) -> str | None:
+    """One line for a key given twice on a Hydra app's command line (``uss-train a=1 a=2``:
+    Hydra keeps the last value without a word), else None. The overrides are found by Hydra's
+    own argument parser and override parser (a group, ``+key``, ``~key`` and a package
+    ``group@pkg`` alike); a command line either cannot parse is left to Hydra's own error."""
+    from hydra._internal.utils import get_args_parser
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    if any(arg in ("--version", "--help", "-h", "--hydra-help") for arg in argv):
+        return None  # they print and exit before any override is used
+    try:
+        args, _ = get_args_parser().parse_known_args(argv)
+        overrides = OverridesParser.create().parse_overrides(args.overrides or [])
+    except (Exception, SystemExit):  # noqa: BLE001 (Hydra reports it itself)
+        return None
+    seen: dict[str, str] = {}
+    for override in overrides:
+        key = override.key_or_group + (f"@{override.package}" if override.package else "")
+        line = override.input_line or key
+        if key in seen:
+            return (
+                f"{key}: given twice on the command line ({seen[key]} and {line}); expected "
+                "each key once (Hydra would keep the last one without a word)"
+            )
+        seen[key] = line
+    return None

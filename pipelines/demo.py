@@ -42,7 +42,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from uss_slam.core.arguments import THREADS_ARG, path_argument
+from uss_slam.core.arguments import THREADS_ARG, given_once, path_argument
 from uss_slam.core.classes import CLASS_NAMES
 from uss_slam.core.cli import exit_on_user_error
 from uss_slam.core.errors import UssSlamError
@@ -485,7 +485,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--train-threads", type=THREADS_ARG, default=None, metavar="N",
                         help="torch threads of the two trainings (default: the experiment's "
                              "num_threads, 2 for demo; 1 is faster on a busy shared machine)")  # fmt: skip
-    return parser
+    return given_once(parser)
 
 
 def _steps(until: str) -> int:

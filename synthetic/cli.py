@@ -10,7 +10,7 @@ from collections.abc import Sequence
 
 import cv2
 
-from uss_slam.core.arguments import number, path_argument
+from uss_slam.core.arguments import given_once, number, path_argument
 from uss_slam.core.classes import CLASS_NAMES
 from uss_slam.core.cli import program, report_interrupt, signals_as_interrupts
 from uss_slam.core.errors import UssSlamError
@@ -201,7 +201,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     common(voc)
 
-    return parser
+    return given_once(parser)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

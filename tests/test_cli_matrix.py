@@ -1031,6 +1031,19 @@ MORE_CASES = [
     case("experiments-duplicated-seeds", "uss-experiments", f"{EXPERIMENTS} grid.seeds=[3,3]",
          1, "grid.seeds",
          "3 is listed twice"),
+    # a key given twice on a Hydra command line (Hydra keeps the last value without a word)
+    case("slam-key-given-twice", "uss-slam", f"{SLAM} progress=true", 1,
+         "progress: given twice on the command line (progress=false and progress=true)",
+         setup=(earlier_slam_run,)),
+    case("slam-group-given-twice", "uss-slam", f"{SLAM} segmenter=labels segmenter=none", 1,
+         "segmenter: given twice", "segmenter=labels and segmenter=none",
+         setup=(earlier_slam_run,)),
+    case("train-key-given-twice-added", "uss-train", f"{TRAIN} +model.x=1 model.x=2", 1,
+         "model.x: given twice", "+model.x=1 and model.x=2"),
+    case("export-out-dir-given-twice", "uss-export", f"{EXPORT} out_dir={{tmp}}/other", 1,
+         "out_dir: given twice"),
+    case("experiments-key-given-twice", "uss-experiments", f"{EXPERIMENTS} dry_run=false", 1,
+         "dry_run: given twice", "dry_run=true and dry_run=false"),
 ]  # fmt: skip
 CASES += MORE_CASES
 

@@ -174,3 +174,83 @@ def test_arg_refuses_each_bound_and_takes_the_bounds() -> None:
     for text in ("0", "4", "1.5", "x", ""):
         with pytest.raises(argparse.ArgumentTypeError, match="expected an integer >= 1"):
             arg(text)
+
+
+# ------------------------------------------------------------------------------ given twice
+
+
+def _a_valid_value(action: argparse.Action) -> list[str]:
+    """Tokens that ``action`` (a value option) takes: its first choice, else the first of a
+    few candidates its type converts (a number in its range, a path, a name)."""
+    if action.choices:
+        return [str(next(iter(action.choices)))]
+    names = getattr(action.type, "choices", None)
+    candidates = [*(names[:1] if names else []), "1", "0.5", "2", "100", "x.png", "walking_xyz",
+                  "64x48"]  # fmt: skip
+    for text in candidates:
+        try:
+            if action.type is not None:
+                action.type(text)
+        except (argparse.ArgumentTypeError, ValueError, TypeError):
+            continue
+        return [text] * (action.nargs if isinstance(action.nargs, int) else 1)
+    raise AssertionError(f"no candidate value for {action.option_strings}")
+
+
+def _value_options() -> list[tuple[str, tuple[str, ...], str, list[str]]]:
+    """``(prog, commands, flag, a valid value)`` of every value option of every parser."""
+    from uss_slam.core.arguments import ONCE_KINDS
+
+    found = []
+
+    def walk(prog: str, parser: argparse.ArgumentParser, commands: tuple[str, ...]) -> None:
+        for action in parser._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                for name, sub in action.choices.items():
+                    walk(prog, sub, (*commands, name))
+            elif action.option_strings and isinstance(action, ONCE_KINDS):
+                value = [] if action.nargs == 0 else _a_valid_value(action)
+                found.append((prog, commands, action.option_strings[-1], value))
+
+    for prog, commands, build in SCRIPT_PARSERS:
+        walk(prog, build(), commands)
+    return found
+
+
+VALUE_OPTIONS = _value_options()
+
+
+@pytest.mark.parametrize(
+    ("prog", "commands", "flag", "value"),
+    VALUE_OPTIONS,
+    ids=[f"{p} {' '.join(c)} {f}".replace("  ", " ") for p, c, f, _ in VALUE_OPTIONS],
+)
+def test_a_value_option_given_twice_is_one_usage_line(
+    prog: str,
+    commands: tuple[str, ...],
+    flag: str,
+    value: list[str],
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys,
+) -> None:
+    """``--out a --out b``: argparse would keep the second without a word. Every value option
+    of every argparse script is refused the second time (exit code 2, the usage line naming
+    the flag and both uses), before any work."""
+    monkeypatch.chdir(tmp_path)
+    code, _, err = run_console_script(
+        prog, [*commands, flag, *value, flag, *value], monkeypatch, capsys
+    )
+    lines = err.strip().splitlines()
+    assert code == 2, err
+    assert lines[-1].startswith(f"{' '.join((prog, *commands))}: error: argument "), err
+    assert f"{flag}: given twice ({flag}" in lines[-1], err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_the_value_options_are_many_and_flags_and_lists_may_repeat() -> None:
+    assert len(VALUE_OPTIONS) >= 40, len(VALUE_OPTIONS)
+    from uss_slam.pipelines.evaluate import cli
+
+    args = cli.build_parser().parse_args(["m.onnx", "--sequence", "a", "--sequence", "b"])
+    assert [str(s) for s in args.sequence] == ["a", "b"]  # an append option

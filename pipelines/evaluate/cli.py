@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Optional
 
-from uss_slam.core.arguments import THREADS_ARG, Names, of_field, path_argument
+from uss_slam.core.arguments import THREADS_ARG, Names, given_once, of_field, path_argument
 from uss_slam.core.classes import CLASS_NAMES, DYNAMIC_CLASSES
 from uss_slam.core.cli import exit_on_user_error, warning
 from uss_slam.core.errors import UssSlamError
@@ -175,7 +175,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help="write N PNG overlays of evenly spaced frames (default: 0)")  # fmt: skip
     parser.add_argument("--threads", type=THREADS_ARG, default=None,
                         help="inference threads (default: the runtime's)")  # fmt: skip
-    return parser
+    return given_once(parser)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -11,7 +11,7 @@ from typing import Any
 
 import yaml
 
-from uss_slam.core.arguments import THREADS_ARG, Names, number, path_argument
+from uss_slam.core.arguments import THREADS_ARG, Names, given_once, number, path_argument
 from uss_slam.core.classes import CLASS_NAMES, DYNAMIC_CLASSES
 from uss_slam.core.cli import exit_on_user_error, warning
 from uss_slam.core.errors import UssSlamError
@@ -220,7 +220,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--threads", type=THREADS_ARG, default=None, help="inference threads (default: all)"
     )
     parser.add_argument("--quiet", action="store_true", help="no progress line")
-    return parser
+    return given_once(parser)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

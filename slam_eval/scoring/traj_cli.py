@@ -13,7 +13,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from uss_slam.core.arguments import number, path_argument
+from uss_slam.core.arguments import given_once, number, path_argument
 from uss_slam.core.cli import interruptible, print_output, report_interrupt
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.paths import input_file, naming, output_file
@@ -55,7 +55,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, metavar="{ate,rpe}")
     _ate_parser(sub)
     _rpe_parser(sub)
-    return parser
+    return given_once(parser)
 
 
 def _common_arguments(p: argparse.ArgumentParser) -> None:

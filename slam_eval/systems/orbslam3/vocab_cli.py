@@ -11,7 +11,7 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from uss_slam.core.arguments import number, path_argument
+from uss_slam.core.arguments import given_once, number, path_argument
 from uss_slam.core.cli import exit_code, interruptible, print_output, report_interrupt
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.files import output_lock
@@ -103,7 +103,7 @@ def build_parser() -> argparse.ArgumentParser:
         "check every line, and print its parameters and size.",
     )
     info.add_argument("vocabulary", type=path_argument, metavar="FILE")
-    return parser
+    return given_once(parser)
 
 
 @interruptible  # SIGTERM as Ctrl-C
