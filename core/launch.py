@@ -19,6 +19,8 @@ Imports nothing outside the standard library before the script's module.
 
 from __future__ import annotations
 
+import atexit
+import contextlib
 import importlib
 import os
 import resource
@@ -288,18 +290,55 @@ TORCH_NO_MEMORY = "DefaultCPUAllocator: can't allocate memory"
 
 def _entry(prog: str) -> Callable[[], None]:
     def run() -> None:
+        ended: dict[str, int] = {}
+        atexit.register(_after_the_work, prog, ended)  # first registered: it runs last
         code = launch(prog)
         stdout.report_lost(prog)
-        # The script is done and has said so: a Ctrl-C or SIGTERM during the interpreter's
-        # shutdown (joining threads, a library's teardown) stops nothing any more, and would
-        # only kill the process by the signal after its outputs were written.
-        for sig in (signal.SIGINT, *TERMINATING):
-            signal.signal(sig, signal.SIG_IGN)
+        ended["code"] = int(code or 0)
+        _record_late_signals(ended)
         sys.exit(code)
 
     run.__name__ = run.__qualname__ = prog.replace("-", "_")
     run.__doc__ = f"``{prog}``: :func:`launch`."
     return run
+
+
+def _record_late_signals(ended: dict[str, int]) -> None:
+    """The script is done and has said so: a Ctrl-C, SIGTERM or SIGHUP during the interpreter's
+    shutdown (joining threads, a library's teardown) stops nothing any more and must not kill
+    the process by the signal after its outputs were written; it is recorded, and
+    :func:`_after_the_work` says so at the very end (a signal ignored, as under ``nohup``,
+    stays ignored)."""
+
+    def late(signum: int, frame: object) -> None:
+        ended.setdefault("signal", signum)
+
+    for sig in (signal.SIGINT, *TERMINATING):
+        try:
+            if signal.getsignal(sig) is not signal.SIG_IGN:
+                signal.signal(sig, late)
+        except ValueError:  # not the main thread
+            pass
+
+
+def _after_the_work(prog: str, ended: dict[str, int]) -> None:
+    """The last exit callback of a console script: after a signal that came once the work was
+    done, one line saying so and the signal's exit code (128 + its number, as an interrupt's),
+    the outputs being complete; a failed run keeps its own code. Then every signal is ignored
+    for the rest of the shutdown."""
+    for sig in (signal.SIGINT, *TERMINATING):
+        with contextlib.suppress(ValueError):  # not the main thread
+            signal.signal(sig, signal.SIG_IGN)
+    signum = ended.get("signal")
+    if signum is None or ended.get("code", 1) != 0:
+        return
+    named = "" if signum == signal.SIGINT else f" ({signal.Signals(signum).name})"
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(OSError, ValueError, AttributeError):
+            stream.flush()
+    print(f"{prog}: interrupted{named} after the work was done; its outputs are complete",
+          file=sys.stderr, flush=True)  # fmt: skip
+    os._exit(128 + int(signum))
 
 
 uss_synth = _entry("uss-synth")

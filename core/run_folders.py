@@ -50,10 +50,32 @@ class RunFolderCheck:
     fresh sweep folders and are not checked. Under DDP, the processes Lightning starts for the
     other ranks (``LOCAL_RANK`` > 0) run in the folder rank 0 holds: they do not lock it."""
 
-    def __init__(self, prog: str, key: str = "hydra.run.dir", lock: bool = True) -> None:
+    def __init__(
+        self,
+        prog: str,
+        key: str = "hydra.run.dir",
+        lock: bool = True,
+        outputs: dict[str, str | None] | None = None,
+    ) -> None:
         self.prog = prog
         self.key = key
         self.lock = lock
+        self.outputs = dict(outputs or {})
+        """The app's own output folders checked first, before its run folder (``out_dir:
+        out``: the key ``out_dir``, unless the key ``out`` is set): a problem both share (a
+        read-only parent, a umask) is named by the key the user set for the outputs."""
+
+    def _check_outputs(self, config: Any) -> None:
+        from omegaconf import OmegaConf
+
+        from uss_slam.core.paths import output_folder
+
+        for key, unless in self.outputs.items():
+            if unless is not None and OmegaConf.select(config, unless) is not None:
+                continue
+            value = OmegaConf.select(config, key)
+            if value is not None and str(value) != str(config.hydra.run.dir):
+                output_folder(str(value), key)
 
     def on_run_start(self, config: Any, **kwargs: Any) -> None:
         from uss_slam.core.files import check_output_owner, output_lock
@@ -69,6 +91,7 @@ class RunFolderCheck:
                 UssSlamError(f"{self.key}: {text[0] if text else error}")
             ) from None
         try:
+            self._check_outputs(config)
             output_folder(folder, self.key)  # before Hydra opens its log file in it
             if self.lock and os.environ.get("LOCAL_RANK", "0") == "0":
                 held = output_lock(folder, self.key)

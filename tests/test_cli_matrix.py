@@ -277,6 +277,20 @@ LONG = "a" * 300
 """A file name longer than any file system allows (255 bytes)."""
 
 
+def over(base: str, *overrides: str) -> str:
+    """``base`` (a Hydra command line) with ``overrides``: a key already in it takes the new
+    value in its place (a key given twice is refused), the others are added at the end."""
+    args = base.split()
+    for override in overrides:
+        key = override.split("=", 1)[0].lstrip("+~")
+        at = [i for i, a in enumerate(args) if a.split("=", 1)[0].lstrip("+~") == key]
+        if at:
+            args[at[0]] = override
+        else:
+            args.append(override)
+    return " ".join(args)
+
+
 def _no_cuda() -> tuple[Any, ...]:
     import torch
 
@@ -436,7 +450,7 @@ CASES = [
     # ---------------------------------------------------------------- uss-slam (Hydra)
     case("slam-stride-not-a-number", "uss-slam", f"{SLAM} sequence.stride=abc", 1,
          "sequence.stride: expected an integer >= 1, got 'abc'", setup=(earlier_slam_run,)),
-    case("slam-progress-not-a-bool", "uss-slam", f"{SLAM} progress=maybe", 1,
+    case("slam-progress-not-a-bool", "uss-slam", over(SLAM, "progress=maybe"), 1,
          "progress: expected true or false, got 'maybe'", setup=(earlier_slam_run,)),
     case("slam-negative-max-diff", "uss-slam", f"{SLAM} sequence.max_diff=-1", 1,
          "sequence.max_diff: expected a number > 0, got -1",
@@ -525,7 +539,7 @@ CASES = [
          "experiment: unknown option 'paper'; expected one of ci, demo,"),
     case("train-unknown-method", "uss-train", f"{TRAIN} model/method=dann", 1,
          "model/method: unknown option 'dann'; expected one of ", "adaptsegnet, "),
-    case("train-source-is-a-sequence", "uss-train", f"{TRAIN} data.source.root={{seq}}", 1,
+    case("train-source-is-a-sequence", "uss-train", over(TRAIN, "data.source.root={seq}"), 1,
          "{seq}: not a VOC tree"),
     case("train-resume-from-a-folder", "uss-train", f"{TRAIN} ckpt_path={{tmp}}", 1,
          "ckpt_path={tmp}: is a folder; expected a file"),
@@ -939,13 +953,13 @@ MORE_CASES = [
          "out_dir={exports}: holds the outputs of uss-export (fake.verify.json)",
          setup=(earlier_export,)),
     # ---------------------------------------------------------------- uss-train (Hydra)
-    case("train-source-root-missing", "uss-train", f"{TRAIN} data.source.root={{tmp}}/nope", 1,
+    case("train-source-root-missing", "uss-train", over(TRAIN, "data.source.root={tmp}/nope"), 1,
          "data.source.root={tmp}/nope",
          ": does not exist; expected a folder"),
-    case("train-target-root-is-a-file", "uss-train", f"{TRAIN} data.target.roots=[{{afile}}]",
+    case("train-target-root-is-a-file", "uss-train", over(TRAIN, "data.target.roots=[{afile}]"),
          1, "data.target.roots={afile}",
          ": is a file; expected a folder", setup=(afile,)),
-    case("train-val-root-is-a-voc-tree", "uss-train", f"{TRAIN} data.val.roots=[{{voc}}]", 1,
+    case("train-val-root-is-a-voc-tree", "uss-train", over(TRAIN, "data.val.roots=[{voc}]"), 1,
          "{voc}",
          "not a TUM RGB-D sequence"),
     case("train-max-iters-zero", "uss-train", f"{TRAIN} model.max_iters=0", 1, "max_iters",
@@ -966,7 +980,7 @@ MORE_CASES = [
     case("train-resume-from-an-onnx", "uss-train", f"{TRAIN} ckpt_path={{m}}", 1, "{m}",
          "not a readable checkpoint: truncated, corrupt or not a uss-train .ckpt",
          setup=(write("m", plain_onnx, ".onnx"),)),
-    case("train-val-label-png-garbled", "uss-train", f"{TRAIN} data.val.roots=[{{s}}]", 1,
+    case("train-val-label-png-garbled", "uss-train", over(TRAIN, "data.val.roots=[{s}]"), 1,
          "data.val.roots={s}: labels/",
          "truncated PNG", setup=(seq_copy(corrupt("labels", 0)),)),
     # ---------------------------------------------------------------- uss-export (Hydra)
@@ -1415,6 +1429,30 @@ def test_outputs_follow_the_umask(
     modes = {p.name: p.stat().st_mode & 0o777 for p in out.rglob("*") if p.is_file()}
     assert {"run.json", "trajectory.txt", "v.txt"} <= set(modes)
     assert modes == dict.fromkeys(modes, 0o666 & ~umask)
+
+
+def test_a_umask_leaving_new_folders_unwritable_names_the_apps_output_key(
+    world: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    """``umask 0222`` with a new ``out_dir`` and a new run folder: the line names ``out_dir``,
+    the key the user set for the outputs (checked before the run folder Hydra makes), and
+    nothing is written."""
+    monkeypatch.chdir(tmp_path)
+    argv = [f"ckpt_path={world['ckpt']}", f"out_dir={tmp_path}/new/exports",
+            f"hydra.run.dir={tmp_path}/hydra"]  # fmt: skip
+    previous = os.umask(0o222)
+    try:
+        code, _, err = run_console_script("uss-export", argv, monkeypatch, capsys)
+    finally:
+        os.umask(previous)
+        HydraConfig.instance().cfg = None
+        GlobalHydra.instance().clear()
+    assert code == 1 and err.strip().splitlines() == [
+        f"uss-export: error: out_dir={tmp_path}/new/exports: a folder created now could not be "
+        "written into: the umask 0222 removes the owner's write permission; set a umask such "
+        "as 0022; expected a folder to write into"
+    ], err
+    assert list(tmp_path.iterdir()) == []
 
 
 # ------------------------------------------------------------------------------ two processes
@@ -2033,7 +2071,7 @@ def test_generated_sample_end_to_end(
     for n, b in enumerate(sorted(firsts.values(), key=lambda b: b.kind)):
         folder = tmp_path / f"case{n}"
         folder.mkdir()
-        argv = f"{base} {_override(b.key, b.value, b.kind)}"
+        argv = over(base, _override(b.key, b.value, b.kind))
         try:
             check_case(Case(b.id, prog, tuple(argv.split()), 1, (b.key,), setup=setup),
                        world, folder, monkeypatch, capsys)  # fmt: skip

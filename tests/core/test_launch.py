@@ -6,6 +6,7 @@ from __future__ import annotations
 import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -177,13 +178,15 @@ def test_a_missing_package_inside_a_hydra_app_is_the_same_one_line(
     assert _missing_package("uss-train", RuntimeError("other")) is None
 
 
-LATE_CTRL_C = """
-import atexit, signal, sys, types
+LATE_SIGNAL = """
+import signal, sys, threading, time, types
 from uss_slam.core import launch
 
 def main():
-    atexit.register(lambda: print(signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)))
-    return 0
+    # a library's thread the interpreter joins at its shutdown (a writer, a teardown)
+    threading.Thread(target=time.sleep, args=(float(sys.argv[1]),)).start()
+    print("done", flush=True)
+    return int(sys.argv[2])
 
 module = types.ModuleType("late_script")
 module.main = main
@@ -193,14 +196,32 @@ launch._entry("uss-late")()
 """
 
 
-def test_a_ctrl_c_after_the_script_is_done_changes_nothing() -> None:
-    """Once the script has finished and said so, Ctrl-C and SIGTERM are ignored during the
-    interpreter's shutdown (``uss-export int8=true``: a Ctrl-C while onnxruntime and torch tear
-    down killed the process by SIGINT, exit code -2, after its outputs were written)."""
-    done = subprocess.run([sys.executable, "-c", LATE_CTRL_C], capture_output=True, text=True,
-                          timeout=60)  # fmt: skip
-    assert done.returncode == 0, done.stderr
-    assert done.stdout.split() == [str(int(signal.SIG_IGN))] * 2
+@pytest.mark.parametrize(("sig", "code"), [(signal.SIGHUP, 0), (signal.SIGINT, 0),
+                                           (signal.SIGTERM, 1), (None, 0)])  # fmt: skip
+def test_a_signal_after_the_work_is_done_is_one_line_and_kills_nothing(
+    sig: signal.Signals | None, code: int
+) -> None:
+    """Once the script has finished and said so, a Ctrl-C, SIGTERM or SIGHUP (the terminal
+    closed) during the interpreter's shutdown does not kill the process by the signal (it did:
+    exit code -2 while onnxruntime and torch tore down), nor goes unsaid (exit 0 with no
+    line): one line that the work was done and the signal's exit code; a run that failed keeps
+    its own code."""
+    proc = subprocess.Popen([sys.executable, "-c", LATE_SIGNAL, "1.5", str(code)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)  # fmt: skip
+    assert proc.stdout is not None and proc.stdout.readline() == "done\n"
+    if sig is not None:
+        time.sleep(0.3)  # main has returned: the shutdown joins the thread
+        proc.send_signal(sig)
+    _, err = proc.communicate(timeout=60)
+    if sig is None or code != 0:
+        assert (proc.returncode, err) == (code, "")
+        return
+    named = "" if sig == signal.SIGINT else f" ({sig.name})"
+    assert proc.returncode == 128 + sig, err
+    assert err.splitlines() == [
+        f"uss-late: interrupted{named} after the work was done; its outputs are complete"
+    ]
 
 
 @pytest.mark.parametrize("prog", ["uss-synth", "uss-slam"])
