@@ -34,6 +34,7 @@ from uss_slam.core.errors import NoSpaceError, UssSlamError
 from uss_slam.core.files import no_space_errno
 from uss_slam.core.hydra_lines import (  # noqa: F401 (their home before)
     hydra_error_line,
+    hydra_switch_line,
     output_folder_line,
     override_parse_line,
     repeated_override_line,
@@ -518,6 +519,8 @@ def run_hydra_app(prog: str, app: Callable[[], object]) -> None:
         line = hydra_error_line(error)
         if line is None and isinstance(error, OSError) and not report.started:
             line = output_folder_line(error)  # Hydra could not create its output folder
+        if line is None and not report.started:  # a switch of Hydra's own it cannot follow
+            line = hydra_switch_line(error, sys.argv[1:])
         if line is None:
             raise
         print(f"{prog}: error: {line}", file=sys.stderr)

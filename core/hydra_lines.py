@@ -139,3 +139,36 @@ def repeated_override_line(argv: list[str]) -> str | None:
             )
         seen[key] = line
     return None
+
+
+SWITCHES = (("experimental_rerun", "--experimental-rerun"), ("shell_completion",
+            "--shell-completion"), ("info", "--info"), ("cfg", "--cfg"), ("package", "--package"),
+            ("config_dir", "--config-dir"), ("config_path", "--config-path"),
+            ("config_name", "--config-name"))  # fmt: skip
+"""Hydra's own switches (its argument parser's ``dest`` and flag), most particular first."""
+
+
+def hydra_switch_line(error: BaseException, argv: list[str]) -> str | None:
+    """One line for an error raised by Hydra's own code before any job started (a switch it
+    cannot follow: ``--experimental-rerun`` of a missing file, ``--shell-completion`` without
+    ``install=SHELL``), naming the switch; None for an error raised elsewhere (an internal
+    error keeps its traceback)."""
+    from hydra._internal.utils import get_args_parser
+
+    tb = error.__traceback__
+    while tb is not None and tb.tb_next is not None:
+        tb = tb.tb_next
+    module = "" if tb is None else str(tb.tb_frame.f_globals.get("__name__", ""))
+    if module.split(".")[0] != "hydra":
+        return None
+    text = (str(error).strip().splitlines() or [type(error).__name__])[0].rstrip("!. ")
+    try:
+        args, _ = get_args_parser().parse_known_args(argv)
+    except (Exception, SystemExit):  # noqa: BLE001
+        return text
+    for dest, flag in SWITCHES:
+        value = getattr(args, dest, None)
+        if value:
+            shown = flag if value is True else f"{flag}={value}"
+            return f"{shown}: {text}"
+    return text

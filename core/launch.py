@@ -133,8 +133,9 @@ def _interrupted(prog: str, error: KeyboardInterrupt) -> int:
 def launch(prog: str) -> int | None:
     """Run console script ``prog`` (its module's ``main``) with the lines above; ``prog
     --version`` prints ``<prog> <uss-slam's version>`` (every script, Hydra's apps included,
-    whose own flag would print Hydra's version)."""
-    if sys.argv[1:] == ["--version"]:
+    whose own flag would print Hydra's version), wherever it is on the command line (before a
+    ``--``), as argparse's own version flags do."""
+    if "--version" in sys.argv[1:][: (sys.argv + ["--"]).index("--", 1) - 1]:  # anywhere
         from importlib.metadata import version
 
         print(f"{prog} {version('uss-slam')}")

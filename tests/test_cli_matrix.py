@@ -1058,6 +1058,10 @@ MORE_CASES = [
          "out_dir: given twice"),
     case("experiments-key-given-twice", "uss-experiments", f"{EXPERIMENTS} dry_run=false", 1,
          "dry_run: given twice", "dry_run=true and dry_run=false"),
+    # Hydra's own switches it cannot follow (its ValueError was a traceback)
+    case("slam-shell-completion-alone", "uss-slam", "--shell-completion", 1,
+         "--shell-completion: Expecting one subcommand"),
+    case("export-shell-completion-alone", "uss-export", "-sc", 1, "--shell-completion: "),
 ]  # fmt: skip
 CASES += MORE_CASES
 

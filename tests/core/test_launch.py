@@ -206,9 +206,14 @@ def test_a_signal_after_the_work_is_done_is_one_line_and_kills_nothing(
     exit code -2 while onnxruntime and torch tore down), nor goes unsaid (exit 0 with no
     line): one line that the work was done and the signal's exit code; a run that failed keeps
     its own code."""
+
+    def as_from_a_terminal() -> None:  # (a test run under nohup or `&` ignores them)
+        for each in (signal.SIGHUP, signal.SIGINT):
+            signal.signal(each, signal.SIG_DFL)
+
     proc = subprocess.Popen([sys.executable, "-c", LATE_SIGNAL, "1.5", str(code)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            start_new_session=True)  # fmt: skip
+                            start_new_session=True, preexec_fn=as_from_a_terminal)  # fmt: skip
     assert proc.stdout is not None and proc.stdout.readline() == "done\n"
     if sig is not None:
         time.sleep(0.3)  # main has returned: the shutdown joins the thread
@@ -224,12 +229,16 @@ def test_a_signal_after_the_work_is_done_is_one_line_and_kills_nothing(
     ]
 
 
-@pytest.mark.parametrize("prog", ["uss-synth", "uss-slam"])
-def test_version_flag(prog: str, monkeypatch: pytest.MonkeyPatch, capsys) -> None:
-    """``--version`` alone: the project's version, exit 0 (argparse would name a missing
+@pytest.mark.parametrize(
+    ("prog", "args"),
+    [("uss-synth", []), ("uss-slam", []), ("uss-synth", ["voc", "--out", "x"]),
+     ("uss-slam", ["progress=false"]), ("uss-train", ["-m"])],
+)  # fmt: skip
+def test_version_flag(prog: str, args: list[str], monkeypatch: pytest.MonkeyPatch, capsys) -> None:
+    """``--version`` anywhere: the project's version, exit 0 (argparse would name a missing
     subcommand, Hydra print its own version)."""
     from importlib.metadata import version
 
-    monkeypatch.setattr(sys, "argv", [prog, "--version"])
+    monkeypatch.setattr(sys, "argv", [prog, *args, "--version"])
     assert launch.launch(prog) == 0
     assert capsys.readouterr().out == f"{prog} {version('uss-slam')}\n"
