@@ -146,8 +146,8 @@ class SlamConfig:
     carry_velocity: bool = False
     """With ``segment=thread``: the carried mask is also drawn where each person (a connected
     labelled region) moves to, at the velocity of its 3D centroid between the last two masks
-    (at most 1.5 m/s, for at most 1 s). docs/results/slam.md ("the carried mask moved with each
-    person's velocity")."""
+    (at most 1.5 m/s, for at most 1 s). An experiment, dropped by its pre-registered rule
+    (docs/results/slam.md, "the carried mask moved with each person's velocity")."""
     semantic_nice: int = ranged(0, min=0, max=19)
     """With ``segment=thread`` and a segmenter that really runs (the wall clock): the semantic
     thread's nice value above the process's (Linux), so that tracking takes the cores first and
