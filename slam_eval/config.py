@@ -148,6 +148,10 @@ class SlamConfig:
     labelled region) moves to, at the velocity of its 3D centroid between the last two masks
     (at most 1.5 m/s, for at most 1 s). An experiment, dropped by its pre-registered rule
     (docs/results/slam.md, "the carried mask moved with each person's velocity")."""
+    carry_radius_m: Optional[float] = ranged(None, gt=0)  # noqa: UP045
+    """With ``segment=thread``: a keypoint whose measured 3D point lies within this many metres
+    of the carried mask's people is flagged with them (null = off). docs/results/slam.md
+    ("keypoints near the carried people in 3D")."""
     semantic_nice: int = ranged(0, min=0, max=19)
     """With ``segment=thread`` and a segmenter that really runs (the wall clock): the semantic
     thread's nice value above the process's (Linux), so that tracking takes the cores first and
@@ -374,6 +378,7 @@ def check(cfg: DictConfig, overrides: Sequence[str] = ()) -> RunPlan:
         provisional_points_refused(bool(cfg.slam.provisional_points), str(cfg.segment)),
         carry_refused(str(cfg.slam.carry_to_keyframes), str(cfg.segment)),
         carry_refused("velocity" if cfg.slam.carry_velocity else "none", str(cfg.segment)),
+        carry_refused("radius" if cfg.slam.carry_radius_m else "none", str(cfg.segment)),
     ):
         if line is not None:
             raise UssSlamError(line)

@@ -165,6 +165,7 @@ def _run_harness(
             semantic_nice=int(slam.semantic_nice),
             carry_to_keyframes=str(slam.carry_to_keyframes),
             carry_velocity=bool(slam.carry_velocity),
+            carry_radius_m=slam.carry_radius_m,
             progress=bool(cfg.progress),
             description=f"{sequence.path.name} [{run_name(names)}]"
             + (f" repeat {repeat.index}" if len(plan.repeats) > 1 else ""),

@@ -36,6 +36,7 @@ import numpy as np
 from ..filters.base import FilterContext
 from ..filters.chain import FilterChain, FrameFilters
 from ..frontend.orb import Features
+from ..geometry import invert
 from ..map.slam_map import KeyFrame, SlamMap
 from ..mapping.local_mapping import LocalMapping
 from ..mapping.loop_closing import LoopCloser
@@ -47,6 +48,7 @@ from .semantic_thread import (
     CarriedMask,
     SemanticThread,
     carry_targets,
+    classes_near,
     hold_new_points,
     mark_carried,
     mark_dynamic_points,
@@ -128,6 +130,9 @@ class FrameLoop:
     carry_velocity: bool = False
     """With the semantic thread (``slam.carry_velocity``): the carried mask is also drawn where
     each person moves to (:func:`~.semantic_thread.people_motion`)."""
+    carry_radius_m: float | None = None
+    """With the semantic thread (``slam.carry_radius_m``): a keypoint whose 3D point lies within
+    this many metres of the carried mask's points is flagged with them (:meth:`paint_near`)."""
     people: tuple[np.ndarray, float] | None = None
     """With ``carry_velocity``: the last delivered mask's people, ``(B, 3)`` map-frame
     centroids and its stamp (s)."""
@@ -231,6 +236,7 @@ class FrameLoop:
         if self.carried is not None and ctx.labels is None and result.pose_wc is not None:
             with timer("carry_mask"):
                 ctx.labels = self.carried.labels_for(self.map, result.pose_wc, frame.stamp)
+                self.paint_near(ctx.labels, ctx.features, result.pose_wc)
             late = True
         elif self.segment_now is not None and ctx.labels is None and result.pose_wc is not None:
             with timer("mapping"):
@@ -335,6 +341,23 @@ class FrameLoop:
             assert carried.velocity is not None and carried.region is not None
             moving = np.any(carried.velocity != 0, axis=1)
             self.counts["people_moving"] += len(np.unique(carried.region[moving]))
+
+    def paint_near(self, labels: np.ndarray, features: Features, pose_wc: np.ndarray) -> None:
+        """With ``carry_radius_m``: paint into the carried ``labels`` (H, W) the class of each
+        keypoint whose 3D point lies that near a carried point
+        (:func:`~.semantic_thread.classes_near`), at its pixel, so that the filters flag it;
+        counted as ``keypoints_near_people``."""
+        if not self.carry_radius_m or self.carried is None:
+            return
+        t_frame_kf = invert(pose_wc) @ self.map.pose_wc(self.carried.kf_id)
+        cls = classes_near(self.carried, t_frame_kf, features.points, self.carry_radius_m)
+        near = np.flatnonzero(cls)
+        h, w = labels.shape
+        col = np.clip(np.rint(features.xy[near, 0]).astype(np.int64), 0, w - 1)
+        row = np.clip(np.rint(features.xy[near, 1]).astype(np.int64), 0, h - 1)
+        fresh = labels[row, col] == 0
+        labels[row, col] = np.where(fresh, cls[near], labels[row, col])
+        self.counts["keypoints_near_people"] += int(fresh.sum())
 
     def dynamic_region(self, frame: Frame, labels: np.ndarray | None) -> np.ndarray | None:
         """``(H, W)`` bool: the union of the dynamic regions that the filters which mask their

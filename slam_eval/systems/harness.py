@@ -161,6 +161,7 @@ class SlamPipeline:
         semantic_nice: int = 0,
         carry_to_keyframes: str = "none",
         carry_velocity: bool = False,
+        carry_radius_m: float | None = None,
     ) -> None:
         """``sampling_seed``: perturbs the tracker's RANSAC sampling (a repeated run,
         :mod:`.repeats`); None = the deterministic run. ``prefetch_mode``: ``"thread"``,
@@ -191,6 +192,7 @@ class SlamPipeline:
         self.semantic_nice = semantic_nice
         self.carry_to_keyframes = carry_to_keyframes
         self.carry_velocity = carry_velocity
+        self.carry_radius_m = carry_radius_m
         self.progress = progress
         self.description = description or sequence.path.name
         self.local_ba = local_ba
@@ -313,6 +315,7 @@ class SlamPipeline:
             provisional_border_px=self.provisional_border_px,
             carry_to_keyframes=self.carry_to_keyframes,
             carry_velocity=self.carry_velocity,
+            carry_radius_m=self.carry_radius_m,
         )  # fmt: skip
 
     def _frames(self) -> tuple[frontend_process.FrontendProcess | None, Iterator[Prepared]]:
@@ -418,6 +421,7 @@ class SlamPipeline:
                 for k in (
                     "points_held", "points_cleared", "points_dropped", "keyframes_gated",
                     "keyframes_carried", "points_marked_carried", "people_moving",
+                    "keypoints_near_people",
                 )  # fmt: skip
                 if k in loop.counts
             },

@@ -44,6 +44,7 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
+from scipy.spatial import cKDTree
 
 from ..filters.base import values_at
 from ..geometry import invert, project, transform
@@ -338,6 +339,26 @@ class CarriedMask:
         return self.labels_at(invert(pose_wc) @ slam_map.pose_wc(self.kf_id), dt)
 
 
+def classes_near(
+    carried: CarriedMask, t_frame_kf: np.ndarray, points: np.ndarray, radius: float
+) -> np.ndarray:
+    """``(N,)`` uint8: for each of a frame's keypoints, its camera-frame point ``points`` (N, 3)
+    m (NaN without depth), the class of the nearest carried point within ``radius`` m (the
+    carried points in the frame's camera by ``t_frame_kf``, 4 x 4 ``T_frame,kf``); 0 where none
+    is that near or the keypoint has no depth."""
+    out = np.zeros(len(points), np.uint8)
+    valid = np.isfinite(points).all(axis=1)
+    if len(carried.points) == 0 or not valid.any():
+        return out
+    p = carried.points @ t_frame_kf[:3, :3].T + t_frame_kf[:3, 3]
+    dist, idx = cKDTree(p).query(points[valid], distance_upper_bound=radius)
+    hit = np.isfinite(dist)
+    cls = np.zeros(int(valid.sum()), np.uint8)
+    cls[hit] = carried.classes[idx[hit]]
+    out[valid] = cls
+    return out
+
+
 def people_motion(
     carried: CarriedMask, pose_wc: np.ndarray, previous: tuple[np.ndarray, float] | None
 ) -> tuple[np.ndarray, float]:
@@ -406,10 +427,12 @@ CARRY_TO_KEYFRAMES = ("none", "newer", "since_previous")
 
 def carry_refused(reach: str, segment: str) -> str | None:
     """One line when ``slam.carry_to_keyframes`` asks for carried masks (``reach``;
-    ``velocity``: ``slam.carry_velocity=true``) with a ``segment`` schedule other than ``thread``
+    ``velocity``: ``slam.carry_velocity=true``, ``radius``: ``slam.carry_radius_m``) with a ``segment`` schedule other than ``thread``
     (the only one with delivered masks), else None."""
     if reach != "none" and segment != "thread":
-        key = "carry_velocity=true" if reach == "velocity" else f"carry_to_keyframes={reach}"
+        key = {"velocity": "carry_velocity=true", "radius": "carry_radius_m"}.get(
+            reach, f"carry_to_keyframes={reach}"
+        )
         return f"slam.{key} needs segment=thread (got segment={segment})"
     return None
 
