@@ -173,10 +173,10 @@ class OrbExtractor:
         if budget <= 0 or hi_x - lo_x < 8 or hi_y - lo_y < 8:
             return np.zeros((0, 2), np.float32), np.zeros(0, np.float32)
         # FAST needs a 3 px ring around each tested pixel: detect on the region grown by 3 px.
+        # OpenCV's FAST tests only the pixels at least 3 px inside the image it is given, so
+        # every corner it finds there lies in the region (here and in the boxes below).
         roi = image[lo_y - 3 : hi_y + 3, lo_x - 3 : hi_x + 3]
         xy, score = _fast(self._fast_hi, roi, lo_x - 3, lo_y - 3)
-        keep = _inside(xy, lo_x, lo_y, hi_x, hi_y)
-        xy, score = xy[keep], score[keep]
         cell = self.config.cell_size
         nx = max(1, int(math.ceil((hi_x - lo_x) / cell)))
         ny = max(1, int(math.ceil((hi_y - lo_y) / cell)))
@@ -206,18 +206,10 @@ class OrbExtractor:
         ]
         counts = [len(corners) for corners in found]
         if any(counts):
-            box = np.repeat(all_boxes.astype(np.float32), counts, axis=0)
+            origin = np.repeat(all_boxes[:, :2].astype(np.float32) - np.float32(3), counts, axis=0)
             flat = list(itertools.chain.from_iterable(found))
-            extra = cv2.KeyPoint_convert(flat).reshape(-1, 2) + (box[:, :2] - np.float32(3))
-            extra_score = _responses(flat)
-            keep = (
-                (extra[:, 0] >= box[:, 0])
-                & (extra[:, 0] < box[:, 2])
-                & (extra[:, 1] >= box[:, 1])
-                & (extra[:, 1] < box[:, 3])
-            )
-            xy = np.concatenate([xy, extra[keep]])
-            score = np.concatenate([score, extra_score[keep]])
+            xy = np.concatenate([xy, cv2.KeyPoint_convert(flat).reshape(-1, 2) + origin])
+            score = np.concatenate([score, _responses(flat)])
         if len(xy) <= budget:
             return xy, score
         # Grid bucketing: cells sized so that there are about `budget` of them; take rank-0
@@ -388,7 +380,3 @@ def _argsort_by_position(key: np.ndarray) -> np.ndarray:
     thousands of corners of a level than its stable merge sort."""
     n = len(key)
     return np.argsort(key * n + np.arange(n, dtype=np.int64))
-
-
-def _inside(xy: np.ndarray, x0: float, y0: float, x1: float, y1: float) -> np.ndarray:
-    return (xy[:, 0] >= x0) & (xy[:, 0] < x1) & (xy[:, 1] >= y0) & (xy[:, 1] < y1)
