@@ -25,6 +25,7 @@ import os
 import signal
 import sys
 import threading
+import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -75,12 +76,26 @@ _handlers_depth = 0
 :data:`_received`)."""
 
 
+_first_at: float | None = None
+"""When (``time.monotonic``) the interrupt of :data:`_received` came."""
+CLEANUP_GRACE_S = 5.0
+"""Seconds after an interrupt during which a further Ctrl-C, SIGTERM or SIGHUP is absorbed
+(a user presses Ctrl-C twice; a terminal's Ctrl-C reaches every process of its group): the
+cleanup the first one started (removing a staging folder, freeing shared memory, joining
+workers) is not cut short, which left its files or a leaked shared-memory block. A later one
+raises again: a cleanup that hangs can still be stopped."""
+
+
 def _interrupt_handler(signum: int, frame: object) -> None:
     """SIGINT / SIGTERM in a console script: end the pool workers this process started (they
     ignore Ctrl-C, so that none prints a traceback, and a pool would otherwise wait for their
-    tasks), then raise the interrupt in the main thread."""
-    global _received
-    _received = signum
+    tasks), then raise the interrupt in the main thread. A second one within
+    :data:`CLEANUP_GRACE_S` of the first does nothing."""
+    global _received, _first_at
+    now = time.monotonic()
+    if _received is not None and _first_at is not None and now - _first_at < CLEANUP_GRACE_S:
+        return  # the first one's cleanup is running: let it finish
+    _received, _first_at = signum, now
     from uss_slam.core.processes import end_pool_workers
 
     end_pool_workers()
@@ -99,12 +114,13 @@ def signals_as_interrupts() -> Iterator[None]:
     as it is; outside the main thread the block runs as it is. The handlers in place before
     are restored when the block ends; :func:`interrupt_signal` still names the signal then.
     """
-    global _handlers_depth, _received
+    global _handlers_depth, _received, _first_at
     if threading.current_thread() is not threading.main_thread():
         yield
         return
     if _handlers_depth == 0:
         _received = None
+        _first_at = None
     previous = {sig: signal.getsignal(sig) for sig in INTERRUPTING}
     for sig, handler in previous.items():
         if handler is signal.SIG_IGN or (sig == signal.SIGINT and not callable(handler)):

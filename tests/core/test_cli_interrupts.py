@@ -140,3 +140,31 @@ def test_an_error_that_follows_an_interrupt_is_reported_as_the_interrupt(sig_nam
 def test_an_error_without_an_interrupt_still_propagates() -> None:
     with pytest.raises(RuntimeError, match="real"), exit_on_user_error("uss-x"):
         raise RuntimeError("real failure")
+
+
+def test_a_second_interrupt_during_the_cleanup_lets_it_finish(monkeypatch) -> None:
+    """Ctrl-C twice (or a terminal's Ctrl-C reaching every process of its group): the cleanup
+    the first one started runs to its end (it was cut short: a leaked shared-memory block, a
+    staging folder left); one long after it (:data:`CLEANUP_GRACE_S`) still stops a cleanup
+    that hangs."""
+    import os
+    import signal
+
+    from uss_slam.core import cli
+    from uss_slam.core.cli import signals_as_interrupts
+
+    cleaned = []
+    with pytest.raises(KeyboardInterrupt), signals_as_interrupts():
+        try:
+            os.kill(os.getpid(), signal.SIGINT)
+        finally:
+            os.kill(os.getpid(), signal.SIGINT)  # during the cleanup: absorbed
+            cleaned.append(True)
+    assert cleaned == [True]
+    monkeypatch.setattr(cli, "CLEANUP_GRACE_S", 0.0)
+    with pytest.raises(KeyboardInterrupt), signals_as_interrupts():
+        try:
+            os.kill(os.getpid(), signal.SIGINT)
+        finally:
+            with pytest.raises(KeyboardInterrupt):  # past the grace period: raised again
+                os.kill(os.getpid(), signal.SIGINT)
