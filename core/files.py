@@ -300,8 +300,9 @@ def lock_path(target: str | PathLike[str]) -> Path:
     """The lock file of an output (a folder or a file): ``.<name>.lock`` beside it, so that the
     output's own content never includes it (an output folder that appears only when complete
     stays absent until then). For an existing folder whose parent cannot be written, ``.lock``
-    inside it."""
-    target = Path(target).absolute()
+    inside it. The output is named by its real path (``..`` collapsed, links followed): one
+    output spelled two ways (``../out/o`` and ``/data/out/o``, a link to it) has one lock."""
+    target = Path(os.path.realpath(target))
     if target.is_dir() and not os.access(target.parent, os.W_OK):
         return target / ".lock"
     return target.parent / f".{target.name}.lock"

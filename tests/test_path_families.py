@@ -320,3 +320,52 @@ def test_read_only_output_location(arg: PathArg, world: dict[str, Path], tmp_pat
     assert lines[0].startswith(f"{head}: error: {named}: "), lines[0]
     assert f"cannot write to {locked} (Permission denied)" in lines[0], lines[0]
     assert not any(locked.iterdir())
+
+
+# ------------------------------------------------------------------------------ odd but valid
+
+
+def _accepted(arg: PathArg) -> list:
+    """The case of ``arg``: marked ``slow`` where the script's run takes seconds (training,
+    an export, the demo's data stage, the experiments' plan)."""
+    heavy = arg.slow or arg.prog in ("uss-export", "uss-demo", "uss-experiments")
+    return [pytest.param(arg, id=arg.id, marks=(pytest.mark.slow,) if heavy else ())]
+
+
+@pytest.mark.parametrize(
+    "arg", [p for a in PATH_ARGS if a.kind in (OUT_FILE, OUT_FOLDER) for p in _accepted(a)]
+)
+def test_an_odd_but_valid_output_path_is_taken(
+    arg: PathArg, world: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    """An output given relative to the working folder through ``..``, with a space and a
+    non-ASCII name (``../out dir/ré/x``, quoted for Hydra as its values need): the script runs
+    and writes there (``..`` spelled in the path named the output's lock apart from the
+    script's own, and ``uss-slam`` found its own run folder "in use by" itself)."""
+    work = tmp_path / "work"
+    work.mkdir()
+    name = {OUT_FILE: "x.png" if arg.prog == "uss-traj" else "x.txt"}.get(arg.kind, "x")
+    odd = f"../out dir/ré/{name}"
+    paths = {**world, "tmp": tmp_path, "P": odd}
+    if "{m}" in arg.argv:
+        paths["m"] = tmp_path / "m.onnx"
+        paths["m"].write_bytes(colour_onnx({"tmp": tmp_path}))
+        if arg.argv.count("{m}") == 2:  # uss-eval compare: two models that differ
+            from shared_helpers import colour_model, segmenter_props
+
+            from uss_slam.core.classes import CLASS_NAMES
+
+            paths["m2"] = colour_model(tmp_path / "m2.onnx", segmenter_props(CLASS_NAMES),
+                                       bias=100.0)  # fmt: skip
+            arg = dataclasses.replace(arg, argv=arg.argv.replace("{m} {m}", "{m} {m2}"))
+    template = arg.argv.replace("={P}", "='{P}'")  # a Hydra value with a space: quoted
+    argv = [a.format(**paths) for a in template.split()]
+    monkeypatch.chdir(work)
+    monkeypatch.setattr(logging, "raiseExceptions", False)
+    try:
+        code, _, err = run_console_script(arg.prog, argv, monkeypatch, capsys)
+    finally:
+        HydraConfig.instance().cfg = None
+        GlobalHydra.instance().clear()
+    assert code == 0, err
+    assert (tmp_path / "out dir" / "ré" / name).exists(), err

@@ -170,3 +170,19 @@ def test_a_forked_worker_that_outlives_its_parent_keeps_the_lock(tmp_path: Path)
         except OutputInUseError:
             assert time.monotonic() < deadline
             time.sleep(0.05)
+
+
+def test_one_output_spelled_two_ways_has_one_lock(tmp_path: Path, monkeypatch) -> None:
+    """``../out/o`` from a sibling folder, the absolute path and a link to its folder name one
+    lock: the lock is re-entrant for them in this process (a run found its own folder "in use
+    by" itself when a stage locked it under another spelling)."""
+    from uss_slam.core.files import lock_path, output_lock
+
+    (tmp_path / "work").mkdir()
+    (tmp_path / "out").mkdir()
+    (tmp_path / "link").symlink_to(tmp_path / "out")
+    monkeypatch.chdir(tmp_path / "work")
+    spellings = ["../out/o", tmp_path / "out" / "o", tmp_path / "link" / "o", "../work/../out/o"]
+    assert {lock_path(s) for s in spellings} == {tmp_path / "out" / ".o.lock"}
+    with output_lock("../out/o"), output_lock(tmp_path / "link" / "o", "out_dir"):
+        pass
