@@ -220,6 +220,19 @@ def read_colour(path: str | PathLike[str]) -> np.ndarray:
     return _read_eight_bit(path, cv2.IMREAD_COLOR)
 
 
+_RGB = getattr(cv2, "IMREAD_COLOR_RGB", None)
+"""OpenCV's flag to decode straight to RGB (4.11 on), else None."""
+
+
+def read_rgb(path: str | PathLike[str]) -> np.ndarray:
+    """A colour image as ``(H, W, 3)`` uint8 RGB: :func:`read_colour`'s pixels with the
+    channels in RGB order, decoded in that order (no BGR image converted afterwards: ~0.1 CPU
+    ms less a 640x480 frame) where OpenCV can."""
+    if _RGB is None:  # pragma: no cover - an OpenCV before 4.11
+        return cv2.cvtColor(read_colour(path), cv2.COLOR_BGR2RGB)
+    return _read_eight_bit(path, _RGB)
+
+
 def read_grey(path: str | PathLike[str]) -> np.ndarray:
     """A colour image as ``(H, W)`` uint8 grey (a 16-bit PNG refused, as by :func:`read_colour`)."""
     return _read_eight_bit(path, cv2.IMREAD_GRAYSCALE)

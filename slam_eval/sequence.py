@@ -22,7 +22,7 @@ import cv2
 import numpy as np
 
 from uss_slam.core.errors import DataFormatError, UssSlamError
-from uss_slam.core.images import read_colour, read_depth, read_grey
+from uss_slam.core.images import read_depth, read_grey, read_rgb
 from uss_slam.core.images import read_labels as read_label_image
 from uss_slam.core.tum_io import (
     StrPath,
@@ -161,16 +161,16 @@ class TumSequence:
         :meth:`load` without :meth:`load_depth_and_labels`, which the frame reader process
         leaves to the main process unless it is behind."""
         record = self.records[index]
-        bgr = read_colour(record.rgb_path)
-        if (bgr.shape[1], bgr.shape[0]) != self.image_size:  # the odd one out is named
+        rgb = read_rgb(record.rgb_path)
+        if (rgb.shape[1], rgb.shape[0]) != self.image_size:  # the odd one out is named
             raise DataFormatError(
                 record.rgb_path,
-                f"image is {bgr.shape[1]}x{bgr.shape[0]} but the sequence's first frame is "
+                f"image is {rgb.shape[1]}x{rgb.shape[0]} but the sequence's first frame is "
                 f"{self.image_size[0]}x{self.image_size[1]}",
             )
-        rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
-        gray = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
-        return rgb, gray
+        # The same grey as from the BGR image (integer weights: the order cannot round
+        # differently).
+        return rgb, cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
 
     def load_depth_and_labels(self, index: int) -> tuple[np.ndarray, np.ndarray | None]:
         """Frame ``index``'s depth (:meth:`load_depth`) and labels (:meth:`load_frame_labels`;

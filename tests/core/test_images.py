@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from uss_slam.core.errors import DataFormatError
-from uss_slam.core.images import image_problem, read_colour, read_depth, read_labels
+from uss_slam.core.images import image_problem, read_colour, read_depth, read_labels, read_rgb
 from uss_slam.core.paths import read_text
 
 
@@ -42,6 +42,34 @@ def test_a_whole_image_decodes_as_opencv_decodes_it(kind: str, tmp_path: Path) -
     assert np.array_equal(read_colour(path), cv2.imread(str(path), cv2.IMREAD_COLOR))
     path.write_bytes(_encoded(kind) + b"bytes a camera appended")
     assert image_problem(path.read_bytes()) is None
+
+
+@pytest.mark.parametrize("kind", ENCODINGS)
+@pytest.mark.parametrize("channels", [1, 3, 4])
+def test_rgb_decoding_gives_the_colour_pixels_and_grey_in_rgb_order(
+    kind: str, channels: int, tmp_path: Path
+) -> None:
+    """``read_rgb`` (decoded in RGB order) is ``read_colour`` with its channels swapped, and the
+    grey of the RGB image is the grey of the BGR one, for grey, colour and RGBA files."""
+    picture = _picture(channels)
+    picture = {1: picture[..., 0], 3: picture, 4: np.dstack([picture, picture[..., 1]])}[channels]
+    if kind != "png" and channels == 4:
+        picture = picture[..., :3]  # JPEG has no alpha
+    ext, params = ENCODINGS[kind]
+    path = tmp_path / f"x{ext}"
+    path.write_bytes(cv2.imencode(ext, picture, params)[1].tobytes())
+    bgr, rgb = read_colour(path), read_rgb(path)
+    assert rgb.shape == bgr.shape and rgb.dtype == np.uint8
+    assert np.array_equal(rgb, bgr[..., ::-1])
+    grey = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
+    assert np.array_equal(cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY), grey)
+
+
+def test_rgb_decoding_refuses_a_depth_image(tmp_path: Path) -> None:
+    path = tmp_path / "depth.png"
+    cv2.imwrite(str(path), np.full((8, 8), 5000, np.uint16))
+    with pytest.raises(DataFormatError, match="16-bit PNG"):
+        read_rgb(path)
 
 
 @pytest.mark.parametrize("kind", ENCODINGS)
