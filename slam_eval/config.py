@@ -43,7 +43,7 @@ from .products.semantic_map import MapConfig
 from .scoring.evaluation import EvalConfig
 from .scoring.repeats import Perturbation, perturbations
 from .systems.harness import SEGMENT_SCHEDULES, provisional_points_refused
-from .systems.semantic_thread import CARRY_TO_KEYFRAMES, carry_refused
+from .systems.semantic_thread import CARRY_RADIUS_M, CARRY_TO_KEYFRAMES, carry_refused
 from .tracking.config import REMOVED as REMOVED_TRACKER_KEYS
 from .tracking.config import TrackerConfig
 from .variants import check_filters as check_variant_filters
@@ -148,10 +148,11 @@ class SlamConfig:
     labelled region) moves to, at the velocity of its 3D centroid between the last two masks
     (at most 1.5 m/s, for at most 1 s). An experiment, dropped by its pre-registered rule
     (docs/results/slam.md, "the carried mask moved with each person's velocity")."""
-    carry_radius_m: Optional[float] = ranged(None, gt=0)  # noqa: UP045
-    """With ``segment=thread``: a keypoint whose measured 3D point lies within this many metres
-    of the carried mask's people is flagged with them (null = off). docs/results/slam.md
-    ("keypoints near the carried people in 3D")."""
+    carry_radius_m: Optional[float] = ranged(CARRY_RADIUS_M, gt=0)  # noqa: UP045
+    """With ``segment=thread`` (the other schedules carry no mask and ignore it): a keypoint whose
+    measured 3D point lies within this many metres of the carried mask's people is flagged with
+    them (null = off). Kept by its pre-registered rule (docs/results/slam.md, "keypoints near
+    the carried people in 3D")."""
     semantic_nice: int = ranged(0, min=0, max=19)
     """With ``segment=thread`` and a segmenter that really runs (the wall clock): the semantic
     thread's nice value above the process's (Linux), so that tracking takes the cores first and
@@ -378,7 +379,6 @@ def check(cfg: DictConfig, overrides: Sequence[str] = ()) -> RunPlan:
         provisional_points_refused(bool(cfg.slam.provisional_points), str(cfg.segment)),
         carry_refused(str(cfg.slam.carry_to_keyframes), str(cfg.segment)),
         carry_refused("velocity" if cfg.slam.carry_velocity else "none", str(cfg.segment)),
-        carry_refused("radius" if cfg.slam.carry_radius_m else "none", str(cfg.segment)),
     ):
         if line is not None:
             raise UssSlamError(line)

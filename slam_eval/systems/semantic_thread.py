@@ -339,6 +339,11 @@ class CarriedMask:
         return self.labels_at(invert(pose_wc) @ slam_map.pose_wc(self.kf_id), dt)
 
 
+CARRY_RADIUS_M = 0.3
+"""``slam.carry_radius_m``'s default: a keypoint whose 3D point lies within this many metres of
+the carried mask's people is flagged with them (:func:`classes_near`)."""
+
+
 def classes_near(
     carried: CarriedMask, t_frame_kf: np.ndarray, points: np.ndarray, radius: float
 ) -> np.ndarray:
@@ -427,12 +432,10 @@ CARRY_TO_KEYFRAMES = ("none", "newer", "since_previous")
 
 def carry_refused(reach: str, segment: str) -> str | None:
     """One line when ``slam.carry_to_keyframes`` asks for carried masks (``reach``;
-    ``velocity``: ``slam.carry_velocity=true``, ``radius``: ``slam.carry_radius_m``) with a ``segment`` schedule other than ``thread``
+    ``velocity``: ``slam.carry_velocity=true``) with a ``segment`` schedule other than ``thread``
     (the only one with delivered masks), else None."""
     if reach != "none" and segment != "thread":
-        key = {"velocity": "carry_velocity=true", "radius": "carry_radius_m"}.get(
-            reach, f"carry_to_keyframes={reach}"
-        )
+        key = "carry_velocity=true" if reach == "velocity" else f"carry_to_keyframes={reach}"
         return f"slam.{key} needs segment=thread (got segment={segment})"
     return None
 
