@@ -151,8 +151,9 @@ class SlamConfig:
     carry_radius_m: Optional[float] = ranged(CARRY_RADIUS_M, gt=0)  # noqa: UP045
     """With ``segment=thread`` (the other schedules carry no mask and ignore it): a keypoint whose
     measured 3D point lies within this many metres of the carried mask's people is flagged with
-    them (null = off). Kept by its pre-registered rule (docs/results/slam.md, "keypoints near
-    the carried people in 3D")."""
+    them (null = off). An experiment: passed its pre-registered rule by the study's column, but
+    loses most frames in some repeats (docs/results/slam.md, "keypoints near the carried people
+    in 3D")."""
     semantic_nice: int = ranged(0, min=0, max=19)
     """With ``segment=thread`` and a segmenter that really runs (the wall clock): the semantic
     thread's nice value above the process's (Linux), so that tracking takes the cores first and

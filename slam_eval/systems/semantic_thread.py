@@ -339,9 +339,9 @@ class CarriedMask:
         return self.labels_at(invert(pose_wc) @ slam_map.pose_wc(self.kf_id), dt)
 
 
-CARRY_RADIUS_M = 0.3
-"""``slam.carry_radius_m``'s default: a keypoint whose 3D point lies within this many metres of
-the carried mask's people is flagged with them (:func:`classes_near`)."""
+CARRY_RADIUS_M: float | None = None
+"""``slam.carry_radius_m``'s default (off): with a radius, a keypoint whose 3D point lies within
+that many metres of the carried mask's people is flagged with them (:func:`classes_near`)."""
 
 
 def classes_near(

@@ -29,3 +29,10 @@ def test_row_gives_the_ratio_and_both_tracked_shares() -> None:
     )
     single = dict(cell, ate_min=None, ate_max=None)
     assert "| 0.0180 | ×4.50 |" in study.row("s", "c", single, ref)
+
+
+def test_row_names_the_lowest_repeats_tracked_share() -> None:
+    ref = {"ate_median": 0.004, "ate_min": None, "ate_max": None, "tracked_fraction": 1.0,
+           "fps": 9.0, "masks": 300, "load": 2.0}  # fmt: skip
+    cell = dict(ref, tracked_repeats=[0.107, 1.0, 0.417])
+    assert "100.0% (per-frame 100.0%; lowest repeat 10.7%)" in study.row("s", "c", cell, ref)

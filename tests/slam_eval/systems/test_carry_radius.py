@@ -56,11 +56,11 @@ def test_carry_radius_end_to_end(synthetic_sequence) -> None:
     assert on.keypoints["dropped"]["semantic"] > off.keypoints["dropped"]["semantic"]
 
 
-def test_carry_radius_is_on_by_default_and_positive(synthetic_sequence, tmp_path: Path) -> None:
+def test_carry_radius_is_off_by_default_and_positive(synthetic_sequence, tmp_path: Path) -> None:
     path = synthetic_sequence(preset="walking_xyz", frames=20)
     base = ("segmenter=labels", "filters=[semantic]")
-    assert slam_run_config(path, tmp_path / "a", *base).slam.carry_radius_m == 0.3
-    check(slam_run_config(path, tmp_path / "b", *base))  # other schedules ignore it
+    assert slam_run_config(path, tmp_path / "a", *base).slam.carry_radius_m is None
+    check(slam_run_config(path, tmp_path / "b", *base, "slam.carry_radius_m=0.3"))  # ignored
     check(slam_run_config(path, tmp_path / "c", *base, "slam.carry_radius_m=null"))
     with pytest.raises(UssSlamError, match="carry_radius_m"):
         check(slam_run_config(path, tmp_path / "d", *base, "slam.carry_radius_m=0"))
