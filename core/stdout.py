@@ -14,6 +14,7 @@ Imports nothing outside the standard library (``core/launch.py`` uses it before 
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
 from typing import Any, TextIO
@@ -49,7 +50,13 @@ class _GuardedStream:
 
 
 def guard() -> None:
-    """Wrap ``sys.stdout`` (once; nothing when it is closed: ``None``)."""
+    """Wrap ``sys.stdout`` (once; nothing when it is closed: ``None``). A character the
+    stream's encoding cannot hold (a non-ASCII path under ``PYTHONIOENCODING=ascii`` or a
+    Latin-1 terminal) is written as its escape (``\\xe9``) on stdout and stderr alike, not a
+    ``UnicodeEncodeError`` traceback after the work was done."""
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(AttributeError, ValueError, OSError):  # None, or a test's
+            stream.reconfigure(errors="backslashreplace")  # type: ignore[union-attr]
     if sys.stdout is not None and not isinstance(sys.stdout, _GuardedStream):
         sys.stdout = _GuardedStream(sys.stdout)  # type: ignore[assignment]
 

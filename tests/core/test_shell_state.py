@@ -151,3 +151,21 @@ def test_torchs_allocation_failure_is_out_of_memory() -> None:
     )
     assert launch.out_of_memory(error)
     assert not launch.out_of_memory(RuntimeError("shape mismatch"))
+
+
+def test_a_path_the_terminals_encoding_cannot_hold_is_escaped(tmp_path: Path) -> None:
+    """``PYTHONIOENCODING=ascii`` (or a Latin-1 terminal) and a non-ASCII output path: the
+    script's lines on stdout and stderr escape the character (``r\\xe9``); it was a
+    ``UnicodeEncodeError`` traceback after the work was done."""
+    import subprocess
+
+    script = Path(sys.executable).parent / "uss-synth"
+    env = {**os.environ, "PYTHONIOENCODING": "ascii:strict"}
+    out = tmp_path / "ré"
+    args = ["voc", "--images", "1", "--size", "32x24", "--out", str(out)]
+    done = subprocess.run([str(script), *args], capture_output=True, env=env, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert b"r\\xe9/VOCdevkit" in done.stdout and b"Traceback" not in done.stderr
+    again = subprocess.run([str(script), *args], capture_output=True, env=env, timeout=120)
+    assert again.returncode != 0  # (its earlier output: refused)
+    assert again.stderr.decode("ascii").startswith(f"uss-synth: error: --out={tmp_path}/r\\xe9:")
