@@ -312,6 +312,7 @@ def output_folder(
     :class:`PathError`. An existing file, a dangling or looping link where the folder would be
     are refused, and so is one of the run's input folders (``inputs``: ``(key, folder)``, in
     any spelling): the outputs would be written among the inputs."""
+    _not_empty(path, key, expected)
     path = Path(path)
     problem = structure_problem(path, folder=True, output=True)
     if problem is None:
@@ -332,6 +333,14 @@ def output_folder(
         raise _fail(path, key, problem, expected)
     output_keys.record(path, key)
     return path
+
+
+def _not_empty(path: str | PathLike[str] | None, key: str | None, expected: str) -> None:
+    """Refuse an empty output path (``out_dir=`` on a Hydra command line, ``''``, ``null``):
+    ``Path('')`` is the working folder, into which the outputs would have gone."""
+    if path is None or not str(path).strip():
+        shown = "" if path is None else str(path)
+        raise _fail(shown, key, "an empty path (it would be the working folder)", expected)
 
 
 def _read_only(path: Path) -> bool:
@@ -358,6 +367,7 @@ def output_file(
     """A file the script can write (its folder existing or creatable, and writable); else
     :class:`PathError`. A folder, a dangling or looping link where the file would be are
     refused (a link to a file is written through, as ``open()`` does)."""
+    _not_empty(path, key, expected)
     path = Path(path)
     problem = structure_problem(path, folder=False, output=True)
     if problem is None and os.path.isfile(path) and _read_only(path):

@@ -43,6 +43,16 @@ def release_run_folders() -> None:
         _held.pop().__exit__(None, None, None)
 
 
+def _is_null(config: Any, key: str) -> bool:
+    """Whether ``key`` of ``config`` is null (not an interpolation that fails)."""
+    from omegaconf import OmegaConf
+
+    try:
+        return OmegaConf.select(config, key, throw_on_resolution_failure=False) is None
+    except Exception:  # noqa: BLE001 (no such key: not null)
+        return False
+
+
 class RunFolderCheck:
     """Hydra callback (``_target_`` this class, ``prog`` the app, ``key`` the setting the error
     line names: ``hydra.run.dir``, or ``out_dir`` where that sets the run folder) that checks
@@ -87,9 +97,10 @@ class RunFolderCheck:
             if type(error).__module__.split(".")[0] != "omegaconf":
                 raise
             text = str(getattr(error, "msg", "") or error).strip().splitlines()
-            raise RefusedRunFolder(
-                UssSlamError(f"{self.key}: {text[0] if text else error}")
-            ) from None
+            line = f"{self.key}: {text[0] if text else error}"
+            if _is_null(config, self.key):  # out_dir=null: the run folder's ${out_dir}
+                line = f"{self.key}: expected a folder to write into, got null"
+            raise RefusedRunFolder(UssSlamError(line)) from None
         try:
             self._check_outputs(config)
             output_folder(folder, self.key)  # before Hydra opens its log file in it

@@ -369,3 +369,37 @@ def test_an_odd_but_valid_output_path_is_taken(
         GlobalHydra.instance().clear()
     assert code == 0, err
     assert (tmp_path / "out dir" / "ré" / name).exists(), err
+
+
+@pytest.mark.parametrize(
+    "arg",
+    [pytest.param(a, id=a.id, marks=(pytest.mark.slow,) if a.slow else ())
+     for a in PATH_ARGS if a.kind in (OUT_FILE, OUT_FOLDER)],
+)  # fmt: skip
+def test_an_empty_output_path_is_refused(
+    arg: PathArg, world: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    """``out_dir=`` (or ``--out ''``): ``Path('')`` is the working folder, into which
+    ``uss-slam`` wrote its run. One line naming the argument (argparse: after its usage, exit
+    code 2), nothing written into the working folder."""
+    paths = {**world, "tmp": tmp_path, "P": ""}
+    if "{m}" in arg.argv:
+        paths["m"] = tmp_path / "m.onnx"
+        paths["m"].write_bytes(colour_onnx({"tmp": tmp_path}))
+        if arg.argv.count("{m}") == 2:
+            arg = dataclasses.replace(arg, argv=arg.argv.replace("{m} {m}", "{m} {gt}"))
+    argv = [a.format(**paths) for a in arg.argv.split()]
+    work = tmp_path / "work"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    monkeypatch.setattr(logging, "raiseExceptions", False)
+    try:
+        code, _, err = run_console_script(arg.prog, argv, monkeypatch, capsys)
+    finally:
+        HydraConfig.instance().cfg = None
+        GlobalHydra.instance().clear()
+    lines = err.strip().splitlines()
+    assert "Traceback" not in err, err
+    assert code in (1, 2) and all(line.startswith(("usage:", " ")) for line in lines[:-1]), err
+    assert f"{arg.key}=" in lines[-1] or f"argument {arg.key}" in lines[-1], err
+    assert list(work.iterdir()) == []
