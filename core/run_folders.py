@@ -47,8 +47,12 @@ def _is_null(config: Any, key: str) -> bool:
     """Whether ``key`` of ``config`` is null (not an interpolation that fails)."""
     from omegaconf import OmegaConf
 
+    parent_key, _, last = key.rpartition(".")
     try:
-        return OmegaConf.select(config, key, throw_on_resolution_failure=False) is None
+        parent = OmegaConf.select(config, parent_key) if parent_key else config
+        if parent is None or OmegaConf.is_interpolation(parent, last):
+            return False  # an interpolation that fails is its own error
+        return last in parent and parent[last] is None
     except Exception:  # noqa: BLE001 (no such key: not null)
         return False
 

@@ -1058,6 +1058,10 @@ MORE_CASES = [
          "out_dir: given twice"),
     case("experiments-key-given-twice", "uss-experiments", f"{EXPERIMENTS} dry_run=false", 1,
          "dry_run: given twice", "dry_run=true and dry_run=false"),
+    case("slam-out-dir-null", "uss-slam", over(SLAM, "out_dir=null"), 1,
+         "out_dir: expected a folder to write into, got null"),
+    case("experiments-out-dir-null", "uss-experiments", "out_dir=null dry_run=true", 1,
+         "out_dir: expected a folder to write into, got null"),
     # Hydra's own switches it cannot follow (its ValueError was a traceback)
     case("slam-shell-completion-alone", "uss-slam", "--shell-completion", 1,
          "--shell-completion: Expecting one subcommand"),
