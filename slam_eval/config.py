@@ -43,7 +43,12 @@ from .products.semantic_map import MapConfig
 from .scoring.evaluation import EvalConfig
 from .scoring.repeats import Perturbation, perturbations
 from .systems.harness import SEGMENT_SCHEDULES, provisional_points_refused
-from .systems.semantic_thread import CARRY_RADIUS_M, CARRY_TO_KEYFRAMES, carry_refused
+from .systems.semantic_thread import (
+    CARRY_RADIUS_KEYPOINTS,
+    CARRY_RADIUS_M,
+    CARRY_TO_KEYFRAMES,
+    carry_refused,
+)
 from .tracking.config import REMOVED as REMOVED_TRACKER_KEYS
 from .tracking.config import TrackerConfig
 from .variants import check_filters as check_variant_filters
@@ -154,6 +159,10 @@ class SlamConfig:
     them (null = off). An experiment: passed its pre-registered rule by the study's column, but
     loses most frames in some repeats (docs/results/slam.md, "keypoints near the carried people
     in 3D")."""
+    carry_radius_keypoints: str = ranged("all", choices=CARRY_RADIUS_KEYPOINTS)
+    """With ``carry_radius_m``: which keypoints near the carried people it flags: ``all``, or
+    ``untracked`` (those the tracker matched to no map point: kept out of the map and of the
+    keyframe rule, never taken from the pose)."""
     semantic_nice: int = ranged(0, min=0, max=19)
     """With ``segment=thread`` and a segmenter that really runs (the wall clock): the semantic
     thread's nice value above the process's (Linux), so that tracking takes the cores first and

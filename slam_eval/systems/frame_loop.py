@@ -133,6 +133,9 @@ class FrameLoop:
     carry_radius_m: float | None = None
     """With the semantic thread (``slam.carry_radius_m``): a keypoint whose 3D point lies within
     this many metres of the carried mask's points is flagged with them (:meth:`paint_near`)."""
+    carry_radius_keypoints: str = "all"
+    """With ``carry_radius_m`` (``slam.carry_radius_keypoints``): ``all`` keypoints near the
+    carried people, or only those the tracker did not match (``untracked``)."""
     people: tuple[np.ndarray, float] | None = None
     """With ``carry_velocity``: the last delivered mask's people, ``(B, 3)`` map-frame
     centroids and its stamp (s)."""
@@ -236,7 +239,7 @@ class FrameLoop:
         if self.carried is not None and ctx.labels is None and result.pose_wc is not None:
             with timer("carry_mask"):
                 ctx.labels = self.carried.labels_for(self.map, result.pose_wc, frame.stamp)
-                self.paint_near(ctx.labels, ctx.features, result.pose_wc)
+                self.paint_near(ctx.labels, ctx.features, result)
             late = True
         elif self.segment_now is not None and ctx.labels is None and result.pose_wc is not None:
             with timer("mapping"):
@@ -342,15 +345,18 @@ class FrameLoop:
             moving = np.any(carried.velocity != 0, axis=1)
             self.counts["people_moving"] += len(np.unique(carried.region[moving]))
 
-    def paint_near(self, labels: np.ndarray, features: Features, pose_wc: np.ndarray) -> None:
+    def paint_near(self, labels: np.ndarray, features: Features, result: TrackResult) -> None:
         """With ``carry_radius_m``: paint into the carried ``labels`` (H, W) the class of each
         keypoint whose 3D point lies that near a carried point
-        (:func:`~.semantic_thread.classes_near`), at its pixel, so that the filters flag it;
-        counted as ``keypoints_near_people``."""
-        if not self.carry_radius_m or self.carried is None:
+        (:func:`~.semantic_thread.classes_near`; with ``carry_radius_keypoints="untracked"``
+        only the keypoints ``result`` matched to no map point), at its pixel, so that the
+        filters flag it; counted as ``keypoints_near_people``."""
+        if not self.carry_radius_m or self.carried is None or result.pose_wc is None:
             return
-        t_frame_kf = invert(pose_wc) @ self.map.pose_wc(self.carried.kf_id)
+        t_frame_kf = invert(result.pose_wc) @ self.map.pose_wc(self.carried.kf_id)
         cls = classes_near(self.carried, t_frame_kf, features.points, self.carry_radius_m)
+        if self.carry_radius_keypoints == "untracked" and result.matched is not None:
+            cls[result.matched >= 0] = 0
         near = np.flatnonzero(cls)
         h, w = labels.shape
         col = np.clip(np.rint(features.xy[near, 0]).astype(np.int64), 0, w - 1)

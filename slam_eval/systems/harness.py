@@ -162,6 +162,7 @@ class SlamPipeline:
         carry_to_keyframes: str = "none",
         carry_velocity: bool = False,
         carry_radius_m: float | None = CARRY_RADIUS_M,
+        carry_radius_keypoints: str = "all",
     ) -> None:
         """``sampling_seed``: perturbs the tracker's RANSAC sampling (a repeated run,
         :mod:`.repeats`); None = the deterministic run. ``prefetch_mode``: ``"thread"``,
@@ -193,6 +194,7 @@ class SlamPipeline:
         self.carry_to_keyframes = carry_to_keyframes
         self.carry_velocity = carry_velocity
         self.carry_radius_m = carry_radius_m
+        self.carry_radius_keypoints = carry_radius_keypoints
         self.progress = progress
         self.description = description or sequence.path.name
         self.local_ba = local_ba
@@ -316,6 +318,7 @@ class SlamPipeline:
             carry_to_keyframes=self.carry_to_keyframes,
             carry_velocity=self.carry_velocity,
             carry_radius_m=self.carry_radius_m,
+            carry_radius_keypoints=self.carry_radius_keypoints,
         )  # fmt: skip
 
     def _frames(self) -> tuple[frontend_process.FrontendProcess | None, Iterator[Prepared]]:

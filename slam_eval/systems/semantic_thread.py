@@ -344,6 +344,10 @@ CARRY_RADIUS_M: float | None = None
 that many metres of the carried mask's people is flagged with them (:func:`classes_near`)."""
 
 
+CARRY_RADIUS_KEYPOINTS = ("all", "untracked")
+"""``slam.carry_radius_keypoints``: which keypoints near the carried people the radius flags."""
+
+
 def classes_near(
     carried: CarriedMask, t_frame_kf: np.ndarray, points: np.ndarray, radius: float
 ) -> np.ndarray:

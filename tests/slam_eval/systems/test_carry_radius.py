@@ -39,11 +39,12 @@ def test_only_keypoints_near_the_people_in_3d_take_their_class() -> None:
     assert not classes_near(carried, ahead, points, 0.1)[0]
 
 
-def _run(path: Path, radius: float | None):
+def _run(path: Path, radius: float | None, keypoints: str = "all"):
     seq = TumSequence(path, load_labels=True)
     return SlamPipeline(
         seq, LabelsSegmenter(latency_s=0.3), build_filters(["semantic"]),
         segment="thread", progress=False, carry_radius_m=radius,
+        carry_radius_keypoints=keypoints,
     ).run()  # fmt: skip
 
 
@@ -54,6 +55,9 @@ def test_carry_radius_end_to_end(synthetic_sequence) -> None:
     assert on.semantic_thread is not None and on.semantic_thread["keypoints_near_people"] > 0
     np.testing.assert_array_equal(on.trajectory.positions, again.trajectory.positions)
     assert on.keypoints["dropped"]["semantic"] > off.keypoints["dropped"]["semantic"]
+    untracked = _run(path, 0.3, "untracked").semantic_thread
+    assert untracked is not None
+    assert 0 < untracked["keypoints_near_people"] < on.semantic_thread["keypoints_near_people"]
 
 
 def test_carry_radius_is_off_by_default_and_positive(synthetic_sequence, tmp_path: Path) -> None:
@@ -64,3 +68,5 @@ def test_carry_radius_is_off_by_default_and_positive(synthetic_sequence, tmp_pat
     check(slam_run_config(path, tmp_path / "c", *base, "slam.carry_radius_m=null"))
     with pytest.raises(UssSlamError, match="carry_radius_m"):
         check(slam_run_config(path, tmp_path / "d", *base, "slam.carry_radius_m=0"))
+    with pytest.raises(UssSlamError, match="carry_radius_keypoints"):
+        check(slam_run_config(path, tmp_path / "e", *base, "slam.carry_radius_keypoints=some"))
