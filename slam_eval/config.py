@@ -162,7 +162,8 @@ class SlamConfig:
     carry_radius_keypoints: str = ranged("all", choices=CARRY_RADIUS_KEYPOINTS)
     """With ``carry_radius_m``: which keypoints near the carried people it flags: ``all``, or
     ``untracked`` (those the tracker matched to no map point: kept out of the map and of the
-    keyframe rule, never taken from the pose)."""
+    keyframe rule, never taken from the pose). An experiment, dropped by its pre-registered
+    rule (docs/results/slam.md, "the 3D radius on the untracked keypoints only")."""
     semantic_nice: int = ranged(0, min=0, max=19)
     """With ``segment=thread`` and a segmenter that really runs (the wall clock): the semantic
     thread's nice value above the process's (Linux), so that tracking takes the cores first and
