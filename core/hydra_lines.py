@@ -119,24 +119,39 @@ def repeated_override_line(argv: list[str]) -> str | None:
     own argument parser and override parser (a group, ``+key``, ``~key`` and a package
     ``group@pkg`` alike); a command line either cannot parse is left to Hydra's own error."""
     from hydra._internal.utils import get_args_parser
-    from hydra.core.override_parser.overrides_parser import OverridesParser
 
     if any(arg in ("--version", "--help", "-h", "--hydra-help") for arg in argv):
         return None  # they print and exit before any override is used
     try:
         args, _ = get_args_parser().parse_known_args(argv)
-        overrides = OverridesParser.create().parse_overrides(args.overrides or [])
     except (Exception, SystemExit):  # noqa: BLE001 (Hydra reports it itself)
         return None
+    found = repeated_key(args.overrides or [])
+    if found is None:
+        return None
+    key, first, second = found
+    return (
+        f"{key}: given twice on the command line ({first} and {second}); expected each key "
+        "once (Hydra would keep the last one without a word)"
+    )
+
+
+def repeated_key(overrides: list[str]) -> tuple[str, str, str] | None:
+    """``(key, first, second)`` of the first key that ``overrides`` (Hydra overrides, read by
+    Hydra's own override parser) set twice, else None (also when they do not parse: Hydra's
+    own error then says why)."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    try:
+        parsed = OverridesParser.create().parse_overrides([str(o) for o in overrides])
+    except Exception:  # noqa: BLE001
+        return None
     seen: dict[str, str] = {}
-    for override in overrides:
+    for override in parsed:
         key = override.key_or_group + (f"@{override.package}" if override.package else "")
         line = override.input_line or key
         if key in seen:
-            return (
-                f"{key}: given twice on the command line ({seen[key]} and {line}); expected "
-                "each key once (Hydra would keep the last one without a word)"
-            )
+            return key, seen[key], line
         seen[key] = line
     return None
 

@@ -66,7 +66,8 @@ def _instantiate_all(group: DictConfig | None) -> list[Any]:
 
 def resolve_ckpt_path(cfg: DictConfig) -> str | None:
     """``ckpt_path``: ``null`` (fresh run), a file, or ``last`` = the newest ``last.ckpt`` of
-    an earlier run of the same ``run_name`` under ``paths.log_dir``."""
+    an earlier run of the same ``run_name`` under ``paths.log_dir``, or of this run's own
+    folder (``hydra.run.dir`` given again after a run was stopped: resumed in place)."""
     value = cfg.get("ckpt_path")
     if value is None:
         return None
@@ -78,9 +79,12 @@ def resolve_ckpt_path(cfg: DictConfig) -> str | None:
     candidates = [
         p for p in runs.glob("*/checkpoints/last.ckpt") if output_dir not in p.resolve().parents
     ]
+    own = output_dir / "checkpoints" / "last.ckpt"
+    candidates += [own] if own.is_file() else []
     if not candidates:
         raise UssSlamError(
-            f"ckpt_path=last: no checkpoints/last.ckpt in an earlier run under {runs}"
+            f"ckpt_path=last: no checkpoints/last.ckpt in this run's folder ({output_dir}) nor "
+            f"in an earlier run under {runs}"
         )
     newest = max(candidates, key=lambda p: p.stat().st_mtime)
     log.info("resuming from %s", newest)

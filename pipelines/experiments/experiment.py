@@ -218,6 +218,26 @@ def resolve_method_overrides(plain: dict[str, Any], synthetic: bool) -> None:
     grid["method_overrides"] = {m: list(v) for m, v in preset.items()}
 
 
+def check_override_lists(plain: Mapping[str, Any]) -> None:
+    """Each list of overrides handed on to ``uss-train`` / ``uss-slam`` sets a key once (the
+    second would replace the first without a word), as on their own command lines."""
+    from uss_slam.core.hydra_lines import repeated_key
+
+    methods = plain["grid"].get("method_overrides") or {}
+    lists = {"init.overrides": plain["init"].get("overrides"),
+             "train.overrides": plain["train"].get("overrides"),
+             "slam.overrides": plain["slam"].get("overrides"),
+             "slam.orbslam3.overrides": plain["slam"]["orbslam3"].get("overrides"),
+             **{f"grid.method_overrides.{m}": v for m, v in methods.items()}}  # fmt: skip
+    for key, items in lists.items():
+        found = repeated_key(list(items)) if isinstance(items, list) else None
+        if found is not None:
+            raise UssSlamError(
+                f"{key}: {found[0]} is given twice ({found[1]} and {found[2]}); expected each "
+                "key once"
+            )
+
+
 def check_counts(plain: Mapping[str, Any], synthetic: bool) -> None:
     """Synthetic evaluation sequences long enough for ``segeval.stride`` (each count's own
     range is the schema's)."""
@@ -404,6 +424,7 @@ def check(cfg: DictConfig) -> Experiment:
         check_real_given(plain["data"]["real"])
     check_t0(plain, synthetic)
     resolve_method_overrides(plain, synthetic)
+    check_override_lists(plain)
     check_counts(plain, synthetic)
     accepted = SYNTHETIC_SEQUENCES if synthetic else TUM_SEQUENCES
     sequences = check_sequences(plain.get("sequences"), accepted)

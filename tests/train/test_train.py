@@ -252,8 +252,19 @@ def test_ckpt_path_last_finds_the_newest_earlier_run(tmp_path: Path) -> None:
     cfg.paths.log_dir = str(tmp_path / "logs")
     assert resolve_ckpt_path(cfg) == str(runs / "2026-01-02_00-00-00" / "checkpoints" / "last.ckpt")
     cfg.run_name = "demo"
-    with pytest.raises(Exception, match="no checkpoints/last.ckpt in an earlier run"):
+    with pytest.raises(Exception, match="no checkpoints/last.ckpt in this run's folder .* nor in"):
         resolve_ckpt_path(cfg)
+
+
+def test_ckpt_path_last_resumes_in_place_in_a_run_folder_given_again(tmp_path: Path) -> None:
+    """``hydra.run.dir=X ckpt_path=last`` after a run into ``X`` was stopped: ``X``'s own
+    ``last.ckpt`` (there was no earlier run under ``paths.log_dir`` to find)."""
+    run = tmp_path / "run"
+    (run / "checkpoints").mkdir(parents=True)
+    (run / "checkpoints" / "last.ckpt").write_bytes(b"x")
+    cfg = compose_train(["experiment=ci", "ckpt_path=last"], run)
+    cfg.paths.log_dir = str(tmp_path / "logs")
+    assert resolve_ckpt_path(cfg) == str(run / "checkpoints" / "last.ckpt")
 
 
 def test_checkpoint_callbacks_keep_best_and_last(tmp_path: Path) -> None:
