@@ -106,6 +106,21 @@ def too_long(path: str | PathLike[str]) -> str | None:
     return None
 
 
+def not_utf8(path: str | PathLike[str]) -> str | None:
+    """Why ``path`` cannot be written into a report or a JSON file: a name holding bytes that
+    are not UTF-8 (a Latin-1 ``\xe9`` from another system, read by Python as a surrogate),
+    else None."""
+    raw = os.fsencode(path)
+    try:
+        raw.decode("utf-8")
+    except UnicodeDecodeError as error:
+        return (
+            f"the path holds a byte that is not UTF-8 (0x{raw[error.start]:02x} at byte "
+            f"{error.start}); expected a UTF-8 name (rename it)"
+        )
+    return None
+
+
 def _prefixes(path: Path) -> list[Path]:
     """``path``'s folders from the top down, then ``path`` itself (``a``, ``a/b``, ``a/b/c``)."""
     parts = path.parts
@@ -145,7 +160,7 @@ def structure_problem(
             "a relative path, and the working folder no longer exists (it was deleted); "
             "give an absolute path or run from an existing folder"
         )
-    reason = too_long(path)
+    reason = too_long(path) or not_utf8(path)
     if reason:
         return reason
     for prefix in _prefixes(path):

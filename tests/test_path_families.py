@@ -181,6 +181,14 @@ def under_a_file(tmp: Path, kind: str) -> tuple[Path, tuple[str, ...]]:
     return tmp / "afile" / "x", (f"{tmp / 'afile'} is a file",)
 
 
+def not_utf8(tmp: Path, kind: str) -> tuple[Path, tuple[str, ...]]:
+    """A name with a Latin-1 byte (a disk from another system): the reports and JSON files
+    that hold the path could not be written (a UnicodeEncodeError traceback after the work)."""
+    folder = tmp / os.fsdecode(b"caf\xe9")
+    folder.mkdir()
+    return folder / "x", ("the path holds a byte that is not UTF-8 (0xe9",)
+
+
 FAMILIES: dict[str, tuple[Family, tuple[str, ...]]] = {
     "missing": (missing, (IN_FILE, IN_FOLDER)),
     "name-300-bytes": (long_name, (IN_FILE, IN_FOLDER, OUT_FILE, OUT_FOLDER)),
@@ -190,8 +198,14 @@ FAMILIES: dict[str, tuple[Family, tuple[str, ...]]] = {
     "file-for-a-folder": (a_file, (IN_FOLDER, OUT_FOLDER)),
     "folder-for-a-file": (a_folder, (IN_FILE, OUT_FILE)),
     "under-a-file": (under_a_file, (IN_FILE, IN_FOLDER, OUT_FILE, OUT_FOLDER)),
+    "not-utf-8": (not_utf8, (IN_FILE, IN_FOLDER, OUT_FILE, OUT_FOLDER)),
 }
 """Family name -> (how to make it, the kinds of argument it applies to)."""
+
+
+def shown(text: str) -> str:
+    """``text`` as a line shows it: a byte that is not UTF-8 escaped (``\\udce9``)."""
+    return text.encode("utf-8", "backslashreplace").decode("utf-8")
 
 
 def _cases() -> list:
@@ -224,9 +238,14 @@ def test_path_family(
             paths["m2"] = tmp_path / "m2.onnx"
             paths["m2"].write_bytes(colour_onnx({"tmp": tmp_path}) + b"\n")
             arg = dataclasses.replace(arg, argv=arg.argv.replace("{m} {m}", "{m} {m2}"))
-    argv = [a.format(**paths) for a in arg.argv.split()]
+    template = arg.argv
+    if family == "not-utf-8":  # a non-ASCII Hydra value is read only quoted (its own line)
+        template = template.replace("={P}", "='{P}'").replace("=[{P}]", "=['{P}']")
+    argv = [a.format(**paths) for a in template.split()]
     monkeypatch.chdir(tmp_path)
     monkeypatch.setattr(logging, "raiseExceptions", False)
+    for stream in (sys.stdout, sys.stderr):  # as the console scripts' launcher sets them
+        stream.reconfigure(errors="backslashreplace")
     before = snapshot(tmp_path)
     links = sorted(p for p in tmp_path.rglob("*") if p.is_symlink())
     try:
@@ -237,7 +256,7 @@ def test_path_family(
     lines = err.strip().splitlines()
     assert "Traceback" not in err, err
     assert code == 1 and len(lines) == 1, err
-    named = str(bad) if arg.key is None else f"{arg.key}={bad}"
+    named = shown(str(bad) if arg.key is None else f"{arg.key}={bad}")
     assert lines[0].startswith(f"{arg.prog}: error: ") or (
         lines[0].startswith(f"{arg.prog} {arg.argv.split()[0]}: error: ")  # a subcommand's
     ), err
