@@ -164,6 +164,10 @@ class SlamConfig:
     ``untracked`` (those the tracker matched to no map point: kept out of the map and of the
     keyframe rule, never taken from the pose). An experiment, dropped by its pre-registered
     rule (docs/results/slam.md, "the 3D radius on the untracked keypoints only")."""
+    carry_radius_min_inliers: int = ranged(0, min=0)
+    """With ``carry_radius_m``: a frame that would keep fewer pose inliers outside the radius
+    is not flagged by it (0 = always). docs/results/slam.md ("the 3D radius with an inlier
+    floor")."""
     semantic_nice: int = ranged(0, min=0, max=19)
     """With ``segment=thread`` and a segmenter that really runs (the wall clock): the semantic
     thread's nice value above the process's (Linux), so that tracking takes the cores first and

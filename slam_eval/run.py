@@ -167,6 +167,7 @@ def _run_harness(
             carry_velocity=bool(slam.carry_velocity),
             carry_radius_m=slam.carry_radius_m,
             carry_radius_keypoints=str(slam.carry_radius_keypoints),
+            carry_radius_min_inliers=int(slam.carry_radius_min_inliers),
             progress=bool(cfg.progress),
             description=f"{sequence.path.name} [{run_name(names)}]"
             + (f" repeat {repeat.index}" if len(plan.repeats) > 1 else ""),

@@ -136,6 +136,9 @@ class FrameLoop:
     carry_radius_keypoints: str = "all"
     """With ``carry_radius_m`` (``slam.carry_radius_keypoints``): ``all`` keypoints near the
     carried people, or only those the tracker did not match (``untracked``)."""
+    carry_radius_min_inliers: int = 0
+    """With ``carry_radius_m`` (``slam.carry_radius_min_inliers``): a frame keeping fewer pose
+    inliers outside the radius is not flagged by it (0: always flagged)."""
     people: tuple[np.ndarray, float] | None = None
     """With ``carry_velocity``: the last delivered mask's people, ``(B, 3)`` map-frame
     centroids and its stamp (s)."""
@@ -350,13 +353,18 @@ class FrameLoop:
         keypoint whose 3D point lies that near a carried point
         (:func:`~.semantic_thread.classes_near`; with ``carry_radius_keypoints="untracked"``
         only the keypoints ``result`` matched to no map point), at its pixel, so that the
-        filters flag it; counted as ``keypoints_near_people``."""
+        filters flag it; counted as ``keypoints_near_people``. Not on a frame that would keep
+        fewer than ``carry_radius_min_inliers`` pose inliers (``frames_radius_skipped``)."""
         if not self.carry_radius_m or self.carried is None or result.pose_wc is None:
             return
         t_frame_kf = invert(result.pose_wc) @ self.map.pose_wc(self.carried.kf_id)
         cls = classes_near(self.carried, t_frame_kf, features.points, self.carry_radius_m)
         if self.carry_radius_keypoints == "untracked" and result.matched is not None:
             cls[result.matched >= 0] = 0
+        if self.carry_radius_min_inliers and result.matched is not None:
+            if int(((result.matched >= 0) & (cls == 0)).sum()) < self.carry_radius_min_inliers:
+                self.counts["frames_radius_skipped"] += 1
+                return
         near = np.flatnonzero(cls)
         h, w = labels.shape
         col = np.clip(np.rint(features.xy[near, 0]).astype(np.int64), 0, w - 1)

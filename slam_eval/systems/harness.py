@@ -163,6 +163,7 @@ class SlamPipeline:
         carry_velocity: bool = False,
         carry_radius_m: float | None = CARRY_RADIUS_M,
         carry_radius_keypoints: str = "all",
+        carry_radius_min_inliers: int = 0,
     ) -> None:
         """``sampling_seed``: perturbs the tracker's RANSAC sampling (a repeated run,
         :mod:`.repeats`); None = the deterministic run. ``prefetch_mode``: ``"thread"``,
@@ -195,6 +196,7 @@ class SlamPipeline:
         self.carry_velocity = carry_velocity
         self.carry_radius_m = carry_radius_m
         self.carry_radius_keypoints = carry_radius_keypoints
+        self.carry_radius_min_inliers = carry_radius_min_inliers
         self.progress = progress
         self.description = description or sequence.path.name
         self.local_ba = local_ba
@@ -319,6 +321,7 @@ class SlamPipeline:
             carry_velocity=self.carry_velocity,
             carry_radius_m=self.carry_radius_m,
             carry_radius_keypoints=self.carry_radius_keypoints,
+            carry_radius_min_inliers=self.carry_radius_min_inliers,
         )  # fmt: skip
 
     def _frames(self) -> tuple[frontend_process.FrontendProcess | None, Iterator[Prepared]]:
@@ -424,7 +427,7 @@ class SlamPipeline:
                 for k in (
                     "points_held", "points_cleared", "points_dropped", "keyframes_gated",
                     "keyframes_carried", "points_marked_carried", "people_moving",
-                    "keypoints_near_people",
+                    "keypoints_near_people", "frames_radius_skipped",
                 )  # fmt: skip
                 if k in loop.counts
             },

@@ -39,12 +39,12 @@ def test_only_keypoints_near_the_people_in_3d_take_their_class() -> None:
     assert not classes_near(carried, ahead, points, 0.1)[0]
 
 
-def _run(path: Path, radius: float | None, keypoints: str = "all"):
+def _run(path: Path, radius: float | None, keypoints: str = "all", floor: int = 0):
     seq = TumSequence(path, load_labels=True)
     return SlamPipeline(
         seq, LabelsSegmenter(latency_s=0.3), build_filters(["semantic"]),
         segment="thread", progress=False, carry_radius_m=radius,
-        carry_radius_keypoints=keypoints,
+        carry_radius_keypoints=keypoints, carry_radius_min_inliers=floor,
     ).run()  # fmt: skip
 
 
@@ -58,6 +58,10 @@ def test_carry_radius_end_to_end(synthetic_sequence) -> None:
     untracked = _run(path, 0.3, "untracked").semantic_thread
     assert untracked is not None
     assert 0 < untracked["keypoints_near_people"] < on.semantic_thread["keypoints_near_people"]
+    assert "frames_radius_skipped" not in on.semantic_thread
+    never = _run(path, 0.3, floor=100_000).semantic_thread  # no frame has that many inliers
+    assert never is not None and "keypoints_near_people" not in never
+    assert never["frames_radius_skipped"] > 30
 
 
 def test_carry_radius_is_off_by_default_and_positive(synthetic_sequence, tmp_path: Path) -> None:
