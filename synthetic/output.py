@@ -176,6 +176,8 @@ def staged_output(out_dir: str | PathLike[str], overwrite: bool) -> Iterator[Pat
     rendering it stops with :class:`~uss_slam.core.errors.OutputInUseError`.
     """
     out = check_output(out_dir, overwrite).absolute()
+    if out.is_symlink() and out.is_dir():  # a link to a folder: written where it points, as
+        out = Path(os.path.realpath(out))  # the other scripts write through it (not replaced)
     out.parent.mkdir(parents=True, exist_ok=True)
     with output_lock(out):
         check_output(out, overwrite)  # again: another process may have finished it meanwhile

@@ -422,3 +422,41 @@ def test_an_empty_output_path_is_refused(
     assert code in (1, 2) and all(line.startswith(("usage:", " ")) for line in lines[:-1]), err
     assert f"{arg.key}=" in lines[-1] or f"argument {arg.key}" in lines[-1], err
     assert list(work.iterdir()) == []
+
+
+@pytest.mark.parametrize(
+    "arg", [p for a in PATH_ARGS if a.kind == OUT_FOLDER for p in _accepted(a)]
+)
+def test_an_output_folder_given_as_a_link_is_written_through(
+    arg: PathArg, world: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    """An output folder named by a link to an empty folder (``--out run -> /big/disk/run``):
+    the outputs go where it points and the link stays (``uss-synth`` replaced the link by a
+    folder, left ``.<name>.partial-*-old`` beside it and a marker in the folder it pointed to)."""
+    target = tmp_path / "disk" / "run"
+    target.mkdir(parents=True)
+    (tmp_path / "link").symlink_to(target)
+    paths = {**world, "tmp": tmp_path, "P": tmp_path / "link"}
+    if "{m}" in arg.argv:
+        paths["m"] = tmp_path / "m.onnx"
+        paths["m"].write_bytes(colour_onnx({"tmp": tmp_path}))
+        if arg.argv.count("{m}") == 2:  # uss-eval compare: two models that differ
+            from shared_helpers import colour_model, segmenter_props
+
+            from uss_slam.core.classes import CLASS_NAMES
+
+            paths["m2"] = colour_model(tmp_path / "m2.onnx", segmenter_props(CLASS_NAMES),
+                                       bias=100.0)  # fmt: skip
+            arg = dataclasses.replace(arg, argv=arg.argv.replace("{m} {m}", "{m} {m2}"))
+    argv = [a.format(**paths) for a in arg.argv.split()]
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(logging, "raiseExceptions", False)
+    try:
+        code, _, err = run_console_script(arg.prog, argv, monkeypatch, capsys)
+    finally:
+        HydraConfig.instance().cfg = None
+        GlobalHydra.instance().clear()
+    assert code == 0, err
+    assert (tmp_path / "link").is_symlink() and any(target.iterdir())
+    hidden = [p.name for p in tmp_path.iterdir() if p.name.startswith(".link")]
+    assert hidden == [], hidden
