@@ -82,6 +82,11 @@ def override_parse_line(override: str, message: str) -> str:
     if sep and value and not value.startswith(("'", '"', "[", "{")):
         from uss_slam.core.paths import hydra_quoted
 
+        if value.startswith("~"):  # `sh`, or bash after a quote: `~` reaches Hydra as it is
+            return (
+                f"{key}: the value {value!r} starts with '~', which the shell did not expand; "
+                f"expected the path written out ({key}=$HOME/...)"
+            )
         quoted = hydra_quoted(value)
         if quoted != value and any(ord(c) > 127 or c.isspace() for c in value):
             return (

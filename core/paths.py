@@ -121,6 +121,19 @@ def not_utf8(path: str | PathLike[str]) -> str | None:
     return None
 
 
+def _unexpanded_home(path: Path) -> str | None:
+    """A path starting with ``~`` that no shell expanded (``--out=~/x``: bash expands ``~`` only
+    at a word's start or after ``name=``; ``sh`` and a quoted value never): it would name a
+    folder called ``~`` in the working folder."""
+    first = path.parts[0] if path.parts else ""
+    if first == "~" or (first.startswith("~") and not path.exists()):
+        return (
+            f"starts with {first!r}, which the shell did not expand (it would be a folder named "
+            f"{first!r}); expected the path written out ($HOME/... or ~/... as a word of its own)"
+        )
+    return None
+
+
 def _prefixes(path: Path) -> list[Path]:
     """``path``'s folders from the top down, then ``path`` itself (``a``, ``a/b``, ``a/b/c``)."""
     parts = path.parts
@@ -160,7 +173,7 @@ def structure_problem(
             "a relative path, and the working folder no longer exists (it was deleted); "
             "give an absolute path or run from an existing folder"
         )
-    reason = too_long(path) or not_utf8(path)
+    reason = too_long(path) or not_utf8(path) or _unexpanded_home(path)
     if reason:
         return reason
     for prefix in _prefixes(path):
