@@ -93,6 +93,12 @@ def override_parse_line(override: str, message: str) -> str:
                 f"{key}: the value {value!r} must be quoted for Hydra (it holds spaces or "
                 f'non-ASCII characters); write {key}={quoted} (in a shell: "{key}={quoted}")'
             )
+        odd = sorted({c for c in value if c in "=()'\"\\:$*?<>|;&!#"})
+        if quoted != value and odd:  # a folder named a=b or run(1): Hydra's grammar
+            return (
+                f"{key}: the value {value!r} must be quoted for Hydra (it holds "
+                f'{" ".join(odd)}); write {key}={quoted} (in a shell: "{key}={quoted}")'
+            )
     return f"{override}: {(message.strip().splitlines() or ['cannot be parsed'])[0]}"
 
 

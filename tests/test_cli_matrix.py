@@ -1061,6 +1061,12 @@ MORE_CASES = [
     case("experiments-train-overrides-key-twice", "uss-experiments",
          f"{EXPERIMENTS} train.overrides=['model.max_iters=5','model.max_iters=6']", 1,
          "train.overrides: model.max_iters is given twice"),
+    # a path holding characters Hydra reads only quoted: the quoted form to write
+    case("slam-path-with-parentheses", "uss-slam", over(SLAM, "sequence.path={tmp}/run(1)"), 1,
+         "sequence.path: the value", "must be quoted for Hydra (it holds ( ))",
+         "write sequence.path='{tmp}/run(1)'", setup=(earlier_slam_run,)),
+    case("export-out-dir-with-equals", "uss-export", over(EXPORT, "out_dir={tmp}/a=b"), 1,
+         "out_dir: the value", "must be quoted for Hydra (it holds =)"),
     case("slam-out-dir-null", "uss-slam", over(SLAM, "out_dir=null"), 1,
          "out_dir: expected a folder to write into, got null"),
     case("experiments-out-dir-null", "uss-experiments", "out_dir=null dry_run=true", 1,
