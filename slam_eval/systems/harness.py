@@ -87,7 +87,7 @@ from ..segmenters.base import Segmenter
 from ..sequence import Frame, TumSequence, ahead
 from ..tracking.tracker import Tracker, TrackerConfig
 from .frame_loop import FrameLoop, Prepared, Timer
-from .semantic_thread import CARRY_RADIUS_M, start_thread
+from .semantic_thread import CARRY_RADIUS_M, CARRY_RADIUS_MIN_INLIERS, start_thread
 
 SEGMENT_SCHEDULES = ("every_frame", "keyframes", "thread")
 """Values of ``segment`` (see the module docstring)."""
@@ -163,7 +163,7 @@ class SlamPipeline:
         carry_velocity: bool = False,
         carry_radius_m: float | None = CARRY_RADIUS_M,
         carry_radius_keypoints: str = "all",
-        carry_radius_min_inliers: int = 0,
+        carry_radius_min_inliers: int = CARRY_RADIUS_MIN_INLIERS,
     ) -> None:
         """``sampling_seed``: perturbs the tracker's RANSAC sampling (a repeated run,
         :mod:`.repeats`); None = the deterministic run. ``prefetch_mode``: ``"thread"``,

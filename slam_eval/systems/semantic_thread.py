@@ -339,9 +339,14 @@ class CarriedMask:
         return self.labels_at(invert(pose_wc) @ slam_map.pose_wc(self.kf_id), dt)
 
 
-CARRY_RADIUS_M: float | None = None
-"""``slam.carry_radius_m``'s default (off): with a radius, a keypoint whose 3D point lies within
-that many metres of the carried mask's people is flagged with them (:func:`classes_near`)."""
+CARRY_RADIUS_M: float | None = 0.3
+"""``slam.carry_radius_m``'s default: a keypoint whose 3D point lies within this many metres of
+the carried mask's people is flagged with them (:func:`classes_near`), on a frame that keeps
+:data:`CARRY_RADIUS_MIN_INLIERS` pose inliers outside it."""
+
+CARRY_RADIUS_MIN_INLIERS = 100
+"""``slam.carry_radius_min_inliers``'s default (docs/results/slam.md, "the 3D radius with an
+inlier floor")."""
 
 
 CARRY_RADIUS_KEYPOINTS = ("all", "untracked")

@@ -40,6 +40,7 @@ def test_only_keypoints_near_the_people_in_3d_take_their_class() -> None:
 
 
 def _run(path: Path, radius: float | None, keypoints: str = "all", floor: int = 0):
+    """A thread run; the floor 0 unless given (the radius on every frame)."""
     seq = TumSequence(path, load_labels=True)
     return SlamPipeline(
         seq, LabelsSegmenter(latency_s=0.3), build_filters(["semantic"]),
@@ -64,11 +65,12 @@ def test_carry_radius_end_to_end(synthetic_sequence) -> None:
     assert never["frames_radius_skipped"] > 30
 
 
-def test_carry_radius_is_off_by_default_and_positive(synthetic_sequence, tmp_path: Path) -> None:
+def test_carry_radius_defaults_and_bounds(synthetic_sequence, tmp_path: Path) -> None:
     path = synthetic_sequence(preset="walking_xyz", frames=20)
     base = ("segmenter=labels", "filters=[semantic]")
-    assert slam_run_config(path, tmp_path / "a", *base).slam.carry_radius_m is None
-    check(slam_run_config(path, tmp_path / "b", *base, "slam.carry_radius_m=0.3"))  # ignored
+    slam = slam_run_config(path, tmp_path / "a", *base).slam
+    assert (slam.carry_radius_m, slam.carry_radius_min_inliers) == (0.3, 100)
+    check(slam_run_config(path, tmp_path / "b", *base))  # other schedules ignore it
     check(slam_run_config(path, tmp_path / "c", *base, "slam.carry_radius_m=null"))
     with pytest.raises(UssSlamError, match="carry_radius_m"):
         check(slam_run_config(path, tmp_path / "d", *base, "slam.carry_radius_m=0"))
