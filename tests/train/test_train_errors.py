@@ -148,7 +148,8 @@ def test_unwritable_output_folder_is_one_line(
     blocker = tmp_path / "a_file"
     blocker.write_text("not a folder\n")
     target = blocker / "out"
-    code, err = _uss_train([*_common(uda_data, tmp_path), f"{key}={target}"], monkeypatch, capsys)
+    common = [o for o in _common(uda_data, tmp_path) if not o.startswith(f"{key}=")]  # once
+    code, err = _uss_train([*common, f"{key}={target}"], monkeypatch, capsys)
     assert code == 1 and len(err) == 1, err
     if key == "hydra.run.dir":
         assert err[0] == (
