@@ -260,7 +260,12 @@ def read_labels(path: str | PathLike[str], num_classes: int = len(CLASS_NAMES)) 
     """A label image of class ids: ``(H, W)`` uint8, every value a class id
     (``0..num_classes-1``) or the ignore label 255; anything else names the file, the first
     values outside them and the accepted ones."""
-    labels = read_image(path, cv2.IMREAD_UNCHANGED, "a single-channel uint8 class-id PNG")
+    what = "a single-channel uint8 class-id PNG"
+    data = _file_bytes(path, what)
+    indexed = palette_as_grey(data) if not image_problem(data) else None
+    labels = _decode(path, indexed[0] if indexed else data, cv2.IMREAD_UNCHANGED, what)
+    if indexed and indexed[1] < 8 and labels.dtype == np.uint8:  # 1/2/4-bit indices: scaled
+        labels = labels // (255 // (2 ** indexed[1] - 1))  # to 0..255 by the decoder
     if labels.dtype != np.uint8 or labels.ndim != 2:
         raise DataFormatError(
             path,
@@ -269,6 +274,27 @@ def read_labels(path: str | PathLike[str], num_classes: int = len(CLASS_NAMES)) 
         )
     check_label_values(path, labels, num_classes)
     return labels
+
+
+def palette_as_grey(data: bytes) -> tuple[bytes, int] | None:
+    """A palette PNG (colour type 3: a labelling tool's or VOC's ``SegmentationClass``, whose
+    indices are the class ids) rewritten as the greyscale PNG of its indices (the decoder would
+    expand the palette to colours), with its bit depth; None for any other image. The image
+    data is untouched: only ``IHDR``'s colour type changes and ``PLTE`` / ``tRNS`` go."""
+    if not data.startswith(PNG_SIGNATURE) or len(data) < 33 or data[12:16] != b"IHDR":
+        return None
+    if data[25] != 3:
+        return None
+    header = bytearray(data[8:33])
+    header[17] = 0  # colour type: greyscale (byte 25 of the file)
+    header[21:25] = crc32(bytes(header[4:21])).to_bytes(4, "big")
+    out, pos = [PNG_SIGNATURE, bytes(header)], 33
+    while pos + 8 <= len(data):
+        end = pos + 12 + int.from_bytes(data[pos : pos + 4], "big")
+        if data[pos + 4 : pos + 8] not in (b"PLTE", b"tRNS"):
+            out.append(data[pos:end])
+        pos = end
+    return b"".join(out), data[24]
 
 
 def check_label_values(

@@ -369,6 +369,15 @@ def check_accelerator(cfg: DictConfig) -> None:
     GPU, or more ``trainer.devices`` than it has, is one line before anything is built
     (Lightning's own error comes wrapped by Hydra in two lines, after the data was built)."""
     accelerator = str(cfg.trainer.get("accelerator", "auto"))
+    check_precision(cfg)
+    if accelerator == "mps" and not torch.backends.mps.is_available():
+        raise UssSlamError(
+            "trainer.accelerator=mps: no Apple GPU (MPS) on this machine; expected cpu, gpu "
+            "(a CUDA device) or auto"
+        )
+    if accelerator in ("tpu", "hpu", "ipu"):
+        raise UssSlamError(f"trainer.accelerator={accelerator}: not supported; expected cpu, gpu, "
+                           "mps or auto")  # fmt: skip
     if accelerator not in ("gpu", "cuda"):
         return
     choice = _trainer_choice()
@@ -385,6 +394,22 @@ def check_accelerator(cfg: DictConfig) -> None:
         raise UssSlamError(
             f"trainer.devices={devices}: only {available} CUDA device(s) found; expected at most "
             f"{available} (or trainer.devices=-1 for all of them)"
+        )
+
+
+UNSUPPORTED_PRECISIONS = ("64", "64-true", "double", "transformer-engine")
+"""Lightning precisions the data pipeline does not follow: its batches stay float32 (a
+64-bit model met them with a type error in its first forward pass)."""
+
+
+def check_precision(cfg: DictConfig) -> None:
+    """``trainer.precision`` one the training can run with; else one line before anything
+    is built."""
+    precision = str(cfg.trainer.get("precision", "32-true"))
+    if precision in UNSUPPORTED_PRECISIONS:
+        raise UssSlamError(
+            f"trainer.precision={precision}: not supported (the batches are float32); expected "
+            "32-true, bf16-mixed, 16-mixed or auto"
         )
 
 

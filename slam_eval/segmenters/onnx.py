@@ -89,9 +89,11 @@ def resolve_providers(providers: str | Sequence[str] | None) -> list[str]:
         raise UssSlamError("segmenter.providers is empty; use cpu, cuda, auto or provider names")
     missing = [n for n in names if n not in available]
     if missing:
+        given = providers[0] if len(providers) == 1 else "[" + ",".join(map(str, providers)) + "]"
         raise UssSlamError(
-            f"execution provider(s) {', '.join(missing)} not available in this onnxruntime "
-            f"build (available: {', '.join(available)}); use providers=cpu or auto"
+            f"segmenter.providers={given}: execution provider(s) {', '.join(missing)} not "
+            f"available in this onnxruntime build (available: {', '.join(available)}); expected "
+            "cpu or auto"
         )
     if names == ["CUDAExecutionProvider"]:
         names.append("CPUExecutionProvider")

@@ -206,3 +206,22 @@ def test_a_png_and_a_jpeg_under_their_own_names_or_no_image_name_are_read(tmp_pa
         ok, data = cv2.imencode(ext, np.full((8, 8, 3), 90, np.uint8))
         (tmp_path / name).write_bytes(data.tobytes())
         assert read_colour(tmp_path / name).shape == (8, 8, 3)
+
+
+@pytest.mark.parametrize("colours", [256, 16, 4, 2])
+def test_a_palette_label_png_is_read_as_its_indices(colours: int, tmp_path: Path) -> None:
+    """A label PNG written as a palette image whose indices are the class ids (a labelling
+    tool's or VOC's ``SegmentationClass`` output; PIL writes 1, 2, 4 or 8 bits by the palette's
+    size): the indices, not the palette's colours (refused as a 3-channel image before)."""
+    from PIL import Image
+
+    labels = (np.arange(24 * 32).reshape(24, 32) % min(colours, 4)).astype(np.uint8)
+    if colours == 256:
+        labels[0, 0] = 255  # the ignore label
+    image = Image.fromarray(labels, mode="L").convert("P")
+    image.putdata(labels.reshape(-1).tolist())
+    image.putpalette(([0, 0, 0, 192, 128, 128, 192, 0, 0, 0, 64, 128] * 64)[: colours * 3])
+    path = tmp_path / "labels.png"
+    image.save(path)
+    assert path.read_bytes()[25] == 3  # a palette PNG
+    assert np.array_equal(read_labels(path), labels)
