@@ -71,7 +71,16 @@ def path_argument(text: str) -> Path:
     checked for is the path layer's (``core/paths.py``)."""
     if not text.strip():
         raise argparse.ArgumentTypeError(f"expected a path, got {text!r}")
-    return Path(text)
+    path = _Given(text)
+    path.trailing_slash = len(text) > 1 and text.endswith("/")  # `Path` drops it: a folder
+    return path
+
+
+class _Given(type(Path())):  # type: ignore[misc]
+    """A path as typed: ``trailing_slash`` remembers a final ``/`` (``--out DIR/vv/`` names a
+    folder; the path layer refuses it where a file is expected)."""
+
+    trailing_slash = False
 
 
 THREADS_ARG = Arg(int, Range(min=1, max=MAX_THREADS), f"{THREADS_PER_CPU} per CPU")

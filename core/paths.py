@@ -394,10 +394,14 @@ def output_file(
 ) -> Path:
     """A file the script can write (its folder existing or creatable, and writable); else
     :class:`PathError`. A folder, a dangling or looping link where the file would be are
-    refused (a link to a file is written through, as ``open()`` does)."""
+    refused (a link to a file is written through, as ``open()`` does), and so is a path that
+    ends with ``/`` (a folder's name)."""
     _not_empty(path, key, expected)
+    slash = getattr(path, "trailing_slash", False) or str(path).endswith("/")
     path = Path(path)
     problem = structure_problem(path, folder=False, output=True)
+    if problem is None and slash:
+        raise _fail(f"{path}/", key, "ends with '/', which names a folder", expected)
     if problem is None and os.path.isfile(path) and _read_only(path):
         problem = "is read-only (its mode forbids writing; make it writable to replace it)"
     if problem is None and not os.path.lexists(path.parent):

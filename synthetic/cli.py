@@ -214,6 +214,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                 f"argument --frames: the {preset.name} preset needs at least "
                 f"{preset.min_frames} frames ({preset.min_frames_reason}); got {args.frames}"
             )
+        if args.timing is not None and args.style != "target":  # accepted, changes nothing
+            print(f"uss-synth: warning: --timing applies to the target style's sensor only; "
+                  f"ignored with --style {args.style}", file=sys.stderr)  # fmt: skip
     with program("uss-synth"), signals_as_interrupts():  # warnings: "uss-synth: warning: ..."
         return _render(args)
 

@@ -286,3 +286,16 @@ def test_experiments_orbslam3_settings_without_orbslam3_warn(capsys) -> None:
         "uss-experiments: warning: slam.orbslam3.repeats is set but changes nothing while "
         "systems does not list orbslam3"
     ]
+
+
+def test_synth_timing_with_the_source_style_warns(tmp_path: Path, monkeypatch, capsys) -> None:
+    """``uss-synth sequence --style source --timing rolling``: the timing is the target style's
+    sensor only; accepted with one warning naming ``--timing``."""
+    argv = ["sequence", "--preset", "walking_static", "--style", "source", "--timing", "rolling",
+            "--frames", "2", "--size", "32x24", "--out", str(tmp_path / "s"), "--quiet"]  # fmt: skip
+    code, _, err = run_console_script("uss-synth", argv, monkeypatch, capsys)
+    warnings = [line for line in err.splitlines() if ": warning: " in line]
+    assert code == 0 and warnings == [
+        "uss-synth: warning: --timing applies to the target style's sensor only; ignored with "
+        "--style source"
+    ], err

@@ -195,6 +195,11 @@ def unexpanded_home(tmp: Path, kind: str) -> tuple[Path, tuple[str, ...]]:
     return Path("~") / "x", ("starts with '~', which the shell did not expand",)
 
 
+def trailing_slash(tmp: Path, kind: str) -> tuple[Path, tuple[str, ...]]:
+    """``--out DIR/v.txt/``: a final ``/`` names a folder (the file ``v.txt`` was written)."""
+    return f"{tmp / 'v.txt'}/", ("ends with '/', which names a folder",)  # type: ignore[return-value]
+
+
 FAMILIES: dict[str, tuple[Family, tuple[str, ...]]] = {
     "missing": (missing, (IN_FILE, IN_FOLDER)),
     "name-300-bytes": (long_name, (IN_FILE, IN_FOLDER, OUT_FILE, OUT_FOLDER)),
@@ -206,6 +211,7 @@ FAMILIES: dict[str, tuple[Family, tuple[str, ...]]] = {
     "under-a-file": (under_a_file, (IN_FILE, IN_FOLDER, OUT_FILE, OUT_FOLDER)),
     "not-utf-8": (not_utf8, (IN_FILE, IN_FOLDER, OUT_FILE, OUT_FOLDER)),
     "unexpanded-home": (unexpanded_home, (IN_FILE, IN_FOLDER, OUT_FILE, OUT_FOLDER)),
+    "trailing-slash": (trailing_slash, (OUT_FILE,)),
 }
 """Family name -> (how to make it, the kinds of argument it applies to)."""
 
