@@ -138,6 +138,21 @@ def run(cfg: DictConfig) -> dict[str, Any]:
         return _run_harness(cfg, plan, segmenter, sequence, out)
 
 
+def _semantic_thread_settings(slam: DictConfig) -> dict[str, Any]:
+    """The ``slam.*`` keys of :class:`SlamPipeline` that shape the map points on people: the
+    provisional points and the semantic thread's carried mask (``segment=thread``)."""
+    return dict(
+        provisional_points=bool(slam.provisional_points),
+        provisional_border_px=slam.provisional_border_px,
+        semantic_nice=int(slam.semantic_nice),
+        carry_to_keyframes=str(slam.carry_to_keyframes),
+        carry_velocity=bool(slam.carry_velocity),
+        carry_radius_m=slam.carry_radius_m,
+        carry_radius_keypoints=str(slam.carry_radius_keypoints),
+        carry_radius_min_inliers=int(slam.carry_radius_min_inliers),
+    )
+
+
 def _run_harness(
     cfg: DictConfig, plan: Any, segmenter: Segmenter, sequence: TumSequence, out: Path
 ) -> dict[str, Any]:
@@ -160,14 +175,7 @@ def _run_harness(
             prefetch_mode=str(slam.prefetch_mode),
             **plan.backend,
             segment=str(cfg.segment),
-            provisional_points=bool(slam.provisional_points),
-            provisional_border_px=slam.provisional_border_px,
-            semantic_nice=int(slam.semantic_nice),
-            carry_to_keyframes=str(slam.carry_to_keyframes),
-            carry_velocity=bool(slam.carry_velocity),
-            carry_radius_m=slam.carry_radius_m,
-            carry_radius_keypoints=str(slam.carry_radius_keypoints),
-            carry_radius_min_inliers=int(slam.carry_radius_min_inliers),
+            **_semantic_thread_settings(slam),
             progress=bool(cfg.progress),
             description=f"{sequence.path.name} [{run_name(names)}]"
             + (f" repeat {repeat.index}" if len(plan.repeats) > 1 else ""),

@@ -118,8 +118,9 @@ def run_once(sequence: Path, overrides: list[str]) -> dict:
     """One ``uss-slam`` run of ``sequence`` (the probe's fixed keys, then ``overrides``) in a
     temporary folder; its ``metrics.json``."""
     register_configs()
-    with tempfile.TemporaryDirectory() as tmp, initialize_config_dir(
-        config_dir=str(CONFIG_DIR), version_base="1.3"
+    with (
+        tempfile.TemporaryDirectory() as tmp,
+        initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"),
     ):
         cfg = compose("slam_eval", overrides=[
             f"sequence.path={sequence}", f"out_dir={tmp}", "progress=false",

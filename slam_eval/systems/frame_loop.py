@@ -361,10 +361,10 @@ class FrameLoop:
         cls = classes_near(self.carried, t_frame_kf, features.points, self.carry_radius_m)
         if self.carry_radius_keypoints == "untracked" and result.matched is not None:
             cls[result.matched >= 0] = 0
-        if self.carry_radius_min_inliers and result.matched is not None:
-            if int(((result.matched >= 0) & (cls == 0)).sum()) < self.carry_radius_min_inliers:
-                self.counts["frames_radius_skipped"] += 1
-                return
+        floor = self.carry_radius_min_inliers if result.matched is not None else 0
+        if floor and int(((result.matched >= 0) & (cls == 0)).sum()) < floor:
+            self.counts["frames_radius_skipped"] += 1
+            return
         near = np.flatnonzero(cls)
         h, w = labels.shape
         col = np.clip(np.rint(features.xy[near, 0]).astype(np.int64), 0, w - 1)

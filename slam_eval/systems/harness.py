@@ -425,9 +425,15 @@ class SlamPipeline:
             **{
                 k: loop.counts[k]
                 for k in (
-                    "points_held", "points_cleared", "points_dropped", "keyframes_gated",
-                    "keyframes_carried", "points_marked_carried", "people_moving",
-                    "keypoints_near_people", "frames_radius_skipped",
+                    "points_held",
+                    "points_cleared",
+                    "points_dropped",
+                    "keyframes_gated",
+                    "keyframes_carried",
+                    "points_marked_carried",
+                    "people_moving",
+                    "keypoints_near_people",
+                    "frames_radius_skipped",
                 )  # fmt: skip
                 if k in loop.counts
             },

@@ -449,9 +449,7 @@ def carry_refused(reach: str, segment: str) -> str | None:
     return None
 
 
-def carry_targets(
-    slam_map: SlamMap, kf_id: int, previous: int | None, reach: str
-) -> list[int]:
+def carry_targets(slam_map: SlamMap, kf_id: int, previous: int | None, reach: str) -> list[int]:
     """The good keyframes, other than ``kf_id``, whose points keyframe ``kf_id``'s delivered
     mask also marks: ``none``: no other; ``newer``: every keyframe made after it;
     ``since_previous``: also those made after ``previous`` (the keyframe of the mask delivered
@@ -461,9 +459,7 @@ def carry_targets(
     if reach == "none":
         return []
     first = kf_id + 1 if reach == "newer" else (0 if previous is None else previous + 1)
-    return [
-        kf.id for kf in slam_map.keyframes[first:] if not kf.bad and kf.id != kf_id
-    ]
+    return [kf.id for kf in slam_map.keyframes[first:] if not kf.bad and kf.id != kf_id]
 
 
 def mark_carried(

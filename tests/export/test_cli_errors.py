@@ -89,9 +89,7 @@ def _assert_one_line(code: int, err: str, expected: str) -> None:
 def _bad_calibration(kind: str, root: Path) -> tuple[list[str], str]:
     """Overrides and the expected error of one kind of bad calibration folder."""
     if kind == "unset":  # (int8=true is the caller's: a key given twice is refused)
-        return [], (
-            "int8=true needs calibration.root=<TUM RGB-D folder of target frames>"
-        )
+        return [], ("int8=true needs calibration.root=<TUM RGB-D folder of target frames>")
     if kind == "missing":
         return [f"calibration.root={root}"], (
             f"calibration.root={root}: does not exist; expected a TUM RGB-D folder with rgb.txt"
