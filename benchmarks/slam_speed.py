@@ -27,11 +27,13 @@ as ``uss-experiments`` runs its SLAM jobs (``auto`` is then the threads), each p
 same-run ratios: the speed under the load of two parallel jobs.
 
 ``--prefetch-mode readers`` runs the worker process with ``slam.workers`` (2) reading threads
-and with one (``process/1``; ``slam.workers=1``, which the ``uss-slam`` process's own prefetch
-threads then use too) in turns: the same trajectories, one thread fewer taking turns under the
-worker's GIL. ``--prefetch-mode reader-threads`` runs the worker process with 2 reading threads
-and with ``slam.reader_threads=1`` (``process:1``: the worker process's threads alone; the
-``uss-slam`` process's prefetch threads stay ``slam.workers``) in turns.
+and with one (``process/1:w``; ``slam.workers=1``, which the ``uss-slam`` process's own
+prefetch threads then use too) in turns: the same trajectories, one thread fewer taking turns
+under the worker's GIL. ``--prefetch-mode reader-threads`` runs the worker process with 2
+reading threads (``process:w``: ``slam.reader_threads=null``, the default before the afternoon
+of 2026-12-07) and with ``slam.reader_threads=1`` (``process:1``, today's default: the worker
+process's threads alone; the ``uss-slam`` process's prefetch threads stay ``slam.workers``) in
+turns.
 
 ``--orbslam3 VOCAB`` also runs the real ORB-SLAM3 on the same frames in the same command
 (``uss-slam system=orbslam3 system.repeats=--repeats system.realtime=false``: as fast as it
@@ -205,14 +207,20 @@ MODES = ("thread", "process", "auto", "before")
 PAIRS = {
     "both": ["thread", "process"],
     "defaults": ["before", "auto"],
-    "readers": ["process", "process/1"],
-    "reader-threads": ["process", "process:1"],
+    "readers": ["process:w", "process/1:w"],
+    "reader-threads": ["process:w", "process:1"],
 }
 """Two modes in turns in every repeat (``MODE/N``: ``MODE`` with ``slam.workers=N``;
-``MODE:N``: ``MODE`` with ``slam.reader_threads=N``)."""
+``MODE:N``: ``MODE`` with ``slam.reader_threads=N``; ``MODE:w``: with
+``slam.reader_threads=null``, the worker process's threads as many as ``slam.workers``)."""
 
 WORKER_MODULES = {"read", "segmentation", "orb"}
 """Modules of the prefetch threads (and of the worker process): the rest is the main thread's."""
+
+
+def _reader_threads(suffix: str) -> int | None:
+    """``slam.reader_threads`` of a mode's ``:N`` suffix (``w``: null, ``slam.workers``)."""
+    return None if suffix == "w" else int(suffix)
 
 
 def timed_run(seq: TumSequence, args: argparse.Namespace, mode: str) -> dict:
@@ -230,7 +238,7 @@ def timed_run(seq: TumSequence, args: argparse.Namespace, mode: str) -> dict:
         loop_closing=args.loop_closing,
         prefetch_mode="thread" if mode == "before" else mode,
         **({"workers": int(readers)} if readers else {}),
-        **({"reader_threads": int(reader_threads)} if reader_threads else {}),
+        **({"reader_threads": _reader_threads(reader_threads)} if reader_threads else {}),
     )
     workers: list[frontend_process.FrontendProcess | None] = []
     start = frontend_process.start

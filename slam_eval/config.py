@@ -109,9 +109,10 @@ class SlamConfig:
     """Background threads (PNG decoding releases the GIL); at most 4 per CPU."""
     parallel: bool = True
     """Segment and extract ORB in those threads too (overlaps tracking)."""
-    reader_threads: Optional[int] = ranged(None, min=1, max=MAX_THREADS)  # noqa: UP045
+    reader_threads: Optional[int] = ranged(1, min=1, max=MAX_THREADS)  # noqa: UP045
     """Threads of the frame reader process (``prefetch_mode=process``) that read colour images
-    and extract ORB; None: ``workers``. Only that process's: the prefetch threads of this
+    and extract ORB (1: one thread fewer taking turns under that process's GIL, decided on two
+    idle cores, BENCHMARKS.md); None: ``workers``. Only that process's: the prefetch threads of this
     process (the depth and labels, ``segment=every_frame``'s segmenter) stay ``workers``."""
     prefetch_mode: str = ranged("auto", choices=PREFETCH_MODES)
     """thread: read and extract ORB in this process's prefetch threads; process: in a worker

@@ -145,7 +145,7 @@ class SlamPipeline:
         semantic_map: MapConfig | None = None,
         prefetch: int = 4,
         workers: int = 2,
-        reader_threads: int | None = None,
+        reader_threads: int | None = 1,
         parallel: bool = True,
         prefetch_mode: str = "thread",
         segment: str = "every_frame",

@@ -14,7 +14,7 @@ slam_speed = load_script(Path(__file__).resolve().parents[2] / "benchmarks" / "s
 
 
 def test_readers_pair_changes_only_the_reading_threads(synthetic_sequence, monkeypatch) -> None:
-    assert slam_speed.PAIRS["readers"] == ["process", "process/1"]
+    assert slam_speed.PAIRS["readers"] == ["process:w", "process/1:w"]
     seq = TumSequence(synthetic_sequence(preset="walking_xyz", frames=30), load_labels=True)
     args = argparse.Namespace(filters=["semantic"], local_ba=False, loop_closing=False)
     built: list[int] = []
@@ -23,6 +23,7 @@ def test_readers_pair_changes_only_the_reading_threads(synthetic_sequence, monke
     def recording(self, *a, **kw):
         init(self, *a, **kw)
         built.append(self.workers)
+        assert self.reader_threads is None  # the worker process's threads are slam.workers
 
     monkeypatch.setattr(harness.SlamPipeline, "__init__", recording)
     two, one = (slam_speed.timed_run(seq, args, mode) for mode in slam_speed.PAIRS["readers"])

@@ -92,11 +92,11 @@ def test_reader_threads_sizes_the_worker_process_alone(synthetic_sequence, monke
                         lambda *a: counts.append(("reader", a[3])) or real_start(*a))  # fmt: skip
     monkeypatch.setattr(harness, "ahead",
                         lambda *a: counts.append(("prefetch", a[3])) or real_ahead(*a))  # fmt: skip
-    one = _pipeline(path, "process", workers=3, reader_threads=1).run()
+    default = _pipeline(path, "process", workers=3).run()  # one reading thread by default
     assert counts == [("reader", 1), ("prefetch", 3)]
-    default = _pipeline(path, "process", workers=3).run()
+    as_workers = _pipeline(path, "process", workers=3, reader_threads=None).run()
     assert counts[2:] == [("reader", 3), ("prefetch", 3)]
-    _assert_same_run(one, default)
+    _assert_same_run(default, as_workers)
     _no_worker_left()
 
 
