@@ -134,7 +134,7 @@ def repeated_override_line(argv: list[str]) -> str | None:
     if any(arg in ("--version", "--help", "-h", "--hydra-help") for arg in argv):
         return None  # they print and exit before any override is used
     try:
-        args, _ = get_args_parser().parse_known_args(argv)
+        args, _ = get_args_parser().parse_known_args(without_ddp_tail(argv))
     except (Exception, SystemExit):  # noqa: BLE001 (Hydra reports it itself)
         return None
     found = repeated_key(args.overrides or [])
@@ -145,6 +145,20 @@ def repeated_override_line(argv: list[str]) -> str | None:
         f"{key}: given twice on the command line ({first} and {second}); expected each key "
         "once (Hydra would keep the last one without a word)"
     )
+
+
+DDP_TAIL = ("hydra.run.dir=", "hydra.job.name=train_ddp_process_", "hydra.output_subdir=null")
+"""The overrides Lightning's DDP launcher appends to the command line of each process it starts
+from a Hydra app (the parent's run folder, given again though the user may have set it)."""
+
+
+def without_ddp_tail(argv: list[str]) -> list[str]:
+    """``argv`` without the three overrides Lightning's DDP launcher appended (:data:`DDP_TAIL`),
+    which repeat a key on purpose; the user's own overrides were checked in the parent."""
+    tail = argv[-len(DDP_TAIL) :]
+    if len(tail) == len(DDP_TAIL) and all(map(str.startswith, tail, DDP_TAIL)):
+        return argv[: -len(DDP_TAIL)]
+    return argv
 
 
 def repeated_key(overrides: list[str]) -> tuple[str, str, str] | None:

@@ -38,3 +38,21 @@ def test_a_run_folder_that_cannot_be_resolved_names_the_apps_key() -> None:
     with pytest.raises(RefusedRunFolder) as refused:
         RunFolderCheck("uss-slam", "out_dir").on_run_start(config)
     assert str(refused.value.error).startswith("out_dir: Interpolation key 'nope' not found")
+
+
+def test_lightnings_ddp_tail_is_not_a_key_given_twice() -> None:
+    """Lightning's DDP launcher starts each process with the parent's command line and its own
+    ``hydra.run.dir`` / ``hydra.job.name`` / ``hydra.output_subdir``: not the user's repeat."""
+    from uss_slam.core.hydra_lines import repeated_override_line
+
+    user = ["experiment=ci", "trainer=ddp_cpu", "hydra.run.dir=/runs/a"]
+    child = [*user, 'hydra.run.dir="/runs/a"', "hydra.job.name=train_ddp_process_1",
+             "hydra.output_subdir=null"]  # fmt: skip
+    assert repeated_override_line(child) is None
+    twice = ["hydra.run.dir=/runs/b", *child]  # the user's own repeat is still refused
+    assert repeated_override_line(twice) == (
+        "hydra.run.dir: given twice on the command line (hydra.run.dir=/runs/b and "
+        "hydra.run.dir=/runs/a); expected each key once (Hydra would keep the last one without "
+        "a word)"
+    )
+    assert repeated_override_line([*user, "hydra.run.dir=/runs/c"]) is not None
