@@ -97,8 +97,8 @@ def test_generated_argument_is_one_usage_line(
     assert snapshot(tmp_path) == before
 
 
-def _path_actions() -> list[tuple[str, tuple[str, ...], str]]:
-    """``(prog, commands, flag or '')`` of every path-typed argument of every parser."""
+def _every_action() -> list[tuple[str, tuple[str, ...], argparse.Action]]:
+    """``(prog, commands, action)`` of every argument of every parser and subparser."""
     found = []
 
     def walk(prog: str, parser: argparse.ArgumentParser, commands: tuple[str, ...]) -> None:
@@ -106,14 +106,21 @@ def _path_actions() -> list[tuple[str, tuple[str, ...], str]]:
             if isinstance(action, argparse._SubParsersAction):
                 for name, sub in action.choices.items():
                     walk(prog, sub, (*commands, name))
-            elif action.type in (Path, path_argument):
-                found.append(
-                    (prog, commands, action.option_strings[-1] if action.option_strings else "")
-                )
+            else:
+                found.append((prog, commands, action))
 
     for prog, commands, build in SCRIPT_PARSERS:
         walk(prog, build(), commands)
     return found
+
+
+def _path_actions() -> list[tuple[str, tuple[str, ...], str]]:
+    """``(prog, commands, flag or '')`` of every path-typed argument of every parser."""
+    return [
+        (prog, commands, action.option_strings[-1] if action.option_strings else "")
+        for prog, commands, action in _every_action()
+        if action.type in (Path, path_argument)
+    ]
 
 
 def test_every_path_argument_is_in_the_path_families() -> None:
@@ -137,18 +144,7 @@ def test_every_path_argument_is_in_the_path_families() -> None:
 def test_every_path_argument_refuses_the_empty_string() -> None:
     """Every path option and argument is typed :func:`path_argument`: ``--out ""`` is one usage
     line naming the flag, not the current folder (``Path("")``)."""
-    plain = []
-
-    def walk(prog: str, parser: argparse.ArgumentParser) -> None:
-        for action in parser._actions:
-            if isinstance(action, argparse._SubParsersAction):
-                for sub in action.choices.values():
-                    walk(prog, sub)
-            elif action.type is Path:
-                plain.append((prog, action.dest))
-
-    for prog, _, build in SCRIPT_PARSERS:
-        walk(prog, build())
+    plain = [(prog, action.dest) for prog, _, action in _every_action() if action.type is Path]
     assert plain == [], plain
     for text in ("", "  "):
         with pytest.raises(argparse.ArgumentTypeError, match="expected a path, got"):
@@ -201,20 +197,12 @@ def _value_options() -> list[tuple[str, tuple[str, ...], str, list[str]]]:
     """``(prog, commands, flag, a valid value)`` of every value option of every parser."""
     from uss_slam.core.arguments import ONCE_KINDS
 
-    found = []
-
-    def walk(prog: str, parser: argparse.ArgumentParser, commands: tuple[str, ...]) -> None:
-        for action in parser._actions:
-            if isinstance(action, argparse._SubParsersAction):
-                for name, sub in action.choices.items():
-                    walk(prog, sub, (*commands, name))
-            elif action.option_strings and isinstance(action, ONCE_KINDS):
-                value = [] if action.nargs == 0 else _a_valid_value(action)
-                found.append((prog, commands, action.option_strings[-1], value))
-
-    for prog, commands, build in SCRIPT_PARSERS:
-        walk(prog, build(), commands)
-    return found
+    return [
+        (prog, commands, action.option_strings[-1],
+         [] if action.nargs == 0 else _a_valid_value(action))
+        for prog, commands, action in _every_action()
+        if action.option_strings and isinstance(action, ONCE_KINDS)
+    ]  # fmt: skip
 
 
 VALUE_OPTIONS = _value_options()

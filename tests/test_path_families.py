@@ -235,6 +235,35 @@ def _cases() -> list:
     return params
 
 
+def _run(prog: str, argv: list[str], monkeypatch: pytest.MonkeyPatch, capsys) -> tuple[int, str]:
+    """``prog argv`` in this process (exit code, stderr), Hydra's global state cleared after it
+    and logging's own tracebacks off (a handler writing to a refused path)."""
+    monkeypatch.setattr(logging, "raiseExceptions", False)
+    try:
+        code, _, err = run_console_script(prog, argv, monkeypatch, capsys)
+    finally:
+        HydraConfig.instance().cfg = None
+        GlobalHydra.instance().clear()
+    return code, err
+
+
+def _with_models(arg: PathArg, paths: dict, tmp_path: Path) -> PathArg:
+    """``arg`` with its ``{m}`` models written into ``paths`` (``uss-eval compare``: two models
+    whose labels differ, so the comparison runs)."""
+    if "{m}" not in arg.argv:
+        return arg
+    paths["m"] = tmp_path / "m.onnx"
+    paths["m"].write_bytes(colour_onnx({"tmp": tmp_path}))
+    if arg.argv.count("{m}") != 2:
+        return arg
+    from shared_helpers import colour_model, segmenter_props
+
+    from uss_slam.core.classes import CLASS_NAMES
+
+    paths["m2"] = colour_model(tmp_path / "m2.onnx", segmenter_props(CLASS_NAMES), bias=100.0)
+    return dataclasses.replace(arg, argv=arg.argv.replace("{m} {m}", "{m} {m2}"))
+
+
 @pytest.mark.parametrize(("arg", "family"), _cases())
 def test_path_family(
     arg: PathArg,
@@ -265,11 +294,7 @@ def test_path_family(
         stream.reconfigure(errors="backslashreplace")
     before = snapshot(tmp_path)
     links = sorted(p for p in tmp_path.rglob("*") if p.is_symlink())
-    try:
-        code, _, err = run_console_script(arg.prog, argv, monkeypatch, capsys)
-    finally:
-        HydraConfig.instance().cfg = None
-        GlobalHydra.instance().clear()
+    code, err = _run(arg.prog, argv, monkeypatch, capsys)
     lines = err.strip().splitlines()
     assert "Traceback" not in err, err
     assert code == 1 and len(lines) == 1, err
@@ -292,11 +317,7 @@ def test_export_name_too_long(
     name = "a" * 300
     argv = [a.format(**world, tmp=tmp_path) for a in EXPORT.split()] + [f"name={name}"]
     monkeypatch.chdir(tmp_path)
-    try:
-        code, _, err = run_console_script("uss-export", argv, monkeypatch, capsys)
-    finally:
-        HydraConfig.instance().cfg = None
-        GlobalHydra.instance().clear()
+    code, err = _run("uss-export", argv, monkeypatch, capsys)
     assert code == 1 and len(err.strip().splitlines()) == 1, err
     assert err.startswith(f"uss-export: error: name={tmp_path}/exports/{name}.onnx: the name "), err
     assert "is 305 bytes; expected at most 255" in err
@@ -383,26 +404,11 @@ def test_an_odd_but_valid_output_path_is_taken(
     name = {OUT_FILE: "x.png" if arg.prog == "uss-traj" else "x.txt"}.get(arg.kind, "x")
     odd = f"../out dir/ré/{name}"
     paths = {**world, "tmp": tmp_path, "P": odd}
-    if "{m}" in arg.argv:
-        paths["m"] = tmp_path / "m.onnx"
-        paths["m"].write_bytes(colour_onnx({"tmp": tmp_path}))
-        if arg.argv.count("{m}") == 2:  # uss-eval compare: two models that differ
-            from shared_helpers import colour_model, segmenter_props
-
-            from uss_slam.core.classes import CLASS_NAMES
-
-            paths["m2"] = colour_model(tmp_path / "m2.onnx", segmenter_props(CLASS_NAMES),
-                                       bias=100.0)  # fmt: skip
-            arg = dataclasses.replace(arg, argv=arg.argv.replace("{m} {m}", "{m} {m2}"))
+    arg = _with_models(arg, paths, tmp_path)
     template = arg.argv.replace("={P}", "='{P}'")  # a Hydra value with a space: quoted
     argv = [a.format(**paths) for a in template.split()]
     monkeypatch.chdir(work)
-    monkeypatch.setattr(logging, "raiseExceptions", False)
-    try:
-        code, _, err = run_console_script(arg.prog, argv, monkeypatch, capsys)
-    finally:
-        HydraConfig.instance().cfg = None
-        GlobalHydra.instance().clear()
+    code, err = _run(arg.prog, argv, monkeypatch, capsys)
     assert code == 0, err
     assert (tmp_path / "out dir" / "ré" / name).exists(), err
 
@@ -428,12 +434,7 @@ def test_an_empty_output_path_is_refused(
     work = tmp_path / "work"
     work.mkdir()
     monkeypatch.chdir(work)
-    monkeypatch.setattr(logging, "raiseExceptions", False)
-    try:
-        code, _, err = run_console_script(arg.prog, argv, monkeypatch, capsys)
-    finally:
-        HydraConfig.instance().cfg = None
-        GlobalHydra.instance().clear()
+    code, err = _run(arg.prog, argv, monkeypatch, capsys)
     lines = err.strip().splitlines()
     assert "Traceback" not in err, err
     assert code in (1, 2) and all(line.startswith(("usage:", " ")) for line in lines[:-1]), err
@@ -454,25 +455,10 @@ def test_an_output_folder_given_as_a_link_is_written_through(
     target.mkdir(parents=True)
     (tmp_path / "link").symlink_to(target)
     paths = {**world, "tmp": tmp_path, "P": tmp_path / "link"}
-    if "{m}" in arg.argv:
-        paths["m"] = tmp_path / "m.onnx"
-        paths["m"].write_bytes(colour_onnx({"tmp": tmp_path}))
-        if arg.argv.count("{m}") == 2:  # uss-eval compare: two models that differ
-            from shared_helpers import colour_model, segmenter_props
-
-            from uss_slam.core.classes import CLASS_NAMES
-
-            paths["m2"] = colour_model(tmp_path / "m2.onnx", segmenter_props(CLASS_NAMES),
-                                       bias=100.0)  # fmt: skip
-            arg = dataclasses.replace(arg, argv=arg.argv.replace("{m} {m}", "{m} {m2}"))
+    arg = _with_models(arg, paths, tmp_path)
     argv = [a.format(**paths) for a in arg.argv.split()]
     monkeypatch.chdir(tmp_path)
-    monkeypatch.setattr(logging, "raiseExceptions", False)
-    try:
-        code, _, err = run_console_script(arg.prog, argv, monkeypatch, capsys)
-    finally:
-        HydraConfig.instance().cfg = None
-        GlobalHydra.instance().clear()
+    code, err = _run(arg.prog, argv, monkeypatch, capsys)
     assert code == 0, err
     assert (tmp_path / "link").is_symlink() and any(target.iterdir())
     hidden = [p.name for p in tmp_path.iterdir() if p.name.startswith(".link")]
