@@ -127,6 +127,7 @@ class FrameLoop:
     """With the semantic thread (``slam.carry_to_keyframes``): the other keyframes each delivered
     mask is carried to, to mark their points too (:func:`~.semantic_thread.carry_targets`)."""
     last_masked: int | None = None
+    """The keyframe id of the last mask delivered (None: none yet)."""
     carry_velocity: bool = False
     """With the semantic thread (``slam.carry_velocity``): the carried mask is also drawn where
     each person moves to (:func:`~.semantic_thread.people_motion`)."""
@@ -142,7 +143,6 @@ class FrameLoop:
     people: tuple[np.ndarray, float] | None = None
     """With ``carry_velocity``: the last delivered mask's people, ``(B, 3)`` map-frame
     centroids and its stamp (s)."""
-    """The keyframe id of the last mask delivered (None: none yet)."""
     provisional: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     """The (P,) ids of the map points held back and not judged by a mask yet."""
     pending: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
