@@ -262,7 +262,9 @@ def read_labels(path: str | PathLike[str], num_classes: int = len(CLASS_NAMES)) 
     values outside them and the accepted ones."""
     what = "a single-channel uint8 class-id PNG"
     data = _file_bytes(path, what)
-    indexed = palette_as_grey(data) if not image_problem(data) else None
+    indexed = palette_as_grey(data)  # None for the usual greyscale labels: checked once below
+    if indexed and image_problem(data):  # a damaged palette PNG: named on its own bytes
+        indexed = None
     labels = _decode(path, indexed[0] if indexed else data, cv2.IMREAD_UNCHANGED, what)
     if indexed and indexed[1] < 8 and labels.dtype == np.uint8:  # 1/2/4-bit indices: scaled
         labels = labels // (255 // (2 ** indexed[1] - 1))  # to 0..255 by the decoder
