@@ -13,6 +13,11 @@ environment, and classify each one by the contract of ``docs/errors.md``:
 - **poor**: everything else (more than one line, the line does not name the key / flag / file,
   a wrong exit code, a bad value accepted, a valid input refused, something left behind).
 
+Two kinds of case have a contract of their own: ``pipe`` (stdout a pipe whose reader is gone,
+where stdout is the script's product: exit code 1, and nothing on stderr or one line naming
+stdout; docs/errors.md, "A closed pipe") and ``jobs`` (a multirun with a failing job: exit
+code 1 and an error line naming what the case lists; the other jobs run and write).
+
 A case whose signal came after the script had finished is ``void`` (the timing of the case,
 not the script) and left out of the shares.
 
@@ -44,6 +49,7 @@ from fresh_setups3 import THIRD
 from fresh_setups4 import FOURTH
 from fresh_setups5 import FIFTH
 from fresh_setups6 import SIXTH
+from fresh_setups7 import DEEP_OK, SEVENTH
 
 from uss_slam.testing.machine import cpu_model
 
@@ -51,6 +57,7 @@ SETUPS.update(THIRD)
 SETUPS.update(FOURTH)
 SETUPS.update(FIFTH)
 SETUPS.update(SIXTH)
+SETUPS.update(SEVENTH)
 
 HERE = Path(__file__).resolve().parent
 CASES = HERE / "fresh_cases.txt"
@@ -149,6 +156,8 @@ def _run(case: Case, argv: list[str], folder: Path,
             os.rmdir(os.getcwd())
         if shell.get("STDOUT") == "closed":
             os.close(1)
+        if shell.get("STDIN") == "closed":
+            os.close(0)
 
     powerless = "UMASK" in shell or any(
         s.startswith("ro") or s == "links" or "unreadable" in s for s in case.setup
@@ -160,6 +169,10 @@ def _run(case: Case, argv: list[str], folder: Path,
         cwd = folder / "gone"
         cwd.mkdir()
     stdout = open("/dev/full", "w") if shell.get("STDOUT") == "full" else subprocess.DEVNULL  # noqa: SIM115
+    if shell.get("STDOUT") == "pipe":  # a pipe whose reader is gone (`| head -c0`)
+        reader, writer = os.pipe()
+        os.close(reader)
+        stdout = os.fdopen(writer, "w")
     start = time.perf_counter()
     proc = subprocess.Popen(command, cwd=cwd, env=env, stdout=stdout,
                             stderr=subprocess.PIPE, text=True, preexec_fn=preexec)  # fmt: skip
@@ -209,9 +222,10 @@ def _signal(proc: subprocess.Popen, kind: str) -> None:
 LIMITS = {"ULIMIT_V": resource.RLIMIT_AS, "ULIMIT_F": resource.RLIMIT_FSIZE,
           "ULIMIT_N": resource.RLIMIT_NOFILE}  # fmt: skip
 """A case's ``env`` keys that set a resource limit of its process (``ulimit -v / -f / -n``)."""
-PSEUDO = ("UMASK", "CWD_GONE", "STDOUT")
+PSEUDO = ("UMASK", "CWD_GONE", "STDOUT", "STDIN")
 """A case's ``env`` keys that set the shell's state: ``UMASK=027``; ``CWD_GONE=1``: the working
-folder is deleted as the script starts; ``STDOUT=full`` (``/dev/full``) or ``closed``."""
+folder is deleted as the script starts; ``STDOUT=full`` (``/dev/full``), ``closed`` or ``pipe``
+(a pipe whose reading end is closed, as ``| head -c0`` leaves it); ``STDIN=closed`` (``<&-``)."""
 SIGNALS = {"int": signal.SIGINT, "term": signal.SIGTERM, "hup": signal.SIGHUP,
            "gint": signal.SIGINT, "gterm": signal.SIGTERM, "int2": signal.SIGINT,
            "stop": signal.SIGSTOP}  # fmt: skip
@@ -258,6 +272,21 @@ def classify(case: Case, code: int | None, err: str, before: dict, after: dict,
         lost = [p for p in lost if p not in after]
     if lost and not (case.expect == "ok" and "--overwrite" in case.argv):  # replacing: its job
         return "bad", f"earlier file changed or gone: {lost[:2]}"
+    if case.expect == "pipe":  # stdout a closed pipe where stdout is the product
+        if code != 1:
+            return "poor", f"exit code {code}, expected 1 (the output was not delivered)"
+        others = [ln for ln in lines if ln not in errors]
+        if len(errors) > 1 or others:
+            return "poor", f"more than one line: {(others or errors)[0][:120]}"
+        if errors and "stdout" not in errors[0]:
+            return "poor", f"the line does not name stdout: {errors[0][:160]}"
+        return "good", ""
+    if case.expect == "jobs":  # a multirun with a failing job: the others run, exit code 1
+        if code != 1:
+            return "poor", f"exit code {code}, expected 1"
+        if not any(all(s in e for s in says) for e in errors):
+            return "poor", "no error line naming " + ", ".join(says)
+        return "good", ""
     if case.expect in ("ok", "warn"):
         if code != 0:
             return (
@@ -294,6 +323,7 @@ it writes there, without a flag (``uss-synth`` and ``uss-vocab build`` need ``--
 LONG = {
     "u128": "é" * 128,  # 128 characters, 256 bytes: one byte over the file system's limit
     "deep": "/".join(["d" * 200] * 21),  # 21 names of 200 bytes: over PATH_MAX (4096)
+    "deep_ok": DEEP_OK,  # 14 names of 200 bytes: long, but under PATH_MAX
 }
 """Path parts the cases' templates may name besides the world's."""
 

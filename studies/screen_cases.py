@@ -1,4 +1,4 @@
-"""Screen a new held-out set of cases (``studies/fresh_cases6.txt``) against what the project
+"""Screen a new held-out set of cases (``studies/fresh_cases7.txt``) against what the project
 already tries: every case the generated matrices make (each argparse option's bad values,
 ``uss_slam.core.arguments.bad_arguments``; each Hydra schema key's bad values,
 ``uss_slam.core.schema.cases.bad_values`` as ``tests/test_cli_matrix.py`` collects them; every
@@ -14,7 +14,7 @@ held-out sets. A new case *repeats* one when it is the same script with
 - an earlier case: the same setup and the same arguments once the paths are named alike, or
   the same arguments that are not the script's usual base (the same tried input).
 
-    python studies/screen_cases.py studies/fresh_cases6.txt   # exit 1 and the repeats, if any
+    python studies/screen_cases.py studies/fresh_cases7.txt   # exit 1 and the repeats, if any
 
 Needs the test folder on ``sys.path`` (it imports the matrices' modules, which import pytest).
 """
@@ -31,7 +31,7 @@ HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 sys.path[:0] = [str(HERE), str(ROOT / "tests")]
 
-from fresh_cases import MACROS, read_cases  # noqa: E402
+from fresh_cases import MACROS, PSEUDO, read_cases  # noqa: E402
 
 EARLIER = (
     "fresh_cases.txt",
@@ -39,6 +39,7 @@ EARLIER = (
     "fresh_cases3.txt",
     "fresh_cases4.txt",
     "fresh_cases5.txt",
+    "fresh_cases6.txt",
 )
 """The held-out sets so far, in order; a set is screened against those before it."""
 ALIASES = {"{tmp}": "{C}", "{m}": "{onnx}", "{out}": "{C}/o", "{s}": "{C}/seq"}
@@ -77,8 +78,10 @@ def _tried(toks: tuple[str, ...], base: set[str]) -> tuple[str, ...]:
 
 def _environment(case) -> frozenset[str]:
     """The environment variables a case changes (a missing package's ``PYTHONPATH`` aside:
-    its setup names the package)."""
-    return frozenset(k for k in case.env if k not in ("PYTHONPATH", "PYTHONDONTWRITEBYTECODE"))
+    its setup names the package); the shell's state (``STDOUT=full``, ``closed`` or ``pipe``:
+    another state each) with its value."""
+    return frozenset(f"{k}={v}" if k in PSEUDO else k for k, v in case.env.items()
+                     if k not in ("PYTHONPATH", "PYTHONDONTWRITEBYTECODE"))  # fmt: skip
 
 
 def generated_argparse() -> list[tuple[str, tuple[str, ...], str, str]]:

@@ -154,3 +154,71 @@ def test_the_runner_delivers_each_kind_of_signal(fresh, kind, code) -> None:
     assert proc.stdout.readline().strip() == "ready"
     fresh._signal(proc, kind)
     assert proc.wait(timeout=30) == code
+
+
+@pytest.mark.parametrize(
+    ("code", "err", "verdict"),
+    [
+        (1, "", "good"),  # nothing on stderr, as uss-traj with a closed pipe
+        (1, "uss-traj: error: stdout: cannot write the output (Broken pipe)", "good"),
+        (0, "", "poor"),  # the output was not delivered, yet exit code 0
+        (1, "uss-traj: error: GT: no pose", "poor"),  # a line that does not name stdout
+        (120, "Exception ignored in: <_io.TextIOWrapper name='<stdout>'>", "poor"),
+    ],
+)
+def test_a_pipe_case_expects_exit_1_and_at_most_a_line_on_stdout(fresh, code, err, verdict):
+    case = _case(fresh, "uss-traj", "pipe", "ate {gt} {est}")
+    assert fresh.classify(case, code, err, {}, {}, {})[0] == verdict
+
+
+@pytest.mark.parametrize(
+    ("code", "err", "verdict"),
+    [
+        (
+            1,
+            "uss-train: error: model.poly_power: expected a number > 0, got -1\n"
+            "uss-train: 1 of 2 jobs failed:\n  model.poly_power=-1",
+            "good",
+        ),  # fmt: skip
+        (0, "", "poor"),
+        (1, "uss-train: error: seed: expected an integer", "poor"),  # not the failing key
+    ],
+)
+def test_a_jobs_case_expects_exit_1_and_the_failing_key(fresh, code, err, verdict) -> None:
+    case = fresh.Case("c", "uss-train", "jobs", (), {}, ("model.poly_power",), "-m")
+    assert fresh.classify(case, code, err, {}, {"sweep/0/x.ckpt": "new"}, {})[0] == verdict
+
+
+def test_stdin_closed_and_stdout_a_closed_pipe_reach_the_process(fresh, tmp_path) -> None:
+    """``STDIN=closed``: fd 0 is closed; ``STDOUT=pipe``: a write to stdout fails with EPIPE."""
+    case = fresh.Case("c", "uss-traj", "ok", (), {"STDIN": "closed", "STDOUT": "pipe"}, (), "")
+    probe = (
+        "import os, sys\n"
+        "try:\n    os.fstat(0); closed = False\nexcept OSError:\n    closed = True\n"
+        "try:\n    os.write(1, b'x'); broken = False\nexcept BrokenPipeError:\n    broken = True\n"
+        "sys.exit(0 if closed and broken and 'STDIN' not in os.environ else 3)"
+    )
+    saved = fresh.BIN
+    (tmp_path / "bin").mkdir()
+    (tmp_path / "bin" / "uss-traj").symlink_to(sys.executable)
+    fresh.BIN = tmp_path / "bin"
+    try:
+        code, err, _, _ = fresh._run(case, ["-c", probe], tmp_path, {})
+    finally:
+        fresh.BIN = saved
+    assert code == 0, err
+
+
+def test_the_screen_tells_the_shell_states_apart(fresh, tmp_path) -> None:
+    """A closed pipe as stdout is another shell state than ``/dev/full``: not a repeat of an
+    earlier ``STDOUT=full`` case of the script, whereas the same state is."""
+    import screen_cases
+
+    cases = tmp_path / "cases.txt"
+    cases.write_text(
+        "p | uss-traj | pipe | - | STDOUT=pipe | - | ate {gt} {est} --bands 0.375\n"
+        "f | uss-traj | error | - | STDOUT=full | - | ate {gt} {est} --bands 0.375\n"
+    )
+    found = screen_cases.screen(cases)
+    assert not any(f.startswith("p: ") for f in found), found
+    assert any(f.startswith("f: changes the environment") for f in found), found
