@@ -293,7 +293,12 @@ def _entry(prog: str) -> Callable[[], None]:
     def run() -> None:
         ended: dict[str, int] = {}
         atexit.register(_after_the_work, prog, ended)  # first registered: it runs last
-        code = launch(prog)
+        try:
+            code = launch(prog)
+        except SystemExit as stop:  # a Hydra app's own exit (its one line printed)
+            if not isinstance(stop.code, int | None):
+                raise
+            code = stop.code
         stdout.report_lost(prog)
         ended["code"] = int(code or 0)
         _record_late_signals(ended)
@@ -306,8 +311,8 @@ def _entry(prog: str) -> Callable[[], None]:
 
 def _record_late_signals(ended: dict[str, int]) -> None:
     """The script is done and has said so: a Ctrl-C, SIGTERM or SIGHUP during the interpreter's
-    shutdown (joining threads, a library's teardown) stops nothing any more and must not kill
-    the process by the signal after its outputs were written; it is recorded, and
+    shutdown (joining threads, the exit callbacks of libraries) stops nothing any more and must
+    not kill the process by the signal after its outputs were written; it is recorded, and
     :func:`_after_the_work` says so at the very end (a signal ignored, as under ``nohup``,
     stays ignored)."""
 
@@ -323,23 +328,78 @@ def _record_late_signals(ended: dict[str, int]) -> None:
 
 
 def _after_the_work(prog: str, ended: dict[str, int]) -> None:
-    """The last exit callback of a console script: after a signal that came once the work was
-    done, one line saying so and the signal's exit code (128 + its number, as an interrupt's),
-    the outputs being complete; a failed run keeps its own code. Then every signal is ignored
-    for the rest of the shutdown."""
-    for sig in (signal.SIGINT, *TERMINATING):
-        with contextlib.suppress(ValueError):  # not the main thread
-            signal.signal(sig, signal.SIG_IGN)
-    signum = ended.get("signal")
-    if signum is None or ended.get("code", 1) != 0:
+    """The last exit callback of a console script, and the last Python it runs: what the
+    interpreter's teardown would still do for the outputs (:func:`close_open_files`), then the
+    process ends here (``os._exit``), so that no signal can come after the script's last word
+    (one that came during the teardown was ignored: exit 0 and no line). After a signal that
+    came once the work was done, one line saying so and the signal's exit code (128 + its
+    number, as an interrupt's), the outputs being complete; a failed run keeps its own code.
+    A script that ended by an exception (its traceback printed) ends the usual way."""
+    if "code" not in ended:
+        for sig in (signal.SIGINT, *TERMINATING):
+            with contextlib.suppress(ValueError):  # not the main thread
+                signal.signal(sig, signal.SIG_IGN)
         return
-    named = "" if signum == signal.SIGINT else f" ({signal.Signals(signum).name})"
-    for stream in (sys.stdout, sys.stderr):
+    code = ended["code"]
+    close_open_files()
+    with contextlib.suppress(ValueError, OSError, AttributeError):  # (no such call, or a thread)
+        signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, *TERMINATING})
+        pending = signal.sigpending() & {signal.SIGINT, *TERMINATING}
+        if pending and "signal" not in ended:  # one that came after the last bytecode's check
+            ended["signal"] = min(int(s) for s in pending)
+    code = _flush_std(code)
+    signum = ended.get("signal")
+    if signum is not None and code == 0:
+        named = "" if signum == signal.SIGINT else f" ({signal.Signals(signum).name})"
         with contextlib.suppress(OSError, ValueError, AttributeError):
-            stream.flush()
-    print(f"{prog}: interrupted{named} after the work was done; its outputs are complete",
-          file=sys.stderr, flush=True)  # fmt: skip
-    os._exit(128 + int(signum))
+            print(f"{prog}: interrupted{named} after the work was done; its outputs are "
+                  "complete", file=sys.stderr, flush=True)  # fmt: skip
+        code = 128 + int(signum)
+    os._exit(code)
+
+
+def close_open_files() -> None:
+    """Close every file object still open (text wrappers before the buffers and raw files under
+    them), as the interpreter's teardown would when it frees them: a file a library left open
+    keeps everything written to it (a compressed file its trailer). The standard streams stay
+    (:func:`_flush_std`)."""
+    import _io
+    import gc
+
+    gc.collect()  # the unreachable ones are freed (closed) now
+    kinds = (_io._TextIOBase, _io._BufferedIOBase, _io._IOBase)  # the outer ones first
+    # (by type alone: isinstance would read each object's __class__, which some libraries'
+    # deprecated objects answer with a warning)
+    found = [o for o in gc.get_objects() if issubclass(type(o), kinds[2]) and not _standard(o)]
+    for kind in kinds:
+        for item in found:
+            if issubclass(type(item), kind):
+                with contextlib.suppress(Exception):
+                    if not item.closed:
+                        item.close()
+
+
+def _standard(stream: object) -> bool:
+    """Whether ``stream`` is (or wraps, or is under) stdin, stdout or stderr."""
+    try:
+        return stream.fileno() in (0, 1, 2)  # type: ignore[attr-defined]
+    except Exception:  # noqa: BLE001 (no file descriptor: a BytesIO, a closed file)
+        return False
+
+
+def _flush_std(code: int) -> int:
+    """Flush stdout and stderr; a reader of stdout that is gone (a closed pipe, ``| head -1``)
+    makes a run that succeeded exit with 1 without a word (its output was not delivered), as
+    ``uss-traj``'s closed pipe does, not Python's ``Exception ignored`` text and 120."""
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            if stream is not None:
+                stream.flush()
+        except BrokenPipeError:
+            code = code or 1
+        except (OSError, ValueError, AttributeError):
+            pass
+    return code
 
 
 uss_synth = _entry("uss-synth")

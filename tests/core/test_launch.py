@@ -3,6 +3,7 @@ missing and running out of memory are one line and exit code 1, in every script.
 
 from __future__ import annotations
 
+import os
 import signal
 import subprocess
 import sys
@@ -227,6 +228,62 @@ def test_a_signal_after_the_work_is_done_is_one_line_and_kills_nothing(
     assert err.splitlines() == [
         f"uss-late: interrupted{named} after the work was done; its outputs are complete"
     ]
+
+
+SLOW_TEARDOWN = """
+import gzip, sys, time, types
+from uss_slam.core import launch
+
+class Teardown:  # a library's object whose teardown takes a while (torch's, onnxruntime's)
+    def __del__(self):
+        time.sleep(3)
+
+def main():
+    module.kept = Teardown()
+    module.text = open(sys.argv[1] + ".txt", "w")  # left open, its buffer not flushed
+    module.text.write("x" * 100)
+    module.packed = gzip.open(sys.argv[1] + ".gz", "wt")  # left open: no trailer yet
+    module.packed.write("y" * 100)
+    print("done", flush=True)
+    return 0
+
+module = types.ModuleType("late_script")
+module.main = main
+sys.modules["late_script"] = module
+launch.SCRIPTS["uss-late"] = "late_script"
+launch._entry("uss-late")()
+"""
+
+
+def test_a_signal_during_the_interpreters_teardown_is_not_dropped(tmp_path: Path) -> None:
+    """Ctrl-C while the interpreter tears down after the script's last exit callback (a
+    library's objects freed, a file flushed) was ignored: exit 0 and no line. The process ends
+    with the last callback now, having closed what the teardown would have closed (a file left
+    open keeps its buffered text, a gzip file its trailer): a signal sent after ``done`` either
+    finds it gone (exit 0) or is the one line and 130."""
+    import gzip
+
+    def as_from_a_terminal() -> None:
+        signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+    proc = subprocess.Popen([sys.executable, "-c", SLOW_TEARDOWN, str(tmp_path / "f")],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True, preexec_fn=as_from_a_terminal)  # fmt: skip
+    assert proc.stdout is not None and proc.stdout.readline() == "done\n"
+    time.sleep(1.0)  # the teardown would be sleeping in Teardown.__del__ now
+    gone = os.waitid(os.P_PID, proc.pid, os.WEXITED | os.WNOHANG | os.WNOWAIT) is not None
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    if gone:
+        assert (proc.returncode, err) == (0, "")
+    else:
+        assert proc.returncode == 130, err
+        assert err.splitlines() == [
+            "uss-late: interrupted after the work was done; its outputs are complete"
+        ]
+    assert (tmp_path / "f.txt").read_text() == "x" * 100
+    with gzip.open(tmp_path / "f.gz", "rt") as packed:
+        assert packed.read() == "y" * 100
 
 
 @pytest.mark.parametrize(
