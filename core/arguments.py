@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from .paths import home_expanded
 from .ranges import MAX_THREADS, THREADS_PER_CPU, Range
 
 
@@ -68,9 +69,12 @@ def number(kind: type = int, why: str = "", **bounds: float) -> Arg:
 def path_argument(text: str) -> Path:
     """The argparse ``type`` of every path option and argument: a path, never the empty string
     (``Path("")`` is the current folder: ``--out ""`` would write there); what the path is
-    checked for is the path layer's (``core/paths.py``)."""
+    checked for is the path layer's (``core/paths.py``). A ``~`` or ``~user`` that starts it is
+    expanded as a shell expands it (:func:`uss_slam.core.paths.home_expanded`: ``--out=~/x``
+    and a quoted ``'~/x'`` reach the script as they are)."""
     if not text.strip():
         raise argparse.ArgumentTypeError(f"expected a path, got {text!r}")
+    text = home_expanded(text)
     path = _Given(text)
     path.trailing_slash = len(text) > 1 and text.endswith("/")  # `Path` drops it: a folder
     return path

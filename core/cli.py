@@ -34,8 +34,10 @@ from typing import Any, TypeVar
 from uss_slam.core.errors import NoSpaceError, UssSlamError
 from uss_slam.core.files import no_space_errno
 from uss_slam.core.hydra_lines import (  # noqa: F401 (their home before)
+    home_expanded_argv,
     hydra_error_line,
     hydra_switch_line,
+    hydra_switch_texts,
     output_folder_line,
     override_parse_line,
     repeated_override_line,
@@ -519,12 +521,14 @@ def run_hydra_app(prog: str, app: Callable[[], object]) -> None:
     previous = os.environ.get("HYDRA_FULL_ERROR")
     os.environ["HYDRA_FULL_ERROR"] = "1"  # Hydra raises instead of printing its own report
     report = JobReport(prog)
+    sys.argv[1:] = home_expanded_argv(sys.argv[1:])
     repeated = repeated_override_line(sys.argv[1:])
     if repeated is not None:
         print(f"{prog}: error: {repeated}", file=sys.stderr)
         sys.exit(1)
     try:
-        with program(prog), signals_as_interrupts(), report_failed_jobs(prog) as report:
+        with (program(prog), signals_as_interrupts(), report_failed_jobs(prog) as report,
+              hydra_switch_texts(prog, sys.argv[1:])):  # fmt: skip
             app()
     except KeyboardInterrupt as interrupt:  # before the app's own handling (composition)
         sys.exit(report_interrupt(prog, interrupt))

@@ -5,7 +5,13 @@ errors) and for an output folder that cannot be created: the texts the Hydra app
 
 from __future__ import annotations
 
+import contextlib
 import errno
+import io
+import os
+import sys
+import warnings
+from collections.abc import Iterator
 from pathlib import Path
 
 from uss_slam.core.errors import UssSlamError
@@ -82,10 +88,10 @@ def override_parse_line(override: str, message: str) -> str:
     if sep and value and not value.startswith(("'", '"', "[", "{")):
         from uss_slam.core.paths import hydra_quoted
 
-        if value.startswith("~"):  # `sh`, or bash after a quote: `~` reaches Hydra as it is
+        if value.startswith("~"):  # one the command line's expansion left: no such user
             return (
-                f"{key}: the value {value!r} starts with '~', which the shell did not expand; "
-                f"expected the path written out ({key}=$HOME/...)"
+                f"{key}: the value {value!r} starts with '~', and this system has no user "
+                f"{value[1:].split('/')[0]!r}; expected ~/..., ~USER/... or the path written out"
             )
         quoted = hydra_quoted(value)
         if quoted != value and any(ord(c) > 127 or c.isspace() for c in value):
@@ -212,3 +218,96 @@ def hydra_switch_line(error: BaseException, argv: list[str]) -> str | None:
             shown = flag if value is True else f"{flag}={value}"
             return f"{shown}: {text}"
     return text
+
+
+def _hydra_args(argv: list[str]) -> object | None:
+    """``argv`` read by Hydra's own argument parser, or None when it cannot be."""
+    from hydra._internal.utils import get_args_parser
+
+    try:
+        return get_args_parser().parse_known_args(without_ddp_tail(argv))[0]
+    except (Exception, SystemExit):  # noqa: BLE001 (Hydra reports it itself)
+        return None
+
+
+@contextlib.contextmanager
+def hydra_switch_texts(prog: str, argv: list[str]) -> Iterator[None]:
+    """Hydra's own texts about its switches as the project's lines, around a Hydra app's run:
+
+    - ``--experimental-rerun FILE``: Hydra's ``UserWarning`` that the option is experimental
+      (printed before any error line) is dropped; overrides given beside it, which Hydra
+      ignores, are one warning line naming them;
+    - ``--cfg job --package KEY`` of a key the config does not have: Hydra's bare
+      ``package 'KEY' not found in config`` is ``<prog>: error: --package=KEY: ...``."""
+    args = _hydra_args(argv)
+    rerun, package = getattr(args, "experimental_rerun", None), getattr(args, "package", None)
+    overrides = list(getattr(args, "overrides", None) or [])
+    with warnings.catch_warnings():
+        if rerun:
+            for text in ("Experimental rerun CLI option", "Config overrides are not supported"):
+                warnings.filterwarnings("ignore", message=text, category=UserWarning)
+            if overrides and os.path.isfile(rerun):
+                print(f"{prog}: warning: {', '.join(overrides)}: set but change nothing with "
+                      f"--experimental-rerun (the recorded config runs as it was)",
+                      file=sys.stderr)  # fmt: skip
+        if not (package and getattr(args, "cfg", None)):
+            yield
+            return
+        caught = io.StringIO()
+        try:
+            with contextlib.redirect_stderr(caught):
+                yield
+        except SystemExit as stop:
+            if stop.code not in (0, None) and caught.getvalue().startswith("package '"):
+                caught = io.StringIO()
+                print(f"{prog}: error: --package={package}: not found in the config; expected "
+                      f"a key of it (--cfg {args.cfg} without --package prints them)",  # type: ignore[attr-defined]
+                      file=sys.stderr)  # fmt: skip
+                raise SystemExit(1) from None
+            raise
+        finally:
+            sys.stderr.write(caught.getvalue())
+
+
+VALUE_SWITCHES = ("--config-path", "-cp", "--config-name", "-cn", "--experimental-rerun",
+                  "--package", "-p", "--cfg", "-c")  # fmt: skip
+"""Hydra's switches whose next word is their value (not an override)."""
+
+
+def home_expanded_argv(argv: list[str]) -> list[str]:
+    """A Hydra app's command line with a ``~`` or ``~user`` starting a value expanded as a shell
+    expands it (:func:`uss_slam.core.paths.home_expanded`), in every override (``key=~/x``,
+    quoted ``key='~/x'``, the items of ``key=[~/a,~/b]``) and in ``--config-dir``: bash leaves
+    ``--config-dir=~/c``, a quoted value and ``sh``'s ``key=~/x`` as they are, and Hydra's lexer
+    refuses an unquoted ``~`` in a value. An expanded value is quoted where Hydra needs it."""
+    from uss_slam.core.paths import home_expanded
+
+    out: list[str] = []
+    for arg in argv:
+        previous = out[-1] if out else ""
+        if previous in ("--config-dir", "-cd"):
+            arg = home_expanded(arg)
+        elif arg.startswith("--config-dir="):
+            arg = "--config-dir=" + home_expanded(arg.partition("=")[2])
+        elif not arg.startswith("-") and previous not in VALUE_SWITCHES and "=" in arg:
+            key, _, value = arg.partition("=")
+            bracketed = value.startswith("[") and value.endswith("]")
+            inner = value[1:-1] if bracketed else value
+            if bracketed or (value[:1] not in "'\"" and "," in value):  # a list, a sweep
+                inner = ",".join(_home_expanded_value(i) for i in inner.split(","))
+                arg = f"{key}=[{inner}]" if bracketed else f"{key}={inner}"
+            else:
+                arg = f"{key}={_home_expanded_value(value)}"
+        out.append(arg)
+    return out
+
+
+def _home_expanded_value(value: str) -> str:
+    """One override value (unquoted or quoted) with a starting ``~`` expanded; as it is when
+    there is none, or the user is unknown (the path layer's line then names the key)."""
+    from uss_slam.core.paths import home_expanded, hydra_quoted
+
+    quote = value[:1] if value[:1] in "'\"" and len(value) > 1 and value[-1] == value[0] else ""
+    inner = value[1:-1] if quote else value
+    expanded = home_expanded(inner)
+    return value if expanded == inner else hydra_quoted(expanded)

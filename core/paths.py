@@ -121,17 +121,38 @@ def not_utf8(path: str | PathLike[str]) -> str | None:
     return None
 
 
+def home_expanded(text: str) -> str:
+    """``text`` with a ``~`` or ``~user`` that starts it expanded as a shell expands it (the home
+    folder of the user, of ``user``), else as it is (``~nobody-such/x``: the shell keeps it
+    too). The one rule of every path a user gives on a command line: bash expands ``~`` only at
+    a word's start or after ``name=``, so ``--out=~/x``, ``sh``'s ``key=~/x`` and a quoted
+    ``'~/x'`` reach the scripts unexpanded, where nobody means a folder named ``~``."""
+    if not text.startswith("~"):
+        return text
+    return os.path.expanduser(text)
+
+
 def _unexpanded_home(path: Path) -> str | None:
-    """A path starting with ``~`` that no shell expanded (``--out=~/x``: bash expands ``~`` only
-    at a word's start or after ``name=``; ``sh`` and a quoted value never): it would name a
-    folder called ``~`` in the working folder."""
+    """A path still starting with ``~`` here: ``~user`` of a user this system does not have
+    (the command line's paths are expanded, :func:`home_expanded`), or a config file's value
+    (read as written): it would name a folder called ``~`` in the working folder."""
     first = path.parts[0] if path.parts else ""
-    if first == "~" or (first.startswith("~") and not path.exists()):
+    if not first.startswith("~") or (first != "~" and path.exists()):
+        return None
+    if home_expanded(str(path)) == str(path) and first == "~":
         return (
-            f"starts with {first!r}, which the shell did not expand (it would be a folder named "
-            f"{first!r}); expected the path written out ($HOME/... or ~/... as a word of its own)"
+            "starts with '~', and the home folder is not known (HOME is not set); expected the "
+            "path written out"
         )
-    return None
+    if home_expanded(str(path)) == str(path):
+        return (
+            f"starts with {first!r}, and this system has no user {first[1:]!r} (it would be a "
+            f"folder named {first!r}); expected ~/..., ~USER/... or the path written out"
+        )
+    return (
+        f"starts with {first!r}, which a config file's value does not expand (it would be a "
+        f"folder named {first!r}); expected the path written out, or given on the command line"
+    )
 
 
 def _prefixes(path: Path) -> list[Path]:

@@ -204,7 +204,7 @@ def resolve_camera(
         if (cam.width, cam.height) != (width, height):
             cam = cam.scaled(width, height)
         return cam, name.lower()
-    path = Path(name).expanduser()
+    path = Path(os.path.expanduser(name))
     if not path.exists():
         raise UssSlamError(
             f"{key}={name!r}: not one of {', '.join(sorted(TUM_CAMERAS))} "

@@ -15,6 +15,7 @@ camera intrinsics live in :mod:`.tum_camera` (re-exported here).
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -385,7 +386,7 @@ def read_tum_folder(
     (they are then left out and their errors appended, see :func:`read_file_list`). Whether the
     listed images exist is :meth:`TumFolder.missing`'s business, for the frames one uses.
     """
-    root = Path(root).expanduser()
+    root = Path(os.path.expanduser(root))
     needed = f"{RGB_LIST} and {DEPTH_LIST}" if depth else RGB_LIST
     input_folder(root, None, f"expected a TUM sequence folder with {needed}")
     lists = [RGB_LIST, DEPTH_LIST] if depth else [RGB_LIST]

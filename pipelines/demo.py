@@ -42,7 +42,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from uss_slam.core.arguments import THREADS_ARG, given_once, path_argument
+from uss_slam.core.arguments import THREADS_ARG, given_once, home_expanded, path_argument
 from uss_slam.core.classes import CLASS_NAMES
 from uss_slam.core.cli import exit_on_user_error
 from uss_slam.core.errors import UssSlamError
@@ -467,7 +467,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help="output folder (default: outputs/demo)")  # fmt: skip
     parser.add_argument("--experiment", choices=sorted(PLANS), default="demo",
                         help="demo (default; minutes) or ci (tiny data, seconds of training)")  # fmt: skip
-    parser.add_argument("--sequence", default="walking_xyz",
+    parser.add_argument("--sequence", default="walking_xyz", type=home_expanded,
                         help="SLAM sequence: a name under OUT/data/slam/ (walking_xyz, "
                              "static_xyz) or a TUM RGB-D folder with labels/ and "
                              "groundtruth.txt (default: walking_xyz)")  # fmt: skip

@@ -10,6 +10,7 @@ silently dropped: it is counted in :attr:`TumSequence.unmatched_rgb`.
 from __future__ import annotations
 
 import itertools
+import os
 import time
 from collections import deque
 from collections.abc import Callable, Iterator
@@ -99,7 +100,7 @@ class TumSequence:
         max_frames: int | None = None,
         min_strided_frames: int = 0,
     ) -> None:
-        self.path = Path(path).expanduser()
+        self.path = Path(os.path.expanduser(path))
         if stride < 1 or start < 0 or (max_frames is not None and max_frames < 1):
             raise UssSlamError(
                 f"sequence: start must be >= 0, stride >= 1 and max_frames >= 1 or null "

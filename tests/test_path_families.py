@@ -189,10 +189,23 @@ def not_utf8(tmp: Path, kind: str) -> tuple[Path, tuple[str, ...]]:
     return folder / "x", ("the path holds a byte that is not UTF-8 (0xe9",)
 
 
-def unexpanded_home(tmp: Path, kind: str) -> tuple[Path, tuple[str, ...]]:
-    """``--out=~/x`` (bash expands ``~`` only at a word's start or after ``name=``; ``sh``
-    never): a folder named ``~`` would be made in the working folder."""
-    return Path("~") / "x", ("starts with '~', which the shell did not expand",)
+def home_folder(tmp: Path, kind: str) -> tuple[Path, tuple[str, ...]]:
+    """``--out=~/x`` (bash expands ``~`` only at a word's start or after ``name=``; ``sh`` and a
+    quoted value never): expanded by the script as a shell would, for every path argument. The
+    case's ``HOME`` is a folder of its own, ``~/afile/x`` fails there as ``afile`` is a file
+    (a folder named ``~`` would have been made in the working folder)."""
+    home = Path(os.environ["HOME"])  # the test's: a folder beside the case's
+    (home / "afile").write_text("a file\n")
+    return Path("~") / "afile" / "x", (f"{home / 'afile'} is a file",)
+
+
+def unknown_user(tmp: Path, kind: str) -> tuple[Path, tuple[str, ...]]:
+    """``~nosuchuser/x``: a shell leaves it as it is, and so do the scripts: refused, not made
+    into a folder named ``~nosuchuser``."""
+    return Path("~nosuchuser-uss") / "x", (
+        "starts with '~",
+        "this system has no user 'nosuchuser-uss'",
+    )
 
 
 def trailing_slash(tmp: Path, kind: str) -> tuple[Path, tuple[str, ...]]:
@@ -210,7 +223,8 @@ FAMILIES: dict[str, tuple[Family, tuple[str, ...]]] = {
     "folder-for-a-file": (a_folder, (IN_FILE, OUT_FILE)),
     "under-a-file": (under_a_file, (IN_FILE, IN_FOLDER, OUT_FILE, OUT_FOLDER)),
     "not-utf-8": (not_utf8, (IN_FILE, IN_FOLDER, OUT_FILE, OUT_FOLDER)),
-    "unexpanded-home": (unexpanded_home, (IN_FILE, IN_FOLDER, OUT_FILE, OUT_FOLDER)),
+    "home-folder": (home_folder, (IN_FILE, IN_FOLDER, OUT_FILE, OUT_FOLDER)),
+    "unknown-user": (unknown_user, (IN_FILE, IN_FOLDER, OUT_FILE, OUT_FOLDER)),
     "trailing-slash": (trailing_slash, (OUT_FILE,)),
 }
 """Family name -> (how to make it, the kinds of argument it applies to)."""
@@ -221,15 +235,11 @@ def shown(text: str) -> str:
     return text.encode("utf-8", "backslashreplace").decode("utf-8")
 
 
-EXPANDS_HOME = ("eval-data-val-roots", "experiments-data-real-tum", "experiments-init-path")
-"""Arguments whose script expands ``~`` itself (``~/x`` is the home folder's ``x`` there)."""
-
-
 def _cases() -> list:
     params = []
     for arg in PATH_ARGS:
         for name, (_, kinds) in FAMILIES.items():
-            if arg.kind in kinds and not (name == "unexpanded-home" and arg.id in EXPANDS_HOME):
+            if arg.kind in kinds:
                 marks = (pytest.mark.slow,) if arg.slow else ()
                 params.append(pytest.param(arg, name, id=f"{arg.id}-{name}", marks=marks))
     return params
@@ -274,6 +284,9 @@ def test_path_family(
     capsys,
 ) -> None:
     """One line naming the argument and the path, exit code 1, nothing written."""
+    home = tmp_path.parent / f"{tmp_path.name}-home"  # (onnxruntime writes into ~/.cache)
+    home.mkdir()
+    monkeypatch.setenv("HOME", str(home))
     make, _ = FAMILIES[family]
     bad, says = make(tmp_path, arg.kind)
     paths = {**world, "tmp": tmp_path, "P": bad}
@@ -285,7 +298,7 @@ def test_path_family(
             paths["m2"].write_bytes(colour_onnx({"tmp": tmp_path}) + b"\n")
             arg = dataclasses.replace(arg, argv=arg.argv.replace("{m} {m}", "{m} {m2}"))
     template = arg.argv
-    if family in ("not-utf-8", "unexpanded-home"):  # Hydra reads these only quoted
+    if family in ("not-utf-8", "home-folder", "unknown-user"):  # Hydra reads these quoted
         template = template.replace("={P}", "='{P}'").replace("=[{P}]", "=['{P}']")
     argv = [a.format(**paths) for a in template.split()]
     monkeypatch.chdir(tmp_path)
@@ -298,7 +311,8 @@ def test_path_family(
     lines = err.strip().splitlines()
     assert "Traceback" not in err, err
     assert code == 1 and len(lines) == 1, err
-    named = shown(str(bad) if arg.key is None else f"{arg.key}={bad}")
+    given = os.path.expanduser(bad)  # (``~/x``: the scripts expand it as a shell would)
+    named = shown(given if arg.key is None else f"{arg.key}={given}")
     assert lines[0].startswith(f"{arg.prog}: error: ") or (
         lines[0].startswith(f"{arg.prog} {arg.argv.split()[0]}: error: ")  # a subcommand's
     ), err

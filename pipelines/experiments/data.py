@@ -119,7 +119,7 @@ def _vocabulary(exp: Experiment, data: Data, run: bool, dry: bool) -> str:
 
     given = exp.cfg["slam"]["orbslam3"].get("vocabulary")
     if given is not None:
-        data.vocabulary = Path(str(given)).expanduser().resolve()
+        data.vocabulary = Path(os.path.expanduser(str(given))).resolve()
         data.vocabulary_key = str(data.vocabulary)
         return f"ORB-SLAM3 vocabulary {data.vocabulary}"
     key = {"target": data.train_key, "folders": [str(p) for p in data.target]}
@@ -216,7 +216,7 @@ def _real_data(exp: Experiment) -> tuple[Data, str]:
             "(segeval.source_val_stride=null leaves it out)"
         )  # fmt: skip
     find_sbd_root(real["sbd"])
-    coco = Path(str(real["coco"])).expanduser()
+    coco = Path(os.path.expanduser(str(real["coco"])))
     for needed in (coco / "annotations" / "instances_train2017.json", coco / "train2017"):
         if not needed.exists():
             raise DataFormatError(
@@ -224,12 +224,12 @@ def _real_data(exp: Experiment) -> tuple[Data, str]:
                 "incomplete COCO folder: expected annotations/"
                 "instances_train2017.json and train2017/",
             )
-    tum = Path(str(real["tum"])).expanduser()
+    tum = Path(os.path.expanduser(str(real["tum"])))
     targets = [tum / f"{TUM_PREFIX}{t}" for t in real["target"]]
     for folder in targets:
         read_tum_folder(folder, depth=False)
     # keys of content, not of names: a changed file under a folder redoes what reads it
-    sources = {k: Path(str(real[k])).expanduser() for k in ("voc", "sbd", "coco")}
+    sources = {k: Path(os.path.expanduser(str(real[k]))) for k in ("voc", "sbd", "coco")}
     keys = {k: content_key(p) for k, p in sources.items()}
     data = Data(
         train_key=keys | {"target": [content_key(t) for t in targets]},

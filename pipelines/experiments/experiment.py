@@ -6,6 +6,7 @@ across keys and what needs the file system or an installed package."""
 from __future__ import annotations
 
 import importlib.util
+import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -196,7 +197,7 @@ def check_t0(plain: dict[str, Any], synthetic: bool) -> None:
     if synthetic or not grid["oracle"] or real.get("tum") in (None, "???"):
         return  # (a missing data.real.tum is the data checks' error)
     for name in real.get("target") or []:
-        labels = Path(str(real["tum"])).expanduser() / f"{TUM_PREFIX}{name}" / "labels"
+        labels = Path(os.path.expanduser(str(real["tum"]))) / f"{TUM_PREFIX}{name}" / "labels"
         if not labels.is_dir():
             raise UssSlamError(
                 f"grid.oracle: the target oracle trains on labelled target frames, but "
@@ -264,7 +265,7 @@ def check_init(plain: Mapping[str, Any], synthetic: bool, sequences: Sequence[st
     if init.get("path") is not None:
         expected = ("expected a pretrained weights file (a DeepLab-v2 Caffe init, a torchvision "
                     "ResNet state dict or a uss-train checkpoint)")  # fmt: skip
-        path = input_file(Path(str(init["path"])).expanduser(), "init.path", expected)
+        path = input_file(Path(os.path.expanduser(str(init["path"]))), "init.path", expected)
         if not saved_by_torch(path):
             raise UssSlamError(f"init.path={path}: not a file torch.load reads (an ONNX model, "
                                f"say); {expected}")  # fmt: skip
@@ -466,8 +467,8 @@ def check(cfg: DictConfig) -> Experiment:
         real = plain["data"]["real"]
         check_real_init(init, synthetic)
         for key in ("voc", "sbd", "coco", "tum"):  # the folders themselves, once all are given
-            input_folder(Path(str(real[key])).expanduser(), f"data.real.{key}")
-    out = Path(str(plain["out_dir"])).expanduser().resolve()
+            input_folder(Path(os.path.expanduser(str(real[key]))), f"data.real.{key}")
+    out = Path(os.path.expanduser(str(plain["out_dir"]))).resolve()
     return Experiment(
         plain,
         out,

@@ -4,6 +4,7 @@ own settings, checked before any frame is read, and the check of its vocabulary 
 
 from __future__ import annotations
 
+import os
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -72,7 +73,7 @@ def check_vocabulary(vocabulary: str | None) -> Path:
     """The vocabulary path, checked (exists, DBoW2 text header) before ORB-SLAM3 sees it."""
     if vocabulary is None or not str(vocabulary).strip():
         raise UssSlamError(f"system.vocabulary is not set: ORB-SLAM3 needs one; {VOCAB_HINT}")
-    path = Path(str(vocabulary)).expanduser()
+    path = Path(os.path.expanduser(str(vocabulary)))
     if not path.is_file():
         raise UssSlamError(f"system.vocabulary={vocabulary}: file not found; {VOCAB_HINT}")
     try:

@@ -45,6 +45,7 @@ from __future__ import annotations
 import contextlib
 import importlib.util
 import logging
+import os
 import shutil
 import tempfile
 from collections.abc import Callable, Sequence
@@ -188,7 +189,7 @@ def _settings_file(
     """The checked settings file (the user's ``system.settings_file``, else one written from
     the sequence's camera into ``out``, staged) and the path ORB-SLAM3 reads it from."""
     if config.settings_file:
-        info = check_settings(Path(config.settings_file).expanduser(), sequence.image_size)
+        info = check_settings(Path(os.path.expanduser(config.settings_file)), sequence.image_size)
         return info, info.path
     final = out / "orbslam3_settings.yaml"
     with folder.writing(final) as staged:

@@ -1,0 +1,121 @@
+"""Hydra's own switches (``--experimental-rerun``, ``--cfg job --package``) in the project's
+line form, for every Hydra app: no library warning before the one line, no bare Hydra text."""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+import pytest
+from hydra.core.global_hydra import GlobalHydra
+from hydra.core.hydra_config import HydraConfig
+from test_cli_matrix import run_console_script
+
+HYDRA_APPS = ("uss-slam", "uss-train", "uss-export", "uss-experiments")
+
+
+def _run(prog: str, argv: list[str], monkeypatch: pytest.MonkeyPatch, capsys) -> tuple[int, str]:
+    try:
+        code, _, err = run_console_script(prog, argv, monkeypatch, capsys)
+    finally:
+        HydraConfig.instance().cfg = None
+        GlobalHydra.instance().clear()
+    return code, err
+
+
+@pytest.mark.parametrize("prog", HYDRA_APPS)
+def test_experimental_rerun_of_a_missing_file_is_one_line_without_hydras_warning(
+    prog: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    """Hydra warned that the option is experimental (a ``UserWarning`` and its source line)
+    before the one line naming the switch."""
+    monkeypatch.chdir(tmp_path)
+    missing = tmp_path / "config.pickle"
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        code, err = _run(prog, ["--experimental-rerun", str(missing)], monkeypatch, capsys)
+    assert [str(w.message) for w in seen if "rerun" in str(w.message).lower()] == []
+    assert code == 1
+    assert err.splitlines() == [
+        f"{prog}: error: --experimental-rerun={missing}: File {missing} does not exist"
+    ]
+
+
+def test_experimental_rerun_with_overrides_warns_that_they_change_nothing(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    """Hydra ignores overrides given beside ``--experimental-rerun``: one warning line of the
+    project's form names them (Hydra's was a ``UserWarning``), before the file's own line."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "config.pickle").write_bytes(b"not a pickle")
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        argv = ["--experimental-rerun", "config.pickle", "progress=false"]
+        code, err = _run("uss-slam", argv, monkeypatch, capsys)
+    assert [str(w.message) for w in seen if "overrides" in str(w.message).lower()] == []
+    lines = err.splitlines()
+    assert code == 1 and len(lines) == 2, err
+    assert lines[0] == (
+        "uss-slam: warning: progress=false: set but change nothing with --experimental-rerun "
+        "(the recorded config runs as it was)"
+    )
+    assert lines[1].startswith("uss-slam: error: --experimental-rerun=config.pickle: "), err
+
+
+@pytest.mark.parametrize("prog", HYDRA_APPS)
+def test_cfg_package_of_a_missing_key_is_one_line_naming_the_switch(
+    prog: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    """``--cfg job --package nope``: Hydra wrote ``package 'nope' not found in config`` without
+    the ``<prog>: error:`` prefix."""
+    monkeypatch.chdir(tmp_path)
+    code, err = _run(prog, ["--cfg", "job", "--package", "nope"], monkeypatch, capsys)
+    assert code == 1
+    assert err.splitlines() == [
+        f"{prog}: error: --package=nope: not found in the config; expected a key of it "
+        "(--cfg job without --package prints them)"
+    ]
+
+
+def test_cfg_package_of_a_key_prints_it(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    code, out, err = run_console_script(
+        "uss-slam", ["--cfg", "job", "--package", "slam.orb"], monkeypatch, capsys
+    )
+    GlobalHydra.instance().clear()
+    assert (code, err) == (0, "")
+    assert out.startswith("# @package slam.orb\nn_features: ")
+
+
+def test_a_home_folder_starting_a_hydra_value_is_expanded_as_a_shell_would(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """``key=~/x`` (``sh``, or quoted), list items, a sweep's values and ``--config-dir``: one
+    rule for every key; a switch's own value, ``~key`` (Hydra's deletion) and an unknown user
+    stay as they are."""
+    from uss_slam.core.hydra_lines import home_expanded_argv
+
+    monkeypatch.setenv("HOME", "/h/me")
+    argv = ["out_dir=~/x", "sequence.path='~/s 1'", "data.target.roots=[~/a,'~/b',c]",
+            "out_dir=~/p,~/q", "--config-dir", "~/c", "--config-dir=~/d", "-p", "~x", "~key",
+            "~key=~/z", "a=~nosuchuser-uss/x", "b=x~", "c=~"]  # fmt: skip
+    assert home_expanded_argv(argv) == [
+        "out_dir=/h/me/x", "sequence.path='/h/me/s 1'", "data.target.roots=[/h/me/a,/h/me/b,c]",
+        "out_dir=/h/me/p,/h/me/q", "--config-dir", "/h/me/c", "--config-dir=/h/me/d", "-p", "~x",
+        "~key", "~key=/h/me/z", "a=~nosuchuser-uss/x", "b=x~", "c=/h/me",
+    ]  # fmt: skip
+
+
+def test_an_unknown_user_is_one_line_naming_the_key(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    """``out_dir=~nosuchuser/x`` unquoted: Hydra's lexer refuses the ``~``; the line says why."""
+    monkeypatch.chdir(tmp_path)
+    code, err = _run("uss-slam", ["out_dir=~nosuchuser-uss/x"], monkeypatch, capsys)
+    assert code == 1
+    assert err.splitlines() == [
+        "uss-slam: error: out_dir: the value '~nosuchuser-uss/x' starts with '~', and this "
+        "system has no user 'nosuchuser-uss'; expected ~/..., ~USER/... or the path written out"
+    ]
