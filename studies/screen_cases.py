@@ -12,7 +12,11 @@ held-out sets. A new case *repeats* one when it is the same script with
   name, a link that loops or points nowhere, a file for a folder or the reverse, a path under
   a file: recognised by the names the families make in the case's folder);
 - an earlier case: the same setup and the same arguments once the paths are named alike, or
-  the same arguments that are not the script's usual base (the same tried input).
+  the same arguments that are not the script's usual base (the same tried input), sent the
+  same signal the same way (:func:`delivery`: Ctrl-C to the script alone, to its process
+  group, twice; SIGTERM alone or to the group; SIGHUP; Ctrl-Z then ``fg``; or none): a
+  SIGTERM to the group where an earlier case pressed Ctrl-C with the same arguments is a new
+  case, as is one without a signal where the earlier one sent one.
 
     python studies/screen_cases.py studies/fresh_cases7.txt   # exit 1 and the repeats, if any
 
@@ -31,7 +35,7 @@ HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 sys.path[:0] = [str(HERE), str(ROOT / "tests")]
 
-from fresh_cases import MACROS, PSEUDO, read_cases  # noqa: E402
+from fresh_cases import MACROS, PSEUDO, SIGNALS, read_cases  # noqa: E402
 
 EARLIER = (
     "fresh_cases.txt",
@@ -84,6 +88,14 @@ def _environment(case) -> frozenset[str]:
                      if k not in ("PYTHONPATH", "PYTHONDONTWRITEBYTECODE"))  # fmt: skip
 
 
+def delivery(expect: str) -> str | None:
+    """How a case sends its signal: the kind of its ``expect`` (``int``, ``gint``, ``int2``,
+    ``term``, ``gterm``, ``hup``, ``stop``; the time it is sent after is not compared), None
+    for a case that sends none."""
+    kind = expect.split(":", 1)[0]
+    return kind if kind in SIGNALS else None
+
+
 def generated_argparse() -> list[tuple[str, tuple[str, ...], str, str]]:
     from test_cli_matrix_arguments import BAD
 
@@ -100,12 +112,14 @@ def generated_schema() -> list[tuple[str, str]]:
     return found
 
 
-def handwritten() -> list[tuple[str, tuple[str, ...]]]:
+def handwritten() -> list[tuple[str, tuple[str, ...], str | None]]:
     import test_cli_matrix
     import test_image_families
 
     cases = [*test_cli_matrix.CASES, *test_cli_matrix.MORE_CASES, *test_image_families.CASES]
-    return [(c.prog, tokens(c.prog, " ".join(c.argv))) for c in cases]
+    # (a hand-written case's interrupt is a Ctrl-C raised in the script alone)
+    return [(c.prog, tokens(c.prog, " ".join(c.argv)), "int" if getattr(c, "interrupt", None)
+             else None) for c in cases]  # fmt: skip
 
 
 def screen(path: Path) -> list[str]:
@@ -135,15 +149,19 @@ def screen(path: Path) -> list[str]:
             if old.prog != case.prog:
                 continue
             same_setup = set(old.setup) == set(case.setup)
+            if delivery(old.expect) != delivery(case.expect):
+                continue  # the same arguments, a signal sent otherwise (or none): a new case
             if old_toks == toks and same_setup and old.env == case.env:
                 found.append(f"{case.id}: the earlier case {old.id}")
             elif tried and tried == _tried(old_toks, base) and same_setup and old.env == case.env:
                 found.append(f"{case.id}: tries what {old.id} tried")
             elif _environment(case) and _environment(case) == _environment(old):
                 found.append(f"{case.id}: changes the environment as {old.id} did")
-        for prog, hand_toks in hand:
+        for prog, hand_toks, sent in hand:
             # (a case with a setup differs by its files, not its arguments: screened by reading)
-            if prog == case.prog and not case.setup and tried and tried == _tried(hand_toks, base):
+            if prog != case.prog or sent != delivery(case.expect):
+                continue
+            if not case.setup and tried and tried == _tried(hand_toks, base):
                 found.append(f"{case.id}: a hand-written matrix case ({' '.join(hand_toks)[:80]})")
     return found
 

@@ -60,6 +60,28 @@ def test_the_screen_flags_a_generated_case_and_an_earlier_one(fresh, tmp_path) -
     assert not any(f.startswith("c: ") for f in found), found
 
 
+def test_the_screen_compares_how_a_signal_is_sent(fresh, tmp_path, monkeypatch) -> None:
+    """The same arguments are a repeat only when the signal is sent the same way: Ctrl-C to
+    the script where an earlier case pressed it (at another time) is one; SIGTERM to the
+    process group, Ctrl-C twice and no signal at all are new cases."""
+    import screen_cases
+
+    argv = "sequence.path={seq} out_dir={C}/o slam.workers=3 segmenter=labels"
+    (tmp_path / "old.txt").write_text(f"o | uss-slam | int:4 | - | - | - | {argv}\n")
+    cases = tmp_path / "cases.txt"
+    cases.write_text(
+        f"a | uss-slam | int:9 | - | - | - | {argv}\n"
+        f"b | uss-slam | gterm:4 | - | - | - | {argv}\n"
+        f"c | uss-slam | int2:4 | - | - | - | {argv}\n"
+        f"d | uss-slam | ok | - | - | - | {argv}\n"
+    )
+    monkeypatch.setattr(screen_cases, "HERE", tmp_path)
+    monkeypatch.setattr(screen_cases, "EARLIER", ("old.txt",))
+    found = screen_cases.screen(cases)
+    assert [f for f in found if f.startswith("a: ")] == ["a: the earlier case o"], found
+    assert not any(f.startswith(("b: ", "c: ", "d: ")) for f in found), found
+
+
 @pytest.mark.parametrize(
     ("code", "err", "verdict"),
     [
