@@ -188,6 +188,8 @@ def print_output(text: str) -> int:
     try:
         print(text, flush=True)
         error = stdout.lost(clear=True)
+        if isinstance(error, BrokenPipeError):  # (kept by the guard)
+            raise error
         if error is not None:
             why = error.strerror or type(error).__name__
             raise UssSlamError(f"stdout: cannot write the output ({why})")

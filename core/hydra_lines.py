@@ -238,8 +238,17 @@ def hydra_switch_texts(prog: str, argv: list[str]) -> Iterator[None]:
       (printed before any error line) is dropped; overrides given beside it, which Hydra
       ignores, are one warning line naming them;
     - ``--cfg job --package KEY`` of a key the config does not have: Hydra's bare
-      ``package 'KEY' not found in config`` is ``<prog>: error: --package=KEY: ...``."""
+      ``package 'KEY' not found in config`` is ``<prog>: error: --package=KEY: ...``;
+    - ``--config-dir`` is checked by the path layer (a file, a missing folder, a link loop)."""
     args = _hydra_args(argv)
+    if getattr(args, "config_dir", None):  # the path layer's line (Hydra's: "not found")
+        from uss_slam.core.paths import PathError, input_folder
+
+        try:
+            input_folder(args.config_dir, "--config-dir", "expected a folder of config files")  # type: ignore[attr-defined]
+        except PathError as error:
+            print(f"{prog}: error: {error}", file=sys.stderr)
+            raise SystemExit(1) from None
     rerun, package = getattr(args, "experimental_rerun", None), getattr(args, "package", None)
     overrides = list(getattr(args, "overrides", None) or [])
     with warnings.catch_warnings():

@@ -149,6 +149,11 @@ def launch(prog: str) -> int | None:
     # every plot is drawn into a file (Agg); a backend set for interactive use is not the
     # scripts' (a notebook's module://matplotlib_inline... fails matplotlib's import here)
     os.environ["MPLBACKEND"] = "Agg"
+    # onnxruntime writes a device id under ~/.cache/Microsoft/DeveloperTools, a file outside
+    # the outputs, and where it cannot (a read-only home folder) prints its own coloured
+    # warning on every import; the scripts ask it not to (a value the user set stays)
+    os.environ.setdefault("ORT_DISABLE_TELEMETRY", "1")
+    private_matplotlib_folder()
     previous: dict[int, object] = {}
     try:
         for sig in TERMINATING:
@@ -198,6 +203,36 @@ def launch(prog: str) -> int | None:
             raise
         print(f"{prog}: error: {(str(error).strip().splitlines() or [''])[0]}", file=sys.stderr)
         return int(getattr(error, "exit_code", 1))
+
+
+def private_matplotlib_folder() -> None:
+    """Matplotlib keeps its settings and font cache under ``$XDG_CONFIG_HOME`` and
+    ``$XDG_CACHE_HOME`` (``~/.config``, ``~/.cache``); where it cannot create or write them (a
+    read-only home folder) it prints two lines of its own on every import (``mkdir -p failed``,
+    ``Matplotlib created a temporary cache directory``). There the scripts give it a temporary
+    folder of their own (``MPLCONFIGDIR``, removed at the end) without a word. A
+    ``MPLCONFIGDIR`` the user set stays."""
+    if "MPLCONFIGDIR" in os.environ:
+        return
+    home = os.path.expanduser("~")
+    for variable, default in (("XDG_CONFIG_HOME", ".config"), ("XDG_CACHE_HOME", ".cache")):
+        folder = os.path.join(os.environ.get(variable) or os.path.join(home, default), "matplotlib")
+        existing = folder
+        while not os.path.lexists(existing) and os.path.dirname(existing) != existing:
+            existing = os.path.dirname(existing)
+        if not (os.path.isdir(existing) and os.access(existing, os.W_OK | os.X_OK)):
+            break
+    else:
+        return
+    import shutil
+    import tempfile
+
+    try:
+        private = tempfile.mkdtemp(prefix="uss-slam-matplotlib-")
+    except OSError:  # no temporary folder either: matplotlib's own lines
+        return
+    os.environ["MPLCONFIGDIR"] = private
+    atexit.register(shutil.rmtree, private, True)
 
 
 def without_optimize() -> None:
@@ -388,17 +423,13 @@ def _standard(stream: object) -> bool:
 
 
 def _flush_std(code: int) -> int:
-    """Flush stdout and stderr; a reader of stdout that is gone (a closed pipe, ``| head -1``)
-    makes a run that succeeded exit with 1 without a word (its output was not delivered), as
-    ``uss-traj``'s closed pipe does, not Python's ``Exception ignored`` text and 120."""
+    """Flush stdout and stderr, without Python's ``Exception ignored`` text and exit code 120
+    for one that cannot be written (what was lost there was said by
+    :func:`uss_slam.core.stdout.report_lost`)."""
     for stream in (sys.stdout, sys.stderr):
-        try:
+        with contextlib.suppress(OSError, ValueError, AttributeError):
             if stream is not None:
                 stream.flush()
-        except BrokenPipeError:
-            code = code or 1
-        except (OSError, ValueError, AttributeError):
-            pass
     return code
 
 

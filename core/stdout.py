@@ -7,7 +7,9 @@ stops half-way because a progress note could not be printed.
 a script's *product* on stdout (``uss-traj``'s numbers, ``uss-vocab info``, a dry run's plan)
 is printed by :func:`uss_slam.core.cli.print_output`, which then makes it the error line
 (exit code 1); anything else printed there is lost with one warning at the end
-(:func:`report_lost`). A closed pipe (``| head -c0``) keeps its own rule (print_output's).
+(:func:`report_lost`). A closed pipe (``| head -1``: its reader is gone) is kept the same way:
+a product's is print_output's rule (exit code 1 without a word), the rest's the one warning,
+never a ``BrokenPipeError`` traceback after the work.
 
 Imports nothing outside the standard library (``core/launch.py`` uses it before the imports).
 """
@@ -22,7 +24,7 @@ from typing import Any, TextIO
 
 class _GuardedStream:
     """``sys.stdout`` whose failing writes and flushes are kept, not raised (a closed pipe's
-    ``BrokenPipeError`` still raises: :func:`uss_slam.core.cli.print_output` handles it)."""
+    ``BrokenPipeError`` too: :func:`uss_slam.core.cli.print_output` reads it from :func:`lost`)."""
 
     def __init__(self, stream: TextIO) -> None:
         self._stream = stream
@@ -31,8 +33,6 @@ class _GuardedStream:
     def write(self, text: str) -> int:
         try:
             return self._stream.write(text)
-        except BrokenPipeError:
-            raise
         except OSError as error:
             self.lost = self.lost or error
             return len(text)
@@ -40,8 +40,6 @@ class _GuardedStream:
     def flush(self) -> None:
         try:
             self._stream.flush()
-        except BrokenPipeError:
-            raise
         except OSError as error:
             self.lost = self.lost or error
 
@@ -78,13 +76,21 @@ def closed() -> bool:
 
 def report_lost(prog: str) -> None:
     """At the end of a script: one warning when something it printed on stdout was lost, and
-    stdout pointed at ``/dev/null`` so that the interpreter's last flush raises nothing."""
+    stdout pointed at ``/dev/null`` so that the interpreter's last flush raises nothing (what
+    is still buffered is flushed first: a closed pipe shows only then)."""
+    with contextlib.suppress(Exception):
+        if isinstance(sys.stdout, _GuardedStream):
+            sys.stdout.flush()
     error = lost(clear=True)
     if error is None:
         return
-    why = error.strerror or type(error).__name__
-    print(f"{prog}: warning: stdout: cannot write to it ({why}); what the script printed there "
-          "is lost (its files are complete)", file=sys.stderr)  # fmt: skip
+    if isinstance(error, BrokenPipeError):
+        print(f"{prog}: warning: stdout: its reader closed the pipe (| head?); the rest of what "
+              "the script printed there is lost (its files are complete)", file=sys.stderr)  # fmt: skip
+    else:
+        why = error.strerror or type(error).__name__
+        print(f"{prog}: warning: stdout: cannot write to it ({why}); what the script printed "
+              "there is lost (its files are complete)", file=sys.stderr)  # fmt: skip
     try:
         devnull = os.open(os.devnull, os.O_WRONLY)
         os.dup2(devnull, sys.stdout.fileno())

@@ -119,3 +119,21 @@ def test_an_unknown_user_is_one_line_naming_the_key(
         "uss-slam: error: out_dir: the value '~nosuchuser-uss/x' starts with '~', and this "
         "system has no user 'nosuchuser-uss'; expected ~/..., ~USER/... or the path written out"
     ]
+
+
+@pytest.mark.parametrize("prog", HYDRA_APPS)
+def test_a_config_dir_that_is_no_folder_is_the_path_layers_line(
+    prog: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    """``--config-dir`` names a file or nothing: Hydra's ``Additional config directory ... not
+    found`` did not name the switch; the path layer's line does, as for every path."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "afile").write_text("")
+    code, err = _run(prog, ["--config-dir", "afile"], monkeypatch, capsys)
+    assert (code, err.splitlines()) == (
+        1, [f"{prog}: error: --config-dir=afile: is a file; expected a folder"]
+    )  # fmt: skip
+    code, err = _run(prog, ["--config-dir=nope"], monkeypatch, capsys)
+    assert (code, err.splitlines()) == (
+        1, [f"{prog}: error: --config-dir=nope: does not exist; expected a folder of config files"]
+    )  # fmt: skip

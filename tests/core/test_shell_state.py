@@ -9,6 +9,7 @@ import errno
 import io
 import os
 import struct
+import subprocess
 import sys
 import zlib
 from pathlib import Path
@@ -102,6 +103,107 @@ def test_a_full_stdout_is_the_products_error_and_a_warning_for_the_rest(
     stdout.report_lost("uss-synth")
     assert capsys.readouterr().err.startswith("uss-synth: warning: stdout: cannot write to it (")
     assert stdout.lost() is None
+
+
+class _ClosedPipe(io.StringIO):
+    """Stdout whose reader is gone (``| head -1`` after its line)."""
+
+    def write(self, text: str) -> int:
+        raise BrokenPipeError(errno.EPIPE, "Broken pipe")
+
+    def fileno(self) -> int:
+        raise io.UnsupportedOperation("fileno")
+
+
+def test_a_closed_pipe_is_the_products_exit_and_one_warning_for_the_rest(
+    monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    """``uss-eval ... | head -1``: its summary's print was a ``BrokenPipeError`` traceback after
+    the work. A product (``uss-traj``'s numbers) exits with 1 without a word; anything else is
+    kept and said once at the end, the run going on."""
+    monkeypatch.setattr(sys, "stdout", _ClosedPipe())
+    stdout.guard()
+    assert print_output("the numbers") == 1
+    print("a summary beside the files")  # kept, not raised
+    stdout.report_lost("uss-eval")
+    assert capsys.readouterr().err.splitlines() == [
+        "uss-eval: warning: stdout: its reader closed the pipe (| head?); the rest of what the "
+        "script printed there is lost (its files are complete)"
+    ]
+
+
+def test_a_script_into_a_closed_pipe_finishes_its_work_with_one_warning(tmp_path: Path) -> None:
+    """A console script whose stdout is a pipe closed before its last line (``uss-synth ... |
+    head -c0``): its files are written, exit code 0, one warning (it was a traceback)."""
+    reader, writer = os.pipe()
+    os.close(reader)
+    code = "import sys; from uss_slam.core.launch import uss_synth; uss_synth()"
+    out = tmp_path / "voc"
+    try:
+        done = subprocess.run([sys.executable, "-c", code, "voc", "--images", "1", "--size",
+                               "32x24", "--out", str(out), "--quiet"], stdout=writer,
+                              stderr=subprocess.PIPE, text=True, timeout=300)  # fmt: skip
+    finally:
+        os.close(writer)
+    assert done.returncode == 0, done.stderr
+    assert "Traceback" not in done.stderr
+    assert [line for line in done.stderr.splitlines() if "uss-synth:" in line] == [
+        "uss-synth: warning: stdout: its reader closed the pipe (| head?); the rest of what the "
+        "script printed there is lost (its files are complete)"
+    ]
+    assert any(out.rglob("*.png"))
+
+
+def test_a_read_only_home_gives_matplotlib_a_folder_of_its_own_without_a_word(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Where matplotlib cannot write ``~/.config/matplotlib`` (a read-only home folder; here a
+    file in the way, which root cannot write through either) it printed two lines of its own on
+    import; the launcher gives it a temporary folder, and a writable one stays matplotlib's."""
+    (tmp_path / "afile").write_text("")
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("MPL", "XDG_"))}
+    env["XDG_CONFIG_HOME"] = str(tmp_path / "afile" / "config")
+    code = ("from uss_slam.core import launch; launch.private_matplotlib_folder(); "
+            "import matplotlib; matplotlib.get_cachedir(); print(matplotlib.get_configdir())")  # fmt: skip
+    done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                          text=True, timeout=300)  # fmt: skip
+    assert (done.returncode, done.stderr) == (0, ""), done.stderr
+    assert "uss-slam-matplotlib-" in done.stdout
+    assert not Path(done.stdout.strip()).exists()  # removed at the end
+    monkeypatch.delenv("MPLCONFIGDIR", raising=False)
+    monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "config"))
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    launch.private_matplotlib_folder()
+    assert "MPLCONFIGDIR" not in os.environ
+
+
+ORT_SCRIPT = """
+import sys, types
+from uss_slam.core import launch
+
+def main():
+    import onnxruntime  # noqa: F401
+    return 0
+
+module = types.ModuleType("ort_script")
+module.main = main
+sys.modules["ort_script"] = module
+launch.SCRIPTS["uss-ort"] = "ort_script"
+sys.exit(launch.launch("uss-ort"))
+"""
+
+
+def test_onnxruntime_writes_nothing_into_the_home_folder(tmp_path: Path) -> None:
+    """onnxruntime wrote a device id under ``~/.cache/Microsoft/DeveloperTools`` (a file outside
+    the outputs) and, in a read-only home folder, printed its own coloured warning on import."""
+    home = tmp_path / "home"
+    home.mkdir()
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("ORT_", "XDG_"))}
+    env["HOME"] = str(home)
+    done = subprocess.run([sys.executable, "-c", ORT_SCRIPT], env=env, capture_output=True,
+                          text=True, timeout=300)  # fmt: skip
+    assert (done.returncode, done.stderr) == (0, ""), done.stderr
+    assert list(home.rglob("*")) == []
 
 
 def test_a_closed_stdout_is_the_products_error(monkeypatch: pytest.MonkeyPatch) -> None:
