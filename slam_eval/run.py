@@ -150,6 +150,8 @@ def _semantic_thread_settings(slam: DictConfig) -> dict[str, Any]:
         carry_radius_m=slam.carry_radius_m,
         carry_radius_keypoints=str(slam.carry_radius_keypoints),
         carry_radius_min_inliers=int(slam.carry_radius_min_inliers),
+        mask_refines_past=str(slam.mask_refines_past),
+        mask_marks_projected=bool(slam.mask_marks_projected),
     )
 
 

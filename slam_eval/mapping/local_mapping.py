@@ -93,7 +93,8 @@ class LocalMappingStats:
     """Totals over a run: ``runs`` local bundle adjustments, their mean ``wall_ms``, keyframes
     ``culled``, outlier ``observations_erased``; keyframes ``deferred`` (made while the mapper was
     busy, ``min_interval_s``) and ``skipped`` (of those, replaced by a newer one before their
-    BA)."""
+    BA); ``readjusted``: local BAs run again around a keyframe whose late mask took points out
+    (:meth:`LocalMapping.readjust`, not in ``runs`` nor ``wall_ms``)."""
 
     runs: int = 0
     wall_s: float = 0.0
@@ -103,6 +104,7 @@ class LocalMappingStats:
     optimised_points: int = 0
     deferred: int = 0
     skipped: int = 0
+    readjusted: int = 0
 
     def as_dict(self) -> dict[str, float | int]:
         return {
@@ -114,6 +116,7 @@ class LocalMappingStats:
             "mean_points": self.optimised_points / max(self.runs, 1),
             "keyframes_deferred": self.deferred,
             "keyframes_skipped": self.skipped,
+            "readjusted": self.readjusted,
         }
 
 
@@ -203,6 +206,19 @@ class LocalMapping:
         s.optimised_keyframes += len(adjustment.free)
         s.optimised_points += len(points)
         return adjustment, culled
+
+    def readjust(self, slam_map: SlamMap, keyframe_id: int) -> Adjustment:
+        """Local BA around ``keyframe_id`` again, without culling (its mask came late and took
+        map points out: the keyframes those points pulled are adjusted without them); counted
+        as ``readjusted``."""
+        local = self.local_keyframes(slam_map, keyframe_id)
+        points = slam_map.points_of(local)
+        adjustment = self.adjuster.adjust(
+            slam_map, local, points, self.config.first_iterations, self.config.second_iterations
+        )
+        self.stats.readjusted += 1
+        self.stats.observations_erased += adjustment.outliers
+        return adjustment
 
     def cull(self, slam_map: SlamMap, keyframe_id: int) -> list[int]:
         """ORB-SLAM2's ``KeyFrameCulling`` over the covisible keyframes of ``keyframe_id``."""

@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from ..filters.base import FilterContext
+from ..filters.base import FilterContext, values_at
 from ..filters.chain import FilterChain, FrameFilters
 from ..frontend.orb import Features
 from ..geometry import invert
@@ -46,12 +46,14 @@ from ..sequence import Frame
 from ..tracking.tracker import Tracker, TrackResult
 from .semantic_thread import (
     CarriedMask,
+    Delivered,
     SemanticThread,
     carry_targets,
     classes_near,
     hold_new_points,
     mark_carried,
     mark_dynamic_points,
+    mark_projected,
     people_motion,
     settle_provisional,
 )
@@ -90,6 +92,21 @@ class Prepared:
     features: Features
     timer: Timer
 
+
+@dataclass
+class PastFrame:
+    """A tracked frame a late mask may still correct (``slam.mask_refines_past``): its ``row``
+    in the loop's ``stamps`` / ``poses`` / ``anchors``, its ``stamp`` (s), keypoints and the map
+    point each was matched to when tracked (``matched`` (N,), -1 none)."""
+
+    row: int
+    stamp: float
+    features: Features
+    matched: np.ndarray
+
+
+PAST_FRAMES = 300
+"""``mask_refines_past`` keeps at most this many past frames (10 s at 30 Hz)."""
 
 Segment = Callable[[Frame, Timer], "np.ndarray | None"]
 """Segments a frame in the main thread, timed (``segment=keyframes``)."""
@@ -140,6 +157,17 @@ class FrameLoop:
     carry_radius_min_inliers: int = 0
     """With ``carry_radius_m`` (``slam.carry_radius_min_inliers``): a frame keeping fewer pose
     inliers outside the radius is not flagged by it (0: always flagged)."""
+    mask_refines_past: str = "none"
+    """With the semantic thread (``slam.mask_refines_past``): a delivered mask also corrects the
+    past (:meth:`refine_past`): ``points``, the past the map points it marked steered; ``mask``,
+    also the frames' keypoints it flags carried back to them; ``none``, nothing."""
+    mask_marks_projected: bool = False
+    """With the semantic thread (``slam.mask_marks_projected``): a delivered mask also marks bad
+    the points mapped since the previous mask's keyframe that project into its dynamic region
+    (:func:`~.semantic_thread.mark_projected`)."""
+    past: list[PastFrame] = field(default_factory=list)
+    """With ``mask_refines_past``: the tracked frames (keyframes' own frames excepted) since the
+    keyframe of the mask before the last one delivered, at most :data:`PAST_FRAMES`."""
     people: tuple[np.ndarray, float] | None = None
     """With ``carry_velocity``: the last delivered mask's people, ``(B, 3)`` map-frame
     centroids and its stamp (s)."""
@@ -318,8 +346,11 @@ class FrameLoop:
                 self.counts["masks"] += 1
                 slam_map = self.map
                 region = self.dynamic_region(got.frame, got.labels)
+                carried = CarriedMask.of(
+                    got.kf_id, got.labels, got.frame.depth, self.tracker.k, got.frame.stamp
+                )
                 if region is not None:
-                    self.counts["points_marked"] += mark_dynamic_points(slam_map, got.kf_id, region)
+                    self.mark(got, region, carried)
                     if self.provisional_points:
                         self.provisional, cleared, dropped = settle_provisional(
                             slam_map,
@@ -331,11 +362,72 @@ class FrameLoop:
                         )
                         self.counts["points_cleared"] += cleared
                         self.counts["points_dropped"] += dropped
-                self.carried = CarriedMask.of(
-                    got.kf_id, got.labels, got.frame.depth, self.tracker.k, got.frame.stamp
-                )
+                self.carried = carried
                 self.track_people()
                 self.carry_to_others(got.frame, got.kf_id)
+
+    def mark(self, got: Delivered, region: np.ndarray, carried: CarriedMask) -> None:
+        """The map points keyframe ``got.kf_id`` observes inside its mask's dynamic ``region``
+        (H, W) marked bad (:func:`~.semantic_thread.mark_dynamic_points`); with
+        ``mask_marks_projected`` also the unjudged points projecting into it
+        (:func:`~.semantic_thread.mark_projected`, ``points_marked_projected``); with
+        ``mask_refines_past`` the past they steered corrected (:meth:`refine_past`; ``carried``:
+        the mask ready to be carried)."""
+        slam_map = self.map
+        refine = self.mask_refines_past
+        before = slam_map.points.bad.view.copy() if refine != "none" else None
+        marked = mark_dynamic_points(slam_map, got.kf_id, region)
+        self.counts["points_marked"] += marked
+        if self.mask_marks_projected and self.last_masked is not None:
+            depth, k = got.frame.depth, self.tracker.k
+            projected = mark_projected(slam_map, got.kf_id, region, depth, k, self.last_masked)
+            self.counts["points_marked_projected"] += projected
+            marked += projected
+        if before is not None and (marked or refine == "mask"):
+            self.refine_past(got, ~before & slam_map.points.bad.view, carried)
+
+    def refine_past(self, got: Delivered, marked: np.ndarray, carried: CarriedMask) -> None:
+        """Keyframe ``got.kf_id``'s late mask just marked the map points ``marked`` ((P,) bool)
+        bad: local BA around it again without them (:meth:`~..mapping.local_mapping.
+        LocalMapping.readjust`), then each past frame that was tracked on any of them (``mask``:
+        or on a keypoint that the mask ``carried`` to the frame by its pose flags) gets its pose
+        refined on its other matches in the map as it is now (kept where enough inliers remain,
+        :meth:`~..tracking.tracker.Tracker.refine_without`) and put back on its reference
+        keyframe, so that the trajectory loses the error they caused, not only what would come.
+        Frames older than the previous mask's keyframe are forgotten first. Counted as
+        ``past_frames_refined``."""
+        slam_map, tracker, kf_id = self.map, self.tracker, got.kf_id
+        if self.last_masked is not None:
+            since = slam_map.keyframes[self.last_masked].stamp
+            self.past = [p for p in self.past if p.stamp >= since]
+        if self.mapper is not None and marked.any() and not slam_map.keyframes[kf_id].bad:
+            with self.timer("local_ba"):
+                self.mapper.readjust(slam_map, kf_id)
+        bad = slam_map.points.bad.view
+        for past in self.past:
+            ids = past.matched
+            used = ids >= 0
+            pose = self.poses[past.row]
+            if self.backend:
+                k, rel = self.anchors[past.row]
+                pose = slam_map.pose_wc(k) @ invert(rel)
+            drop = np.zeros(len(ids), bool)
+            drop[used] = bad[ids[used]]
+            if self.mask_refines_past == "mask":
+                labels = carried.labels_at(invert(pose) @ slam_map.pose_wc(kf_id))
+                region = self.dynamic_region(got.frame, labels)
+                if region is not None:
+                    drop |= used & values_at(region, past.features.xy)
+            if not (drop & used).any():
+                continue
+            refined, _ = tracker.refine_without(pose, past.features, ids, drop)
+            if refined is None:
+                continue
+            self.poses[past.row] = refined
+            if self.backend:
+                self.anchors[past.row] = (k, invert(refined) @ slam_map.pose_wc(k))
+            self.counts["past_frames_refined"] += 1
+        tracker.map_changed()
 
     def track_people(self) -> None:
         """With ``carry_velocity``: the people of the mask just carried move as they did since
@@ -451,6 +543,12 @@ class FrameLoop:
         self.counts["kept"] += kept
         tracked = result.pose_wc is not None
         if tracked:
+            if self.mask_refines_past != "none" and kf is None and result.matched is not None:
+                features = filters.ctx.features
+                self.past.append(
+                    PastFrame(len(self.stamps), frame.stamp, features, result.matched.copy())
+                )
+                del self.past[:-PAST_FRAMES]
             self.stamps.append(frame.stamp)
             self.poses.append(result.pose_wc)
         self.counts["tracked"] += tracked

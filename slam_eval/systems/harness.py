@@ -164,6 +164,8 @@ class SlamPipeline:
         carry_radius_m: float | None = CARRY_RADIUS_M,
         carry_radius_keypoints: str = "all",
         carry_radius_min_inliers: int = CARRY_RADIUS_MIN_INLIERS,
+        mask_refines_past: str = "none",
+        mask_marks_projected: bool = False,
     ) -> None:
         """``sampling_seed``: perturbs the tracker's RANSAC sampling (a repeated run,
         :mod:`.repeats`); None = the deterministic run. ``prefetch_mode``: ``"thread"``,
@@ -197,6 +199,8 @@ class SlamPipeline:
         self.carry_radius_m = carry_radius_m
         self.carry_radius_keypoints = carry_radius_keypoints
         self.carry_radius_min_inliers = carry_radius_min_inliers
+        self.mask_refines_past = mask_refines_past
+        self.mask_marks_projected = mask_marks_projected
         self.progress = progress
         self.description = description or sequence.path.name
         self.local_ba = local_ba
@@ -322,6 +326,8 @@ class SlamPipeline:
             carry_radius_m=self.carry_radius_m,
             carry_radius_keypoints=self.carry_radius_keypoints,
             carry_radius_min_inliers=self.carry_radius_min_inliers,
+            mask_refines_past=self.mask_refines_past,
+            mask_marks_projected=self.mask_marks_projected,
         )  # fmt: skip
 
     def _frames(self) -> tuple[frontend_process.FrontendProcess | None, Iterator[Prepared]]:
@@ -434,6 +440,8 @@ class SlamPipeline:
                     "people_moving",
                     "keypoints_near_people",
                     "frames_radius_skipped",
+                    "past_frames_refined",
+                    "points_marked_projected",
                 )  # fmt: skip
                 if k in loop.counts
             },

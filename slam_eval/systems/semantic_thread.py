@@ -434,6 +434,10 @@ def mark_dynamic_points(slam_map: SlamMap, kf_id: int, region: np.ndarray) -> in
     return len(ids)
 
 
+MASK_REFINES_PAST = ("none", "points", "mask")
+"""``slam.mask_refines_past``: what a late mask corrects in the past
+(:meth:`~.frame_loop.FrameLoop.refine_past`)."""
+
 CARRY_TO_KEYFRAMES = ("none", "newer", "since_previous")
 """``slam.carry_to_keyframes``: which other keyframes a delivered mask is carried to
 (:func:`carry_targets`)."""
@@ -536,3 +540,36 @@ def settle_provisional(
     drop = inside & (dyn | ((measured > 0) & ~agree))
     pts.bad.view[ids[clear]] = False
     return ids[~(clear | drop)], int(clear.sum()), int(drop.sum())
+
+
+def mark_projected(
+    slam_map: SlamMap,
+    kf_id: int,
+    region: np.ndarray,
+    depth: np.ndarray,
+    k: np.ndarray,
+    since: int,
+) -> int:
+    """Mark bad the good map points first mapped by a keyframe after ``since`` (whose masks never
+    judged them) that project, by keyframe ``kf_id``'s map pose, into its mask's dynamic
+    ``region`` ((H, W) bool) no farther than the depth measured there (``depth`` (H, W) m, with
+    :data:`PROVISIONAL_DEPTH`'s tolerance; no depth there counts as near): on a person now, or in
+    front of one. Behind the measured surface a point is the background the person hides, and
+    stays. Returns how many points it marked."""
+    pts = slam_map.points
+    ids = np.flatnonzero(~pts.bad.view & (pts.first_keyframe.view > since))
+    if len(ids) == 0:
+        return 0
+    p = transform(invert(slam_map.pose_wc(kf_id)), pts.position.view[ids])
+    z = p[:, 2]
+    front = z > 1e-3
+    uv = np.rint(project(k, np.where(front[:, None], p, (0.0, 0.0, 1.0)))).astype(np.int64)
+    u, v = uv[:, 0], uv[:, 1]
+    h, w = region.shape
+    inside = front & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    uu, vv = np.where(inside, u, 0), np.where(inside, v, 0)
+    measured = depth[vv, uu]
+    near = (measured <= 0) | (z <= measured + np.maximum(PROVISIONAL_DEPTH, PROVISIONAL_DEPTH * z))
+    hit = ids[inside & region[vv, uu] & near]
+    pts.bad.view[hit] = True
+    return len(hit)
