@@ -48,7 +48,9 @@ from .systems.semantic_thread import (
     CARRY_RADIUS_M,
     CARRY_RADIUS_MIN_INLIERS,
     CARRY_TO_KEYFRAMES,
+    MASK_MARKS_PROJECTED,
     MASK_REFINES_PAST,
+    MASK_REFINES_PAST_DEFAULT,
     carry_refused,
 )
 from .tracking.config import REMOVED as REMOVED_TRACKER_KEYS
@@ -171,17 +173,19 @@ class SlamConfig:
     """With ``carry_radius_m``: a frame that would keep fewer pose inliers outside the radius
     is not flagged by it (0 = always; without a floor walking_xyz seed 3 was lost in two of
     three repeats). docs/results/slam.md ("the 3D radius with an inlier floor")."""
-    mask_refines_past: str = ranged("none", choices=MASK_REFINES_PAST)
+    mask_refines_past: str = ranged(MASK_REFINES_PAST_DEFAULT, choices=MASK_REFINES_PAST)
     """With ``segment=thread`` (the other schedules ignore it): a mask that comes late also
     corrects the past: ``points``, local BA around its keyframe again without the map points it
     marked, and the frames tracked on them since the previous mask's keyframe refined without
     them and put back on their keyframes; ``mask``, also without the keypoints the mask carried
     back to each of those frames flags (:meth:`~.systems.frame_loop.FrameLoop.refine_past`);
-    ``none``: nothing."""
-    mask_marks_projected: bool = False
+    ``none``: nothing. Kept as ``mask`` with ``mask_marks_projected`` by its pre-registered rule
+    (docs/results/slam.md, "a late mask corrects the past")."""
+    mask_marks_projected: bool = MASK_MARKS_PROJECTED
     """With ``segment=thread`` (the other schedules ignore it): a delivered mask also marks bad
     the map points first mapped since the previous mask's keyframe (keyframes no mask judged)
-    that project into its dynamic region no farther than the depth measured there."""
+    that project into its dynamic region no farther than the depth measured there (the default,
+    with ``mask_refines_past=mask``: docs/results/slam.md, "a late mask corrects the past")."""
     semantic_nice: int = ranged(0, min=0, max=19)
     """With ``segment=thread`` and a segmenter that really runs (the wall clock): the semantic
     thread's nice value above the process's (Linux), so that tracking takes the cores first and

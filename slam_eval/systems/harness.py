@@ -87,7 +87,13 @@ from ..segmenters.base import Segmenter
 from ..sequence import Frame, TumSequence, ahead
 from ..tracking.tracker import Tracker, TrackerConfig
 from .frame_loop import FrameLoop, Prepared, Timer
-from .semantic_thread import CARRY_RADIUS_M, CARRY_RADIUS_MIN_INLIERS, start_thread
+from .semantic_thread import (
+    CARRY_RADIUS_M,
+    CARRY_RADIUS_MIN_INLIERS,
+    MASK_MARKS_PROJECTED,
+    MASK_REFINES_PAST_DEFAULT,
+    start_thread,
+)
 
 SEGMENT_SCHEDULES = ("every_frame", "keyframes", "thread")
 """Values of ``segment`` (see the module docstring)."""
@@ -164,8 +170,8 @@ class SlamPipeline:
         carry_radius_m: float | None = CARRY_RADIUS_M,
         carry_radius_keypoints: str = "all",
         carry_radius_min_inliers: int = CARRY_RADIUS_MIN_INLIERS,
-        mask_refines_past: str = "none",
-        mask_marks_projected: bool = False,
+        mask_refines_past: str = MASK_REFINES_PAST_DEFAULT,
+        mask_marks_projected: bool = MASK_MARKS_PROJECTED,
     ) -> None:
         """``sampling_seed``: perturbs the tracker's RANSAC sampling (a repeated run,
         :mod:`.repeats`); None = the deterministic run. ``prefetch_mode``: ``"thread"``,

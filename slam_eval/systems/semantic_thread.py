@@ -7,8 +7,10 @@ keyframe maps no person; its mask is the first carried one.
 Per frame (:class:`~.frame_loop.FrameLoop`): the masks that finished since the last frame are
 taken (:meth:`SemanticThread.poll`, never blocking); each one marks the map points its keyframe
 sees inside the dynamic region as bad (:func:`mark_dynamic_points`: tracking no longer matches
-them, so a person mapped before its mask came back stops steering the pose) and becomes the
-mask that is carried (:class:`CarriedMask`) (with ``slam.carry_to_keyframes``, also to the
+them, so a person mapped before its mask came back stops steering the pose; by default also the
+points mapped since the previous mask that project into it, :func:`mark_projected`), corrects
+the frames tracked since the previous mask's keyframe
+(:meth:`~.frame_loop.FrameLoop.refine_past`) and becomes the mask that is carried (:class:`CarriedMask`) (with ``slam.carry_to_keyframes``, also to the
 keyframes that got no mask of their own, marking their points: :func:`mark_carried`); once the
 frame is tracked, the carried labels
 (:meth:`CarriedMask.labels_at`: the keyframe's labelled pixels, back-projected with its depth,
@@ -437,6 +439,13 @@ def mark_dynamic_points(slam_map: SlamMap, kf_id: int, region: np.ndarray) -> in
 MASK_REFINES_PAST = ("none", "points", "mask")
 """``slam.mask_refines_past``: what a late mask corrects in the past
 (:meth:`~.frame_loop.FrameLoop.refine_past`)."""
+
+MASK_REFINES_PAST_DEFAULT = "mask"
+"""``slam.mask_refines_past``'s default (docs/results/slam.md, "a late mask corrects the
+past")."""
+
+MASK_MARKS_PROJECTED = True
+"""``slam.mask_marks_projected``'s default (the same entry)."""
 
 CARRY_TO_KEYFRAMES = ("none", "newer", "since_previous")
 """``slam.carry_to_keyframes``: which other keyframes a delivered mask is carried to

@@ -351,8 +351,10 @@ def test_local_ba_runs_after_every_keyframe(synthetic_sequence, tmp_path: Path) 
     assert ba["runs"] == data["keyframes"] - 1 >= 1
     assert set(ba) == {"runs", "wall_ms", "keyframes_culled", "observations_erased",
                        "mean_free_keyframes", "mean_points", "depth_noise",
-                       "depth_noise_from", "keyframes_deferred", "keyframes_skipped"}  # fmt: skip
+                       "depth_noise_from", "keyframes_deferred", "keyframes_skipped",
+                       "readjusted"}  # fmt: skip
     assert ba["keyframes_deferred"] == ba["keyframes_skipped"] == 0  # min_interval_s = 0
+    assert ba["readjusted"] == 0  # masks on every frame are never late
     # the synthetic target style declares its depth noise, and local BA models it
     assert ba["depth_noise"] == DEPTH_NOISE_K
     assert ba["depth_noise_from"] == "the camera's intrinsics.yaml"
