@@ -289,7 +289,10 @@ class BundleAdjuster:
         """Bundle-adjust keyframes ``free`` and points ``point_ids`` (sorted); every other
         keyframe observing those points is fixed, and so is keyframe 0 (the gauge). Updates the
         map (poses, positions, erased outlier observations); ``second_iterations = 0`` skips the
-        second pass (the outliers are still erased)."""
+        second pass (the outliers are still erased). No points: nothing is changed."""
+        if len(point_ids) == 0:  # nothing left to adjust (a late mask took every point out)
+            none = np.zeros(0, np.int64)
+            return Adjustment(none, none, point_ids, 0, 0, (0.0, 0.0), 0)
         obs = self._gather(slam_map, point_ids)
         involved = np.unique(obs.keyframe)
         fixed = set(int(k) for k in np.setdiff1d(involved, free))

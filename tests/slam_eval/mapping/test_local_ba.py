@@ -116,6 +116,20 @@ def test_local_ba_pulls_drifted_keyframes_back(depth_noise: float) -> None:
     assert mapping.stats.runs == 1 and mapping.stats.as_dict()["mean_free_keyframes"] == 5
 
 
+def test_local_ba_again_with_every_point_taken_out_changes_nothing() -> None:
+    """A late mask can mark every point a keyframe's neighbours see as bad: the local BA run
+    again around it then has nothing to adjust, and leaves the map as it was."""
+    slam_map, _ = _drifted_map()
+    slam_map.points.bad.view[:] = True
+    poses = [kf.pose_wc.copy() for kf in slam_map.keyframes]
+    mapping = LocalMapping(LocalMappingConfig(culling=False), _adjuster())
+    adjustment = mapping.readjust(slam_map, 5)
+    assert adjustment.free.size == adjustment.points.size == adjustment.observations == 0
+    for kf, pose in zip(slam_map.keyframes, poses, strict=True):
+        np.testing.assert_array_equal(kf.pose_wc, pose)
+    assert mapping.stats.readjusted == 1
+
+
 def test_keyframes_that_are_not_covisible_stay_fixed() -> None:
     slam_map, truth = _drifted_map(keyframes=5)
     rng = np.random.default_rng(3)
