@@ -179,8 +179,8 @@ class SlamConfig:
     marked, and the frames tracked on them since the previous mask's keyframe refined without
     them and put back on their keyframes; ``mask``, also without the keypoints the mask carried
     back to each of those frames flags (:meth:`~.systems.frame_loop.FrameLoop.refine_past`);
-    ``none``: nothing. Kept as ``mask`` with ``mask_marks_projected`` by its pre-registered rule
-    (docs/results/slam.md, "a late mask corrects the past")."""
+    ``none``: nothing. Kept as ``mask`` by its pre-registered rule and its confirmation on
+    unseen renders (docs/results/slam.md, "a late mask corrects the past")."""
     mask_marks_projected: bool = MASK_MARKS_PROJECTED
     """With ``segment=thread`` (the other schedules ignore it): a delivered mask also marks bad
     the map points first mapped since the previous mask's keyframe (keyframes no mask judged)

@@ -94,4 +94,4 @@ def test_other_schedules_ignore_it(synthetic_sequence, segment: str) -> None:
 def test_mask_refines_past_defaults(synthetic_sequence, tmp_path: Path) -> None:
     path = synthetic_sequence(preset="walking_xyz", frames=20)
     slam = slam_run_config(path, tmp_path / "a", "segmenter=labels", "filters=[semantic]").slam
-    assert (slam.mask_refines_past, slam.mask_marks_projected) == ("mask", True)
+    assert (slam.mask_refines_past, slam.mask_marks_projected) == ("mask", False)
