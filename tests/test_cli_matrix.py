@@ -1419,6 +1419,21 @@ def test_traj_into_a_closed_pipe_exits_quietly(world: dict[str, Path]) -> None:
     assert (done.returncode, done.stderr.decode()) == (1, "")
 
 
+def test_a_dry_runs_plan_into_a_closed_pipe_exits_quietly(tmp_path: Path) -> None:
+    """``uss-experiments dry_run=true | head -c0``: the plan is the dry run's product; it exited
+    0 without a word. Exit code 1 and nothing on stderr, as ``uss-traj``'s numbers."""
+    code = "from uss_slam.core.launch import uss_experiments; uss_experiments()"
+    reader, writer = os.pipe()
+    os.close(reader)
+    try:
+        done = subprocess.run([sys.executable, "-c", code, f"out_dir={tmp_path / 'e'}",
+                               "dry_run=true"], stdout=writer, stderr=subprocess.PIPE,
+                              cwd=tmp_path, timeout=300)  # fmt: skip
+    finally:
+        os.close(writer)
+    assert (done.returncode, done.stderr.decode()) == (1, "")
+
+
 # ------------------------------------------------------------------------------ file modes
 
 

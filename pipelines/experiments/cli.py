@@ -104,16 +104,17 @@ def _run_experiments(exp: Experiment) -> dict[str, Any]:
     exp.train_specs.update({j.id: j.spec for j in train_jobs})
     launches: dict[str, Launch] = {}
     if dry:
-        init_plan = describe_init(exp)
-        if init_plan is not None:
-            print(init_plan)
-        print(describe_plan(exp, "train", train_jobs, set()))
-        print(describe_exports(exp, data))
+        parts = [describe_init(exp), describe_plan(exp, "train", train_jobs, set()),
+                 describe_exports(exp, data)]  # fmt: skip
         exports = existing_exports(exp, data)
         slam_jobs = plan_slam(exp, data, exports)
         blocked = {j.id for j in slam_jobs if j.needs is not None and j.needs not in exports}
-        # the plan is a dry run's product: stdout that fails (full, closed) is its error
-        print_output(describe_plan(exp, "slam", slam_jobs, blocked))
+        parts.append(describe_plan(exp, "slam", slam_jobs, blocked))
+        # the plan is a dry run's product: stdout that fails (full, closed) is its error, and
+        # a closed pipe (| head -c0) exit code 1 without a word, as uss-traj's
+        code = print_output("\n".join(p for p in parts if p is not None))
+        if code:
+            raise SystemExit(code)
         return {}
     if "train" in exp.stages:
         progress.run(
