@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
+import re
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -199,11 +200,19 @@ ONCE_KINDS = (argparse._StoreAction, argparse.BooleanOptionalAction)
 and a flag (``--quiet``) means the same however often it is given."""
 
 
+NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$")
+"""What argparse takes for a negative number, not an option: ``-2``, ``-0.5``, ``-.5``, and in
+scientific notation, ``-1e-2`` (argparse's own pattern stops at ``-1.5``, so ``--offset -1e-2``
+was "expected one argument")."""
+
+
 def given_once(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
     """``parser`` (and its subcommands' parsers), each of whose value options refuses being
     given twice on one command line with argparse's usage line (exit code 2): ``argument
-    --out: given twice (--out /a and --out /b); expected it once``. Every argparse console
-    script's ``build_parser`` returns its parser through this."""
+    --out: given twice (--out /a and --out /b); expected it once``; a negative number in
+    scientific notation is a value (:data:`NEGATIVE_NUMBER`). Every argparse console script's
+    ``build_parser`` returns its parser through this."""
+    parser._negative_number_matcher = NEGATIVE_NUMBER  # type: ignore[attr-defined]
     for action in parser._actions:
         if isinstance(action, argparse._SubParsersAction):
             for sub in action.choices.values():

@@ -230,6 +230,33 @@ def _hydra_args(argv: list[str]) -> object | None:
         return None
 
 
+MAX_CONFIG_FILES = 2000
+"""Config files of a ``--config-dir`` looked at for a hidden ``# @package`` line."""
+
+
+def hidden_package_header(folder: Path) -> Path | None:
+    """The first config file under ``folder`` (``--config-dir``) that starts with a UTF-8
+    byte-order mark before a ``# @package`` header: Hydra reads the header from the file's
+    first comment lines, and the mark (what Windows editors write first) hides it, so the
+    config lands under its group without a word (YAML itself skips the mark)."""
+    from uss_slam.core.paths import BOM
+
+    for path in sorted(folder.rglob("*.yaml"))[:MAX_CONFIG_FILES]:
+        try:
+            with open(path, "rb") as fh:
+                head = fh.read(4096)
+        except OSError:
+            continue  # Hydra names a file it cannot read
+        if not head.startswith(BOM):
+            continue
+        for line in head[len(BOM) :].decode("utf-8", "replace").splitlines():
+            if not line.startswith("#"):
+                break
+            if line[1:].strip().startswith("@package"):
+                return path
+    return None
+
+
 @contextlib.contextmanager
 def hydra_switch_texts(prog: str, argv: list[str]) -> Iterator[None]:
     """Hydra's own texts about its switches as the project's lines, around a Hydra app's run:
@@ -249,6 +276,12 @@ def hydra_switch_texts(prog: str, argv: list[str]) -> Iterator[None]:
         except PathError as error:
             print(f"{prog}: error: {error}", file=sys.stderr)
             raise SystemExit(1) from None
+        hidden = hidden_package_header(Path(args.config_dir))  # type: ignore[attr-defined]
+        if hidden is not None:
+            print(f"{prog}: error: {hidden}:1: starts with a UTF-8 byte-order mark, which hides "
+                  "its '# @package' line from Hydra (the config would land under its group); "
+                  "save the file without it", file=sys.stderr)  # fmt: skip
+            raise SystemExit(1)
     rerun, package = getattr(args, "experimental_rerun", None), getattr(args, "package", None)
     overrides = list(getattr(args, "overrides", None) or [])
     with warnings.catch_warnings():

@@ -31,7 +31,14 @@ from omegaconf import MISSING, DictConfig, ListConfig, OmegaConf
 
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.ranges import MAX_REPEATS
-from uss_slam.core.schema import MAX_THREADS, SchemaError, check_target, ranged, register
+from uss_slam.core.schema import (
+    MAX_THREADS,
+    SchemaError,
+    check_overrides_written,
+    check_target,
+    ranged,
+    register,
+)
 from uss_slam.core.schema import check as schema_check
 
 from .filters.build import build_filters, shipped_filter_configs
@@ -373,6 +380,7 @@ def check(cfg: DictConfig, overrides: Sequence[str] = ()) -> RunPlan:
     for key in ("segment", "filters", "compare", "eval", "slam", "segmenter", "out_dir"):
         if key not in cfg:
             raise UssSlamError(f"{key}: missing from the config")
+    check_overrides_written(cfg, overrides)  # typed while composing: `no` is already false
     typed = schema_check(cfg, SlamEvalConfig)
     slam = typed.slam
     orb = _settings(OrbConfig, slam.orb, "slam.orb")

@@ -236,6 +236,23 @@ def test_a_value_option_given_twice_is_one_usage_line(
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.parametrize("value", ["-1e-2", "-2.5E+1", "-3", "-0.5", "-.5"])
+def test_a_negative_number_in_any_spelling_is_a_value_not_an_option(value: str) -> None:
+    """argparse's own pattern took ``-1e-2`` for an option (``--offset: expected one
+    argument``); every argparse script's parser takes it as the number it is."""
+    from uss_slam.slam_eval.scoring import traj_cli
+
+    args = traj_cli.build_parser().parse_args(["ate", "gt.txt", "est.txt", "--offset", value])
+    assert args.offset == float(value)
+
+
+def test_an_option_is_still_an_option_after_a_value_option() -> None:
+    from uss_slam.slam_eval.scoring import traj_cli
+
+    with pytest.raises(SystemExit):  # "-e" is no number: argparse still reads it as an option
+        traj_cli.build_parser().parse_args(["ate", "gt.txt", "est.txt", "--offset", "-e"])
+
+
 def test_the_value_options_are_many_and_flags_and_lists_may_repeat() -> None:
     assert len(VALUE_OPTIONS) >= 40, len(VALUE_OPTIONS)
     from uss_slam.pipelines.evaluate import cli

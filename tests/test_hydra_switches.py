@@ -137,3 +137,34 @@ def test_a_config_dir_that_is_no_folder_is_the_path_layers_line(
     assert (code, err.splitlines()) == (
         1, [f"{prog}: error: --config-dir=nope: does not exist; expected a folder of config files"]
     )  # fmt: skip
+
+
+@pytest.mark.parametrize("prog", HYDRA_APPS)
+def test_a_byte_order_mark_hiding_a_package_header_is_one_line(
+    prog: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    """A user's config saved with a byte-order mark before ``# @package _global_``: Hydra
+    missed the header and put the config under its group (its own text, or ``unknown key``
+    later); now one line names the file, before any work."""
+    monkeypatch.chdir(tmp_path)
+    own = tmp_path / "conf" / "experiment"
+    own.mkdir(parents=True)
+    bad = own / "mine.yaml"
+    bad.write_bytes(b"\xef\xbb\xbf# @package _global_\nprogress: false\n")
+    (own / "fine.yaml").write_bytes(b"\xef\xbb\xbfprogress: false\n")  # no header: YAML skips it
+    code, err = _run(prog, ["--config-dir", str(tmp_path / "conf")], monkeypatch, capsys)
+    assert code == 1
+    assert err.splitlines() == [
+        f"{prog}: error: {bad}:1: starts with a UTF-8 byte-order mark, which hides its "
+        "'# @package' line from Hydra (the config would land under its group); save the file "
+        "without it"
+    ]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["conf"]
+
+
+def test_a_config_folder_without_a_hidden_header_passes(tmp_path: Path) -> None:
+    from uss_slam.core.hydra_lines import hidden_package_header
+
+    (tmp_path / "a.yaml").write_bytes(b"# @package _global_\nx: 1\n")
+    (tmp_path / "b.yaml").write_bytes(b"\xef\xbb\xbfx: 1\n# @package _global_\n")  # not a header
+    assert hidden_package_header(tmp_path) is None

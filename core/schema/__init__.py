@@ -21,7 +21,15 @@ values), :mod:`.compose` (Hydra's ConfigStore, errors while composing), :mod:`.t
 (``_target_`` nodes).
 """
 
-from .checking import changed_keys, check, check_fields, unused_line, unused_settings, validate
+from .checking import (
+    changed_keys,
+    check,
+    check_fields,
+    check_overrides_written,
+    unused_line,
+    unused_settings,
+    validate,
+)
 from .compose import omegaconf_error_line, register
 from .fields import (
     MAX_THREADS,
@@ -45,6 +53,7 @@ __all__ = [
     "SchemaError",
     "check",
     "check_fields",
+    "check_overrides_written",
     "check_target",
     "check_targets",
     "declare",

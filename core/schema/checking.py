@@ -23,6 +23,7 @@ from omegaconf.errors import (
 
 from .fields import (
     _MAPPINGS,
+    _SCALARS,
     _SEQUENCES,
     NEEDS,
     SchemaError,
@@ -323,3 +324,30 @@ def _changed(f: dataclasses.Field, value: Any) -> bool:
     if dataclasses.is_dataclass(default) and isinstance(value, Mapping):
         return bool(changed_keys(value, default))
     return bool(value != _plain(default))
+
+
+def check_overrides_written(cfg: DictConfig, overrides: Sequence[str]) -> None:
+    """The command line's values as written, for a config typed while Hydra composed it (a
+    schema in the ConfigStore): OmegaConf has already turned ``no`` / ``off`` / ``1`` into a
+    boolean and ``'3'`` into an integer there, so :func:`check` cannot see them; the schemas
+    checked after composing refuse them. One :class:`SchemaError` naming the key, as theirs."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+    from omegaconf.nodes import BooleanNode, FloatNode, IntegerNode
+
+    kinds = {BooleanNode: bool, IntegerNode: int, FloatNode: float}
+    for override in OverridesParser.create().parse_overrides(list(overrides)):
+        if override.is_delete() or override.is_sweep_override():
+            continue
+        key = override.key_or_group
+        parent, _, leaf = key.rpartition(".")
+        try:
+            owner = OmegaConf.select(cfg, parent) if parent else cfg
+            node = owner._get_node(leaf) if isinstance(owner, DictConfig) else None
+        except OmegaConfBaseException:  # not a key of the config (a group, a package)
+            continue
+        tp = next((t for kind, t in kinds.items() if isinstance(node, kind)), None)
+        value = override.value()
+        if isinstance(value, str) and "${" in value:  # an interpolation, resolved later
+            continue
+        if tp is not None and value is not None and not _written_as(tp, value):
+            raise SchemaError(key, _SCALARS[tp], value)

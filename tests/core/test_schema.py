@@ -410,3 +410,58 @@ def test_a_users_config_file_that_is_no_yaml_is_one_line(tmp_path) -> None:
         assert hydra_error_line(wrapped) == (
             f"{mine}:3: not valid YAML (expected ',' or ']', but got '<stream end>')"
         )
+
+
+@dataclass
+class _Typed:
+    flag: bool = True
+    count: int = 2
+    scale: float = 1.0
+    inner: _Typed | None = None
+    name: str = "x"
+
+
+@pytest.mark.parametrize(
+    ("override", "key", "expected"),
+    [
+        ("flag=no", "flag", "flag: expected true or false, got 'no'"),
+        ("flag=off", "flag", "flag: expected true or false, got 'off'"),
+        ("flag=1", "flag", "flag: expected true or false, got 1"),
+        ("count='3'", "count", "count: expected an integer, got '3'"),
+        ("scale=true", "scale", "scale: expected a number, got True"),
+        ("inner.flag=yes", "inner.flag", "inner.flag: expected true or false, got 'yes'"),
+    ],
+)
+def test_a_typed_configs_command_line_values_are_checked_as_written(
+    override: str, key: str, expected: str
+) -> None:
+    """A config typed while Hydra composes it has ``no`` as false already; the command line
+    says what the user wrote, and it is refused as the schemas checked later refuse it."""
+    from uss_slam.core.schema import check_overrides_written
+
+    cfg = OmegaConf.structured(_Typed(inner=_Typed()))
+    with pytest.raises(SchemaError) as err:
+        check_overrides_written(cfg, [override])
+    assert str(err.value).startswith(expected), str(err.value)
+    assert err.value.key == key
+
+
+@pytest.mark.parametrize(
+    "override",
+    ["flag=false", "flag=true", "count=3", "scale=2", "scale=0.5", "name=no", "name=1",
+     "flag=${inner.flag}", "+other=1", "~inner", "flag=true,false"],
+)  # fmt: skip
+def test_values_written_as_their_type_and_the_rest_pass(override: str) -> None:
+    from uss_slam.core.schema import check_overrides_written
+
+    check_overrides_written(OmegaConf.structured(_Typed(inner=_Typed())), [override])
+
+
+def test_uss_slam_refuses_no_for_a_boolean_key() -> None:
+    from shared_helpers import compose_slam_eval
+
+    from uss_slam.slam_eval.config import check
+
+    overrides = ["slam.loop_closing=no"]
+    with pytest.raises(SchemaError, match=r"^slam\.loop_closing: expected true or false, got 'no'"):
+        check(compose_slam_eval(overrides), overrides)

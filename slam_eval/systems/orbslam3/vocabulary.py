@@ -47,7 +47,7 @@ import numpy as np
 from uss_slam.core.errors import DataFormatError, UssSlamError
 from uss_slam.core.files import write_text_atomic
 from uss_slam.core.images import read_colour
-from uss_slam.core.paths import input_file, read_text
+from uss_slam.core.paths import BOM, input_file, read_text
 from uss_slam.core.ranges import check_stride
 from uss_slam.core.tum_io import StrPath, is_file, read_file_list
 
@@ -320,6 +320,7 @@ def read_header(path: StrPath) -> tuple[int, int, int, int]:
     does (it exits the process on a bad header, so this runs first)."""
     path = Path(path)
     input_file(path, None, VOCABULARY_FILE)
+    _no_byte_order_mark(path)
     try:
         with open(path, encoding="ascii") as fh:
             first = fh.readline()
@@ -331,6 +332,24 @@ def read_header(path: StrPath) -> tuple[int, int, int, int]:
         if line.strip():
             _check_orb_node(path, line, number)
     return header
+
+
+def _no_byte_order_mark(path: Path) -> None:
+    """A vocabulary saved by an editor that writes a UTF-8 byte-order mark first is refused
+    naming it: ORB-SLAM3's loader reads the mark as part of the header (other text files take
+    the mark as no text)."""
+    try:
+        with open(path, "rb") as fh:
+            start = fh.read(len(BOM))
+    except OSError:
+        return  # read_text / open name the problem
+    if start == BOM:
+        raise DataFormatError(
+            path,
+            "starts with a UTF-8 byte-order mark (an editor's), which ORB-SLAM3's loader "
+            "reads as part of the header; save the file without it",
+            1,
+        )
 
 
 HEADER_NODES_CHECKED = 20
@@ -384,6 +403,7 @@ def read_vocabulary(path: StrPath) -> Vocabulary:
     :func:`max_nodes` nodes. Errors name the line. One final newline is accepted.
     """
     path = Path(path)
+    _no_byte_order_mark(path)
     text = read_text(path, "expected a DBoW2 text vocabulary file", encoding="ascii")
     lines = text.split("\n")
     if len(lines) > 1 and lines[-1] == "":

@@ -120,6 +120,18 @@ def test_text_round_trip_and_format(tmp_path: Path) -> None:
     assert voc.read_vocabulary(tmp_path / "nl.txt").n_nodes == vocab.n_nodes
 
 
+@pytest.mark.parametrize("reader", [voc.read_vocabulary, voc.read_header])
+def test_a_byte_order_mark_is_one_line_naming_why(reader, tmp_path: Path) -> None:
+    """ORB-SLAM3's loader would read an editor's byte-order mark as part of the header: both
+    readers refuse it, naming the file, its first line and the mark."""
+    vocab = voc.build_vocabulary(_random_sets(), k=6, levels=2, seed=4)
+    text = voc.write_vocabulary(tmp_path / "v.txt", vocab).read_bytes()
+    (tmp_path / "bom.txt").write_bytes(b"\xef\xbb\xbf" + text)
+    with pytest.raises(DataFormatError, match="byte-order mark") as err:
+        reader(tmp_path / "bom.txt")
+    assert "bom.txt:1:" in str(err.value), str(err.value)
+
+
 def test_deterministic_for_a_seed(tmp_path: Path) -> None:
     sets = _random_sets(seed=7)
     a = voc.write_vocabulary(tmp_path / "a.txt", voc.build_vocabulary(sets, k=5, levels=3, seed=1))
