@@ -533,14 +533,7 @@ def settle_provisional(
     if len(ids) == 0:
         return ids, 0, 0
     pts = slam_map.points
-    p = transform(invert(slam_map.pose_wc(kf_id)), pts.position.view[ids])
-    z = p[:, 2]
-    front = z > 1e-3
-    uv = np.rint(project(k, np.where(front[:, None], p, (0.0, 0.0, 1.0)))).astype(np.int64)
-    u, v = uv[:, 0], uv[:, 1]
-    h, w = region.shape
-    inside = front & (u >= 0) & (u < w) & (v >= 0) & (v < h)
-    uu, vv = np.where(inside, u, 0), np.where(inside, v, 0)
+    z, inside, uu, vv = _pixels_of(slam_map, kf_id, ids, k, region.shape)
     dyn = region[vv, uu]
     measured = depth[vv, uu]
     agree = (measured > 0) & (
@@ -550,6 +543,22 @@ def settle_provisional(
     drop = inside & (dyn | ((measured > 0) & ~agree))
     pts.bad.view[ids[clear]] = False
     return ids[~(clear | drop)], int(clear.sum()), int(drop.sum())
+
+
+def _pixels_of(
+    slam_map: SlamMap, kf_id: int, ids: np.ndarray, k: np.ndarray, shape: tuple[int, ...]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Map points ``ids`` in keyframe ``kf_id``'s image of ``shape`` (H, W): their depth ``z``,
+    ``inside`` (in front and within the image) and the pixel ``u``, ``v`` each rounds to (0
+    where not inside, so that they index safely)."""
+    p = transform(invert(slam_map.pose_wc(kf_id)), slam_map.points.position.view[ids])
+    z = p[:, 2]
+    front = z > 1e-3
+    uv = np.rint(project(k, np.where(front[:, None], p, (0.0, 0.0, 1.0)))).astype(np.int64)
+    u, v = uv[:, 0], uv[:, 1]
+    h, w = shape[:2]
+    inside = front & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    return z, inside, np.where(inside, u, 0), np.where(inside, v, 0)
 
 
 def mark_projected(
@@ -570,14 +579,7 @@ def mark_projected(
     ids = np.flatnonzero(~pts.bad.view & (pts.first_keyframe.view > since))
     if len(ids) == 0:
         return 0
-    p = transform(invert(slam_map.pose_wc(kf_id)), pts.position.view[ids])
-    z = p[:, 2]
-    front = z > 1e-3
-    uv = np.rint(project(k, np.where(front[:, None], p, (0.0, 0.0, 1.0)))).astype(np.int64)
-    u, v = uv[:, 0], uv[:, 1]
-    h, w = region.shape
-    inside = front & (u >= 0) & (u < w) & (v >= 0) & (v < h)
-    uu, vv = np.where(inside, u, 0), np.where(inside, v, 0)
+    z, inside, uu, vv = _pixels_of(slam_map, kf_id, ids, k, region.shape)
     measured = depth[vv, uu]
     near = (measured <= 0) | (z <= measured + np.maximum(PROVISIONAL_DEPTH, PROVISIONAL_DEPTH * z))
     hit = ids[inside & region[vv, uu] & near]
