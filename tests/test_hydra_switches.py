@@ -8,19 +8,10 @@ from pathlib import Path
 
 import pytest
 from hydra.core.global_hydra import GlobalHydra
-from hydra.core.hydra_config import HydraConfig
 from test_cli_matrix import run_console_script
+from test_path_families import _run
 
 HYDRA_APPS = ("uss-slam", "uss-train", "uss-export", "uss-experiments")
-
-
-def _run(prog: str, argv: list[str], monkeypatch: pytest.MonkeyPatch, capsys) -> tuple[int, str]:
-    try:
-        code, _, err = run_console_script(prog, argv, monkeypatch, capsys)
-    finally:
-        HydraConfig.instance().cfg = None
-        GlobalHydra.instance().clear()
-    return code, err
 
 
 @pytest.mark.parametrize("prog", HYDRA_APPS)
