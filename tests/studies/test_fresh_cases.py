@@ -96,6 +96,19 @@ def test_a_hang_up_case_is_held_to_sigterms_contract(fresh, code, err, verdict) 
     assert fresh.classify(case, code, err, {}, {}, {})[0] == verdict
 
 
+def _probe(fresh, case, probe: str, tmp_path) -> tuple[int, str]:
+    """Run ``case`` with Python as its script (``python -c probe``): its exit code and stderr."""
+    saved = fresh.BIN
+    (tmp_path / "bin").mkdir()
+    (tmp_path / "bin" / "uss-traj").symlink_to(sys.executable)
+    fresh.BIN = tmp_path / "bin"
+    try:
+        code, err, _, _ = fresh._run(case, ["-c", probe], tmp_path, {})
+    finally:
+        fresh.BIN = saved
+    return code, err
+
+
 def test_the_shell_state_of_a_case_reaches_its_process(fresh, tmp_path) -> None:
     """``UMASK``, ``CWD_GONE`` and ``ULIMIT_N`` set the child's state, not its environment."""
     case = fresh.Case("c", "uss-traj", "ok", (), {"UMASK": "077", "CWD_GONE": "1",
@@ -106,14 +119,7 @@ def test_the_shell_state_of_a_case_reaches_its_process(fresh, tmp_path) -> None:
         "ok = os.umask(0) == 0o77 and resource.getrlimit(resource.RLIMIT_NOFILE)[0] == 50\n"
         "sys.exit(0 if ok and gone and 'UMASK' not in os.environ else 3)"
     )
-    saved = fresh.BIN
-    (tmp_path / "bin").mkdir()
-    (tmp_path / "bin" / "uss-traj").symlink_to(sys.executable)
-    fresh.BIN = tmp_path / "bin"
-    try:
-        code, err, _, _ = fresh._run(case, ["-c", probe], tmp_path, {})
-    finally:
-        fresh.BIN = saved
+    code, err = _probe(fresh, case, probe, tmp_path)
     assert code == 0, err
     assert not (tmp_path / "gone").exists()
 
@@ -220,14 +226,7 @@ def test_stdin_closed_and_stdout_a_closed_pipe_reach_the_process(fresh, tmp_path
         "try:\n    os.write(1, b'x'); broken = False\nexcept BrokenPipeError:\n    broken = True\n"
         "sys.exit(0 if closed and broken and 'STDIN' not in os.environ else 3)"
     )
-    saved = fresh.BIN
-    (tmp_path / "bin").mkdir()
-    (tmp_path / "bin" / "uss-traj").symlink_to(sys.executable)
-    fresh.BIN = tmp_path / "bin"
-    try:
-        code, err, _, _ = fresh._run(case, ["-c", probe], tmp_path, {})
-    finally:
-        fresh.BIN = saved
+    code, err = _probe(fresh, case, probe, tmp_path)
     assert code == 0, err
 
 
