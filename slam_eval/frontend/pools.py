@@ -77,3 +77,19 @@ def one_thread_pools() -> Iterator[None]:
         cv2.setNumThreads(opencv)
         for setter, count in before:
             setter(count)
+
+
+_KEPT: list[contextlib.AbstractContextManager] = []
+"""The block :func:`one_thread_pools_for_life` entered (kept so that it is never closed)."""
+
+
+def one_thread_pools_for_life() -> None:
+    """:func:`one_thread_pools` entered for the rest of this process's life (the frame reader
+    process's). The block is kept: a generator's block that nothing refers to after its
+    ``__enter__`` is closed by the garbage collector at once, which runs its ``finally`` and
+    gives the pools their threads back (in the worker process that cost an OpenCV pool thread
+    spinning in ``sched_yield``, ~1 CPU ms a frame)."""
+    if not _KEPT:
+        block = one_thread_pools()
+        block.__enter__()
+        _KEPT.append(block)

@@ -61,7 +61,7 @@ from uss_slam.core.processes import die_with_parent
 from ..sequence import TumSequence, ahead
 from .auto import FREE_CORES, SAMPLE_S, free_cores, resolve_mode  # noqa: F401 (re-exported)
 from .orb import Features, OrbConfig, OrbExtractor
-from .pools import one_thread_pools
+from .pools import one_thread_pools_for_life
 
 PREFETCH_MODES = ("auto", "thread", "process")
 """Values of ``slam.prefetch_mode`` (``auto``: :func:`resolve_mode`)."""
@@ -422,7 +422,7 @@ def _serve(
         signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})  # blocked by _starting
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     _end_with_parent()
-    one_thread_pools().__enter__()  # for the worker's life, never restored (see .pools)
+    one_thread_pools_for_life()
     shm = _attach(shm_name)
     index = 0
     try:

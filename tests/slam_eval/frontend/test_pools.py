@@ -3,13 +3,19 @@
 
 from __future__ import annotations
 
+import gc
 import sys
 
 import cv2
 import numpy as np
 import pytest
 
-from uss_slam.slam_eval.frontend.pools import loaded_openblas, one_thread_pools
+from uss_slam.slam_eval.frontend import pools
+from uss_slam.slam_eval.frontend.pools import (
+    loaded_openblas,
+    one_thread_pools,
+    one_thread_pools_for_life,
+)
 
 needs_openblas = pytest.mark.skipif(
     not sys.platform.startswith("linux") or not loaded_openblas(),
@@ -37,6 +43,25 @@ def test_restored_after_an_error() -> None:
     with pytest.raises(RuntimeError), one_thread_pools():
         raise RuntimeError("in the run")
     assert [get() for _, get in loaded_openblas()] == before
+
+
+def test_for_life_outlives_the_collector() -> None:
+    """The frame reader process's pools stay at one thread after the block's object is gone
+    (a dropped generator's block would be closed and the threads given back)."""
+    opencv = cv2.getNumThreads()
+    cv2.setNumThreads(2)
+    try:
+        one_thread_pools_for_life()
+        gc.collect()
+        assert cv2.getNumThreads() == 1
+        assert [get() for _, get in loaded_openblas()] == [1] * len(loaded_openblas())
+        one_thread_pools_for_life()  # a second call enters nothing more
+        assert len(pools._KEPT) == 1
+    finally:
+        for block in pools._KEPT:
+            block.__exit__(None, None, None)
+        pools._KEPT.clear()
+        cv2.setNumThreads(opencv)
 
 
 def test_no_maps_file_finds_nothing(tmp_path) -> None:
