@@ -367,7 +367,11 @@ def classes_near(
     if len(carried.points) == 0 or not valid.any():
         return out
     p = carried.points @ t_frame_kf[:3, :3].T + t_frame_kf[:3, 3]
-    dist, idx = cKDTree(p).query(points[valid], distance_upper_bound=radius)
+    # A tree made for one query (built every frame): split at the sliding midpoint, not the
+    # median, with larger leaves, about a third less CPU than scipy's defaults; the same
+    # nearest point (up to exact ties in distance).
+    tree = cKDTree(p, leafsize=32, balanced_tree=False, compact_nodes=False)
+    dist, idx = tree.query(points[valid], distance_upper_bound=radius)
     hit = np.isfinite(dist)
     cls = np.zeros(int(valid.sum()), np.uint8)
     cls[hit] = carried.classes[idx[hit]]

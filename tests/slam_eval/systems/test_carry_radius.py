@@ -39,6 +39,28 @@ def test_only_keypoints_near_the_people_in_3d_take_their_class() -> None:
     assert not classes_near(carried, ahead, points, 0.1)[0]
 
 
+def test_the_class_of_the_nearest_carried_point_as_a_brute_force_search_finds_it() -> None:
+    """The tree built for each frame finds what comparing every pair finds: the class of the
+    nearest carried point within the radius (several classes, points of several depths)."""
+    rng = np.random.default_rng(3)
+    labels = rng.integers(0, 4, (120, 160)).astype(np.uint8)
+    depth = rng.uniform(0.5, 3.0, labels.shape).astype(np.float32)
+    carried = CarriedMask.of(0, labels, depth, K)
+    moved = np.eye(4)
+    moved[:3, 3] = [0.05, -0.02, 0.1]
+    points = rng.uniform([-0.3, -0.3, 0.5], [0.3, 0.3, 3.0], (500, 3))
+    points[::7] = np.nan  # keypoints without depth
+    in_frame = carried.points @ moved[:3, :3].T + moved[:3, 3]
+    for radius in (0.02, 0.05, 0.3):
+        expected = np.zeros(len(points), np.uint8)
+        for i, point in enumerate(points):
+            if np.isfinite(point).all():
+                dist = np.linalg.norm(in_frame - point, axis=1)
+                nearest = int(np.argmin(dist))
+                expected[i] = carried.classes[nearest] if dist[nearest] <= radius else 0
+        np.testing.assert_array_equal(classes_near(carried, moved, points, radius), expected)
+
+
 def _run(path: Path, radius: float | None, keypoints: str = "all", floor: int = 0):
     """A thread run; the floor 0 unless given (the radius on every frame)."""
     seq = TumSequence(path, load_labels=True)
