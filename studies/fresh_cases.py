@@ -50,6 +50,7 @@ from fresh_setups4 import FOURTH
 from fresh_setups5 import FIFTH
 from fresh_setups6 import SIXTH
 from fresh_setups7 import DEEP_OK, SEVENTH
+from fresh_setups8 import EIGHTH, PARTS
 
 from uss_slam.testing.machine import cpu_model
 
@@ -58,6 +59,7 @@ SETUPS.update(FOURTH)
 SETUPS.update(FIFTH)
 SETUPS.update(SIXTH)
 SETUPS.update(SEVENTH)
+SETUPS.update(EIGHTH)
 
 HERE = Path(__file__).resolve().parent
 CASES = HERE / "fresh_cases.txt"
@@ -324,6 +326,7 @@ LONG = {
     "u128": "é" * 128,  # 128 characters, 256 bytes: one byte over the file system's limit
     "deep": "/".join(["d" * 200] * 21),  # 21 names of 200 bytes: over PATH_MAX (4096)
     "deep_ok": DEEP_OK,  # 14 names of 200 bytes: long, but under PATH_MAX
+    **PARTS,  # the eighth set's: names with a newline, `%`, `$`, a quote, ...; a long number
 }
 """Path parts the cases' templates may name besides the world's."""
 

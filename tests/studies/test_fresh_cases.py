@@ -230,11 +230,13 @@ def test_stdin_closed_and_stdout_a_closed_pipe_reach_the_process(fresh, tmp_path
     assert code == 0, err
 
 
-def test_the_screen_tells_the_shell_states_apart(fresh, tmp_path) -> None:
+def test_the_screen_tells_the_shell_states_apart(fresh, tmp_path, monkeypatch) -> None:
     """A closed pipe as stdout is another shell state than ``/dev/full``: not a repeat of an
-    earlier ``STDOUT=full`` case of the script, whereas the same state is."""
+    earlier ``STDOUT=full`` case of the script, whereas the same state is (screened against the
+    six sets before the seventh, which tried the closed pipe for every script)."""
     import screen_cases
 
+    monkeypatch.setattr(screen_cases, "EARLIER", screen_cases.EARLIER[:6])
     cases = tmp_path / "cases.txt"
     cases.write_text(
         "p | uss-traj | pipe | - | STDOUT=pipe | - | ate {gt} {est} --bands 0.375\n"
@@ -243,3 +245,72 @@ def test_the_screen_tells_the_shell_states_apart(fresh, tmp_path) -> None:
     found = screen_cases.screen(cases)
     assert not any(f.startswith("p: ") for f in found), found
     assert any(f.startswith("f: changes the environment") for f in found), found
+
+
+def _tiny_sequence(seq: Path) -> None:
+    import numpy as np
+    from PIL import Image
+
+    (seq / "rgb").mkdir(parents=True)
+    rows = []
+    for i in range(3):
+        pixels = np.random.default_rng(i).integers(0, 255, (12, 16, 3), dtype=np.uint8)
+        Image.fromarray(pixels).save(seq / "rgb" / f"{i}.5.png")
+        rows.append(f"{i}.5 rgb/{i}.5.png")
+    (seq / "rgb.txt").write_text("# colour images\n" + "\n".join(rows) + "\n")
+
+
+def test_the_eighth_sets_image_forms_are_what_they_say(fresh, tmp_path) -> None:
+    """studies/fresh_setups8.py: each colour frame form holds the frame's picture in the form
+    its name says (an animated PNG whose default image is the frame; a 16-bit RGB PNG; a PNG
+    renamed .jpg and listed so; a folder in the frame's place)."""
+    import numpy as np
+    from fresh_setups8 import EIGHTH
+    from PIL import Image
+
+    forms = {"rgb_apng": "RGB", "rgb_la": "LA", "rgb_1bit": "1", "rgb_palette_2bit": "P",
+             "rgb_rgb16": None, "rgb_png_named_jpg": "RGB", "rgb_folder_as_frame": None}  # fmt: skip
+    for name, mode in forms.items():
+        c = tmp_path / name
+        _tiny_sequence(c / "seq")
+        original = np.asarray(Image.open(c / "seq" / "rgb" / "2.5.png").convert("RGB"))
+        EIGHTH[name](c, {})
+        if name == "rgb_folder_as_frame":
+            assert (c / "seq" / "rgb" / "2.5.png").is_dir()
+            continue
+        if name == "rgb_png_named_jpg":
+            assert "rgb/2.5.jpg" in (c / "seq" / "rgb.txt").read_text()
+            frame = c / "seq" / "rgb" / "2.5.jpg"
+            assert frame.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+        else:
+            frame = c / "seq" / "rgb" / "2.5.png"
+        if name == "rgb_rgb16":
+            import cv2
+
+            image = cv2.imread(str(frame), cv2.IMREAD_UNCHANGED)
+            assert image.dtype == np.uint16 and image.shape == (12, 16, 3)
+            continue
+        image = Image.open(frame)
+        assert image.mode == mode, name
+        if name == "rgb_apng":
+            assert getattr(image, "is_animated", False) is False or image.n_frames == 1
+            assert b"acTL" in frame.read_bytes()
+            assert np.array_equal(np.asarray(image.convert("RGB")), original)
+
+
+def test_the_eighth_sets_parts_reach_every_template(fresh) -> None:
+    """Every case of studies/fresh_cases8.txt names known setups, and its argv and environment
+    are formed with the path parts of studies/fresh_setups8.py (a newline kept in one argument,
+    the 4401-digit number whole)."""
+    cases = fresh.read_cases(STUDIES / "fresh_cases8.txt")
+    names = ("W", "seq", "seq2", "voc", "ckpt", "onnx", "onnx2", "gt", "est", "vocab", "slam")
+    paths = {**{n: f"/w/{n}" for n in names}, "C": "/c", "R": "/r", "tum": "/t", **fresh.LONG}
+    for case in cases:
+        assert all(s in fresh.SETUPS for s in case.setup), case.id
+        argv = fresh._argv(case, paths)
+        for value in case.env.values():
+            value.format(**paths)
+        if "{nl}" in case.argv:
+            assert any("new\nline" in a for a in argv), case.id
+        if "{big}" in case.argv:
+            assert any(a.endswith("1" + "0" * 4400) for a in argv), case.id
