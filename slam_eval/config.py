@@ -50,6 +50,7 @@ from .products.semantic_map import MapConfig
 from .scoring.evaluation import EvalConfig
 from .scoring.repeats import Perturbation, perturbations
 from .systems.harness import SEGMENT_SCHEDULES, provisional_points_refused
+from .systems.late_mask import FINAL_BA
 from .systems.semantic_thread import (
     CARRY_RADIUS_KEYPOINTS,
     CARRY_RADIUS_M,
@@ -193,6 +194,18 @@ class SlamConfig:
     the map points first mapped since the previous mask's keyframe (keyframes no mask judged)
     that project into its dynamic region no farther than the depth measured there (the default,
     with ``mask_refines_past=mask``: docs/results/slam.md, "a late mask corrects the past")."""
+    mask_refits_keyframes: bool = False
+    """With ``segment=thread`` and ``mask_refines_past`` (the other schedules ignore it): a
+    delivered mask is also carried back to the keyframes made since the previous mask's keyframe
+    (tracked and mapped with the stale mask), their observations inside it erased, and local BA
+    around its keyframe runs again with them free (:mod:`~.systems.late_mask`). An experiment,
+    off by default (docs/results/slam.md, "a late mask refits the keyframes")."""
+    final_ba: str = ranged("none", choices=FINAL_BA)
+    """With local BA: after the last frame (with ``segment=thread`` once the masks still in
+    flight are delivered) one bundle adjustment of every keyframe and map point, before the
+    trajectory is composed on the keyframes; an end-of-run step, not an online one. ``thread``:
+    with ``segment=thread`` only; ``always``: every schedule; ``none``. An experiment, off by
+    default (docs/results/slam.md, "a late mask refits the keyframes")."""
     semantic_nice: int = ranged(0, min=0, max=19)
     """With ``segment=thread`` and a segmenter that really runs (the wall clock): the semantic
     thread's nice value above the process's (Linux), so that tracking takes the cores first and

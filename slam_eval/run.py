@@ -152,6 +152,8 @@ def _semantic_thread_settings(slam: DictConfig) -> dict[str, Any]:
         carry_radius_min_inliers=int(slam.carry_radius_min_inliers),
         mask_refines_past=str(slam.mask_refines_past),
         mask_marks_projected=bool(slam.mask_marks_projected),
+        mask_refits_keyframes=bool(slam.mask_refits_keyframes),
+        final_ba=str(slam.final_ba),
     )
 
 

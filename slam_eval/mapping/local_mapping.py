@@ -207,11 +207,15 @@ class LocalMapping:
         s.optimised_points += len(points)
         return adjustment, culled
 
-    def readjust(self, slam_map: SlamMap, keyframe_id: int) -> Adjustment:
+    def readjust(
+        self, slam_map: SlamMap, keyframe_id: int, also: np.ndarray | None = None
+    ) -> Adjustment:
         """Local BA around ``keyframe_id`` again, without culling (its mask came late and took
-        map points out: the keyframes those points pulled are adjusted without them); counted
-        as ``readjusted``."""
+        map points out: the keyframes those points pulled are adjusted without them), with the
+        keyframes ``also`` free too; counted as ``readjusted``."""
         local = self.local_keyframes(slam_map, keyframe_id)
+        if also is not None and len(also):
+            local = np.union1d(local, also).astype(np.int64)
         points = slam_map.points_of(local)
         adjustment = self.adjuster.adjust(
             slam_map, local, points, self.config.first_iterations, self.config.second_iterations

@@ -44,6 +44,7 @@ from ..products.builder import MapProducts
 from ..scoring.run_result import FrameLog
 from ..sequence import Frame
 from ..tracking.tracker import Tracker, TrackResult
+from .late_mask import adjust_all, erase_carried, since_previous
 from .semantic_thread import (
     CarriedMask,
     Delivered,
@@ -165,6 +166,12 @@ class FrameLoop:
     """With the semantic thread (``slam.mask_marks_projected``): a delivered mask also marks bad
     the points mapped since the previous mask's keyframe that project into its dynamic region
     (:func:`~.semantic_thread.mark_projected`)."""
+    mask_refits_keyframes: bool = False
+    """With ``mask_refines_past`` (``slam.mask_refits_keyframes``): a delivered mask is also
+    carried back to the keyframes made since the previous mask's keyframe, their observations
+    inside it erased, and local BA runs again with them free (:func:`~.late_mask.erase_carried`)."""
+    final_ba: bool = False
+    """``slam.final_ba`` (:meth:`finish`): the end-of-run bundle adjustment of the whole map."""
     past: list[PastFrame] = field(default_factory=list)
     """With ``mask_refines_past``: the tracked frames (keyframes' own frames excepted) since the
     keyframe of the mask before the last one delivered, at most :data:`PAST_FRAMES`."""
@@ -205,7 +212,7 @@ class FrameLoop:
         if self.segment_now is not None and first:
             labels = self.segment_now(frame, timer)  # a first-keyframe candidate
         if self.semantic is not None:
-            self.receive(frame)
+            self.receive(frame.stamp)
             if first:
                 labels = self.first_mask(frame)
         filters, result = self.track(frame, labels, item.features)
@@ -334,13 +341,13 @@ class FrameLoop:
         self.counts["masks"] += labels is not None
         return labels
 
-    def receive(self, frame: Frame) -> None:
-        """The semantic thread's masks finished by ``frame``'s stamp: each marks bad the map
+    def receive(self, stamp: float) -> None:
+        """The semantic thread's masks finished by camera ``stamp`` (s): each marks bad the map
         points its keyframe sees inside the dynamic region of the filters that mask their input
         (:func:`~.semantic_thread.mark_dynamic_points`) and becomes the carried mask."""
         assert self.semantic is not None
         with self.timer("carry_mask"):
-            for got in self.semantic.poll(frame.stamp):
+            for got in self.semantic.poll(stamp):
                 if got.labels is None:
                     continue
                 self.counts["masks"] += 1
@@ -400,9 +407,19 @@ class FrameLoop:
         if self.last_masked is not None:
             since = slam_map.keyframes[self.last_masked].stamp
             self.past = [p for p in self.past if p.stamp >= since]
-        if self.mapper is not None and marked.any() and not slam_map.keyframes[kf_id].bad:
+        targets, erased = [], 0
+        if self.mask_refits_keyframes:
+            targets = since_previous(slam_map, kf_id, self.last_masked)
+            region_of = lambda labels: self.dynamic_region(got.frame, labels)  # noqa: E731
+            erased = erase_carried(slam_map, carried, targets, region_of)
+            self.counts["observations_erased_carried"] += erased
+        if (
+            self.mapper is not None
+            and (marked.any() or erased)
+            and not slam_map.keyframes[kf_id].bad
+        ):
             with self.timer("local_ba"):
-                self.mapper.readjust(slam_map, kf_id)
+                self.mapper.readjust(slam_map, kf_id, np.array(targets, np.int64))
         bad = slam_map.points.bad.view
         for past in self.past:
             ids = past.matched
@@ -428,6 +445,20 @@ class FrameLoop:
                 self.anchors[past.row] = (k, invert(refined) @ slam_map.pose_wc(k))
             self.counts["past_frames_refined"] += 1
         tracker.map_changed()
+
+    def finish(self) -> None:
+        """After the last frame, with ``final_ba`` and local BA: the semantic thread's masks still
+        in flight delivered (the camera clock's as to a frame two latencies after the last, by
+        when both the running and the waiting one are done; the wall clock's that are done),
+        then one bundle adjustment of the whole map (:func:`~.late_mask.adjust_all`, timed as
+        ``final_ba``), before the trajectory is composed on the keyframes."""
+        if not self.final_ba or self.mapper is None:
+            return
+        if self.semantic is not None and self.log:
+            self.receive(self.log[-1].stamp + 2 * self.semantic.latency_s)
+        with self.timer("final_ba"):
+            done = adjust_all(self.map, self.mapper.adjuster, self.mapper.config.first_iterations)
+        self.counts["final_ba_outliers"] += done.outliers
 
     def track_people(self) -> None:
         """With ``carry_velocity``: the people of the mask just carried move as they did since

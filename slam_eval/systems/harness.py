@@ -87,6 +87,7 @@ from ..segmenters.base import Segmenter
 from ..sequence import Frame, TumSequence, ahead
 from ..tracking.tracker import Tracker, TrackerConfig
 from .frame_loop import FrameLoop, Prepared, Timer
+from .late_mask import final_ba_runs
 from .semantic_thread import (
     CARRY_RADIUS_M,
     CARRY_RADIUS_MIN_INLIERS,
@@ -172,6 +173,8 @@ class SlamPipeline:
         carry_radius_min_inliers: int = CARRY_RADIUS_MIN_INLIERS,
         mask_refines_past: str = MASK_REFINES_PAST_DEFAULT,
         mask_marks_projected: bool = MASK_MARKS_PROJECTED,
+        mask_refits_keyframes: bool = False,
+        final_ba: str = "none",
     ) -> None:
         """``sampling_seed``: perturbs the tracker's RANSAC sampling (a repeated run,
         :mod:`.repeats`); None = the deterministic run. ``prefetch_mode``: ``"thread"``,
@@ -207,6 +210,8 @@ class SlamPipeline:
         self.carry_radius_min_inliers = carry_radius_min_inliers
         self.mask_refines_past = mask_refines_past
         self.mask_marks_projected = mask_marks_projected
+        self.mask_refits_keyframes = mask_refits_keyframes
+        self.final_ba = final_ba_runs(final_ba, segment)
         self.progress = progress
         self.description = description or sequence.path.name
         self.local_ba = local_ba
@@ -295,6 +300,8 @@ class SlamPipeline:
                     kf=len(loop.map.keyframes),
                     refresh=False,
                 )
+            wall = time.perf_counter() - start  # the frames' rate, without the end-of-run pass
+            loop.finish()
         finally:
             frames.close()
             if loop.semantic is not None:
@@ -302,7 +309,7 @@ class SlamPipeline:
             if worker is not None:
                 worker.close()
             bar.close()
-        return self._result(loop, time.perf_counter() - start)
+        return self._result(loop, wall)
 
     def _frame_loop(self, timer: Timer) -> FrameLoop:
         """The run's tracker, filter chain, map products and back end, in a frame loop."""
@@ -334,6 +341,8 @@ class SlamPipeline:
             carry_radius_min_inliers=self.carry_radius_min_inliers,
             mask_refines_past=self.mask_refines_past,
             mask_marks_projected=self.mask_marks_projected,
+            mask_refits_keyframes=self.mask_refits_keyframes,
+            final_ba=self.final_ba,
         )  # fmt: skip
 
     def _frames(self) -> tuple[frontend_process.FrontendProcess | None, Iterator[Prepared]]:
@@ -448,6 +457,8 @@ class SlamPipeline:
                     "frames_radius_skipped",
                     "past_frames_refined",
                     "points_marked_projected",
+                    "observations_erased_carried",
+                    "final_ba_outliers",
                 )  # fmt: skip
                 if k in loop.counts
             },

@@ -1,0 +1,80 @@
+"""What a late mask of the semantic thread (``segment=thread``) may still correct in the map,
+beyond its own keyframe (:meth:`~.frame_loop.FrameLoop.refine_past`), and the end-of-run pass.
+
+- :func:`erase_carried` (``slam.mask_refits_keyframes``): the keyframes made since the previous
+  mask's keyframe were tracked and mapped with a stale carried mask. A newer mask, carried back
+  to each by its map pose, shows where the people were there: the observations those keyframes
+  made through a keypoint inside it are erased (the points stay, for the keyframes that saw them
+  elsewhere), so that local BA, run again with those keyframes free, moves them without the
+  people's pull.
+- :func:`adjust_all` (``slam.final_ba``): once the last frame is tracked (with the semantic
+  thread, once the masks still in flight are delivered), one bundle adjustment of every good
+  keyframe and map point (keyframe 0 fixed), as ORB-SLAM2's global BA after a loop closure: the
+  keyframes that left every local window keep the error they had when they left it otherwise.
+  An end-of-run step, not an online one: the trajectory composed after it is the final map's.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from ..filters.base import values_at
+from ..geometry import invert
+from ..map.slam_map import SlamMap
+from ..optim.local_ba import Adjustment, BundleAdjuster
+from .semantic_thread import CarriedMask
+
+FINAL_BA = ("none", "thread", "always")
+"""``slam.final_ba``: with which schedules the end-of-run bundle adjustment runs (``thread``:
+``segment=thread`` only; ``always``: every schedule, for the reference cells)."""
+
+
+def since_previous(slam_map: SlamMap, kf_id: int, previous: int | None) -> list[int]:
+    """The good keyframes other than ``kf_id`` made after ``previous`` (the keyframe of the mask
+    delivered before; None: none yet, no keyframe is taken)."""
+    if previous is None:
+        return []
+    return [kf.id for kf in slam_map.keyframes[previous + 1 :] if not kf.bad and kf.id != kf_id]
+
+
+def erase_carried(
+    slam_map: SlamMap,
+    carried: CarriedMask,
+    targets: list[int],
+    region_of: Callable[[np.ndarray], np.ndarray | None],
+) -> int:
+    """Carry ``carried`` (keyframe ``carried.kf_id``'s delivered mask) to each keyframe of
+    ``targets`` by the map poses now (:meth:`~.semantic_thread.CarriedMask.labels_at`); its
+    keypoints inside ``region_of(labels)`` ((H, W) bool dynamic pixels of the carried labels,
+    None: none) are flagged dynamic and their observations of map points erased
+    (:meth:`~..map.slam_map.SlamMap.erase_observations`: a point left with one keyframe turns
+    bad). Returns how many observations were erased."""
+    erased = 0
+    pose_kf = slam_map.pose_wc(carried.kf_id)
+    for target in targets:
+        kf = slam_map.keyframes[target]
+        region = region_of(carried.labels_at(invert(slam_map.pose_wc(target)) @ pose_kf))
+        if region is None or not region.any():
+            continue
+        inside = values_at(region, kf.features.xy)
+        kf.dynamic = kf.dynamic | inside
+        ids = kf.point_ids[inside & (kf.point_ids >= 0)]
+        erased += slam_map.erase_observations(ids, np.full(len(ids), target, np.int64))
+    return erased
+
+
+def final_ba_runs(final_ba: str, segment: str) -> bool:
+    """Does ``slam.final_ba`` (:data:`FINAL_BA`) run the end-of-run pass with ``segment``?"""
+    if final_ba not in FINAL_BA:
+        raise ValueError(f"final_ba: expected one of {FINAL_BA}, got {final_ba!r}")
+    return final_ba == "always" or (final_ba == "thread" and segment == "thread")
+
+
+def adjust_all(slam_map: SlamMap, adjuster: BundleAdjuster, iterations: int) -> Adjustment:
+    """One bundle adjustment of every good keyframe (keyframe 0 fixed, the gauge) and every good
+    map point they observe, ``iterations`` Levenberg–Marquardt iterations with the Huber kernel
+    (local BA's single pass); outliers erased as local BA does."""
+    free = np.array([kf.id for kf in slam_map.keyframes if not kf.bad], np.int64)
+    return adjuster.adjust(slam_map, free, slam_map.points_of(free), iterations, 0)
