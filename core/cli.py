@@ -42,7 +42,7 @@ from uss_slam.core.hydra_lines import (  # noqa: F401 (their home before)
     override_parse_line,
     repeated_override_line,
 )
-from uss_slam.core.launch import TERMINATING
+from uss_slam.core.launch import TERMINATING, close_open_bars
 from uss_slam.core.run_folders import RefusedRunFolder, RunFolderCheck, release_run_folders
 
 __all__ = ["RefusedRunFolder", "RunFolderCheck"]  # (configs name core.cli.RunFolderCheck)
@@ -165,6 +165,7 @@ def report_interrupt(prog: str, error: BaseException | None = None, note: str = 
     (SIGTERM)`` and :data:`TERMINATED` after SIGTERM; ``note`` is appended after ``; ``."""
     signum = interrupt_signal(error)
     named = "" if signum == signal.SIGINT else f" ({signal.Signals(signum).name})"
+    close_open_bars()  # drawn now, not again after the line
     print(f"{prog}: interrupted{named}" + (f"; {note}" if note else ""), file=sys.stderr)
     return 128 + int(signum)
 
@@ -446,6 +447,7 @@ def exit_on_user_error(prog: str, kinds: tuple[type[BaseException], ...] = ()) -
             # here, not after the app: a Hydra app would print its own report of the job first
             cause = UssSlamError(MEMORY_LINE)
         line = error_line(prog, cause)
+        close_open_bars()
         print(line, file=sys.stderr)
         job = _multirun_job() if report is not None else None
         if report is None or job is None:

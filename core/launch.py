@@ -122,8 +122,22 @@ TERMINATING = (signal.SIGTERM, signal.SIGHUP)
 closed)."""
 
 
+def close_open_bars() -> None:
+    """Close every progress bar still open, before a script's last line (``interrupted``, an
+    error). A bar left open by an interrupt or an error is held by a frame of its traceback;
+    closed only when that traceback is freed, after the line, tqdm would draw it again below
+    it. Closed here it keeps its last state above the line and draws nothing after it."""
+    tqdm_module = sys.modules.get("tqdm.std")
+    if tqdm_module is None:  # never imported: no bar
+        return
+    for bar in list(getattr(tqdm_module.tqdm, "_instances", ())):
+        with contextlib.suppress(Exception):  # (a closed stream: nothing to draw on)
+            bar.close()
+
+
 def _interrupted(prog: str, error: KeyboardInterrupt) -> int:
     """The line and exit code of an interrupt that reached :func:`launch`."""
+    close_open_bars()
     signum = getattr(error, "signum", signal.SIGINT)
     named = "" if signum == signal.SIGINT else f" ({signal.Signals(signum).name})"
     print(f"{prog}: interrupted{named}", file=sys.stderr)
@@ -201,6 +215,7 @@ def launch(prog: str) -> int | None:
 
         if not isinstance(error, UssSlamError):  # raised outside the script's own handling
             raise
+        close_open_bars()
         print(f"{prog}: error: {(str(error).strip().splitlines() or [''])[0]}", file=sys.stderr)
         return int(getattr(error, "exit_code", 1))
 

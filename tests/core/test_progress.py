@@ -3,12 +3,16 @@ file or a log; the Lightning bar of uss-train the same way."""
 
 from __future__ import annotations
 
+import gc
 import io
+import sys
 
 import pytest
 from tqdm import tqdm
 
 from uss_slam.core import progress as progress_module
+from uss_slam.core.cli import exit_on_user_error
+from uss_slam.core.errors import UssSlamError
 from uss_slam.core.progress import LineProgress, is_terminal, progress_bar
 
 
@@ -83,3 +87,28 @@ def test_a_bar_whose_creation_was_interrupted_closes_quietly(monkeypatch) -> Non
     half = LineProgress.__new__(LineProgress)
     half.close()  # what __del__ calls
     assert log.getvalue() == ""
+
+
+def _parts_then(error: BaseException, log: io.StringIO) -> None:
+    bar = progress_bar(total=9, desc="parts", file=log)  # left open, as an interrupt leaves it
+    bar.update()
+    raise error
+
+
+@pytest.mark.parametrize(
+    "error, last",
+    [(KeyboardInterrupt(), "prog: interrupted"), (UssSlamError("bad"), "prog: error: bad")],
+)
+def test_the_scripts_last_line_is_last_no_bar_drawn_after_it(
+    monkeypatch: pytest.MonkeyPatch, error: BaseException, last: str
+) -> None:
+    """A bar the interrupt (or error) left open is closed before the line, not when the
+    traceback holding it is freed, which drew it again below the line (uss-demo's parts)."""
+    log = io.StringIO()
+    monkeypatch.setattr(sys, "stderr", log)
+    with pytest.raises(SystemExit), exit_on_user_error("prog"):
+        _parts_then(error, log)
+    gc.collect()
+    lines = log.getvalue().splitlines()
+    assert lines[-1] == last, lines
+    assert lines[-2].startswith("parts:  11%") and "1/9" in lines[-2], lines
