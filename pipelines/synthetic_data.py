@@ -384,10 +384,12 @@ def summarize(root: Path) -> str:
         pngs = sorted((voc / "SegmentationClass").glob("*.png"))
         counts = np.zeros(256, np.int64)
         for p in pngs:
-            counts += np.bincount(np.asarray(Image.open(p)).reshape(-1), minlength=256)
+            with Image.open(p) as label:
+                counts += np.bincount(np.asarray(label).reshape(-1), minlength=256)
         ours = np.zeros(256, np.int64)
         np.add.at(ours, voc_lut(), counts)
-        w, h = Image.open(pngs[0]).size
+        with Image.open(pngs[0]) as first:  # (closed: no ResourceWarning)
+            w, h = first.size
         void = 100 * counts[255] / counts.sum()
         lines.append(f"  voc/VOCdevkit/VOC2012: {len(train)} train + {len(val)} val images, {w}x{h}, "
                      f"source style; pixels: {shares(ours)} (void {void:.1f}%)")  # fmt: skip

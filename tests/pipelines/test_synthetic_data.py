@@ -3,6 +3,8 @@ a complete set with the same record, re-rendering otherwise."""
 
 from __future__ import annotations
 
+import gc
+import warnings
 from pathlib import Path
 
 import pytest
@@ -131,7 +133,11 @@ def test_appearance_data_set_is_the_source_content_in_target_style(tmp_path: Pat
 def test_small_data_set(tmp_path: Path) -> None:
     out = tmp_path / "data"
     synthetic_data.render_demo_data(out, SMALL, workers=1, progress=False)
-    text = synthetic_data.summarize(out)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", ResourceWarning)  # PYTHONWARNINGS=error shows them
+        text = synthetic_data.summarize(out)
+        gc.collect()
+    assert not [w for w in caught if w.category is ResourceWarning], "a file left open"
     assert str(out.resolve()) in text
     assert "voc/VOCdevkit/VOC2012: 4 train + 1 val images, 64x48" in text
     for name in synthetic_data.TRAIN_PRESETS:
