@@ -30,6 +30,7 @@ from collections.abc import Callable
 from importlib import metadata
 
 from uss_slam.core import stdout
+from uss_slam.core.library_warnings import quiet_known_warnings
 
 SCRIPTS = {
     "uss-synth": "uss_slam.synthetic.cli",
@@ -168,6 +169,7 @@ def launch(prog: str) -> int | None:
     # warning on every import; the scripts ask it not to (a value the user set stays)
     os.environ.setdefault("ORT_DISABLE_TELEMETRY", "1")
     private_matplotlib_folder()
+    quiet_known_warnings()
     previous: dict[int, object] = {}
     try:
         for sig in TERMINATING:

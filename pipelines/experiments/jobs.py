@@ -42,6 +42,7 @@ from omegaconf import DictConfig
 
 from uss_slam.core.errors import UssSlamError
 from uss_slam.core.files import file_sha256, write_json_atomic
+from uss_slam.core.library_warnings import quiet_known_warnings
 from uss_slam.core.processes import die_with_parent, end_with_watched
 from uss_slam.pipelines.runs import (
     RESUME_FROM,
@@ -221,6 +222,7 @@ def run_cell(plan_path: Path, out: Path, cell: str) -> dict[str, Any]:
     # that a job never keeps writing into a folder a rerun writes too.
     die_with_parent(os.getppid())
     end_with_watched()
+    quiet_known_warnings()  # a job's process is no console script's: the launcher's filters
     stage = stage_of(out, spec, cell)
     recover(stage.folder)
     if stage.complete():

@@ -79,3 +79,22 @@ def test_ddp_on_cpu_keeps_replicas_identical(uda_data: dict[str, Path], tmp_path
     assert len(set(record["buffers"])) == 1
     state = torch.load(run / "checkpoints" / "last.ckpt", weights_only=True)
     assert state["iteration"] == 4
+
+
+@pytest.mark.slow
+def test_a_training_runs_with_every_warning_an_error(
+    uda_data: dict[str, Path], tmp_path: Path
+) -> None:
+    """``PYTHONWARNINGS=error``: no warning in a normal run stops it (Lightning's own were a
+    traceback at the first batch), and none of the silenced ones is printed."""
+    exe = Path(sys.executable).parent / "uss-train"
+    env = {**os.environ, "PYTHONWARNINGS": "error"}
+    run = tmp_path / "run"
+    args = ["experiment=ci", *data_overrides(uda_data), "logger=none", "model.max_iters=2"]
+    result = subprocess.run(
+        [str(exe), *args, f"hydra.run.dir={run}"],
+        cwd=tmp_path, env=env, capture_output=True, text=True, timeout=900,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert (run / "checkpoints" / "last.ckpt").is_file()
+    assert "LeafSpec" not in result.stderr and "in eval mode" not in result.stderr
