@@ -70,6 +70,7 @@ class RunFolderCheck:
         key: str = "hydra.run.dir",
         lock: bool = True,
         outputs: dict[str, str | None] | None = None,
+        inputs: list[str] | None = None,
     ) -> None:
         self.prog = prog
         self.key = key
@@ -78,6 +79,30 @@ class RunFolderCheck:
         """The app's own output folders checked first, before its run folder (``out_dir:
         out``: the key ``out_dir``, unless the key ``out`` is set): a problem both share (a
         read-only parent, a umask) is named by the key the user set for the outputs."""
+        self.inputs = list(inputs or [])
+        """Keys of the app's input folders (``sequence.path``; a section such as ``data``: every
+        ``root`` / ``roots`` in it): an output folder that is one of them is refused, as
+        ``uss-eval --out`` a ``--sequence`` is (the outputs would be written among the
+        inputs)."""
+
+    def _input_folders(self, config: Any) -> list[tuple[str | None, str]]:
+        from omegaconf import OmegaConf
+
+        from uss_slam.core.paths import config_roots
+
+        found: list[tuple[str | None, str]] = []
+        for key in self.inputs:
+            try:
+                value = OmegaConf.select(config, key)
+                if OmegaConf.is_config(value):
+                    value = OmegaConf.to_container(value, resolve=True)
+            except Exception:  # noqa: BLE001 (an interpolation that fails: its own error later)
+                continue
+            if isinstance(value, dict | list):
+                found.extend(config_roots(value, key))
+            elif isinstance(value, str) and value:
+                found.append((key, value))
+        return found
 
     def _check_outputs(self, config: Any) -> None:
         from omegaconf import OmegaConf
@@ -89,7 +114,7 @@ class RunFolderCheck:
                 continue
             value = OmegaConf.select(config, key)
             if value is not None and str(value) != str(config.hydra.run.dir):
-                output_folder(str(value), key)
+                output_folder(str(value), key, inputs=self._input_folders(config))
 
     def on_run_start(self, config: Any, **kwargs: Any) -> None:
         from uss_slam.core.files import check_output_owner, output_lock
@@ -107,7 +132,8 @@ class RunFolderCheck:
             raise RefusedRunFolder(UssSlamError(line)) from None
         try:
             self._check_outputs(config)
-            output_folder(folder, self.key)  # before Hydra opens its log file in it
+            # before Hydra opens its log file in it
+            output_folder(folder, self.key, inputs=self._input_folders(config))
             if self.lock and os.environ.get("LOCAL_RANK", "0") == "0":
                 held = output_lock(folder, self.key)
                 held.__enter__()
