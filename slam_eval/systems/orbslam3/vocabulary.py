@@ -505,7 +505,8 @@ def orb_descriptors(images: Sequence[StrPath], n_features: int = 1000) -> list[n
     for image in images:
         bgr = read_colour(image)
         gray = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
-        _, desc = orb.detectAndCompute(gray, None)
+        # a frame 1 px wide or high has no corner (and OpenCV's pyramid cannot shrink it)
+        desc = None if min(gray.shape) < 2 else orb.detectAndCompute(gray, None)[1]
         sets.append(np.empty((0, DESCRIPTOR_BYTES), np.uint8) if desc is None else desc)
     return sets
 

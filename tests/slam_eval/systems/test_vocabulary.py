@@ -179,6 +179,17 @@ def test_bad_parameters_are_one_line() -> None:
         voc.build_vocabulary([np.empty((0, 32), np.uint8)])
 
 
+@pytest.mark.parametrize("size", [(1, 1), (1, 40), (40, 1)])
+def test_a_frame_one_pixel_wide_or_high_has_no_descriptors(tmp_path: Path, size) -> None:
+    """OpenCV's ORB cannot shrink it into its pyramid (a cv2.error traceback of uss-vocab
+    build): no descriptors, so a sequence of such frames is the line about no descriptors."""
+    import cv2
+
+    path = tmp_path / "f.png"
+    cv2.imwrite(str(path), np.full((*size, 3), 128, np.uint8))
+    assert [d.shape for d in voc.orb_descriptors([path])] == [(0, 32)]
+
+
 def test_uss_vocab_build_and_info(write_sequence, texture, tmp_path: Path, capsys) -> None:
     import cv2
 
