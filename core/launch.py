@@ -123,6 +123,23 @@ TERMINATING = (signal.SIGTERM, signal.SIGHUP)
 closed)."""
 
 
+def openmp_threads_checked(prog: str) -> None:
+    """An ``OMP_NUM_THREADS`` that OpenMP does not take (``0``, ``-1``, ``''``, ``abc``: it wants
+    a positive count, or a list of them, ``4,2``) is ignored by it with a line of its own
+    (libgomp's ``Invalid value for environment variable OMP_NUM_THREADS``, once torch is
+    loaded); here it is one warning line of the script's, and removed from the environment,
+    so that neither torch nor a process the script starts prints libgomp's."""
+    value = os.environ.get("OMP_NUM_THREADS")
+    if value is None:
+        return
+    counts = value.split(",")
+    if all(c.strip().lstrip("+").isdigit() and int(c.strip().lstrip("+")) > 0 for c in counts):
+        return
+    del os.environ["OMP_NUM_THREADS"]
+    print(f"{prog}: warning: OMP_NUM_THREADS={value!r}: expected a positive number of threads "
+          "(or a list of them, 4,2); ignored, as OpenMP ignores it", file=sys.stderr)  # fmt: skip
+
+
 def close_open_bars() -> None:
     """Close every progress bar still open, before a script's last line (``interrupted``, an
     error). A bar left open by an interrupt or an error is held by a frame of its traceback;
@@ -156,6 +173,7 @@ def launch(prog: str) -> int | None:
         print(f"{prog} {version('uss-slam')}")
         return 0
     without_optimize()
+    openmp_threads_checked(prog)
     line = address_space_line(prog) or working_folder_line(prog)
     if line is not None:  # before any import that could crash on it
         print(line, file=sys.stderr)

@@ -299,3 +299,30 @@ def test_version_flag(prog: str, args: list[str], monkeypatch: pytest.MonkeyPatc
     monkeypatch.setattr(sys, "argv", [prog, *args, "--version"])
     assert launch.launch(prog) == 0
     assert capsys.readouterr().out == f"{prog} {version('uss-slam')}\n"
+
+
+@pytest.mark.parametrize("value", ["0", "-1", "", "abc", "2,0"])
+def test_an_openmp_thread_count_openmp_ignores_is_one_warning_line(value: str) -> None:
+    """libgomp printed its own ``Invalid value for environment variable OMP_NUM_THREADS``
+    once torch was loaded (uss-train, uss-export, uss-eval of a checkpoint)."""
+    code = (
+        "from uss_slam.core.launch import openmp_threads_checked; import os; "
+        "openmp_threads_checked('prog'); assert 'OMP_NUM_THREADS' not in os.environ; "
+        "import torch; torch.ones(4).sum()"
+    )
+    env = {**os.environ, "OMP_NUM_THREADS": value}
+    run = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    assert run.stderr.splitlines() == [
+        f"prog: warning: OMP_NUM_THREADS={value!r}: expected a positive number of threads (or a "
+        "list of them, 4,2); ignored, as OpenMP ignores it"
+    ]
+
+
+@pytest.mark.parametrize("value", ["1", "4,2", " +3"])
+def test_an_openmp_thread_count_openmp_takes_is_kept(value: str) -> None:
+    env = {**os.environ, "OMP_NUM_THREADS": value}
+    code = "from uss_slam.core.launch import openmp_threads_checked; openmp_threads_checked('p')"
+    code += "; import os; print(os.environ['OMP_NUM_THREADS'])"
+    run = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
+    assert (run.stdout, run.stderr) == (value + "\n", "")
