@@ -12,6 +12,15 @@ from os import PathLike
 
 from uss_slam.core.output_keys import key_of
 
+_CONTROL = {c: repr(chr(c))[1:-1] for c in (*range(0x20), 0x7F)}
+
+
+def shown(path: str | PathLike[str]) -> str:
+    """``path`` as an error line names it: a control character (a newline, a carriage return, a
+    terminal's escape, which a file name may hold) written as Python writes it (``\\n``,
+    ``\\x1b``), so that the line stays one line and prints nothing it does not say."""
+    return str(path).translate(_CONTROL)
+
 
 class UssSlamError(Exception):
     """Base of every error this project raises on purpose (bad input, bad config, failed check).
@@ -33,7 +42,7 @@ class DataFormatError(UssSlamError, ValueError):
         self.path = str(path)
         self.line = line
         self.detail = message
-        where = self.path if line is None else f"{self.path}:{line}"
+        where = shown(self.path) if line is None else f"{shown(self.path)}:{line}"
         super().__init__(f"{where}: {message}")
 
     def __reduce__(self) -> tuple[object, ...]:
@@ -66,12 +75,13 @@ class NoSpaceError(UssSlamError):
         elif code == errno.EFBIG:
             why = "the file size limit is exceeded (ulimit -f)"
         named = None if path is None else key_of(path)  # the key or flag that set its output
+        written = shown(self.path or "an output file")
         if named is None:
-            super().__init__(f"{why} while writing {self.path or 'an output file'}")
+            super().__init__(f"{why} while writing {written}")
         elif os.path.abspath(named[1]) == os.path.abspath(self.path or ""):
-            super().__init__(f"{named[0]}={named[1]}: {why}")
+            super().__init__(f"{named[0]}={shown(named[1])}: {why}")
         else:
-            super().__init__(f"{named[0]}={named[1]}: {why} while writing {self.path}")
+            super().__init__(f"{named[0]}={shown(named[1])}: {why} while writing {written}")
 
     def __reduce__(self) -> tuple[object, ...]:
         # rebuilt from its fields in another process (a rendering worker's full disk), not

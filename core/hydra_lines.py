@@ -78,7 +78,14 @@ def _yaml_error_line(error: BaseException) -> str | None:
 def override_parse_line(override: str, message: str) -> str:
     """``<override>: <the parser's message>``; for a value holding characters Hydra reads only
     quoted (spaces, non-ASCII letters such as in ``out_dir=/data/résumé``), the quoted form to
-    use instead of the lexer's text."""
+    use instead of the lexer's text. One line: a control character (a newline in a folder's
+    name) is written as Python writes it (:func:`uss_slam.core.errors.shown`)."""
+    from uss_slam.core.errors import shown
+
+    return shown(_override_parse_line(override, message))
+
+
+def _override_parse_line(override: str, message: str) -> str:
     key, sep, value = override.partition("=")
     if sep and value.startswith("[") and value.endswith("]") and "=" in value:  # [a=1,b=2]
         from uss_slam.core.paths import hydra_quoted

@@ -35,7 +35,7 @@ from pathlib import Path
 from typing import Any
 
 from uss_slam.core import output_keys
-from uss_slam.core.errors import DataFormatError, UssSlamError
+from uss_slam.core.errors import DataFormatError, UssSlamError, shown
 
 NAME_MAX_DEFAULT, PATH_MAX_DEFAULT = 255, 4096
 
@@ -72,7 +72,7 @@ def naming(key: str, path: str | PathLike[str]) -> Iterator[None]:
 
 def where(path: str | PathLike[str], key: str | None) -> str:
     """``key=path`` (``path`` for a positional argument): how an error line names it."""
-    return str(path) if key is None else f"{key}={path}"
+    return shown(path) if key is None else f"{key}={shown(path)}"
 
 
 def _limit(name: str, default: int) -> int:

@@ -165,3 +165,16 @@ def test_a_yaml_key_given_twice_is_refused_with_both_lines(tmp_path: Path) -> No
         read_yaml(path)
     path.write_text("fx: 1.0\nlist: [1, 1]\n")
     assert read_yaml(path) == {"fx": 1.0, "list": [1, 1]}
+
+
+@pytest.mark.parametrize("name", ["no\nsuch", "a\rb", "c\x1b[31md", "e\x7f"])
+def test_a_control_character_in_a_path_keeps_the_line_one_line(tmp_path: Path, name: str) -> None:
+    """A newline in a file's name made the error two lines; a terminal's escape coloured it."""
+    escaped = repr(name)[1:-1]
+    with pytest.raises(PathError) as missing:
+        input_file(tmp_path / name, "--gt")
+    assert str(missing.value) == (f"--gt={tmp_path}/{escaped}: does not exist; expected a file")
+    assert str(DataFormatError(name, "bad", line=3)) == f"{escaped}:3: bad"
+    assert str(NoSpaceError(name)) == f"no space left on device while writing {escaped}"
+    line = override_parse_line(f"out_dir=/r/{name}", "LexerNoViableAltException: ...")
+    assert line.isprintable() and escaped in line
