@@ -12,7 +12,9 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
+import os
 import re
+import sys
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -213,6 +215,7 @@ def given_once(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
     scientific notation is a value (:data:`NEGATIVE_NUMBER`). Every argparse console script's
     ``build_parser`` returns its parser through this."""
     parser._negative_number_matcher = NEGATIVE_NUMBER  # type: ignore[attr-defined]
+    _dash_paths_named(parser)
     for action in parser._actions:
         if isinstance(action, argparse._SubParsersAction):
             for sub in action.choices.values():
@@ -220,6 +223,54 @@ def given_once(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
         elif action.option_strings and type(action) in ONCE_KINDS:
             action.__class__ = _ONCE[type(action)]
     return parser
+
+
+_DASH_CONSEQUENCES = (
+    "the following arguments are required",
+    "expected one argument",
+    "expected at least one argument",
+    "unrecognized arguments",
+)
+"""argparse's errors that an unknown option read in place of a value leads to."""
+
+
+def _dash_paths_named(parser: argparse.ArgumentParser) -> None:
+    """A path starting with ``-`` (``uss-traj ate -gt.txt est.txt``) is read by argparse as an
+    option it does not have, and its error named what was missing instead (``the following
+    arguments are required: EST``): the error line names that path and how to write it,
+    ``-gt.txt: read as an option, and there is none of that name; write a path starting with
+    '-' as ./-gt.txt``. A token counts as such a path when it exists or holds a
+    ``.`` or ``/`` (a mistyped option, ``--verbos``, keeps argparse's own line)."""
+    parse, error = parser.parse_known_args, parser.error
+
+    def parse_known_args(args: Sequence[str] | None = None, namespace: Any = None) -> Any:
+        parser._given_args = list(sys.argv[1:] if args is None else args)  # type: ignore[attr-defined]
+        return parse(args, namespace)
+
+    def dash_error(message: str) -> Any:
+        if any(consequence in message for consequence in _DASH_CONSEQUENCES):
+            for token in getattr(parser, "_given_args", []):
+                if token == "--":
+                    break
+                if _dash_path(parser, token):
+                    message = (
+                        f"{token}: read as an option, and there is none of that name; write a "
+                        f"path starting with '-' as ./{token}"
+                    )
+                    break
+        return error(message)
+
+    parser.parse_known_args = parse_known_args  # type: ignore[method-assign]
+    parser.error = dash_error  # type: ignore[method-assign]
+
+
+def _dash_path(parser: argparse.ArgumentParser, token: str) -> bool:
+    if not token.startswith("-") or token == "-" or NEGATIVE_NUMBER.match(token):
+        return False
+    name = token.split("=", 1)[0]
+    if any(o == name or o.startswith(name) for o in parser._option_string_actions):
+        return False  # one of the parser's options, or an abbreviation of one
+    return os.path.lexists(token) or "." in token or "/" in token
 
 
 def _shown(option: str | None, values: Any) -> str:

@@ -259,3 +259,34 @@ def test_the_value_options_are_many_and_flags_and_lists_may_repeat() -> None:
 
     args = cli.build_parser().parse_args(["m.onnx", "--sequence", "a", "--sequence", "b"])
     assert [str(s) for s in args.sequence] == ["a", "b"]  # an append option
+
+
+ARGPARSE_PATHS = [  # (a path given as a word of its own, not inside a KEY=VALUE)
+    a for a in PATH_ARGS if a.prog in {p for p, _, _ in SCRIPT_PARSERS} and "{P}" in a.argv.split()
+]
+
+
+@pytest.mark.parametrize(
+    "arg",
+    ARGPARSE_PATHS,
+    ids=[f"{a.prog}-{a.name or a.key or a.argv.split()[0]}" for a in ARGPARSE_PATHS],
+)
+def test_a_path_starting_with_a_dash_is_named_with_how_to_write_it(
+    arg: PathArg, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    """argparse reads ``-x.d`` as an option it does not have, and its line named what was then
+    missing (``the following arguments are required: EST``, ``argument --plot: expected one
+    argument``), not the path."""
+    fields = {"tmp": str(tmp_path), "seq": "s", "gt": "gt.txt", "m": "m.onnx"}
+    argv = [word.format(P="-x.d", **fields) for word in arg.argv.split()]
+    monkeypatch.chdir(tmp_path)
+    code, _, err = run_console_script(arg.prog, argv, monkeypatch, capsys)
+    assert code == 2, err
+    assert (
+        err.strip()
+        .splitlines()[-1]
+        .endswith(
+            ": error: -x.d: read as an option, and there is none of that name; write a path "
+            "starting with '-' as ./-x.d"
+        )
+    ), err
