@@ -12,6 +12,8 @@ from pathlib import Path
 
 import pytest
 from hydra import compose, initialize_config_dir
+from hydra.core.global_hydra import GlobalHydra
+from hydra.core.hydra_config import HydraConfig
 
 from uss_slam.core.errors import DataFormatError, UssSlamError
 from uss_slam.core.files import write_json_atomic
@@ -350,32 +352,46 @@ def test_missing_launcher_key_is_named_before_launching(tmp_path: Path) -> None:
     ],
 )
 def test_console_script_bad_input_one_line_no_work(
-    tmp_path: Path, args: list[str], line: str
+    tmp_path: Path, args: list[str], line: str, monkeypatch: pytest.MonkeyPatch, capsys
 ) -> None:
     out = tmp_path / "out"
-    proc = subprocess.run(
-        [*PROG, f"out_dir={out}", *args], capture_output=True, text=True, cwd=tmp_path
-    )
+    monkeypatch.chdir(tmp_path)
+    proc = _in_process([f"out_dir={out}", *args], monkeypatch, capsys)
     assert proc.returncode == 1
     assert proc.stderr.strip() == line
     assert not (out / "data").exists() and not (out / "train").exists()
 
 
-def test_paper_scale_composes(tmp_path: Path) -> None:
-    proc = subprocess.run(
-        [*PROG, "scale=paper", "--cfg", "job"], capture_output=True, text=True, cwd=tmp_path
-    )
+def _in_process(
+    argv: list[str], monkeypatch: pytest.MonkeyPatch, capsys
+) -> subprocess.CompletedProcess[str]:
+    """``uss-experiments ARGV`` run in this process (as the CLI matrix runs it): one interpreter
+    start-up less per case; ``test_a_bad_count_stops_a_dry_run_before_any_output`` starts the
+    console script itself."""
+    from test_cli_matrix import run_console_script
+
+    try:
+        code, out, err = run_console_script("uss-experiments", argv, monkeypatch, capsys)
+    finally:
+        HydraConfig.instance().cfg = None
+        GlobalHydra.instance().clear()
+    return subprocess.CompletedProcess(["uss-experiments", *argv], code, out, err)
+
+
+def test_paper_scale_composes(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys) -> None:
+    monkeypatch.chdir(tmp_path)
+    proc = _in_process(["scale=paper", "--cfg", "job"], monkeypatch, capsys)
     assert proc.returncode == 0, proc.stderr
     assert "experiment: uss_slam_paper" in proc.stdout and "kind: real" in proc.stdout
     assert "scale_name: paper" in proc.stdout
 
 
-def test_dry_run_prints_the_plan_without_work(tmp_path: Path) -> None:
-    proc = subprocess.run(
-        [*PROG, f"out_dir={tmp_path}", "dry_run=true", "grid.seeds=[0]"],
-        capture_output=True,
-        text=True,
-        cwd=tmp_path,
+def test_dry_run_prints_the_plan_without_work(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    proc = _in_process(
+        [f"out_dir={tmp_path}", "dry_run=true", "grid.seeds=[0]"], monkeypatch, capsys
     )
     assert proc.returncode == 0, proc.stderr
     # source-only, AdaptSegNet n = 4..7 and T0's target oracle
