@@ -31,6 +31,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
+from uss_slam.core import job_records
 from uss_slam.core.errors import NoSpaceError, UssSlamError
 from uss_slam.core.files import no_space_errno
 from uss_slam.core.hydra_lines import (  # noqa: F401 (their home before)
@@ -414,11 +415,16 @@ def exit_on_user_error(prog: str, kinds: tuple[type[BaseException], ...] = ()) -
     adds no report of its own.
     """
     report = _report
+    worker_job = None  # a multirun job in a launcher's own process (joblib): its record
     if report is not None:
         report.started += 1
         job = _multirun_job()
         if job is not None:
             report.overrides.append(job[1])
+    else:
+        worker_job = _multirun_job()
+        if worker_job is not None:
+            job_records.record(*worker_job)
     try:
         with program(prog), signals_as_interrupts(), interrupts_kept():
             yield
@@ -449,6 +455,9 @@ def exit_on_user_error(prog: str, kinds: tuple[type[BaseException], ...] = ()) -
         line = error_line(prog, cause)
         close_open_bars()
         print(line, file=sys.stderr)
+        if worker_job is not None:  # the console script lists it; the other jobs go on
+            job_records.record(*worker_job, line=line)
+            raise JobFailed(line) from None
         job = _multirun_job() if report is not None else None
         if report is None or job is None:
             sys.exit(exit_code(cause))
@@ -509,6 +518,12 @@ def report_failed_jobs(prog: str) -> Iterator[JobReport]:
         pass
     finally:
         _report = previous
+        for job in job_records.collect():  # jobs run in a launcher's own processes
+            report.started += 1
+            overrides = tuple(str(o) for o in job["overrides"])  # type: ignore[attr-defined]
+            report.overrides.append(overrides)
+            if job["line"] is not None:
+                report.failures.append(FailedJob(int(job["num"]), overrides, str(job["line"])))  # type: ignore[call-overload]
         if report.failures:
             print(report.summary(), file=sys.stderr)
     if report.failures:

@@ -148,7 +148,9 @@ class RunFolderCheck:
 
     # Hydra calls every hook of a callback (its base class would import Hydra here)
     def on_multirun_start(self, config: Any, **kwargs: Any) -> None:
-        pass
+        from uss_slam.core import job_records
+
+        job_records.sweep_dir = str(config.hydra.sweep.dir)  # where jobs in processes report
 
     def on_multirun_end(self, config: Any, **kwargs: Any) -> None:
         pass

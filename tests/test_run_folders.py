@@ -72,3 +72,26 @@ def test_a_training_holds_its_run_folder_while_it_runs(
     assert code == 0, err
     assert seen == [True]
     assert not lock_held(run) and not list(tmp_path.glob(".*.lock"))
+
+
+def test_a_failing_job_of_a_joblib_multirun_leaves_the_others_running(
+    synthetic_sequence, tmp_path: Path
+) -> None:
+    """``hydra/launcher=joblib`` runs the jobs in worker processes: a job's user error ended its
+    worker, joblib then stopped the other jobs (a run folder with an empty ``run.log``) and no
+    list of the failed jobs came. Now as with the default launcher: the others finish, the
+    failed job is listed, exit code 1, and the jobs' records are gone."""
+    import subprocess
+    import sys
+
+    exe = Path(sys.executable).parent / "uss-slam"
+    out = tmp_path / "sweep"
+    argv = [str(exe), "-m", "hydra/launcher=joblib", f"sequence.path={synthetic_sequence()}",
+            f"out_dir={out}", "progress=false", "sequence.stride=1,50"]  # fmt: skip
+    run = subprocess.run(argv, cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    assert run.returncode == 1, run.stderr
+    lines = run.stderr.strip().splitlines()
+    assert lines[-2] == "uss-slam: 1 of 2 jobs failed:", run.stderr
+    assert lines[-1].startswith("  #1 sequence.stride=50: uss-slam: error: sequence.stride=50:")
+    assert (out / "0" / "run.json").is_file()
+    assert not (out / ".uss-jobs").exists()
