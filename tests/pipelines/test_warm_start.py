@@ -302,10 +302,13 @@ def test_scratch_ignores_the_pretraining_keys_and_paper_takes_a_file(tmp_path: P
 
 @pytest.mark.slow
 def test_quick_scale_warm_starts_every_training(tmp_path: Path) -> None:
+    """The warm start's stages (the data, the init, the trainings) and the tables; the exports
+    and SLAM runs of scale=quick are test_experiments_slow's (a warm-started training's
+    checkpoint is exported as any other)."""
     out = tmp_path / "quick"
     done = subprocess.run(
         [sys.executable, "-m", "uss_slam.pipelines.experiments.cli", f"out_dir={out}",
-         "grid.n_layers=[5]", "sequences=[walking_xyz]"],
+         "grid.n_layers=[5]", "sequences=[walking_xyz]", "stages=[data,train,tables]"],
         capture_output=True, text=True, cwd=tmp_path, timeout=1800,
     )  # fmt: skip
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
