@@ -199,13 +199,15 @@ class SlamConfig:
     delivered mask is also carried back to the keyframes made since the previous mask's keyframe
     (tracked and mapped with the stale mask), their observations inside it erased, and local BA
     around its keyframe runs again with them free (:mod:`~.systems.late_mask`). An experiment,
-    off by default (docs/results/slam.md, "a late mask refits the keyframes")."""
+    dropped by its pre-registered rule: it passed on the decision set and broke walking_xyz on
+    the confirmation set (docs/results/slam.md, "a late mask refits the keyframes")."""
     final_ba: str = ranged("none", choices=FINAL_BA)
     """With local BA: after the last frame (with ``segment=thread`` once the masks still in
     flight are delivered) one bundle adjustment of every keyframe and map point, before the
     trajectory is composed on the keyframes; an end-of-run step, not an online one. ``thread``:
     with ``segment=thread`` only; ``always``: every schedule; ``none``. An experiment, off by
-    default (docs/results/slam.md, "a late mask refits the keyframes")."""
+    default, not yet judged alone by a rule (docs/results/slam.md, "a late mask refits the
+    keyframes")."""
     semantic_nice: int = ranged(0, min=0, max=19)
     """With ``segment=thread`` and a segmenter that really runs (the wall clock): the semantic
     thread's nice value above the process's (Linux), so that tracking takes the cores first and
