@@ -11,6 +11,7 @@ is removed and the earlier file under that name stays as it was.
 from __future__ import annotations
 
 import hashlib
+import importlib.util
 import json
 import logging
 import os
@@ -377,9 +378,7 @@ def output_lock(target: str | PathLike[str], key: str | None = None) -> Iterator
     process (a driver may lock an output its own stages lock again); it is shared with the
     processes this one forks, so that a worker still writing keeps it held.
     """
-    try:
-        import fcntl
-    except ImportError:  # not POSIX: no locking
+    if importlib.util.find_spec("fcntl") is None:  # not POSIX: no locking
         yield lock_path(target)
         return
     target = Path(target)
@@ -404,6 +403,51 @@ def output_lock(target: str | PathLike[str], key: str | None = None) -> Iterator
         raise UssSlamError(
             f"{path}: the lock file of {where} is {kind}; expected a file (or none): remove it"
         )
+    # From the lock file's creation to the block that removes it, a Ctrl-C or SIGTERM waits:
+    # one arriving in between would leave the file behind.
+    from uss_slam.core.cli import interrupts_deferred, warning  # (core.cli imports this module)
+
+    fd, mine = -1, None
+    try:
+        with interrupts_deferred():
+            fd = _take_lock(path, where)
+            left = _lock_info(
+                fd
+            )  # a released lock's file is removed: content means a killed holder
+            if left:
+                warning(
+                    f"{where}: taking over the lock {path} left by pid {left.get('pid', '?')} "
+                    f"(started {left.get('started', '?')}), which ended without releasing it"
+                )
+            me = {
+                "pid": os.getpid(),
+                "host": socket.gethostname(),
+                "started": time.strftime("%Y-%m-%d %H:%M:%S"),
+            }
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, (json.dumps(me) + "\n").encode(), 0)
+            with _held_guard:
+                _held[path] = 1
+            mine = me["pid"]
+        yield path
+    finally:
+        if mine is not None:
+            with _held_guard:
+                del _held[path]
+            try:
+                if os.getpid() == mine and os.path.samestat(os.fstat(fd), os.stat(path)):
+                    path.unlink()  # before the lock is released: the next holder makes a new one
+            except FileNotFoundError:
+                pass
+        if fd >= 0:
+            os.close(fd)
+
+
+def _take_lock(path: Path, where: str) -> int:
+    """Open and ``flock`` the lock file ``path``; its descriptor. :class:`OutputInUseError`
+    while another process holds it."""
+    import fcntl
+
     while True:
         fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
         try:
@@ -417,37 +461,7 @@ def output_lock(target: str | PathLike[str], key: str | None = None) -> Iterator
         except FileNotFoundError:
             same = False
         if same:
-            break
-        os.close(fd)
-    try:
-        left = _lock_info(fd)  # a released lock's file is removed: content means a killed holder
-        if left:
-            from uss_slam.core.cli import warning  # (core.cli imports this module)
-
-            warning(
-                f"{where}: taking over the lock {path} left by pid {left.get('pid', '?')} "
-                f"(started {left.get('started', '?')}), which ended without releasing it"
-            )
-        me = {
-            "pid": os.getpid(),
-            "host": socket.gethostname(),
-            "started": time.strftime("%Y-%m-%d %H:%M:%S"),
-        }
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, (json.dumps(me) + "\n").encode(), 0)
-        with _held_guard:
-            _held[path] = 1
-        try:
-            yield path
-        finally:
-            with _held_guard:
-                del _held[path]
-            try:
-                if os.getpid() == me["pid"] and os.path.samestat(os.fstat(fd), os.stat(path)):
-                    path.unlink()  # before the lock is released: the next holder makes a new one
-            except FileNotFoundError:
-                pass
-    finally:
+            return fd
         os.close(fd)
 
 

@@ -125,6 +125,28 @@ def test_output_lock_is_reentrant_within_a_process(tmp_path: Path) -> None:
     assert not outer.exists()
 
 
+def test_ctrl_c_just_after_the_lock_file_is_made_leaves_no_lock_behind(
+    tmp_path: Path, monkeypatch
+) -> None:
+    """A Ctrl-C arriving between the lock file's creation and the block that removes it waits
+    for that block: the interrupt still stops the run, and no lock file is left beside it."""
+    target = tmp_path / "out"
+    real_open = os.open
+
+    def open_then_ctrl_c(*args, **kwargs):
+        fd = real_open(*args, **kwargs)
+        os.kill(os.getpid(), signal.SIGINT)
+        return fd
+
+    monkeypatch.setattr(os, "open", open_then_ctrl_c)
+    with pytest.raises(KeyboardInterrupt), output_lock(target):
+        pass  # the deferred Ctrl-C is raised as the lock is taken, inside its clean-up
+    monkeypatch.undo()
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+    with output_lock(target):  # free again, with no warning about an earlier holder
+        pass
+
+
 def test_a_lock_left_by_a_killed_process_is_taken_over_with_a_warning(
     tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
