@@ -183,7 +183,7 @@ def write_bytes_atomic(path: str | PathLike[str], data: bytes) -> None:
 def write_text_atomic(path: str | PathLike[str], text: str) -> None:
     """Write ``text`` to ``path`` through :func:`atomic_path` (creating the folder)."""
     with atomic_path(path) as tmp:
-        tmp.write_text(text)
+        tmp.write_text(text, encoding="utf-8")
 
 
 def write_json_atomic(path: str | PathLike[str], data: Any) -> None:
@@ -241,7 +241,7 @@ class StagedFiles:
         """Stage indented JSON with a final newline for ``final``."""
         tmp = self.path(final)
         try:
-            tmp.write_text(json.dumps(data, indent=2) + "\n")
+            tmp.write_text(json.dumps(data, indent=2) + "\n", encoding="utf-8")
         except OSError as error:
             _raise_if_no_space(error, final)
             raise
@@ -498,7 +498,7 @@ def output_owner(folder: str | PathLike[str]) -> tuple[str, str] | None:
         import yaml
 
         try:
-            app = yaml.safe_load(record.read_text())["hydra"]["help"]["app_name"]
+            app = yaml.safe_load(record.read_text(encoding="utf-8"))["hydra"]["help"]["app_name"]
         except (OSError, ValueError, yaml.YAMLError, KeyError, TypeError):
             return None
         if isinstance(app, str) and app.startswith("uss-"):

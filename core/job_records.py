@@ -31,7 +31,9 @@ def record(num: int, overrides: tuple[str, ...], line: str | None = None) -> Non
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / f"{num}.json"
     tmp = path.with_suffix(f".{os.getpid()}.tmp")
-    tmp.write_text(json.dumps({"num": num, "overrides": list(overrides), "line": line}))
+    tmp.write_text(
+        json.dumps({"num": num, "overrides": list(overrides), "line": line}), encoding="utf-8"
+    )
     os.replace(tmp, path)
 
 
@@ -44,7 +46,7 @@ def collect() -> list[dict[str, object]]:
     found = []
     for path in folder.glob("*.json") if folder.is_dir() else ():
         try:
-            found.append(json.loads(path.read_text()))
+            found.append(json.loads(path.read_text(encoding="utf-8")))
         except (OSError, ValueError):
             continue
     shutil.rmtree(folder, ignore_errors=True)

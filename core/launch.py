@@ -20,6 +20,7 @@ Imports nothing outside the standard library before the script's module.
 from __future__ import annotations
 
 import atexit
+import codecs
 import contextlib
 import importlib
 import os
@@ -173,6 +174,10 @@ def launch(prog: str) -> int | None:
         print(f"{prog} {version('uss-slam')}")
         return 0
     without_optimize()
+    in_utf8_mode()
+    # a number of more than 4300 digits is out of its key's range, which the range check says
+    # naming the key; Python's own limit would stop its conversion first with a line of its own
+    sys.set_int_max_str_digits(0)
     openmp_threads_checked(prog)
     line = address_space_line(prog) or working_folder_line(prog)
     if line is not None:  # before any import that could crash on it
@@ -284,6 +289,25 @@ def without_optimize() -> None:
 
 
 _RESTARTED = "USS_SLAM_RESTARTED_WITHOUT_OPTIMIZE"
+
+
+def in_utf8_mode() -> None:
+    """Start the script again in Python's UTF-8 mode (``PYTHONUTF8=1``, for it and the processes
+    it starts) when the locale's encoding is not UTF-8 and the mode is off: under ``LC_ALL=C``
+    with ``PYTHONUTF8=0`` a non-ASCII path arrives as undecodable bytes that no JSON record, plot
+    title or ONNX file name can hold. Python itself turns the mode on for the C locale unless
+    ``PYTHONUTF8=0`` says not to; the scripts need it whatever the locale. Once."""
+    if sys.flags.utf8_mode or os.environ.get(_RESTARTED_UTF8):
+        return
+    if codecs.lookup(sys.getfilesystemencoding()).name == "utf-8":
+        return
+    env = {**os.environ, "PYTHONUTF8": "1", _RESTARTED_UTF8: "1"}
+    if sys.stdout is not None:
+        sys.stdout.flush()
+    os.execve(sys.executable, [sys.executable, *sys.orig_argv[1:]], env)
+
+
+_RESTARTED_UTF8 = "USS_SLAM_RESTARTED_IN_UTF8_MODE"
 
 
 HYDRA_APPS = ("uss-slam", "uss-train", "uss-export", "uss-experiments")

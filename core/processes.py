@@ -175,7 +175,12 @@ def _start_time(pid: int) -> str | None:
     """The kernel's start time of ``pid`` (field 22 of ``/proc/<pid>/stat``), which tells a
     reused pid from the process; None when ``pid`` has ended (or is a zombie)."""
     try:
-        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        fields = (
+            Path(f"/proc/{pid}/stat")
+            .read_text(encoding="utf-8", errors="replace")
+            .rsplit(")", 1)[1]
+            .split()
+        )
     except OSError:
         return None
     return None if fields[0] in ("Z", "X") else fields[19]

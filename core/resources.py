@@ -32,7 +32,7 @@ MEMINFO = Path("/proc/meminfo")
 def _meminfo(name: str, meminfo: Path = MEMINFO) -> int | None:
     """The ``name`` row of ``/proc/meminfo`` in bytes (None where there is none)."""
     try:
-        for line in meminfo.read_text().splitlines():
+        for line in meminfo.read_text(encoding="utf-8").splitlines():
             key, _, rest = line.partition(":")
             if key == name:
                 return int(rest.split()[0]) * 1024
@@ -44,7 +44,7 @@ def _meminfo(name: str, meminfo: Path = MEMINFO) -> int | None:
 def _read_int(path: Path) -> int | None:
     """An integer file of the cgroup tree (None: absent, unreadable or ``max``)."""
     try:
-        text = path.read_text().strip()
+        text = path.read_text(encoding="utf-8").strip()
     except OSError:
         return None
     return int(text) if text.isdigit() else None
@@ -55,7 +55,7 @@ def _cgroup_dirs(root: Path = CGROUP, table: Path = Path("/proc/self/cgroup")) -
     (v2: ``0::/path``; v1: ``N:memory:/path``), the mount's root last."""
     dirs: list[Path] = []
     try:
-        lines = table.read_text().splitlines()
+        lines = table.read_text(encoding="utf-8").splitlines()
     except OSError:
         lines = []
     for line in lines:

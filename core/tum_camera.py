@@ -85,7 +85,7 @@ class CameraIntrinsics:
             data["depth_noise"] = float(self.depth_noise)
         if self.readout is not None:
             data["readout"] = float(self.readout)
-        Path(path).write_text(yaml.safe_dump(data, sort_keys=False))
+        Path(path).write_text(yaml.safe_dump(data, sort_keys=False), encoding="utf-8")
 
     @classmethod
     def from_yaml(cls, path: StrPath) -> CameraIntrinsics:

@@ -164,7 +164,7 @@ def write_file_list(
         raise ValueError(f"{len(stamps)} stamps but {len(files)} files")
     lines = [f"# {kind}", "# file: 'uss-slam synthetic'", "# timestamp filename"]
     lines += [f"{s:.6f} {f}" for s, f in zip(stamps, files, strict=True)]
-    Path(path).write_text("\n".join(lines) + "\n")
+    Path(path).write_text("\n".join(lines) + "\n", encoding="utf-8")
 
 
 def associate(
@@ -287,7 +287,7 @@ def write_trajectory(path: StrPath, trajectory: Trajectory, comment: str | None 
         trajectory.stamps, trajectory.positions, trajectory.quaternions, strict=True
     ):
         lines.append(f"{s:.6f} " + " ".join(f"{v:.7f}" for v in (*p, *q)))
-    Path(path).write_text("\n".join(lines) + "\n")
+    Path(path).write_text("\n".join(lines) + "\n", encoding="utf-8")
 
 
 # --------------------------------------------------------------------------- sequence folders

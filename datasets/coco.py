@@ -41,6 +41,7 @@ from pycocotools import mask as mask_utils
 from uss_slam.core.classes import CLASS_NAMES, IGNORE_INDEX, NUM_CLASSES
 from uss_slam.core.errors import DataFormatError
 from uss_slam.core.files import file_sha256, write_bytes_atomic
+from uss_slam.core.images import read_image
 from uss_slam.core.paths import read_text
 from uss_slam.core.progress import progress_bar
 from uss_slam.datasets.base import (
@@ -431,7 +432,7 @@ class COCOSegmentation(SegmentationDataset):
             return None
         index_file = self.cache / "index.json"
         try:
-            index = json.loads(index_file.read_text())
+            index = json.loads(index_file.read_text(encoding="utf-8"))
         except (OSError, ValueError):
             index = None
         if index is not None and index.get("key") == self._cache_key():
@@ -537,7 +538,10 @@ class COCOSegmentation(SegmentationDataset):
         if not entry["mapped"]:
             return np.zeros((entry["height"], entry["width"]), dtype=np.uint8)
         if self.cache is not None and self._mask_file(image_id).is_file():
-            label = cv2.imread(str(self._mask_file(image_id)), cv2.IMREAD_UNCHANGED)
+            try:  # a damaged cached mask is made again
+                label = read_image(self._mask_file(image_id), cv2.IMREAD_UNCHANGED)
+            except DataFormatError:
+                label = None
             if label is not None and label.shape == (entry["height"], entry["width"]):
                 return label
         try:

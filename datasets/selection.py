@@ -365,7 +365,7 @@ class SelectedSources(Dataset):
             return None
         path = Path(self.selection.manifest)
         try:
-            data = json.loads(path.read_text())
+            data = json.loads(path.read_text(encoding="utf-8"))
         except FileNotFoundError:
             raise DataFormatError(path, "manifest not found") from None
         except json.JSONDecodeError as error:

@@ -48,14 +48,14 @@ def read_frame_names(path: Path) -> set[str]:
         raise DataFormatError(path, "frame list not found")
     if path.suffix.lower() == ".json":
         try:
-            data = json.loads(path.read_text())
+            data = json.loads(path.read_text(encoding="utf-8"))
             return {Path(str(image["file_name"])).name for image in data["images"]}
         except json.JSONDecodeError as error:
             raise DataFormatError(path, f"not valid JSON: {error.msg}", error.lineno) from None
         except (KeyError, TypeError):
             raise DataFormatError(path, "expected a COCO JSON with images[].file_name") from None
     names: set[str] = set()
-    for number, line in enumerate(path.read_text().splitlines(), start=1):
+    for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
         fields = line.split()
         if not fields or fields[0].startswith("#"):
             continue

@@ -181,7 +181,7 @@ def _data_key(data: Path) -> str:
     record = data / synthetic_data.RECORD
     if not record.is_file():
         raise UssSlamError(f"{record}: missing; the data stage did not complete")
-    return record.read_text()
+    return record.read_text(encoding="utf-8")
 
 
 def train_overrides(
@@ -378,7 +378,9 @@ def stage_report(
 ) -> str:
     slam_dir = out / "slam"
     miou_file = out / "miou.json"
-    miou = json.loads(miou_file.read_text())["scores"] if miou_file.is_file() else {}
+    miou = (
+        json.loads(miou_file.read_text(encoding="utf-8"))["scores"] if miou_file.is_file() else {}
+    )
     rows = demo_report.summary_rows(slam_dir, VARIANTS, miou)
     table = demo_report.markdown_table(rows)
     findings = demo_report.findings(rows, demo_report.training_metrics(train_dirs.get("adapted")))
@@ -395,7 +397,10 @@ def stage_report(
     plots = ["ate_rmse.png", "trajectories.png"]
     from uss_slam.slam_eval.scoring.report import write_comparison
 
-    runs = {v.name: json.loads((slam_dir / v.name / "metrics.json").read_text()) for v in VARIANTS}
+    runs = {
+        v.name: json.loads((slam_dir / v.name / "metrics.json").read_text(encoding="utf-8"))
+        for v in VARIANTS
+    }
     write_comparison(slam_dir, runs)
     val = {name: demo_report.final_val_miou(d) for name, d in train_dirs.items()}
     summary = {
@@ -576,7 +581,7 @@ def _run_stages(
         return _stopped(progress, until, out)
     progress.run("report", "report",
                  lambda: stage_report(out, plan, seq_path, progress.times, train_dirs))  # fmt: skip
-    summary = json.loads((out / "summary.json").read_text())
+    summary = json.loads((out / "summary.json").read_text(encoding="utf-8"))
     total = time.perf_counter() - progress.start
     print(f"uss-demo: done in {total:.1f} s; report: {out / 'report.md'}")
     return summary

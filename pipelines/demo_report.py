@@ -40,7 +40,7 @@ def summary_rows(
     ``miou`` stage's scores; the oracle's labels score 1 by definition)."""
     rows = []
     for v in variants:
-        m = json.loads((slam_dir / v.name / "metrics.json").read_text())
+        m = json.loads((slam_dir / v.name / "metrics.json").read_text(encoding="utf-8"))
         ate = m["ate"] or {}
         spread = m.get("ate_rmse_repeats") or {"min": ate.get("rmse"), "max": ate.get("rmse")}
         if v.segmenter == "labels":
@@ -290,7 +290,7 @@ def training_metrics(run_dir: Path | None) -> dict[str, Any] | None:
     if run_dir is None:
         return None
     try:
-        return dict(json.loads((run_dir / "metrics.json").read_text()))
+        return dict(json.loads((run_dir / "metrics.json").read_text(encoding="utf-8")))
     except (OSError, ValueError):
         return None
 

@@ -159,7 +159,7 @@ EARLIER_CSV = ".before-resume.csv"
 def _csv_rows(path: Path) -> list[dict[str, str]]:
     if not path.is_file():
         return []
-    with open(path, newline="") as f:
+    with open(path, encoding="utf-8", newline="") as f:
         return list(csv.DictReader(f))
 
 
@@ -181,7 +181,7 @@ def _write_csv(path: Path, rows: list[dict[str, str]]) -> None:
     from uss_slam.core.files import atomic_path
 
     fields = sorted({k for r in rows for k in r})
-    with atomic_path(path) as tmp, open(tmp, "w", newline="") as f:
+    with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=fields)
         writer.writeheader()
         writer.writerows(rows)

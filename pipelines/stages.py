@@ -75,7 +75,7 @@ class Stage:
         if self.resume_from is None or self.stamp.is_file():
             return None
         try:
-            recorded = json.loads(self.started.read_text())
+            recorded = json.loads(self.started.read_text(encoding="utf-8"))
         except (OSError, json.JSONDecodeError):
             return None
         path = self.folder / self.resume_from
@@ -90,7 +90,7 @@ class Stage:
         (no readable stamp), ``"<keys> changed"`` (the top-level entries of the key that differ
         from the stamp's) or ``"<output> missing"``."""
         try:
-            recorded = json.loads(self.stamp.read_text())
+            recorded = json.loads(self.stamp.read_text(encoding="utf-8"))
         except (OSError, json.JSONDecodeError):
             return "not done yet"
         key = json.loads(json.dumps(self.key))  # compare as JSON (tuples = lists)

@@ -48,6 +48,7 @@ from PIL import Image
 
 from uss_slam.core.classes import CLASS_NAMES, voc_lut
 from uss_slam.core.errors import UssSlamError
+from uss_slam.core.images import read_image
 from uss_slam.core.paths import path_override
 from uss_slam.core.processes import pool_ending_with_parent
 from uss_slam.core.progress import progress_bar
@@ -218,7 +219,7 @@ class DemoData:
 def read_spec(root: Path) -> DemoData:
     """The spec a data set at ``root`` was rendered from, read back from its ``demo.yaml``
     (records written before ``source_outfits`` and ``shift`` existed get their defaults)."""
-    record = yaml.safe_load((Path(root) / RECORD).read_text())
+    record = yaml.safe_load((Path(root) / RECORD).read_text(encoding="utf-8"))
     return DemoData(
         seed=record["seed"],
         voc_images=record["voc_images"],
@@ -239,7 +240,7 @@ def is_complete(out: Path, spec: DemoData) -> bool:
     and every file its lists name is still there (a stage is complete only while its outputs
     exist: a frame deleted since renders the data set again)."""
     try:
-        if yaml.safe_load((Path(out) / RECORD).read_text()) != spec.record():
+        if yaml.safe_load((Path(out) / RECORD).read_text(encoding="utf-8")) != spec.record():
             return False
     except (OSError, yaml.YAMLError):
         return False
@@ -260,7 +261,9 @@ def _files_present(root: Path) -> bool:
                 return False
         for sets in sorted(root.glob("voc/**/ImageSets/Segmentation")):
             voc = sets.parents[1]
-            for name in {n for f in sets.glob("*.txt") for n in f.read_text().split()}:
+            for name in {
+                n for f in sets.glob("*.txt") for n in f.read_text(encoding="utf-8").split()
+            }:
                 if not ((voc / "JPEGImages" / f"{name}.jpg").is_file()
                         and (voc / "SegmentationClass" / f"{name}.png").is_file()):  # fmt: skip
                     return False
@@ -338,7 +341,7 @@ def render_demo_data(
     if workers < 1:
         raise UssSlamError(f"workers must be >= 1, got {workers}")
     with staged_output(out, overwrite) as tmp:
-        (tmp / RECORD).write_text(yaml.safe_dump(spec.record(), sort_keys=False))
+        (tmp / RECORD).write_text(yaml.safe_dump(spec.record(), sort_keys=False), encoding="utf-8")
         tasks = _tasks(tmp, spec)
         if workers <= 1 or len(tasks) <= 1:
             for _, fn, kwargs in tasks:
@@ -363,7 +366,7 @@ def render_demo_data(
 def _counts(labels: list[Path]) -> np.ndarray:
     counts = np.zeros(256, np.int64)
     for path in labels:
-        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        img = read_image(path, cv2.IMREAD_UNCHANGED, "a label image")
         counts += np.bincount(img.reshape(-1), minlength=256)
     return counts
 
@@ -379,8 +382,10 @@ def summarize(root: Path) -> str:
 
     voc = root / "voc" / "VOCdevkit" / "VOC2012"
     if voc.is_dir():
-        train = (voc / "ImageSets" / "Segmentation" / "train.txt").read_text().split()
-        val = (voc / "ImageSets" / "Segmentation" / "val.txt").read_text().split()
+        train = (
+            (voc / "ImageSets" / "Segmentation" / "train.txt").read_text(encoding="utf-8").split()
+        )
+        val = (voc / "ImageSets" / "Segmentation" / "val.txt").read_text(encoding="utf-8").split()
         pngs = sorted((voc / "SegmentationClass").glob("*.png"))
         counts = np.zeros(256, np.int64)
         for p in pngs:
@@ -401,8 +406,12 @@ def summarize(root: Path) -> str:
             rgb = read_file_list(seq / "rgb.txt")
             labels = sorted((seq / "labels").glob("*.png"))
             counts = _counts(labels[:: max(1, len(labels) // 20)])
-            first = cv2.imread(str(rgb.resolve(0)), cv2.IMREAD_UNCHANGED)
-            meta = (seq / "synthetic.yaml").read_text() if (seq / "synthetic.yaml").exists() else ""
+            first = read_image(rgb.resolve(0), cv2.IMREAD_UNCHANGED, "a colour image")
+            meta = (
+                (seq / "synthetic.yaml").read_text(encoding="utf-8")
+                if (seq / "synthetic.yaml").exists()
+                else ""
+            )
             style = "target" if "style: target" in meta else "source"
             lines.append(f"  {group}/{seq.name}: {len(rgb)} frames, {first.shape[1]}x{first.shape[0]}, "
                          f"{style} style; pixels: {shares(counts)}")  # fmt: skip

@@ -40,6 +40,8 @@ from typing import Any
 
 import cv2
 
+from uss_slam.core.errors import DataFormatError
+from uss_slam.core.images import read_image
 from uss_slam.core.resources import check_memory, estimate_line, gigabytes
 
 from .frontend.process import resolve_mode, ring_bytes
@@ -119,8 +121,11 @@ def image_size(path: Path) -> tuple[int, int]:
     if head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR":
         w, h = struct.unpack(">II", head[16:24])
         return int(w), int(h)
-    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    return (0, 0) if image is None else (image.shape[1], image.shape[0])
+    try:
+        image = read_image(path, cv2.IMREAD_UNCHANGED)
+    except DataFormatError:
+        return 0, 0
+    return image.shape[1], image.shape[0]
 
 
 def estimate(cfg: Any, frames: int, size: tuple[int, int]) -> SlamMemory:

@@ -90,7 +90,7 @@ def is_synth_output(folder: Path) -> bool:
         return True
     for name in ("synthetic.yaml", "demo.yaml"):
         try:
-            meta = yaml.safe_load((folder / name).read_text())
+            meta = yaml.safe_load((folder / name).read_text(encoding="utf-8"))
         except (OSError, yaml.YAMLError):
             continue
         if isinstance(meta, dict) and str(meta.get("generator", "")).startswith("uss-synth"):
@@ -126,7 +126,7 @@ _ACTIVE: set[Path] = set()
 def _owner_gone(folder: Path) -> bool:
     """True when ``folder``'s partial marker names a process of this host that no longer runs."""
     try:
-        info = json.loads((folder / PARTIAL_MARKER).read_text())
+        info = json.loads((folder / PARTIAL_MARKER).read_text(encoding="utf-8"))
         pid, host = int(info["pid"]), str(info["host"])
     except (OSError, ValueError, KeyError, TypeError):
         return False  # no marker, or not ours to judge

@@ -286,5 +286,5 @@ def render_sequence(
             "fps": FPS,
             "groundtruth_rate": GT_RATE,
         }
-        (tmp / "synthetic.yaml").write_text(yaml.safe_dump(meta, sort_keys=False))
+        (tmp / "synthetic.yaml").write_text(yaml.safe_dump(meta, sort_keys=False), encoding="utf-8")
     return Path(out_dir)

@@ -284,7 +284,7 @@ def render_voc(
         val = [n for i, n in enumerate(names) if i % VAL_EVERY == VAL_EVERY - 1]
         train = [n for i, n in enumerate(names) if i % VAL_EVERY != VAL_EVERY - 1]
         for split, items in (("train", train), ("val", val), ("trainval", names)):
-            (sets / f"{split}.txt").write_text("".join(f"{n}\n" for n in items))
+            (sets / f"{split}.txt").write_text("".join(f"{n}\n" for n in items), encoding="utf-8")
     return Path(out_dir) / "VOCdevkit" / "VOC2012"
 
 
@@ -360,5 +360,5 @@ def render_voc_frames(
         }
         if near:
             meta["near"] = float(near)
-        (tmp / "synthetic.yaml").write_text(yaml.safe_dump(meta, sort_keys=False))
+        (tmp / "synthetic.yaml").write_text(yaml.safe_dump(meta, sort_keys=False), encoding="utf-8")
     return Path(out_dir)

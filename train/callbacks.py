@@ -152,7 +152,9 @@ class ReplicaConsistencyCheck(Callback):
                     "parameters": params,
                     "buffers": buffers,
                 }
-                (self.dirpath / "replicas.json").write_text(json.dumps(record, indent=1) + "\n")
+                (self.dirpath / "replicas.json").write_text(
+                    json.dumps(record, indent=1) + "\n", encoding="utf-8"
+                )
         if len(set(params)) != 1:
             raise UssSlamError(f"DDP replicas diverged: parameter digests per rank {params}")
         if len(set(buffers)) != 1 and trainer.is_global_zero:

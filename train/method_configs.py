@@ -42,7 +42,7 @@ def method_target(name: str) -> str:
         raise UssSlamError(
             f"model/method={name}: no such method; accepted: {', '.join(method_names())}"
         )
-    node = yaml.safe_load(path.read_text()) or {}
+    node = yaml.safe_load(path.read_text(encoding="utf-8")) or {}
     for candidate in (node, node.get("method") if isinstance(node, dict) else None):
         if isinstance(candidate, dict) and isinstance(candidate.get("_target_"), str):
             return candidate["_target_"]

@@ -25,7 +25,7 @@ BF16_FLAGS = ("avx512_bf16", "amx_bf16")
 def cpu_flags(cpuinfo: Path = Path("/proc/cpuinfo")) -> set[str]:
     """The CPU's feature flags (Linux ``/proc/cpuinfo``; empty where there is none)."""
     try:
-        text = cpuinfo.read_text()
+        text = cpuinfo.read_text(encoding="utf-8")
     except OSError:
         return set()
     for line in text.splitlines():

@@ -46,7 +46,7 @@ SLAM_REPEATS = 3
 
 def default_validators() -> tuple[list[str], dict[str, Any]]:
     """The ``validators`` config group's default: ``(names, params)``."""
-    cfg = yaml.safe_load(VALIDATORS_CONFIG.read_text())
+    cfg = yaml.safe_load(VALIDATORS_CONFIG.read_text(encoding="utf-8"))
     return list(cfg["names"]), dict(cfg.get("params") or {})
 
 

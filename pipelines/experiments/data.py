@@ -164,7 +164,7 @@ def _synthetic_data(exp: Experiment, run: bool, dry: bool) -> tuple[Data, str]:
             "missing or incomplete synthetic training data (its demo.yaml is "
             "missing or records other settings); run the data stage (stages=[data,...])",
         )
-    data.train_key = record.read_text() if record.is_file() else None
+    data.train_key = record.read_text(encoding="utf-8") if record.is_file() else None
     data.target = [data.train_dir / f for f in spec.target_folders()]
     data.source_val = data.train_dir / "voc"
     data.source_val_key = data.train_key  # the VOC tree is part of the training data

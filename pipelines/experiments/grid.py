@@ -98,7 +98,9 @@ def read_shift_method_settings() -> dict[str, dict[str, tuple[str, ...]]]:
     """``{shift preset: {method: its uss-train overrides}}`` from
     ``configs/shift_method_settings.yaml`` (``grid.method_overrides`` when not given)."""
     where = f"configs/{SHIFT_METHOD_SETTINGS}"
-    node = yaml.safe_load(files("uss_slam.configs").joinpath(SHIFT_METHOD_SETTINGS).read_text())
+    node = yaml.safe_load(
+        files("uss_slam.configs").joinpath(SHIFT_METHOD_SETTINGS).read_text(encoding="utf-8")
+    )
     if not isinstance(node, dict):
         raise DataFormatError(Path(where), "expected a mapping of shift presets")
     table: dict[str, dict[str, tuple[str, ...]]] = {}

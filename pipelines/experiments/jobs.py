@@ -201,7 +201,7 @@ KINDS: dict[str, Callable[[Path, Mapping[str, Any]], dict[str, Any]]] = {
 
 def load_plan(path: Path) -> dict[str, Any]:
     try:
-        plan = json.loads(Path(path).read_text())
+        plan = json.loads(Path(path).read_text(encoding="utf-8"))
     except (OSError, json.JSONDecodeError) as error:
         raise UssSlamError(f"{path}: not a uss-experiments job plan ({error})") from None
     if not isinstance(plan, dict) or not isinstance(plan.get("cells"), dict):

@@ -111,7 +111,7 @@ def launch(exp: Experiment, stage: str, jobs: Sequence[Job], blocked: set[str]) 
 
 def _finished(exp: Experiment, stage: str, pending: Sequence[str]) -> tuple[int, int]:
     """``(done, failed)`` among the launched jobs, from their folders."""
-    plan = json.loads((exp.out / "jobs" / f"{stage}.json").read_text())["cells"]
+    plan = json.loads((exp.out / "jobs" / f"{stage}.json").read_text(encoding="utf-8"))["cells"]
     done = failed = 0
     for job_id in pending:
         if stage_of(exp.out, plan[job_id], job_id).complete():
@@ -132,7 +132,7 @@ def _run_and_watch(
     """Run the multirun (its output into ``log``), printing how many jobs finished whenever
     that changes; returns its exit code."""
     t0 = time.perf_counter()
-    with log.open("a") as out:
+    with log.open("a", encoding="utf-8") as out:
         out.write(f"$ {shlex.join(command)}\n")
         out.flush()
         # the multirun ends with this process, even after a kill -9 of it (no survivor
@@ -190,16 +190,16 @@ def status_of(
     """``(status, reason, result)`` of a job from its folder."""
     stage = stage_of(exp.out, job.spec, job.id)
     if stage.complete():
-        result = json.loads((stage.folder / RESULT).read_text())
+        result = json.loads((stage.folder / RESULT).read_text(encoding="utf-8"))
         if job.spec["kind"] == "slam":
             result["timing_ms"] = slam_timing(stage.folder / "metrics.json")
         return "ok", "", result
     failure = stage.folder / FAILURE
     if failure.is_file():
-        record = json.loads(failure.read_text())
+        record = json.loads(failure.read_text(encoding="utf-8"))
         reason = f"{record['reason']} (log: logs/{job.id}.log)"
         if (stage.folder / RESULT).is_file():  # the rerun failed: the earlier result stands
-            result = json.loads((stage.folder / RESULT).read_text())
+            result = json.loads((stage.folder / RESULT).read_text(encoding="utf-8"))
             if job.spec["kind"] == "slam":
                 result["timing_ms"] = slam_timing(stage.folder / "metrics.json")
             return "ok", KEPT + reason, result
@@ -225,7 +225,7 @@ def slam_timing(metrics: Path) -> dict[str, float]:
     """The mean wall ms per frame of a SLAM run's modules (its ``metrics.json``'s ``timing_ms``:
     ``segmentation``, ``segmentation.crf``, ``total``, ...; empty when it has none)."""
     try:
-        timing = json.loads(metrics.read_text()).get("timing_ms")
+        timing = json.loads(metrics.read_text(encoding="utf-8")).get("timing_ms")
     except (OSError, json.JSONDecodeError):
         return {}
     return dict(timing) if isinstance(timing, dict) else {}

@@ -148,7 +148,7 @@ def stage_init(exp: Experiment, data: Data, run: bool, dry: bool = False) -> str
                 )
             failure = stage.folder / FAILURE
             reason = (
-                json.loads(failure.read_text())["reason"]
+                json.loads(failure.read_text(encoding="utf-8"))["reason"]
                 if failure.is_file()
                 else "no result (killed, or its launcher failed)"
             )
@@ -156,7 +156,7 @@ def stage_init(exp: Experiment, data: Data, run: bool, dry: bool = False) -> str
                 f"pretrained init i{k} ({job.id}) failed: {reason} (log: logs/{job.id}.log); "
                 "every training starts from it"
             )
-        result = json.loads((stage.folder / RESULT).read_text())
+        result = json.loads((stage.folder / RESULT).read_text(encoding="utf-8"))
         data.init_keys[k] = str(result["init_sha256"])
         if job.id in pending:
             parts.append(f"pretrained init i{k}: trained in {_duration(result['seconds'])}")

@@ -135,7 +135,7 @@ class RunFolder:
 
     def write_text(self, path: StrPath, text: str) -> Path:
         with self.writing(path) as tmp:
-            tmp.write_text(text)
+            tmp.write_text(text, encoding="utf-8")
         return self.root / self._relative(path)
 
     def commit(self, **info: Any) -> Path:
@@ -158,7 +158,7 @@ class RunFolder:
                 "files": {name: file_sha256(self.root / name) for name in sorted(self.files)},
             }
             with atomic_path(self.root / MANIFEST, prefix=TMP_PREFIX) as tmp:
-                tmp.write_text(json.dumps(manifest, indent=2) + "\n")
+                tmp.write_text(json.dumps(manifest, indent=2) + "\n", encoding="utf-8")
         return self.root / MANIFEST
 
 
@@ -174,7 +174,7 @@ def remove_staging(root: StrPath) -> list[Path]:
 
 def _listed_files(root: Path) -> list[str]:
     try:
-        data = json.loads((root / MANIFEST).read_text())
+        data = json.loads((root / MANIFEST).read_text(encoding="utf-8"))
         files = data.get("files", {}) if isinstance(data, dict) else {}
         return [str(name) for name in files]
     except (OSError, ValueError):
@@ -234,7 +234,7 @@ def verify_run(root: StrPath) -> list[str]:
     if not manifest.is_file():
         return [f"{manifest}: missing (the run did not finish, or was killed)"]
     try:
-        data = json.loads(manifest.read_text())
+        data = json.loads(manifest.read_text(encoding="utf-8"))
         files = dict(data["files"])
         status = data["status"]
     except (OSError, ValueError, KeyError, TypeError) as err:

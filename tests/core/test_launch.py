@@ -326,3 +326,42 @@ def test_an_openmp_thread_count_openmp_takes_is_kept(value: str) -> None:
     code += "; import os; print(os.environ['OMP_NUM_THREADS'])"
     run = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
     assert (run.stdout, run.stderr) == (value + "\n", "")
+
+
+def test_a_non_ascii_path_under_the_c_locale_without_utf8_mode_is_a_normal_run(
+    tmp_path: Path,
+) -> None:
+    """``LC_ALL=C PYTHONUTF8=0``: the script starts again in UTF-8 mode, so a folder named with
+    an emoji is an ordinary path (it was written into the run's JSON record as undecodable
+    bytes: a traceback)."""
+    env = {**os.environ, "LC_ALL": "C", "PYTHONUTF8": "0"}
+    env.pop("LANG", None)
+    seq, out = tmp_path / "seq \N{GRINNING FACE}", tmp_path / "o \N{GRINNING FACE}"
+    bin_dir = Path(sys.executable).parent
+    synth = [str(bin_dir / "uss-synth"), "sequence", "--preset", "static_xyz", "--frames", "3",
+             "--size", "48x32", "--out", str(seq), "--quiet"]  # fmt: skip
+    subprocess.run(synth, check=True, env=env, capture_output=True)
+    run = subprocess.run(
+        [str(bin_dir / "uss-slam"), f"sequence.path='{seq}'", f"out_dir='{out}'", "progress=false"],
+        env=env, capture_output=True, text=True, encoding="utf-8", errors="replace",
+    )  # fmt: skip
+    assert run.returncode == 0, run.stderr
+    assert "Traceback" not in run.stderr
+    assert (out / "run.json").is_file() and (out / "metrics.json").is_file()
+
+
+def test_a_number_of_more_digits_than_python_converts_is_out_of_its_keys_range(
+    tmp_path: Path,
+) -> None:
+    """4401 digits: the range check's line naming the key, not Python's conversion limit."""
+    big = "1" + "0" * 4400
+    bin_dir = Path(sys.executable).parent
+    run = subprocess.run(
+        [str(bin_dir / "uss-experiments"), f"out_dir={tmp_path / 'x'}", "dry_run=true",
+         f"slam.repeats={big}"],
+        capture_output=True, text=True,
+    )  # fmt: skip
+    assert run.returncode == 1, run.stderr
+    assert run.stderr.startswith("uss-experiments: error: slam.repeats: expected an integer")
+    assert len(run.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "x" / "jobs").exists()  # no plan (Hydra's own record aside)

@@ -88,7 +88,7 @@ SOURCE_VAL = "source_val"
 def write_runs(path: Path, rows: Iterable[Mapping[str, Any]]) -> None:
     """``runs.csv`` with :data:`COLUMNS` (empty cell = no value)."""
     tmp = path.with_name(path.name + ".tmp")
-    with tmp.open("w", newline="") as f:
+    with tmp.open("w", newline="", encoding="utf-8") as f:
         writer = csv.DictWriter(f, fieldnames=COLUMNS, extrasaction="raise")
         writer.writeheader()
         for row in rows:
@@ -99,7 +99,7 @@ def write_runs(path: Path, rows: Iterable[Mapping[str, Any]]) -> None:
 def read_runs(path: Path) -> list[dict[str, Any]]:
     """The rows of a ``runs.csv`` with numbers as int / float and empty cells as None."""
     try:
-        text = path.read_text()
+        text = path.read_text(encoding="utf-8")
     except OSError as error:
         raise DataFormatError(path, f"cannot read runs table ({error.strerror})") from None
     reader = csv.DictReader(text.splitlines())

@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 
 from uss_slam.core.errors import UssSlamError
+from uss_slam.core.files import write_file
 from uss_slam.core.images import read_colour
 from uss_slam.core.progress import progress_bar
 
@@ -170,8 +171,10 @@ def compute_masks(
                 filled = fill_dynamic(frame.rgb, mask, "inpaint")
                 filling += time.perf_counter() - start
                 path = filled_path(fill_dir, frame.index)
-                if not cv2.imwrite(str(path), cv2.cvtColor(filled, cv2.COLOR_RGB2BGR)):
-                    raise UssSlamError(f"{path}: could not be written (the inpainted frame)")
+                ok, data = cv2.imencode(path.suffix, cv2.cvtColor(filled, cv2.COLOR_RGB2BGR))
+                if not ok:
+                    raise UssSlamError(f"{path}: could not be encoded (the inpainted frame)")
+                write_file(path, data.tobytes())  # a path in any encoding, a full disk named
     finally:
         frames.close()
     n = max(len(sequence), 1)

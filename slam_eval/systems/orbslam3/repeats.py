@@ -84,7 +84,7 @@ def drop_repeated_rows(path: Path) -> int:
     only while the state is ``LOST``, so frames in ORB-SLAM3's ``RECENTLY_LOST`` come out as
     duplicate rows. A stamp repeated with another pose is left for
     :func:`~uss_slam.core.tum_io.read_trajectory` to report."""
-    lines = path.read_text().splitlines()
+    lines = path.read_text(encoding="utf-8").splitlines()
     kept: list[str] = []
     last: list[str] | None = None
     dropped = 0
@@ -103,5 +103,5 @@ def drop_repeated_rows(path: Path) -> int:
             f"# {dropped} rows that repeated the row before (frames ORB-SLAM3 did not track) "
             "were removed"
         )
-        path.write_text("\n".join([note, *kept]) + "\n")
+        path.write_text("\n".join([note, *kept]) + "\n", encoding="utf-8")
     return dropped

@@ -193,7 +193,7 @@ def _settings_file(
         return info, info.path
     final = out / "orbslam3_settings.yaml"
     with folder.writing(final) as staged:
-        staged.write_text(settings_yaml(sequence.camera, config, fps))
+        staged.write_text(settings_yaml(sequence.camera, config, fps), encoding="utf-8")
     staged_settings = folder.current(final)
     return replace(
         check_settings(staged_settings, sequence.image_size), path=final

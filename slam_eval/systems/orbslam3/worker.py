@@ -47,7 +47,7 @@ class Job:
 def run_worker(job: Job, log_path: Path, workdir: Path, index: int) -> dict[str, Any]:
     """Run one repeat in a fresh Python process; its console output goes to ``log_path``."""
     job_path = workdir / f"job_{index}.json"
-    job_path.write_text(json.dumps(asdict(job)))
+    job_path.write_text(json.dumps(asdict(job)), encoding="utf-8")
     with open(log_path, "wb") as log_file:
         proc = subprocess.run(
             [sys.executable, "-m", "uss_slam.slam_eval.systems.orbslam3.worker", str(job_path)],
@@ -65,12 +65,16 @@ def run_worker(job: Job, log_path: Path, workdir: Path, index: int) -> dict[str,
             else f"exited with code {proc.returncode}"
         )
         raise UssSlamError(f"ORB-SLAM3 {how} in repeat {index} (log {log_path}): {tail}")
-    return json.loads(result_path.read_text())
+    return json.loads(result_path.read_text(encoding="utf-8"))
 
 
 def _last_line(path: Path) -> str:
     try:
-        lines = [ln.strip() for ln in path.read_text(errors="replace").splitlines() if ln.strip()]
+        lines = [
+            ln.strip()
+            for ln in path.read_text(encoding="utf-8", errors="replace").splitlines()
+            if ln.strip()
+        ]
     except OSError:
         return "no log"
     return lines[-1][:200] if lines else "no output"
@@ -78,7 +82,7 @@ def _last_line(path: Path) -> str:
 
 def work(job_path: str) -> None:
     """The worker process: feed every frame to ORB-SLAM3, save its trajectory and states."""
-    job = Job(**json.loads(Path(job_path).read_text()))
+    job = Job(**json.loads(Path(job_path).read_text(encoding="utf-8")))
     import pyorbslam3
 
     seq = TumSequence(job.sequence.pop("path"), **job.sequence)
@@ -137,7 +141,7 @@ def work(job_path: str) -> None:
             "blanked_fraction": blanked / (n * width * height),
             "carry_ms": 1000 * carry_s / n,
         }
-    Path(job.result).write_text(json.dumps(out))
+    Path(job.result).write_text(json.dumps(out), encoding="utf-8")
 
 
 def make_carrier(spec: dict[str, Any]):
