@@ -165,8 +165,9 @@ def image_problem(data: bytes) -> str | None:
 
 
 def read_image(path: str | PathLike[str], flags: int, what: str = "an image") -> np.ndarray:
-    """The pixels of the image file ``path`` as ``cv2.imdecode(..., flags)`` gives them, after
-    :func:`image_problem`'s check; :class:`DataFormatError` naming the file for one that is
+    """The pixels of the image file ``path`` as ``cv2.imdecode(..., flags)`` gives them, as
+    stored (a JPEG's EXIF orientation is not applied: depth and label images are aligned with
+    the stored pixels, as VOC's labels with its JPEGs), after :func:`image_problem`'s check; :class:`DataFormatError` naming the file for one that is
     missing, unreadable, damaged or not an image (``what``: what was expected)."""
     return _decode(path, _file_bytes(path, what), flags, what)
 
@@ -202,7 +203,7 @@ def _decode(path: str | PathLike[str], data: bytes, flags: int, what: str) -> np
     if data.startswith(PNG_SIGNATURE):
         data = stored(data)  # the same pixels, inflated by ISA-L: core/png_inflate.py
     try:
-        image = cv2.imdecode(np.frombuffer(data, np.uint8), flags)
+        image = cv2.imdecode(np.frombuffer(data, np.uint8), flags | cv2.IMREAD_IGNORE_ORIENTATION)
     except cv2.error as error:  # a limit of the decoder's (a JPEG's declared size, ...)
         first = (str(error).strip().splitlines() or [""])[-1].strip()
         raise DataFormatError(path, f"not a readable image ({first}); expected {what}") from None
@@ -243,11 +244,18 @@ def _read_eight_bit(path: str | PathLike[str], flags: int) -> np.ndarray:
     channel (the decoder would scale it to 8 bits without a word: a depth image listed as a
     colour frame), from the bytes read once."""
     data = _file_bytes(path, COLOUR)
-    if data.startswith(PNG_SIGNATURE) and len(data) >= 26 and data[24] == 16:
-        raise DataFormatError(
-            path, f"a 16-bit PNG (a depth image?); expected an 8-bit {COLOUR[2:]}"
-        )
+    problem = sixteen_bit_problem(data)
+    if problem:
+        raise DataFormatError(path, problem)
     return _decode(path, data, flags, COLOUR)
+
+
+def sixteen_bit_problem(head: bytes) -> str | None:
+    """Why a colour frame whose first bytes (26 or more) are ``head`` is refused: a PNG whose
+    header says 16 bits per channel; else None."""
+    if head.startswith(PNG_SIGNATURE) and len(head) >= 26 and head[24] == 16:
+        return f"a 16-bit PNG (a depth image?); expected an 8-bit {COLOUR[2:]}"
+    return None
 
 
 def read_depth(path: str | PathLike[str]) -> np.ndarray:

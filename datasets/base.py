@@ -19,7 +19,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal, TypedDict
 
-import cv2
 import numpy as np
 import torch
 from PIL import Image as PILImage
@@ -28,7 +27,7 @@ from torchvision import tv_tensors
 
 from uss_slam.core.classes import IGNORE_INDEX, NUM_CLASSES
 from uss_slam.core.errors import DataFormatError
-from uss_slam.core.images import image_problem
+from uss_slam.core.images import format_problem, image_problem, read_rgb, sixteen_bit_problem
 from uss_slam.datasets.transforms import eval_transform
 
 log = logging.getLogger(__name__)
@@ -123,18 +122,21 @@ def _truncation(path: Path, head: bytes, tail: bytes) -> str | None:
 
 
 def inspect_image(path: Path) -> tuple[int, int]:
-    """``(width, height)`` of an image file from its header, after checking it is complete.
+    """``(width, height)`` of a colour image file from its header, after checking it is
+    complete, its content the format its name says and 8 bits per channel (the checks of
+    :func:`read_image`, which reads it later).
 
     Cheap (reads the header and the last bytes, decodes no pixels); raises
-    :class:`DataFormatError` for a missing, unreadable or truncated file.
+    :class:`DataFormatError` for a missing, unreadable, truncated or mislabelled file.
     """
     try:
         with open(path, "rb") as file:
-            head = file.read(16)
+            head = file.read(32)
             file.seek(0, 2)
             file.seek(max(0, file.tell() - 64))
             tail = file.read()
-        reason = _truncation(path, head, tail)
+        reason = format_problem(path, head) or sixteen_bit_problem(head)
+        reason = reason or _truncation(path, head, tail)
         if reason:
             raise DataFormatError(path, reason)
         with PILImage.open(path) as image:
@@ -148,20 +150,10 @@ def inspect_image(path: Path) -> tuple[int, int]:
 
 
 def read_image(path: Path) -> tv_tensors.Image:
-    """An image file (JPEG / PNG, any channel count) -> ``(3, H, W)`` uint8 RGB."""
-    try:
-        data = np.fromfile(path, dtype=np.uint8)
-    except FileNotFoundError:
-        raise DataFormatError(path, "image file not found") from None
-    except OSError as error:
-        raise DataFormatError(path, f"cannot read image ({error.strerror})") from error
-    reason = image_problem(data.tobytes())  # before the decoder: it would print its own line
-    if reason:
-        raise DataFormatError(path, reason)
-    rgb = cv2.imdecode(data, cv2.IMREAD_COLOR_RGB) if data.size else None
-    if rgb is None:
-        raise DataFormatError(path, "cannot decode image (corrupt, truncated or not an image)")
-    return tv_tensors.Image(torch.from_numpy(rgb).permute(2, 0, 1))
+    """An image file (JPEG / PNG, any channel count) -> ``(3, H, W)`` uint8 RGB, read by the
+    project's one colour reader (:func:`uss_slam.core.images.read_rgb`: the file whole, its
+    content the format its name says, 8 bits per channel, the stored pixels)."""
+    return tv_tensors.Image(torch.from_numpy(read_rgb(path)).permute(2, 0, 1))
 
 
 def read_label_values(path: Path) -> np.ndarray:

@@ -20,10 +20,12 @@ from hydra.core.global_hydra import GlobalHydra
 from hydra.core.hydra_config import HydraConfig
 from test_cli_matrix import (  # noqa: F401  (world: the fixture of the shared inputs)
     EXPORT,
+    TRAIN,
     Case,
     case,
     check_case,
     nth,
+    over,
     seq_copy,
     world,
     write,
@@ -61,6 +63,28 @@ def truncated_png(folder: str, k: int):
     return change
 
 
+def png_named_jpg(k: int):
+    """Colour frame ``k`` (a PNG) renamed ``.jpg`` in ``rgb/`` and ``rgb.txt``."""
+
+    def change(seq: Path) -> None:
+        path = nth("rgb", k)(seq)
+        path.rename(path.with_suffix(".jpg"))
+        listed = seq / "rgb.txt"
+        listed.write_text(listed.read_text().replace(f"rgb/{path.name}", f"rgb/{path.stem}.jpg"))
+
+    return change
+
+
+def sixteen_bit_colour(k: int):
+    """Colour frame ``k`` rewritten as a 16-bit RGB PNG (the same picture, scaled by 257)."""
+
+    def change(seq: Path) -> None:
+        path = nth("rgb", k)(seq)
+        cv2.imwrite(str(path), cv2.imread(str(path), cv2.IMREAD_COLOR).astype("uint16") * 257)
+
+    return change
+
+
 def label_seven(k: int):
     def change(seq: Path) -> None:
         path = nth("labels", k)(seq)
@@ -82,7 +106,26 @@ SLAM_S = "sequence.path={s} out_dir={tmp}/out progress=false"
 TRUNCATED = "truncated JPEG: its image data ends without an end-of-image marker (FFD9)"
 NOT_A_CLASS = "label values 7 are not class ids; expected 0..3"
 WEBP = "its content is a WebP image, not the PNG its name says"
+PNG_AS_JPEG = "its content is a PNG image, not the JPEG its name says"
+SIXTEEN = "a 16-bit PNG (a depth image?); expected an 8-bit colour image (PNG or JPEG)"
 CASES = [
+    case("slam-png-named-jpg", "uss-slam", SLAM_S, 1, "{s}/rgb/", PNG_AS_JPEG,
+         setup=(seq_copy(png_named_jpg(3)),)),
+    case("eval-png-named-jpg", "uss-eval", "{ckpt} --sequence {s} --out {tmp}/eval", 1,
+         "{s}/rgb/", PNG_AS_JPEG, setup=(seq_copy(png_named_jpg(1)),)),
+    case("train-target-png-named-jpg", "uss-train", over(TRAIN, "data.target.roots=[{s}]"), 1,
+         "data.target.roots=", "rgb/", PNG_AS_JPEG, setup=(seq_copy(png_named_jpg(2)),)),
+    case("train-val-png-named-jpg", "uss-train", over(TRAIN, "data.val.roots=[{s}]"), 1,
+         "data.val.roots=", "rgb/", PNG_AS_JPEG, setup=(seq_copy(png_named_jpg(2)),)),
+    case("slam-16-bit-colour-frame", "uss-slam", SLAM_S, 1, "{s}/rgb/", SIXTEEN,
+         setup=(seq_copy(sixteen_bit_colour(3)),)),
+    case("eval-16-bit-colour-frame", "uss-eval", "{ckpt} --sequence {s} --out {tmp}/eval", 1,
+         "{s}/rgb/", SIXTEEN, setup=(seq_copy(sixteen_bit_colour(1)),)),
+    case("train-target-16-bit-colour-frame", "uss-train",
+         over(TRAIN, "data.target.roots=[{s}]"), 1, "data.target.roots=", "rgb/", SIXTEEN,
+         setup=(seq_copy(sixteen_bit_colour(2)),)),
+    case("train-val-16-bit-colour-frame", "uss-train", over(TRAIN, "data.val.roots=[{s}]"), 1,
+         "data.val.roots=", "rgb/", SIXTEEN, setup=(seq_copy(sixteen_bit_colour(2)),)),
     case("slam-webp-named-png", "uss-slam", SLAM_S, 1, "{s}/rgb/", WEBP,
          setup=(seq_copy(encoded_as("rgb", 3, ".webp")),)),
     case("slam-jpeg-labels-named-png", "uss-slam",

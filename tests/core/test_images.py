@@ -11,7 +11,14 @@ import numpy as np
 import pytest
 
 from uss_slam.core.errors import DataFormatError
-from uss_slam.core.images import image_problem, read_colour, read_depth, read_labels, read_rgb
+from uss_slam.core.images import (
+    image_problem,
+    read_colour,
+    read_depth,
+    read_grey,
+    read_labels,
+    read_rgb,
+)
 from uss_slam.core.paths import read_text
 
 
@@ -225,3 +232,18 @@ def test_a_palette_label_png_is_read_as_its_indices(colours: int, tmp_path: Path
     image.save(path)
     assert path.read_bytes()[25] == 3  # a palette PNG
     assert np.array_equal(read_labels(path), labels)
+
+
+def test_a_jpeg_is_read_as_stored_whatever_its_exif_orientation(tmp_path: Path) -> None:
+    """An EXIF orientation tag (6: rotate 90 degrees to display) is not applied by any of the
+    colour faces: depth and label images are aligned with the stored pixels."""
+    from PIL import Image
+
+    stored = np.random.default_rng(0).integers(0, 256, (24, 32, 3), dtype=np.uint8)
+    exif = Image.Exif()
+    exif[0x0112] = 6
+    Image.fromarray(stored).save(tmp_path / "tagged.jpg", exif=exif, quality=95)
+    Image.fromarray(stored).save(tmp_path / "plain.jpg", quality=95)
+    for read in (read_colour, read_rgb, read_grey):
+        assert np.array_equal(read(tmp_path / "tagged.jpg"), read(tmp_path / "plain.jpg"))
+    assert read_grey(tmp_path / "tagged.jpg").shape == (24, 32)

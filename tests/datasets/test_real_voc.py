@@ -97,7 +97,9 @@ def test_corrupt_and_truncated_files_name_the_file(voc: Path) -> None:
     with pytest.raises(DataFormatError, match=r"2008_000001\.jpg: truncated JPEG"):
         dataset[0]
     jpeg.write_bytes(b"not a jpeg at all")
-    with pytest.raises(DataFormatError, match=r"2008_000001\.jpg: cannot decode image"):
+    with pytest.raises(
+        DataFormatError, match=r"2008_000001\.jpg: not a readable image; expected a colour image"
+    ):
         dataset[0]
     png = voc / "SegmentationClass" / "2008_000002.png"
     intact = png.read_bytes()

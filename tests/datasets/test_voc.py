@@ -99,3 +99,21 @@ def test_label_and_image_sizes_must_match(tmp_path: Path) -> None:
         DataFormatError, match=r"a\.png: label is 32×24 but its image a\.jpg is 10×10"
     ):
         VOCSegmentation(voc)[0]
+
+
+def test_an_exif_orientation_tag_leaves_the_stored_pixels_aligned_with_the_label(
+    tmp_path: Path,
+) -> None:
+    """VOC's labels are aligned with a JPEG's stored pixels: an EXIF orientation tag (6: rotate
+    90 degrees to display) is not applied, so the 32x24 image still matches its 32x24 label."""
+    voc = write_voc(tmp_path, {"a": _label()})
+    path = voc / "JPEGImages" / "a.jpg"
+    with Image.open(path) as image:
+        stored = np.asarray(image.convert("RGB"))
+        exif = Image.Exif()
+        exif[0x0112] = 6
+        image.save(path, exif=exif, quality=95)
+    sample = VOCSegmentation(voc).load(0)
+    assert tuple(sample["image"].shape) == (3, 24, 32)
+    assert tuple(sample["label"].shape) == (24, 32)
+    assert np.abs(sample["image"].permute(1, 2, 0).numpy().astype(int) - stored).mean() < 8
