@@ -250,6 +250,18 @@ def _read_eight_bit(path: str | PathLike[str], flags: int) -> np.ndarray:
     return _decode(path, data, flags, COLOUR)
 
 
+def check_colour(path: str | PathLike[str]) -> None:
+    """Refuse the colour frame ``path`` as :func:`read_colour` would, from its bytes, without
+    decoding it (a whole sequence checked before a run's work: ~0.5 CPU ms a 640x480 PNG)."""
+    data = _file_bytes(path, COLOUR)
+    problem = sixteen_bit_problem(data)
+    if problem:
+        raise DataFormatError(path, problem)
+    problem = (image_problem(data) or format_problem(path, data)) if data else "empty file"
+    if problem:
+        raise DataFormatError(path, f"{problem}; expected {COLOUR}")
+
+
 def sixteen_bit_problem(head: bytes) -> str | None:
     """Why a colour frame whose first bytes (26 or more) are ``head`` is refused: a PNG whose
     header says 16 bits per channel; else None."""

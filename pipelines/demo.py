@@ -147,14 +147,14 @@ ADABN = "adabn"
 
 def check_sequence(path: Path, option: str) -> None:
     """Everything the SLAM, mIoU and report stages read from a sequence, checked up front:
-    a TUM RGB-D folder with ``labels/`` for every frame and a ``groundtruth.txt``."""
+    a TUM RGB-D folder, whole 8-bit colour frames, ``labels/`` for each, a ``groundtruth.txt``."""
     from uss_slam.core.tum_io import read_trajectory
     from uss_slam.slam_eval.sequence import TumSequence
 
     if not path.is_dir():
         raise UssSlamError(f"{option}: {path} is not a folder")
     try:
-        TumSequence(path, load_labels=True)
+        TumSequence(path, load_labels=True).check_colour_frames()
         if not (path / "groundtruth.txt").is_file():
             raise UssSlamError(f"{path / 'groundtruth.txt'}: not found (the demo reports ATE)")
         if len(read_trajectory(path / "groundtruth.txt")) < 2:

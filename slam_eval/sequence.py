@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 
 from uss_slam.core.errors import DataFormatError, UssSlamError
-from uss_slam.core.images import read_depth, read_grey, read_rgb
+from uss_slam.core.images import check_colour, read_depth, read_grey, read_rgb
 from uss_slam.core.images import read_labels as read_label_image
 from uss_slam.core.tum_io import (
     StrPath,
@@ -148,6 +148,13 @@ class TumSequence:
     def stamps(self) -> np.ndarray:
         """``(N,)`` colour stamps of the selected frames, seconds."""
         return np.array([r.stamp for r in self.records])
+
+    def check_colour_frames(self) -> None:
+        """Refuse the first colour frame that is not whole, not what its name says or 16-bit,
+        from the files' bytes (no decoding): for a caller about to spend minutes before its
+        SLAM run reads them (``uss-demo``)."""
+        for record in self.records:
+            check_colour(record.rgb_path)
 
     def load(self, index: int) -> Frame:
         """Read frame ``index`` from disk, checking formats and sizes (errors name the file)."""

@@ -108,6 +108,7 @@ NOT_A_CLASS = "label values 7 are not class ids; expected 0..3"
 WEBP = "its content is a WebP image, not the PNG its name says"
 PNG_AS_JPEG = "its content is a PNG image, not the JPEG its name says"
 SIXTEEN = "a 16-bit PNG (a depth image?); expected an 8-bit colour image (PNG or JPEG)"
+DEMO_S = "--out {tmp}/demo --experiment ci --sequence {s} --quiet"
 CASES = [
     case("slam-png-named-jpg", "uss-slam", SLAM_S, 1, "{s}/rgb/", PNG_AS_JPEG,
          setup=(seq_copy(png_named_jpg(3)),)),
@@ -117,6 +118,8 @@ CASES = [
          "data.target.roots=", "rgb/", PNG_AS_JPEG, setup=(seq_copy(png_named_jpg(2)),)),
     case("train-val-png-named-jpg", "uss-train", over(TRAIN, "data.val.roots=[{s}]"), 1,
          "data.val.roots=", "rgb/", PNG_AS_JPEG, setup=(seq_copy(png_named_jpg(2)),)),
+    case("demo-sequence-png-named-jpg", "uss-demo", DEMO_S, 1, "rgb/", PNG_AS_JPEG,
+         setup=(seq_copy(png_named_jpg(2)),)),
     case("slam-16-bit-colour-frame", "uss-slam", SLAM_S, 1, "{s}/rgb/", SIXTEEN,
          setup=(seq_copy(sixteen_bit_colour(3)),)),
     case("eval-16-bit-colour-frame", "uss-eval", "{ckpt} --sequence {s} --out {tmp}/eval", 1,
@@ -126,6 +129,8 @@ CASES = [
          setup=(seq_copy(sixteen_bit_colour(2)),)),
     case("train-val-16-bit-colour-frame", "uss-train", over(TRAIN, "data.val.roots=[{s}]"), 1,
          "data.val.roots=", "rgb/", SIXTEEN, setup=(seq_copy(sixteen_bit_colour(2)),)),
+    case("demo-sequence-16-bit-colour-frame", "uss-demo", DEMO_S, 1, "rgb/", SIXTEEN,
+         setup=(seq_copy(sixteen_bit_colour(2)),)),
     case("slam-webp-named-png", "uss-slam", SLAM_S, 1, "{s}/rgb/", WEBP,
          setup=(seq_copy(encoded_as("rgb", 3, ".webp")),)),
     case("slam-jpeg-labels-named-png", "uss-slam",
