@@ -155,13 +155,12 @@ def check_sequence(path: Path, option: str) -> None:
         raise UssSlamError(f"{option}: {path} is not a folder")
     try:
         TumSequence(path, load_labels=True).check_colour_frames()
-        if not (path / "groundtruth.txt").is_file():
-            raise UssSlamError(f"{path / 'groundtruth.txt'}: not found (the demo reports ATE)")
-        if len(read_trajectory(path / "groundtruth.txt")) < 2:
-            raise UssSlamError(
-                f"{path / 'groundtruth.txt'}: expected at least 2 poses "
-                "'timestamp tx ty tz qx qy qz qw' (the demo reports ATE)"
-            )
+        gt = path / "groundtruth.txt"
+        if not gt.is_file():
+            raise UssSlamError(f"{gt}: not found (the demo reports ATE)")
+        if len(read_trajectory(gt)) < 2:
+            raise UssSlamError(f"{gt}: expected at least 2 poses 'timestamp tx ty tz qx qy qz qw' "
+                               "(the demo reports ATE)")  # fmt: skip
     except UssSlamError as error:
         raise UssSlamError(f"{option}: {error}") from error
 
@@ -182,6 +181,10 @@ def _data_key(data: Path) -> str:
     if not record.is_file():
         raise UssSlamError(f"{record}: missing; the data stage did not complete")
     return record.read_text(encoding="utf-8")
+
+
+def _json(path: Path) -> Any:  # a JSON record the demo wrote
+    return json.loads(path.read_text(encoding="utf-8"))
 
 
 def train_overrides(
@@ -378,9 +381,7 @@ def stage_report(
 ) -> str:
     slam_dir = out / "slam"
     miou_file = out / "miou.json"
-    miou = (
-        json.loads(miou_file.read_text(encoding="utf-8"))["scores"] if miou_file.is_file() else {}
-    )
+    miou = _json(miou_file)["scores"] if miou_file.is_file() else {}
     rows = demo_report.summary_rows(slam_dir, VARIANTS, miou)
     table = demo_report.markdown_table(rows)
     findings = demo_report.findings(rows, demo_report.training_metrics(train_dirs.get("adapted")))
@@ -397,10 +398,7 @@ def stage_report(
     plots = ["ate_rmse.png", "trajectories.png"]
     from uss_slam.slam_eval.scoring.report import write_comparison
 
-    runs = {
-        v.name: json.loads((slam_dir / v.name / "metrics.json").read_text(encoding="utf-8"))
-        for v in VARIANTS
-    }
+    runs = {v.name: _json(slam_dir / v.name / "metrics.json") for v in VARIANTS}
     write_comparison(slam_dir, runs)
     val = {name: demo_report.final_val_miou(d) for name, d in train_dirs.items()}
     summary = {
@@ -417,15 +415,10 @@ def stage_report(
     demo_report.write_report(
         out / "report.md",
         title=f"{sequence.name} (experiment `{plan.experiment}`)",
-        slam_seed=plan.data.slam_seed,
-        slam_repeats=plan.slam_repeats,
-        miou_stride=plan.miou_stride,
-        table=table,
-        findings=findings,
-        val=val,
-        variants=VARIANTS,
-        times=times,
-    )
+        slam_seed=plan.data.slam_seed, slam_repeats=plan.slam_repeats,
+        miou_stride=plan.miou_stride, table=table, findings=findings, val=val,
+        variants=VARIANTS, times=times,
+    )  # fmt: skip
     print(f"\n{table}\n")
     for finding in findings:
         print(finding)
@@ -581,7 +574,7 @@ def _run_stages(
         return _stopped(progress, until, out)
     progress.run("report", "report",
                  lambda: stage_report(out, plan, seq_path, progress.times, train_dirs))  # fmt: skip
-    summary = json.loads((out / "summary.json").read_text(encoding="utf-8"))
+    summary = _json(out / "summary.json")
     total = time.perf_counter() - progress.start
     print(f"uss-demo: done in {total:.1f} s; report: {out / 'report.md'}")
     return summary
