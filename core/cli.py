@@ -35,6 +35,7 @@ from uss_slam.core import job_records
 from uss_slam.core.errors import NoSpaceError, UssSlamError
 from uss_slam.core.files import no_space_errno
 from uss_slam.core.hydra_lines import (  # noqa: F401 (their home before)
+    adding_refused_over_any_key,
     home_expanded_argv,
     hydra_error_line,
     hydra_switch_line,
@@ -547,7 +548,7 @@ def run_hydra_app(prog: str, app: Callable[[], object]) -> None:
         sys.exit(1)
     try:
         with (program(prog), signals_as_interrupts(), report_failed_jobs(prog) as report,
-              hydra_switch_texts(prog, sys.argv[1:])):  # fmt: skip
+              hydra_switch_texts(prog, sys.argv[1:]), adding_refused_over_any_key()):  # fmt: skip
             app()
     except KeyboardInterrupt as interrupt:  # before the app's own handling (composition)
         sys.exit(report_interrupt(prog, interrupt))

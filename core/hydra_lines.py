@@ -360,3 +360,47 @@ def _home_expanded_value(value: str) -> str:
     inner = value[1:-1] if quote else value
     expanded = home_expanded(inner)
     return value if expanded == inner else hydra_quoted(expanded)
+
+
+@contextlib.contextmanager
+def adding_refused_over_any_key() -> Iterator[None]:
+    """``+key=value`` refused for every key the config already has, around a Hydra app's run.
+
+    Hydra refuses ``+key=`` over a key with a value (``Could not append to config. An item is
+    already at 'key'``, with the ``key=`` and ``++key=`` to write instead) but takes it over a
+    key whose value is null or ``???`` and merges a list or mapping value into one (``+name=q``,
+    ``+stages=[data]``): the same text for those, so every key refuses the ``+`` alike. The
+    overrides are applied in their order, so ``~key +key=value`` still replaces a section."""
+    from hydra._internal.config_loader_impl import ConfigLoaderImpl
+    from hydra.errors import ConfigCompositionException
+
+    original = ConfigLoaderImpl.__dict__["_apply_overrides_to_config"]
+    apply = original.__func__
+
+    def each_in_turn(overrides: list, cfg: object) -> None:
+        for override in overrides:
+            if override.is_add() and _has_key(cfg, override.key_or_group):
+                key, line = override.key_or_group, override.input_line
+                raise ConfigCompositionException(
+                    f"Could not append to config. An item is already at '{key}'.\n"
+                    f"Either remove + prefix: '{line[1:]}'\n"
+                    f"Or add a second + to add or override '{key}': '+{line}'"
+                )
+            apply([override], cfg)
+
+    ConfigLoaderImpl._apply_overrides_to_config = staticmethod(each_in_turn)  # type: ignore[method-assign]
+    try:
+        yield
+    finally:
+        ConfigLoaderImpl._apply_overrides_to_config = original  # type: ignore[method-assign]
+
+
+def _has_key(cfg: object, key: str) -> bool:
+    """Whether ``cfg`` holds ``key`` (dotted), whatever its value (null and ``???`` included)."""
+    from omegaconf import DictConfig, OmegaConf
+
+    parent_key, _, last = key.rpartition(".")
+    parent = OmegaConf.select(cfg, parent_key, throw_on_missing=False) if parent_key else cfg  # type: ignore[arg-type]
+    return isinstance(parent, DictConfig) and last in list(
+        parent
+    )  # its ??? keys too (in omits them)

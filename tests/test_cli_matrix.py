@@ -2136,3 +2136,52 @@ def test_the_cases_have_distinct_ids_and_cover_every_console_script() -> None:
     assert len({c.id for c in CASES}) == len(CASES)
     for prog in ENTRY_POINTS:
         assert sum(c.prog == prog for c in CASES) >= 8, prog
+
+
+def _present_keys(cfg: Any) -> dict[str, tuple[str, Any]]:
+    """The first key of ``cfg`` (depth first) of each kind of value: null, ``???``, a list, a
+    bool or a number -> ``(key, value)``. Hydra's own ``+key`` check missed the first three."""
+    from omegaconf import OmegaConf
+
+    found: dict[str, tuple[str, Any]] = {}
+
+    def walk(node: Any, prefix: str) -> None:
+        for name, value in node.items():
+            key = f"{prefix}{name}"
+            if isinstance(value, dict):
+                walk(value, f"{key}.")
+                continue
+            kind = ("null" if value is None else "missing" if value == "???" else
+                    "list" if isinstance(value, list) and all(
+                        isinstance(v, (bool, int, float)) or (isinstance(v, str) and v.isalnum())
+                        for v in value) else
+                    "scalar" if isinstance(value, (bool, int, float)) else None)  # fmt: skip
+            if kind is not None and not str(name).startswith("_"):
+                found.setdefault(kind, (key, value))
+
+    walk({k: v for k, v in OmegaConf.to_container(cfg, resolve=False).items() if k != "hydra"}, "")
+    return found
+
+
+@pytest.mark.parametrize("prog", list(CHECKERS))
+def test_adding_a_key_the_config_has_is_refused(
+    prog: str, checkers, world: dict[str, Path], tmp_path: Path, monkeypatch, capsys
+) -> None:
+    """``+key=value`` for a key of ``prog``'s composed config, one of each kind of value (null,
+    ``???`` where it has one, a list, a plain value): exit 1, one line naming the key and the ``key=`` and
+    ``++key=`` to write instead, nothing written: alike in every Hydra script."""
+    base, setup = SAMPLE_BASE[prog]
+    cfg, _, _ = checkers[prog]
+    present = _present_keys(cfg)
+    assert {"null", "list", "scalar"} <= set(present), present
+    for kind, (key, value) in sorted(present.items()):
+        folder = tmp_path / kind
+        folder.mkdir()
+        added = _override(key, value, "unknown")
+        says = (f"An item is already at '{key}'", f"remove + prefix: '{added[1:]}'", f"'+{added}'")
+        try:
+            check_case(Case(f"{prog}-added-{kind}", prog, tuple(over(base, added).split()), 1,
+                            says, setup=setup), world, folder, monkeypatch, capsys)  # fmt: skip
+        finally:
+            HydraConfig.instance().cfg = None
+            GlobalHydra.instance().clear()
