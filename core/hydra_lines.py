@@ -401,6 +401,4 @@ def _has_key(cfg: object, key: str) -> bool:
 
     parent_key, _, last = key.rpartition(".")
     parent = OmegaConf.select(cfg, parent_key, throw_on_missing=False) if parent_key else cfg  # type: ignore[arg-type]
-    return isinstance(parent, DictConfig) and last in list(
-        parent
-    )  # its ??? keys too (in omits them)
+    return isinstance(parent, DictConfig) and last in list(parent)  # ``in`` omits ??? keys
