@@ -21,13 +21,15 @@ from ..optim.pose import CHI2_MONO, CHI2_STEREO, chi2, observations, optimise_po
 class SamplingSettings:
     """How pose hypotheses are drawn and refined: ``sampler`` ``ransac`` | ``prosac``,
     ``ransac_iterations``, ``ransac_threshold`` (px), ``refine_rounds`` of the refinement,
-    ``rgbd_refinement`` (depth residuals too)."""
+    ``rgbd_refinement`` (depth residuals too), ``pose_tolerance`` (the refinement's
+    convergence step, metres and radians)."""
 
     sampler: str = "ransac"
     ransac_iterations: int = 100
     ransac_threshold: float = 3.0
     refine_rounds: int = 4
     rgbd_refinement: bool = True
+    pose_tolerance: float = 1e-7
 
 
 class PoseSampler:
@@ -192,8 +194,9 @@ class PoseSampler:
                 break
             if cfg.rgbd_refinement:
                 pose_cw = optimise_pose(
-                    self.k, self.bf, pose_cw, world[inl], obs[inl], stereo[inl], inv_sigma2[inl]
-                )
+                    self.k, self.bf, pose_cw, world[inl], obs[inl], stereo[inl], inv_sigma2[inl],
+                    tolerance=cfg.pose_tolerance,
+                )  # fmt: skip
             else:
                 rvec, tvec = to_rvec(pose_cw)
                 rvec, tvec = cv2.solvePnPRefineLM(
@@ -238,7 +241,7 @@ class PoseSampler:
                 break
             pose = optimise_pose(
                 self.k, self.bf, start, world[inl], obs[inl], stereo[inl], inv_sigma2[inl],
-                robust=round_ < 3,
+                robust=round_ < 3, tolerance=self.config.pose_tolerance,
             )  # fmt: skip
             inl = self.inliers(world, obs, stereo, inv_sigma2, pose)
         return pose, inl

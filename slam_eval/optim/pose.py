@@ -36,6 +36,7 @@ def optimise_pose(
     inv_sigma2: np.ndarray,
     iterations: int = 10,
     robust: bool = True,
+    tolerance: float = 1e-7,
 ) -> np.ndarray:
     """Gauss–Newton refinement of ``pose_cw`` (4, 4) on the given observations.
 
@@ -44,6 +45,9 @@ def optimise_pose(
     ``(r_x, r_y, r_z)`` has, for a left perturbation ``xi = (rho, phi)`` (``dp/dxi = [I | -[p]x]``),
     the Jacobian ``(r_x, r_y, r_z, y r_z - z r_y, z r_x - x r_z, x r_y - y r_x)``, written out
     per column so that no per-observation matrices are built.
+
+    The iterations stop early once a step moves the pose by less than ``tolerance`` in every
+    component (metres, radians).
     """
     fx, fy, cx, cy = k[0, 0], k[1, 1], k[0, 2], k[1, 2]
     world = np.asarray(world, dtype=np.float64)
@@ -95,7 +99,7 @@ def optimise_pose(
         update[:3, :3] = cv2.Rodrigues(step[3:].reshape(3, 1))[0]
         update[:3, 3] = step[:3]
         pose = update @ pose
-        if np.abs(step).max() < 1e-7:  # sub-micrometre / sub-microradian: converged
+        if np.abs(step).max() < tolerance:  # converged
             break
     return pose
 

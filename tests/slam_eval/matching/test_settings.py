@@ -20,3 +20,10 @@ def test_the_matching_settings_are_the_trackers() -> None:
     assert tracker.projection.config == MatchThresholds(64, 0.6, True)
     assert tracker.sampler.config == SamplingSettings("prosac", 100, 3.0, 2, True)
     assert tracker.projection.map is tracker.map
+
+
+def test_the_pose_tolerance_reaches_the_refinement() -> None:
+    ex = OrbExtractor(OrbConfig(), TUM_CAMERAS["fr3"].scaled(320, 240))
+    tracker = Tracker(TrackerConfig(pose_tolerance=1e-5), ex)
+    assert tracker.sampler.config.pose_tolerance == 1e-5
+    assert SamplingSettings().pose_tolerance == TrackerConfig().pose_tolerance == 1e-7

@@ -112,3 +112,19 @@ def test_the_solve_is_numpys_bit_for_bit_and_a_singular_system_stops() -> None:
     none = slice(0, 0)  # no observation: the normal matrix is all zeros
     same = optimise_pose(K, BF, pose_cw, world[none], obs[none], stereo[none], np.ones(0))
     np.testing.assert_array_equal(same, pose_cw)
+
+
+def test_the_tolerance_stops_the_steps_early() -> None:
+    """A step smaller than ``tolerance`` in every component is the last one: a tolerance above
+    the first step's size stops after it, as one iteration does; the default goes on."""
+    _, truth, world, uv, depth = _scene(0)
+    obs, stereo = observations(uv, depth, BF)
+    start = _pose([0.07, -0.12, 0.0], [0.13, -0.02, 0.25])  # ~0.06 m and ~0.03 rad off
+    ones = np.ones(len(uv))
+    one_step = optimise_pose(K, BF, start, world, obs, stereo, ones, iterations=1)
+    loose = optimise_pose(K, BF, start, world, obs, stereo, ones, tolerance=1.0)
+    default = optimise_pose(K, BF, start, world, obs, stereo, ones)
+    assert np.array_equal(loose, one_step)
+    assert _errors(truth, default)[0] < 1e-6 < _errors(truth, one_step)[0]
+    assert np.array_equal(optimise_pose(K, BF, start, world, obs, stereo, ones, tolerance=1e-7),
+                          default)  # fmt: skip
