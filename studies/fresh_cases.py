@@ -51,6 +51,7 @@ from fresh_setups5 import FIFTH
 from fresh_setups6 import SIXTH
 from fresh_setups7 import DEEP_OK, SEVENTH
 from fresh_setups8 import EIGHTH, PARTS
+from fresh_setups9 import NINTH
 
 from uss_slam.testing.machine import cpu_model
 
@@ -60,6 +61,7 @@ SETUPS.update(FIFTH)
 SETUPS.update(SIXTH)
 SETUPS.update(SEVENTH)
 SETUPS.update(EIGHTH)
+SETUPS.update(NINTH)
 
 HERE = Path(__file__).resolve().parent
 CASES = HERE / "fresh_cases.txt"
