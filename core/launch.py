@@ -108,7 +108,8 @@ def address_space_line(prog: str) -> str | None:
 
 
 class _Terminated(KeyboardInterrupt):
-    """SIGTERM or SIGHUP while the script's module is imported (raised by :func:`_on_sigterm`)."""
+    """SIGTERM, SIGHUP or SIGQUIT while the script's module is imported (raised by
+    :func:`_on_sigterm`)."""
 
     def __init__(self, signum: int = signal.SIGTERM) -> None:
         super().__init__(signal.Signals(signum).name)
@@ -119,9 +120,9 @@ def _on_sigterm(signum: int, frame: object) -> None:
     raise _Terminated(signum)
 
 
-TERMINATING = (signal.SIGTERM, signal.SIGHUP)
+TERMINATING = (signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT)
 """The signals besides Ctrl-C that stop a script with its one line (``kill``; the terminal
-closed)."""
+closed; Ctrl-\\, which Python leaves to the kernel's default: a core dump, no cleanup)."""
 
 
 def openmp_threads_checked(prog: str) -> None:

@@ -110,6 +110,7 @@ def _start_pool_worker(parent: int, sig: int) -> None:
     gc.freeze()
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGQUIT, signal.SIG_IGN)  # Ctrl-\ too reaches the terminal's group
     die_with_parent(parent, sig)
 
 

@@ -19,11 +19,13 @@ from hydra.core.hydra_config import HydraConfig
 
 from uss_slam.synthetic import render_sequence, render_voc
 
-# A shell starts a background job (`make test &`, `nohup ...`) with Ctrl-C ignored, and the
-# console scripts the tests start inherit that: the interrupt tests would then see no
+# A shell starts a background job (`make test &`, `nohup ...`) with Ctrl-C and Ctrl-\ ignored,
+# and the console scripts the tests start inherit that: the interrupt tests would then see no
 # interrupt. Python's own handler is reset to the default in every child, as in a terminal.
 if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
     signal.signal(signal.SIGINT, signal.default_int_handler)
+if signal.getsignal(signal.SIGQUIT) is signal.SIG_IGN:
+    signal.signal(signal.SIGQUIT, signal.SIG_DFL)
 
 SequenceFactory = Callable[..., Path]
 VocFactory = Callable[..., Path]

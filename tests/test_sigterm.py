@@ -33,7 +33,11 @@ from test_cli_matrix import (  # noqa: F401 (world: the matrix's fixture)
 
 from uss_slam.core.cli import INTERRUPTED, TERMINATED
 
-SIGNALS = {"SIGINT": (signal.SIGINT, INTERRUPTED), "SIGTERM": (signal.SIGTERM, TERMINATED)}
+SIGNALS = {
+    "SIGINT": (signal.SIGINT, INTERRUPTED),
+    "SIGTERM": (signal.SIGTERM, TERMINATED),
+    "SIGQUIT": (signal.SIGQUIT, 128 + signal.SIGQUIT),  # Ctrl-\: as SIGTERM, not a core dump
+}
 BIN = Path(sys.executable).parent
 
 
@@ -41,7 +45,7 @@ def expected_line(line: str, sig: int) -> str:
     """The matrix's Ctrl-C line as it reads after ``sig``."""
     if sig == signal.SIGINT:
         return line
-    return line.replace(": interrupted", ": interrupted (SIGTERM)", 1)
+    return line.replace(": interrupted", f": interrupted ({signal.Signals(sig).name})", 1)
 
 
 def signal_after(monkeypatch: pytest.MonkeyPatch, target: str, calls: int, sig: int) -> None:

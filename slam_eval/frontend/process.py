@@ -415,9 +415,9 @@ def _serve(
     behind: int,
 ) -> None:
     """The worker process: read and extract every frame in order into the ring, until done,
-    told to stop, or the parent is gone; read its depth too when at most ``behind`` slots are
-    free (:func:`_main_is_behind`)."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
+    told to stop, or the parent is gone; its depth too when at most ``behind`` slots are free."""
+    for sig in (signal.SIGINT, signal.SIGQUIT):  # Ctrl-C and Ctrl-\ are the parent's to handle
+        signal.signal(sig, signal.SIG_IGN)
     if hasattr(signal, "pthread_sigmask"):
         signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})  # blocked by _starting
     signal.signal(signal.SIGTERM, signal.SIG_DFL)

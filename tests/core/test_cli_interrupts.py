@@ -104,6 +104,23 @@ def test_sighup_is_an_interrupt_named_in_the_line(capsys) -> None:
     assert capsys.readouterr().err.splitlines() == ["uss-x: interrupted (SIGHUP)"]
 
 
+def test_sigquit_is_an_interrupt_named_in_the_line(capsys) -> None:
+    """Ctrl-\\ (SIGQUIT), whose default is to die at once with a core dump: SIGTERM's
+    contract, the same cleanup, exit code 131."""
+    import os
+    import signal
+
+    before = signal.signal(signal.SIGQUIT, signal.SIG_DFL)
+    try:
+        with pytest.raises(SystemExit) as stop, exit_on_user_error("uss-x"):
+            os.kill(os.getpid(), signal.SIGQUIT)
+        assert signal.getsignal(signal.SIGQUIT) is signal.SIG_DFL  # restored
+    finally:
+        signal.signal(signal.SIGQUIT, before)
+    assert stop.value.code == 131
+    assert capsys.readouterr().err.splitlines() == ["uss-x: interrupted (SIGQUIT)"]
+
+
 def test_a_deferred_step_finishes_before_sigterm_takes_effect() -> None:
     import os
     import signal

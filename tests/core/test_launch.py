@@ -137,11 +137,12 @@ def test_other_errors_keep_their_traceback(monkeypatch: pytest.MonkeyPatch) -> N
 
 
 @pytest.mark.parametrize(("error", "code", "line"), [
-    (KeyboardInterrupt, 130, "uss-export: interrupted"),
-    (launch._Terminated, 143, "uss-export: interrupted (SIGTERM)"),
+    (KeyboardInterrupt(), 130, "uss-export: interrupted"),
+    (launch._Terminated(), 143, "uss-export: interrupted (SIGTERM)"),
+    (launch._Terminated(signal.SIGQUIT), 131, "uss-export: interrupted (SIGQUIT)"),
 ])  # fmt: skip
 def test_an_interrupt_during_the_imports_is_the_one_line(
-    monkeypatch, capsys, error: type, code: int, line: str
+    monkeypatch, capsys, error: BaseException, code: int, line: str
 ) -> None:
     """Ctrl-C or SIGTERM while the script's libraries load (seconds on a busy machine): the
     same line and exit code as later in the run, no import traceback."""
@@ -198,7 +199,8 @@ launch._entry("uss-late")()
 
 
 @pytest.mark.parametrize(("sig", "code"), [(signal.SIGHUP, 0), (signal.SIGINT, 0),
-                                           (signal.SIGTERM, 1), (None, 0)])  # fmt: skip
+                                           (signal.SIGTERM, 1), (signal.SIGQUIT, 0),
+                                           (None, 0)])  # fmt: skip
 def test_a_signal_after_the_work_is_done_is_one_line_and_kills_nothing(
     sig: signal.Signals | None, code: int
 ) -> None:
