@@ -45,7 +45,14 @@ from uss_slam.core.hydra_lines import (  # noqa: F401 (their home before)
     repeated_override_line,
 )
 from uss_slam.core.launch import TERMINATING, close_open_bars
-from uss_slam.core.run_folders import RefusedRunFolder, RunFolderCheck, release_run_folders
+from uss_slam.core.run_folders import (
+    RefusedRunFolder,
+    RunFolderCheck,
+    forget_run_folders,
+    release_run_folders,
+    started_folder_again,
+    undo_hydra_records,
+)
 
 __all__ = ["RefusedRunFolder", "RunFolderCheck"]  # (configs name core.cli.RunFolderCheck)
 
@@ -494,6 +501,7 @@ def hydra_task(prog: str, task: Callable[[Any], T], cfg: Any) -> T | None:
 
     try:
         with exit_on_user_error(prog, (OmegaConfBaseException,)):
+            started_folder_again(prog)  # hydra.job.chdir=true: relative paths as without it
             check_interpolations(cfg)  # ${oc.env:X} unset: one line naming its key
             return task(cfg)
     except JobFailed:
@@ -546,10 +554,15 @@ def run_hydra_app(prog: str, app: Callable[[], object]) -> None:
     if repeated is not None:
         print(f"{prog}: error: {repeated}", file=sys.stderr)
         sys.exit(1)
+    done = False  # else Hydra's record of the run is undone: a refused run writes nothing
     try:
         with (program(prog), signals_as_interrupts(), report_failed_jobs(prog) as report,
               hydra_switch_texts(prog, sys.argv[1:]), adding_refused_over_any_key()):  # fmt: skip
             app()
+        done = True
+    except SystemExit as stop:
+        done = stop.code in (0, None)
+        raise
     except KeyboardInterrupt as interrupt:  # before the app's own handling (composition)
         sys.exit(report_interrupt(prog, interrupt))
     except RefusedRunFolder as refused:
@@ -566,6 +579,7 @@ def run_hydra_app(prog: str, app: Callable[[], object]) -> None:
         print(f"{prog}: error: {line}", file=sys.stderr)
         sys.exit(1)
     finally:
+        forget_run_folders() if done else undo_hydra_records()
         release_run_folders()
         if previous is None:
             os.environ.pop("HYDRA_FULL_ERROR", None)

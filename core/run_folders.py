@@ -14,8 +14,12 @@ by the kernel when the process ends in any other way.
 
 from __future__ import annotations
 
+import contextlib
 import os
+import sys
 from contextlib import AbstractContextManager
+from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from uss_slam.core.errors import UssSlamError
@@ -37,10 +41,130 @@ class RefusedRunFolder(BaseException):
         self.error = error
 
 
+@dataclass
+class _Before:
+    """A run folder as it was when the run started (before Hydra wrote into it)."""
+
+    folder: Path
+    existed: bool
+    names: set[str] = field(default_factory=set)
+    """The folder's entries then (an existing folder)."""
+    record: dict[str, bytes] = field(default_factory=dict)
+    """Hydra's record of the earlier run (``.hydra/<file>`` -> its bytes)."""
+    logs: dict[str, int] = field(default_factory=dict)
+    """The earlier logs (``<job>.log``) -> their sizes."""
+    made_from: Path | None = None
+    """A new folder's nearest folder that existed: the folders below it are Hydra's."""
+
+
+_started: list[_Before] = []
+"""The run folders of the runs this process started (:meth:`RunFolderCheck.on_run_start`)."""
+
+
+def _hydra_own(name: str) -> bool:
+    return name == ".hydra" or name.endswith(".log")
+
+
+def _remembered(folder: Path) -> _Before | None:
+    """``folder`` as it is now; None if it cannot be read (the checks say why, or the run may
+    not need to: nothing of it is then undone)."""
+    try:
+        return _looked_at(folder)
+    except OSError:
+        return None
+
+
+def _looked_at(folder: Path) -> _Before:
+    if not folder.is_dir():
+        made_from = folder.parent
+        while not made_from.exists() and made_from != made_from.parent:
+            made_from = made_from.parent
+        return _Before(folder, existed=False, made_from=made_from)
+    names = set(os.listdir(folder))
+    record = {f".hydra/{p.name}": p.read_bytes() for p in (folder / ".hydra").glob("*")
+              if p.is_file()} if (folder / ".hydra").is_dir() else {}  # fmt: skip
+    logs = {n: (folder / n).stat().st_size for n in names if n.endswith(".log")}
+    return _Before(folder, existed=True, names=names, record=record, logs=logs)
+
+
+def undo_hydra_records() -> None:
+    """A single run that failed or was interrupted before its task wrote anything: Hydra's own
+    files in its run folder (the ``.hydra/`` record and the empty log it opened) are undone,
+    so that a refused run writes nothing: a new folder is removed (with the folders Hydra made
+    above it), an existing one gets its earlier record and logs back. A folder that holds
+    anything else new (a checkpoint of a training that failed later) is left as it is: its
+    log tells what happened."""
+    import shutil
+
+    while _started:
+        before = _started.pop()
+        with contextlib.suppress(OSError):
+            new = set(os.listdir(before.folder)) - before.names
+            if any(not _hydra_own(n) for n in new):
+                continue
+            if not before.existed:
+                shutil.rmtree(before.folder)
+                _emptied.append(before)  # its parents once its lock (beside it) is gone
+                continue
+            for name in new:
+                if name == ".hydra":
+                    shutil.rmtree(before.folder / name)
+                else:
+                    os.remove(before.folder / name)
+            for rel in {str(p.relative_to(before.folder)) for p in
+                        (before.folder / ".hydra").glob("*")} - set(before.record):  # fmt: skip
+                os.remove(before.folder / rel)
+            for rel, data in before.record.items():
+                (before.folder / rel).write_bytes(data)
+            for name, size in before.logs.items():
+                os.truncate(before.folder / name, size)
+
+
+_emptied: list[_Before] = []
+"""New run folders removed by :func:`undo_hydra_records`; :func:`release_run_folders` removes
+the folders Hydra made above them once the locks beside them are gone."""
+
+
+def _remove_made_parents() -> None:
+    while _emptied:
+        before = _emptied.pop()
+        above = before.folder.parent
+        with contextlib.suppress(OSError):  # (one that is not empty stops here)
+            while before.made_from is not None and above != before.made_from:
+                above.rmdir()
+                above = above.parent
+
+
+def forget_run_folders() -> None:
+    """The run succeeded: its folders' earlier state is no longer needed."""
+    _started.clear()
+
+
 def release_run_folders() -> None:
     """Release every run-folder lock this process took (last taken first)."""
     while _held:
         _held.pop().__exit__(None, None, None)
+    _remove_made_parents()
+
+
+def started_folder_again(prog: str) -> None:
+    """Inside a Hydra task: with ``hydra.job.chdir=true`` Hydra has changed into the run folder,
+    where every relative path the user gave (``sequence.path=w/tgt``) would be looked for. The
+    scripts write their outputs by their keys (``out_dir``, the run folder) and read relative
+    paths from the folder they were started in, as without it: the task goes back there, with
+    one warning that the key changes nothing (Hydra returns to it after the task anyway)."""
+    from hydra.core.hydra_config import HydraConfig
+
+    if not HydraConfig.initialized() or not HydraConfig.get().job.get("chdir"):
+        return
+    started = str(HydraConfig.get().runtime.cwd)
+    if os.path.realpath(os.getcwd()) != os.path.realpath(started):
+        os.chdir(started)
+    print(
+        f"{prog}: warning: hydra.job.chdir=true changes nothing: relative paths are read from the "
+        "folder the script was started in, and the outputs go to the folders their keys name",
+        file=sys.stderr,
+    )
 
 
 def _is_null(config: Any, key: str) -> bool:
@@ -130,6 +254,7 @@ class RunFolderCheck:
             if _is_null(config, self.key):  # out_dir=null: the run folder's ${out_dir}
                 line = f"{self.key}: expected a folder to write into, got null"
             raise RefusedRunFolder(UssSlamError(line)) from None
+        before = _remembered(Path(folder).absolute())  # before the lock makes its parents
         try:
             self._check_outputs(config)
             # before Hydra opens its log file in it
@@ -139,6 +264,8 @@ class RunFolderCheck:
                 held.__enter__()
                 _held.append(held)
             check_output_owner(folder, self.prog, self.key)
+            if before is not None:
+                _started.append(before)
         except UssSlamError as error:
             release_run_folders()
             raise RefusedRunFolder(error) from None

@@ -58,8 +58,6 @@ ENTRY_POINTS = {
     "uss-export": ("uss_slam.export.cli", "sys.argv"),
     "uss-experiments": ("uss_slam.pipelines.experiments.cli", "sys.argv"),
 }
-HYDRA_RECORDS = ("hydra/", "run/.hydra/", "exp/.hydra/")
-"""Folders (relative to the test's folder) where Hydra records a call before the app runs."""
 
 
 # ------------------------------------------------------------------------------ the world
@@ -339,6 +337,13 @@ CASES = [
          "--plot={afile}/ate.png", "({afile} is a file)", setup=(afile,)),
     case("traj-plot-is-a-folder", "uss-traj", "ate {gt} {gt} --plot {plots}", 1,
          "--plot={plots}: is a folder; expected a file", setup=(folder("plots", ".png"),)),
+    case("traj-plot-is-an-input", "uss-traj", "ate {gtp} {gt} --plot {gtp}", 1,
+         "--plot={gtp}: is the input file {gtp}; expected a file of its own",
+         setup=(write("gtp", lambda p: p["gt"].read_bytes(), ".png"),)),
+    case("traj-plot-is-an-input-past-a-new-folder", "uss-traj",
+         "ate {gt} {gtp} --plot {tmp}/new/../gtp.png", 1,
+         "--plot={tmp}/new/../gtp.png: is the input file {gtp}; expected a file of its own",
+         setup=(write("gtp", lambda p: p["gt"].read_bytes(), ".png"),)),
     case("traj-offset-nan", "uss-traj", "ate {gt} {gt} --offset nan", 2,
          "argument --offset", "expected a number, got 'nan'"),
     case("traj-delta-finer-than-sampling", "uss-traj",
@@ -1141,12 +1146,15 @@ def interrupt_after(monkeypatch: pytest.MonkeyPatch, target: str, calls: int) ->
 
 
 def snapshot(root: Path) -> dict[str, str]:
-    """Every file under ``root`` -> its SHA-256, without Hydra's record of a call."""
+    """Every file under ``root`` -> its SHA-256, every folder -> ``folder``: Hydra's record of
+    a refused call (``.hydra/``, its log, the run folder it made) included."""
     files = {}
     for path in sorted(root.rglob("*")):
         rel = path.relative_to(root).as_posix()
-        if path.is_file() and not rel.startswith(HYDRA_RECORDS) and path.suffix != ".log":
+        if path.is_file():
             files[rel] = file_sha256(path)
+        elif path.is_dir() and not path.is_symlink():
+            files[rel] = "folder"
     return files
 
 

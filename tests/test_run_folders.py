@@ -95,3 +95,54 @@ def test_a_failing_job_of_a_joblib_multirun_leaves_the_others_running(
     assert lines[-1].startswith("  #1 sequence.stride=50: uss-slam: error: sequence.stride=50:")
     assert (out / "0" / "run.json").is_file()
     assert not (out / ".uss-jobs").exists()
+
+
+CHDIR_APPS = {
+    "uss-slam": ("uss_slam.slam_eval.run.run", "sequence.path={seq} out_dir={tmp}/out"),
+    "uss-train": ("uss_slam.train.train.train", TRAIN),
+    "uss-export": ("uss_slam.export.cli.run", "ckpt_path={ckpt} out_dir={tmp}/exports"),
+    "uss-experiments": ("uss_slam.pipelines.experiments.cli.run_experiments", "out_dir={tmp}/exp"),
+}
+
+
+@pytest.mark.parametrize("prog", list(CHDIR_APPS))
+def test_hydra_job_chdir_leaves_relative_paths_to_the_starting_folder(
+    prog: str, world: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    """``hydra.job.chdir=true``: Hydra changes into the run folder before the task, where a
+    relative input path (``sequence.path=w/tgt``) was reported missing. Every app's task runs
+    in the folder the script was started in, with one warning that the key changes nothing."""
+    target, argv = CHDIR_APPS[prog]
+    seen: list[str] = []
+
+    def task(cfg: object) -> None:  # stands for the app's work (None: each app prints nothing)
+        seen.append(str(Path.cwd()))
+
+    monkeypatch.setattr(target, task)
+    monkeypatch.chdir(tmp_path)
+    args = [a.format(**world, tmp=tmp_path) for a in argv.split()] + ["hydra.job.chdir=true"]
+    try:
+        code, _, err = run_console_script(prog, args, monkeypatch, capsys)
+    finally:
+        _clear()
+    assert code == 0, err
+    assert seen == [str(tmp_path)]
+    assert err.strip().splitlines()[0] == (
+        f"{prog}: warning: hydra.job.chdir=true changes nothing: relative paths are read from "
+        "the folder the script was started in, and the outputs go to the folders their keys name"
+    )
+
+
+def test_a_slam_run_with_hydra_job_chdir_reads_a_relative_sequence(
+    world: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    (tmp_path / "seqs").mkdir()
+    (tmp_path / "seqs" / "s").symlink_to(world["seq"])
+    monkeypatch.chdir(tmp_path)
+    args = ["hydra.job.chdir=true", "sequence.path=seqs/s", "out_dir=out", "progress=false"]
+    try:
+        code, _, err = run_console_script("uss-slam", args, monkeypatch, capsys)
+    finally:
+        _clear()
+    assert code == 0, err
+    assert (tmp_path / "out" / "run.json").is_file()
