@@ -398,13 +398,16 @@ def _read_only(path: Path) -> bool:
     return not os.access(path, os.W_OK) or not os.stat(path).st_mode & 0o222
 
 
-def _an_input(path: Path, inputs: Iterable[tuple[str | None, str | PathLike[str]]]) -> str | None:
-    """Which input folder ``path`` is (resolved, as :func:`distinct_folders` compares), else
-    None."""
-    for key, folder in inputs:
-        if os.path.isdir(folder) and path.resolve() == Path(folder).resolve():
-            return (f"is the input folder {where(folder, key)}; expected a folder of its own for "
-                    "the outputs")  # fmt: skip
+def _an_input(path: Path, inputs: Iterable[tuple[str | None, str | PathLike[str]]],
+              kind: str = "folder") -> str | None:  # fmt: skip
+    """Which input folder (or file) ``path`` is, resolved (as :func:`distinct_folders`
+    compares; ``x/../gt.png`` too, while ``x`` does not exist), else None."""
+    for key, given in inputs:
+        if (os.path.isdir(given) if kind == "folder" else os.path.isfile(given)) and (
+            os.path.realpath(path) == os.path.realpath(given)
+        ):
+            own = "a folder of its own for the outputs" if kind == "folder" else "a file of its own"
+            return f"is the input {kind} {where(given, key)}; expected {own}"
     return None
 
 
@@ -412,17 +415,21 @@ def output_file(
     path: str | PathLike[str],
     key: str | None = None,
     expected: str = "expected a file to write",
+    inputs: Iterable[tuple[str | None, str | PathLike[str]]] = (),
 ) -> Path:
     """A file the script can write (its folder existing or creatable, and writable); else
     :class:`PathError`. A folder, a dangling or looping link where the file would be are
     refused (a link to a file is written through, as ``open()`` does), and so is a path that
-    ends with ``/`` (a folder's name)."""
+    ends with ``/`` (a folder's name) and one of the run's ``inputs`` (``(key, path)``: the
+    output would replace it)."""
     _not_empty(path, key, expected)
     slash = getattr(path, "trailing_slash", False) or str(path).endswith("/")
     path = Path(path)
     problem = structure_problem(path, folder=False, output=True)
     if problem is None and slash:
         raise _fail(f"{path}/", key, "ends with '/', which names a folder", expected)
+    if problem is None:
+        problem = _an_input(path, inputs, "file")
     if problem is None and os.path.isfile(path) and _read_only(path):
         problem = "is read-only (its mode forbids writing; make it writable to replace it)"
     if problem is None and not os.path.lexists(path.parent):

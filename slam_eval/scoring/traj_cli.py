@@ -189,7 +189,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         for path in (args.gt, args.est):
             input_file(path, None, "expected a trajectory file (TUM format)")
         if args.command == "ate" and args.plot is not None:  # before any work
-            output_file(args.plot, "--plot", "expected an image file name")
+            inputs = [(None, args.gt), (None, args.est)]
+            output_file(args.plot, "--plot", "expected an image file name", inputs=inputs)
             check_plot_path(args.plot, "--plot")
         gt = read_trajectory(args.gt)
         est = read_trajectory(args.est)
