@@ -287,6 +287,15 @@ def read_labels(path: str | PathLike[str], num_classes: int = len(CLASS_NAMES)) 
     """A label image of class ids: ``(H, W)`` uint8, every value a class id
     (``0..num_classes-1``) or the ignore label 255; anything else names the file, the first
     values outside them and the accepted ones."""
+    labels = read_label_values(path)
+    check_label_values(path, labels, num_classes)
+    return labels
+
+
+def read_label_values(path: str | PathLike[str]) -> np.ndarray:
+    """The stored values of a label image, ``(H, W)`` uint8: a greyscale PNG's, a palette PNG's
+    indices; its structure checked whole, its values not (a data set's own ids, VOC's 0..20,
+    are mapped by its reader; :func:`read_labels` checks the project's)."""
     what = "a single-channel uint8 class-id PNG"
     data = _file_bytes(path, what)
     indexed = palette_as_grey(data)  # None for the usual greyscale labels: checked once below
@@ -301,7 +310,6 @@ def read_labels(path: str | PathLike[str], num_classes: int = len(CLASS_NAMES)) 
             f"expected a single-channel uint8 class-id PNG, got {labels.dtype} "
             f"with shape {labels.shape}",
         )
-    check_label_values(path, labels, num_classes)
     return labels
 
 

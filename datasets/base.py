@@ -27,7 +27,13 @@ from torchvision import tv_tensors
 
 from uss_slam.core.classes import IGNORE_INDEX, NUM_CLASSES
 from uss_slam.core.errors import DataFormatError
-from uss_slam.core.images import format_problem, image_problem, read_rgb, sixteen_bit_problem
+from uss_slam.core.images import (
+    check_label_values,
+    format_problem,
+    read_rgb,
+    sixteen_bit_problem,
+)
+from uss_slam.core.images import read_label_values as core_label_values
 from uss_slam.datasets.transforms import eval_transform
 
 log = logging.getLogger(__name__)
@@ -157,33 +163,18 @@ def read_image(path: Path) -> tv_tensors.Image:
 
 
 def read_label_values(path: Path) -> np.ndarray:
-    """The raw ``(H, W)`` uint8 values of a single-channel label PNG (palette 'P' or grey 'L').
-
-    A truncated file is an error even when its pixel data happens to be complete.
-    """
-    try:
-        with open(path, "rb") as file:
-            reason = image_problem(file.read())
-        if reason:
-            raise DataFormatError(path, reason)
-        with PILImage.open(path) as image:
-            if image.mode not in ("P", "L"):
-                raise DataFormatError(
-                    path,
-                    f"expected a palette ('P') or greyscale ('L') label PNG of class indices, "
-                    f"got mode {image.mode!r}",
-                )
-            return np.asarray(image, dtype=np.uint8)
-    except DataFormatError:
-        raise
-    except FileNotFoundError:
-        raise DataFormatError(path, "label file not found") from None
-    except (OSError, ValueError) as error:
-        raise DataFormatError(path, f"cannot decode label image ({error})") from error
+    """The raw ``(H, W)`` uint8 values of a single-channel label PNG (a palette's indices, or
+    grey), read by the project's one label reader
+    (:func:`uss_slam.core.images.read_label_values`: the file whole, a damaged or truncated
+    one named, as every tool reads labels)."""
+    return core_label_values(path)
 
 
 def map_label(path: Path, values: np.ndarray, lut: np.ndarray) -> np.ndarray:
-    """File values -> project ids through ``lut`` (``-1`` entries: values that must not occur)."""
+    """File values -> project ids through ``lut`` (``-1`` entries: values that must not occur).
+    The project's own labels (the identity) are checked as every tool checks them."""
+    if np.array_equal(lut, identity_lut()):
+        check_label_values(path, values, NUM_CLASSES)
     mapped = lut[values]
     if mapped.size and mapped.min() < 0:
         bad = sorted(set(np.unique(values[mapped < 0]).tolist()))[:5]

@@ -30,7 +30,7 @@ def _dataset(root: Path, n: int, bad: int | None = None) -> SegmentationDataset:
 
 def test_a_label_value_outside_the_classes_is_found(tmp_path: Path) -> None:
     module = SimpleNamespace(val=_dataset(tmp_path / "v", 2), source=_dataset(tmp_path / "s", 4, 3))
-    with pytest.raises(DataFormatError, match=r"3\.png: label values \[7\]"):
+    with pytest.raises(DataFormatError, match=r"3\.png: label values 7 are not class ids"):
         check_data_files(module)
 
 

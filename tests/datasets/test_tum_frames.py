@@ -67,5 +67,24 @@ def test_label_values_outside_the_project_classes_are_rejected(tmp_path: Path) -
     root = write_sequence(tmp_path / "seq", frames=1)
     (label_file,) = (root / "labels").iterdir()
     cv2.imwrite(str(label_file), np.full((24, 32), 7, np.uint8))
-    with pytest.raises(DataFormatError, match=r"label values \[7\] are not valid class indices"):
+    with pytest.raises(DataFormatError, match=r"label values 7 are not class ids; expected 0\.\.3"):
+        TUMFrames(root, labels=True)[0]
+
+
+@pytest.mark.parametrize("kind", ["jpeg", "cut"])
+def test_a_label_the_one_label_reader_refuses_is_refused_by_training_too(
+    tmp_path: Path, kind: str
+) -> None:
+    """The data sets read labels through the project's one label reader: a grey JPEG named
+    ``.png`` (lossy class ids; PIL read it as labels) and a PNG cut short are one line naming
+    the file, as in ``uss-eval`` and ``uss-slam``."""
+    root = write_sequence(tmp_path / "seq", frames=1)
+    (label_file,) = (root / "labels").iterdir()
+    if kind == "jpeg":
+        label_file.write_bytes(cv2.imencode(".jpg", np.zeros((24, 32), np.uint8))[1].tobytes())
+        says = "its content is a JPEG image, not the PNG its name says"
+    else:
+        label_file.write_bytes(label_file.read_bytes()[:-20])
+        says = "truncated PNG"
+    with pytest.raises(DataFormatError, match=f"{label_file.name}: {says}"):
         TUMFrames(root, labels=True)[0]

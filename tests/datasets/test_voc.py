@@ -83,7 +83,9 @@ def test_rgb_labels_and_non_voc_indices_are_rejected(tmp_path: Path) -> None:
     voc = write_voc(tmp_path, {"a": _label()})
     label_path = voc / "SegmentationClass" / "a.png"
     Image.fromarray(np.zeros((24, 32, 3), dtype=np.uint8)).save(label_path)
-    with pytest.raises(DataFormatError, match=r"a\.png: expected a palette .* got mode 'RGB'"):
+    with pytest.raises(
+        DataFormatError, match=r"a\.png: expected a single-channel .* \(24, 32, 3\)"
+    ):
         VOCSegmentation(voc)[0]
     bad = _label()
     bad[0, 0] = 42

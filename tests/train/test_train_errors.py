@@ -314,7 +314,7 @@ def _damage(kind: str, data: dict[str, Path]) -> Path:
     ("kind", "reason"),
     [
         ("voc_label_40", "label values [40]"),
-        ("val_label_4", "label values [4]"),
+        ("val_label_4", "label values 4 are not class ids"),
         ("voc_jpeg_cut", "truncated JPEG"),
     ],
 )
