@@ -241,9 +241,6 @@ class RunFolderCheck:
                 output_folder(str(value), key, inputs=self._input_folders(config))
 
     def on_run_start(self, config: Any, **kwargs: Any) -> None:
-        from uss_slam.core.files import check_output_owner, output_lock
-        from uss_slam.core.paths import output_folder
-
         try:
             folder = str(config.hydra.run.dir)
         except Exception as error:  # an interpolation that cannot be resolved (${nope})
@@ -255,17 +252,24 @@ class RunFolderCheck:
                 line = f"{self.key}: expected a folder to write into, got null"
             raise RefusedRunFolder(UssSlamError(line)) from None
         before = _remembered(Path(folder).absolute())  # before the lock makes its parents
+        self._own(config, folder, self.key)  # before Hydra opens its log file in it
+        if before is not None:
+            _started.append(before)
+
+    def _own(self, config: Any, folder: str, key: str) -> None:
+        """Check ``folder`` (named ``key``) and the app's outputs, and lock it; else
+        :class:`RefusedRunFolder`."""
+        from uss_slam.core.files import check_output_owner, output_lock
+        from uss_slam.core.paths import output_folder
+
         try:
             self._check_outputs(config)
-            # before Hydra opens its log file in it
-            output_folder(folder, self.key, inputs=self._input_folders(config))
+            output_folder(folder, key, inputs=self._input_folders(config))
             if self.lock and os.environ.get("LOCAL_RANK", "0") == "0":
-                held = output_lock(folder, self.key)
+                held = output_lock(folder, key)
                 held.__enter__()
                 _held.append(held)
-            check_output_owner(folder, self.prog, self.key)
-            if before is not None:
-                _started.append(before)
+            check_output_owner(folder, self.prog, key)
         except UssSlamError as error:
             release_run_folders()
             raise RefusedRunFolder(error) from None
@@ -275,9 +279,17 @@ class RunFolderCheck:
 
     # Hydra calls every hook of a callback (its base class would import Hydra here)
     def on_multirun_start(self, config: Any, **kwargs: Any) -> None:
+        """A multirun's sweep folder is checked and locked as a run folder is (an input
+        folder, another tool's, one that cannot be written), before Hydra writes into it;
+        named by the app's key where that sets it (``out_dir``), else ``hydra.sweep.dir``."""
+        from omegaconf import OmegaConf
+
         from uss_slam.core import job_records
 
-        job_records.sweep_dir = str(config.hydra.sweep.dir)  # where jobs in processes report
+        sweep = str(config.hydra.sweep.dir)
+        job_records.sweep_dir = sweep  # where jobs in processes report
+        named = OmegaConf.select(config, self.key, default=None, throw_on_resolution_failure=False)
+        self._own(config, sweep, self.key if str(named) == sweep else "hydra.sweep.dir")
 
     def on_multirun_end(self, config: Any, **kwargs: Any) -> None:
         pass
