@@ -120,9 +120,10 @@ def _on_sigterm(signum: int, frame: object) -> None:
     raise _Terminated(signum)
 
 
-TERMINATING = (signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT)
+TERMINATING = (signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT, signal.SIGXCPU)
 """The signals besides Ctrl-C that stop a script with its one line (``kill``; the terminal
-closed; Ctrl-\\, which Python leaves to the kernel's default: a core dump, no cleanup)."""
+closed; Ctrl-\\ and a CPU-time limit reached, ``ulimit -St`` or a batch system's, which
+Python leaves to the kernel's default: a core dump, no cleanup)."""
 
 
 def openmp_threads_checked(prog: str) -> None:

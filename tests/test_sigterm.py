@@ -159,10 +159,11 @@ def test_synth_process(sig_name: str, synthetic_sequence, tmp_path: Path) -> Non
     assert snapshot(out) == before
 
 
-@pytest.mark.parametrize("sig_name", list(SIGNALS))
+@pytest.mark.parametrize("sig_name", [*SIGNALS, "SIGXCPU"])
 def test_vocab_process(sig_name: str, synthetic_sequence, tmp_path: Path) -> None:
-    """``uss-vocab build`` stopped while clustering: no vocabulary, lock or temporary file."""
-    sig, code = SIGNALS[sig_name]
+    """``uss-vocab build`` stopped while clustering: no vocabulary, lock or temporary file.
+    SIGXCPU: the kernel's signal at a CPU-time limit (``ulimit -St``, a batch system's)."""
+    sig, code = SIGNALS.get(sig_name, (signal.SIGXCPU, 128 + signal.SIGXCPU))
     seq = synthetic_sequence(frames=30, size=(320, 240))
     out = tmp_path / "v.txt"
     got, err = stop(

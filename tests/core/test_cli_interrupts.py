@@ -104,21 +104,24 @@ def test_sighup_is_an_interrupt_named_in_the_line(capsys) -> None:
     assert capsys.readouterr().err.splitlines() == ["uss-x: interrupted (SIGHUP)"]
 
 
-def test_sigquit_is_an_interrupt_named_in_the_line(capsys) -> None:
-    """Ctrl-\\ (SIGQUIT), whose default is to die at once with a core dump: SIGTERM's
-    contract, the same cleanup, exit code 131."""
+@pytest.mark.parametrize("name", ["SIGQUIT", "SIGXCPU"])
+def test_sigquit_and_sigxcpu_are_interrupts_named_in_the_line(name: str, capsys) -> None:
+    """Ctrl-\\ (SIGQUIT) and a CPU-time limit reached (SIGXCPU: ``ulimit -St``, a batch
+    system's), whose default is to die at once with a core dump: SIGTERM's contract, the same
+    cleanup, exit code 128 + the signal's number."""
     import os
     import signal
 
-    before = signal.signal(signal.SIGQUIT, signal.SIG_DFL)
+    sig = signal.Signals[name]
+    before = signal.signal(sig, signal.SIG_DFL)
     try:
         with pytest.raises(SystemExit) as stop, exit_on_user_error("uss-x"):
-            os.kill(os.getpid(), signal.SIGQUIT)
-        assert signal.getsignal(signal.SIGQUIT) is signal.SIG_DFL  # restored
+            os.kill(os.getpid(), sig)
+        assert signal.getsignal(sig) is signal.SIG_DFL  # restored
     finally:
-        signal.signal(signal.SIGQUIT, before)
-    assert stop.value.code == 131
-    assert capsys.readouterr().err.splitlines() == ["uss-x: interrupted (SIGQUIT)"]
+        signal.signal(sig, before)
+    assert stop.value.code == 128 + sig
+    assert capsys.readouterr().err.splitlines() == [f"uss-x: interrupted ({name})"]
 
 
 def test_a_deferred_step_finishes_before_sigterm_takes_effect() -> None:
