@@ -167,6 +167,36 @@ def started_folder_again(prog: str) -> None:
     )
 
 
+LOG_KEY = "hydra.job_logging.handlers.file.filename"
+
+
+def _log_file(config: Any, folder: str) -> None:
+    """The log file a user placed outside the run folder (:data:`LOG_KEY`) is checked as an
+    output file, before Hydra's logging opens it (its error was a traceback); a folder of it
+    that does not exist is refused (the logging would not make it)."""
+    from omegaconf import OmegaConf
+
+    from uss_slam.core.paths import PathError, output_file
+
+    try:
+        name = OmegaConf.select(config, LOG_KEY, default=None, throw_on_resolution_failure=False)
+    except Exception:  # noqa: BLE001 (${hydra:runtime...}, not set yet: Hydra's own folder)
+        return
+    if not isinstance(name, str) or not name:
+        return
+    path, run = Path(os.path.abspath(name)), Path(os.path.abspath(folder))
+    if path.parent == run or run in path.parents:
+        return  # in the run folder, which Hydra makes
+    try:
+        if not path.parent.is_dir():
+            raise PathError(path, LOG_KEY, "its folder does not exist (the log is opened there, "
+                            "not made); expected a file in an existing folder")  # fmt: skip
+        output_file(path, LOG_KEY, "expected a log file to write")
+    except UssSlamError as error:
+        release_run_folders()
+        raise RefusedRunFolder(error) from None
+
+
 def _is_null(config: Any, key: str) -> bool:
     """Whether ``key`` of ``config`` is null (not an interpolation that fails)."""
     from omegaconf import OmegaConf
@@ -195,8 +225,12 @@ class RunFolderCheck:
         lock: bool = True,
         outputs: dict[str, str | None] | None = None,
         inputs: list[str] | None = None,
+        key_only: bool = False,
     ) -> None:
         self.prog = prog
+        self.key_only = key_only
+        """The app writes into Hydra's run folder, which ``key`` sets: ``hydra.run.dir`` set
+        to another folder is refused (the outputs would go there, not where ``key`` says)."""
         self.key = key
         self.lock = lock
         self.outputs = dict(outputs or {})
@@ -251,10 +285,26 @@ class RunFolderCheck:
             if _is_null(config, self.key):  # out_dir=null: the run folder's ${out_dir}
                 line = f"{self.key}: expected a folder to write into, got null"
             raise RefusedRunFolder(UssSlamError(line)) from None
+        self._one_folder(config, folder)
         before = _remembered(Path(folder).absolute())  # before the lock makes its parents
         self._own(config, folder, self.key)  # before Hydra opens its log file in it
+        _log_file(config, folder)
         if before is not None:
             _started.append(before)
+
+    def _one_folder(self, config: Any, folder: str) -> None:
+        """See :attr:`key_only`."""
+        from omegaconf import OmegaConf
+
+        from uss_slam.core.paths import where
+
+        if not self.key_only or self.key == "hydra.run.dir":
+            return
+        named = OmegaConf.select(config, self.key, default=None, throw_on_resolution_failure=False)
+        if named is not None and os.path.realpath(str(named)) != os.path.realpath(folder):
+            raise RefusedRunFolder(UssSlamError(
+                f"{where(folder, 'hydra.run.dir')}: is not {where(str(named), self.key)}, which "
+                f"sets the run folder of {self.prog}; expected {self.key} alone"))  # fmt: skip
 
     def _own(self, config: Any, folder: str, key: str) -> None:
         """Check ``folder`` (named ``key``) and the app's outputs, and lock it; else

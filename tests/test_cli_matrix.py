@@ -474,6 +474,19 @@ CASES = [
     case("slam-out-dir-is-the-sequence", "uss-slam", "sequence.path={s} out_dir={s} progress=false",
          1, "out_dir={s}: is the input folder sequence.path={s}; expected a folder of its own",
          setup=(seq_copy(),)),
+    # hydra.run.dir beside out_dir, which sets it: the outputs went to hydra.run.dir
+    case("slam-run-dir-beside-out-dir", "uss-slam",
+         "sequence.path={seq} out_dir={tmp}/o progress=false hydra.run.dir={tmp}/other", 1,
+         "hydra.run.dir={tmp}/other: is not out_dir={tmp}/o, which sets the run folder of "
+         "uss-slam; expected out_dir alone"),
+    # a log file placed where it cannot be opened: logging's traceback before
+    case("slam-log-file-in-a-missing-folder", "uss-slam",
+         "sequence.path={seq} out_dir={tmp}/o progress=false "
+         "hydra.job_logging.handlers.file.filename={tmp}/no/x.log", 1,
+         "hydra.job_logging.handlers.file.filename={tmp}/no/x.log: its folder does not exist"),
+    case("train-log-file-cannot-be-written", "uss-train",
+         f"{TRAIN} hydra.job_logging.handlers.file.filename=/proc/x.log", 1,
+         "hydra.job_logging.handlers.file.filename=/proc/x.log: cannot write to /proc"),
     # a multirun's sweep folder: the same checks as a run folder's
     case("slam-multirun-into-the-sequence", "uss-slam",
          "-m sequence.path={s} out_dir={s} progress=false sequence.stride=1,2", 1,
