@@ -57,6 +57,20 @@ def guard() -> None:
             stream.reconfigure(errors="backslashreplace")  # type: ignore[union-attr]
     if sys.stdout is not None and not isinstance(sys.stdout, _GuardedStream):
         sys.stdout = _GuardedStream(sys.stdout)  # type: ignore[assignment]
+    if sys.stderr is None:
+        _stderr_to_null()
+
+
+def _stderr_to_null() -> None:
+    """Stderr closed (``2>&-``): Python's ``sys.stderr`` is None, and ``print(..., file=None)``
+    writes to stdout, so the error and warning lines would land in the script's product
+    (``uss-traj --json > r.json``). They go nowhere instead (the exit code still tells), and
+    file descriptor 2 is ``/dev/null`` for the libraries and processes that write there."""
+    null = os.open(os.devnull, os.O_WRONLY)
+    if null != 2:
+        os.dup2(null, 2)
+        os.close(null)
+    sys.stderr = open(2, "w", encoding="utf-8", errors="backslashreplace", closefd=False)  # noqa: SIM115
 
 
 def lost(clear: bool = False) -> OSError | None:

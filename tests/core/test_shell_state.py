@@ -271,3 +271,18 @@ def test_a_path_the_terminals_encoding_cannot_hold_is_escaped(tmp_path: Path) ->
     again = subprocess.run([str(script), *args], capture_output=True, env=env, timeout=120)
     assert again.returncode != 0  # (its earlier output: refused)
     assert again.stderr.decode("ascii").startswith(f"uss-synth: error: --out={tmp_path}/r\\xe9:")
+
+
+def test_a_closed_stderr_keeps_the_lines_out_of_stdout(tmp_path: Path) -> None:
+    """``2>&-``: Python's ``sys.stderr`` is None and ``print(..., file=None)`` writes to stdout,
+    so the error line landed in the script's product (``uss-traj --json > r.json``). It goes
+    nowhere; the exit code tells."""
+    traj = Path(sys.executable).parent / "uss-traj"
+    done = subprocess.run(
+        [str(traj), "ate", str(tmp_path / "no.txt"), str(tmp_path / "no.txt")],
+        capture_output=True,
+        text=True,
+        check=False,
+        preexec_fn=lambda: os.close(2),
+    )
+    assert (done.returncode, done.stdout) == (1, "")
