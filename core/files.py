@@ -83,20 +83,36 @@ def atomic_path(path: str | PathLike[str], prefix: str = ".") -> Iterator[Path]:
     ``<prefix><name>.<random>.tmp`` (callers that clean up after killed runs match the prefix).
     """
     path = Path(path)
+    made = [f for f in (path.parent, *path.parent.parents) if not os.path.lexists(f)]
     path.parent.mkdir(parents=True, exist_ok=True)
+    done = False
     try:
         tmp = _create_sibling(path, prefix)
     except OSError as error:
+        _remove_empty(made)
         _raise_if_no_space(error, path)
         raise
     try:
         yield tmp
         os.replace(tmp, path)
+        done = True
     except Exception as error:
         _raise_if_no_space(error, path)
         raise
     finally:
         tmp.unlink(missing_ok=True)
+        if not done:
+            _remove_empty(made)
+
+
+def _remove_empty(made: list[Path]) -> None:
+    """Remove the folders a failed write made (deepest first) while they are empty: a failed
+    run leaves no empty output folder behind."""
+    for folder in made:
+        try:
+            folder.rmdir()
+        except OSError:
+            return
 
 
 def stale_temporaries(path: str | PathLike[str], prefix: str = ".") -> list[Path]:

@@ -208,3 +208,14 @@ def test_one_output_spelled_two_ways_has_one_lock(tmp_path: Path, monkeypatch) -
     assert {lock_path(s) for s in spellings} == {tmp_path / "out" / ".o.lock"}
     with output_lock("../out/o"), output_lock(tmp_path / "link" / "o", "out_dir"):
         pass
+
+
+def test_a_failed_atomic_write_leaves_no_folder_it_made(tmp_path: Path) -> None:
+    """The folders an atomic write made for its file are removed again when it fails (a full
+    disk, an interrupt): a failed run leaves no empty output folder (uss-eval's --out did)."""
+    from uss_slam.core.files import atomic_path
+
+    (tmp_path / "kept").mkdir()
+    with pytest.raises(OSError), atomic_path(tmp_path / "kept" / "new" / "deeper" / "f.json"):
+        raise OSError("the write failed")
+    assert [p.name for p in tmp_path.rglob("*")] == ["kept"]
