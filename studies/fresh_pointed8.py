@@ -39,24 +39,22 @@ POINTED: dict[str, re.Pattern[str]] = {
 }
 
 
-def pointed_family(line: str) -> str | None:
+def pointed_family(line: str, pointed: dict[str, re.Pattern[str]] = POINTED) -> str | None:
     """The family named to the fixer that a case line of the set belongs to, if any."""
-    for family, pattern in POINTED.items():
+    for family, pattern in pointed.items():
         if pattern.search(line):
             return family
     return None
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("cases", type=Path, help="the set, studies/fresh_cases8.txt")
-    parser.add_argument("results", type=Path, help="the run's results.json")
-    args = parser.parse_args(argv)
+def split(cases: Path, results: Path, pointed: dict[str, re.Pattern[str]]) -> None:
+    """Print the set's shares over every case, the cases in ``pointed``'s families and the rest,
+    then every poor or bad case with its family."""
     family = {}
-    for line in args.cases.read_text(encoding="utf-8").splitlines():
+    for line in cases.read_text(encoding="utf-8").splitlines():
         if line.strip() and not line.startswith("#"):
-            family[line.split("|", 1)[0].strip()] = pointed_family(line)
-    outcomes = json.loads(args.results.read_text(encoding="utf-8"))["outcomes"]
+            family[line.split("|", 1)[0].strip()] = pointed_family(line, pointed)
+    outcomes = json.loads(results.read_text(encoding="utf-8"))["outcomes"]
     for name, keep in (("every case", lambda o: True),
                        ("named to the fixer", lambda o: family.get(o["id"]) is not None),
                        ("not named to the fixer", lambda o: family.get(o["id"]) is None)):  # fmt: skip
@@ -68,6 +66,14 @@ def main(argv: list[str] | None = None) -> int:
     for o in outcomes:
         if o["verdict"] in ("poor", "bad"):
             print(f"  {o['verdict']:4} {o['id']}: {family.get(o['id']) or 'not named'}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("cases", type=Path, help="the set, studies/fresh_cases8.txt")
+    parser.add_argument("results", type=Path, help="the run's results.json")
+    args = parser.parse_args(argv)
+    split(args.cases, args.results, POINTED)
     return 0
 
 

@@ -1,0 +1,57 @@
+"""The ninth set's split by the families the engineer fixing code looked at."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT / "studies"))
+_SPEC = importlib.util.spec_from_file_location(
+    "fresh_pointed9", ROOT / "studies" / "fresh_pointed9.py"
+)
+_MODULE = importlib.util.module_from_spec(_SPEC)
+_SPEC.loader.exec_module(_MODULE)
+main, POINTED = _MODULE.main, _MODULE.POINTED
+
+
+def family(line: str) -> str | None:
+    from fresh_pointed8 import pointed_family
+
+    return pointed_family(line, POINTED)
+
+
+def test_families_are_recognised_from_env_and_argv():
+    assert family("a | uss-traj | error | - | - | --plot | ate {gt} {est} --plot {C}/p.gif")
+    assert family("b | uss-slam | ok | - | - | - | -m sequence.path={seq},{seq2}")
+    assert family("c | uss-eval | warn | - | STDOUT=full | stdout | {onnx} --out {C}/e")
+    assert family("d | uss-vocab | ok | seqcopy | - | - | build {C}/seq --out {C}/seq/v.txt")
+    assert family("e | uss-export | ok | - | TORCH_HOME={C}/t | - | EXPORT name=h") is None
+    assert family("f | uss-traj | error | - | - | --plot | rpe {gt} {est} --plot {C}/p.png") is None
+
+
+def test_split_of_a_made_up_run(tmp_path, capsys):
+    cases = tmp_path / "cases.txt"
+    cases.write_text(
+        "# header\n"
+        "a | uss-traj | error | - | - | --plot | ate {gt} {est} --plot {C}/p.gif\n"
+        "b | uss-synth | ok | - | - | - | voc\n",
+        encoding="utf-8",
+    )
+    results = tmp_path / "results.json"
+    outcomes = [{"id": "a", "verdict": "poor"}, {"id": "b", "verdict": "good"}]
+    results.write_text(json.dumps({"outcomes": outcomes}), encoding="utf-8")
+    assert main([str(cases), str(results)]) == 0
+    out = capsys.readouterr().out
+    assert "named to the fixer: 1 counted, 0 good, 1 poor, 0 bad (0.0% good)" in out
+    assert "not named to the fixer: 1 counted, 1 good, 0 poor, 0 bad (100.0% good)" in out
+    assert "poor a: --plot's formats" in out
+
+
+def test_the_set_splits_into_both_groups():
+    lines = (ROOT / "studies" / "fresh_cases9.txt").read_text(encoding="utf-8").splitlines()
+    cases = [line for line in lines if line.strip() and not line.startswith("#")]
+    named = [line for line in cases if family(line)]
+    assert 0 < len(named) < len(cases) // 5
