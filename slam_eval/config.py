@@ -206,8 +206,8 @@ class SlamConfig:
     flight are delivered) one bundle adjustment of every keyframe and map point, before the
     trajectory is composed on the keyframes; an end-of-run step, not an online one. ``thread``:
     with ``segment=thread`` only; ``always``: every schedule; ``none``. An experiment, off by
-    default, not yet judged alone by a rule (docs/results/slam.md, "a late mask refits the
-    keyframes")."""
+    default: judged alone by a pre-registered rule and not kept, it lowered the thread's ATE
+    too little (docs/results/slam.md, "the end-of-run bundle adjustment alone")."""
     semantic_nice: int = ranged(0, min=0, max=19)
     """With ``segment=thread`` and a segmenter that really runs (the wall clock): the semantic
     thread's nice value above the process's (Linux), so that tracking takes the cores first and
