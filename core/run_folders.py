@@ -285,26 +285,31 @@ class RunFolderCheck:
             if _is_null(config, self.key):  # out_dir=null: the run folder's ${out_dir}
                 line = f"{self.key}: expected a folder to write into, got null"
             raise RefusedRunFolder(UssSlamError(line)) from None
-        self._one_folder(config, folder)
+        self._one_folder(config, folder, "hydra.run.dir")
         before = _remembered(Path(folder).absolute())  # before the lock makes its parents
         self._own(config, folder, self.key)  # before Hydra opens its log file in it
         _log_file(config, folder)
         if before is not None:
             _started.append(before)
 
-    def _one_folder(self, config: Any, folder: str) -> None:
-        """See :attr:`key_only`."""
+    def _one_folder(self, config: Any, folder: str, hydras: str) -> None:
+        """See :attr:`key_only` (``hydras``: Hydra's key of ``folder``, ``hydra.run.dir`` or
+        ``hydra.sweep.dir``)."""
         from omegaconf import OmegaConf
 
         from uss_slam.core.paths import where
 
         if not self.key_only or self.key == "hydra.run.dir":
             return
+        task = OmegaConf.select(config, "hydra.overrides.task", default=None) or []
+        if self.key not in {str(o).split("=", 1)[0].lstrip("+~") for o in task}:
+            return  # (Hydra's key alone says where the user wants the outputs)
         named = OmegaConf.select(config, self.key, default=None, throw_on_resolution_failure=False)
         if named is not None and os.path.realpath(str(named)) != os.path.realpath(folder):
+            kind = "run" if hydras == "hydra.run.dir" else "sweep"
             raise RefusedRunFolder(UssSlamError(
-                f"{where(folder, 'hydra.run.dir')}: is not {where(str(named), self.key)}, which "
-                f"sets the run folder of {self.prog}; expected {self.key} alone"))  # fmt: skip
+                f"{where(folder, hydras)}: is not {where(str(named), self.key)}, which sets the "
+                f"{kind} folder of {self.prog}; expected {self.key} alone"))  # fmt: skip
 
     def _own(self, config: Any, folder: str, key: str) -> None:
         """Check ``folder`` (named ``key``) and the app's outputs, and lock it; else
@@ -338,6 +343,7 @@ class RunFolderCheck:
 
         sweep = str(config.hydra.sweep.dir)
         job_records.sweep_dir = sweep  # where jobs in processes report
+        self._one_folder(config, sweep, "hydra.sweep.dir")
         named = OmegaConf.select(config, self.key, default=None, throw_on_resolution_failure=False)
         self._own(config, sweep, self.key if str(named) == sweep else "hydra.sweep.dir")
 

@@ -479,6 +479,11 @@ CASES = [
          "sequence.path={seq} out_dir={tmp}/o progress=false hydra.run.dir={tmp}/other", 1,
          "hydra.run.dir={tmp}/other: is not out_dir={tmp}/o, which sets the run folder of "
          "uss-slam; expected out_dir alone"),
+    case("slam-multirun-sweep-dir-beside-out-dir", "uss-slam",
+         "-m sequence.path={seq} out_dir={tmp}/o progress=false hydra.sweep.dir={tmp}/other "
+         "sequence.stride=1,2", 1,
+         "hydra.sweep.dir={tmp}/other: is not out_dir={tmp}/o, which sets the sweep folder of "
+         "uss-slam; expected out_dir alone"),
     # a log file placed where it cannot be opened: logging's traceback before
     case("slam-log-file-in-a-missing-folder", "uss-slam",
          "sequence.path={seq} out_dir={tmp}/o progress=false "
