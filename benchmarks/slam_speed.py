@@ -40,12 +40,19 @@ turns.
 tracks, unfiltered, after the harness's repeats)
 and prints its median frames/s (frame reading and tracking, its own local-mapping and
 loop-closing threads beside) and the harness's ratio to it.
+
+``--candidate KEY=VALUE`` (repeatable; keys of ``slam.tracker``, ``slam.local_ba_params``,
+``slam.loop_closing_params`` or ``slam.orb``, e.g. ``local_ba_params.first_iterations=2``) runs
+every repeat twice, in turns, in the one ``--prefetch-mode``: with today's settings and with
+these (``MODE+candidate``), and prints the ratios of each pair: frames/s and the CPU ms per frame
+of the main thread and of the main process (the figures that survive a busy machine).
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import json
 import os
 import statistics
@@ -59,11 +66,14 @@ from uss_slam.core import png_inflate
 from uss_slam.slam_eval.filters.build import build_filters
 from uss_slam.slam_eval.frontend import process as frontend_process
 from uss_slam.slam_eval.frontend.orb import OrbConfig, OrbExtractor
+from uss_slam.slam_eval.mapping.local_mapping import LocalMappingConfig
+from uss_slam.slam_eval.mapping.loop_closing import LoopClosingConfig
 from uss_slam.slam_eval.scoring.metrics import ate
 from uss_slam.slam_eval.segmenters.base import LabelsSegmenter
 from uss_slam.slam_eval.sequence import TumSequence
 from uss_slam.slam_eval.systems import harness
 from uss_slam.slam_eval.systems.harness import SlamPipeline
+from uss_slam.slam_eval.tracking.config import TrackerConfig
 from uss_slam.testing.harness_runs import sequence_path
 from uss_slam.testing.machine import cpu_model
 
@@ -96,7 +106,13 @@ def main() -> None:
     parser.add_argument(
         "--orbslam3", type=Path, metavar="VOCAB", help="also time ORB-SLAM3 with this vocabulary"
     )
+    parser.add_argument("--candidate", action="append", default=[], metavar="KEY=VALUE",
+                        help="a setting of the candidate run (module docstring; repeatable)")  # fmt: skip
     args = parser.parse_args()
+    if args.candidate:
+        if args.prefetch_mode in PAIRS:
+            raise SystemExit("--candidate: give one --prefetch-mode (thread, process, auto)")
+        candidate_settings(args.candidate)  # a bad key or value stops here
     if args.orbslam3 is not None and not args.orbslam3.is_file():
         raise SystemExit(f"--orbslam3: {args.orbslam3} is not a file (uss-vocab build makes one)")
     if args.jobs < 1:
@@ -140,6 +156,9 @@ def benchmark(args: argparse.Namespace, path: Path) -> None:
     print(f"PNG image data inflated by {inflater()}", flush=True)
 
     modes = PAIRS.get(args.prefetch_mode, [args.prefetch_mode])
+    if getattr(args, "candidate", None):
+        modes = [args.prefetch_mode, f"{args.prefetch_mode}+candidate"]
+        print(f"candidate: {' '.join(args.candidate)}", flush=True)
     print(f"modes {modes}; auto (decided as each run starts) would be "
           f"{frontend_process.resolve_mode('auto')} now", flush=True)  # fmt: skip
     runs: dict[str, list[dict]] = {mode: [] for mode in modes}
@@ -185,6 +204,10 @@ def benchmark(args: argparse.Namespace, path: Path) -> None:
         pairs = [q["fps"] / p["fps"] for p, q in zip(runs[a], runs[b], strict=True)]
         print(f"{b} / {a} frames/s, per repeat: {', '.join(f'{v:.2f}' for v in pairs)}; "
               f"median {statistics.median(pairs):.2f}")  # fmt: skip
+        for key in ("main_thread", "main_process"):
+            cpu = [q[key] / p[key] for p, q in zip(runs[a], runs[b], strict=True)]
+            print(f"{b} / {a} {key.replace('_', ' ')} CPU ms per frame, per repeat: "
+                  f"{', '.join(f'{v:.3f}' for v in cpu)}; median {statistics.median(cpu):.3f}")  # fmt: skip
     if args.orbslam3 is not None:
         orb3 = orbslam3_fps(path, args.orbslam3, args.repeats)
         median3 = statistics.median(orb3)
@@ -223,10 +246,44 @@ def _reader_threads(suffix: str) -> int | None:
     return None if suffix == "w" else int(suffix)
 
 
+SECTIONS = {
+    "tracker": ("tracker", TrackerConfig),
+    "local_ba_params": ("local_ba_params", LocalMappingConfig),
+    "loop_closing_params": ("loop_closing_params", LoopClosingConfig),
+    "orb": ("orb", OrbConfig),
+}
+"""``--candidate`` section -> (the :class:`SlamPipeline` keyword, its settings dataclass)."""
+
+
+def candidate_settings(items: list[str]) -> dict:
+    """The :class:`SlamPipeline` keywords of ``--candidate``'s ``SECTION.KEY=VALUE`` items (each
+    value read as JSON, else as a string)."""
+    values: dict[str, dict] = {}
+    for item in items:
+        key, eq, text = item.partition("=")
+        section, _, name = key.partition(".")
+        if not eq or section not in SECTIONS or not name:
+            raise SystemExit(f"--candidate: expected SECTION.KEY=VALUE with SECTION one of "
+                             f"{', '.join(SECTIONS)}, got {item!r}")  # fmt: skip
+        try:
+            value = json.loads(text)
+        except json.JSONDecodeError:
+            value = text
+        values.setdefault(section, {})[name] = value
+    try:
+        return {
+            SECTIONS[s][0]: dataclasses.replace(SECTIONS[s][1](), **v) for s, v in values.items()
+        }
+    except (TypeError, ValueError) as err:
+        raise SystemExit(f"--candidate: {err}") from None
+
+
 def timed_run(seq: TumSequence, args: argparse.Namespace, mode: str) -> dict:
     """One whole-pipeline run: frames/s, per-module wall and CPU ms per frame, the CPU ms per
     frame of the main thread, of this process and of the worker process, and the CPU-bound
-    rate on two idle cores."""
+    rate on two idle cores (``MODE+candidate``: with ``--candidate``'s settings)."""
+    mode, plus, _ = mode.partition("+")
+    settings = candidate_settings(args.candidate) if plus else {}
     mode, _, reader_threads = mode.partition(":")
     mode, _, readers = mode.partition("/")
     pipeline = SlamPipeline(
@@ -239,6 +296,7 @@ def timed_run(seq: TumSequence, args: argparse.Namespace, mode: str) -> dict:
         prefetch_mode="thread" if mode == "before" else mode,
         **({"workers": int(readers)} if readers else {}),
         **({"reader_threads": _reader_threads(reader_threads)} if reader_threads else {}),
+        **settings,
     )
     workers: list[frontend_process.FrontendProcess | None] = []
     start = frontend_process.start
@@ -281,7 +339,7 @@ def timed_run(seq: TumSequence, args: argparse.Namespace, mode: str) -> dict:
 
 def show(repeat: int, mode: str, run: dict, seq: TumSequence) -> None:
     print(
-        f"repeat {repeat} [{mode}{' -> ' + run['used'] if mode == 'auto' else ''}]: "
+        f"repeat {repeat} [{mode}{' -> ' + run['used'] if mode.startswith('auto') else ''}]: "
         f"{run['fps']:5.1f} frames/s, pipeline "
         f"{run['timing']['total']:.1f} ms/frame; CPU ms/frame: main thread "
         f"{run['main_thread']:.1f}, main process {run['main_process']:.1f}, worker process "

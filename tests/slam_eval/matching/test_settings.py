@@ -3,9 +3,13 @@ configured values to them."""
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
+import numpy as np
+
 from uss_slam.core.tum_io import TUM_CAMERAS
 from uss_slam.slam_eval.frontend.orb import OrbConfig, OrbExtractor
-from uss_slam.slam_eval.matching import settings_of
+from uss_slam.slam_eval.matching import sampling, settings_of
 from uss_slam.slam_eval.matching.projection import MatchThresholds
 from uss_slam.slam_eval.matching.sampling import SamplingSettings
 from uss_slam.slam_eval.tracking.tracker import Tracker, TrackerConfig
@@ -22,8 +26,26 @@ def test_the_matching_settings_are_the_trackers() -> None:
     assert tracker.projection.map is tracker.map
 
 
-def test_the_pose_tolerance_reaches_the_refinement() -> None:
+def test_the_pose_tolerance_reaches_the_refinement(monkeypatch) -> None:
     ex = OrbExtractor(OrbConfig(), TUM_CAMERAS["fr3"].scaled(320, 240))
     tracker = Tracker(TrackerConfig(pose_tolerance=1e-5), ex)
-    assert tracker.sampler.config.pose_tolerance == 1e-5
     assert SamplingSettings().pose_tolerance == TrackerConfig().pose_tolerance == 1e-7
+    used: list[float] = []
+
+    def recording(k, bf, pose_cw, *args, tolerance, **kwargs):
+        used.append(tolerance)
+        return pose_cw
+
+    monkeypatch.setattr(sampling, "optimise_pose", recording)
+    rng = np.random.default_rng(0)
+    n = 40
+    features = SimpleNamespace(
+        uv=rng.uniform(50, 250, (n, 2)),
+        octave=np.zeros(n, np.int32),
+        depth=rng.uniform(1, 3, n).astype(np.float32),
+    )
+    world = np.column_stack([(features.uv - 160) / 250 * features.depth[:, None], features.depth])
+    kp = np.arange(n)
+    tracker.sampler.refine_pose(world, features, kp, np.eye(4))
+    tracker.sampler.optimise_all(world, features, kp, np.eye(4))
+    assert used and set(used) == {1e-5}
