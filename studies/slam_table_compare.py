@@ -71,6 +71,9 @@ def main() -> None:
     print(f"- cells at strides 1-3 more than 10% worse: {len(worse)} {worse or ''}")
     rb, ra = back_end_ratios(before, before), back_end_ratios(after, before)
     common = sorted(set(rb) & set(ra))
+    if not common:
+        print("- default / no back end: neither table has the no-back-end column")
+        return
     print(
         f"- default / no back end > 1.02: before {sum(rb[k] > 1.02 for k in common)}, "
         f"after {sum(ra[k] > 1.02 for k in common)} of {len(common)} rows "
