@@ -29,7 +29,7 @@ class SamplingSettings:
     ransac_threshold: float = 3.0
     refine_rounds: int = 4
     rgbd_refinement: bool = True
-    pose_tolerance: float = 1e-7
+    pose_tolerance: float = 1e-5
 
 
 class PoseSampler:

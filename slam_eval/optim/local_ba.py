@@ -37,8 +37,8 @@ Local bundle adjustment of a new keyframe ``K``:
   (ORB-SLAM2's second pass) the observations whose χ² exceeds those quantiles (or that fall
   behind the camera) are then left out, the kernel is dropped, and ``second_iterations`` more;
   finally the observations still above the quantiles are erased from the map (a point left with
-  one keyframe is marked bad). Local mapping's default is ORB-SLAM3's single pass (10
-  iterations, no second pass: :class:`~..mapping.local_mapping.LocalMappingConfig`).
+  one keyframe is marked bad). Local mapping's default is one pass of 2 iterations, no
+  second pass (ORB-SLAM3's single pass has 10: :class:`~..mapping.local_mapping.LocalMappingConfig`).
 
 Fixed keyframes are variables with a tight prior (σ = 1e-6 m / rad): GTSAM's hard
 ``NonlinearEquality`` constraint gives the same result but optimised about five times slower here.

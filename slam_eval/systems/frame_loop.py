@@ -457,7 +457,7 @@ class FrameLoop:
         if self.semantic is not None and self.log:
             self.receive(self.log[-1].stamp + 2 * self.semantic.latency_s)
         with self.timer("final_ba"):
-            done = adjust_all(self.map, self.mapper.adjuster, self.mapper.config.first_iterations)
+            done = adjust_all(self.map, self.mapper.adjuster)
         self.counts["final_ba_outliers"] += done.outliers
 
     def track_people(self) -> None:

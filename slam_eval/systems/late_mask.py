@@ -72,7 +72,15 @@ def final_ba_runs(final_ba: str, segment: str) -> bool:
     return final_ba == "always" or (final_ba == "thread" and segment == "thread")
 
 
-def adjust_all(slam_map: SlamMap, adjuster: BundleAdjuster, iterations: int) -> Adjustment:
+FINAL_BA_ITERATIONS = 10
+"""Levenberg–Marquardt iterations of the end-of-run bundle adjustment (ORB-SLAM3's single pass;
+local BA's own count, ``slam.local_ba_params.first_iterations``, has been 2 since the evening of
+2026-12-07)."""
+
+
+def adjust_all(
+    slam_map: SlamMap, adjuster: BundleAdjuster, iterations: int = FINAL_BA_ITERATIONS
+) -> Adjustment:
     """One bundle adjustment of every good keyframe (keyframe 0 fixed, the gauge) and every good
     map point they observe, ``iterations`` Levenberg–Marquardt iterations with the Huber kernel
     (local BA's single pass); outliers erased as local BA does."""

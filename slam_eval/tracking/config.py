@@ -53,11 +53,12 @@ class TrackerConfig:
     rgbd_refinement: bool = True
     """Refine with depth as a virtual stereo coordinate (ORB-SLAM2 RGB-D); False = reprojection
     error only (``cv2.solvePnPRefineLM``)."""
-    pose_tolerance: float = ranged(1e-7, gt=0, max=1e-3)
+    pose_tolerance: float = ranged(1e-5, gt=0, max=1e-3)
     """The pose-only optimisation (Gauss–Newton) stops once a step moves the pose by less than
-    this in every component, metres and radians, or after 10 steps (ORB-SLAM2's
-    ``PoseOptimization``: 10 Levenberg–Marquardt iterations in each of its 4 rounds, no
-    tolerance)."""
+    this in every component, metres and radians (1e-5: 0.005 px at fx 525, far below a pose's
+    noise), or after 10 steps (ORB-SLAM2's ``PoseOptimization``: 10 Levenberg–Marquardt
+    iterations in each of its 4 rounds, no tolerance). 1e-5 since 2026-12-07 (1e-7 before),
+    with local BA's 2 iterations: docs/results/slam.md, "two convergence cuts for speed"."""
     virtual_baseline: float = ranged(0.075, gt=0)
     """Baseline of the virtual stereo pair, metres (ORB-SLAM2's TUM ``bf`` = 40 = 535.4 × 0.075)."""
     th_depth: float = ranged(3.0, gt=0)

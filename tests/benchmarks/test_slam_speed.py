@@ -36,7 +36,7 @@ def test_readers_pair_changes_only_the_reading_threads(synthetic_sequence, monke
 
 def test_candidate_settings_reach_the_candidate_run_only(synthetic_sequence, monkeypatch) -> None:
     seq = TumSequence(synthetic_sequence(preset="walking_xyz", frames=30), load_labels=True)
-    items = ["tracker.pose_tolerance=1e-5", "local_ba_params.first_iterations=2"]
+    items = ["tracker.pose_tolerance=1e-7", "local_ba_params.first_iterations=10"]
     args = argparse.Namespace(
         filters=["semantic"], local_ba=True, loop_closing=False, candidate=items
     )
@@ -51,7 +51,7 @@ def test_candidate_settings_reach_the_candidate_run_only(synthetic_sequence, mon
     for mode in ("thread", "thread+candidate"):
         slam_speed.timed_run(seq, args, mode)
     (today, none), (tolerance, ba) = built
-    assert (today, none, tolerance, ba.first_iterations) == (1e-7, None, 1e-5, 2)
+    assert (today, none, tolerance, ba.first_iterations) == (1e-5, None, 1e-7, 10)
     for bad in ("tracker.nope=1", "slam.tracker.pose_tolerance=1e-5", "tracker.pose_tolerance=0"):
         with pytest.raises(SystemExit, match="--candidate"):
             slam_speed.candidate_settings([bad])

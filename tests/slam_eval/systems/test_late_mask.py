@@ -127,3 +127,30 @@ def test_defaults_leave_both_off(synthetic_sequence, tmp_path: Path) -> None:
     path = synthetic_sequence(preset="walking_xyz", frames=20)
     slam = slam_run_config(path, tmp_path / "a", "segmenter=labels", "filters=[semantic]").slam
     assert (slam.mask_refits_keyframes, slam.final_ba) == (False, "none")
+
+
+def test_the_end_of_run_adjustment_keeps_its_own_iterations(monkeypatch) -> None:
+    """The end-of-run bundle adjustment runs ORB-SLAM3's 10 iterations whatever local BA's
+    ``first_iterations`` (2 by default)."""
+    from contextlib import nullcontext
+
+    from uss_slam.slam_eval.mapping.local_mapping import LocalMappingConfig
+    from uss_slam.slam_eval.systems import frame_loop, late_mask
+
+    calls = []
+    adjuster = SimpleNamespace(
+        adjust=lambda *args: calls.append(args[3:]) or SimpleNamespace(outliers=0)
+    )
+    kfs = [SimpleNamespace(id=0, bad=False), SimpleNamespace(id=1, bad=True)]
+    slam_map = SimpleNamespace(keyframes=kfs, points_of=lambda free: free)
+    loop = SimpleNamespace(
+        final_ba=True,
+        mapper=SimpleNamespace(adjuster=adjuster, config=LocalMappingConfig()),
+        semantic=None,
+        map=slam_map,
+        timer=lambda name: nullcontext(),
+        counts={"final_ba_outliers": 0},
+    )
+    monkeypatch.setattr(frame_loop, "adjust_all", late_mask.adjust_all)
+    frame_loop.FrameLoop.finish(loop)
+    assert calls == [(10, 0)] and LocalMappingConfig().first_iterations == 2
