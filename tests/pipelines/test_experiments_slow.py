@@ -1,13 +1,20 @@
-"""uss-experiments end to end (slow): scale=quick as CI runs it, a rerun that reuses every job,
-an interrupted run resumed, a failing job marked while the others go on (through submitit's
-local executor, the SLURM launcher's path), and the paper scale's one-iteration fast_dev_run on
-files in the real data formats."""
+"""uss-experiments end to end (slow): scale=quick as CI runs it (its warm start included), a
+rerun that reuses every job, an interrupted run resumed, a failing job marked while the others go
+on (through submitit's local executor, the SLURM launcher's path), and the paper scale's
+one-iteration fast_dev_run on files in the real data formats.
+
+scale=quick runs once per module (the ``quick`` fixture, from an empty folder); the other tests
+start from copies of its data (training renders, pretraining set, pretrained init), and those
+that are not about the trainings from copies of the trainings and exports they need: a moved
+run's jobs are reused (their keys hold no absolute path), which the tests assert."""
 
 from __future__ import annotations
 
 import csv
+import hashlib
 import importlib.util
 import json
+import re
 import shutil
 import subprocess
 import sys
@@ -42,11 +49,31 @@ NO_T0 = ("grid.adabn=false", "grid.oracle=false", "segeval.source_val_stride=nul
 """T0's reference jobs off: the tests of other paths keep their grid (and runtime)."""
 
 
-def test_quick_end_to_end_then_reuse_then_resume(tmp_path: Path) -> None:
-    out = tmp_path / "quick"
-    first = run(out, cwd=tmp_path)
+QuickRun = tuple[Path, subprocess.CompletedProcess[str]]
+
+
+@pytest.fixture(scope="module")
+def quick(tmp_path_factory: pytest.TempPathFactory) -> QuickRun:
+    """``uss-experiments`` at scale=quick from an empty folder, as CI runs it: the run folder and
+    the call's output. Read-only: tests copy what they change or rerun."""
+    root = tmp_path_factory.mktemp("quick")
+    out = root / "quick"
+    first = run(out, cwd=root)
     assert first.returncode == 0, first.stdout[-3000:] + first.stderr[-3000:]
-    rows = runs_csv(out)
+    return out, first
+
+
+def copy_of(quick_out: Path, out: Path, *parts: str) -> Path:
+    """``out`` holding copies of the quick run's ``parts`` (``data``, ``train/source_only_s0``,
+    ...): what a later run with the same keys reuses."""
+    for part in parts:
+        shutil.copytree(quick_out / part, out / part, symlinks=True)
+    return out
+
+
+def test_quick_end_to_end_then_reuse_then_resume(quick: QuickRun, tmp_path: Path) -> None:
+    source, first = quick
+    rows = runs_csv(source)
     kinds = [r["kind"] for r in rows]
     # 12 trainings (source-only + n = 4..7 + T0's oracle, 2 seeds), their exports and AdaBN's
     # of source-only, the 14 models' segmentation metrics (2 sequences + pooled) and T0's 4 x 2
@@ -64,7 +91,7 @@ def test_quick_end_to_end_then_reuse_then_resume(tmp_path: Path) -> None:
     # keypoint to track, recorded as tracked_fraction 0 without an ATE; the rest have one.
     assert all(r["ate_rmse"] or float(r["tracked_fraction"]) == 0.0 for r in slam_rows)
     assert all(r["ate_rmse"] for r in slam_rows if r["variant"] in ("none", "oracle"))
-    md = (out / "tables.md").read_text()
+    md = (source / "tables.md").read_text()
     for title in (
         "### T0: the UDA table",
         "#### T0 per seed",
@@ -80,7 +107,7 @@ def test_quick_end_to_end_then_reuse_then_resume(tmp_path: Path) -> None:
     ):
         assert title in md
     assert "Every job succeeded." in md
-    tables = json.loads((out / "tables.json").read_text())
+    tables = json.loads((source / "tables.json").read_text())
     seg = {r["config"]: r["mIoU"] for r in tables["T1"]["segmentation"]}
     assert list(seg) == ["source_only", *(f"adaptsegnet_n{n}" for n in (4, 5, 6, 7))]
     assert all(s["n"] == 2 and s["failed"] == 0 for s in seg.values())
@@ -92,12 +119,14 @@ def test_quick_end_to_end_then_reuse_then_resume(tmp_path: Path) -> None:
     assert t0["oracle"]["target_labels"] == "training" and "| oracle † | training |" in md
     assert "- T0: AdaBN on 48 evenly spaced target training frames; oracle trained" in md
     for name in ("t1_miou.png", "t1_iou_per_class.png", "ate_per_sequence.png"):
-        assert (out / "plots" / name).stat().st_size > 0
+        assert (source / "plots" / name).stat().st_size > 0
     for sequence in ("walking_xyz", "static_xyz"):  # held-out seeds 1000 + preset index
-        record = json.loads((out / "data" / "eval" / sequence / STAMP).read_text())
+        record = json.loads((source / "data" / "eval" / sequence / STAMP).read_text())
         assert record["seed"] not in (0, 1, 2, 3, 4, 100)
 
     # the tables alone, again: runs.csv keeps every row (the exports' too)
+    out = tmp_path / "quick"
+    shutil.copytree(source, out, symlinks=True)
     tables_only = run(out, "stages=[tables]", cwd=tmp_path)
     assert tables_only.returncode == 0, tables_only.stderr[-3000:]
     assert sorted(r["id"] for r in runs_csv(out)) == sorted(r["id"] for r in rows)
@@ -137,14 +166,54 @@ def test_quick_end_to_end_then_reuse_then_resume(tmp_path: Path) -> None:
     assert "slam: 100 jobs, 76 complete, 0 to run, 24 blocked until their model exists" in (
         more.stdout
     )
+    assert "pretraining set reused, pretrained init i0: reused" in more.stdout
+    assert "init: 1 jobs, 1 complete, 0 to run" in more.stdout
+
+
+def test_quick_scale_warm_starts_every_training(quick: QuickRun, tmp_path: Path) -> None:
+    """The warm start of the quick run (the pretraining set, the init, every training from it);
+    then the run's stages [data,train,tables] alone on copies of its data and trainings: every
+    init and training reused, the tables from the trainings alone."""
+    source, first = quick
+    assert re.search(r"pretrained init i0: trained in \d+ (s|min)", first.stdout), first.stdout
+    init = source / "data" / "init" / "i0" / "init.ckpt"
+    result = json.loads((source / "data" / "init" / "i0" / "result.json").read_text())
+    assert result["init_sha256"] == hashlib.sha256(init.read_bytes()).hexdigest()
+    trainings = sorted(p.name for p in (source / "train").iterdir())
+    assert trainings == sorted(
+        [f"{c}_s{s}" for c in ("source_only", "oracle") for s in (0, 1)]
+        + [f"adaptsegnet_n{n}_s{s}" for n in (4, 5, 6, 7) for s in (0, 1)]
+    )
+    for name in trainings:  # the weights loader names the file each training read
+        log = (source / "logs" / "train" / f"{name}.log").read_text()
+        assert f"{init}: read as checkpoint weights" in log, name
+        stamp = json.loads((source / "train" / name / STAMP).read_text())
+        assert stamp["init"] == result["init_sha256"]
+    header = "- init: pretrained, every training from the init of its init seed (i0)"
+    assert header in (source / "tables.md").read_text()
+
+    out = copy_of(source, tmp_path / "warm", "data", "train")
+    grid = ("grid.n_layers=[5]", "sequences=[walking_xyz]")
+    done = run(out, *grid, "stages=[data,train,tables]", cwd=tmp_path)
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    assert "pretraining set reused, pretrained init i0: reused" in done.stdout
+    assert "train: 6 training jobs: every job complete already (reused)" in done.stdout
+    assert header in (out / "tables.md").read_text()
+    again = run(out, *grid, "dry_run=true", cwd=tmp_path)
+    assert again.returncode == 0, again.stderr[-3000:]
+    assert "pretraining set reused, pretrained init i0: reused" in again.stdout
+    assert "init: 1 jobs, 1 complete, 0 to run" in again.stdout
+    assert "train: 6 jobs, 6 complete, 0 to run" in again.stdout
 
 
 ALL_METHODS = ("source_only", "adaptsegnet", "advent", "minent", "self_training")
 
 
-def test_more_methods_and_the_crf_reuse_a_finished_run(tmp_path: Path) -> None:
+def test_more_methods_and_the_crf_reuse_a_finished_run(quick: QuickRun, tmp_path: Path) -> None:
     pytest.importorskip("pydensecrf")
-    out = tmp_path / "crf"
+    models = ("source_only_s0", "adaptsegnet_n4_s0", "adaptsegnet_n5_s0")
+    parts = [f"{folder}/{m}" for folder in ("train", "exports") for m in models]
+    out = copy_of(quick[0], tmp_path / "crf", "data", *parts)
     grid = [
         "grid.seeds=[0]",
         "grid.n_layers=[4,5]",
@@ -154,6 +223,8 @@ def test_more_methods_and_the_crf_reuse_a_finished_run(tmp_path: Path) -> None:
     ]
     first = run(out, *grid, "variants=[none,semantic,semantic_geometry,oracle]", cwd=tmp_path)
     assert first.returncode == 0, first.stdout[-3000:] + first.stderr[-3000:]
+    assert "train: 3 training jobs: every job complete already (reused)" in first.stdout
+    assert "export: last checkpoints -> ONNX: 0 exported, 3 reused" in first.stdout
     done = {r["id"] for r in runs_csv(out)}
     assert len(done) == 3 + 3 + 3 + (2 + 3 + 2)  # trainings, exports, segeval, SLAM runs
 
@@ -228,11 +299,13 @@ def test_more_methods_and_the_crf_reuse_a_finished_run(tmp_path: Path) -> None:
     assert timing["semantic"]["crf_ms"]["n"] == 0
 
 
-def test_submitit_local_refuses_an_impossible_depth_before_any_job(tmp_path: Path) -> None:
+def test_submitit_local_refuses_an_impossible_depth_before_any_job(
+    quick: QuickRun, tmp_path: Path
+) -> None:
     """An 8-layer discriminator on 129-pixel crops is refused for the whole grid before any job
     is submitted (it used to fail as a training job); without it every job runs through
-    submitit."""
-    out = tmp_path / "sub"
+    submitit (the data and init are the quick run's)."""
+    out = copy_of(quick[0], tmp_path / "sub", "data")
     grid = [
         "launcher=submitit_local",
         "grid.seeds=[0]",
@@ -251,14 +324,16 @@ def test_submitit_local_refuses_an_impossible_depth_before_any_job(tmp_path: Pat
 
     fixed = run(out, *[g.replace("[4,8]", "[4]") for g in grid], cwd=tmp_path)
     assert fixed.returncode == 0, fixed.stderr[-3000:]
+    assert "train: 2 training jobs: ran 2 jobs (multirun exit code 0)" in fixed.stdout
     assert (out / ".submitit").is_dir()  # the jobs went through submitit
     status = {r["id"]: r["status"] for r in runs_csv(out)}
     assert status["train/source_only_s0"] == status["train/adaptsegnet_n4_s0"] == "ok"
     assert status["slam/harness/static_xyz/semantic/adaptsegnet_n4_s0"] == "ok"
 
 
-def test_joblib_runs_jobs_in_parallel_processes(tmp_path: Path) -> None:
-    out = tmp_path / "joblib"
+def test_joblib_runs_jobs_in_parallel_processes(quick: QuickRun, tmp_path: Path) -> None:
+    """The trainings and SLAM runs through joblib (the data and init are the quick run's)."""
+    out = copy_of(quick[0], tmp_path / "joblib", "data")
     done = run(
         out,
         "launcher=joblib",
@@ -353,9 +428,11 @@ def test_paper_scale_fast_dev_run_on_real_formats(tmp_path: Path) -> None:
         assert list((folder / "checkpoints").glob("*.ckpt"))
 
 
-def test_orbslam3_runs_next_to_the_harness(tmp_path: Path) -> None:
+def test_orbslam3_runs_next_to_the_harness(quick: QuickRun, tmp_path: Path) -> None:
+    """ORB-SLAM3's jobs beside the harness's on the quick run's data, training and export."""
     pytest.importorskip("pyorbslam3")
-    out = tmp_path / "orb"
+    model = "source_only_s0"
+    out = copy_of(quick[0], tmp_path / "orb", "data", f"train/{model}", f"exports/{model}")
     done = run(
         out,
         "grid.methods=[source_only]",
@@ -368,6 +445,7 @@ def test_orbslam3_runs_next_to_the_harness(tmp_path: Path) -> None:
         cwd=tmp_path,
     )
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    assert "train: 1 training jobs: every job complete already (reused)" in done.stdout
     rows = {r["id"]: r for r in runs_csv(out)}
     orb = {i for i in rows if i.startswith("slam/orbslam3/")}
     # the mask variants only: geometry is the harness's own check

@@ -1,15 +1,11 @@
 """The warm-start protocol of uss-experiments (``init``): the plan's training ids, overrides and
 cache keys with and without a pretrained init (scratch exactly as before), the pretraining jobs,
-and the one-line errors of bad ``init`` / ``grid.batchnorm`` keys; slow: scale=quick end to end
-with its tiny pretrained init."""
+and the one-line errors of bad ``init`` / ``grid.batchnorm`` keys. scale=quick's warm start end to
+end (its tiny pretrained init) is test_experiments_slow's, on its scale=quick run."""
 
 from __future__ import annotations
 
 import hashlib
-import json
-import re
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -298,47 +294,6 @@ def test_scratch_ignores_the_pretraining_keys_and_paper_takes_a_file(tmp_path: P
         f"init.path={weights}",
     )
     assert paper.init.path == weights and paper.grid.trainings[0].init is None
-
-
-@pytest.mark.slow
-def test_quick_scale_warm_starts_every_training(tmp_path: Path) -> None:
-    """The warm start's stages (the data, the init, the trainings) and the tables; the exports
-    and SLAM runs of scale=quick are test_experiments_slow's (a warm-started training's
-    checkpoint is exported as any other)."""
-    out = tmp_path / "quick"
-    done = subprocess.run(
-        [sys.executable, "-m", "uss_slam.pipelines.experiments.cli", f"out_dir={out}",
-         "grid.n_layers=[5]", "sequences=[walking_xyz]", "stages=[data,train,tables]"],
-        capture_output=True, text=True, cwd=tmp_path, timeout=1800,
-    )  # fmt: skip
-    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
-    assert re.search(r"pretrained init i0: trained in \d+ (s|min)", done.stdout), done.stdout
-    init = out / "data" / "init" / "i0" / "init.ckpt"
-    result = json.loads((out / "data" / "init" / "i0" / "result.json").read_text())
-    assert result["init_sha256"] == hashlib.sha256(init.read_bytes()).hexdigest()
-    trainings = sorted(p.name for p in (out / "train").iterdir())
-    assert trainings == [
-        "adaptsegnet_n5_s0", "adaptsegnet_n5_s1", "oracle_s0", "oracle_s1",
-        "source_only_s0", "source_only_s1",
-    ]  # fmt: skip
-    for name in trainings:  # the weights loader names the file each training read
-        log = (out / "logs" / "train" / f"{name}.log").read_text()
-        assert f"{init}: read as checkpoint weights" in log, name
-        stamp = json.loads((out / "train" / name / ".uss-demo.json").read_text())
-        assert stamp["init"] == result["init_sha256"]
-    assert (
-        "- init: pretrained, every training from the init of its init seed (i0)"
-        in (out / "tables.md").read_text()
-    )
-    again = subprocess.run(
-        [sys.executable, "-m", "uss_slam.pipelines.experiments.cli", f"out_dir={out}",
-         "grid.n_layers=[5]", "sequences=[walking_xyz]", "dry_run=true"],
-        capture_output=True, text=True, cwd=tmp_path, timeout=600,
-    )  # fmt: skip
-    assert again.returncode == 0, again.stderr[-3000:]
-    assert "pretraining set reused, pretrained init i0: reused" in again.stdout
-    assert "init: 1 jobs, 1 complete, 0 to run" in again.stdout
-    assert "train: 6 jobs, 6 complete, 0 to run" in again.stdout
 
 
 def test_an_init_path_torch_cannot_read_is_one_line_in_a_dry_run(tmp_path: Path) -> None:
