@@ -24,6 +24,7 @@ import lightning as L
 import torch
 from hydra.errors import InstantiationException
 from hydra.utils import get_class, instantiate
+from lightning.fabric.utilities.exceptions import MisconfigurationException
 from lightning.pytorch import Callback, LightningDataModule, LightningModule, Trainer
 from lightning.pytorch.callbacks import LearningRateMonitor, ProgressBar
 from lightning.pytorch.loggers import Logger
@@ -52,6 +53,7 @@ from uss_slam.train.memory import check_training_memory
 from uss_slam.train.method_configs import unused_method_settings
 from uss_slam.train.module import AdversarialSegmentation, resume_differences
 from uss_slam.train.speed import resolve_precision
+from uss_slam.train.trainer_settings import build_trainer, check_trainer_settings, trainer_error
 
 log = logging.getLogger(__name__)
 PROG = "uss-train"
@@ -472,6 +474,8 @@ def fit(
     announcer.addFilter(_drop_shutdown_notice)
     try:
         trainer.fit(model, datamodule=datamodule, ckpt_path=ckpt_path)
+    except MisconfigurationException as error:  # Lightning's checks as fit starts
+        raise trainer_error(error) from error
     except SystemExit:
         if not trainer.interrupted:
             raise
@@ -550,9 +554,8 @@ def train(cfg: DictConfig) -> dict[str, float]:
             cfg.trainer.precision = precision
     # checkpoints written atomically in their folder (Lightning's go through $TMPDIR)
     plugins = [AtomicCheckpointIO()]
-    trainer: Trainer = instantiate(
-        cfg.trainer, callbacks=callbacks, logger=loggers or False, plugins=plugins
-    )
+    check_trainer_settings(cfg, callbacks)
+    trainer = build_trainer(cfg, callbacks=callbacks, logger=loggers or False, plugins=plugins)
 
     hparams = OmegaConf.to_container(cfg, resolve=True)
     for logger in loggers:

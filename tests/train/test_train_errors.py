@@ -139,6 +139,51 @@ def test_unknown_key_is_one_line(uda_data: dict[str, Path], tmp_path: Path, monk
 
 
 @pytest.mark.parametrize(
+    ("override", "line"),
+    [
+        (
+            "+trainer.gradient_clip_val=1.0",
+            "trainer.gradient_clip_val=1.0: the training step optimises its networks itself "
+            "(Lightning's manual optimization); Lightning clips no gradients there; expected null",
+        ),
+        (
+            "+trainer.accumulate_grad_batches=2",
+            "trainer.accumulate_grad_batches=2: the training step optimises its networks itself "
+            "(Lightning's manual optimization); Lightning accumulates no gradients there; "
+            "expected 1",
+        ),
+        (
+            "+trainer.enable_checkpointing=false",
+            "trainer.enable_checkpointing=false: the callbacks save checkpoints "
+            "(ResumableModelCheckpoint, ResumableModelCheckpoint); expected true, or "
+            "callbacks=none for a run without them",
+        ),
+    ],
+)
+def test_a_trainer_setting_lightning_would_refuse_in_fit_is_one_line(
+    override: str, line: str, uda_data: dict[str, Path], tmp_path: Path, monkeypatch, capsys
+) -> None:
+    code, err = _uss_train([*_common(uda_data, tmp_path), override], monkeypatch, capsys)
+    assert (code, err) == (1, [f"uss-train: error: {line}"])
+    assert _left_behind(tmp_path / "run") == set()
+
+
+def test_lightning_configuration_errors_name_the_trainer_key() -> None:
+    from hydra.errors import InstantiationException
+    from lightning.fabric.utilities.exceptions import MisconfigurationException
+
+    from uss_slam.train.trainer_settings import trainer_error
+
+    quoted = MisconfigurationException("Remove `Trainer(gradient_clip_val=1.0)` or switch.")
+    wrapped = InstantiationException("Error in call to target")
+    wrapped.__cause__ = MisconfigurationException("`enable_checkpointing=False` but found x")
+    assert str(trainer_error(quoted)).startswith("trainer.gradient_clip_val: Remove")
+    assert str(trainer_error(wrapped)).startswith("trainer.enable_checkpointing: ")
+    assert str(trainer_error(MisconfigurationException("no key"))) == "trainer: no key"
+    assert trainer_error(ValueError("x")) is None
+
+
+@pytest.mark.parametrize(
     "key",
     ["hydra.run.dir", "callbacks.model_checkpoint.dirpath", "logger.tensorboard.save_dir"],
 )
