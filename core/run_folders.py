@@ -197,6 +197,15 @@ def _log_file(config: Any, folder: str) -> None:
         raise RefusedRunFolder(error) from None
 
 
+def _hydra_config_set(config: Any) -> None:
+    """Hydra's own config (``${hydra:runtime.cwd}``, ``${hydra:job.name}``) readable while the
+    run's folders are checked: Hydra sets it only as the job starts, after these callbacks, so
+    an ``out_dir=${hydra:runtime.cwd}/o`` would otherwise fail to resolve here."""
+    from hydra.core.hydra_config import HydraConfig
+
+    HydraConfig.instance().set_config(config)
+
+
 def _is_null(config: Any, key: str) -> bool:
     """Whether ``key`` of ``config`` is null (not an interpolation that fails)."""
     from omegaconf import OmegaConf
@@ -275,6 +284,7 @@ class RunFolderCheck:
                 output_folder(str(value), key, inputs=self._input_folders(config))
 
     def on_run_start(self, config: Any, **kwargs: Any) -> None:
+        _hydra_config_set(config)
         try:
             folder = str(config.hydra.run.dir)
         except Exception as error:  # an interpolation that cannot be resolved (${nope})
@@ -341,6 +351,7 @@ class RunFolderCheck:
 
         from uss_slam.core import job_records
 
+        _hydra_config_set(config)
         sweep = str(config.hydra.sweep.dir)
         job_records.sweep_dir = sweep  # where jobs in processes report
         self._one_folder(config, sweep, "hydra.sweep.dir")

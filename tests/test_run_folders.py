@@ -146,3 +146,28 @@ def test_a_slam_run_with_hydra_job_chdir_reads_a_relative_sequence(
         _clear()
     assert code == 0, err
     assert (tmp_path / "out" / "run.json").is_file()
+
+
+@pytest.mark.parametrize("prog", list(CHDIR_APPS))
+def test_output_folders_may_name_hydras_runtime_cwd(
+    prog: str, world: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    """``out_dir=${hydra:runtime.cwd}/o`` (Hydra's documented way to name the starting folder)
+    was refused: the run folders are checked before Hydra sets its own config, where the
+    resolver found none ("HydraConfig was not set")."""
+    target, argv = CHDIR_APPS[prog]
+    seen: list[str] = []
+
+    def task(cfg: object) -> None:  # stands for the app's work
+        seen.append(str(Path.cwd()))
+
+    monkeypatch.setattr(target, task)
+    monkeypatch.chdir(tmp_path)
+    args = [a.replace("{tmp}", "${{hydra:runtime.cwd}}").format(**world) for a in argv.split()]
+    assert any("${hydra:runtime.cwd}" in a for a in args)
+    try:
+        code, _, err = run_console_script(prog, args, monkeypatch, capsys)
+    finally:
+        _clear()
+    assert (code, err.strip()) == (0, ""), err
+    assert seen == [str(tmp_path)]
