@@ -26,7 +26,7 @@ from uss_slam.core.paths import output_folder
 from uss_slam.core.schema import MAX_THREADS, SchemaError, ranged, validate
 from uss_slam.core.seg_metrics import iou_report, mask_metrics
 
-from .frames import FrameSource, config_val_frames, sequence_frames
+from .frames import FrameSource, check_overrides, config_val_frames, sequence_frames
 from .markdown import markdown
 from .metrics import evaluate_frames
 from .models import load_segmenter, model_kind
@@ -72,6 +72,7 @@ def evaluate(
         validate(values, EvalOptions)
     except SchemaError as error:
         raise error.as_flag() from None
+    check_overrides(overrides)  # a second model or value among them: named
     if sequences and overrides:
         raise UssSlamError(
             "give either --sequence folders or data-config overrides (the val set), not both"

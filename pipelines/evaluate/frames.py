@@ -103,6 +103,22 @@ def _instantiate_val(node: Any) -> Any:
         raise
 
 
+def check_overrides(overrides: Sequence[str]) -> None:
+    """Each of ``uss-eval``'s positional arguments after the model is a data-config override
+    ``KEY=VALUE``: the first that is not is one line naming it (a second model file, a second
+    value of an option that takes one)."""
+    bad = [o for o in overrides if "=" not in o]
+    if not bad:
+        return
+    hint = ""
+    if Path(bad[0]).suffix.lower() in (".onnx", ".ckpt", ".pt", ".pth"):
+        hint = "; two models are compared by uss-eval compare MODEL MODEL --sequence DIR"
+    raise UssSlamError(
+        f"{bad[0]!r}: expected a data-config override KEY=VALUE (e.g. data=real, "
+        f"paths.data_dir=DIR, data.val.stride=1){hint}"
+    )
+
+
 def config_val_frames(overrides: Sequence[str]) -> FrameSource:
     """The validation set (``data.val``) of the data config composed from the shipped
     ``train`` config with ``overrides`` (e.g. ``data=real``, ``paths.data_dir=...``)."""
@@ -112,12 +128,7 @@ def config_val_frames(overrides: Sequence[str]) -> FrameSource:
 
     from uss_slam.core.schema import check_targets
 
-    bad = [o for o in overrides if "=" not in o]
-    if bad:
-        raise UssSlamError(
-            f"{bad[0]!r}: expected a data-config override KEY=VALUE (e.g. data=real, "
-            "paths.data_dir=DIR, data.val.stride=1)"
-        )
+    check_overrides(overrides)
     GlobalHydra.instance().clear()
     try:
         with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):

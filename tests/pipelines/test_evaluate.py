@@ -234,6 +234,16 @@ def test_bad_inputs_are_one_line(tmp_path: Path, synthetic_sequence, capsys) -> 
                                                                  capsys)  # fmt: skip
     assert "not both" in _error([str(model), "data=synthetic", "--sequence", str(seq), *out],
                                 capsys)  # fmt: skip
+    # beside --sequence: a second model, a second value of --dynamic, named (not "not both")
+    second = tmp_path / "m2.onnx"
+    assert _error([str(model), str(second), "--sequence", str(seq), *out], capsys) == (
+        f"uss-eval: error: {str(second)!r}: expected a data-config override KEY=VALUE (e.g. "
+        "data=real, paths.data_dir=DIR, data.val.stride=1); two models are compared by "
+        "uss-eval compare MODEL MODEL --sequence DIR"
+    )
+    assert "'chair': expected a data-config override KEY=VALUE" in _error(
+        [str(model), "--sequence", str(seq), "--dynamic", "person", "chair", *out], capsys
+    )
     assert "argument --overlays: expected an integer >= 0, got '-1'" in _error(
         [str(model), "--sequence", str(seq), "--overlays", "-1", *out], capsys, code=2
     )
