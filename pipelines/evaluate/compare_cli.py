@@ -205,7 +205,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--repeats",
         type=number(int, min=1),
         default=None,
-        help=f"SLAM runs per row, with --slam (default: {SLAM_REPEATS})",
+        help=f"SLAM runs per row, with --slam: at least 2, the report gives each row's range "
+        f"(default: {SLAM_REPEATS})",
     )
     parser.add_argument("--static", action="append", default=[], metavar="NAME",
                         help="a compared sequence (folder name) in which nothing moves: the "
