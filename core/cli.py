@@ -185,6 +185,15 @@ reader did not get it. Nothing is printed on stderr; the convention of Python's 
 (``BrokenPipeError``)."""
 
 
+def check_stdout_open() -> None:
+    """A :class:`UssSlamError` when stdout is closed (``>&-``): a script whose product is on
+    stdout calls it before any work, so that the error is its one line."""
+    from uss_slam.core import stdout
+
+    if stdout.closed():
+        raise UssSlamError("stdout is closed (>&-): the output cannot be written")
+
+
 def print_output(text: str) -> int:
     """Print ``text`` on stdout and return the exit code: 0, or :data:`CLOSED_PIPE` when the
     reader closed the pipe; then stdout is pointed at ``/dev/null``, so that the flush at exit
@@ -193,8 +202,7 @@ def print_output(text: str) -> int:
     :class:`UssSlamError`: the output was not delivered."""
     from uss_slam.core import stdout
 
-    if stdout.closed():
-        raise UssSlamError("stdout is closed (>&-): the output cannot be written")
+    check_stdout_open()
     try:
         print(text, flush=True)
         error = stdout.lost(clear=True)

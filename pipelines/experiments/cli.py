@@ -31,7 +31,13 @@ from typing import Any
 import hydra
 from omegaconf import DictConfig
 
-from uss_slam.core.cli import exit_on_user_error, hydra_task, print_output, run_hydra_app
+from uss_slam.core.cli import (
+    check_stdout_open,
+    exit_on_user_error,
+    hydra_task,
+    print_output,
+    run_hydra_app,
+)
 from uss_slam.core.files import output_lock
 from uss_slam.pipelines.runs import policy_note
 from uss_slam.pipelines.stages import Progress
@@ -65,6 +71,8 @@ PROG = "uss-experiments"
 def run_experiments(cfg: DictConfig) -> dict[str, Any]:
     """Run the configured stages; returns ``{"rows": runs.csv rows, "tables": tables.json}``
     (``{}`` for a dry run)."""
+    if bool(cfg.get("dry_run")):
+        check_stdout_open()  # the plan is the product: before the configs' checks and warnings
     exp = check(cfg)
     if bool(exp.cfg.get("dry_run")):
         return _run_experiments(exp)

@@ -415,6 +415,23 @@ def test_dry_run_prints_the_plan_without_work(
     assert not (tmp_path / "data").exists() and not (tmp_path / "train").exists()
 
 
+def test_a_dry_run_with_stdout_closed_is_its_one_line(tmp_path: Path) -> None:
+    """The plan is a dry run's product: with stdout closed (``>&-``) its error is the one
+    line, before the configs' checks (whose warnings, for a setting another method takes,
+    came first)."""
+    import os
+
+    argv = [str(Path(sys.executable).parent / "uss-experiments"), f"out_dir={tmp_path}/x",
+            "dry_run=true"]  # fmt: skip
+    done = subprocess.run(argv, cwd=tmp_path, capture_output=False, stderr=subprocess.PIPE,
+                          text=True, timeout=600, preexec_fn=lambda: os.close(1))  # fmt: skip
+    assert done.returncode == 1
+    assert done.stderr.strip().splitlines() == [
+        "uss-experiments: error: stdout is closed (>&-): the output cannot be written"
+    ]
+    assert not (tmp_path / "x").exists()
+
+
 def _tiny_onnx(path: Path) -> Path:
     """tests/slam_eval's tiny exported segmenter (logits from the pixel colours)."""
     import importlib.util
