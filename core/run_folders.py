@@ -201,9 +201,14 @@ def _hydra_config_set(config: Any) -> None:
     """Hydra's own config (``${hydra:runtime.cwd}``, ``${hydra:job.name}``) readable while the
     run's folders are checked: Hydra sets it only as the job starts, after these callbacks, so
     an ``out_dir=${hydra:runtime.cwd}/o`` would otherwise fail to resolve here."""
+    from hydra.conf import HydraConf
     from hydra.core.hydra_config import HydraConfig
+    from omegaconf import DictConfig, OmegaConf
 
-    HydraConfig.instance().set_config(config)
+    if isinstance(config, DictConfig) and "hydra" in config:
+        node = OmegaConf.get_type(config, "hydra")
+        if isinstance(node, type) and issubclass(node, HydraConf):  # a config Hydra composed
+            HydraConfig.instance().set_config(config)
 
 
 def _is_null(config: Any, key: str) -> bool:
