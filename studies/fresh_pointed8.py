@@ -68,13 +68,20 @@ def split(cases: Path, results: Path, pointed: dict[str, re.Pattern[str]]) -> No
             print(f"  {o['verdict']:4} {o['id']}: {family.get(o['id']) or 'not named'}")
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("cases", type=Path, help="the set, studies/fresh_cases8.txt")
+def split_cli(
+    argv: list[str] | None, doc: str, pointed: dict[str, re.Pattern[str]], cases: str
+) -> int:
+    """The command line of a set's split: ``CASES RESULTS``, then :func:`split`."""
+    parser = argparse.ArgumentParser(description=doc.split("\n\n")[0])
+    parser.add_argument("cases", type=Path, help=f"the set, {cases}")
     parser.add_argument("results", type=Path, help="the run's results.json")
     args = parser.parse_args(argv)
-    split(args.cases, args.results, POINTED)
+    split(args.cases, args.results, pointed)
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return split_cli(argv, __doc__, POINTED, "studies/fresh_cases8.txt")
 
 
 if __name__ == "__main__":

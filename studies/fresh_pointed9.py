@@ -21,11 +21,9 @@ the set's run.
 
 from __future__ import annotations
 
-import argparse
 import re
-from pathlib import Path
 
-from fresh_pointed8 import split
+from fresh_pointed8 import split_cli
 
 # family the fixer looked at -> how a case of the set is recognised (its id, setup, env or argv)
 POINTED: dict[str, re.Pattern[str]] = {
@@ -52,12 +50,7 @@ POINTED: dict[str, re.Pattern[str]] = {
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("cases", type=Path, help="the set, studies/fresh_cases9.txt")
-    parser.add_argument("results", type=Path, help="the run's results.json")
-    args = parser.parse_args(argv)
-    split(args.cases, args.results, POINTED)
-    return 0
+    return split_cli(argv, __doc__, POINTED, "studies/fresh_cases9.txt")
 
 
 if __name__ == "__main__":
