@@ -1,5 +1,6 @@
-"""Lightning ``Trainer`` settings the training cannot honour, refused before anything is built
-with one line naming their key, and Lightning's own configuration errors named the same way.
+"""Lightning ``Trainer`` settings the training cannot honour, refused before the trainer is built
+(nothing is written yet) with one line naming their key, and Lightning's own configuration
+errors named the same way.
 
 The training step optimises the segmenter and the discriminators itself (Lightning's manual
 optimization: two networks, their own optimisers and schedules), so Lightning's automatic
@@ -24,10 +25,10 @@ from uss_slam.core.errors import UssSlamError
 
 MANUAL = "the training step optimises its networks itself (Lightning's manual optimization)"
 
-# Trainer key -> (its value that changes nothing, what Lightning would not do)
-UNSUPPORTED: dict[str, tuple[Any, str]] = {
-    "gradient_clip_val": (None, "Lightning clips no gradients there"),
-    "accumulate_grad_batches": (1, "Lightning accumulates no gradients there"),
+# Trainer key -> (its values that change nothing, the one to write, what Lightning would not do)
+UNSUPPORTED: dict[str, tuple[tuple[Any, ...], str, str]] = {
+    "gradient_clip_val": ((None, 0), "null", "Lightning clips no gradients there"),
+    "accumulate_grad_batches": ((1,), "1", "Lightning accumulates no gradients there"),
 }
 
 
@@ -36,14 +37,9 @@ def check_trainer_settings(cfg: DictConfig, callbacks: list[Callback]) -> None:
     starts: gradient clipping or accumulation under manual optimization, checkpointing off
     beside a checkpoint callback (``callbacks`` as instantiated)."""
     trainer = cfg.get("trainer") or {}
-    for name, (neutral, why) in UNSUPPORTED.items():
-        value = trainer.get(name, neutral)
-        if (
-            value is not None
-            and value != neutral
-            and not (name == "gradient_clip_val" and value == 0)
-        ):
-            shown = "null" if neutral is None else neutral
+    for name, (neutral, shown, why) in UNSUPPORTED.items():
+        value = trainer.get(name, neutral[0])
+        if value not in neutral:
             raise UssSlamError(f"trainer.{name}={value}: {MANUAL}; {why}; expected {shown}")
     savers = [type(c).__name__ for c in callbacks if isinstance(c, ModelCheckpoint)]
     if trainer.get("enable_checkpointing", True) is False and savers:

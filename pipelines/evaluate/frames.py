@@ -17,6 +17,8 @@ from uss_slam.core.images import read_colour
 from uss_slam.core.paths import distinct_folders, input_folder
 from uss_slam.core.ranges import check_stride
 
+from .models import MODEL_KINDS
+
 CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
 
 
@@ -111,7 +113,7 @@ def check_overrides(overrides: Sequence[str]) -> None:
     if not bad:
         return
     hint = ""
-    if Path(bad[0]).suffix.lower() in (".onnx", ".ckpt", ".pt", ".pth"):
+    if Path(bad[0]).suffix.lower() in MODEL_KINDS:
         hint = "; two models are compared by uss-eval compare MODEL MODEL --sequence DIR"
     raise UssSlamError(
         f"{bad[0]!r}: expected a data-config override KEY=VALUE (e.g. data=real, "
