@@ -52,10 +52,10 @@ class LocalMappingConfig:
     """At most this many covisible keyframes are optimised, those sharing the most points first
     (the others are fixed); 0 = all, as ORB-SLAM2."""
     first_iterations: int = ranged(2, min=1)
-    """LM iterations with the Huber kernel: 2 since 2026-12-07 (GTSAM's LM stopped after a
-    median of 3, the third finding that the error no longer fell; the next keyframe's BA goes on
-    from there; docs/results/slam.md, "two convergence cuts for speed"); ORB-SLAM3's single
-    pass: 10 (the default before); ORB-SLAM2: 5, then a second pass."""
+    """LM iterations with the Huber kernel (2 since 2026-12-07, chosen by the rule in
+    docs/results/slam.md, "two convergence cuts for speed"; the next keyframe's BA goes on from
+    where this one stopped); ORB-SLAM3's single pass: 10 (the default before); ORB-SLAM2: 5,
+    then a second pass."""
     second_iterations: int = ranged(0, min=0)
     """LM iterations after leaving the outliers out, without kernel (0 = none, ORB-SLAM3;
     ORB-SLAM2: 10, skipped when a new keyframe interrupts it; the default's measurements:
