@@ -201,6 +201,11 @@ class SlamConfig:
     around its keyframe runs again with them free (:mod:`~.systems.late_mask`). An experiment,
     dropped by its pre-registered rule: it passed on the decision set and broke walking_xyz on
     the confirmation set (docs/results/slam.md, "a late mask refits the keyframes")."""
+    mask_refit_min_observations: int = ranged(0, min=0)
+    """With ``mask_refits_keyframes``: a keyframe that would keep fewer observations of good
+    map points outside the carried mask is not refit (nothing erased, not freed); 0 = every
+    keyframe is. An experiment, off by default (docs/results/slam.md, "the refit with a floor
+    of observations")."""
     final_ba: str = ranged("none", choices=FINAL_BA)
     """With local BA: after the last frame (with ``segment=thread`` once the masks still in
     flight are delivered) one bundle adjustment of every keyframe and map point, before the

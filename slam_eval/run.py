@@ -153,6 +153,7 @@ def _semantic_thread_settings(slam: DictConfig) -> dict[str, Any]:
         mask_refines_past=str(slam.mask_refines_past),
         mask_marks_projected=bool(slam.mask_marks_projected),
         mask_refits_keyframes=bool(slam.mask_refits_keyframes),
+        mask_refit_min_observations=int(slam.mask_refit_min_observations),
         final_ba=str(slam.final_ba),
     )
 

@@ -170,6 +170,9 @@ class FrameLoop:
     """With ``mask_refines_past`` (``slam.mask_refits_keyframes``): a delivered mask is also
     carried back to the keyframes made since the previous mask's keyframe, their observations
     inside it erased, and local BA runs again with them free (:func:`~.late_mask.erase_carried`)."""
+    refit_min_observations: int = 0
+    """With ``mask_refits_keyframes`` (``slam.mask_refit_min_observations``): a keyframe that
+    would keep fewer observations is not refit (``keyframes_refit_skipped``)."""
     final_ba: bool = False
     """``slam.final_ba`` (:meth:`finish`): the end-of-run bundle adjustment of the whole map."""
     past: list[PastFrame] = field(default_factory=list)
@@ -411,8 +414,11 @@ class FrameLoop:
         if self.mask_refits_keyframes:
             targets = since_previous(slam_map, kf_id, self.last_masked)
             region_of = lambda labels: self.dynamic_region(got.frame, labels)  # noqa: E731
-            erased = erase_carried(slam_map, carried, targets, region_of)
+            floor = self.refit_min_observations
+            erased, kept = erase_carried(slam_map, carried, targets, region_of, floor)
             self.counts["observations_erased_carried"] += erased
+            self.counts["keyframes_refit_skipped"] += len(targets) - len(kept)
+            targets = kept
         if (
             self.mapper is not None
             and (marked.any() or erased)

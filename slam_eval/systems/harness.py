@@ -174,6 +174,7 @@ class SlamPipeline:
         mask_refines_past: str = MASK_REFINES_PAST_DEFAULT,
         mask_marks_projected: bool = MASK_MARKS_PROJECTED,
         mask_refits_keyframes: bool = False,
+        mask_refit_min_observations: int = 0,
         final_ba: str = "none",
     ) -> None:
         """``sampling_seed``: perturbs the tracker's RANSAC sampling (a repeated run,
@@ -191,8 +192,7 @@ class SlamPipeline:
         self.map_config = semantic_map or MapConfig()
         if self.map_config.octomap:
             load_pyoctomap()  # a missing extra is one clear line before any frame
-        self.prefetch = prefetch
-        self.workers = workers
+        self.prefetch, self.workers = prefetch, workers
         self.reader_threads = reader_threads
         self.parallel = parallel and prefetch > 0
         self.prefetch_mode = prefetch_mode
@@ -211,11 +211,11 @@ class SlamPipeline:
         self.mask_refines_past = mask_refines_past
         self.mask_marks_projected = mask_marks_projected
         self.mask_refits_keyframes = mask_refits_keyframes
+        self.mask_refit_min_observations = mask_refit_min_observations
         self.final_ba = final_ba_runs(final_ba, segment)
         self.progress = progress
         self.description = description or sequence.path.name
-        self.local_ba = local_ba
-        self.loop_closing = loop_closing
+        self.local_ba, self.loop_closing = local_ba, loop_closing
         self.local_ba_params = local_ba_params or LocalMappingConfig()
         self.loop_closing_params = loop_closing_params or LoopClosingConfig()
         self.depth_noise = depth_noise_of(self.local_ba_params, sequence.camera.depth_noise)
@@ -342,6 +342,7 @@ class SlamPipeline:
             mask_refines_past=self.mask_refines_past,
             mask_marks_projected=self.mask_marks_projected,
             mask_refits_keyframes=self.mask_refits_keyframes,
+            refit_min_observations=self.mask_refit_min_observations,
             final_ba=self.final_ba,
         )  # fmt: skip
 
@@ -458,6 +459,7 @@ class SlamPipeline:
                     "past_frames_refined",
                     "points_marked_projected",
                     "observations_erased_carried",
+                    "keyframes_refit_skipped",
                     "final_ba_outliers",
                 )  # fmt: skip
                 if k in loop.counts

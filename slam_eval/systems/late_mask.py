@@ -6,7 +6,8 @@ beyond its own keyframe (:meth:`~.frame_loop.FrameLoop.refine_past`), and the en
   to each by its map pose, shows where the people were there: the observations those keyframes
   made through a keypoint inside it are erased (the points stay, for the keyframes that saw them
   elsewhere), so that local BA, run again with those keyframes free, moves them without the
-  people's pull.
+  people's pull. ``slam.mask_refit_min_observations`` leaves out a keyframe that would keep
+  fewer observations than that.
 - :func:`adjust_all` (``slam.final_ba``): once the last frame is tracked (with the semantic
   thread, once the masks still in flight are delivered), one bundle adjustment of every good
   keyframe and map point (keyframe 0 fixed), as ORB-SLAM2's global BA after a loop closure: the
@@ -44,25 +45,41 @@ def erase_carried(
     carried: CarriedMask,
     targets: list[int],
     region_of: Callable[[np.ndarray], np.ndarray | None],
-) -> int:
+    floor: int = 0,
+) -> tuple[int, list[int]]:
     """Carry ``carried`` (keyframe ``carried.kf_id``'s delivered mask) to each keyframe of
     ``targets`` by the map poses now (:meth:`~.semantic_thread.CarriedMask.labels_at`); its
     keypoints inside ``region_of(labels)`` ((H, W) bool dynamic pixels of the carried labels,
     None: none) are flagged dynamic and their observations of map points erased
     (:meth:`~..map.slam_map.SlamMap.erase_observations`: a point left with one keyframe turns
-    bad). Returns how many observations were erased."""
-    erased = 0
+    bad). A keyframe that would keep fewer than ``floor`` observations of good map points
+    outside the region is left as it is (0: none is): a mask that takes most of a keyframe's
+    points away is as likely carried there by a pose the people pulled, and a keyframe left
+    with few observations is moved freely by local BA. Returns how many observations were
+    erased and the targets not left under the floor (the keyframes local BA may free)."""
+    erased, kept = 0, []
     pose_kf = slam_map.pose_wc(carried.kf_id)
     for target in targets:
         kf = slam_map.keyframes[target]
         region = region_of(carried.labels_at(invert(slam_map.pose_wc(target)) @ pose_kf))
         if region is None or not region.any():
+            kept.append(target)
             continue
         inside = values_at(region, kf.features.xy)
+        if floor > 0 and _left_outside(slam_map, kf.point_ids, inside) < floor:
+            continue
+        kept.append(target)
         kf.dynamic = kf.dynamic | inside
         ids = kf.point_ids[inside & (kf.point_ids >= 0)]
         erased += slam_map.erase_observations(ids, np.full(len(ids), target, np.int64))
-    return erased
+    return erased, kept
+
+
+def _left_outside(slam_map: SlamMap, point_ids: np.ndarray, inside: np.ndarray) -> int:
+    """How many of a keyframe's observations (``point_ids``, (N,), -1: none) of good map points
+    lie outside ``inside`` ((N,) bool)."""
+    ids = point_ids[~inside & (point_ids >= 0)]
+    return int((~slam_map.points.bad.view[ids]).sum())
 
 
 def final_ba_runs(final_ba: str, segment: str) -> bool:

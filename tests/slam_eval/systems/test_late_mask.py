@@ -1,6 +1,7 @@
 """``slam.mask_refits_keyframes`` and ``slam.final_ba``: a late mask carried back to the
-keyframes made since the previous mask erases their observations inside it, and the end-of-run
-bundle adjustment of the whole map."""
+keyframes made since the previous mask erases their observations inside it (not where a keyframe
+would keep fewer than ``slam.mask_refit_min_observations``), and the end-of-run bundle
+adjustment of the whole map."""
 
 from __future__ import annotations
 
@@ -29,7 +30,9 @@ class _Map:
     """The parts of a map :func:`erase_carried` uses: keyframes at ``poses`` (camera-to-world),
     each with the keypoints ``xy`` and the map point each observes, and the erasures asked."""
 
-    def __init__(self, poses: list[np.ndarray], xy: np.ndarray, point_ids: list[list[int]]):
+    def __init__(
+        self, poses: list[np.ndarray], xy: np.ndarray, point_ids: list[list[int]], n_points=20
+    ):
         self.keyframes = [
             SimpleNamespace(
                 id=i,
@@ -41,6 +44,7 @@ class _Map:
             for i, ids in enumerate(point_ids)
         ]
         self.poses = poses
+        self.points = SimpleNamespace(bad=SimpleNamespace(view=np.zeros(n_points, bool)))
         self.erased: list[tuple[int, int]] = []
 
     def pose_wc(self, kf_id: int) -> np.ndarray:
@@ -60,14 +64,36 @@ def test_the_carried_mask_erases_the_keyframes_observations_inside_it() -> None:
     shifted[0, 3] = 0.4  # keyframe 2 stands 0.4 m to the right: the person 100 px to the left
     xy = np.array([[320.0, 240.0], [220.0, 240.0], [600.0, 50.0]])
     slam_map = _Map([np.eye(4), np.eye(4), shifted], xy, [[5, 6, 7], [8, -1, 9], [10, 11, 12]])
-    erased = erase_carried(slam_map, carried, [1, 2], lambda lab: lab > 0)
+    erased, kept = erase_carried(slam_map, carried, [1, 2], lambda lab: lab > 0)
     # keyframe 1 sees the person at the centre (its keypoint 1 observes nothing), keyframe 2
     # 100 px to the left; the keypoint in the corner is outside the person in both
-    assert erased == 2
+    assert erased == 2 and kept == [1, 2]
     assert slam_map.erased == [(8, 1), (11, 2)]
     np.testing.assert_array_equal(slam_map.keyframes[1].dynamic, [True, False, False])
     np.testing.assert_array_equal(slam_map.keyframes[2].dynamic, [False, True, False])
-    assert erase_carried(slam_map, carried, [1], lambda lab: None) == 0  # no dynamic region
+    assert erase_carried(slam_map, carried, [1], lambda lab: None) == (0, [1])  # no region
+
+
+def _person_ahead() -> CarriedMask:
+    labels = np.zeros((480, 640), np.uint8)
+    labels[200:280, 280:360] = 1
+    return CarriedMask.of(0, labels, np.full(labels.shape, 2.0, np.float32), K)
+
+
+def test_a_keyframe_left_under_the_floor_is_not_refit() -> None:
+    """The floor counts the good map points a keyframe would still observe outside the mask."""
+    xy = np.array([[320.0, 240.0], [600.0, 50.0], [50.0, 50.0], [600.0, 400.0]])
+    slam_map = _Map([np.eye(4)] * 3, xy, [[5, 6, 7, 8], [9, 10, 11, -1], [12, 13, 14, 15]])
+    slam_map.points.bad.view[15] = True  # keyframe 2 keeps 2 good points outside, keyframe 1 2
+    erased, kept = erase_carried(slam_map, _person_ahead(), [1, 2], lambda lab: lab > 0, 3)
+    assert (erased, kept, slam_map.erased) == (0, [], [])
+    assert not slam_map.keyframes[1].dynamic.any() and not slam_map.keyframes[2].dynamic.any()
+    slam_map.points.bad.view[15] = False  # keyframe 2 now keeps 3: refit, keyframe 1 not
+    erased, kept = erase_carried(slam_map, _person_ahead(), [1, 2], lambda lab: lab > 0, 3)
+    assert (erased, kept, slam_map.erased) == (1, [2], [(12, 2)])
+    np.testing.assert_array_equal(slam_map.keyframes[2].dynamic, [True, False, False, False])
+    # no region: nothing to erase, the keyframe stays free whatever the floor
+    assert erase_carried(slam_map, _person_ahead(), [1], lambda lab: None, 99) == (0, [1])
 
 
 def test_since_previous_takes_the_good_keyframes_after_the_previous_mask() -> None:
@@ -102,6 +128,13 @@ def test_refit_keyframes_end_to_end(synthetic_sequence) -> None:
     assert on.semantic_thread["observations_erased_carried"] > 0
     np.testing.assert_array_equal(on.trajectory.positions, again.trajectory.positions)
     assert not np.array_equal(on.trajectory.positions, off.trajectory.positions)
+    assert on.semantic_thread["keyframes_refit_skipped"] == 0  # no floor: every keyframe refit
+    # a floor no keyframe reaches: nothing erased, no keyframe freed, today's trajectory
+    none = _run(path, mask_refits_keyframes=True, mask_refit_min_observations=10**6)
+    assert none.semantic_thread is not None
+    assert none.semantic_thread["observations_erased_carried"] == 0
+    assert none.semantic_thread["keyframes_refit_skipped"] > 0
+    np.testing.assert_array_equal(none.trajectory.positions, off.trajectory.positions)
 
 
 def test_final_ba_end_to_end(synthetic_sequence) -> None:
@@ -127,6 +160,7 @@ def test_defaults_leave_both_off(synthetic_sequence, tmp_path: Path) -> None:
     path = synthetic_sequence(preset="walking_xyz", frames=20)
     slam = slam_run_config(path, tmp_path / "a", "segmenter=labels", "filters=[semantic]").slam
     assert (slam.mask_refits_keyframes, slam.final_ba) == (False, "none")
+    assert slam.mask_refit_min_observations == 0
 
 
 def test_the_end_of_run_adjustment_keeps_its_own_iterations(monkeypatch) -> None:
