@@ -44,7 +44,7 @@ from uss_slam.core.hydra_lines import (  # noqa: F401 (their home before)
     override_parse_line,
     repeated_override_line,
 )
-from uss_slam.core.launch import TERMINATING, close_open_bars
+from uss_slam.core.launch import TERMINATING, UNASSIGNED, close_open_bars, taken
 from uss_slam.core.run_folders import (
     RefusedRunFolder,
     RunFolderCheck,
@@ -134,8 +134,8 @@ def signals_as_interrupts() -> Iterator[None]:
         _first_at = None
     previous = {sig: signal.getsignal(sig) for sig in INTERRUPTING}
     for sig, handler in previous.items():
-        if handler is signal.SIG_IGN or (sig == signal.SIGINT and not callable(handler)):
-            continue  # ignored by whoever started us, or Ctrl-C handled outside Python
+        if not taken(sig, handler) or (sig == signal.SIGINT and not callable(handler)):
+            continue  # ignored by whoever started us, a launcher's, or handled outside Python
         signal.signal(sig, _interrupt_handler)
     _handlers_depth += 1
     try:
@@ -297,7 +297,10 @@ def interrupts_deferred() -> Iterator[None]:
         return
     previous = {sig: signal.getsignal(sig) for sig in INTERRUPTING}
     # ignored, default (SIGTERM ends the process at once) or handled outside Python: left alone
-    deferred = {sig: handler for sig, handler in previous.items() if callable(handler)}
+    ours = {
+        sig: h for sig, h in previous.items() if sig not in UNASSIGNED or h is _interrupt_handler
+    }
+    deferred = {sig: handler for sig, handler in ours.items() if callable(handler)}
     caught: list[int] = []
     for sig in deferred:
         signal.signal(sig, lambda signum, frame: caught.append(signum))

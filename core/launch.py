@@ -120,10 +120,31 @@ def _on_sigterm(signum: int, frame: object) -> None:
     raise _Terminated(signum)
 
 
-TERMINATING = (signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT, signal.SIGXCPU)
+UNASSIGNED = (signal.SIGUSR1, signal.SIGUSR2, signal.SIGALRM)
+"""Signals with no meaning of their own (``kill -USR1``, a batch system's warning before a
+time limit, an ``alarm``), whose default, as SIGTERM's, ends the process at once with no
+cleanup: a script takes them as SIGTERM where nothing else in the process handles them
+(:func:`taken`)."""
+
+TERMINATING = (signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT, signal.SIGXCPU, *UNASSIGNED)
 """The signals besides Ctrl-C that stop a script with its one line (``kill``; the terminal
 closed; Ctrl-\\ and a CPU-time limit reached, ``ulimit -St`` or a batch system's, which
-Python leaves to the kernel's default: a core dump, no cleanup)."""
+Python leaves to the kernel's default: a core dump, no cleanup; :data:`UNASSIGNED`)."""
+
+
+def taken(sig: int, handler: object) -> bool:
+    """Whether a script handles ``sig`` as SIGTERM, its handler now being ``handler``: not a
+    signal ignored (``nohup``'s SIGHUP), nor one of :data:`UNASSIGNED` that another handler
+    already takes (submitit's jobs take SIGUSR2, Lightning SIGUSR1, for a requeue), nor, in a
+    SLURM job, SIGUSR1 or SIGUSR2 (``sbatch --signal``'s warning, which Lightning and submitit
+    take when they start, after the script)."""
+    if handler is signal.SIG_IGN:
+        return False
+    if sig not in UNASSIGNED:
+        return True
+    if sig != signal.SIGALRM and "SLURM_JOB_ID" in os.environ:
+        return False
+    return handler in (signal.SIG_DFL, None)
 
 
 def openmp_threads_checked(prog: str) -> None:
@@ -198,7 +219,7 @@ def launch(prog: str) -> int | None:
     previous: dict[int, object] = {}
     try:
         for sig in TERMINATING:
-            if signal.getsignal(sig) is not signal.SIG_IGN:  # (nohup: SIGHUP stays ignored)
+            if taken(sig, signal.getsignal(sig)):  # (nohup: SIGHUP stays ignored)
                 previous[sig] = signal.signal(sig, _on_sigterm)
     except ValueError:  # not the main thread (a test): no handler
         previous = {}

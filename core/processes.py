@@ -37,6 +37,8 @@ from multiprocessing.connection import wait
 from pathlib import Path
 from typing import Any
 
+from uss_slam.core.launch import TERMINATING
+
 PR_SET_PDEATHSIG = 1
 """``prctl`` option: the signal this process gets when its parent ends (linux/prctl.h)."""
 
@@ -102,12 +104,16 @@ def pool_ending_with_parent(sig: int = signal.SIGTERM) -> dict[str, Any]:
 
 
 def _start_pool_worker(parent: int, sig: int) -> None:
-    """A pool worker's initializer: SIGTERM ends it at once, Ctrl-C is left to the parent
-    (which ends it: :func:`end_pool_workers`), and the parent's end ends it too. A forked worker
+    """A pool worker's initializer: SIGTERM ends it at once (so do the parent's other stopping
+    signals, :data:`~uss_slam.core.launch.TERMINATING`, but Ctrl-\\), Ctrl-C is left to the
+    parent (which ends it: :func:`end_pool_workers`), and the parent's end ends it too. A forked worker
     would otherwise keep the parent's Python handlers and print a traceback on either signal.
     What a forked worker inherited is frozen out of its garbage collector (see
     :func:`pool_ending_with_parent`)."""
     gc.freeze()
+    for other in TERMINATING:  # (SIGHUP, SIGUSR1...: the parent's handler; one ignored stays)
+        if callable(signal.getsignal(other)):
+            signal.signal(other, signal.SIG_DFL)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGQUIT, signal.SIG_IGN)  # Ctrl-\ too reaches the terminal's group

@@ -38,7 +38,13 @@ SIGNALS = {
     "SIGTERM": (signal.SIGTERM, TERMINATED),
     "SIGQUIT": (signal.SIGQUIT, 128 + signal.SIGQUIT),  # Ctrl-\: as SIGTERM, not a core dump
 }
+UNASSIGNED = ["SIGUSR1", "SIGUSR2", "SIGALRM"]  # no meaning of their own; default: die at once
 BIN = Path(sys.executable).parent
+
+
+def signal_and_code(name: str) -> tuple[int, int]:
+    """The signal named ``name`` and the exit code it gives (128 + its number but Ctrl-C's)."""
+    return SIGNALS.get(name, (signal.Signals[name], 128 + signal.Signals[name]))
 
 
 def expected_line(line: str, sig: int) -> str:
@@ -114,18 +120,32 @@ def test_every_console_script_has_an_interrupt_case() -> None:
 
 
 def stop(
-    command: list[str], ready: Callable[[], bool], sig: int, cwd: Path, limit: float = 300
+    command: list[str],
+    ready: Callable[[], bool],
+    sig: int,
+    cwd: Path,
+    limit: float = 300,
+    group: bool = False,
 ) -> tuple[int, str]:
-    """Start ``command``, send ``sig`` once ``ready()``; (exit code, stderr)."""
+    """Start ``command``, send ``sig`` once ``ready()`` (``group``: to its whole process group,
+    as ``kill -- -PGID``); (exit code, stderr)."""
     proc = subprocess.Popen(
-        command, cwd=cwd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True
+        command,
+        cwd=cwd,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=group,
     )
     deadline = time.monotonic() + limit
     while not ready():
         assert proc.poll() is None, proc.communicate()[1]
         assert time.monotonic() < deadline, "not ready in time"
         time.sleep(0.02)
-    proc.send_signal(sig)
+    if group:
+        os.killpg(proc.pid, sig)
+    else:
+        proc.send_signal(sig)
     _, err = proc.communicate(timeout=120)
     return proc.returncode, err
 
@@ -159,11 +179,13 @@ def test_synth_process(sig_name: str, synthetic_sequence, tmp_path: Path) -> Non
     assert snapshot(out) == before
 
 
-@pytest.mark.parametrize("sig_name", [*SIGNALS, "SIGXCPU"])
+@pytest.mark.parametrize("sig_name", [*SIGNALS, "SIGXCPU", *UNASSIGNED])
 def test_vocab_process(sig_name: str, synthetic_sequence, tmp_path: Path) -> None:
     """``uss-vocab build`` stopped while clustering: no vocabulary, lock or temporary file.
-    SIGXCPU: the kernel's signal at a CPU-time limit (``ulimit -St``, a batch system's)."""
-    sig, code = SIGNALS.get(sig_name, (signal.SIGXCPU, 128 + signal.SIGXCPU))
+    SIGXCPU: the kernel's signal at a CPU-time limit (``ulimit -St``, a batch system's);
+    SIGUSR1, SIGUSR2, SIGALRM: signals with no meaning of their own, whose default is to die
+    at once."""
+    sig, code = signal_and_code(sig_name)
     seq = synthetic_sequence(frames=30, size=(320, 240))
     out = tmp_path / "v.txt"
     got, err = stop(
@@ -177,11 +199,11 @@ def test_vocab_process(sig_name: str, synthetic_sequence, tmp_path: Path) -> Non
 
 
 @pytest.mark.slow  # a uss-slam run, then a second one stopped: ~30 s
-@pytest.mark.parametrize("sig_name", list(SIGNALS))
+@pytest.mark.parametrize("sig_name", [*SIGNALS, "SIGUSR2"])
 def test_slam_process(sig_name: str, world: dict[str, Path], tmp_path: Path) -> None:  # noqa: F811
     """``uss-slam`` stopped mid-run: the earlier complete run as it was, no staging folder, no
     lock."""
-    sig, code = SIGNALS[sig_name]
+    sig, code = signal_and_code(sig_name)
     out = tmp_path / "run"
     shutil.copytree(world["slam_run"], out)
     before = snapshot(out)
@@ -220,18 +242,19 @@ def test_train_process(world: dict[str, Path], tmp_path: Path) -> None:  # noqa:
 
 
 @pytest.mark.slow  # the demo's data stage on two worker processes: ~20 s
-@pytest.mark.parametrize("sig_name", list(SIGNALS))
+@pytest.mark.parametrize("sig_name", [*SIGNALS, "SIGUSR1"])
 def test_demo_data_stage_process(sig_name: str, tmp_path: Path) -> None:
     """``uss-demo`` stopped in its data stage (two pool workers rendering): the one line and
-    no worker traceback, the workers ended, no staging folder and no lock left."""
-    sig, code = SIGNALS[sig_name]
+    no worker traceback, the workers ended, no staging folder and no lock left. SIGUSR1 goes
+    to the whole process group (``kill -USR1 -- -PGID``): the workers too get it."""
+    sig, code = signal_and_code(sig_name)
     out = tmp_path / "demo"
     got, err = stop(
         [str(BIN / "uss-demo"), "--out", str(out), "--experiment", "ci", "--until", "data",
          "--quiet"],
         lambda: any(p.name.startswith(".") and "partial" in p.name
                     for p in out.rglob("*") if p.is_dir()),
-        sig, tmp_path,
+        sig, tmp_path, group=sig_name in UNASSIGNED,
     )  # fmt: skip
     assert got == code, err
     assert err.strip().splitlines() == [interrupted("uss-demo", sig)], err

@@ -203,7 +203,7 @@ def build_parser() -> argparse.ArgumentParser:
                              "model's semantic filter, --repeats runs per row")  # fmt: skip
     parser.add_argument(
         "--repeats",
-        type=number(int, min=1),
+        type=number(int, "a range needs two runs", min=2),
         default=None,
         help=f"SLAM runs per row, with --slam: at least 2, the report gives each row's range "
         f"(default: {SLAM_REPEATS})",

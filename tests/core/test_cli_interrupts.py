@@ -104,11 +104,15 @@ def test_sighup_is_an_interrupt_named_in_the_line(capsys) -> None:
     assert capsys.readouterr().err.splitlines() == ["uss-x: interrupted (SIGHUP)"]
 
 
-@pytest.mark.parametrize("name", ["SIGQUIT", "SIGXCPU"])
-def test_sigquit_and_sigxcpu_are_interrupts_named_in_the_line(name: str, capsys) -> None:
+@pytest.mark.parametrize("name", ["SIGQUIT", "SIGXCPU", "SIGUSR1", "SIGUSR2", "SIGALRM"])
+def test_sigquit_sigxcpu_and_unassigned_signals_are_interrupts_named_in_the_line(
+    name: str, capsys, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """Ctrl-\\ (SIGQUIT) and a CPU-time limit reached (SIGXCPU: ``ulimit -St``, a batch
-    system's), whose default is to die at once with a core dump: SIGTERM's contract, the same
-    cleanup, exit code 128 + the signal's number."""
+    system's), whose default is to die at once with a core dump, and the signals with no
+    meaning of their own (``kill -USR1``, an alarm), whose default is to die at once: SIGTERM's
+    contract, the same cleanup, exit code 128 + the signal's number."""
+    monkeypatch.delenv("SLURM_JOB_ID", raising=False)
     import os
     import signal
 
@@ -122,6 +126,46 @@ def test_sigquit_and_sigxcpu_are_interrupts_named_in_the_line(name: str, capsys)
         signal.signal(sig, before)
     assert stop.value.code == 128 + sig
     assert capsys.readouterr().err.splitlines() == [f"uss-x: interrupted ({name})"]
+
+
+@pytest.mark.parametrize("name", ["SIGUSR1", "SIGUSR2", "SIGALRM"])
+def test_an_unassigned_signal_another_handler_takes_stays_its(name: str) -> None:
+    """A launcher's handler (submitit's jobs take SIGUSR2, Lightning SIGUSR1, for a requeue)
+    is neither replaced nor deferred."""
+    import os
+    import signal
+
+    from uss_slam.core.cli import signals_as_interrupts
+
+    sig = signal.Signals[name]
+    got: list[int] = []
+    before = signal.signal(sig, lambda signum, frame: got.append(signum))
+    try:
+        with signals_as_interrupts(), interrupts_deferred():
+            os.kill(os.getpid(), sig)
+            assert got == [sig]  # at once, by its own handler
+    finally:
+        signal.signal(sig, before)
+
+
+@pytest.mark.parametrize("name", ["SIGUSR1", "SIGUSR2"])
+def test_a_slurm_jobs_warning_signal_is_left_to_the_launcher(
+    name: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """In a SLURM job, SIGUSR1 and SIGUSR2 are ``sbatch --signal``'s warnings before the time
+    limit, which Lightning and submitit take for a requeue once they start: left as they are."""
+    import signal
+
+    from uss_slam.core.cli import signals_as_interrupts
+
+    monkeypatch.setenv("SLURM_JOB_ID", "17")
+    sig = signal.Signals[name]
+    before = signal.signal(sig, signal.SIG_DFL)
+    try:
+        with signals_as_interrupts():
+            assert signal.getsignal(sig) is signal.SIG_DFL
+    finally:
+        signal.signal(sig, before)
 
 
 def test_a_deferred_step_finishes_before_sigterm_takes_effect() -> None:

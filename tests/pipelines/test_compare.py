@@ -148,6 +148,7 @@ def _bad_sequence(tmp_path: Path, seq: Path, what: str) -> Path:
         ("static_unknown", "--static nope: not a compared sequence; expected one of walking_xyz_6"),
         ("static_no_slam", "--static needs --slam"),
         ("one_repeat", "--repeats: expected an integer >= 2"),
+        ("no_repeat", "--repeats: expected an integer >= 2 (a range needs two runs), got '0'"),
     ],
 )
 def test_bad_inputs_one_line_before_any_work(
@@ -182,13 +183,16 @@ def test_bad_inputs_one_line_before_any_work(
         extra = ["--slam", "--static", "nope"]
     elif case == "static_no_slam":
         extra = ["--static", seq.name]
-    elif case == "one_repeat":
-        extra = ["--slam", "--repeats", "1"]
+    elif case in ("one_repeat", "no_repeat"):
+        extra = ["--slam", "--repeats", "1" if case == "one_repeat" else "0"]
     with pytest.raises(SystemExit) as stop:
         main(["compare", *chosen, "--sequence", str(seq), "--out", str(out), *extra])
     code = stop.value.code
     err = capsys.readouterr().err.strip().splitlines()
     assert code != 0
+    if case.endswith("_repeat"):  # an option's range: argparse's usage, then the one line
+        assert code == 2 and err[0].startswith("usage:")
+        err = [line for line in err if line.startswith("uss-eval compare: error: ")]
     assert len(err) == 1 and message in err[0], err
     assert not out.exists()
 
