@@ -44,6 +44,9 @@ def hydra_error_line(error: BaseException) -> str | None:
         chain.append(current)
         current = current.__cause__ or current.__context__
     for item in chain:
+        line = _group_value_line(item)
+        if line is not None:
+            return line
         if isinstance(item, MissingConfigException) and item.missing_cfg_file:
             group, _, name = item.missing_cfg_file.rpartition("/")
             if item.options:
@@ -63,6 +66,26 @@ def hydra_error_line(error: BaseException) -> str | None:
             lines = [line.strip().rstrip(".") for line in str(item).splitlines() if line.strip()]
             return "; ".join(lines) or type(item).__name__
     return None
+
+
+def _group_value_line(error: BaseException) -> str | None:
+    """``group=null`` (or a number, a mapping) for a config group: Hydra's ``ValueError``
+    (``Config group override must be a string or a list. Got NoneType``) names no key; its
+    override and the group's options are the locals of the frame that raised it."""
+    if not isinstance(error, ValueError) or "Config group override" not in str(error):
+        return None
+    tb, found = error.__traceback__, None
+    while tb is not None:
+        if tb.tb_frame.f_globals.get("__name__") == "hydra._internal.defaults_list":
+            found = tb.tb_frame.f_locals
+        tb = tb.tb_next
+    override = (found or {}).get("override")
+    if override is None:
+        return None
+    group = override.key_or_group
+    options = ", ".join(found["repo"].get_group_options(group)) if "repo" in found else ""
+    expected = f"one of its options: {options}" if options else "one of its options by name"
+    return f"{override.input_line}: {group} is a config group; expected {expected}"
 
 
 def _yaml_error_line(error: BaseException) -> str | None:
@@ -197,8 +220,9 @@ def repeated_key(overrides: list[str]) -> tuple[str, str, str] | None:
 SWITCHES = (("experimental_rerun", "--experimental-rerun"), ("shell_completion",
             "--shell-completion"), ("info", "--info"), ("cfg", "--cfg"), ("package", "--package"),
             ("config_dir", "--config-dir"), ("config_path", "--config-path"),
-            ("config_name", "--config-name"))  # fmt: skip
-"""Hydra's own switches (its argument parser's ``dest`` and flag), most particular first."""
+            ("config_name", "--config-name"), ("resolve", "--resolve"))  # fmt: skip
+"""Hydra's own switches (its argument parser's ``dest`` and flag), most particular first (the
+one Hydra's text names is named, where it names one given)."""
 
 
 def hydra_switch_line(error: BaseException, argv: list[str]) -> str | None:
@@ -219,11 +243,11 @@ def hydra_switch_line(error: BaseException, argv: list[str]) -> str | None:
         args, _ = get_args_parser().parse_known_args(argv)
     except (Exception, SystemExit):  # noqa: BLE001
         return text
-    for dest, flag in SWITCHES:
-        value = getattr(args, dest, None)
-        if value:
-            shown = flag if value is True else f"{flag}={value}"
-            return f"{shown}: {text}"
+    given = [(flag, getattr(args, dest)) for dest, flag in SWITCHES if getattr(args, dest, None)]
+    named = [(flag, value) for flag, value in given if flag in text] or given
+    for flag, value in named[:1]:
+        shown = flag if value is True else f"{flag}={value}"
+        return f"{shown}: {text}"
     return text
 
 
@@ -273,6 +297,7 @@ def hydra_switch_texts(prog: str, argv: list[str]) -> Iterator[None]:
       ignores, are one warning line naming them;
     - ``--cfg job --package KEY`` of a key the config does not have: Hydra's bare
       ``package 'KEY' not found in config`` is ``<prog>: error: --package=KEY: ...``;
+      ``--package`` without ``--cfg``, which Hydra ignores (the run went on), is refused;
     - ``--config-dir`` is checked by the path layer (a file, a missing folder, a link loop)."""
     args = _hydra_args(argv)
     if getattr(args, "config_dir", None):  # the path layer's line (Hydra's: "not found")
@@ -299,6 +324,11 @@ def hydra_switch_texts(prog: str, argv: list[str]) -> Iterator[None]:
                 print(f"{prog}: warning: {', '.join(overrides)}: set but change nothing with "
                       f"--experimental-rerun (the recorded config runs as it was)",
                       file=sys.stderr)  # fmt: skip
+        if package and not any(getattr(args, k, None) for k in ("cfg", "help", "hydra_help")):
+            print(f"{prog}: error: --package={package}: only used with --cfg, to print that "
+                  f"part of the config (--cfg job --package {package}); without it the run "
+                  "would ignore it", file=sys.stderr)  # fmt: skip
+            raise SystemExit(1)
         if not (package and getattr(args, "cfg", None)):
             yield
             return

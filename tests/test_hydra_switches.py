@@ -159,3 +159,61 @@ def test_a_config_folder_without_a_hidden_header_passes(tmp_path: Path) -> None:
     (tmp_path / "a.yaml").write_bytes(b"# @package _global_\nx: 1\n")
     (tmp_path / "b.yaml").write_bytes(b"\xef\xbb\xbfx: 1\n# @package _global_\n")  # not a header
     assert hidden_package_header(tmp_path) is None
+
+
+@pytest.mark.parametrize("prog", HYDRA_APPS)
+def test_package_without_cfg_is_refused_before_the_run(
+    prog: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    """``-p KEY`` without ``--cfg``: Hydra ignored it and ran (a run the user did not mean to
+    start, its outputs written); one line naming the switch, nothing written."""
+    monkeypatch.chdir(tmp_path)
+    code, err = _run(prog, ["-p", "out_dir"], monkeypatch, capsys)
+    assert code == 1
+    assert err.splitlines() == [
+        f"{prog}: error: --package=out_dir: only used with --cfg, to print that part of the "
+        "config (--cfg job --package out_dir); without it the run would ignore it"
+    ]
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_switch_hydra_refuses_is_the_one_its_text_names(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    """``--cfg job --package slam --resolve -m``: the line names ``--cfg``, the switch Hydra's
+    text is about, not the first switch given (``--package``)."""
+    monkeypatch.chdir(tmp_path)
+    code, err = _run("uss-slam", ["--cfg", "job", "-p", "slam", "-m"], monkeypatch, capsys)
+    assert code == 1
+    assert err.splitlines() == [
+        "uss-slam: error: --cfg=job: Only one of --run, --multirun, --cfg, --info and "
+        "--shell_completion can be specified"
+    ]
+
+
+@pytest.mark.parametrize(
+    ("prog", "override", "options"),
+    [
+        ("uss-slam", "segmenter=null", "labels, none, onnx"),
+        (
+            "uss-train",
+            "model/net=null",
+            "deeplab_resnet101, deeplab_resnet50, deeplab_small, pspnet_resnet101, pspnet_small",
+        ),  # fmt: skip
+        ("uss-export", "model=3", "adversarial, source_only"),
+    ],
+)
+def test_a_config_group_set_to_a_value_that_is_no_option_names_the_group(
+    prog: str, override: str, options: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    """``segmenter=null``: Hydra's ``Config group override must be a string or a list. Got
+    NoneType`` named no key; the line names the override and the group's options."""
+    monkeypatch.chdir(tmp_path)
+    code, err = _run(prog, [override], monkeypatch, capsys)
+    group = override.partition("=")[0]
+    assert code == 1
+    assert err.splitlines() == [
+        f"{prog}: error: {override}: {group} is a config group; expected one of its options: "
+        f"{options}"
+    ]
+    assert list(tmp_path.iterdir()) == []
