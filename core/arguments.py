@@ -51,8 +51,11 @@ class Arg:
             value = self.kind(text)
         except ValueError:
             value = None
-        if value is None or (self.kind is float and not math.isfinite(value)):
+        if value is None:
             raise argparse.ArgumentTypeError(f"expected {self.expected()}, got {text!r}")
+        if self.kind is float and not math.isfinite(value):  # (inf is > 0: say what is wrong)
+            finite = self.expected().replace("a number", "a finite number", 1)
+            raise argparse.ArgumentTypeError(f"expected {finite}, got {text!r}")
         r = self.range
         if ((r.min is not None and value < r.min) or (r.max is not None and value > r.max)
                 or (r.gt is not None and value <= r.gt) or (r.lt is not None and value >= r.lt)):  # fmt: skip

@@ -345,7 +345,7 @@ CASES = [
          "--plot={tmp}/new/../gtp.png: is the input file {gtp}; expected a file of its own",
          setup=(write("gtp", lambda p: p["gt"].read_bytes(), ".png"),)),
     case("traj-offset-nan", "uss-traj", "ate {gt} {gt} --offset nan", 2,
-         "argument --offset", "expected a number, got 'nan'"),
+         "argument --offset", "expected a finite number, got 'nan'"),
     case("traj-delta-finer-than-sampling", "uss-traj",
          "rpe {gt} {gt} --unit seconds --delta 0.0001", 1,
          "--delta=0.0001 (seconds): {gt}: no pose pairs 0.0001 seconds apart"),

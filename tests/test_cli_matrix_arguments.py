@@ -93,6 +93,8 @@ def test_generated_argument_is_one_usage_line(
     assert lines[-1].startswith(f"{head}: error: argument "), err
     assert bad.flag in lines[-1], err
     assert "expected" in lines[-1] or "choose from" in lines[-1], err  # argparse's choices
+    if bad.value in ("nan", "inf"):  # a number, but not finite: the line says which
+        assert "expected a finite number" in lines[-1], err
     assert all(line.startswith(("usage:", " ")) for line in lines[:-1]), err
     assert snapshot(tmp_path) == before
 

@@ -350,4 +350,5 @@ def check_overrides_written(cfg: DictConfig, overrides: Sequence[str]) -> None:
         if isinstance(value, str) and "${" in value:  # an interpolation, resolved later
             continue
         if tp is not None and value is not None and not _written_as(tp, value):
-            raise SchemaError(key, _SCALARS[tp], value)
+            finite = tp is float and isinstance(value, float)  # inf, nan: a number, not finite
+            raise SchemaError(key, "a finite number" if finite else _SCALARS[tp], value)

@@ -429,6 +429,8 @@ class _Typed:
         ("flag=1", "flag", "flag: expected true or false, got 1"),
         ("count='3'", "count", "count: expected an integer, got '3'"),
         ("scale=true", "scale", "scale: expected a number, got True"),
+        ("scale=inf", "scale", "scale: expected a finite number, got inf"),
+        ("scale=nan", "scale", "scale: expected a finite number, got nan"),
         ("inner.flag=yes", "inner.flag", "inner.flag: expected true or false, got 'yes'"),
     ],
 )
