@@ -43,6 +43,7 @@ from uss_slam.core.hydra_lines import (  # noqa: F401 (their home before)
     output_folder_line,
     override_parse_line,
     repeated_override_line,
+    typed_overrides,
 )
 from uss_slam.core.launch import TERMINATING, UNASSIGNED, close_open_bars, taken
 from uss_slam.core.run_folders import (
@@ -410,7 +411,7 @@ def _multirun_job() -> tuple[int, tuple[str, ...]] | None:
     config = HydraConfig.get()
     if config.mode != RunMode.MULTIRUN:
         return None
-    return int(config.job.num), tuple(str(o) for o in config.overrides.task)
+    return int(config.job.num), tuple(typed_overrides(config))
 
 
 @contextmanager

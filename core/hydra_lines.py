@@ -68,6 +68,18 @@ def hydra_error_line(error: BaseException) -> str | None:
     return None
 
 
+def typed_overrides(hydra_config: object) -> list[str]:
+    """The overrides of a Hydra job as typed (``hydra.overrides.task``, from Hydra's config):
+    read item by item, OmegaConf would resolve an interpolation inside one (``x=${nope}``) and
+    raise on a key the config does not have, before the job's own check names it."""
+    from omegaconf import OmegaConf
+
+    task = OmegaConf.select(hydra_config, "overrides.task", default=None)  # type: ignore[arg-type]
+    if task is None:
+        return []
+    return [str(o) for o in OmegaConf.to_container(task, resolve=False)]  # type: ignore[union-attr]
+
+
 def _group_value_line(error: BaseException) -> str | None:
     """``group=null`` (or a number, a mapping) for a config group: Hydra's ``ValueError``
     (``Config group override must be a string or a list. Got NoneType``) names no key; its

@@ -312,12 +312,13 @@ class RunFolderCheck:
         ``hydra.sweep.dir``)."""
         from omegaconf import OmegaConf
 
+        from uss_slam.core.hydra_lines import typed_overrides
         from uss_slam.core.paths import where
 
         if not self.key_only or self.key == "hydra.run.dir":
             return
-        task = OmegaConf.select(config, "hydra.overrides.task", default=None) or []
-        if self.key not in {str(o).split("=", 1)[0].lstrip("+~") for o in task}:
+        task = typed_overrides(config.hydra)
+        if self.key not in {o.split("=", 1)[0].lstrip("+~") for o in task}:
             return  # (Hydra's key alone says where the user wants the outputs)
         named = OmegaConf.select(config, self.key, default=None, throw_on_resolution_failure=False)
         if named is not None and os.path.realpath(str(named)) != os.path.realpath(folder):

@@ -20,6 +20,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from uss_slam.core.cli import hydra_task, run_hydra_app
 from uss_slam.core.files import check_output_owner, check_writable, output_lock
+from uss_slam.core.hydra_lines import typed_overrides
 from uss_slam.core.paths import input_folder, naming
 from uss_slam.core.schema import unused_settings
 
@@ -105,7 +106,7 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     too, leaves the earlier run as it was.
     """
     hydra_cfg = _own_hydra()
-    overrides = [] if hydra_cfg is None else [str(o) for o in hydra_cfg.overrides.task]
+    overrides = [] if hydra_cfg is None else typed_overrides(hydra_cfg)
     # values first (a bad value is named before a missing folder); a variant's keys set in cfg
     plan = check(cfg, overrides)
     input_folder(str(cfg.sequence.path), "sequence.path", "expected a TUM RGB-D sequence folder")

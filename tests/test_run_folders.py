@@ -171,3 +171,23 @@ def test_output_folders_may_name_hydras_runtime_cwd(
         _clear()
     assert (code, err.strip()) == (0, ""), err
     assert seen == [str(tmp_path)]
+
+
+@pytest.mark.parametrize("key", ["slam.workers", "slam.orb.n_features"])
+def test_an_override_whose_interpolation_fails_writes_no_run_folder(
+    key: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    """``slam.workers=${oops}``: the run-folder check read Hydra's record of the overrides
+    item by item, which resolved the interpolation and failed there (Hydra only warns about a
+    failing callback), before it noted the folder to undo: the refusal left ``out/run.log``."""
+    monkeypatch.chdir(tmp_path)
+    argv = [f"{key}=${{oops}}", f"out_dir={tmp_path}/out", "progress=false"]
+    try:
+        code, _, err = run_console_script("uss-slam", argv, monkeypatch, capsys)
+    finally:
+        _clear()
+    assert code == 1
+    assert err.strip().splitlines() == [
+        f"uss-slam: error: {key}: cannot resolve ${{oops}} (Interpolation key 'oops' not found)"
+    ]
+    assert list(tmp_path.iterdir()) == []
