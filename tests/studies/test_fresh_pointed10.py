@@ -1,0 +1,64 @@
+"""The tenth set's split by the families the engineer fixing code looked at (made-up cases: the
+split was written without reading the set)."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT / "studies"))
+_SPEC = importlib.util.spec_from_file_location(
+    "fresh_pointed10", ROOT / "studies" / "fresh_pointed10.py"
+)
+_MODULE = importlib.util.module_from_spec(_SPEC)
+_SPEC.loader.exec_module(_MODULE)
+main, POINTED = _MODULE.main, _MODULE.POINTED
+
+
+def family(line: str) -> str | None:
+    from fresh_pointed8 import pointed_family
+
+    return pointed_family(line, POINTED)
+
+
+def test_families_are_recognised_from_expect_env_and_argv():
+    assert family("a | uss-vocab | usr1:3 | seq | - | - | build {seq} --out {C}/v.txt")
+    assert family("b | uss-slam | galrm:2 | - | - | - | sequence.path={seq} out_dir={C}/r")
+    assert family(
+        "c | uss-eval | error | - | - | --repeats | compare {onnx} {onnx2} --slam --repeats 1"
+    )
+    assert family("d | uss-slam | error | - | - | --package | sequence.path={seq} -p slam")
+    assert family("e | uss-train | error | - | - | model/net | model/net=null")
+    assert family("f | uss-traj | error | - | - | --delta | rpe {gt} {est} --delta inf")
+    assert family(
+        "g | uss-slam | error | - | - | slam.orb.scale_factor | slam.orb.scale_factor=nan"
+    )
+    assert family("h | uss-traj | error | - | - | /dev/null | ate {gt} /dev/null")
+    assert family(
+        "l | uss-slam | error | - | - | slam.workers | slam.workers=${oops} out_dir={C}/o"
+    )
+    assert family("m | uss-slam | error | - | - | glob | -m segmenter=glob(zz*) out_dir={C}/o")
+    assert family("i | uss-export | ok | - | TORCH_HOME={C}/t | - | EXPORT name=h") is None
+    assert family("j | uss-slam | ok | - | - | - | sequence.path={seq} slam.workers=2") is None
+    assert family("k | uss-slam | ok | - | - | - | out_dir={C}/information") is None
+
+
+def test_split_of_a_made_up_run(tmp_path, capsys):
+    cases = tmp_path / "cases.txt"
+    cases.write_text(
+        "# header\n"
+        "a | uss-slam | error | - | - | segmenter | segmenter=null\n"
+        "b | uss-synth | ok | - | - | - | voc\n",
+        encoding="utf-8",
+    )
+    results = tmp_path / "results.json"
+    outcomes = [{"id": "a", "verdict": "poor"}, {"id": "b", "verdict": "good"}]
+    results.write_text(json.dumps({"outcomes": outcomes}), encoding="utf-8")
+    assert main([str(cases), str(results)]) == 0
+    out = capsys.readouterr().out
+    assert "named to the fixer: 1 counted, 0 good, 1 poor, 0 bad (0.0% good)" in out
+    assert "not named to the fixer: 1 counted, 1 good, 0 poor, 0 bad (100.0% good)" in out
+    assert "poor a: a config group given null or a number" in out
