@@ -444,3 +444,31 @@ def _has_key(cfg: object, key: str) -> bool:
     parent_key, _, last = key.rpartition(".")
     parent = OmegaConf.select(cfg, parent_key, throw_on_missing=False) if parent_key else cfg  # type: ignore[arg-type]
     return isinstance(parent, DictConfig) and last in list(parent)  # ``in`` omits ??? keys
+
+
+def empty_sweep_line(config: object) -> str | None:
+    """A multirun whose sweep has no value (``-m 'slam.workers=range(0)'``, ``'segmenter=glob(zz*)'``):
+    Hydra would launch no job, exit 0 and leave a sweep folder with only its ``multirun.yaml``.
+    The line naming the first such override, read as Hydra's sweeper reads it (its own parser,
+    with the config loader that expands a ``glob`` over a group's options), else None."""
+    from hydra.core.global_hydra import GlobalHydra
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+    from omegaconf import OmegaConf
+
+    if not GlobalHydra.instance().is_initialized():
+        return None
+    hydra_config = OmegaConf.select(config, "hydra")  # type: ignore[arg-type]
+    params = OmegaConf.select(hydra_config, "sweeper.params", default=None) or {}
+    typed = [f"{k}={v}" for k, v in params.items()] + typed_overrides(hydra_config)
+    loader = GlobalHydra.instance().config_loader()
+    for override in OverridesParser.create(config_loader=loader).parse_overrides(typed):
+        if override.is_discrete_sweep() and not list(override.sweep_string_iterator()):
+            key = override.get_key_element()
+            options = ""
+            if override.value_type is not None and override.value_type.name == "GLOB_CHOICE_SWEEP":
+                names = loader.get_group_options(key.lstrip("+~"))
+                options = f" (the options of {key}: {', '.join(names)})" if names else ""
+            text = override.input_line or key
+            return (f"{text}: the sweep has no value, so a multirun would start no job; "
+                    f"expected at least one value{options}")  # fmt: skip
+    return None

@@ -352,12 +352,17 @@ class RunFolderCheck:
     def on_multirun_start(self, config: Any, **kwargs: Any) -> None:
         """A multirun's sweep folder is checked and locked as a run folder is (an input
         folder, another tool's, one that cannot be written), before Hydra writes into it;
-        named by the app's key where that sets it (``out_dir``), else ``hydra.sweep.dir``."""
+        named by the app's key where that sets it (``out_dir``), else ``hydra.sweep.dir``. A
+        sweep with no value is refused first (Hydra would start no job and exit 0)."""
         from omegaconf import OmegaConf
 
         from uss_slam.core import job_records
+        from uss_slam.core.hydra_lines import empty_sweep_line
 
         _hydra_config_set(config)
+        empty = empty_sweep_line(config)
+        if empty is not None:
+            raise RefusedRunFolder(UssSlamError(empty))
         sweep = str(config.hydra.sweep.dir)
         job_records.sweep_dir = sweep  # where jobs in processes report
         self._one_folder(config, sweep, "hydra.sweep.dir")

@@ -191,3 +191,34 @@ def test_an_override_whose_interpolation_fails_writes_no_run_folder(
         f"uss-slam: error: {key}: cannot resolve ${{oops}} (Interpolation key 'oops' not found)"
     ]
     assert list(tmp_path.iterdir()) == []
+
+
+EMPTY_SWEEPS = [
+    ("uss-slam", "slam.workers=range(0)", ""),
+    ("uss-slam", "segmenter=glob(zz*)", " (the options of segmenter: labels, none, onnx)"),
+    ("uss-train", "seed=range(3,3)", ""),
+    ("uss-export", "opset=range(17,13)", ""),
+    ("uss-experiments", "seeds=range(0)", ""),
+]
+
+
+@pytest.mark.parametrize(("prog", "sweep", "options"), EMPTY_SWEEPS)
+def test_a_sweep_with_no_value_is_refused_and_writes_nothing(
+    prog: str, sweep: str, options: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    """A multirun whose sweep has no value: Hydra launched 0 jobs, exited 0 and left a sweep
+    folder holding only ``multirun.yaml``; now one line naming the override, exit code 1,
+    nothing written."""
+    monkeypatch.chdir(tmp_path)
+    try:
+        code, _, err = run_console_script(
+            prog, ["-m", sweep, f"hydra.sweep.dir={tmp_path}/sweep"], monkeypatch, capsys
+        )
+    finally:
+        _clear()
+    assert code == 1, err
+    assert err.strip().splitlines() == [
+        f"{prog}: error: {sweep}: the sweep has no value, so a multirun would start no job; "
+        f"expected at least one value{options}"
+    ]
+    assert list(tmp_path.iterdir()) == []
