@@ -167,10 +167,7 @@ class OnnxSegmenter(ImageSegmenter):
                     "a PyTorch checkpoint, not an ONNX model; export it first: uss-export "
                     f"ckpt_path={self.path}",
                 ) from None
-            message = str(error).strip().splitlines()[0] if str(error).strip() else repr(error)
-            raise DataFormatError(
-                self.path, f"onnxruntime cannot load it as an ONNX model: {message}"
-            ) from None
+            raise DataFormatError(self.path, _unloadable(self.path, error)) from None
 
     def _check_logits(self, session: ort.InferenceSession, crf: bool) -> bool:
         """Whether the model has the logits output (its channels checked against the class
@@ -357,3 +354,24 @@ def _check_settings(threads: object, threshold: object, crf: object) -> None:
         )
     if not isinstance(crf, bool):
         raise UssSlamError(f"segmenter.crf must be true or false, got {crf!r}")
+
+
+_ONNXRUNTIME_FAILURES = {
+    "No graph was found": "holds no ONNX graph",
+    "Protobuf parsing failed": "is not an ONNX protobuf (truncated, or another format)",
+}
+"""onnxruntime's texts for a file that is not a whole ONNX model -> what the line says."""
+
+
+def _unloadable(path: Path, error: BaseException) -> str:
+    """What the line says of a model file onnxruntime cannot load: an empty file, one that is
+    not a whole ONNX model, else onnxruntime's own first line (an opset or operator it lacks)."""
+    expected = "expected an ONNX model written by uss-export"
+    if path.is_file() and path.stat().st_size == 0:
+        return f"is empty (0 bytes); {expected}"
+    text = str(error).strip()
+    for found, says in _ONNXRUNTIME_FAILURES.items():
+        if found in text:
+            return f"{says}; {expected}"
+    first = text.splitlines()[0] if text else repr(error)
+    return f"onnxruntime cannot load it as an ONNX model: {first}"

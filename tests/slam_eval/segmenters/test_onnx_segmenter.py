@@ -471,3 +471,23 @@ def test_kept_labels_are_read_only_and_reused_calls_run_no_stage() -> None:
     assert inner.runs == 3  # forgotten: segmented again
     assert worth_keeping(inner)
     assert not worth_keeping(NoSegmenter()) and not worth_keeping(LabelsSegmenter())
+
+
+@pytest.mark.parametrize(
+    ("content", "says"),
+    [
+        (b"", "is empty (0 bytes)"),
+        (b"hello\n", "is not an ONNX protobuf (truncated, or another format)"),
+        (b"\x08\x07\x12\x04onnx", "holds no ONNX graph"),
+    ],
+)
+def test_a_file_that_is_no_whole_onnx_model_is_one_line_in_the_projects_words(
+    content: bytes, says: str, tmp_path: Path
+) -> None:
+    """An empty, a text or a truncated ``.onnx``: the line says what the file is, without
+    onnxruntime's ``[ONNXRuntimeError] : 7 : INVALID_PROTOBUF`` text."""
+    path = tmp_path / "model.onnx"
+    path.write_bytes(content)
+    with pytest.raises(DataFormatError) as raised:
+        OnnxSegmenter(path)
+    assert str(raised.value) == f"{path}: {says}; expected an ONNX model written by uss-export"
