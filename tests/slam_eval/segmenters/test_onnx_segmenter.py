@@ -165,7 +165,7 @@ def test_threshold_needs_the_logits_output(tmp_path: Path) -> None:
 def test_not_an_onnx_file_names_it(tmp_path: Path) -> None:
     path = tmp_path / "junk.onnx"
     path.write_bytes(b"not a model")
-    with pytest.raises(DataFormatError, match="onnxruntime cannot load it") as info:
+    with pytest.raises(DataFormatError, match="is not an ONNX protobuf") as info:
         OnnxSegmenter(path)
     assert str(path) in str(info.value)
     with pytest.raises(UssSlamError, match="segmenter.path=.*absent.onnx: does not exist"):
