@@ -10,6 +10,7 @@ nearby pairs, not with (map points × keypoints).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -34,23 +35,37 @@ def radius_pairs(
     the image ``(width, height)`` used to lay out the grid (positions outside are clamped into
     the border cells, so nothing is lost).
     """
+    qi, pi = cell_pairs(query, radius, points, size, cell)
+    return within(qi, pi, query, radius, points)
+
+
+def cell_pairs(
+    query: np.ndarray,
+    radius: np.ndarray,
+    points: np.ndarray,
+    size: tuple[int, int],
+    cell: float = 16.0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The candidates of :func:`radius_pairs`: every ``(query, point)`` index pair whose point
+    lies in a grid cell that the query's square of half-side ``radius`` touches, by query, then
+    by cell row, then by point (what :func:`within` then tests)."""
     empty = np.zeros(0, np.int64)
     if len(query) == 0 or len(points) == 0:
         return empty, empty
     width, height = size
-    nx, ny = max(1, int(np.ceil(width / cell))), max(1, int(np.ceil(height / cell)))
-    gx = np.clip((points[:, 0] // cell).astype(np.int64), 0, nx - 1)
-    gy = np.clip((points[:, 1] // cell).astype(np.int64), 0, ny - 1)
+    nx, ny = max(1, math.ceil(width / cell)), max(1, math.ceil(height / cell))
+    gx = _clamp((points[:, 0] // cell).astype(np.int64), nx - 1)
+    gy = _clamp((points[:, 1] // cell).astype(np.int64), ny - 1)
     keys = gy * nx + gx
     order = np.argsort(keys, kind="stable")
     counts = np.bincount(keys, minlength=nx * ny)
     ends = np.cumsum(counts)
     starts = ends - counts  # cell c's points: order[starts[c] : ends[c]]
 
-    x0 = np.clip(((query[:, 0] - radius) // cell).astype(np.int64), 0, nx - 1)
-    x1 = np.clip(((query[:, 0] + radius) // cell).astype(np.int64), 0, nx - 1)
-    y0 = np.clip(((query[:, 1] - radius) // cell).astype(np.int64), 0, ny - 1)
-    y1 = np.clip(((query[:, 1] + radius) // cell).astype(np.int64), 0, ny - 1)
+    x0 = _clamp(((query[:, 0] - radius) // cell).astype(np.int64), nx - 1)
+    x1 = _clamp(((query[:, 0] + radius) // cell).astype(np.int64), nx - 1)
+    y0 = _clamp(((query[:, 1] - radius) // cell).astype(np.int64), ny - 1)
+    y1 = _clamp(((query[:, 1] + radius) // cell).astype(np.int64), ny - 1)
     # The cells x0..x1 of one grid row are consecutive keys, so their points are one run of
     # ``order``: one span per query and row, in the order of the query's cells.
     nrow = y1 - y0 + 1
@@ -60,9 +75,26 @@ def radius_pairs(
     count = ends[row * nx + x1[q_rep]] - start
     qi = np.repeat(q_rep, count)
     pi = order[np.arange(len(qi)) + np.repeat(start - (np.cumsum(count) - count), count)]
-    d2 = ((points[pi] - query[qi]) ** 2).sum(axis=1)
-    keep = d2 <= radius[qi] ** 2
+    return qi, pi
+
+
+def within(
+    qi: np.ndarray, pi: np.ndarray, query: np.ndarray, radius: np.ndarray, points: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The pairs ``(qi, pi)`` whose point lies within the query's radius (squared distances,
+    ``dx² + dy² <= r²``), in their order."""
+    dx = points[pi, 0] - query[qi, 0]
+    dy = points[pi, 1] - query[qi, 1]
+    r = radius[qi]
+    keep = dx * dx + dy * dy <= r * r
     return qi[keep], pi[keep]
+
+
+def _clamp(index: np.ndarray, top: int) -> np.ndarray:
+    """``np.clip(index, 0, top)`` of an integer array, in place, without ``np.clip``'s Python
+    wrapper (~5 µs a call, six calls per search)."""
+    np.maximum(index, 0, out=index)
+    return np.minimum(index, top, out=index)
 
 
 @dataclass(frozen=True)
@@ -100,21 +132,23 @@ def guided_match(
     (the smallest distance over the sets counts), ``kp_uv`` (N, 2), ``kp_octave`` (N,),
     ``kp_descriptors`` (N, 32), ``available`` (N,) bool (keypoints that may be matched).
     """
-    qi, ki = radius_pairs(proj, radius, kp_uv, size)
+    # The cheap tests first (keypoint free, level near the prediction), the distance on the
+    # pairs that pass them: the same pairs, in the same order, as testing the distance first.
+    qi, ki = cell_pairs(proj, radius, kp_uv, size)
     keep = available[ki] & (np.abs(kp_octave[ki] - level[qi]) <= level_window)
-    qi, ki = qi[keep], ki[keep]
+    qi, ki = within(qi[keep], ki[keep], proj, radius, kp_uv)
     empty = Matches(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int32))
     if len(qi) == 0:
         return empty
-    dist = hamming(descriptors[0][qi], kp_descriptors[ki])
+    candidates = kp_descriptors[ki]
+    dist = hamming(descriptors[0][qi], candidates)
     for extra in descriptors[1:]:
-        dist = np.minimum(dist, hamming(extra[qi], kp_descriptors[ki]))
+        dist = np.minimum(dist, hamming(extra[qi], candidates))
     order = _sort_by(qi, dist)
     qi, ki, dist = qi[order], ki[order], dist[order]
-    first = np.r_[True, qi[1:] != qi[:-1]]
-    best = np.flatnonzero(first)
-    has_second = np.r_[best[1:] - best[:-1] > 1, len(qi) - best[-1] > 1]
-    second = np.where(has_second, dist[np.minimum(best + 1, len(qi) - 1)], np.iinfo(np.int32).max)
+    best = np.flatnonzero(_starts(qi))
+    has_second = np.diff(best, append=len(qi)) > 1
+    second = np.where(has_second, dist[np.minimum(best + 1, len(qi) - 1)], _INT32_MAX)
     ok = (dist[best] <= max_distance) & (dist[best] < ratio * second)
     best = best[ok]
     if len(best) == 0:
@@ -122,9 +156,20 @@ def guided_match(
     qi, ki, dist = qi[best], ki[best], dist[best]
     # One map point per keypoint: the closest descriptor keeps it.
     order = _sort_by(ki, dist)
-    first = np.r_[True, ki[order][1:] != ki[order][:-1]]
-    sel = np.sort(order[first])
+    sel = np.sort(order[_starts(ki[order])])
     return Matches(qi[sel], ki[sel], dist[sel])
+
+
+_INT32_MAX = np.iinfo(np.int32).max
+
+
+def _starts(sorted_keys: np.ndarray) -> np.ndarray:
+    """``(n,)`` bool: True where a run of equal values of the ``(n,)`` ``sorted_keys`` (n >= 1)
+    starts."""
+    first = np.empty(len(sorted_keys), bool)
+    first[0] = True
+    np.not_equal(sorted_keys[1:], sorted_keys[:-1], out=first[1:])
+    return first
 
 
 def _sort_by(key: np.ndarray, dist: np.ndarray) -> np.ndarray:

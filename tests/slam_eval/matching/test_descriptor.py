@@ -112,3 +112,51 @@ def test_guided_match_uses_the_best_of_several_descriptor_sets() -> None:
     assert len(guided_match(*args, (old,), *rest)) == 0
     m = guided_match(*args, (old, kp_desc), *rest)
     assert len(m) == 1 and m.distance[0] == 0
+
+
+def test_guided_match_equals_testing_the_distance_first() -> None:
+    """The window, level and availability tests in another order than guided matching runs
+    them (the radius search first, as it used to): the same matches, distances and order."""
+    rng = np.random.default_rng(5)
+    for trial in range(20):
+        q, n = int(rng.integers(0, 120)), int(rng.integers(1, 300))
+        proj = rng.uniform(-10, 650, (q, 2))
+        radius = rng.uniform(1, 40, q)
+        level = rng.integers(0, 8, q)
+        sets = tuple(rng.integers(0, 256, (q, 32), dtype=np.uint8) for _ in range(1 + trial % 2))
+        kp_uv = rng.uniform(0, 640, (n, 2))
+        kp_octave = rng.integers(0, 8, n)
+        kp_desc = rng.integers(0, 256, (n, 32), dtype=np.uint8)
+        kp_desc[: n // 2] = sets[0][rng.integers(0, max(q, 1), n // 2)] if q else kp_desc[: n // 2]
+        kp_desc[: n // 2, 0] ^= rng.integers(0, 256, n // 2, dtype=np.uint8)  # near copies
+        available = rng.random(n) < 0.8
+        got = guided_match(
+            proj, radius, level, sets, kp_uv, kp_octave, kp_desc, available, (640, 480)
+        )
+        qi, ki = radius_pairs(proj, radius, kp_uv, (640, 480))
+        keep = available[ki] & (np.abs(kp_octave[ki] - level[qi]) <= 1)
+        qi, ki = qi[keep], ki[keep]
+        dist = np.min([hamming(s[qi], kp_desc[ki]) for s in sets], axis=0) if len(qi) else qi
+        best: dict[int, tuple[int, int]] = {}  # query -> (distance, keypoint), first smallest
+        second: dict[int, int] = {}
+        for a, b, d in zip(qi.tolist(), ki.tolist(), np.asarray(dist).tolist(), strict=True):
+            if a not in best or d < best[a][0]:
+                if a in best:
+                    second[a] = best[a][0]
+                best[a] = (d, b)
+            else:
+                second[a] = min(second.get(a, 1 << 30), d)
+        accepted = {
+            a: (d, b)
+            for a, (d, b) in best.items()
+            if d <= 100 and d < 0.8 * second.get(a, np.iinfo(np.int32).max)
+        }
+        owner: dict[int, tuple[int, int]] = {}  # keypoint -> (distance, query), closest first
+        for a, (d, b) in sorted(accepted.items()):
+            if b not in owner or d < owner[b][0]:
+                owner[b] = (d, a)
+        expected = sorted((a, b, d) for b, (d, a) in owner.items())
+        order = sorted(range(len(got)), key=lambda i: got.keypoint[i])
+        assert [int(got.keypoint[i]) for i in order] == sorted(b for _, b, _ in expected)
+        assert sorted(zip(got.query.tolist(), got.keypoint.tolist(), got.distance.tolist(),
+                          strict=True)) == expected  # fmt: skip
