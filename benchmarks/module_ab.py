@@ -15,7 +15,12 @@ printed with their ratio. Reported in BENCHMARKS.md ("SLAM harness speed").
     python benchmarks/module_ab.py orb /tmp/orb_before.py slam_eval/frontend/orb.py \\
         --sequence SEQ [SEQ ...] --rounds 6
     python benchmarks/module_ab.py matching /tmp/descriptor_before.py \\
-        slam_eval/matching/descriptor.py --sequence SEQ [SEQ ...]
+        slam_eval/matching/descriptor.py --sequence SEQ [SEQ ...] [--whole-runs 3]
+
+``--whole-runs N`` (``matching``): then N pairs of whole default runs of each sequence in
+turns (``slam.prefetch_mode=process``, as on two idle cores), the harness's guided matching
+being the one copy's, then the other's: the trajectories compared, and the CPU ms a frame of
+the main thread (its modules' clocks), of the main process and of the frame reader process.
 
 A copy that gives other results stops the script with the first difference (exit code 1).
 """
@@ -139,6 +144,67 @@ def recorded_calls(path: Path) -> tuple[list, int]:
     return calls, len(sequence)
 
 
+def whole_runs(before: ModuleType, after: ModuleType, path: Path, pairs: int) -> None:
+    """``pairs`` pairs of whole runs on ``path`` in turns, guided matching from ``before`` /
+    ``after``: identical trajectories, CPU ms a frame per pair and their ratios."""
+    from uss_slam.slam_eval.matching import projection
+
+    plain = projection.guided_match
+    clocks: tuple[list[dict], list[dict]] = ([], [])
+    try:
+        for r in range(pairs):
+            for slot in (0, 1) if r % 2 == 0 else (1, 0):
+                projection.guided_match = (before, after)[slot].guided_match
+                clocks[slot].append(timed_run(path))
+    finally:
+        projection.guided_match = plain
+    if len({c.pop("trajectory") for c in clocks[0] + clocks[1]}) != 1:
+        raise SystemExit(f"{path.name}: the whole runs' trajectories differ")
+    for key in clocks[0][0]:
+        old, new = [c[key] for c in clocks[0]], [c[key] for c in clocks[1]]
+        ratios = [b / a for a, b in zip(old, new, strict=True)]
+        print(f"{path.name}, whole runs (the same trajectory): {key} CPU ms/frame before "
+              f"{statistics.median(old):.2f}, after {statistics.median(new):.2f}; after / "
+              f"before per pair {', '.join(f'{x:.3f}' for x in ratios)} (median "
+              f"{statistics.median(ratios):.3f}; load {os.getloadavg()[0]:.1f})")  # fmt: skip
+
+
+def timed_run(path: Path) -> dict:
+    """One whole default run (``semantic`` on the labels where there are some, the back end,
+    the frame reader process): its CPU ms a frame and its trajectory's bytes."""
+    from uss_slam.slam_eval.filters.build import build_filters
+    from uss_slam.slam_eval.frontend import process
+    from uss_slam.slam_eval.segmenters.base import LabelsSegmenter, NoSegmenter
+    from uss_slam.slam_eval.sequence import TumSequence
+    from uss_slam.slam_eval.systems.harness import SlamPipeline
+
+    labelled = (path / "labels").is_dir()
+    workers: list = []
+    start = process.start
+    process.start = lambda *a, **k: workers.append(start(*a, **k)) or workers[-1]
+    own = time.process_time()
+    try:
+        result = SlamPipeline(
+            TumSequence(path, load_labels=labelled),
+            LabelsSegmenter() if labelled else NoSegmenter(),
+            build_filters(["semantic"] if labelled else []),
+            progress=False, local_ba=True, loop_closing=True, prefetch_mode="process",
+        ).run()  # fmt: skip
+    finally:
+        process.start = start
+    n = max(result.frames, 1)
+    worker = sum(w.worker_cpu for w in workers if w is not None)
+    traj = result.trajectory
+    return {
+        "main thread": sum(
+            v for k, v in result.cpu_ms.items() if k not in ("read", "segmentation", "orb")
+        ),
+        "main process": 1e3 * (time.process_time() - own) / n,
+        "worker process": 1e3 * worker / n,
+        "trajectory": traj.positions.tobytes() + traj.quaternions.tobytes(),
+    }
+
+
 def report(name: str, what: str, times: tuple[list[float], list[float]]) -> None:
     before, after = times
     ratios = [a / b for a, b in zip(after, before, strict=True)]
@@ -155,6 +221,8 @@ def main() -> None:
     parser.add_argument("--sequence", type=Path, nargs="+", required=True)
     parser.add_argument("--frames", type=int, default=100, help="orb: frames of each sequence")
     parser.add_argument("--rounds", type=int, default=6)
+    parser.add_argument("--whole-runs", type=int, default=0, metavar="N",
+                        help="matching: then N pairs of whole runs in turns (docstring)")  # fmt: skip
     args = parser.parse_args()
     import cv2
 
@@ -175,6 +243,8 @@ def main() -> None:
             calls, frames = recorded_calls(path)
             times = compare_matching(before, after, calls, frames, args.rounds)
             report(path.name, f"{len(calls)} calls", times)
+            if args.whole_runs > 0:
+                whole_runs(before, after, path, args.whole_runs)
     print(f"load average after: {os.getloadavg()[0]:.2f}")
 
 

@@ -70,3 +70,20 @@ def test_matching_copies_compared_then_timed_in_turns(tmp_path) -> None:
         module_ab.compare_matching(
             before, module_ab.load_copy(changed, "desc_c"), [(args, {})], 1, 1
         )
+
+
+def test_whole_runs_in_turns_compare_trajectories(tmp_path, synthetic_sequence, capsys) -> None:
+    path = synthetic_sequence(preset="walking_xyz", frames=30)
+    before = module_ab.load_copy(_copy(tmp_path, descriptor, "desc_w"), "desc_w")
+    module_ab.whole_runs(before, descriptor, path, pairs=1)
+    lines = capsys.readouterr().out.splitlines()
+    assert [line.split(": ")[1].split(" CPU")[0] for line in lines] == [
+        "main thread", "main process", "worker process"
+    ]  # fmt: skip
+    # Guided matching with a stricter distance bound changes the trajectory: stopped, named.
+    changed = _copy(
+        tmp_path, descriptor, "desc_x", "(dist[best] <= max_distance)",
+        "(dist[best] <= max_distance // 3)",
+    )  # fmt: skip
+    with pytest.raises(SystemExit, match="trajectories differ"):
+        module_ab.whole_runs(before, module_ab.load_copy(changed, "desc_x"), path, pairs=1)
