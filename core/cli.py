@@ -36,10 +36,10 @@ from uss_slam.core.errors import NoSpaceError, UssSlamError
 from uss_slam.core.files import no_space_errno
 from uss_slam.core.hydra_lines import (  # noqa: F401 (their home before)
     adding_refused_over_any_key,
-    home_expanded_argv,
     hydra_error_line,
     hydra_switch_line,
     hydra_switch_texts,
+    list_items_quoted_argv,
     output_folder_line,
     override_parse_line,
     repeated_override_line,
@@ -561,7 +561,7 @@ def run_hydra_app(prog: str, app: Callable[[], object]) -> None:
     previous = os.environ.get("HYDRA_FULL_ERROR")
     os.environ["HYDRA_FULL_ERROR"] = "1"  # Hydra raises instead of printing its own report
     report = JobReport(prog)
-    sys.argv[1:] = home_expanded_argv(sys.argv[1:])
+    sys.argv[1:] = list_items_quoted_argv(sys.argv[1:])
     repeated = repeated_override_line(sys.argv[1:])
     if repeated is not None:
         print(f"{prog}: error: {repeated}", file=sys.stderr)

@@ -393,6 +393,41 @@ def home_expanded_argv(argv: list[str]) -> list[str]:
     return out
 
 
+def list_items_quoted_argv(argv: list[str]) -> list[str]:
+    """A Hydra app's command line, ``~`` expanded (:func:`home_expanded_argv`), with the items
+    of a list override that hold ``=`` quoted
+    (``train.overrides=[model.max_iters=5,logger=none]`` ->
+    ``train.overrides=['model.max_iters=5','logger=none']``): Hydra's grammar reads ``=`` only
+    quoted, so the unquoted form has no other meaning; the keys that take such lists
+    (``train.overrides``, ``slam.overrides``, ...) hold overrides of another script. Left as
+    typed where it parses already, where an item holds quotes or brackets, or where the quoted
+    form does not parse either (the parse error's line then says what to write)."""
+    return [_list_items_quoted(arg) for arg in home_expanded_argv(argv)]
+
+
+def _list_items_quoted(arg: str) -> str:
+    key, sep, value = arg.partition("=")
+    if arg.startswith("-") or not (sep and value[:1] == "[" and value[-1:] == "]"):
+        return arg
+    items = value[1:-1].split(",")
+    if "=" not in value[1:-1] or any(set(i) & set("'\"[]{}") for i in items):
+        return arg
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+    from hydra.errors import OverrideParseException
+
+    from uss_slam.core.paths import hydra_quoted
+
+    parser = OverridesParser.create()
+    quoted = f"{key}=[" + ",".join(hydra_quoted(i.strip()) for i in items) + "]"
+    for candidate, result in ((arg, arg), (quoted, quoted)):
+        try:
+            parser.parse_overrides([candidate])
+        except OverrideParseException:
+            continue
+        return result
+    return arg
+
+
 def _home_expanded_value(value: str) -> str:
     """One override value (unquoted or quoted) with a starting ``~`` expanded; as it is when
     there is none, or the user is unknown (the path layer's line then names the key)."""

@@ -217,3 +217,24 @@ def test_a_config_group_set_to_a_value_that_is_no_option_names_the_group(
         f"{options}"
     ]
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_list_of_another_scripts_overrides_may_be_typed_unquoted(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    """``train.overrides=[model.max_iters=5]``: Hydra's lexer refused the ``=`` in the item;
+    the list is read as its quoted form (``--cfg job`` shows what the run would use)."""
+    monkeypatch.chdir(tmp_path)
+    argv = [
+        "--cfg",
+        "job",
+        "-p",
+        "train.overrides",
+        "train.overrides=[model.max_iters=5,logger=none]",
+    ]
+    try:
+        code, out, err = run_console_script("uss-experiments", argv, monkeypatch, capsys)
+    finally:
+        GlobalHydra.instance().clear()
+    assert code == 0, err
+    assert out.splitlines()[-2:] == ["- model.max_iters=5", "- logger=none"]

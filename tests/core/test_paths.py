@@ -11,6 +11,7 @@ import pytest
 from uss_slam.core.cli import override_parse_line
 from uss_slam.core.errors import DataFormatError, NoSpaceError
 from uss_slam.core.files import no_space_errno
+from uss_slam.core.hydra_lines import list_items_quoted_argv
 from uss_slam.core.paths import (
     PathError,
     hydra_quoted,
@@ -102,6 +103,26 @@ def test_list_items_holding_equals_signs_get_their_quoted_form() -> None:
     assert override_parse_line("limit=[1", "no viable alternative at input '[1'").startswith(
         "limit=[1: no viable"
     )
+
+
+@pytest.mark.parametrize(
+    ("typed", "read"),
+    [
+        ("slam.overrides=[slam.orb.n_features=500]", "slam.overrides=['slam.orb.n_features=500']"),
+        ("train.overrides=[logger=none, model.max_iters=6]",
+         "train.overrides=['logger=none','model.max_iters=6']"),
+        ("+train.overrides=[a=(1)]", "+train.overrides=['a=(1)']"),
+        ("train.overrides=['logger=none']", "train.overrides=['logger=none']"),  # parses already
+        ("x=[1,2]", "x=[1,2]"),
+        ("x=['a=1',b=2]", "x=['a=1',b=2]"),  # an item with quotes: left to the parse error
+        ("x=[a=[1]]", "x=[a=[1]]"),  # brackets in an item
+        ("-m", "-m"),
+    ],
+)  # fmt: skip
+def test_list_items_holding_equals_signs_are_read_quoted(typed: str, read: str) -> None:
+    """Hydra's grammar reads ``=`` in a list item only quoted, so the unquoted list of another
+    script's overrides has no other meaning: it is read as the quoted one."""
+    assert list_items_quoted_argv([typed]) == [read]
 
 
 def test_errors_cross_processes_whole() -> None:
