@@ -8,6 +8,7 @@ anything. Keep sizes and frame counts small (rendering takes tens of millisecond
 
 from __future__ import annotations
 
+import os
 import signal
 import sys
 from collections.abc import Callable, Iterator
@@ -26,6 +27,15 @@ if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
     signal.signal(signal.SIGINT, signal.default_int_handler)
 if signal.getsignal(signal.SIGQUIT) is signal.SIG_IGN:
     signal.signal(signal.SIGQUIT, signal.SIG_DFL)
+
+# pytest-xdist's workers (``make test``: one per core) share the cores: each runs torch, and
+# the console scripts it starts run torch and OpenMP, on one thread. Two threads per worker
+# made OpenMP's threads spin-wait for a core the other worker held: the training tests took
+# several times their CPU on two busy cores. In one process (``-n 0``) tests use two threads.
+WORKERS = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+TORCH_THREADS = 1 if WORKERS > 1 else 2
+if WORKERS > 1:
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 SequenceFactory = Callable[..., Path]
 VocFactory = Callable[..., Path]
@@ -105,14 +115,14 @@ def uda_data(synthetic_voc: VocFactory, synthetic_sequence: SequenceFactory) -> 
 
 
 @pytest.fixture(autouse=True)
-def _two_torch_threads() -> Iterator[None]:
-    """Tests that use torch run it on two threads (the CI machine's cores); torch-free test
-    areas never import it."""
+def _torch_threads() -> Iterator[None]:
+    """Tests that use torch run it on :data:`TORCH_THREADS` threads; torch-free test areas
+    never import it."""
     torch = sys.modules.get("torch")
     if torch is None:
         yield
         return
     threads = torch.get_num_threads()
-    torch.set_num_threads(2)
+    torch.set_num_threads(TORCH_THREADS)
     yield
     torch.set_num_threads(threads)

@@ -130,7 +130,6 @@ def test_paper_experiment_composes_the_three_source_sets(
 def test_paper_experiment_runs_fast_dev_run(roots: dict[str, Path], tmp_path: Path) -> None:
     from uss_slam.train.train import train
 
-    torch.set_num_threads(2)
     cfg = _compose(
         [*_overrides(roots, tmp_path / "logs"), "+trainer.fast_dev_run=true"], tmp_path / "run"
     )
