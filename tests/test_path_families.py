@@ -111,8 +111,10 @@ PATH_ARGS = [
     PathArg("uss-slam", "segmenter.path", IN_FILE,
             "sequence.path={seq} out_dir={tmp}/out progress=false segmenter=onnx "
             "segmenter.path={P}"),
+    # (one epoch of experiment=ci's two: the cases that train only need the run folder written)
     PathArg("uss-train", "hydra.run.dir", OUT_FOLDER,
-            f"{TRAIN_BASE} data.source.root={{voc}} hydra.run.dir={{P}}", slow=True),
+            f"{TRAIN_BASE} data.source.root={{voc}} hydra.run.dir={{P}} model.max_iters=2",
+            slow=True),
     PathArg("uss-train", "data.source.root", IN_FOLDER,
             f"{TRAIN_BASE} data.source.root={{P}} hydra.run.dir={{tmp}}/run", slow=True),
     PathArg("uss-train", "ckpt_path", IN_FILE,
