@@ -45,7 +45,7 @@ from uss_slam.core.hydra_lines import (  # noqa: F401 (their home before)
     repeated_override_line,
     typed_overrides,
 )
-from uss_slam.core.launch import TERMINATING, UNASSIGNED, close_open_bars, taken
+from uss_slam.core.launch import TERMINATING, close_open_bars, taken
 from uss_slam.core.run_folders import (
     RefusedRunFolder,
     RunFolderCheck,
@@ -164,8 +164,8 @@ def interrupt_signal(error: BaseException | None = None) -> int:
     """The signal that interrupted the console script: SIGTERM when a :class:`Terminated` is
     ``error`` or was raised by :func:`signals_as_interrupts`' handler (a library may re-raise
     it as a plain ``KeyboardInterrupt``), else SIGINT."""
-    if isinstance(error, Terminated):
-        return error.signum
+    if isinstance(getattr(error, "signum", None), int):  # (launch's, before the script's)
+        return error.signum  # type: ignore[union-attr]
     return _received if _received is not None else signal.SIGINT
 
 
@@ -298,9 +298,7 @@ def interrupts_deferred() -> Iterator[None]:
         return
     previous = {sig: signal.getsignal(sig) for sig in INTERRUPTING}
     # ignored, default (SIGTERM ends the process at once) or handled outside Python: left alone
-    ours = {
-        sig: h for sig, h in previous.items() if sig not in UNASSIGNED or h is _interrupt_handler
-    }
+    ours = {sig: h for sig, h in previous.items() if h is _interrupt_handler or taken(sig, h)}
     deferred = {sig: handler for sig, handler in ours.items() if callable(handler)}
     caught: list[int] = []
     for sig in deferred:

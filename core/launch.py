@@ -11,8 +11,9 @@ its script's module and calls its ``main``, so that what the machine lacks is on
   (:data:`ADDRESS_SPACE_FLOOR`): the same ``out of memory`` line, before the imports (between
   about 300 and 460 MB OpenCV's import killed the process with SIGSEGV);
 - Ctrl-C or SIGTERM while the script's libraries are still being imported (the first seconds
-  of a run, longer on a busy machine): ``<prog>: interrupted`` (exit code 130; SIGTERM:
-  ``<prog>: interrupted (SIGTERM)``, 143), as later in the run, never an import's traceback.
+  of a run, longer on a busy machine) or before the script's own handling starts:
+  ``<prog>: interrupted`` (exit code 130; SIGTERM: ``<prog>: interrupted (SIGTERM)``, 143), as
+  later in the run, never an import's traceback nor the kernel's default.
 
 Imports nothing outside the standard library before the script's module.
 """
@@ -109,14 +110,16 @@ def address_space_line(prog: str) -> str | None:
 
 class _Terminated(KeyboardInterrupt):
     """SIGTERM, SIGHUP or SIGQUIT while the script's module is imported (raised by
-    :func:`_on_sigterm`)."""
+    :func:`on_stopping_signal`)."""
 
     def __init__(self, signum: int = signal.SIGTERM) -> None:
         super().__init__(signal.Signals(signum).name)
         self.signum = signum
 
 
-def _on_sigterm(signum: int, frame: object) -> None:
+def on_stopping_signal(signum: int, frame: object) -> None:
+    """The handler of :data:`TERMINATING` from the script's start until its own handling
+    starts (and again once that ends): the signal as an interrupt, the one line."""
     raise _Terminated(signum)
 
 
@@ -144,7 +147,7 @@ def taken(sig: int, handler: object) -> bool:
         return True
     if sig != signal.SIGALRM and "SLURM_JOB_ID" in os.environ:
         return False
-    return handler in (signal.SIG_DFL, None)
+    return handler in (signal.SIG_DFL, None, on_stopping_signal)
 
 
 def openmp_threads_checked(prog: str) -> None:
@@ -216,13 +219,13 @@ def launch(prog: str) -> int | None:
     os.environ.setdefault("ORT_DISABLE_TELEMETRY", "1")
     private_matplotlib_folder()
     quiet_known_warnings()
-    previous: dict[int, object] = {}
-    try:
+    # until the script's own handling starts (its argument checks come first): a signal at
+    # any point of a run is its one line, never the kernel's default (restoring the default
+    # after the imports left a second-long window in which SIGTERM or SIGHUP killed it)
+    with contextlib.suppress(ValueError):  # not the main thread (a test): no handler
         for sig in TERMINATING:
             if taken(sig, signal.getsignal(sig)):  # (nohup: SIGHUP stays ignored)
-                previous[sig] = signal.signal(sig, _on_sigterm)
-    except ValueError:  # not the main thread (a test): no handler
-        previous = {}
+                signal.signal(sig, on_stopping_signal)
     try:
         torch_without_working_folder(prog)
         main: Callable[[], int | None] = importlib.import_module(SCRIPTS[prog]).main
@@ -242,9 +245,6 @@ def launch(prog: str) -> int | None:
             file=sys.stderr,
         )
         return 1
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)  # the script installs its own
     try:
         return main()
     except KeyboardInterrupt as error:  # one that came before the script's own handling

@@ -367,3 +367,39 @@ def test_a_number_of_more_digits_than_python_converts_is_out_of_its_keys_range(
     assert run.stderr.startswith("uss-experiments: error: slam.repeats: expected an integer")
     assert len(run.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "x" / "jobs").exists()  # no plan (Hydra's own record aside)
+
+
+EARLY_SIGNAL = """
+import os, signal, sys, time, types
+from uss_slam.core import launch
+
+def main():
+    # the script's argument checks, before its own handling of signals starts
+    os.kill(os.getpid(), int(sys.argv[1]))
+    time.sleep(5)
+    return 0
+
+module = types.ModuleType("early_script")
+module.main = main
+sys.modules["early_script"] = module
+launch.SCRIPTS["uss-early"] = "early_script"
+launch._entry("uss-early")()
+"""
+
+
+@pytest.mark.parametrize("sig", [signal.SIGHUP, signal.SIGTERM, signal.SIGUSR1])
+def test_a_signal_before_the_scripts_own_handling_starts_is_the_one_line(
+    sig: signal.Signals,
+) -> None:
+    """After the imports and before the script handles signals itself (its argument checks,
+    about half a second of ``uss-eval compare``), SIGHUP or SIGTERM killed the process by the
+    kernel's default (no line, exit -1): the handler of the imports now stays until the
+    script's own starts."""
+
+    def as_from_a_terminal() -> None:  # (a test run under nohup ignores SIGHUP)
+        signal.signal(signal.SIGHUP, signal.SIG_DFL)
+
+    run = subprocess.run([sys.executable, "-c", EARLY_SIGNAL, str(int(sig))], capture_output=True,
+                         text=True, timeout=60, preexec_fn=as_from_a_terminal)  # fmt: skip
+    assert run.returncode == 128 + sig, run.stderr
+    assert run.stderr.splitlines() == [f"uss-early: interrupted ({sig.name})"]
