@@ -75,7 +75,16 @@ class RunFolder:
         root = Path(root).absolute()
         root.mkdir(parents=True, exist_ok=True)
         remove_staging(root)
-        return cls(root, tempfile.mkdtemp(prefix=STAGING_PREFIX, dir=root))
+        staging = None  # a Ctrl-C or SIGTERM as it is made comes once it is owned, and takes it
+        try:
+            with interrupts_deferred():
+                staging = tempfile.mkdtemp(prefix=STAGING_PREFIX, dir=root)
+                made = cls(root, staging)
+        except BaseException:
+            if staging is not None:
+                shutil.rmtree(staging, ignore_errors=True)
+            raise
+        return made
 
     def __enter__(self) -> RunFolder:
         return self

@@ -545,3 +545,27 @@ def test_a_ctrl_c_python_dropped_stops_the_commit_and_keeps_the_earlier_run(tmp_
     new.discard()
     assert _snapshot(root) == before and verify_run(root) == []
     assert not list(root.glob(".uss-slam-*"))
+
+
+def test_a_ctrl_c_as_the_staging_folder_is_made_leaves_no_staging_folder(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Ctrl-C right after the staging folder exists (before the run holds it to discard): the
+    interrupt comes once the folder is owned, which removes it (a run stopped at that moment
+    left ``.uss-slam-new.*`` beside the earlier run's outputs)."""
+    import tempfile
+
+    from uss_slam.slam_eval.scoring import run_folder
+
+    made = tempfile.mkdtemp
+
+    def mkdtemp_then_ctrl_c(**kwargs: object) -> str:
+        path = made(**kwargs)  # type: ignore[call-overload]
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(0.05)  # (the handler runs at the next call)
+        return path
+
+    monkeypatch.setattr(run_folder.tempfile, "mkdtemp", mkdtemp_then_ctrl_c)
+    with pytest.raises(KeyboardInterrupt):
+        RunFolder.start(tmp_path / "run")
+    assert list((tmp_path / "run").iterdir()) == []
