@@ -1,4 +1,4 @@
-"""Screen a new held-out set of cases (``studies/fresh_cases10.txt``) against what the project
+"""Screen a new held-out set of cases (``studies/fresh_cases11.txt``) against what the project
 already tries: every case the generated matrices make (each argparse option's bad values,
 ``uss_slam.core.arguments.bad_arguments``; each Hydra schema key's bad values,
 ``uss_slam.core.schema.cases.bad_values`` as ``tests/test_cli_matrix.py`` collects them; every
@@ -18,7 +18,7 @@ held-out sets. A new case *repeats* one when it is the same script with
   SIGTERM to the group where an earlier case pressed Ctrl-C with the same arguments is a new
   case, as is one without a signal where the earlier one sent one.
 
-    python studies/screen_cases.py studies/fresh_cases10.txt   # exit 1 and the repeats, if any
+    python studies/screen_cases.py studies/fresh_cases11.txt   # exit 1 and the repeats, if any
 
 Needs the test folder on ``sys.path`` (it imports the matrices' modules, which import pytest).
 """
@@ -47,6 +47,7 @@ EARLIER = (
     "fresh_cases7.txt",
     "fresh_cases8.txt",
     "fresh_cases9.txt",
+    "fresh_cases10.txt",
 )
 """The held-out sets so far, in order; a set is screened against those before it."""
 ALIASES = {"{tmp}": "{C}", "{m}": "{onnx}", "{out}": "{C}/o", "{s}": "{C}/seq"}
