@@ -103,6 +103,20 @@ def _forget_hydra_state() -> Iterator[None]:
     GlobalHydra.instance().clear()
 
 
+@pytest.fixture(autouse=True)
+def _signal_handlers_as_they_were() -> Iterator[None]:
+    """A test that runs a console script's launcher in this process leaves its handler of the
+    stopping signals in place (a script's process ends after it, so the launcher does not put
+    the default back): give every later test the handlers the session started with."""
+    from uss_slam.core.launch import TERMINATING
+
+    before = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, *TERMINATING)}
+    yield
+    for sig, handler in before.items():
+        if handler is not None and signal.getsignal(sig) is not handler:
+            signal.signal(sig, handler)
+
+
 @pytest.fixture(scope="session")
 def uda_data(synthetic_voc: VocFactory, synthetic_sequence: SequenceFactory) -> dict[str, Path]:
     """The data of a tiny ``uss-train`` run (training, export and pipeline tests): source VOC
