@@ -123,10 +123,8 @@ def override_parse_line(override: str, message: str) -> str:
 def _override_parse_line(override: str, message: str) -> str:
     key, sep, value = override.partition("=")
     if sep and value.startswith("[") and value.endswith("]") and "=" in value:  # [a=1,b=2]
-        from uss_slam.core.paths import hydra_quoted
-
-        items = "[" + ",".join(hydra_quoted(i.strip()) for i in value[1:-1].split(",")) + "]"
-        return f"{key}: a list item holding '=' must be quoted for Hydra; write {key}={items}"
+        return (f"{key}: a list item holding '=' must be quoted for Hydra; write "
+                f"{key}={_quoted_items(value)}")  # fmt: skip
     if sep and value and not value.startswith(("'", '"', "[", "{")):
         from uss_slam.core.paths import hydra_quoted
 
@@ -257,10 +255,10 @@ def hydra_switch_line(error: BaseException, argv: list[str]) -> str | None:
         return text
     given = [(flag, getattr(args, dest)) for dest, flag in SWITCHES if getattr(args, dest, None)]
     named = [(flag, value) for flag, value in given if flag in text] or given
-    for flag, value in named[:1]:
-        shown = flag if value is True else f"{flag}={value}"
-        return f"{shown}: {text}"
-    return text
+    if not named:
+        return text
+    flag, value = named[0]
+    return f"{flag if value is True else f'{flag}={value}'}: {text}"
 
 
 def _hydra_args(argv: list[str]) -> object | None:
@@ -415,17 +413,21 @@ def _list_items_quoted(arg: str) -> str:
     from hydra.core.override_parser.overrides_parser import OverridesParser
     from hydra.errors import OverrideParseException
 
-    from uss_slam.core.paths import hydra_quoted
-
     parser = OverridesParser.create()
-    quoted = f"{key}=[" + ",".join(hydra_quoted(i.strip()) for i in items) + "]"
-    for candidate, result in ((arg, arg), (quoted, quoted)):
+    for candidate in (arg, f"{key}={_quoted_items(value)}"):
         try:
             parser.parse_overrides([candidate])
         except OverrideParseException:
             continue
-        return result
+        return candidate
     return arg
+
+
+def _quoted_items(value: str) -> str:
+    """``[a=1,b=2]`` -> ``['a=1','b=2']``: each item of a typed list quoted for Hydra."""
+    from uss_slam.core.paths import hydra_quoted
+
+    return "[" + ",".join(hydra_quoted(i.strip()) for i in value[1:-1].split(",")) + "]"
 
 
 def _home_expanded_value(value: str) -> str:
@@ -488,6 +490,7 @@ def empty_sweep_line(config: object) -> str | None:
     with the config loader that expands a ``glob`` over a group's options), else None."""
     from hydra.core.global_hydra import GlobalHydra
     from hydra.core.override_parser.overrides_parser import OverridesParser
+    from hydra.core.override_parser.types import ValueType
     from omegaconf import OmegaConf
 
     if not GlobalHydra.instance().is_initialized():
@@ -500,8 +503,8 @@ def empty_sweep_line(config: object) -> str | None:
         if override.is_discrete_sweep() and not list(override.sweep_string_iterator()):
             key = override.get_key_element()
             options = ""
-            if override.value_type is not None and override.value_type.name == "GLOB_CHOICE_SWEEP":
-                names = loader.get_group_options(key.lstrip("+~"))
+            if override.value_type == ValueType.GLOB_CHOICE_SWEEP:
+                names = loader.get_group_options(override.key_or_group)
                 options = f" (the options of {key}: {', '.join(names)})" if names else ""
             text = override.input_line or key
             return (f"{text}: the sweep has no value, so a multirun would start no job; "

@@ -109,7 +109,7 @@ def address_space_line(prog: str) -> str | None:
 
 
 class _Terminated(KeyboardInterrupt):
-    """SIGTERM, SIGHUP or SIGQUIT while the script's module is imported (raised by
+    """A stopping signal before the script handles signals itself (raised by
     :func:`on_stopping_signal`)."""
 
     def __init__(self, signum: int = signal.SIGTERM) -> None:
