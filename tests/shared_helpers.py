@@ -381,3 +381,21 @@ def write_csv(path: Path, rows: Sequence[Mapping[str, object]]) -> Path:
         writer.writeheader()
         writer.writerows(rows)
     return path
+
+
+def made_up_split(main: Callable[[list[str]], int], tmp_path: Path, capsys, line: str) -> str:
+    """What a held-out set's split (``studies/fresh_pointed*.py``'s ``main``) prints for a
+    made-up run of two cases: ``line`` (id ``a``, poor) and a valid ``uss-synth voc`` (id
+    ``b``, good); the split's totals are checked here, the family named is the caller's."""
+    import json
+
+    cases = tmp_path / "cases.txt"
+    cases.write_text(f"# header\n{line}\nb | uss-synth | ok | - | - | - | voc\n", encoding="utf-8")
+    results = tmp_path / "results.json"
+    outcomes = [{"id": "a", "verdict": "poor"}, {"id": "b", "verdict": "good"}]
+    results.write_text(json.dumps({"outcomes": outcomes}), encoding="utf-8")
+    assert main([str(cases), str(results)]) == 0
+    out = capsys.readouterr().out
+    assert "named to the fixer: 1 counted, 0 good, 1 poor, 0 bad (0.0% good)" in out
+    assert "not named to the fixer: 1 counted, 1 good, 0 poor, 0 bad (100.0% good)" in out
+    return out

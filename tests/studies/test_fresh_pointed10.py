@@ -4,9 +4,10 @@ split was written without reading the set)."""
 from __future__ import annotations
 
 import importlib.util
-import json
 import sys
 from pathlib import Path
+
+from shared_helpers import made_up_split
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "studies"))
@@ -47,18 +48,7 @@ def test_families_are_recognised_from_expect_env_and_argv():
 
 
 def test_split_of_a_made_up_run(tmp_path, capsys):
-    cases = tmp_path / "cases.txt"
-    cases.write_text(
-        "# header\n"
-        "a | uss-slam | error | - | - | segmenter | segmenter=null\n"
-        "b | uss-synth | ok | - | - | - | voc\n",
-        encoding="utf-8",
+    out = made_up_split(
+        main, tmp_path, capsys, "a | uss-slam | error | - | - | segmenter | segmenter=null"
     )
-    results = tmp_path / "results.json"
-    outcomes = [{"id": "a", "verdict": "poor"}, {"id": "b", "verdict": "good"}]
-    results.write_text(json.dumps({"outcomes": outcomes}), encoding="utf-8")
-    assert main([str(cases), str(results)]) == 0
-    out = capsys.readouterr().out
-    assert "named to the fixer: 1 counted, 0 good, 1 poor, 0 bad (0.0% good)" in out
-    assert "not named to the fixer: 1 counted, 1 good, 0 poor, 0 bad (100.0% good)" in out
     assert "poor a: a config group given null or a number" in out
