@@ -44,19 +44,17 @@ from ..products.builder import MapProducts
 from ..scoring.run_result import FrameLog
 from ..sequence import Frame
 from ..tracking.tracker import Tracker, TrackResult
-from .late_mask import adjust_all, erase_carried, since_previous
+from .late_mask import PAST_FRAMES, PastFrame, adjust_all, erase_carried, since_previous
+from .mask_points import hold_new_points, mark_projected, settle_provisional
 from .semantic_thread import (
     CarriedMask,
     Delivered,
     SemanticThread,
     carry_targets,
     classes_near,
-    hold_new_points,
     mark_carried,
     mark_dynamic_points,
-    mark_projected,
     people_motion,
-    settle_provisional,
 )
 
 
@@ -94,21 +92,6 @@ class Prepared:
     timer: Timer
 
 
-@dataclass
-class PastFrame:
-    """A tracked frame a late mask may still correct (``slam.mask_refines_past``): its ``row``
-    in the loop's ``stamps`` / ``poses`` / ``anchors``, its ``stamp`` (s), keypoints and the map
-    point each was matched to when tracked (``matched`` (N,), -1 none)."""
-
-    row: int
-    stamp: float
-    features: Features
-    matched: np.ndarray
-
-
-PAST_FRAMES = 300
-"""``mask_refines_past`` keeps at most this many past frames (10 s at 30 Hz)."""
-
 Segment = Callable[[Frame, Timer], "np.ndarray | None"]
 """Segments a frame in the main thread, timed (``segment=keyframes``)."""
 
@@ -134,7 +117,7 @@ class FrameLoop:
     provisional_points: bool = False
     """With the semantic thread (``slam.provisional_points``): the map points of a keyframe made
     without a mask are held back (bad) until a mask clears them
-    (:func:`~.semantic_thread.settle_provisional`), and while every point the newest keyframe
+    (:func:`~.mask_points.settle_provisional`), and while every point the newest keyframe
     held back is still waiting, a frame becomes a keyframe only when the tracker wants one and
     ``max_keyframe_interval`` frames have passed since the last (:meth:`keyframe_gate`)."""
     provisional_border_px: int | None = None
@@ -165,7 +148,7 @@ class FrameLoop:
     mask_marks_projected: bool = False
     """With the semantic thread (``slam.mask_marks_projected``): a delivered mask also marks bad
     the points mapped since the previous mask's keyframe that project into its dynamic region
-    (:func:`~.semantic_thread.mark_projected`)."""
+    (:func:`~.mask_points.mark_projected`)."""
     mask_refits_keyframes: bool = False
     """With ``mask_refines_past`` (``slam.mask_refits_keyframes``): a delivered mask is also
     carried back to the keyframes made since the previous mask's keyframe, their observations
@@ -380,7 +363,7 @@ class FrameLoop:
         """The map points keyframe ``got.kf_id`` observes inside its mask's dynamic ``region``
         (H, W) marked bad (:func:`~.semantic_thread.mark_dynamic_points`); with
         ``mask_marks_projected`` also the unjudged points projecting into it
-        (:func:`~.semantic_thread.mark_projected`, ``points_marked_projected``); with
+        (:func:`~.mask_points.mark_projected`, ``points_marked_projected``); with
         ``mask_refines_past`` the past they steered corrected (:meth:`refine_past`; ``carried``:
         the mask ready to be carried)."""
         slam_map = self.map

@@ -1,5 +1,6 @@
 """What a late mask of the semantic thread (``segment=thread``) may still correct in the map,
-beyond its own keyframe (:meth:`~.frame_loop.FrameLoop.refine_past`), and the end-of-run pass.
+beyond its own keyframe (:meth:`~.frame_loop.FrameLoop.refine_past`, over the :class:`PastFrame`
+records the loop keeps), and the end-of-run pass.
 
 - :func:`erase_carried` (``slam.mask_refits_keyframes``): the keyframes made since the previous
   mask's keyframe were tracked and mapped with a stale carried mask. A newer mask, carried back
@@ -18,14 +19,32 @@ beyond its own keyframe (:meth:`~.frame_loop.FrameLoop.refine_past`), and the en
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
 from ..filters.base import values_at
+from ..frontend.orb import Features
 from ..geometry import invert
 from ..map.slam_map import SlamMap
 from ..optim.local_ba import Adjustment, BundleAdjuster
 from .semantic_thread import CarriedMask
+
+
+@dataclass
+class PastFrame:
+    """A tracked frame a late mask may still correct (``slam.mask_refines_past``): its ``row``
+    in the loop's ``stamps`` / ``poses`` / ``anchors``, its ``stamp`` (s), keypoints and the map
+    point each was matched to when tracked (``matched`` (N,), -1 none)."""
+
+    row: int
+    stamp: float
+    features: Features
+    matched: np.ndarray
+
+
+PAST_FRAMES = 300
+"""``mask_refines_past`` keeps at most this many past frames (10 s at 30 Hz)."""
 
 FINAL_BA = ("none", "thread", "always")
 """``slam.final_ba``: with which schedules the end-of-run bundle adjustment runs (``thread``:

@@ -14,7 +14,7 @@ from uss_slam.slam_eval.filters.build import build_filters
 from uss_slam.slam_eval.segmenters.base import LabelsSegmenter
 from uss_slam.slam_eval.sequence import TumSequence
 from uss_slam.slam_eval.systems.harness import SlamPipeline
-from uss_slam.slam_eval.systems.semantic_thread import mark_projected
+from uss_slam.slam_eval.systems.mask_points import mark_projected
 
 K = np.array([[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]])
 
