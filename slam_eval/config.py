@@ -57,6 +57,7 @@ from .systems.semantic_thread import (
     CARRY_RADIUS_MIN_INLIERS,
     CARRY_TO_KEYFRAMES,
     MASK_MARKS_PROJECTED,
+    MASK_MAX_AGE_S,
     MASK_REFINES_PAST,
     MASK_REFINES_PAST_DEFAULT,
     carry_refused,
@@ -181,6 +182,14 @@ class SlamConfig:
     """With ``carry_radius_m``: a frame that would keep fewer pose inliers outside the radius
     is not flagged by it (0 = always; without a floor walking_xyz seed 3 was lost in two of
     three repeats). docs/results/slam.md ("the 3D radius with an inlier floor")."""
+    mask_max_age_s: Optional[float] = ranged(MASK_MAX_AGE_S, gt=0)  # noqa: UP045
+    """With ``segment=thread`` (the other schedules ignore it): once the carried mask is older
+    than this many seconds (camera time), a tracked frame that is no keyframe asks the idle
+    thread for its own mask, carried from that frame's pose (null = off: only keyframes are
+    segmented). Without a keyframe no mask is asked for, and a stale mask that hides the
+    background where the people were can leave too few inliers to make one, or undo each
+    relocalisation (docs/results/slam.md, "a mask for a frame when the carried one is
+    stale")."""
     mask_refines_past: str = ranged(MASK_REFINES_PAST_DEFAULT, choices=MASK_REFINES_PAST)
     """With ``segment=thread`` (the other schedules ignore it): a mask that comes late also
     corrects the past: ``points``, local BA around its keyframe again without the map points it

@@ -155,6 +155,7 @@ def _semantic_thread_settings(slam: DictConfig) -> dict[str, Any]:
         mask_marks_projected=bool(slam.mask_marks_projected),
         mask_refits_keyframes=bool(slam.mask_refits_keyframes),
         mask_refit_min_observations=int(slam.mask_refit_min_observations),
+        mask_max_age_s=slam.mask_max_age_s,
         final_ba=str(slam.final_ba),
     )
 

@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from ..filters.base import FilterContext, values_at
+from ..filters.base import FilterContext
 from ..filters.chain import FilterChain, FrameFilters
 from ..frontend.orb import Features
 from ..geometry import invert
@@ -44,7 +44,14 @@ from ..products.builder import MapProducts
 from ..scoring.run_result import FrameLog
 from ..sequence import Frame
 from ..tracking.tracker import Tracker, TrackResult
-from .late_mask import PAST_FRAMES, PastFrame, adjust_all, erase_carried, since_previous
+from .late_mask import (
+    PAST_FRAMES,
+    PastFrame,
+    adjust_all,
+    erase_carried,
+    refine_frames,
+    since_previous,
+)
 from .mask_points import hold_new_points, mark_projected, settle_provisional
 from .semantic_thread import (
     CarriedMask,
@@ -52,6 +59,7 @@ from .semantic_thread import (
     SemanticThread,
     carry_targets,
     classes_near,
+    frame_mask,
     mark_carried,
     mark_dynamic_points,
     people_motion,
@@ -158,6 +166,9 @@ class FrameLoop:
     would keep fewer observations is not refit (``keyframes_refit_skipped``)."""
     final_ba: bool = False
     """``slam.final_ba`` (:meth:`finish`): the end-of-run bundle adjustment of the whole map."""
+    mask_max_age_s: float | None = None
+    """With the semantic thread (``slam.mask_max_age_s``): a frame is segmented itself when the
+    carried mask is older than this (s) and the thread is idle (:meth:`refresh_mask`)."""
     past: list[PastFrame] = field(default_factory=list)
     """With ``mask_refines_past``: the tracked frames (keyframes' own frames excepted) since the
     keyframe of the mask before the last one delivered, at most :data:`PAST_FRAMES`."""
@@ -202,6 +213,7 @@ class FrameLoop:
             if first:
                 labels = self.first_mask(frame)
         filters, result = self.track(frame, labels, item.features)
+        matched = result.matched  # before the carried mask's flags are dropped
         keyframe = self.filter_tracked(frame, filters, result)
         if self.provisional_points and self.provisional_border_px is None and keyframe is None:
             keyframe = self.keyframe_gate(filters, result)
@@ -220,6 +232,8 @@ class FrameLoop:
                     self.provisional = np.concatenate([self.provisional, held])
                     self.pending = held
                     self.counts["points_held"] += len(held)
+        elif self.semantic is not None and result.pose_wc is not None:
+            self.refresh_mask(frame, filters.ctx.features, matched)
         self.back_end(result, kf, frame.stamp)
         self.record(frame, filters, result, kf)
 
@@ -337,6 +351,12 @@ class FrameLoop:
                 if got.labels is None:
                     continue
                 self.counts["masks"] += 1
+                if got.anchor is not None:  # a frame's own mask (:meth:`refresh_mask`)
+                    region = self.dynamic_region(got.frame, got.labels)
+                    self.carried, marked = frame_mask(self.map, got, region, self.tracker.k)
+                    self.counts["points_marked"] += marked
+                    self.counts["frame_masks"] += 1
+                    continue
                 slam_map = self.map
                 region = self.dynamic_region(got.frame, got.labels)
                 carried = CarriedMask.of(
@@ -358,6 +378,21 @@ class FrameLoop:
                 self.carried = carried
                 self.track_people()
                 self.carry_to_others(got.frame, got.kf_id)
+
+    def refresh_mask(self, frame: Frame, features: Features, matched: np.ndarray) -> None:
+        """With ``mask_max_age_s``: the tracked ``frame``, no keyframe, asks the idle thread for
+        its own mask once the carried one is older than that (its keypoints ``features`` were
+        matched to ``matched`` (N,) map points before the refine; :func:`~.semantic_thread.
+        frame_mask` delivers it)."""
+        limit, semantic = self.mask_max_age_s, self.semantic
+        assert semantic is not None
+        if limit is None or (
+            self.carried is not None and frame.stamp - self.carried.stamp <= limit
+        ):
+            return
+        anchor = self.tracker.anchor()
+        if anchor is not None and semantic.idle():
+            semantic.request_frame(frame, anchor, features.xy, matched)
 
     def mark(self, got: Delivered, region: np.ndarray, carried: CarriedMask) -> None:
         """The map points keyframe ``got.kf_id`` observes inside its mask's dynamic ``region``
@@ -396,8 +431,8 @@ class FrameLoop:
         targets, erased = [], 0
         if self.mask_refits_keyframes:
             targets = since_previous(slam_map, kf_id, self.last_masked)
-            region_of = lambda labels: self.dynamic_region(got.frame, labels)  # noqa: E731
             floor = self.refit_min_observations
+            region_of = lambda labels: self.dynamic_region(got.frame, labels)  # noqa: E731
             erased, kept = erase_carried(slam_map, carried, targets, region_of, floor)
             self.counts["observations_erased_carried"] += erased
             self.counts["keyframes_refit_skipped"] += len(targets) - len(kept)
@@ -409,30 +444,13 @@ class FrameLoop:
         ):
             with self.timer("local_ba"):
                 self.mapper.readjust(slam_map, kf_id, np.array(targets, np.int64))
-        bad = slam_map.points.bad.view
-        for past in self.past:
-            ids = past.matched
-            used = ids >= 0
-            pose = self.poses[past.row]
-            if self.backend:
-                k, rel = self.anchors[past.row]
-                pose = slam_map.pose_wc(k) @ invert(rel)
-            drop = np.zeros(len(ids), bool)
-            drop[used] = bad[ids[used]]
-            if self.mask_refines_past == "mask":
-                labels = carried.labels_at(invert(pose) @ slam_map.pose_wc(kf_id))
-                region = self.dynamic_region(got.frame, labels)
-                if region is not None:
-                    drop |= used & values_at(region, past.features.xy)
-            if not (drop & used).any():
-                continue
-            refined, _ = tracker.refine_without(pose, past.features, ids, drop)
-            if refined is None:
-                continue
-            self.poses[past.row] = refined
-            if self.backend:
-                self.anchors[past.row] = (k, invert(refined) @ slam_map.pose_wc(k))
-            self.counts["past_frames_refined"] += 1
+        region_of = None
+        if self.mask_refines_past == "mask":
+            region_of = lambda labels: self.dynamic_region(got.frame, labels)  # noqa: E731
+        anchors = self.anchors if self.backend else None
+        self.counts["past_frames_refined"] += refine_frames(
+            slam_map, tracker, self.past, self.poses, anchors, carried, region_of
+        )
         tracker.map_changed()
 
     def finish(self) -> None:
@@ -453,7 +471,7 @@ class FrameLoop:
         """With ``carry_velocity``: the people of the mask just carried move as they did since
         the mask before (:func:`~.semantic_thread.people_motion`)."""
         if self.carry_velocity and self.carried is not None:
-            pose = self.map.pose_wc(self.carried.kf_id)
+            pose = self.carried.source_pose(self.map)
             self.people = people_motion(self.carried, pose, self.people)
             carried = self.carried
             assert carried.velocity is not None and carried.region is not None
@@ -469,7 +487,7 @@ class FrameLoop:
         fewer than ``carry_radius_min_inliers`` pose inliers (``frames_radius_skipped``)."""
         if not self.carry_radius_m or self.carried is None or result.pose_wc is None:
             return
-        t_frame_kf = invert(result.pose_wc) @ self.map.pose_wc(self.carried.kf_id)
+        t_frame_kf = invert(result.pose_wc) @ self.carried.source_pose(self.map)
         cls = classes_near(self.carried, t_frame_kf, features.points, self.carry_radius_m)
         if self.carry_radius_keypoints == "untracked" and result.matched is not None:
             cls[result.matched >= 0] = 0

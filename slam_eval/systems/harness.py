@@ -92,6 +92,7 @@ from .semantic_thread import (
     CARRY_RADIUS_M,
     CARRY_RADIUS_MIN_INLIERS,
     MASK_MARKS_PROJECTED,
+    MASK_MAX_AGE_S,
     MASK_REFINES_PAST_DEFAULT,
     start_thread,
 )
@@ -175,6 +176,7 @@ class SlamPipeline:
         mask_marks_projected: bool = MASK_MARKS_PROJECTED,
         mask_refits_keyframes: bool = False,
         mask_refit_min_observations: int = 0,
+        mask_max_age_s: float | None = MASK_MAX_AGE_S,
         final_ba: str = "none",
     ) -> None:
         """``sampling_seed``: perturbs the tracker's RANSAC sampling (a repeated run,
@@ -212,6 +214,7 @@ class SlamPipeline:
         self.mask_marks_projected = mask_marks_projected
         self.mask_refits_keyframes = mask_refits_keyframes
         self.mask_refit_min_observations = mask_refit_min_observations
+        self.mask_max_age_s = mask_max_age_s
         self.final_ba = final_ba_runs(final_ba, segment)
         self.progress = progress
         self.description = description or sequence.path.name
@@ -343,6 +346,7 @@ class SlamPipeline:
             mask_marks_projected=self.mask_marks_projected,
             mask_refits_keyframes=self.mask_refits_keyframes,
             refit_min_observations=self.mask_refit_min_observations,
+            mask_max_age_s=self.mask_max_age_s,
             final_ba=self.final_ba,
         )  # fmt: skip
 
@@ -460,6 +464,7 @@ class SlamPipeline:
                     "points_marked_projected",
                     "observations_erased_carried",
                     "keyframes_refit_skipped",
+                    "frame_masks",
                     "final_ba_outliers",
                 )  # fmt: skip
                 if k in loop.counts

@@ -28,6 +28,7 @@ from ..frontend.orb import Features
 from ..geometry import invert
 from ..map.slam_map import SlamMap
 from ..optim.local_ba import Adjustment, BundleAdjuster
+from ..tracking.tracker import Tracker
 from .semantic_thread import CarriedMask
 
 
@@ -45,6 +46,50 @@ class PastFrame:
 
 PAST_FRAMES = 300
 """``mask_refines_past`` keeps at most this many past frames (10 s at 30 Hz)."""
+
+
+def refine_frames(
+    slam_map: SlamMap,
+    tracker: Tracker,
+    past: list[PastFrame],
+    poses: list[np.ndarray],
+    anchors: list[tuple[int, np.ndarray]] | None,
+    carried: CarriedMask,
+    region_of: Callable[[np.ndarray], np.ndarray | None] | None,
+) -> int:
+    """Each frame of ``past`` tracked on a map point now bad (with ``region_of``, or on a
+    keypoint inside ``region_of(labels)`` of the keyframe mask ``carried`` to the frame by its
+    pose) gets its pose refined on its other matches in the map as it is now (kept where enough
+    inliers remain, :meth:`~..tracking.tracker.Tracker.refine_without`), in ``poses`` (the
+    loop's camera-to-world poses as tracked) and, with the back end, put back on its reference
+    keyframe in ``anchors`` (None without one); returns how many were refined."""
+    bad = slam_map.points.bad.view
+    refined_frames = 0
+    for frame in past:
+        ids = frame.matched
+        used = ids >= 0
+        pose = poses[frame.row]
+        if anchors is not None:
+            k, rel = anchors[frame.row]
+            pose = slam_map.pose_wc(k) @ invert(rel)
+        drop = np.zeros(len(ids), bool)
+        drop[used] = bad[ids[used]]
+        if region_of is not None:
+            labels = carried.labels_at(invert(pose) @ carried.source_pose(slam_map))
+            region = region_of(labels)
+            if region is not None:
+                drop |= used & values_at(region, frame.features.xy)
+        if not (drop & used).any():
+            continue
+        refined, _ = tracker.refine_without(pose, frame.features, ids, drop)
+        if refined is None:
+            continue
+        poses[frame.row] = refined
+        if anchors is not None:
+            anchors[frame.row] = (k, invert(refined) @ slam_map.pose_wc(k))
+        refined_frames += 1
+    return refined_frames
+
 
 FINAL_BA = ("none", "thread", "always")
 """``slam.final_ba``: with which schedules the end-of-run bundle adjustment runs (``thread``:
@@ -77,7 +122,7 @@ def erase_carried(
     with few observations is moved freely by local BA. Returns how many observations were
     erased and the targets not left under the floor (the keyframes local BA may free)."""
     erased, kept = 0, []
-    pose_kf = slam_map.pose_wc(carried.kf_id)
+    pose_kf = carried.source_pose(slam_map)
     for target in targets:
         kf = slam_map.keyframes[target]
         region = region_of(carried.labels_at(invert(slam_map.pose_wc(target)) @ pose_kf))

@@ -62,22 +62,30 @@ CARRY_STRIDE = 4
 class Delivered:
     """A keyframe's mask: ``kf_id``, its frame, its ``(H, W)`` uint8 labels (None: the segmenter
     gave none), and ``requested`` / ``delivered``: the stamps (s) of the frame that asked and of
-    the frame that received it."""
+    the frame that received it. A tracked frame's own mask (``slam.mask_max_age_s``,
+    :meth:`SemanticThread.request_frame`) has ``kf_id`` -1 and ``anchor``, the frame's
+    reference keyframe and ``T_c,kf`` (4, 4) as tracked; ``xy`` (N, 2) its keypoints' pixels and
+    ``matched`` (N,) the map point each was matched to (-1 none)."""
 
     kf_id: int
     frame: Frame
     labels: np.ndarray | None
     requested: float
     delivered: float = 0.0
+    anchor: tuple[int, np.ndarray] | None = None
+    xy: np.ndarray | None = None
+    matched: np.ndarray | None = None
 
 
 @dataclass
 class ThreadStats:
-    """Over a run: keyframes ``requested``, ``skipped`` (replaced by a newer one while waiting),
-    masks ``delivered``, their summed ``delay_s`` (delivery stamp - request stamp) and
-    ``segment_s`` (wall time inside the segmenter, wall clock only)."""
+    """Over a run: keyframes ``requested``, ``frames`` asked for themselves (no keyframe,
+    ``slam.mask_max_age_s``), ``skipped`` (replaced by a newer one while waiting), masks
+    ``delivered``, their summed ``delay_s`` (delivery stamp - request stamp) and ``segment_s``
+    (wall time inside the segmenter, wall clock only)."""
 
     requested: int = 0
+    frames: int = 0
     skipped: int = 0
     delivered: int = 0
     delay_s: float = 0.0
@@ -88,6 +96,7 @@ class ThreadStats:
         n = max(self.delivered, 1)
         return {
             "requested": self.requested,
+            "frames_requested": self.frames,
             "skipped": self.skipped,
             "delivered": self.delivered,
             "mean_delay_s": self.delay_s / n,
@@ -110,9 +119,24 @@ class SemanticThread:
     def request(self, frame: Frame, kf_id: int) -> None:
         """Ask for keyframe ``kf_id`` (of ``frame``) to be segmented; returns at once."""
         self.stats.requested += 1
+        self._ask(Delivered(kf_id, frame, None, frame.stamp))
+
+    def request_frame(
+        self, frame: Frame, anchor: tuple[int, np.ndarray], xy: np.ndarray, matched: np.ndarray
+    ) -> None:
+        """Ask for a tracked ``frame`` that is no keyframe to be segmented (``Delivered``'s
+        ``anchor``, ``xy``, ``matched``); returns at once."""
+        self.stats.frames += 1
+        self._ask(Delivered(-1, frame, None, frame.stamp, anchor=anchor, xy=xy, matched=matched))
+
+    def idle(self) -> bool:
+        """Nothing is being segmented and nothing waits."""
+        return self._pending is None
+
+    def _ask(self, item: Delivered) -> None:
         if self._pending is not None:
             self.stats.skipped += 1
-        self._pending = Delivered(kf_id, frame, None, frame.stamp)
+        self._pending = item
 
     def poll(self, stamp: float) -> list[Delivered]:
         """The masks finished by camera stamp ``stamp`` (s), oldest first; never waits."""
@@ -147,10 +171,13 @@ class SimulatedThread(SemanticThread):
         self.latency_s = float(latency_s)
         self._running: tuple[float, Delivered] | None = None  # (done at, item)
 
-    def request(self, frame: Frame, kf_id: int) -> None:
-        super().request(frame, kf_id)
+    def _ask(self, item: Delivered) -> None:
+        super()._ask(item)
         if self._running is None:
-            self._start(frame.stamp)
+            self._start(item.requested)
+
+    def idle(self) -> bool:
+        return self._running is None and super().idle()
 
     def _start(self, at: float) -> None:
         item, self._pending = self._pending, None
@@ -179,14 +206,19 @@ class WallThread(SemanticThread):
         self._lock = threading.Condition()
         self._done: list[Delivered] = []
         self._stop = False
+        self._busy = False
         self._thread = threading.Thread(target=self._work, name="semantic", daemon=True)
         self._thread.start()
         _UNDER_WAY.add(self._thread)
 
-    def request(self, frame: Frame, kf_id: int) -> None:
+    def _ask(self, item: Delivered) -> None:
         with self._lock:
-            super().request(frame, kf_id)
+            super()._ask(item)
             self._lock.notify()
+
+    def idle(self) -> bool:
+        with self._lock:
+            return not self._busy and super().idle()
 
     def _work(self) -> None:
         if self.nice > 0:
@@ -198,11 +230,13 @@ class WallThread(SemanticThread):
                 if self._stop:
                     return
                 item, self._pending = self._pending, None
+                self._busy = True
             start = time.perf_counter()
             item.labels = self.segmenter.segment(item.frame)
             with self._lock:
                 self.stats.segment_s += time.perf_counter() - start
                 self._done.append(item)
+                self._busy = False
 
     def poll(self, stamp: float) -> list[Delivered]:
         with self._lock:
@@ -285,13 +319,16 @@ class CarriedMask:
     region: np.ndarray | None = field(default=None, repr=False)
     stamp: float = 0.0
     velocity: np.ndarray | None = field(default=None, repr=False)
+    anchor: tuple[int, np.ndarray] | None = field(default=None, repr=False)
 
     @classmethod
     def of(
-        cls, kf_id: int, labels: np.ndarray, depth: np.ndarray, k: np.ndarray, stamp: float = 0.0
-    ) -> CarriedMask:
+        cls, kf_id: int, labels: np.ndarray, depth: np.ndarray, k: np.ndarray, stamp: float = 0.0,
+        anchor: tuple[int, np.ndarray] | None = None,
+    ) -> CarriedMask:  # fmt: skip
         """From ``(H, W)`` uint8 ``labels`` and ``(H, W)`` float ``depth`` (m, 0 = none) of
-        keyframe ``kf_id`` at ``stamp`` (s); ``k`` (3, 3) the camera matrix."""
+        keyframe ``kf_id`` at ``stamp`` (s); ``k`` (3, 3) the camera matrix. A frame's own mask
+        (``kf_id`` -1) is carried from ``anchor`` (:meth:`source_pose`)."""
         s = CARRY_STRIDE
         lab = labels[::s, ::s]
         z = depth[::s, ::s]
@@ -303,7 +340,17 @@ class CarriedMask:
         order = np.argsort(-zz, kind="stable")
         _, comp = cv2.connectedComponents((lab > 0).astype(np.uint8), connectivity=8)
         region = comp[rows, cols][order]
-        return cls(kf_id, pts[order], lab[rows, cols][order], labels.shape, k, region, stamp)
+        carried = cls(kf_id, pts[order], lab[rows, cols][order], labels.shape, k, region, stamp)
+        carried.anchor = anchor
+        return carried
+
+    def source_pose(self, slam_map: SlamMap) -> np.ndarray:
+        """The camera-to-world pose (4, 4) the mask is carried from, as the map holds it now:
+        its keyframe's, or a frame's own mask's reference keyframe's composed with ``T_c,kf``."""
+        if self.anchor is None:
+            return slam_map.pose_wc(self.kf_id)
+        kf_id, t_c_kf = self.anchor
+        return slam_map.pose_wc(kf_id) @ invert(t_c_kf)
 
     def labels_at(self, t_frame_kf: np.ndarray, dt: float = 0.0) -> np.ndarray:
         """``(H, W)`` uint8 labels carried to a frame whose pose relative to the keyframe is
@@ -338,7 +385,7 @@ class CarriedMask:
         (s; None: the keyframe's), from the keyframe's pose in ``slam_map`` now (the back end
         may have moved it)."""
         dt = 0.0 if stamp is None else stamp - self.stamp
-        return self.labels_at(invert(pose_wc) @ slam_map.pose_wc(self.kf_id), dt)
+        return self.labels_at(invert(pose_wc) @ self.source_pose(slam_map), dt)
 
 
 CARRY_RADIUS_M: float | None = 0.3
@@ -440,6 +487,35 @@ def mark_dynamic_points(slam_map: SlamMap, kf_id: int, region: np.ndarray) -> in
     return len(ids)
 
 
+def mark_matched(slam_map: SlamMap, region: np.ndarray, xy: np.ndarray, matched: np.ndarray) -> int:
+    """Mark bad the map points a frame's keypoints at ``xy`` (N, 2) inside ``region`` ((H, W)
+    bool dynamic pixels of the frame's own mask) were matched to (``matched`` (N,), -1 none);
+    returns how many good points it marked."""
+    ids = np.unique(matched[values_at(region, xy) & (matched >= 0)])
+    bad = slam_map.points.bad.view
+    ids = ids[~bad[ids]]
+    bad[ids] = True
+    return len(ids)
+
+
+def frame_mask(
+    slam_map: SlamMap, got: Delivered, region: np.ndarray | None, k: np.ndarray
+) -> tuple[CarriedMask, int]:
+    """A tracked frame's own mask (``slam.mask_max_age_s``; ``got.anchor`` set): the map points
+    the frame was matched to inside its dynamic ``region`` ((H, W) bool, None: none) marked bad
+    (:func:`mark_matched`), and the mask to carry from the frame's pose on its reference keyframe
+    (``k`` (3, 3) the camera matrix); returns it and how many points it marked. Unlike a
+    keyframe's, it corrects no past."""
+    assert got.labels is not None and got.xy is not None and got.matched is not None
+    marked = mark_matched(slam_map, region, got.xy, got.matched) if region is not None else 0
+    stamp = got.frame.stamp
+    return CarriedMask.of(-1, got.labels, got.frame.depth, k, stamp, got.anchor), marked
+
+
+MASK_MAX_AGE_S: float | None = None
+"""``slam.mask_max_age_s``'s default (off: only keyframes are segmented)."""
+
+
 MASK_REFINES_PAST = ("none", "points", "mask")
 """``slam.mask_refines_past``: what a late mask corrects in the past
 (:meth:`~.frame_loop.FrameLoop.refine_past`)."""
@@ -492,7 +568,7 @@ def mark_carried(
     None: none), as its own mask would (:func:`mark_dynamic_points`); returns how many good
     points were marked."""
     marked = 0
-    pose_kf = slam_map.pose_wc(carried.kf_id)
+    pose_kf = carried.source_pose(slam_map)
     for target in targets:
         labels = carried.labels_at(invert(slam_map.pose_wc(target)) @ pose_kf)
         region = region_of(labels)
