@@ -24,7 +24,10 @@ and writes every cell's figures to ``OUT/cells.json``; each run's folder is ``OU
         --latency 2.9 0.5 --repeats 5
 
 ``--set KEY=VALUE ...`` gives every harness cell the same ``uss-slam`` overrides (a candidate
-setting judged against the same command without it); ``--thread-set`` the thread cells only.
+setting judged against the same command without it); ``--thread-set`` the thread cells only,
+and with ``--label NAME`` their cells are named ``thread L s NAME``, so that a candidate's
+thread cells join today's in the same ``--out`` (the per-frame cells already there are not run
+again). ``studies/slam_thread_rule.py`` reads ``cells.json`` and applies a pre-registered rule.
 """
 
 from __future__ import annotations
@@ -59,14 +62,14 @@ def zero_labelled(seq: Path, out: Path) -> Path:
 
 
 def cells(
-    latencies: list[float], baseline: bool, thread_set: list[str] | None = None
+    latencies: list[float], baseline: bool, thread_set: list[str] | None = None, label: str = ""
 ) -> list[tuple[str, list[str]]]:
     """``(cell name, uss-slam overrides)`` in the order they run; ``thread_set``: overrides of
-    the thread cells only (``--thread-set``)."""
+    the thread cells only (``--thread-set``), whose names end in `` label`` if given."""
     out = [("per-frame", ["segment=every_frame", "filters=[semantic]"])]
     out += [
         (
-            f"thread {lat:g} s",
+            f"thread {lat:g} s" + (f" {label}" if label else ""),
             ["segment=thread", f"segmenter.latency_s={lat}", "filters=[semantic]"]
             + list(thread_set or []),
         )
@@ -162,6 +165,9 @@ def main() -> None:
         help="uss-slam overrides of the thread cells only (e.g. slam.provisional_points=true)",
     )  # fmt: skip
     parser.add_argument(
+        "--label", default="", help="a name for the thread cells (a candidate's, beside today's)"
+    )
+    parser.add_argument(
         "--set", nargs="+", default=[], metavar="KEY=VALUE",
         help="uss-slam overrides of every harness cell (a candidate setting)",
     )  # fmt: skip
@@ -172,7 +178,7 @@ def main() -> None:
     for seq in args.sequences:
         path = zero_labelled(seq, args.out) if args.zero_labels else seq
         rows = done.setdefault(seq.name, {})
-        for name, overrides in cells(args.latency, args.baseline, args.thread_set):
+        for name, overrides in cells(args.latency, args.baseline, args.thread_set, args.label):
             if name not in rows:
                 folder = args.out / seq.name / name.replace(" ", "_")
                 overrides = overrides + ([] if args.orbslam3 else args.set)

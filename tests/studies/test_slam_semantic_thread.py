@@ -36,3 +36,9 @@ def test_row_names_the_lowest_repeats_tracked_share() -> None:
            "fps": 9.0, "masks": 300, "load": 2.0}  # fmt: skip
     cell = dict(ref, tracked_repeats=[0.107, 1.0, 0.417])
     assert "100.0% (per-frame 100.0%; lowest repeat 10.7%)" in study.row("s", "c", cell, ref)
+
+
+def test_a_label_names_the_candidates_thread_cells_apart() -> None:
+    cells = study.cells([0.5], baseline=False, thread_set=["slam.mask_max_age_s=1.0"], label="age1")
+    assert [name for name, _ in cells] == ["per-frame", "thread 0.5 s age1"]
+    assert cells[1][1][-1] == "slam.mask_max_age_s=1.0"
