@@ -202,20 +202,18 @@ class SlamPipeline:
         self.mode_used: str | None = None
         """``thread`` or ``process``: where the last run read and extracted its frames."""
         self.segment = segment
-        self.provisional_points = provisional_points
-        self.provisional_border_px = provisional_border_px
         self.semantic_nice = semantic_nice
-        self.carry_to_keyframes = carry_to_keyframes
-        self.carry_velocity = carry_velocity
-        self.carry_radius_m = carry_radius_m
-        self.carry_radius_keypoints = carry_radius_keypoints
-        self.carry_radius_min_inliers = carry_radius_min_inliers
-        self.mask_refines_past = mask_refines_past
-        self.mask_marks_projected = mask_marks_projected
-        self.mask_refits_keyframes = mask_refits_keyframes
-        self.mask_refit_min_observations = mask_refit_min_observations
-        self.mask_max_age_s = mask_max_age_s
-        self.final_ba = final_ba_runs(final_ba, segment)
+        self.loop_keys = dict(
+            provisional_points=provisional_points, provisional_border_px=provisional_border_px,
+            carry_to_keyframes=carry_to_keyframes, carry_velocity=carry_velocity,
+            carry_radius_m=carry_radius_m, carry_radius_keypoints=carry_radius_keypoints,
+            carry_radius_min_inliers=carry_radius_min_inliers, mask_max_age_s=mask_max_age_s,
+            mask_refines_past=mask_refines_past, mask_marks_projected=mask_marks_projected,
+            mask_refits_keyframes=mask_refits_keyframes,
+            refit_min_observations=mask_refit_min_observations,
+            final_ba=final_ba_runs(final_ba, segment),
+        )  # fmt: skip
+        """The semantic thread's keys and the end-of-run pass, as :class:`FrameLoop` takes them."""
         self.progress = progress
         self.description = description or sequence.path.name
         self.local_ba, self.loop_closing = local_ba, loop_closing
@@ -335,19 +333,7 @@ class SlamPipeline:
         )
         return FrameLoop(
             timer, tracker, slam_map, chain, products, mapper, closer, segment_now, semantic,
-            provisional_points=self.provisional_points,
-            provisional_border_px=self.provisional_border_px,
-            carry_to_keyframes=self.carry_to_keyframes,
-            carry_velocity=self.carry_velocity,
-            carry_radius_m=self.carry_radius_m,
-            carry_radius_keypoints=self.carry_radius_keypoints,
-            carry_radius_min_inliers=self.carry_radius_min_inliers,
-            mask_refines_past=self.mask_refines_past,
-            mask_marks_projected=self.mask_marks_projected,
-            mask_refits_keyframes=self.mask_refits_keyframes,
-            refit_min_observations=self.mask_refit_min_observations,
-            mask_max_age_s=self.mask_max_age_s,
-            final_ba=self.final_ba,
+            **self.loop_keys,
         )  # fmt: skip
 
     def _frames(self) -> tuple[frontend_process.FrontendProcess | None, Iterator[Prepared]]:
