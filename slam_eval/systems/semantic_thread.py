@@ -513,7 +513,9 @@ def frame_mask(
 
 
 MASK_MAX_AGE_S: float | None = None
-"""``slam.mask_max_age_s``'s default (off: only keyframes are segmented)."""
+"""``slam.mask_max_age_s``'s default (off: only keyframes are segmented; at 1.0 s dropped by its
+pre-registered rule, docs/results/slam.md, "a mask for a frame when the carried one is
+stale")."""
 
 
 MASK_REFINES_PAST = ("none", "points", "mask")
