@@ -3,15 +3,20 @@
 A method is one class in ``train/methods/<name>.py`` and one ``configs/model/method/<name>.yaml``
 whose ``_target_`` names that class; this module lists the group's files, so the experiment grid
 and the every-method tests find a new method without another list to edit. Reading the names
-loads no torch (``uss-experiments`` checks its grid without it); :func:`method_class` imports the
-class.
+and :func:`trains_discriminators` loads no torch (``uss-experiments`` checks its grid without
+it: importing torch, torchvision and Lightning costs seconds of CPU); :func:`method_class`
+imports the class.
 """
 
 from __future__ import annotations
 
+import ast
 import functools
+import importlib.machinery
+import importlib.util
 import inspect
 import logging
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -59,8 +64,72 @@ def method_class(name: str) -> type:
 
 
 def trains_discriminators(name: str) -> bool:
-    """Whether ``model/method=<name>`` trains the two discriminators (its class says so)."""
-    return bool(method_class(name).trains_discriminators)
+    """Whether ``model/method=<name>`` trains the two discriminators (its class says so).
+
+    Read from the source of the class and its bases (a ``trains_discriminators = True`` in the
+    class body), without importing them; where the source does not say it plainly (a computed
+    value, several bases, a base it cannot find), from the imported class."""
+    found = _class_constant(method_target(name), "trains_discriminators")
+    if found is None:
+        return bool(method_class(name).trains_discriminators)
+    return bool(found)
+
+
+def _module_source(module: str) -> tuple[ast.Module, str] | None:
+    """The parsed source of ``module`` and its package (for its relative imports), found
+    without running it or a package above it that is not imported yet (the imports of
+    ``uss_slam.train.methods`` load torch); None where there is no Python source."""
+    parts = module.split(".")
+    spec = None
+    for i in range(1, len(parts) + 1):
+        name, parent = ".".join(parts[:i]), ".".join(parts[: i - 1])
+        if i == 1 or parent in sys.modules:
+            spec = importlib.util.find_spec(name)
+        elif spec is not None and spec.submodule_search_locations is not None:
+            locations = list(spec.submodule_search_locations)
+            spec = importlib.machinery.PathFinder.find_spec(name, locations)
+        else:
+            return None
+        if spec is None:
+            return None
+    if spec is None or not str(spec.origin).endswith(".py"):
+        return None
+    try:
+        tree = ast.parse(Path(str(spec.origin)).read_text(encoding="utf-8"))
+    except (OSError, SyntaxError, ValueError):
+        return None
+    is_package = spec.submodule_search_locations is not None
+    return tree, module if is_package else module.rpartition(".")[0]
+
+
+def _class_constant(target: str, attr: str, depth: int = 0) -> object | None:
+    """The constant ``attr`` of the class ``target`` (``module.Class``) as its source or its
+    single base's (followed through ``from ... import``) assigns it, else None (not plainly
+    readable: a computed value, several bases, a metaclass, no source)."""
+    module, _, name = target.rpartition(".")
+    found = _module_source(module) if module and depth < 10 else None
+    if found is None:
+        return None
+    tree, package = found
+    for node in tree.body:
+        if isinstance(node, ast.ImportFrom):
+            for alias in node.names:
+                if (alias.asname or alias.name) == name:
+                    relative = "." * node.level + (node.module or "")
+                    source = importlib.util.resolve_name(relative, package)
+                    return _class_constant(f"{source}.{alias.name}", attr, depth + 1)
+        if not isinstance(node, ast.ClassDef) or node.name != name:
+            continue
+        for statement in node.body:
+            if isinstance(statement, ast.AnnAssign | ast.Assign):
+                targets = getattr(statement, "targets", [getattr(statement, "target", None)])
+                if any(isinstance(t, ast.Name) and t.id == attr for t in targets):
+                    value = statement.value
+                    return value.value if isinstance(value, ast.Constant) else None
+        if len(node.bases) != 1 or not isinstance(node.bases[0], ast.Name) or node.keywords:
+            return None
+        return _class_constant(f"{module}.{node.bases[0].id}", attr, depth + 1)
+    return None
 
 
 def method_parameters(target: str) -> tuple[str, ...]:

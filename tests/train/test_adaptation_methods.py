@@ -28,6 +28,7 @@ from uss_slam.train.method_configs import (
     METHOD_GROUP,
     method_class,
     method_names,
+    method_target,
     trains_discriminators,
 )
 from uss_slam.train.methods import (
@@ -115,6 +116,9 @@ def test_the_shipped_methods_are_the_config_group() -> None:
     assert sorted(method_names()) == shipped and method_names()[0] == "source_only"
     trains = {m for m in method_names() if trains_discriminators(m)}
     assert trains == {"adaptsegnet", "advent"}  # the shipped classes' own flag
+    for method in method_names():  # read from the sources without torch: as the classes say
+        read = method_configs._class_constant(method_target(method), "trains_discriminators")
+        assert read is method_class(method).trains_discriminators
 
 
 def test_the_method_is_chosen_by_its_config_group_only(tmp_path: Path) -> None:
