@@ -36,6 +36,7 @@ from uss_slam.core.errors import NoSpaceError, UssSlamError
 from uss_slam.core.files import no_space_errno
 from uss_slam.core.hydra_lines import (  # noqa: F401 (their home before)
     adding_refused_over_any_key,
+    as_typed,
     hydra_error_line,
     hydra_switch_line,
     hydra_switch_texts,
@@ -378,12 +379,12 @@ class JobReport:
 
     def summary(self) -> str:
         """``<prog>: k of n jobs failed:`` and one line per failed job: its number, the
-        overrides that tell it from the other jobs, its error line."""
+        overrides that tell it from the other jobs as typed (:func:`as_typed`), its error line."""
         common = set.intersection(*map(set, self.overrides)) if len(self.overrides) > 1 else set()
         lines = [f"{self.prog}: {len(self.failures)} of {self.started} jobs failed:"]
         for failed in self.failures:
-            own = " ".join(o for o in failed.overrides if o not in common) or "(no overrides)"
-            lines.append(f"  #{failed.num} {own}: {failed.line}")
+            own = " ".join(as_typed(o) for o in failed.overrides if o not in common)
+            lines.append(f"  #{failed.num} {own or '(no overrides)'}: {failed.line}")
         return "\n".join(lines)
 
 

@@ -80,6 +80,34 @@ def typed_overrides(hydra_config: object) -> list[str]:
     return [str(o) for o in OmegaConf.to_container(task, resolve=False)]  # type: ignore[union-attr]
 
 
+HYDRA_ESCAPED = "\\()[]{}:=, \t"
+"""The characters Hydra's sweeper escapes with a backslash in the unquoted values of each job's
+overrides (``hydra.overrides.task``; ``escape_special_characters`` of its override grammar)."""
+
+
+def as_typed(override: str) -> str:
+    """A multirun job's override as the user typed it: the backslashes that Hydra's sweeper put
+    before :data:`HYDRA_ESCAPED` outside quotes removed (``x=$\\{oops\\}`` -> ``x=${oops}``);
+    a quoted value, which Hydra leaves as it was, unchanged."""
+    out, quote, i = [], "", 0
+    while i < len(override):
+        char = override[i]
+        if quote and char == "\\":  # inside quotes a backslash keeps the next character
+            out.append(override[i : i + 2])
+            i += 2
+            continue
+        if quote:
+            quote = "" if char == quote else quote
+        elif char in "'\"":
+            quote = char
+        elif char == "\\" and override[i + 1 : i + 2] and override[i + 1] in HYDRA_ESCAPED:
+            i += 1
+            char = override[i]
+        out.append(char)
+        i += 1
+    return "".join(out)
+
+
 def _group_value_line(error: BaseException) -> str | None:
     """``group=null`` (or a number, a mapping) for a config group: Hydra's ``ValueError``
     (``Config group override must be a string or a list. Got NoneType``) names no key; its

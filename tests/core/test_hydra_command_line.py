@@ -56,3 +56,38 @@ def test_lightnings_ddp_tail_is_not_a_key_given_twice() -> None:
         "a word)"
     )
     assert repeated_override_line([*user, "hydra.run.dir=/runs/c"]) is not None
+
+
+@pytest.mark.parametrize(
+    "value",
+    ["${oops}", "${oc.env:HOME}", r"a\b", "x y", "[1,2]", "{a: 1}", "a=b", "(t)", "\t", "plain"],
+)
+def test_a_job_override_is_shown_as_typed(value: str) -> None:
+    from hydra._internal.grammar.utils import escape_special_characters
+
+    from uss_slam.core.hydra_lines import as_typed
+
+    escaped = f"key={escape_special_characters(value)}"  # as Hydra's sweeper hands it to a job
+    assert as_typed(escaped) == f"key={value}"
+    assert as_typed(r"key='$\{kept\}'") == r"key='$\{kept\}'"  # quoted: Hydra escapes nothing
+
+
+def test_the_failed_jobs_of_a_multirun_are_listed_as_typed(
+    tmp_path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Hydra's sweeper escapes ``\\()[]{}:=,`` space and tab in each job's overrides
+    (``$\\{oops\\}``); the list of failed jobs shows them as the user typed them."""
+    import sys
+
+    from uss_slam.slam_eval import run as slam_cli
+
+    monkeypatch.chdir(tmp_path)
+    argv = ["-m", "sequence.path=/nonexistent,${oops}", f"out_dir={tmp_path / 'sweep'}"]
+    monkeypatch.setattr(sys, "argv", ["uss-slam", *argv, "progress=false"])
+    with pytest.raises(SystemExit) as stop:
+        slam_cli.main()
+    err = capsys.readouterr().err.strip().splitlines()
+    assert stop.value.code == 1, err
+    assert err[-3] == "uss-slam: 2 of 2 jobs failed:", err
+    assert err[-2].startswith("  #0 sequence.path=/nonexistent: uss-slam: error: ")
+    assert err[-1].startswith("  #1 sequence.path=${oops}: uss-slam: error: sequence.path: "), err
