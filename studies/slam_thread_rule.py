@@ -19,6 +19,10 @@ the thread / per-frame ratios (the target ×1.10). The rule, per set of sequence
         --candidate "thread 0.5 s age1" --write-csv docs/results/slam_thread_age/decision.csv
     python studies/slam_thread_rule.py --csv docs/results/slam_thread_age/decision.csv \\
         --today "thread 0.5 s" --candidate "thread 0.5 s age1"
+
+Without ``--today`` / ``--candidate`` it prints the target's table instead: per sequence and
+thread cell, the median ATE ÷ per-frame masks' median (the target: ≤ ×1.10) and each repeat's
+tracked share, and per cell how many sequences are within ×1.10 (a report, no rule).
 """
 
 from __future__ import annotations
@@ -145,13 +149,55 @@ def verdict(judged: list[dict], args: argparse.Namespace) -> tuple[bool, list[st
     return passed, lines
 
 
+TARGET = 1.10
+"""The target: the thread's median ATE within this factor of per-frame masks'."""
+
+
+def _latency_first(name: str) -> tuple[float, str]:
+    """Thread cells by their latency (``thread L s ...``), then by name."""
+    words = name.split()
+    try:
+        return float(words[1]), name
+    except (IndexError, ValueError):
+        return float("inf"), name
+
+
+def target_table(rows: list[dict]) -> list[str]:
+    """Per sequence and thread cell: median ATE ÷ the per-frame median and each repeat's
+    tracked share (both cells'); then per cell the sequences within :data:`TARGET`."""
+    names = sorted({r["cell"] for r in rows} - {"per-frame"}, key=_latency_first)
+    lines = ["| sequence | per-frame [m], tracked % | " + " | ".join(names) + " |",
+             "|---" * (len(names) + 2) + "|"]  # fmt: skip
+    within = dict.fromkeys(names, 0)
+    sequences = sorted({r["sequence"] for r in rows})
+    for sequence in sequences:
+        ref = cell(rows, sequence, "per-frame")
+        if ref is None:
+            continue
+        m = statistics.median(ref[0])
+        cells = []
+        for name in names:
+            got = cell(rows, sequence, name)
+            if got is None:
+                cells.append("—")
+                continue
+            ratio = statistics.median(got[0]) / m
+            within[name] += ratio <= TARGET
+            shares = " / ".join(f"{100 * t:.0f}" for t in got[1])
+            cells.append(f"×{ratio:.2f} ({shares}%)")
+        lines.append(f"| {sequence} | {_cell_text(ref)} | " + " | ".join(cells) + " |")
+    lines.append("")
+    lines += [f"{name}: {within[name]} of {len(sequences)} within ×{TARGET:.2f}" for name in names]
+    return lines
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("folders", type=Path, nargs="*", help="slam_semantic_thread.py --out")
     parser.add_argument("--csv", type=Path, help="read the repeats from this CSV instead")
     parser.add_argument("--write-csv", type=Path, help="write the repeats read to this CSV")
-    parser.add_argument("--today", required=True, help="today's thread cell, e.g. 'thread 0.5 s'")
-    parser.add_argument("--candidate", required=True, help="the candidate's thread cell")
+    parser.add_argument("--today", help="today's thread cell, e.g. 'thread 0.5 s'")
+    parser.add_argument("--candidate", help="the candidate's thread cell")
     parser.add_argument("--ratio-cap", type=float, default=1.05)
     parser.add_argument("--median-cap", type=float, default=1.00)
     parser.add_argument("--worst", type=float, default=1.5)
@@ -162,6 +208,11 @@ def main(argv: list[str] | None = None) -> int:
     rows = read_csv(args.csv) if args.csv else read_cells(args.folders)
     if args.write_csv:
         write_csv(rows, args.write_csv)
+    if args.today is None and args.candidate is None:
+        print("\n".join(target_table(rows)))
+        return 0
+    if args.today is None or args.candidate is None:
+        parser.error("--today and --candidate go together (neither: the target's table)")
     judged = judge(rows, args.today, args.candidate, args)
     print("\n".join(table(judged)))
     passed, lines = verdict(judged, args)

@@ -72,3 +72,20 @@ def test_bad_inputs_are_named(tmp_path: Path) -> None:
     bad.write_text("sequence,ate\n")
     with pytest.raises(SystemExit, match="bad.csv: expected the columns"):
         rule.main(["--csv", str(bad), "--today", "a", "--candidate", "b"])
+
+
+def test_without_a_candidate_it_gives_the_targets_table(tmp_path: Path, capsys) -> None:
+    folder = _study(tmp_path / "s", {
+        "a": {"per-frame": _cell([0.004, 0.004, 0.005]), "thread 0.5 s": _cell([0.008] * 3),
+              "thread 0 s": _cell([0.0044, 0.0044, 0.005], [1.0, 0.5, 1.0])},
+        "b": {"per-frame": _cell([0.010] * 3), "thread 0.5 s": _cell([0.011] * 3)},
+    })  # fmt: skip
+    assert rule.main([str(folder)]) == 0
+    out = capsys.readouterr().out
+    assert (
+        "| a | 0.0040 (0.0040–0.0050), 100.0 / 100.0 / 100.0% | ×1.10 (100 / 50 / 100%) | ×2.00"
+        in out
+    )
+    assert "thread 0 s: 1 of 2 within ×1.10" in out and "thread 0.5 s: 1 of 2 within ×1.10" in out
+    with pytest.raises(SystemExit):
+        rule.main([str(folder), "--today", "thread 0.5 s"])
