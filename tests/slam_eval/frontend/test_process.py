@@ -347,7 +347,7 @@ def test_free_cores_from_the_cpu_times(monkeypatch, tmp_path: Path) -> None:
     cpu_times = frontend_auto._cpu_times
     times = iter([([100, 0, 50, 800, 50, 0, 0, 0], 2), ([150, 0, 100, 850, 50, 0, 0, 0], 2)])
     monkeypatch.setattr(frontend_auto, "_cpu_times", lambda stat: next(times))
-    free = frontend_auto.free_cores(0.01)  # one core busy (not this test's own process)
+    free = frontend_auto.free_cores(0.01, samples=1)  # one core busy (not this test's own)
     assert 0.5 < free < 2 * 50 / 150 + 0.5
     monkeypatch.setattr(frontend_auto, "_cpu_times", cpu_times)
     stat = tmp_path / "stat"
@@ -359,6 +359,61 @@ def test_free_cores_from_the_cpu_times(monkeypatch, tmp_path: Path) -> None:
     if Path("/proc/stat").is_file():
         real = frontend_auto.free_cores(0.02)
         assert real is None or 0.0 <= real <= (os.cpu_count() or 1) + 0.01
+
+
+class _FakeStat:
+    """A ``/proc/stat`` of two CPUs whose ``cpu`` line advances by one look of the sampler at
+    each of its sleeps (3 ticks of 10 ms per CPU), with ``busy[k]`` cores busy in look k; its
+    clock stands for ``time`` in the sampler (this process's own CPU time: none)."""
+
+    def __init__(self, path: Path, busy: list[float]) -> None:
+        self.path, self.busy, self.now = path, iter(busy), 0.0
+        self.times = [0, 0, 0, 0, 0, 0, 0, 0]  # user nice system idle iowait irq softirq steal
+        self._write()
+
+    def _write(self) -> None:
+        cpu = " ".join(map(str, self.times))
+        self.path.write_text(
+            f"cpu  {cpu} 0 0\ncpu0 0 0 0 0 0 0 0 0 0 0\ncpu1 0 0 0 0 0 0 0 0 0 0\n"
+        )
+
+    def sleep(self, seconds: float) -> None:
+        busy = round(3 * next(self.busy))
+        self.times[0] += busy
+        self.times[3] += 6 - busy
+        self.now += seconds
+        self._write()
+
+    def perf_counter(self) -> float:
+        return self.now
+
+    def process_time(self) -> float:
+        return 0.0
+
+
+@pytest.mark.parametrize(
+    ("busy", "expected"),
+    [
+        ([0, 0, 0, 0, 0], "process"),  # idle cores
+        ([2, 0, 0, 0, 0], "process"),  # a moment of work as the run starts, then idle
+        ([0, 0, 2, 0, 0], "process"),
+        ([1, 1.33, 1, 0.67, 1], "thread"),  # another job takes a core, steadily
+        ([1, 1, 0, 1, 1], "thread"),  # ... and pauses for a moment
+        ([2, 2, 2, 2, 2], "thread"),  # two other jobs
+    ],
+)
+def test_auto_looks_past_a_moment_of_work(monkeypatch, tmp_path: Path, busy, expected) -> None:
+    """``auto`` decides from the median of several short looks at ``/proc/stat``: a burst of
+    work on otherwise idle cores (one busy look) does not make it take the threads; a load that
+    lasts (busy in most looks) does."""
+    fake = _FakeStat(tmp_path / "stat", busy)
+    monkeypatch.setattr(frontend_auto, "time", fake)
+    free = frontend_auto.free_cores(stat=str(fake.path))
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1}, raising=False)
+    monkeypatch.setattr(multiprocessing, "parent_process", lambda: None)
+    monkeypatch.setattr(frontend_auto, "free_cores", lambda: free)
+    assert frontend_auto.resolve_mode("auto") == expected
+    assert fake.now == pytest.approx(0.15)  # the run starts 0.15 s later for it
 
 
 def test_auto_runs_are_the_threads_run(synthetic_sequence, monkeypatch, started) -> None:
