@@ -192,16 +192,30 @@ def target_table(rows: list[dict]) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(
+        description=" ".join(__doc__.split("\n\n")[0].split()),
+        epilog="Without --today and --candidate: the target's table (thread ÷ per-frame masks).",
+    )
     parser.add_argument("folders", type=Path, nargs="*", help="slam_semantic_thread.py --out")
     parser.add_argument("--csv", type=Path, help="read the repeats from this CSV instead")
     parser.add_argument("--write-csv", type=Path, help="write the repeats read to this CSV")
     parser.add_argument("--today", help="today's thread cell, e.g. 'thread 0.5 s'")
     parser.add_argument("--candidate", help="the candidate's thread cell")
-    parser.add_argument("--ratio-cap", type=float, default=1.05)
-    parser.add_argument("--median-cap", type=float, default=1.00)
-    parser.add_argument("--worst", type=float, default=1.5)
-    parser.add_argument("--tracked-slack", type=float, default=0.02)
+    parser.add_argument(
+        "--ratio-cap", type=float, default=1.05, help="(a): no sequence's ratio above this"
+    )
+    parser.add_argument(
+        "--median-cap", type=float, default=1.00, help="(b): the median ratio at most this"
+    )
+    parser.add_argument(
+        "--worst", type=float, default=1.5, help="(c): no repeat above this × today's worst"
+    )
+    parser.add_argument(
+        "--tracked-slack",
+        type=float,
+        default=0.02,
+        help="(d): tracked share below today's lowest by at most this",
+    )
     args = parser.parse_args(argv)
     if (args.csv is None) == (not args.folders):
         parser.error("give the study's folders or --csv, not both")
