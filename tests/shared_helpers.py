@@ -14,6 +14,7 @@ from __future__ import annotations
 import ast
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
+from types import ModuleType
 from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
@@ -381,6 +382,25 @@ def write_csv(path: Path, rows: Sequence[Mapping[str, object]]) -> Path:
         writer.writeheader()
         writer.writerows(rows)
     return path
+
+
+STUDIES = Path(__file__).resolve().parents[1] / "studies"
+"""The research scripts' folder."""
+
+
+def study(name: str) -> ModuleType:
+    """``studies/NAME.py`` as a module (:func:`~uss_slam.testing.scripts.load_script`), with
+    ``studies/`` on ``sys.path`` while it loads: the held-out sets' scripts import their
+    siblings (``from fresh_setups import ...``)."""
+    import sys
+
+    from uss_slam.testing.scripts import load_script
+
+    sys.path.insert(0, str(STUDIES))
+    try:
+        return load_script(STUDIES / f"{name}.py")
+    finally:
+        sys.path.remove(str(STUDIES))
 
 
 def made_up_split(main: Callable[[list[str]], int], tmp_path: Path, capsys, line: str) -> str:

@@ -12,17 +12,6 @@ import pytest
 STUDIES = Path(__file__).resolve().parents[2] / "studies"
 
 
-@pytest.fixture(scope="module")
-def fresh():
-    sys.path.insert(0, str(STUDIES))
-    try:
-        import fresh_cases
-
-        yield fresh_cases
-    finally:
-        sys.path.remove(str(STUDIES))
-
-
 def _case(fresh, prog: str, expect: str, argv: str = "--out {C}/e"):
     return fresh.Case("c", prog, expect, (), {}, (), argv)
 

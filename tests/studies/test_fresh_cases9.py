@@ -3,7 +3,6 @@ files they say on a made-up world, and every case's template forms (no case is r
 
 from __future__ import annotations
 
-import sys
 from collections import Counter
 from pathlib import Path
 
@@ -12,17 +11,6 @@ import yaml
 
 ROOT = Path(__file__).resolve().parents[2]
 STUDIES = ROOT / "studies"
-
-
-@pytest.fixture(scope="module")
-def fresh():
-    sys.path.insert(0, str(STUDIES))
-    try:
-        import fresh_cases
-
-        yield fresh_cases
-    finally:
-        sys.path.remove(str(STUDIES))
 
 
 def _world(w: Path) -> dict[str, str]:

@@ -3,26 +3,14 @@ split was written without reading the set)."""
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
+from shared_helpers import made_up_split, study
 
-from shared_helpers import made_up_split
-
-ROOT = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(ROOT / "studies"))
-_SPEC = importlib.util.spec_from_file_location(
-    "fresh_pointed10", ROOT / "studies" / "fresh_pointed10.py"
-)
-_MODULE = importlib.util.module_from_spec(_SPEC)
-_SPEC.loader.exec_module(_MODULE)
-main, POINTED = _MODULE.main, _MODULE.POINTED
+_SPLIT = study("fresh_pointed10")
+main, POINTED = _SPLIT.main, _SPLIT.POINTED
 
 
 def family(line: str) -> str | None:
-    from fresh_pointed8 import pointed_family
-
-    return pointed_family(line, POINTED)
+    return study("fresh_pointed8").pointed_family(line, POINTED)
 
 
 def test_families_are_recognised_from_expect_env_and_argv():

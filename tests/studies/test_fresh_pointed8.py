@@ -2,17 +2,12 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
-from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[2]
-_SPEC = importlib.util.spec_from_file_location(
-    "fresh_pointed8", ROOT / "studies" / "fresh_pointed8.py"
-)
-_MODULE = importlib.util.module_from_spec(_SPEC)
-_SPEC.loader.exec_module(_MODULE)
-main, pointed_family = _MODULE.main, _MODULE.pointed_family
+from shared_helpers import STUDIES, study
+
+_SPLIT = study("fresh_pointed8")
+main, pointed_family = _SPLIT.main, _SPLIT.pointed_family
 
 
 def test_families_are_recognised_from_id_env_and_argv():
@@ -49,7 +44,7 @@ def test_split_counts_every_case_once(tmp_path, capsys):
 
 
 def test_the_set_splits_into_both_groups():
-    lines = (ROOT / "studies" / "fresh_cases8.txt").read_text(encoding="utf-8").splitlines()
+    lines = (STUDIES / "fresh_cases8.txt").read_text(encoding="utf-8").splitlines()
     cases = [line for line in lines if line.strip() and not line.startswith("#")]
     named = [line for line in cases if pointed_family(line)]
     assert 0 < len(named) < len(cases)

@@ -2,26 +2,14 @@
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
+from shared_helpers import STUDIES, made_up_split, study
 
-from shared_helpers import made_up_split
-
-ROOT = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(ROOT / "studies"))
-_SPEC = importlib.util.spec_from_file_location(
-    "fresh_pointed9", ROOT / "studies" / "fresh_pointed9.py"
-)
-_MODULE = importlib.util.module_from_spec(_SPEC)
-_SPEC.loader.exec_module(_MODULE)
-main, POINTED = _MODULE.main, _MODULE.POINTED
+_SPLIT = study("fresh_pointed9")
+main, POINTED = _SPLIT.main, _SPLIT.POINTED
 
 
 def family(line: str) -> str | None:
-    from fresh_pointed8 import pointed_family
-
-    return pointed_family(line, POINTED)
+    return study("fresh_pointed8").pointed_family(line, POINTED)
 
 
 def test_families_are_recognised_from_env_and_argv():
@@ -44,7 +32,7 @@ def test_split_of_a_made_up_run(tmp_path, capsys):
 
 
 def test_the_set_splits_into_both_groups():
-    lines = (ROOT / "studies" / "fresh_cases9.txt").read_text(encoding="utf-8").splitlines()
+    lines = (STUDIES / "fresh_cases9.txt").read_text(encoding="utf-8").splitlines()
     cases = [line for line in lines if line.strip() and not line.startswith("#")]
     named = [line for line in cases if family(line)]
     assert 0 < len(named) < len(cases) // 5

@@ -5,28 +5,17 @@ each set with every set before it (no case is run here)."""
 from __future__ import annotations
 
 import re
-import sys
 from collections import Counter
 from pathlib import Path
 
 import pytest
+from shared_helpers import study
 
 ROOT = Path(__file__).resolve().parents[2]
 STUDIES = ROOT / "studies"
 
 SETS = {10: ((22, 26), (200, 230)), 11: ((16, 19), (150, 165))}
 """Set number -> (cases per script, cases in all), the ranges its writer fixed."""
-
-
-@pytest.fixture(scope="module")
-def fresh():
-    sys.path.insert(0, str(STUDIES))
-    try:
-        import fresh_cases
-
-        yield fresh_cases
-    finally:
-        sys.path.remove(str(STUDIES))
 
 
 @pytest.mark.parametrize("number", list(SETS))
@@ -63,11 +52,7 @@ def test_a_sets_templates_form(fresh, number: int) -> None:
 def test_the_screen_held_every_set_before_a_set(number: int) -> None:
     """The screen compares a set only with the sets listed before its own name: for each set,
     every earlier one, in order."""
-    sys.path.insert(0, str(STUDIES))
-    try:
-        import screen_cases
-    finally:
-        sys.path.remove(str(STUDIES))
+    screen_cases = study("screen_cases")
     name, earlier = f"fresh_cases{number}.txt", list(screen_cases.EARLIER)
     before = earlier[: earlier.index(name)] if name in earlier else earlier  # (the newest)
     assert before == ["fresh_cases.txt", *(f"fresh_cases{k}.txt" for k in range(2, number))]
