@@ -188,9 +188,8 @@ class SlamConfig:
     thread for its own mask, carried from that frame's pose (null = off: only keyframes are
     segmented). Without a keyframe no mask is asked for, and a stale mask that hides the
     background where the people were can leave too few inliers to make one, or undo each
-    relocalisation. An experiment, dropped by its pre-registered rule at 1.0 s (one sequence
-    ×1.26 of without it; where frames were lost it lost more: docs/results/slam.md, "a mask for
-    a frame when the carried one is stale")."""
+    relocalisation. An experiment, off: dropped by its pre-registered rule (docs/results/
+    slam.md, "a mask for a frame when the carried one is stale")."""
     mask_refines_past: str = ranged(MASK_REFINES_PAST_DEFAULT, choices=MASK_REFINES_PAST)
     """With ``segment=thread`` (the other schedules ignore it): a mask that comes late also
     corrects the past: ``points``, local BA around its keyframe again without the map points it

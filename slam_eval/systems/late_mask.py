@@ -64,6 +64,7 @@ def refine_frames(
     loop's camera-to-world poses as tracked) and, with the back end, put back on its reference
     keyframe in ``anchors`` (None without one); returns how many were refined."""
     bad = slam_map.points.bad.view
+    source = carried.source_pose(slam_map)
     refined_frames = 0
     for frame in past:
         ids = frame.matched
@@ -75,7 +76,7 @@ def refine_frames(
         drop = np.zeros(len(ids), bool)
         drop[used] = bad[ids[used]]
         if region_of is not None:
-            labels = carried.labels_at(invert(pose) @ carried.source_pose(slam_map))
+            labels = carried.labels_at(invert(pose) @ source)
             region = region_of(labels)
             if region is not None:
                 drop |= used & values_at(region, frame.features.xy)

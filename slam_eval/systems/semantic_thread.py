@@ -340,9 +340,8 @@ class CarriedMask:
         order = np.argsort(-zz, kind="stable")
         _, comp = cv2.connectedComponents((lab > 0).astype(np.uint8), connectivity=8)
         region = comp[rows, cols][order]
-        carried = cls(kf_id, pts[order], lab[rows, cols][order], labels.shape, k, region, stamp)
-        carried.anchor = anchor
-        return carried
+        classes = lab[rows, cols][order]
+        return cls(kf_id, pts[order], classes, labels.shape, k, region, stamp, anchor=anchor)
 
     def source_pose(self, slam_map: SlamMap) -> np.ndarray:
         """The camera-to-world pose (4, 4) the mask is carried from, as the map holds it now:
